@@ -1,0 +1,83 @@
+"""SGMConfig: every tunable constant of the Surface Geometry Model, in one frozen place.
+
+The config is hashable and passed as a jit static argument: changing a field
+recompiles, changing data (depths, K, T_cam_lidar) does not. Calibration lives
+in :class:`~jaxdepth.Camera`, never here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+_METRICS = ("l1", "l2")
+
+
+@dataclasses.dataclass(frozen=True)
+class SGMConfig:
+    """Constants of the four SGM steps. Defaults follow the paper where it gives a value.
+
+    Attributes:
+      outlier_removal: run Step 2 (the paper's Algorithm 1).
+      epsilon_m: Algorithm 1's depth margin epsilon, metres (paper: 1.0 m).
+      outlier_max_half_width_px: static cap on the horizontal half window. The
+        paper's bound |du| < W*L/N is computed at run time from the number N of
+        projected points; offsets beyond this cap are never visited.
+      outlier_max_half_height_px: static cap on the vertical half window. The
+        paper's bound |dv| < H/L is static (image height, beam count).
+      distance_metric: "l1" (city block, exact; the paper's Appendix uses l1) or
+        "l2" (exact Euclidean) for the nearest-seed transform of Step 3.
+      normal_smoothing: half width of the box filter that smooths normals on
+        the range image (0 disables). The paper fills and smooths normals so
+        every point has one.
+      range_fill_max_gap: empty range-image cells up to this many columns from a
+        measured cell borrow its range when computing derivatives.
+      min_abs_denom: the residual's denominator n . ((u-pu)/fu, (v-pv)/fv, 1)
+        below this magnitude (grazing surface) gives Delta z = 0 (finite values
+        and gradients).
+      max_residual_ratio: |Delta z| is clipped to this fraction of z'.
+      smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
+      smoothing_radius_px: Gaussian kernel half width, pixels (kernel 2r+1).
+      keep_measured_depth: LiDAR pixels kept by Step 2 keep their measured depth
+        in the output (after smoothing).
+      min_depth_m, max_depth_m: output clip range, metres.
+    """
+
+    outlier_removal: bool = True
+    epsilon_m: float = 1.0
+    outlier_max_half_width_px: int = 12
+    outlier_max_half_height_px: int = 24
+    distance_metric: str = "l1"
+    normal_smoothing: int = 1
+    range_fill_max_gap: int = 2
+    min_abs_denom: float = 0.05
+    max_residual_ratio: float = 0.5
+    smoothing_sigma_px: float = 1.0
+    smoothing_radius_px: int = 2
+    keep_measured_depth: bool = True
+    min_depth_m: float = 0.1
+    max_depth_m: float = 150.0
+
+    def __post_init__(self):
+        if self.distance_metric not in _METRICS:
+            raise ValueError(
+                f"SGMConfig: field 'distance_metric' expected one of {_METRICS}, "
+                f"got {self.distance_metric!r}")
+        if not self.epsilon_m >= 0:
+            raise ValueError(f"SGMConfig: field 'epsilon_m' expected >= 0, got {self.epsilon_m!r}")
+        if not 0 < self.min_depth_m < self.max_depth_m:
+            raise ValueError(
+                "SGMConfig: fields 'min_depth_m' < 'max_depth_m' expected positive and ordered, "
+                f"got {self.min_depth_m!r}, {self.max_depth_m!r}")
+        for name in ("outlier_max_half_width_px", "outlier_max_half_height_px",
+                     "smoothing_radius_px", "normal_smoothing", "range_fill_max_gap"):
+            value = getattr(self, name)
+            if int(value) != value or value < 0:
+                raise ValueError(f"SGMConfig: field {name!r} expected a non-negative integer, got {value!r}")
+        if self.smoothing_sigma_px < 0:
+            raise ValueError(
+                f"SGMConfig: field 'smoothing_sigma_px' expected >= 0, got {self.smoothing_sigma_px!r}")
+        if self.min_abs_denom <= 0:
+            raise ValueError(f"SGMConfig: field 'min_abs_denom' expected > 0, got {self.min_abs_denom!r}")
+
+    def replace(self, **changes) -> "SGMConfig":
+        return dataclasses.replace(self, **changes)

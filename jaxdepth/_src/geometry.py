@@ -1,0 +1,108 @@
+"""Camera geometry: rigid transforms, pinhole projection with a z-buffer, back-projection.
+
+Conventions: ``p_cam = T_cam_lidar @ p_lidar``; the camera looks along +z with x
+right and y down; ``u`` is the column and ``v`` the row; a point projects to the
+pixel ``(round(fx x/z + s y/z + cx), round(fy y/z + cy))`` (pixel centres sit on
+integer coordinates, as in KITTI's ``velodyne_raw``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+
+def transform_points(T: jax.Array, points: jax.Array) -> jax.Array:
+    """Applies a (4, 4) rigid transform to (N, 3) points; returns (N, 3)."""
+    T = jnp.asarray(T, jnp.float32)
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def invert_rigid(T: jax.Array) -> jax.Array:
+    """Inverse of a (4, 4) rigid transform [R | t] as [R^T | -R^T t]."""
+    T = jnp.asarray(T, jnp.float32)
+    R = T[:3, :3]
+    t = T[:3, 3]
+    top = jnp.concatenate([R.T, (-R.T @ t)[:, None]], axis=1)
+    return jnp.concatenate([top, jnp.array([[0.0, 0.0, 0.0, 1.0]], jnp.float32)], axis=0)
+
+
+def project_pixels(points_cam: jax.Array, K: jax.Array, *, min_depth_m: float = 0.1):
+    """Pinhole projection of (N, 3) camera-frame points.
+
+    Returns:
+      (u, v, z, in_front): u, v float32 pixel coordinates (not rounded), z float32
+      metres, and a bool mask of points with finite coordinates and z > min_depth_m.
+    """
+    K = jnp.asarray(K, jnp.float32)
+    x, y, z = points_cam[:, 0], points_cam[:, 1], points_cam[:, 2]
+    in_front = jnp.isfinite(x) & jnp.isfinite(y) & jnp.isfinite(z) & (z > min_depth_m)
+    safe_z = jnp.where(in_front, z, 1.0)
+    xs = jnp.where(in_front, x, 0.0) / safe_z
+    ys = jnp.where(in_front, y, 0.0) / safe_z
+    u = K[0, 0] * xs + K[0, 1] * ys + K[0, 2]
+    v = K[1, 1] * ys + K[1, 2]
+    return u, v, jnp.where(in_front, z, 0.0), in_front
+
+
+@functools.partial(jax.jit, static_argnames=("height", "width", "min_depth_m"))
+def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
+                     *, height: int, width: int, min_depth_m: float = 0.1):
+    """Projects a LiDAR sweep into one camera with a nearest-point z-buffer.
+
+    Args:
+      points: (N, 3) float32 LiDAR-frame points, metres.
+      valid: (N,) bool; invalid (padding) points and non-finite points are ignored.
+      K: (3, 3) intrinsics. T_cam_lidar: (4, 4) LiDAR -> camera.
+      height, width: static image size.
+      min_depth_m: points closer than this (or behind the camera) are dropped.
+
+    Returns:
+      (depth, index): depth (H, W) float32 metres with 0 = empty; index (H, W)
+      int32, the point that won each pixel (smallest depth; among equal depths the
+      smallest point index), -1 where empty. Scatter-min makes the result
+      independent of the order in which duplicates are applied.
+    """
+    n = points.shape[0]
+    p = transform_points(T_cam_lidar, points.astype(jnp.float32))
+    u, v, z, ok = project_pixels(p, K, min_depth_m=min_depth_m)
+    ok = ok & valid.astype(bool)
+    ui = jnp.round(u)
+    vi = jnp.round(v)
+    inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
+    dump = height * width
+    flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
+    zbuf = jnp.full((dump + 1,), jnp.inf, jnp.float32).at[flat].min(jnp.where(inside, z, jnp.inf))
+    winner = inside & (zbuf[flat] == z)
+    idx = jnp.full((dump + 1,), n, jnp.int32).at[flat].min(
+        jnp.where(winner, jnp.arange(n, dtype=jnp.int32), n))
+    depth = jnp.where(jnp.isfinite(zbuf[:dump]), zbuf[:dump], 0.0).reshape(height, width)
+    index = jnp.where(idx[:dump] == n, -1, idx[:dump]).reshape(height, width)
+    return depth, index
+
+
+def pixel_grid(height: int, width: int):
+    """(v, u) float32 pixel coordinate grids of shape (H, W)."""
+    v, u = jnp.meshgrid(jnp.arange(height, dtype=jnp.float32),
+                        jnp.arange(width, dtype=jnp.float32), indexing="ij")
+    return v, u
+
+
+def unproject_depth(depth: jax.Array, K: jax.Array) -> jax.Array:
+    """Back-projects a depth image to camera-frame points.
+
+    Args:
+      depth: (H, W) float32 metres (0 = empty gives the camera centre).
+      K: (3, 3) intrinsics.
+
+    Returns:
+      (H, W, 3) float32 points ``depth * K^-1 [u, v, 1]``.
+    """
+    K = jnp.asarray(K, jnp.float32)
+    h, w = depth.shape
+    v, u = pixel_grid(h, w)
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return jnp.stack([x * depth, y * depth, depth], axis=-1)
