@@ -1,0 +1,190 @@
+"""KITTI depth PNG reader / writer."""
+
+from __future__ import annotations
+
+import pathlib
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxdepth.io import InputError, OutputError, encode_depth_uint16, read_depth_png, write_depth_png
+
+_HYP = settings(deadline=None, max_examples=30, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def test_reads_official_velodyne_raw(kitti_frame):
+    path = kitti_frame / "velodyne_raw_image_02.png"
+    depth = read_depth_png(path)
+    oracle = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH)
+    assert oracle.dtype == np.uint16
+    assert depth.dtype == np.float32 and depth.shape == (375, 1242)
+    np.testing.assert_array_equal(depth, oracle.astype(np.float64) / 256.0)
+    assert int((depth > 0).sum()) == 19154  # data README
+    assert 0 < depth[depth > 0].min() and depth.max() < 256
+
+
+def test_groundtruth_facts(kitti_frame):
+    gt = read_depth_png(kitti_frame / "groundtruth_image_02.png")
+    assert int((gt > 0).sum()) == 90839
+    assert not gt[:119].any()  # rows 0-118 empty (data README)
+
+
+def test_rejects_colour_8bit_and_jpeg(kitti_frame, nuscenes_sample, tmp_path):
+    with pytest.raises(InputError, match=r"image_02\.png: expected a 16-bit greyscale PNG .*got a 8-bit RGB colour PNG"):
+        read_depth_png(kitti_frame / "image_02.png")
+    grey8 = tmp_path / "grey8.png"
+    cv2.imwrite(str(grey8), np.zeros((4, 5), np.uint8))
+    with pytest.raises(InputError, match=r"grey8\.png: .*got a 8-bit greyscale PNG"):
+        read_depth_png(grey8)
+    rgb16 = tmp_path / "rgb16.png"
+    cv2.imwrite(str(rgb16), np.zeros((4, 5, 3), np.uint16))
+    with pytest.raises(InputError, match=r"rgb16\.png: .*got a 16-bit RGB colour PNG"):
+        read_depth_png(rgb16)
+    jpeg = next(nuscenes_sample.glob("*CAM_FRONT__*.jpg"))
+    with pytest.raises(InputError, match=r"CAM_FRONT.*\.jpg: not a PNG file"):
+        read_depth_png(jpeg)
+
+
+def test_missing_empty_folder(tmp_path):
+    with pytest.raises(InputError, match=r"nope\.png: file not found"):
+        read_depth_png(tmp_path / "nope.png")
+    (tmp_path / "empty.png").write_bytes(b"")
+    with pytest.raises(InputError, match=r"empty\.png: file is empty"):
+        read_depth_png(tmp_path / "empty.png")
+    with pytest.raises(InputError, match=r"is a folder"):
+        read_depth_png(tmp_path)
+
+
+def test_header_checksum_and_size(tmp_path, kitti_frame):
+    data = bytearray((kitti_frame / "velodyne_raw_image_02.png").read_bytes())
+    bad = bytearray(data)
+    bad[17] ^= 0xFF  # width byte: IHDR CRC no longer matches
+    (tmp_path / "a.png").write_bytes(bytes(bad))
+    with pytest.raises(InputError, match=r"a\.png: corrupt PNG: IHDR checksum mismatch"):
+        read_depth_png(tmp_path / "a.png")
+    # A consistent header with an absurd size is refused before decoding.
+    ihdr = struct.pack(">IIBBBBB", 1 << 20, 1 << 20, 16, 0, 0, 0, 0)
+    chunk = struct.pack(">I", 13) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    (tmp_path / "b.png").write_bytes(bytes(data[:8]) + chunk + bytes(data[33:]))
+    with pytest.raises(InputError, match=r"b\.png: corrupt PNG: image size 1048576x1048576"):
+        read_depth_png(tmp_path / "b.png")
+
+
+@pytest.fixture(scope="module")
+def real_png_bytes(kitti_frame) -> bytes:
+    return (kitti_frame / "velodyne_raw_image_02.png").read_bytes()
+
+
+@pytest.mark.parametrize("keep", [0, 5, 8, 20, 33, 40, 100, 1000, -1000, -13, -12, -1])
+def test_truncations_are_input_errors(tmp_path, real_png_bytes, keep):
+    path = tmp_path / "t.png"
+    path.write_bytes(real_png_bytes[:keep])
+    if keep in (-12, -1):
+        # Only the IEND chunk (or part of it) is missing: all pixel data is
+        # present and decodes exactly; anything else is an InputError.
+        try:
+            got = read_depth_png(path)
+        except InputError:
+            return
+        np.testing.assert_array_equal(got, read_depth_png(_write(tmp_path / "ok.png", real_png_bytes)))
+        return
+    with pytest.raises(InputError, match=r"t\.png: "):
+        read_depth_png(path)
+
+
+def _write(path: pathlib.Path, data: bytes) -> pathlib.Path:
+    path.write_bytes(data)
+    return path
+
+
+@_HYP
+@given(cut=st.integers(min_value=0, max_value=200_000))
+def test_fuzz_truncation(tmp_path, real_png_bytes, cut):
+    path = _write(tmp_path / "f.png", real_png_bytes[: min(cut, len(real_png_bytes) - 13)])
+    with pytest.raises(InputError):
+        read_depth_png(path)
+
+
+@_HYP
+@given(data=st.binary(max_size=512), with_signature=st.booleans())
+def test_fuzz_random_bytes(tmp_path, data, with_signature):
+    path = _write(tmp_path / "r.png", (b"\x89PNG\r\n\x1a\n" if with_signature else b"") + data)
+    with pytest.raises(InputError):
+        read_depth_png(path)
+
+
+@_HYP
+@given(flips=st.lists(st.tuples(st.integers(0, 10**9), st.integers(1, 255)), min_size=1, max_size=4))
+def test_fuzz_byte_flips(tmp_path, real_png_bytes, flips):
+    """Corrupting bytes gives an InputError or (harmless chunks) a well-formed depth map."""
+    data = bytearray(real_png_bytes)
+    for pos, mask in flips:
+        data[pos % len(data)] ^= mask
+    try:
+        depth = read_depth_png(_write(tmp_path / "b.png", bytes(data)))
+    except InputError:
+        return
+    assert depth.dtype == np.float32 and depth.ndim == 2 and np.all(np.isfinite(depth))
+
+
+def test_encode_rounding_and_clipping():
+    depth = np.array([[0.0, 1 / 256, 0.5 / 256 * 0.99, 1.0],
+                      [255.996, 300.0, -1.0, np.inf],
+                      [-np.inf, 10.0 + 0.49 / 256, 10.0 + 0.51 / 256, 1e-9]], np.float32)
+    got = encode_depth_uint16(depth)
+    want = np.array([[0, 1, 0, 256],
+                     [65535, 65535, 0, 65535],
+                     [0, 2560, 2561, 0]], np.uint16)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_encode_rejects_nan_and_bad_shapes():
+    with pytest.raises(ValueError, match=r"'depth_m' expected no NaN .*got 1 NaN pixels"):
+        encode_depth_uint16(np.array([[1.0, np.nan]], np.float32))
+    with pytest.raises(ValueError, match=r"'depth_m' expected a non-empty \(H, W\) array, got shape \(3,\)"):
+        encode_depth_uint16(np.zeros(3))
+    with pytest.raises(ValueError, match=r"expected real numbers"):
+        encode_depth_uint16(np.zeros((2, 2), complex))
+
+
+@settings(deadline=None, max_examples=30)
+@given(h=st.integers(1, 20), w=st.integers(1, 20), seed=st.integers(0, 2**32 - 1),
+       empty_share=st.floats(0.0, 1.0))
+def test_round_trip_within_half_step(tmp_path_factory, h, w, seed, empty_share):
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(0.01, 255.9, (h, w)).astype(np.float32)
+    depth[rng.random((h, w)) < empty_share] = 0.0
+    before = depth.copy()
+    path = tmp_path_factory.mktemp("png") / "d.png"
+    write_depth_png(path, depth)
+    np.testing.assert_array_equal(depth, before)  # input untouched
+    back = read_depth_png(path)
+    assert back.dtype == np.float32 and back.shape == (h, w)
+    assert np.max(np.abs(back - depth)) <= 1 / 512 + 1e-4
+    np.testing.assert_array_equal(back == 0, depth == 0)  # 0 stays 0, nothing >= 1/256 m vanishes
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # independent decoder path
+    np.testing.assert_array_equal(raw, np.clip(np.rint(depth.astype(np.float64) * 256), 0, 65535))
+
+
+def test_real_file_round_trip_is_exact_and_deterministic(tmp_path, kitti_frame):
+    depth = read_depth_png(kitti_frame / "groundtruth_image_02.png")
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    write_depth_png(a, depth)
+    write_depth_png(b, depth.copy())
+    assert a.read_bytes() == b.read_bytes()
+    np.testing.assert_array_equal(read_depth_png(a), depth)
+
+
+def test_write_overwrite_flag(tmp_path):
+    path = tmp_path / "d.png"
+    write_depth_png(path, np.ones((2, 2), np.float32))
+    with pytest.raises(OutputError, match="already exists"):
+        write_depth_png(path, np.zeros((2, 2), np.float32), overwrite=False)
+    np.testing.assert_array_equal(read_depth_png(path), np.ones((2, 2)))
+    write_depth_png(path, np.zeros((2, 2), np.float32))
+    np.testing.assert_array_equal(read_depth_png(path), np.zeros((2, 2)))
