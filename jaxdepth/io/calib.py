@@ -1,0 +1,227 @@
+"""KITTI calibration text files and plain intrinsics files.
+
+Readers return float32 NumPy arrays; the arithmetic that combines matrices is
+done in float64 and rounded once at the end.
+
+Conventions (as in :mod:`jaxdepth._src.geometry`): ``p_cam = T_cam_lidar @ p_lidar``;
+``K`` is the (3, 3) pinhole matrix of a *rectified* camera. KITTI gives each
+rectified camera ``i`` as a (3, 4) projection ``P_rect_0i = K_i [I | t_i]``
+acting on points in the rectified frame of camera 0, so
+
+    T_cam_i_lidar = [I | t_i] @ R_rect_00 @ [R | T]_velo_to_cam,   t_i = K_i^-1 P_rect_0i[:, 3]
+
+and ``K_i @ T_cam_i_lidar[:3] == P_rect_0i @ R_rect_00 @ [R | T]_velo_to_cam``:
+projecting with ``(K_i, T_cam_i_lidar)`` is exactly KITTI's official projection.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from jaxdepth.io.errors import PathLike, field_error, file_error
+
+#: Tolerance of the rotation checks (KITTI prints 7 significant digits).
+ROTATION_TOL = 1e-3
+
+
+def _read_text(path: pathlib.Path) -> str:
+    if not path.exists():
+        raise file_error(path, "file not found")
+    if path.is_dir():
+        raise file_error(path, "is a folder, expected a text file")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise file_error(path, f"expected a UTF-8 text file, got undecodable bytes at offset {exc.start}") from None
+
+
+def _parse_kv(path: pathlib.Path) -> dict[str, str]:
+    """``key: value ...`` lines -> {key: value text}; blank lines are skipped."""
+    fields: dict[str, str] = {}
+    for lineno, line in enumerate(_read_text(path).splitlines(), start=1):
+        if not line.strip():
+            continue
+        key, sep, value = line.partition(":")
+        key = key.strip()
+        if not sep or not key:
+            raise file_error(path, f"line {lineno}: expected 'key: values', got {line.strip()[:40]!r}")
+        if key in fields:
+            raise file_error(path, f"line {lineno}: field '{key}' appears twice")
+        fields[key] = value
+    return fields
+
+
+def _parse_floats(path: pathlib.Path, field: str, text: str, count: int) -> np.ndarray:
+    tokens = text.replace(",", " ").split()
+    values = []
+    for token in tokens:
+        try:
+            values.append(float(token))
+        except ValueError:
+            raise field_error(path, field, f"{count} floats", f"non-number {token[:20]!r}") from None
+    if len(values) != count:
+        raise field_error(path, field, f"{count} floats", len(values))
+    array = np.asarray(values, np.float64)
+    if not np.all(np.isfinite(array)):
+        raise field_error(path, field, f"{count} finite floats", f"{array[~np.isfinite(array)][0]}")
+    return array
+
+
+def _floats(path: pathlib.Path, fields: dict[str, str], key: str, count: int) -> np.ndarray:
+    if key not in fields:
+        raise file_error(path, f"missing field '{key}' (expected {count} floats)")
+    return _parse_floats(path, key, fields[key], count)
+
+
+def _check_K(path: pathlib.Path, field: str, K: np.ndarray) -> None:
+    """Pinhole K: positive focal lengths, K[1, 0] == 0, bottom row (0, 0, 1)."""
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise field_error(path, field, "positive focal lengths fx, fy", f"fx={K[0, 0]:g}, fy={K[1, 1]:g}")
+    if abs(K[1, 0]) > 1e-9 or np.max(np.abs(K[2] - [0.0, 0.0, 1.0])) > 1e-6:
+        raise field_error(path, field, "a pinhole matrix with K[1, 0] = 0 and last row (0, 0, 1)",
+                          f"K[1, 0]={K[1, 0]:g}, last row {K[2].tolist()}")
+
+
+def _check_rotation(path: pathlib.Path, field: str, R: np.ndarray) -> None:
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        raise field_error(path, field, f"a rotation (R^T R = I within {ROTATION_TOL:g}, det = +1)",
+                          f"max |R^T R - I| = {err:.3g}, det = {det:.6g}")
+
+
+def _split_P(path: pathlib.Path, field: str, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(3, 4) rectified projection -> (K (3, 3), t (3,)) with P = K [I | t]."""
+    K = P[:, :3]
+    _check_K(path, field, K)
+    return K, np.linalg.solve(K, P[:, 3])
+
+
+def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _cameras(path: pathlib.Path, P: dict[int, np.ndarray], names: dict[int, str], R_rect: np.ndarray,
+             T_velo: np.ndarray, sizes: dict[int, tuple[int, int] | tuple[None, None]]) -> dict[str, Any]:
+    R_rect4 = _rigid(R_rect, np.zeros(3))
+    cams: dict[int, dict[str, Any]] = {}
+    centres = {}
+    for i in sorted(P):
+        K, t = _split_P(path, names[i], P[i])
+        T = _rigid(np.eye(3), t) @ R_rect4 @ T_velo
+        width, height = sizes[i]
+        cams[i] = {"K": K.astype(np.float32), "T_cam_lidar": T.astype(np.float32), "width": width, "height": height}
+        centres[i] = -T[:3, :3].T @ T[:3, 3]  # camera centre in the LiDAR frame
+    return {
+        "cameras": cams,
+        "baseline_m": float(np.linalg.norm(centres[2] - centres[3])),
+        "baseline_gray_m": float(np.linalg.norm(centres[0] - centres[1])),
+        "R_rect_00": R_rect.astype(np.float32),
+        "T_cam0_unrect_lidar": T_velo.astype(np.float32),
+    }
+
+
+def read_intrinsics_txt(path: PathLike) -> np.ndarray:
+    """Reads a KITTI depth-completion intrinsics file (9 numbers, row-major K).
+
+    Args:
+      path: text file with the 9 entries of K separated by white space (and/or
+        commas) on one or several lines, as in ``val_selection_cropped/intrinsics/*.txt``.
+
+    Returns:
+      (3, 3) float32 K in pixels.
+
+    Raises:
+      InputError: missing file, not 9 numbers, non-finite values, non-positive
+        focal length, or not a pinhole matrix (``K[1, 0] != 0`` or last row not
+        ``(0, 0, 1)``, which :func:`jaxdepth._src.geometry.project_pixels` assumes).
+    """
+    path = pathlib.Path(path)
+    K = _parse_floats(path, "K", _read_text(path), 9).reshape(3, 3)
+    _check_K(path, "K", K)
+    return K.astype(np.float32)
+
+
+def read_kitti_raw_calib(cam_to_cam_path: PathLike, velo_to_cam_path: PathLike) -> dict[str, Any]:
+    """Reads KITTI raw ``calib_cam_to_cam.txt`` + ``calib_velo_to_cam.txt``.
+
+    Args:
+      cam_to_cam_path: needs ``R_rect_00`` and, for cameras i = 0..3,
+        ``P_rect_0i`` (12 floats) and ``S_rect_0i`` (width height).
+      velo_to_cam_path: needs ``R`` (9 floats) and ``T`` (3 floats), the LiDAR
+        -> unrectified camera 0 transform.
+
+    Returns:
+      A dict with
+
+      - ``"cameras"``: ``{i: {"K": (3, 3) float32, "T_cam_lidar": (4, 4) float32,
+        "width": int, "height": int}}`` for i = 0, 1 (grey) and 2, 3 (colour);
+        ``K`` is the left 3x3 block of ``P_rect_0i``, the size comes from
+        ``S_rect_0i``, ``T_cam_lidar`` is given in the module docstring;
+      - ``"baseline_m"``: float, distance between the centres of cameras 2 and 3
+        (the colour stereo pair); ``"baseline_gray_m"``: cameras 0 and 1;
+      - ``"R_rect_00"``: (3, 3) float32; ``"T_cam0_unrect_lidar"``: (4, 4) float32
+        ``[R | T]`` of the velo-to-cam file.
+
+    Raises:
+      InputError: a file is missing, a field is missing or has the wrong number
+        of floats, a value is not finite, a focal length is not positive, or
+        ``R`` / ``R_rect_00`` is not a rotation. The message names file and field.
+    """
+    c2c = pathlib.Path(cam_to_cam_path)
+    v2c = pathlib.Path(velo_to_cam_path)
+    fc = _parse_kv(c2c)
+    fv = _parse_kv(v2c)
+    R = _floats(v2c, fv, "R", 9).reshape(3, 3)
+    _check_rotation(v2c, "R", R)
+    T = _floats(v2c, fv, "T", 3)
+    R_rect = _floats(c2c, fc, "R_rect_00", 9).reshape(3, 3)
+    _check_rotation(c2c, "R_rect_00", R_rect)
+    P, names, sizes = {}, {}, {}
+    for i in range(4):
+        names[i] = f"P_rect_0{i}"
+        P[i] = _floats(c2c, fc, names[i], 12).reshape(3, 4)
+        size = _floats(c2c, fc, f"S_rect_0{i}", 2)
+        if np.any(size < 1) or np.any(size != np.round(size)):
+            raise field_error(c2c, f"S_rect_0{i}", "a positive integer width and height", size.tolist())
+        sizes[i] = (int(size[0]), int(size[1]))
+    return _cameras(c2c, P, names, R_rect, _rigid(R, T), sizes)
+
+
+def read_kitti_object_calib(path: PathLike) -> dict[str, Any]:
+    """Reads a KITTI 3D-object calibration file (``training/calib/000000.txt``).
+
+    Args:
+      path: needs ``P0``..``P3`` (12 floats each), ``R0_rect`` (9) and
+        ``Tr_velo_to_cam`` (12, row-major 3x4).
+
+    Returns:
+      The same dict as :func:`read_kitti_raw_calib`, except that ``"width"`` and
+      ``"height"`` are ``None`` (the object format does not store image sizes).
+
+    Raises:
+      InputError: as :func:`read_kitti_raw_calib`.
+    """
+    path = pathlib.Path(path)
+    fields = _parse_kv(path)
+    Tr = _floats(path, fields, "Tr_velo_to_cam", 12).reshape(3, 4)
+    _check_rotation(path, "Tr_velo_to_cam", Tr[:, :3])
+    R_rect = _floats(path, fields, "R0_rect", 9).reshape(3, 3)
+    _check_rotation(path, "R0_rect", R_rect)
+    P = {i: _floats(path, fields, f"P{i}", 12).reshape(3, 4) for i in range(4)}
+    names = {i: f"P{i}" for i in range(4)}
+    sizes = {i: (None, None) for i in range(4)}
+    return _cameras(path, P, names, R_rect, _rigid(Tr[:, :3], Tr[:, 3]), sizes)
+
+
+__all__ = ["read_intrinsics_txt", "read_kitti_raw_calib", "read_kitti_object_calib"]
