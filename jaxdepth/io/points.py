@@ -1,0 +1,216 @@
+"""LiDAR sweeps: reading point files and padding them to static-size buckets.
+
+File formats (metres, LiDAR frame):
+
+- ``.bin``: little-endian float32 records of ``columns`` values, the first three
+  are x, y, z (KITTI velodyne: 4 = x, y, z, reflectance; nuScenes ``.pcd.bin``:
+  5 = x, y, z, intensity, ring index);
+- ``.npy``: one (N, columns) real array;
+- ``.npz``: the array under key ``"points"``, or the only array in the archive.
+
+Non-finite coordinates (NaN, inf) are *not* an error when reading: some drivers
+write them for missing returns. :func:`pad_points` marks them invalid, so they
+never reach a projection.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+import zipfile
+import zlib
+from typing import BinaryIO
+
+import numpy as np
+
+from jaxdepth.io.errors import InputError, PathLike, file_error
+
+#: Smallest padded size: sweeps are padded to max(MIN_BUCKET, next power of two).
+MIN_BUCKET = 1024
+
+
+def _check_columns(columns: int) -> int:
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 3:
+        raise ValueError(f"read_points: field 'columns' expected an integer >= 3, got {columns!r}")
+    return int(columns)
+
+
+def _split(path: pathlib.Path, array: np.ndarray, columns: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    if array.dtype.kind not in "fiu":
+        raise file_error(path, f"{what} expected a real-valued array, got dtype {array.dtype}")
+    if array.ndim != 2 or array.shape[1] != columns:
+        raise file_error(path, f"{what} expected shape (N, {columns}) for columns={columns}, got {array.shape}")
+    if array.shape[0] == 0:
+        raise file_error(path, f"{what} contains no points, expected at least one")
+    with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32 range -> inf, kept as data
+        data = array.astype(np.float32)
+    return np.ascontiguousarray(data[:, :3]), np.ascontiguousarray(data[:, 3:])
+
+
+def _read_bin(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    record = 4 * columns
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    if len(raw) == 0:
+        raise file_error(path, f"file is empty, expected float32 records of {columns} values")
+    if len(raw) % record:
+        raise file_error(path, f"size {len(raw)} bytes is not a whole number of {columns}-value float32 records "
+                         f"({record} bytes each; {len(raw) // record} records + {len(raw) % record} bytes); "
+                         "check 'columns' (KITTI 4, nuScenes 5)")
+    array = np.frombuffer(raw, dtype="<f4").reshape(-1, columns)
+    return _split(path, array, columns, "file")
+
+
+# Everything a corrupt .npy / .npz can raise while being parsed.
+_PARSE_ERRORS = (ValueError, OSError, EOFError, TypeError, KeyError, SyntaxError, OverflowError,
+                 zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, zlib.error)
+
+
+def _parse_npy(path: pathlib.Path, stream: BinaryIO, available: int, what: str) -> np.ndarray:
+    """Parses one .npy stream with ``available`` bytes, checking the header against the size.
+
+    ``np.load`` would trust the header's shape (and allocate it) before noticing
+    that the data are missing; this reads only what the file holds.
+    """
+    start = stream.tell() if stream.seekable() else 0
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version in ((2, 0), (3, 0)):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:
+        raise ValueError(f"unsupported .npy format version {version}")
+    header_len = (stream.tell() - start) if stream.seekable() else None
+    if dtype.hasobject or dtype.kind not in "fiu":
+        raise file_error(path, f"{what} expected a real-valued array, got dtype {dtype}")
+    count = math.prod(int(d) for d in shape)
+    nbytes = count * dtype.itemsize
+    if header_len is not None and nbytes > available - header_len:
+        raise file_error(path, f"{what} is truncated: header says shape {shape} ({nbytes} bytes), "
+                         f"the file holds {max(available - header_len, 0)} bytes of data")
+    data = stream.read(nbytes)
+    if len(data) != nbytes:
+        raise file_error(path, f"{what} is truncated: expected {nbytes} bytes of data, got {len(data)}")
+    return np.frombuffer(data, dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def _read_npy(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        with open(path, "rb") as stream:
+            array = _parse_npy(path, stream, path.stat().st_size, "array")
+    except InputError:
+        raise
+    except _PARSE_ERRORS as exc:
+        raise file_error(path, f"not a readable .npy array ({type(exc).__name__}: {str(exc)[:80]})") from None
+    return _split(path, array, columns, "array")
+
+
+def _read_npz(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    key = "?"
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = [n for n in archive.namelist() if n.endswith(".npy")]
+            keys = [n[:-4] for n in names]
+            if "points" in keys:
+                key = "points"
+            elif len(keys) == 1:
+                key = keys[0]
+            else:
+                raise file_error(path, f"expected an array named 'points' or a single array, got keys {keys[:10]}")
+            info = archive.getinfo(key + ".npy")
+            with archive.open(info) as stream:
+                array = _parse_npy(path, stream, info.file_size, f"array '{key}'")
+    except InputError:
+        raise
+    except _PARSE_ERRORS as exc:
+        raise file_error(path, f"not a readable .npz archive ({type(exc).__name__}: {str(exc)[:80]})") from None
+    return _split(path, array, columns, f"array '{key}'")
+
+
+def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Reads a LiDAR sweep.
+
+    Args:
+      path: ``.bin`` (float32 records), ``.npy`` or ``.npz`` file (see module docs).
+      columns: values per point, >= 3 (KITTI 4, nuScenes 5). For ``.npy`` /
+        ``.npz`` the array must have exactly this many columns.
+
+    Returns:
+      (points, extra): points (N, 3) float32 x, y, z in metres (non-finite
+      values are returned as they are); extra (N, columns - 3) float32, the
+      remaining columns (reflectance, ring index, ...).
+
+    Raises:
+      InputError: missing file, unknown suffix, empty file, a ``.bin`` size that
+        is not a whole number of records, wrong array shape or dtype, corrupt
+        ``.npy`` / ``.npz``.
+      ValueError: ``columns`` is not an integer >= 3.
+    """
+    columns = _check_columns(columns)
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise file_error(path, "file not found")
+    if path.is_dir():
+        raise file_error(path, "is a folder, expected a point file")
+    suffix = path.suffix.lower()
+    if suffix == ".bin":
+        return _read_bin(path, columns)
+    if suffix == ".npy":
+        return _read_npy(path, columns)
+    if suffix == ".npz":
+        return _read_npz(path, columns)
+    raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
+
+
+def bucket_size(n: int) -> int:
+    """Padded size for ``n`` points: ``max(MIN_BUCKET, 2 ** ceil(log2(n)))``.
+
+    >>> bucket_size(1), bucket_size(1024), bucket_size(1025), bucket_size(121948)
+    (1024, 1024, 2048, 131072)
+    """
+    n = int(n)
+    if n < 0:
+        raise ValueError(f"bucket_size: field 'n' expected a non-negative integer, got {n}")
+    return max(MIN_BUCKET, 1 << max(n - 1, 0).bit_length())
+
+
+def pad_points(points: np.ndarray, *, bucket: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pads a sweep to a static size so sweeps of different lengths share one compiled function.
+
+    Args:
+      points: (N, 3) real array, metres. Not modified.
+      bucket: padded size B >= N; default :func:`bucket_size` (N) (a power of
+        two, at least 1024).
+
+    Returns:
+      (padded, valid): padded (B, 3) float32, the input points in their order
+      followed by zeros; valid (B,) bool, True for input points whose three
+      coordinates are finite. Non-finite points are set to 0 and marked invalid,
+      so a padded sweep never contains NaN or inf.
+
+    Raises:
+      ValueError: ``points`` is not (N, 3), or ``bucket`` < N or < 1.
+    """
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"pad_points: field 'points' expected shape (N, 3), got {points.shape}")
+    if points.dtype.kind not in "fiu":
+        raise ValueError(f"pad_points: field 'points' expected real numbers, got dtype {points.dtype}")
+    n = points.shape[0]
+    size = bucket_size(n) if bucket is None else bucket
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < max(n, 1):
+        raise ValueError(f"pad_points: field 'bucket' expected an integer >= max(N, 1) = {max(n, 1)}, got {bucket!r}")
+    size = int(size)
+    with np.errstate(over="ignore", invalid="ignore"):
+        pts = points.astype(np.float32)
+    finite = np.all(np.isfinite(pts), axis=1)
+    padded = np.zeros((size, 3), np.float32)
+    padded[:n] = np.where(finite[:, None], pts, np.float32(0.0))
+    valid = np.zeros((size,), bool)
+    valid[:n] = finite
+    return padded, valid
+
+
+__all__ = ["read_points", "pad_points", "bucket_size", "MIN_BUCKET"]
