@@ -1,0 +1,68 @@
+"""The I/O edge of jaxdepth: files <-> validated NumPy arrays, padding, atomic writes.
+
+Readers raise :class:`InputError` naming the file, the field and what was
+expected; writers are atomic (temporary file in the target folder, fsync,
+rename) and raise :class:`OutputError`. Both derive from :class:`JaxdepthError`,
+which the command line turns into a one-line message and exit code 1. Nothing
+here runs a completion stage.
+"""
+
+from jaxdepth.io.atomic import atomic_write_bytes as atomic_write_bytes
+from jaxdepth.io.atomic import atomic_write_png as atomic_write_png
+from jaxdepth.io.atomic import encode_png as encode_png
+from jaxdepth.io.calib import read_intrinsics_txt as read_intrinsics_txt
+from jaxdepth.io.calib import read_kitti_object_calib as read_kitti_object_calib
+from jaxdepth.io.calib import read_kitti_raw_calib as read_kitti_raw_calib
+from jaxdepth.io.depth_png import encode_depth_uint16 as encode_depth_uint16
+from jaxdepth.io.depth_png import read_depth_png as read_depth_png
+from jaxdepth.io.depth_png import write_depth_png as write_depth_png
+from jaxdepth.io.errors import InputError as InputError
+from jaxdepth.io.errors import JaxdepthError as JaxdepthError
+from jaxdepth.io.errors import OutputError as OutputError
+from jaxdepth.io.kitti_layout import BENCHMARK_SIZE as BENCHMARK_SIZE
+from jaxdepth.io.kitti_layout import benchmark_crop_offsets as benchmark_crop_offsets
+from jaxdepth.io.kitti_layout import crop_to_benchmark as crop_to_benchmark
+from jaxdepth.io.kitti_layout import list_depth_completion_folder as list_depth_completion_folder
+from jaxdepth.io.points import MIN_BUCKET as MIN_BUCKET
+from jaxdepth.io.points import bucket_size as bucket_size
+from jaxdepth.io.points import pad_points as pad_points
+from jaxdepth.io.points import read_points as read_points
+from jaxdepth.io.rig import Rig as Rig
+from jaxdepth.io.rig import RigCamera as RigCamera
+from jaxdepth.io.rig import default_lidar_spec as default_lidar_spec
+from jaxdepth.io.rig import read_rig_json as read_rig_json
+from jaxdepth.io.rig import rig_from_kitti_raw as rig_from_kitti_raw
+from jaxdepth.io.rig import rig_from_nuscenes_calibration as rig_from_nuscenes_calibration
+from jaxdepth.io.rig import rig_to_json_text as rig_to_json_text
+from jaxdepth.io.rig import write_rig_json as write_rig_json
+
+__all__ = [
+    "BENCHMARK_SIZE",
+    "InputError",
+    "JaxdepthError",
+    "MIN_BUCKET",
+    "OutputError",
+    "Rig",
+    "RigCamera",
+    "atomic_write_bytes",
+    "atomic_write_png",
+    "benchmark_crop_offsets",
+    "bucket_size",
+    "crop_to_benchmark",
+    "default_lidar_spec",
+    "encode_depth_uint16",
+    "encode_png",
+    "list_depth_completion_folder",
+    "pad_points",
+    "read_depth_png",
+    "read_intrinsics_txt",
+    "read_kitti_object_calib",
+    "read_kitti_raw_calib",
+    "read_points",
+    "read_rig_json",
+    "rig_from_kitti_raw",
+    "rig_from_nuscenes_calibration",
+    "rig_to_json_text",
+    "write_depth_png",
+    "write_rig_json",
+]
