@@ -176,6 +176,14 @@ def test_fuzz_corrupted_valid_files(tmp_path, kind, cut, flips):
     assert points.dtype == np.float32 and points.shape[1] == 3
 
 
+def test_regression_unbalanced_npy_header(tmp_path):
+    """Found by fuzzing: NumPy's header parser raised tokenize.TokenError, not ValueError."""
+    data = _npy_bytes(np.zeros((10, 4), np.float32)).replace(b"(10, 4)", b"(10, 4 ", 1)
+    (tmp_path / "h.npy").write_bytes(data)
+    with pytest.raises(InputError, match=r"h\.npy: not a readable \.npy array \(TokenError"):
+        read_points(tmp_path / "h.npy")
+
+
 def test_npz_bad_crc_is_input_error(tmp_path):
     data = bytearray(_npz_bytes(False))
     member = zipfile.ZipFile(io.BytesIO(bytes(data))).getinfo("points.npy")

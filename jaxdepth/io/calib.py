@@ -90,9 +90,10 @@ def _check_K(path: pathlib.Path, field: str, K: np.ndarray) -> None:
 
 
 def _check_rotation(path: pathlib.Path, field: str, R: np.ndarray) -> None:
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+    with np.errstate(over="ignore", invalid="ignore"):  # huge entries give inf / nan: rejected below
+        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+    if not (err <= ROTATION_TOL and abs(det - 1.0) <= ROTATION_TOL):
         raise field_error(path, field, f"a rotation (R^T R = I within {ROTATION_TOL:g}, det = +1)",
                           f"max |R^T R - I| = {err:.3g}, det = {det:.6g}")
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+import tokenize
 import zipfile
 import zlib
 from typing import BinaryIO
@@ -65,7 +66,7 @@ def _read_bin(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]
 
 # Everything a corrupt .npy / .npz can raise while being parsed.
 _PARSE_ERRORS = (ValueError, OSError, EOFError, TypeError, KeyError, SyntaxError, OverflowError,
-                 zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, zlib.error)
+                 tokenize.TokenError, zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, zlib.error)
 
 
 def _parse_npy(path: pathlib.Path, stream: BinaryIO, available: int, what: str) -> np.ndarray:

@@ -114,9 +114,10 @@ def _check_T(T: np.ndarray, field: str) -> None:
     if np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > 1e-6:
         raise _Bad(field, "last row [0, 0, 0, 1]", T[3].tolist())
     R = T[:3, :3]
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > RIGID_TOL or abs(det - 1.0) > RIGID_TOL:
+    with np.errstate(over="ignore", invalid="ignore"):  # huge entries give inf / nan: rejected below
+        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        det = float(np.linalg.det(R))
+    if not (err <= RIGID_TOL and abs(det - 1.0) <= RIGID_TOL):
         raise _Bad(field, f"a rigid transform (R^T R = I within {RIGID_TOL:g}, det R = +1)",
                    f"max |R^T R - I| = {err:.3g}, det R = {det:.6g}")
 
