@@ -49,7 +49,8 @@ def project_pixels(points_cam: jax.Array, K: jax.Array, *, min_depth_m: float = 
 
 @functools.partial(jax.jit, static_argnames=("height", "width", "min_depth_m"))
 def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
-                     *, height: int, width: int, min_depth_m: float = 0.1):
+                     *, height: int, width: int, min_depth_m: float = 0.1,
+                     valid_size: jax.Array | None = None):
     """Projects a LiDAR sweep into one camera with a nearest-point z-buffer.
 
     Args:
@@ -58,6 +59,9 @@ def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_li
       K: (3, 3) intrinsics. T_cam_lidar: (4, 4) LiDAR -> camera.
       height, width: static image size.
       min_depth_m: points closer than this (or behind the camera) are dropped.
+      valid_size: optional traced (2,) int32 (height, width) of the real image when
+        it is padded to a larger (height, width) canvas (multi-camera rigs);
+        points outside it are dropped.
 
     Returns:
       (depth, index): depth (H, W) float32 metres with 0 = empty; index (H, W)
@@ -72,6 +76,9 @@ def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_li
     ui = jnp.round(u)
     vi = jnp.round(v)
     inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
+    if valid_size is not None:
+        valid_size = jnp.asarray(valid_size)
+        inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
     dump = height * width
     flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
     zbuf = jnp.full((dump + 1,), jnp.inf, jnp.float32).at[flat].min(jnp.where(inside, z, jnp.inf))
