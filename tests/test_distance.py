@@ -1,0 +1,298 @@
+"""Tests for jaxdepth._src.distance (step 3: nearest-seed distance transform).
+
+Oracles: OpenCV's exact L1 distance transform, SciPy's exact Euclidean one
+(both on ``~mask``, since they measure the distance to zero pixels), a
+brute-force NumPy nearest seed with the documented raster-order tie rule, and
+NumPy fancy indexing for gather_at_seed.  Plus jit == eager and vmap == loop.
+"""
+
+from __future__ import annotations
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.ndimage as ndi
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from jaxdepth._src.distance import NearestSeed, gather_at_seed, nearest_seed
+from tests.conftest import require_shared
+
+METRICS = ("l1", "l2")
+EPS = float(np.finfo(np.float32).eps)
+
+
+def _random_mask(shape, density, seed):
+    return np.random.default_rng(seed).random(shape) < density
+
+
+def _oracle_distance(mask: np.ndarray, metric: str) -> np.ndarray:
+    if metric == "l1":
+        return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L1, 3)
+    return ndi.distance_transform_edt(~mask).astype(np.float32)
+
+
+def _brute_force(mask: np.ndarray, metric: str):
+    """Nearest seed by exhaustive search; ties: smallest seed row, then column."""
+    h, w = mask.shape
+    sv, su = np.nonzero(mask)  # raster order: row-major
+    v, u = np.indices((h, w))
+    dv = sv[None, None, :] - v[..., None]
+    du = su[None, None, :] - u[..., None]
+    d2 = np.abs(dv) + np.abs(du) if metric == "l1" else dv * dv + du * du
+    best = np.argmin(d2, axis=-1)  # first minimum = raster-order tie rule
+    bdv = np.take_along_axis(dv, best[..., None], -1)[..., 0]
+    bdu = np.take_along_axis(du, best[..., None], -1)[..., 0]
+    d = np.take_along_axis(d2, best[..., None], -1)[..., 0].astype(np.float64)
+    dist = d if metric == "l1" else np.sqrt(d)
+    return dist.astype(np.float32), bdu.astype(np.int32), bdv.astype(np.int32)
+
+
+def _check_result(res: NearestSeed, mask: np.ndarray, metric: str) -> None:
+    """Distances equal the oracle and (v + dv, u + du) is a seed at that distance."""
+    h, w = mask.shape
+    for name in ("distance", "du", "dv"):
+        assert getattr(res, name).shape == (h, w), name
+    assert res.distance.dtype == jnp.float32
+    assert res.du.dtype == jnp.int32 and res.dv.dtype == jnp.int32
+    assert res.has_seed.shape == () and res.has_seed.dtype == jnp.bool_
+    dist = np.asarray(res.distance)
+    du = np.asarray(res.du)
+    dv = np.asarray(res.dv)
+    if not mask.any():
+        assert not bool(res.has_seed)
+        assert np.all(np.isposinf(dist))
+        assert np.all(du == 0) and np.all(dv == 0)
+        return
+    assert bool(res.has_seed)
+    assert not np.isnan(dist).any()
+    ref = _oracle_distance(mask, metric)
+    if metric == "l1":
+        np.testing.assert_array_equal(dist, ref)
+    else:
+        np.testing.assert_allclose(dist, ref, rtol=4 * EPS, atol=0)
+    v, u = np.indices((h, w))
+    tv, tu = v + dv, u + du
+    assert tv.min() >= 0 and tv.max() < h and tu.min() >= 0 and tu.max() < w
+    assert mask[tv, tu].all(), "the returned seed is not a seed"
+    if metric == "l1":
+        np.testing.assert_array_equal(dist, (np.abs(du) + np.abs(dv)).astype(np.float32))
+    else:
+        exact = np.sqrt((du.astype(np.float64) ** 2 + dv.astype(np.float64) ** 2))
+        np.testing.assert_allclose(dist, exact.astype(np.float32), rtol=EPS, atol=0)
+
+
+# Few distinct shapes: every (shape, metric) pair compiles once and is reused across tests.
+SHAPES = [(1, 1), (1, 17), (23, 1), (7, 9), (40, 33), (131, 67)]
+DENSITIES = [0.0, 0.005, 0.04, 0.3, 1.0]
+
+
+@pytest.mark.parametrize("metric", METRICS)
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("density", DENSITIES)
+def test_matches_oracle(metric, shape, density):
+    mask = _random_mask(shape, density, seed=hash((shape, density)) % 2**32)
+    _check_result(nearest_seed(jnp.asarray(mask), metric=metric), mask, metric)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_kitti_sized_lidar_density(metric):
+    """~4 % random seeds on the KITTI crop size (352 x 1216)."""
+    mask = _random_mask((352, 1216), 0.04, seed=7)
+    _check_result(nearest_seed(jnp.asarray(mask), metric=metric), mask, metric)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_kitti_velodyne_mask(metric, kitti_frame):
+    """The real KITTI sparse input: seeds only in the lower rows, long gaps above."""
+    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
+    mask = png[-352:, 13:1229] > 0
+    _check_result(nearest_seed(jnp.asarray(mask), metric=metric), mask, metric)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_empty_full_single(metric):
+    empty = np.zeros((7, 9), bool)
+    res = nearest_seed(jnp.asarray(empty), metric=metric)
+    _check_result(res, empty, metric)
+
+    full = np.ones((7, 9), bool)
+    res = nearest_seed(jnp.asarray(full), metric=metric)
+    assert np.all(np.asarray(res.distance) == 0)
+    assert np.all(np.asarray(res.du) == 0) and np.all(np.asarray(res.dv) == 0)
+
+    single = np.zeros((7, 9), bool)
+    single[4, 2] = True
+    res = nearest_seed(jnp.asarray(single), metric=metric)
+    v, u = np.indices(single.shape)
+    np.testing.assert_array_equal(np.asarray(res.du), 2 - u)
+    np.testing.assert_array_equal(np.asarray(res.dv), 4 - v)
+    d2 = (2 - u) ** 2 + (4 - v) ** 2
+    expected = np.abs(2 - u) + np.abs(4 - v) if metric == "l1" else np.sqrt(d2)
+    np.testing.assert_allclose(np.asarray(res.distance), expected.astype(np.float32), rtol=EPS)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+@pytest.mark.parametrize("shape,density,seed", [((7, 9), 0.1, 0), ((7, 9), 0.3, 1),
+                                                ((1, 17), 0.1, 2), ((23, 1), 0.1, 3),
+                                                ((40, 33), 0.03, 4)])
+def test_tie_rule_against_brute_force(metric, shape, density, seed):
+    """Exact labels: the first nearest seed in raster order (row, then column)."""
+    mask = _random_mask(shape, density, seed)
+    mask[seed % shape[0], (3 * seed) % shape[1]] = True
+    res = nearest_seed(jnp.asarray(mask), metric=metric)
+    dist, du, dv = _brute_force(mask, metric)
+    np.testing.assert_allclose(np.asarray(res.distance), dist, rtol=EPS, atol=0)
+    np.testing.assert_array_equal(np.asarray(res.du), du)
+    np.testing.assert_array_equal(np.asarray(res.dv), dv)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_tie_rule_symmetric_seeds(metric):
+    """Two seeds at equal distance left/right and above/below: the upper, then left one."""
+    mask = np.zeros((7, 9), bool)
+    mask[2, 1] = mask[2, 5] = True  # pixel (2, 3) is 2 px from both
+    res = nearest_seed(jnp.asarray(mask), metric=metric)
+    assert (int(res.du[2, 3]), int(res.dv[2, 3])) == (-2, 0)
+    mask = np.zeros((7, 9), bool)
+    mask[1, 2] = mask[5, 2] = True  # pixel (3, 2) is 2 px from both
+    res = nearest_seed(jnp.asarray(mask), metric=metric)
+    assert (int(res.du[3, 2]), int(res.dv[3, 2])) == (0, -2)
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_jit_equals_eager(metric):
+    mask = jnp.asarray(_random_mask((7, 9), 0.1, seed=11))
+    jitted = nearest_seed(mask, metric=metric)
+    with jax.disable_jit():
+        eager = nearest_seed(mask, metric=metric)
+    for a, b in zip(jitted, eager):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("metric", METRICS)
+def test_vmap_equals_loop(metric):
+    masks = np.stack([_random_mask((40, 33), d, seed=i)
+                      for i, d in enumerate([0.0, 0.02, 0.1, 0.6, 1.0])])
+    masks[1, :, :] = False
+    masks[1, 39, 32] = True  # a single seed in the last pixel
+    batched = jax.vmap(lambda m: nearest_seed(m, metric=metric))(jnp.asarray(masks))
+    for i, mask in enumerate(masks):
+        single = nearest_seed(jnp.asarray(mask), metric=metric)
+        for name, a, b in zip(NearestSeed._fields, batched, single):
+            np.testing.assert_array_equal(np.asarray(a)[i], np.asarray(b), err_msg=name)
+        _check_result(NearestSeed(*(x[i] for x in batched)), mask, metric)
+
+
+def test_no_retrace_same_shape():
+    traces = []
+
+    @jax.jit
+    def f(m):
+        traces.append(1)
+        return nearest_seed(m, metric="l1").distance
+
+    f(jnp.asarray(_random_mask((7, 9), 0.1, 0)))
+    f(jnp.asarray(_random_mask((7, 9), 0.3, 1)))
+    assert len(traces) == 1
+
+
+# Small shapes, mostly shared with the tests above so that few new programs compile.
+_HYP_SHAPES = [(1, 1), (1, 17), (23, 1), (7, 9), (2, 3), (9, 2)]
+
+
+@settings(deadline=None, max_examples=30)
+@given(data=st.data(), metric=st.sampled_from(METRICS))
+def test_property_matches_brute_force(data, metric):
+    shape = data.draw(st.sampled_from(_HYP_SHAPES))
+    mask = data.draw(hnp.arrays(np.bool_, shape))
+    res = nearest_seed(jnp.asarray(mask), metric=metric)
+    _check_result(res, mask, metric)
+    if mask.any():
+        dist, du, dv = _brute_force(mask, metric)
+        np.testing.assert_allclose(np.asarray(res.distance), dist, rtol=EPS, atol=0)
+        np.testing.assert_array_equal(np.asarray(res.du), du)
+        np.testing.assert_array_equal(np.asarray(res.dv), dv)
+
+
+def test_validation_errors():
+    with pytest.raises(ValueError, match=r"metric expected one of \('l1', 'l2'\), got 'linf'"):
+        nearest_seed(jnp.zeros((3, 3), bool), metric="linf")
+    with pytest.raises(ValueError, match=r"seed_mask expected shape \(H, W\), got shape \(3,\)"):
+        nearest_seed(jnp.zeros((3,), bool))
+    with pytest.raises(ValueError, match=r"seed_mask expected dtype bool, got float32"):
+        nearest_seed(jnp.zeros((3, 3), jnp.float32))
+    with pytest.raises(ValueError, match=r"too large for metric 'l2'"):
+        jax.eval_shape(lambda m: nearest_seed(m, metric="l2"),
+                       jax.ShapeDtypeStruct((40000, 2), jnp.bool_))
+    with pytest.raises(ValueError, match=r"too large for metric 'l1'"):
+        jax.eval_shape(nearest_seed, jax.ShapeDtypeStruct((70000, 70000), jnp.bool_))
+    with pytest.raises(TypeError):
+        nearest_seed(jnp.zeros((3, 3), bool), "l1")  # metric is keyword-only
+
+
+def test_large_shapes_trace():
+    """4096 x 4096 fits both metrics' integer budgets (trace only, no run)."""
+    spec = jax.ShapeDtypeStruct((4096, 4096), jnp.bool_)
+    for metric in METRICS:
+        out = jax.eval_shape(lambda m, metric=metric: nearest_seed(m, metric=metric), spec)
+        assert out.distance.shape == (4096, 4096) and out.du.dtype == jnp.int32
+
+
+# --- gather_at_seed -------------------------------------------------------------------------
+
+
+def _random_offsets(shape, seed):
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    v, u = np.indices(shape)
+    tv = rng.integers(0, h, shape)
+    tu = rng.integers(0, w, shape)
+    return (tu - u).astype(np.int32), (tv - v).astype(np.int32)
+
+
+@pytest.mark.parametrize("field_shape", [(6, 11), (3, 6, 11), (1, 6, 11)])
+@pytest.mark.parametrize("dtype", [np.float32, np.int32])
+def test_gather_matches_numpy(field_shape, dtype):
+    rng = np.random.default_rng(3)
+    field = (rng.random(field_shape) * 100).astype(dtype)
+    du, dv = _random_offsets(field_shape[-2:], 5)
+    out = gather_at_seed(jnp.asarray(field), jnp.asarray(du), jnp.asarray(dv))
+    v, u = np.indices(field_shape[-2:])
+    expected = field[..., v + dv, u + du]
+    assert out.shape == field.shape and out.dtype == field.dtype
+    np.testing.assert_array_equal(np.asarray(out), expected)
+
+
+def test_gather_with_nearest_seed_keeps_seed_values():
+    mask = _random_mask((30, 40), 0.05, seed=9)
+    depth = np.where(mask, np.random.default_rng(1).uniform(1, 80, mask.shape), 0).astype(np.float32)
+    res = nearest_seed(jnp.asarray(mask))
+    out = np.asarray(gather_at_seed(jnp.asarray(depth), res.du, res.dv))
+    np.testing.assert_array_equal(out[mask], depth[mask])
+    assert np.all(out > 0)
+
+
+def test_gather_jit_equals_eager_and_vmap_equals_loop():
+    rng = np.random.default_rng(4)
+    fields = rng.random((4, 2, 7, 9)).astype(np.float32)
+    offs = [_random_offsets((7, 9), s) for s in range(4)]
+    du = jnp.asarray(np.stack([o[0] for o in offs]))
+    dv = jnp.asarray(np.stack([o[1] for o in offs]))
+    batched = jax.vmap(gather_at_seed)(jnp.asarray(fields), du, dv)
+    for i in range(4):
+        single = gather_at_seed(jnp.asarray(fields[i]), du[i], dv[i])
+        with jax.disable_jit():
+            eager = gather_at_seed(jnp.asarray(fields[i]), du[i], dv[i])
+        np.testing.assert_array_equal(np.asarray(batched[i]), np.asarray(single))
+        np.testing.assert_array_equal(np.asarray(eager), np.asarray(single))
+
+
+def test_gather_validation():
+    with pytest.raises(ValueError, match=r"field expected shape \(H, W\) or \(C, H, W\)"):
+        gather_at_seed(jnp.zeros((5,)), jnp.zeros((5,), jnp.int32), jnp.zeros((5,), jnp.int32))
+    with pytest.raises(ValueError, match=r"du expected shape \(4, 5\), got \(5, 4\)"):
+        gather_at_seed(jnp.zeros((4, 5)), jnp.zeros((5, 4), jnp.int32), jnp.zeros((4, 5), jnp.int32))
