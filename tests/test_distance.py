@@ -234,6 +234,16 @@ def test_validation_errors():
         nearest_seed(jnp.zeros((3, 3), bool), "l1")  # metric is keyword-only
 
 
+def test_l2_wide_stack_layout():
+    """A tall image whose stack entries need two int32 arrays (8193 rows: 14 row bits)."""
+    from jaxdepth._src.distance import _stack_layout
+
+    assert _stack_layout(8193, 5)[0] == 2 and _stack_layout(352, 1216)[0] == 1
+    mask = _random_mask((8193, 5), 0.01, seed=12)
+    mask[:3000] = False  # a long seedless stretch
+    _check_result(nearest_seed(jnp.asarray(mask), metric="l2"), mask, "l2")
+
+
 def test_large_shapes_trace():
     """4096 x 4096 fits both metrics' integer budgets (trace only, no run)."""
     spec = jax.ShapeDtypeStruct((4096, 4096), jnp.bool_)

@@ -24,10 +24,10 @@ the leading axis of a row-major array (all other pixels vectorised):
      parabolas (Meijster, Roerdink and Hesselink 2000; the same 1-D problem as
      Felzenszwalb and Huttenlocher 2012) in exact int32 arithmetic.  Every
      column keeps a stack of parabolas (start row, seed row, ``right``, ``h``)
-     in a fixed ``(H + 1) * W`` buffer.  One ``lax.while_loop`` advances all
-     columns in lockstep; in each iteration a column either pops its top
-     parabola or consumes its next row, so the loop ends after at most ``2 H``
-     iterations.  A ``lax.scan`` over the rows then walks the envelope.
+     in a fixed ``(H + 1) * W`` buffer.  A ``lax.scan`` over the rows pushes
+     each row's parabola after an inner ``lax.while_loop`` has popped, in all
+     columns at once, the parabolas it hides (at most H pops per column in
+     total); a second scan walks the envelope.
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
@@ -169,8 +169,47 @@ def _l1_column_pass(row_key_t: jax.Array, far: int) -> tuple[jax.Array, int]:
     return key, cb
 
 
+def _stack_layout(h: int, w: int):
+    """Static packing of a stack entry (start row t, seed row s, right, g).
+
+    Returns (n_arrays, pack, unpack): one int32 per entry when
+    ``2 * row_bits + 1 + col_bits <= 31`` (e.g. 352 x 1216), else two.
+    """
+    rb = max(_bits(h), 1)
+    gb = max(_bits(w), 1)
+    if 2 * rb + 1 + gb <= 31:
+        def pack(t, s, right, g):
+            return ((((t << rb) | s) << 1 | right) << gb) | g,
+
+        def unpack(entry):
+            (e,) = entry
+            g = e & ((1 << gb) - 1)
+            e = e >> gb
+            return e >> (rb + 1), (e >> 1) & ((1 << rb) - 1), e & 1, g
+
+        return 1, pack, unpack
+
+    def pack2(t, s, right, g):
+        return ((t << rb) | s) << 1 | right, g
+
+    def unpack2(entry):
+        e, g = entry
+        return e >> (rb + 1), (e >> 1) & ((1 << rb) - 1), e & 1, g
+
+    return 2, pack2, unpack2
+
+
 def _l2_column_pass(row_key_t: jax.Array, far: int):
     """Exact 1-D squared-Euclidean transform along every column (lower envelope).
+
+    Meijster's algorithm on ``f_r(v) = g(r)**2 + (v - r)**2`` for the rows r
+    that have a seed, in exact int32 arithmetic, all columns vectorised: a
+    ``lax.scan`` over the rows; at each row an inner ``lax.while_loop`` pops,
+    in every column at once, stack tops that lose to the new parabola at their
+    start row, then the new parabola is pushed with the first row where it is
+    strictly lower.  The stack top is kept in the carry, the entries below it
+    in a flat ``(H + 1) * W`` buffer (slot row H is a sink for columns that do
+    not push).  A second scan walks each column's envelope segments.
 
     Args:
       row_key_t: (W, H) row-pass result ``(g << 1) | right``; rows with
@@ -185,73 +224,69 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     """
     w, h = row_key_t.shape
     rb = max(_bits(h), 1)
-    row_mask = (1 << rb) - 1
-    flat_hk = row_key_t.T.astype(jnp.int32).reshape(-1)
+    n_arrays, pack, unpack = _stack_layout(h, w)
+    hk = row_key_t.T.astype(jnp.int32)
     col = jnp.arange(w, dtype=jnp.int32)
-    sink = h * w + col  # slot row H of the buffers absorbs non-pushing columns
+    sink = h * w + col
 
-    # A stack entry is e = (start << (rb + 1)) | (seed_row << 1) | right plus g.
-    def body(state):
-        p, n, top_e, top_g, buf_e, buf_g = state
-        active = p < h
-        i = jnp.minimum(p, h - 1)
-        x = lax.optimization_barrier(flat_hk.at[i * w + col].get(mode=_PIB))
+    def loses(top, i, g):
+        # The top parabola is not below parabola i at the top's start row t:
+        # it can never be lowest again (equal values keep the smaller row).
+        t, s, _, g_s = unpack(top)
+        return (t - s) ** 2 + g_s * g_s > (t - i) ** 2 + g * g
+
+    def row_step(state, xs):
+        n, top, buf = state
+        i, x = xs
         g = x >> 1
-        valid = active & (g < far)
-        t = top_e >> (rb + 1)
-        s = (top_e >> 1) & row_mask
-        nonempty = n > 0
-        # The top parabola loses at its own start row: it is never lowest again
-        # (on equal values the smaller seed row keeps the pixel).
-        pop = valid & nonempty & ((t - s) ** 2 + top_g * top_g > (t - i) ** 2 + g * g)
-        # First row where parabola i is strictly lower than the top (i > s, and
-        # the numerator is >= 0 whenever this is used, so truncation = floor).
-        num = jnp.maximum(i * i - s * s + g * g - top_g * top_g, 0)
-        start = 1 + lax.div(num, 2 * jnp.maximum(i - s, 1))
-        push = valid & ~pop & (~nonempty | (start < h))
-        new_e = (jnp.where(nonempty, start, 0) << (rb + 1)) | (i << 1) | (x & 1)
-        below = jnp.maximum(n - 2, 0) * w + col
-        below_e, below_g = lax.optimization_barrier(
-            (buf_e.at[below].get(mode=_PIB), buf_g.at[below].get(mode=_PIB)))
-        # Writing a value that depends on the read keeps XLA from copying the
-        # buffers every iteration.
-        at = jnp.where(push & nonempty, (n - 1) * w + col, sink)
-        buf_e = buf_e.at[at].set(jnp.where(push, top_e, below_e), mode=_PIB, unique_indices=True)
-        buf_g = buf_g.at[at].set(jnp.where(push, top_g, below_g), mode=_PIB, unique_indices=True)
-        top_e = jnp.where(pop, below_e, jnp.where(push, new_e, top_e))
-        top_g = jnp.where(pop, below_g, jnp.where(push, g, top_g))
-        n = jnp.where(pop, n - 1, jnp.where(push, n + 1, n))
-        p = jnp.where(active & ~pop, p + 1, p)
-        return p, n, top_e, top_g, buf_e, buf_g
+        valid = g < far
 
-    def cond(state):
-        return jnp.any(state[0] < h)
+        def pop_body(inner):
+            pop, n, top = inner
+            at = jnp.maximum(n - 2, 0) * w + col
+            below = tuple(b.at[at].get(mode=_PIB) for b in buf)
+            top = tuple(jnp.where(pop, b, c) for b, c in zip(below, top))
+            n = jnp.where(pop, n - 1, n)
+            return pop & (n > 0) & loses(top, i, g), n, top
+
+        pop = valid & (n > 0) & loses(top, i, g)
+        _, n, top = lax.while_loop(lambda inner: jnp.any(inner[0]), pop_body, (pop, n, top))
+        _, s, _, g_s = unpack(top)
+        nonempty = n > 0
+        # First row where parabola i is strictly below the top one; i > s and,
+        # after the pops, the numerator is >= 0, so truncation is floor.
+        num = jnp.maximum(i * i - s * s + g * g - g_s * g_s, 0)
+        start = 1 + lax.div(num, 2 * jnp.maximum(i - s, 1))
+        push = valid & (~nonempty | (start < h))
+        at = jnp.where(push & nonempty, (n - 1) * w + col, sink)
+        buf = tuple(b.at[at].set(c, mode=_PIB, unique_indices=True) for b, c in zip(buf, top))
+        new = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
+        top = tuple(jnp.where(push, a, c) for a, c in zip(new, top))
+        n = jnp.where(push, n + 1, n)
+        return (n, top, buf), None
 
     zero = jnp.zeros((w,), jnp.int32)
-    buf0 = jnp.zeros(((h + 1) * w,), jnp.int32)
-    _, n, top_e, top_g, buf_e, buf_g = lax.while_loop(
-        cond, body, (zero, zero, zero, zero, buf0, buf0))
+    buf0 = tuple(jnp.zeros(((h + 1) * w,), jnp.int32) for _ in range(n_arrays))
+    (n, top, buf), _ = lax.scan(row_step, (zero, (zero,) * n_arrays, buf0),
+                                (jnp.arange(h, dtype=jnp.int32), hk))
 
     def entry(k):
         at = jnp.minimum(k, h) * w + col
         is_top = k == n - 1
-        e = jnp.where(is_top, top_e, buf_e.at[at].get(mode=_PIB))
-        g = jnp.where(is_top, top_g, buf_g.at[at].get(mode=_PIB))
-        return e, g
+        return tuple(jnp.where(is_top, c, b.at[at].get(mode=_PIB)) for c, b in zip(top, buf))
 
     def walk(carry, v):
-        k, e, g = carry
-        next_e, next_g = entry(k + 1)
-        advance = (k + 1 < n) & ((next_e >> (rb + 1)) == v)
+        k, current = carry
+        following = entry(k + 1)
+        advance = (k + 1 < n) & (unpack(following)[0] == v)
         k = jnp.where(advance, k + 1, k)
-        e = jnp.where(advance, next_e, e)
-        g = jnp.where(advance, next_g, g)
-        # Both fit in int32: g < W <= 2**15 and e & mask < 2**(rb + 1).
-        return (k, e, g), (g << (rb + 1)) | (e & ((1 << (rb + 1)) - 1))
+        current = tuple(jnp.where(advance, a, c) for a, c in zip(following, current))
+        _, s, right, g = unpack(current)
+        # Fits in int32: g < W <= 2**15 and s < 2**rb <= 2**15.
+        return (k, current), (g << (rb + 1)) | (s << 1) | right
 
-    e0, g0 = entry(zero)
-    _, packed = lax.scan(walk, (zero, e0, g0), jnp.arange(h, dtype=jnp.int32))
-    return (packed >> 1) & row_mask, packed >> (rb + 1), packed & 1, n[0] > 0
+    _, packed = lax.scan(walk, (zero, entry(zero)), jnp.arange(h, dtype=jnp.int32))
+    return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, n[0] > 0
 
 
 @functools.partial(jax.jit, static_argnames="metric")
