@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import numbers
 from typing import NamedTuple, Sequence
 
 import jax
@@ -432,7 +433,7 @@ def rig_cameras(preset: str = "kitti", *, lidar_offset_m: Sequence[float] = (-0.
     offset = np.asarray(lidar_offset_m, np.float64)
     if offset.shape != (3,) or not np.all(np.isfinite(offset)):
         raise ValueError(f"rig_cameras: field 'lidar_offset_m' expected 3 finite floats, got {lidar_offset_m!r}")
-    if not (isinstance(image_scale, (int, float)) and 0 < image_scale <= 4):
+    if not (isinstance(image_scale, numbers.Real) and 0 < image_scale <= 4):
         raise ValueError(f"rig_cameras: field 'image_scale' expected a float in (0, 4], got {image_scale!r}")
 
     def size(hw):
