@@ -4,7 +4,7 @@ Mask: the real KITTI sparse input (``velodyne_raw_image_02.png``, cropped the
 benchmark way to the bottom 352 rows and columns 13..1228); a random ~4 % mask
 of the same size when the shared data is missing.
 
-    python benchmarks/bench_distance.py [--runs 50] [--json benchmarks/results/distance.json]
+    PYTHONPATH=. python benchmarks/bench_distance.py [--runs 50] [--json benchmarks/results/distance.json]
 
 Compared (all return distances and the nearest seed):
 - jaxdepth nearest_seed, metric "l1" and "l2" (distance, du, dv);

@@ -19,7 +19,6 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from jaxdepth._src.distance import NearestSeed, gather_at_seed, nearest_seed
-from tests.conftest import require_shared
 
 METRICS = ("l1", "l2")
 EPS = float(np.finfo(np.float32).eps)
