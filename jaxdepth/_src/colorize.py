@@ -1,0 +1,90 @@
+"""Colour images of depth maps and normals for viewing (NumPy + OpenCV, host side).
+
+Outputs are (H, W, 3) uint8 **RGB**.  No matplotlib: colour maps come from OpenCV's
+``applyColorMap`` look-up tables (256 entries).  Not jit-able (display helpers).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+CMAPS = {
+    "turbo": cv2.COLORMAP_TURBO,
+    "jet": cv2.COLORMAP_JET,
+    "viridis": cv2.COLORMAP_VIRIDIS,
+    "inferno": cv2.COLORMAP_INFERNO,
+    "magma": cv2.COLORMAP_MAGMA,
+    "plasma": cv2.COLORMAP_PLASMA,
+    "gray": None,
+}
+
+
+def colormap_lut(cmap: str = "turbo") -> np.ndarray:
+    """(256, 3) uint8 RGB look-up table of ``cmap`` (index 0 = low end)."""
+    if cmap not in CMAPS:
+        raise ValueError(f"cmap: expected one of {sorted(CMAPS)}, got {cmap!r}")
+    ramp = np.arange(256, dtype=np.uint8)[:, None]
+    if CMAPS[cmap] is None:
+        return np.repeat(ramp, 3, axis=1)
+    bgr = cv2.applyColorMap(ramp, CMAPS[cmap])[:, 0, :]
+    return np.ascontiguousarray(bgr[:, ::-1])
+
+
+def colorize_depth(depth, *, vmin: float | None = None, vmax: float | None = None,
+                   cmap: str = "turbo", invert: bool = False) -> np.ndarray:
+    """Colour image of a depth map; empty pixels are black.
+
+    Args:
+      depth: (H, W) depth (NumPy or JAX array), metres; ``<= 0`` or non-finite = empty.
+      vmin, vmax: depth range mapped to the ends of the colour map; default the
+        minimum / maximum valid depth.  Values outside are clipped to the ends.
+      cmap: one of ``"turbo"`` (default), ``"jet"``, ``"viridis"``, ``"inferno"``,
+        ``"magma"``, ``"plasma"``, ``"gray"``.
+      invert: map ``vmin`` to the high end instead (e.g. near = red with turbo).
+
+    Returns:
+      (H, W, 3) uint8 RGB.  A valid depth ``d`` gets LUT entry
+      ``round(255 * (d - vmin) / (vmax - vmin))`` (``255 -`` that when ``invert``);
+      every empty pixel is (0, 0, 0).
+    """
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"depth: expected shape (H, W), got {d.shape}")
+    lut = colormap_lut(cmap)
+    valid = np.isfinite(d) & (d > 0)
+    out = np.zeros(d.shape + (3,), np.uint8)
+    if not valid.any():
+        return out
+    lo = float(d[valid].min()) if vmin is None else float(vmin)
+    hi = float(d[valid].max()) if vmax is None else float(vmax)
+    if not hi >= lo:
+        raise ValueError(f"vmax: expected >= vmin ({lo}), got {hi}")
+    span = hi - lo if hi > lo else 1.0
+    t = np.clip((d[valid].astype(np.float64) - lo) / span, 0.0, 1.0)
+    idx = np.rint(t * 255.0).astype(np.int64)
+    if invert:
+        idx = 255 - idx
+    out[valid] = lut[idx]
+    return out
+
+
+def colorize_normals(normals) -> np.ndarray:
+    """Colour image of a unit-normal field: RGB = (n + 1) / 2 * 255.
+
+    Args:
+      normals: (3, H, W) float (NumPy or JAX array), components (x, y, z) in [-1, 1]
+        (clipped).
+
+    Returns:
+      (H, W, 3) uint8 RGB, ``round((n + 1) / 2 * 255)`` per channel; pixels whose
+      normal is all zeros (no normal) or not finite are black.
+    """
+    n = np.asarray(normals, dtype=np.float32)
+    if n.ndim != 3 or n.shape[0] != 3:
+        raise ValueError(f"normals: expected shape (3, H, W), got {n.shape}")
+    n = np.moveaxis(n, 0, -1)
+    empty = ~np.all(np.isfinite(n), axis=-1) | np.all(n == 0, axis=-1)
+    rgb = np.rint((np.clip(np.nan_to_num(n), -1.0, 1.0) + 1.0) * 0.5 * 255.0).astype(np.uint8)
+    rgb[empty] = 0
+    return rgb
