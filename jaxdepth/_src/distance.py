@@ -29,6 +29,12 @@ the leading axis of a row-major array (all other pixels vectorised):
      columns at once, the parabolas it hides (at most H pops per column in
      total); a second scan walks the envelope.
 
+The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
+place (the backward loop reads the forward result and overwrites it); on CPU
+this measured about 2x faster than ``lax.scan`` with stacked outputs followed
+by a minimum of the two directions, and packing every decision into one int32
+key keeps each step to a couple of fused ops.
+
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
 to the nearest *zero* pixel, so they are called on ``~seed_mask``.  Distances
