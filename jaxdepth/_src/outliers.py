@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
@@ -41,12 +42,16 @@ def _pseudo_angle(a: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.where(b >= 0, s, jnp.where(a >= 0, 2.0, -2.0) - s)
 
 
-def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam: jax.Array | None):
-    """Order keys (h, g) of each pixel's point seen from the LiDAR origin ``t`` (camera axes)."""
+def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam: jax.Array | None,
+                  *, row0: int = 0, col0: int = 0):
+    """Order keys (h, g) of each pixel's point seen from the LiDAR origin ``t`` (camera axes).
+
+    ``depth`` may be a padded canvas whose pixel (row0, col0) is image pixel (0, 0).
+    """
     if points_cam is None:
         h, w = depth.shape
-        v = jnp.arange(h, dtype=jnp.float32)[:, None]
-        u = jnp.arange(w, dtype=jnp.float32)[None, :]
+        v = jnp.arange(-row0, h - row0, dtype=jnp.float32)[:, None]
+        u = jnp.arange(-col0, w - col0, dtype=jnp.float32)[None, :]
         y_n = (v - K[1, 2]) / K[1, 1]
         x_n = (u - K[0, 2] - K[0, 1] * y_n) / K[0, 0]
         qx = depth * x_n - t[0]
@@ -90,50 +95,73 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     return max(half_width, 0), max(half_height, 0)
 
 
-@functools.partial(jax.jit, static_argnames=("beams", "epsilon_m", "half_width", "half_height"))
-def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, *, beams, epsilon_m, half_width, half_height):
-    height, width = sparse_depth.shape
-    depth = sparse_depth.astype(jnp.float32)
-    K = K.astype(jnp.float32)
-    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
-    if points_cam is not None:
-        points_cam = points_cam.astype(jnp.float32)
+#: Rows per band: bands without a single valid pixel are skipped at run time.
+_BAND_ROWS = 32
 
+
+@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height"))
+def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height):
+    height, width = sparse_depth.shape
+    hh, hw = half_height, half_width
+    band = min(_BAND_ROWS, height)
+    n_bands = -(-height // band)
+    extra = n_bands * band - height            # empty rows completing the last band
+
+    depth = sparse_depth.astype(jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
     n_points = jnp.sum(valid, dtype=jnp.int32)
-    h, g = _lidar_angles(depth, K, t, points_cam)
-    z = jnp.where(valid, depth, jnp.inf)
-    hh, hw = half_height, half_width
+    band_has_points = jnp.pad(jnp.any(valid, axis=1), (0, extra)).reshape(n_bands, band).any(axis=1)
 
-    # Neighbour side of every comparison: padded so each offset is a static
-    # slice. Empty pixels and padding carry z + eps = +inf, so condition 2
-    # (z_p > z_q + eps) is false for them and they never cause a removal.
-    pad = ((hh, hh), (hw, hw))
-    h_pad = jnp.pad(h, pad)
-    g_pad = jnp.pad(g, pad)
-    z_eps_pad = jnp.pad(z + jnp.float32(epsilon_m), pad, constant_values=jnp.inf)
+    # Everything lives on one padded canvas (hh rows above, hh + extra below,
+    # hw columns each side) so that every neighbour offset is a plain slice.
+    # Empty pixels and padding have z + eps = +inf: condition 2 (z_p > z_q +
+    # eps) is then false for them as neighbours, and as centres they are
+    # masked out at the end.
+    pad = ((hh, hh + extra), (hw, hw))
+    depth_c = jnp.pad(jnp.where(valid, depth, 0.0), pad)
+    points_c = None if points_cam is None else jnp.pad(points_cam.astype(jnp.float32), ((0, 0), *pad))
+    h_c, g_c = _lidar_angles(depth_c, K.astype(jnp.float32), T_cam_lidar.astype(jnp.float32)[:3, 3],
+                             points_c, row0=hh, col0=hw)
+    z_c = jnp.where(depth_c > 0, depth_c, jnp.inf)
+    z_eps_c = z_c + jnp.asarray(epsilon_m, jnp.float32)
 
-    def visit(offsets, removed):
-        for du, dv in offsets:
-            rows = slice(hh + dv, hh + dv + height)
-            cols = slice(hw + du, hw + du + width)
-            flip = _flip(du, dv, h, g, h_pad[rows, cols], g_pad[rows, cols])
-            removed = removed | (flip & (z > z_eps_pad[rows, cols]))
-        return removed
-
-    removed = jnp.zeros((height, width), bool)
-    column = [(0, dv) for dv in range(-hh, hh + 1) if dv != 0]
-    if column:
-        removed = visit(column, removed)
     wl = width * beams
-    for k in range(1, hw + 1):
-        # |du| = k is inside S(i) iff k < W L / N, i.e. N < ceil(W L / k)
-        # (integers, no overflow). One branch per k: offsets beyond the
-        # run-time bound are skipped, not masked.
-        inside = n_points < -(-wl // k)
-        offsets = [(s * k, dv) for s in (1, -1) for dv in range(-hh, hh + 1)]
-        removed = jax.lax.cond(inside, functools.partial(visit, offsets), lambda r: r, removed)
-    return valid & ~removed
+    # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
+    k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), hw), 0)
+
+    def band_removed(b):
+        r0 = b * band
+        centre = lambda a: jax.lax.dynamic_slice(a, (hh + r0, hw), (band, width))
+        h_p, g_p, z_p = centre(h_c), centre(g_c), centre(z_c)
+
+        def visit(removed, du_sign, dv, col):
+            """ORs in the removals caused by the neighbours at (col - hw, dv)."""
+            q = lambda a: jax.lax.dynamic_slice(a, (hh + r0 + dv, col), (band, width))
+            flip = _flip(du_sign, dv, h_p, g_p, q(h_c), q(g_c))
+            return removed | (flip & (z_p > q(z_eps_c)))
+
+        removed = jnp.zeros((band, width), bool)
+        for dv in range(-hh, hh + 1):
+            if dv != 0:
+                removed = visit(removed, 0, dv, hw)
+
+        def columns_at(k, removed):
+            # The sign of du is static (it picks the comparison); k moves the slice.
+            for du_sign in (1, -1):
+                for dv in range(-hh, hh + 1):
+                    removed = visit(removed, du_sign, dv, hw + du_sign * k)
+            return removed
+
+        # Offsets beyond the run-time bound are skipped, not masked; the body
+        # compiles once whatever the cap.
+        return jax.lax.fori_loop(1, k_max + 1, columns_at, removed)
+
+    def per_band(b, removed):
+        rows = jax.lax.cond(band_has_points[b], band_removed, lambda b: jnp.zeros((band, width), bool), b)
+        return jax.lax.dynamic_update_slice(removed, rows, (b * band, 0))
+
+    removed = jax.lax.fori_loop(0, n_bands, per_band, jnp.zeros((n_bands * band, width), bool))
+    return valid & ~removed[:height]
 
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
@@ -148,7 +176,8 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
       T_cam_lidar: (4, 4) float32 LiDAR -> camera transform; only the LiDAR
         origin ``t = T_cam_lidar[:3, 3]`` (in the camera frame) is used.
       beams: static number of LiDAR beams L (64 for KITTI's HDL-64E).
-      epsilon_m: condition 2's depth margin, metres (paper: 1.0).
+      epsilon_m: condition 2's depth margin, metres (paper: 1.0); a traced
+        scalar is accepted (changing it does not recompile).
       max_half_width_px: static cap on ``|du|``; offsets with ``|du| >=
         W L / N`` are skipped at run time, offsets beyond the cap never visited.
       max_half_height_px: static cap on ``|dv|``; the window uses
@@ -215,7 +244,7 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
                 f"got {points_cam.shape}")
     if int(beams) != beams or beams < 1:
         raise ValueError(f"outlier_keep_mask: field 'beams' expected a positive integer, got {beams!r}")
-    if not (math.isfinite(epsilon_m) and epsilon_m >= 0):
+    if isinstance(epsilon_m, numbers.Real) and not (math.isfinite(epsilon_m) and epsilon_m >= 0):
         raise ValueError(f"outlier_keep_mask: field 'epsilon_m' expected a finite value >= 0, got {epsilon_m!r}")
     for name, value in (("max_half_width_px", max_half_width_px), ("max_half_height_px", max_half_height_px)):
         if int(value) != value or value < 0:
@@ -224,5 +253,5 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
     half_width, half_height = window_half_sizes(
         height, width, beams=int(beams), max_half_width_px=int(max_half_width_px),
         max_half_height_px=int(max_half_height_px))
-    return _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, beams=int(beams), epsilon_m=float(epsilon_m),
-                      half_width=half_width, half_height=half_height)
+    return _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, jnp.asarray(epsilon_m, jnp.float32),
+                      beams=int(beams), half_width=half_width, half_height=half_height)
