@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 from jaxdepth._src import metrics
 
-EPS = float(np.finfo(np.float32).eps)
 
 
 # ----------------------------------------------------------------------------- oracles
