@@ -1,3 +1,42 @@
-"""jaxdepth: non-learning LiDAR depth completion (Surface Geometry Model) in JAX."""
+"""jaxdepth: non-learning LiDAR depth completion (Surface Geometry Model) in JAX.
+
+Zhao, Bai, Zhang, Huang, "A Surface Geometry Model for LiDAR Depth Completion",
+IEEE RA-L 2021. Every stage is a pure, jit-compiled, fixed-shape JAX function,
+so completion vmaps over frames and cameras.
+"""
 
 __version__ = "0.1.0"
+
+from jaxdepth._src.config import SGMConfig as SGMConfig
+from jaxdepth._src.types import Camera as Camera, LidarSpec as LidarSpec, Stages as Stages
+from jaxdepth._src.presets import (KITTI_HDL64 as KITTI_HDL64, NUSCENES_HDL32 as NUSCENES_HDL32,
+                                   KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2)
+from jaxdepth._src.geometry import project_to_image as project_to_image, unproject_depth as unproject_depth
+from jaxdepth._src.normals import (range_image as range_image, point_normals as point_normals,
+                                   range_image_normals as range_image_normals)
+from jaxdepth._src.outliers import outlier_keep_mask as outlier_keep_mask
+from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
+from jaxdepth._src.residual import plane_residual as plane_residual
+from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur
+from jaxdepth._src.pipeline import (complete as complete, complete_stages as complete_stages,
+                                    complete_points as complete_points,
+                                    complete_points_stages as complete_points_stages)
+from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
+                               complete_rig as complete_rig, complete_rig_stages as complete_rig_stages)
+from jaxdepth._src.methods import complete_with as complete_with
+from jaxdepth._src.ip_basic import ip_basic as ip_basic
+from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
+                                   mean_metrics as mean_metrics, pair_errors as pair_errors)
+from jaxdepth._src.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
+from jaxdepth._src.colorize import colorize_depth as colorize_depth, colorize_normals as colorize_normals
+from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
+
+__all__ = [
+    "SGMConfig", "Camera", "LidarSpec", "Stages", "KITTI_HDL64", "NUSCENES_HDL32", "KITTI_T_CAM2_LIDAR",
+    "KITTI_K_CAM2", "project_to_image", "unproject_depth", "range_image", "point_normals", "range_image_normals",
+    "outlier_keep_mask", "nearest_seed", "gather_at_seed", "plane_residual", "gaussian_blur", "complete",
+    "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "complete_rig",
+    "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background", "mean_metrics",
+    "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
+    "make_street_scene", "SyntheticFrame",
+]

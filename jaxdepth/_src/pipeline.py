@@ -1,0 +1,164 @@
+"""The SGM pipeline: ordering of the paper's four steps. No maths of its own.
+
+Two entry points share one tail:
+
+* :func:`complete_stages` takes a sparse depth image and K (the KITTI benchmark
+  input). Normals come from the pixels back-projected through K and carried into
+  the LiDAR frame with ``T_cam_lidar`` (KITTI camera 2 by default).
+* :func:`complete_points_stages` takes a raw sweep and a camera. Normals come from
+  the sweep's true range image and outlier removal uses the exact point angles.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdepth._src import presets
+from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.geometry import project_to_image, transform_points, unproject_depth, invert_rigid
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.outliers import outlier_keep_mask
+from jaxdepth._src.residual import plane_residual
+from jaxdepth._src.smoothing import gaussian_blur
+from jaxdepth._src.types import Camera, LidarSpec, Stages
+
+DEFAULT_CONFIG = SGMConfig()
+
+
+def _check_image_inputs(sparse_depth, K):
+    if sparse_depth.ndim != 2:
+        raise ValueError(f"complete: 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
+    if K.shape != (3, 3):
+        raise ValueError(f"complete: 'K' expected shape (3, 3), got {K.shape}")
+
+
+def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.Array:
+    """(N, 3) LiDAR-frame normals -> (3, N) camera-frame normals (rotation only)."""
+    R = jnp.asarray(T_cam_lidar, jnp.float32)[:3, :3]
+    return R @ normals_lidar.T
+
+
+def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
+                   config: SGMConfig) -> Stages:
+    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
+    has_depth = sparse_depth > 0
+    if config.outlier_removal:
+        keep = outlier_keep_mask(
+            sparse_depth, K, T_cam_lidar, beams=beams, epsilon_m=config.epsilon_m,
+            max_half_width_px=config.outlier_max_half_width_px,
+            max_half_height_px=config.outlier_max_half_height_px, points_cam=points_cam)
+    else:
+        keep = has_depth
+    seeds = nearest_seed(keep, metric=config.distance_metric)
+    seed_depth = gather_at_seed(jnp.where(keep, sparse_depth, 0.0), seeds.du, seeds.dv)
+    seed_normal = gather_at_seed(normals_cam, seeds.du, seeds.dv)
+    residual = plane_residual(seed_depth, seed_normal, seeds.du, seeds.dv, K,
+                              min_abs_denom=config.min_abs_denom,
+                              max_residual_ratio=config.max_residual_ratio)
+    has_seed = seed_depth > 0
+    depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
+    depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
+    if config.keep_measured_depth:
+        depth = jnp.where(keep, sparse_depth, depth)
+    depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
+    return Stages(sparse_depth=sparse_depth, normals=normals_cam, inlier_mask=keep, seed_depth=seed_depth,
+                  du=seeds.du, dv=seeds.dv, residual=residual, depth_raw=depth_raw, depth=depth)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+    """All intermediate products of SGM completion of one sparse depth image.
+
+    Args:
+      sparse_depth: (H, W) float32 metres, 0 = empty (e.g. KITTI ``velodyne_raw``).
+      K: (3, 3) float32 intrinsics of that image (crop offsets included).
+      T_cam_lidar: (4, 4) LiDAR -> camera transform used to recover the LiDAR's
+        spherical angles (for normals and outlier removal). Defaults to KITTI's
+        camera 2 (``presets.KITTI_T_CAM2_LIDAR``).
+      config: static :class:`SGMConfig`.
+      lidar: static :class:`LidarSpec` of the sensor that produced the points.
+
+    Returns:
+      :class:`Stages`; ``.depth`` is the (H, W) float32 dense depth in metres.
+    """
+    sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
+    K = jnp.asarray(K, jnp.float32)
+    _check_image_inputs(sparse_depth, K)
+    if T_cam_lidar is None:
+        T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
+    T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
+    h, w = sparse_depth.shape
+    sparse_depth = jnp.where(jnp.isfinite(sparse_depth) & (sparse_depth > 0), sparse_depth, 0.0)
+    points_cam = unproject_depth(sparse_depth, K).reshape(h * w, 3)
+    points_lidar = transform_points(invert_rigid(T_cam_lidar), points_cam)
+    normals_lidar = point_normals(points_lidar, (sparse_depth > 0).reshape(-1), lidar=lidar,
+                                  smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
+    normals_cam = _normals_to_camera(normals_lidar, T_cam_lidar).reshape(3, h, w)
+    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config)
+
+
+def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
+             config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+    """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
+
+    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
+    exactly what a Python loop gives.
+    """
+    return complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
+                           config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+    """All intermediate products of SGM completion from a raw sweep, for one camera.
+
+    Args:
+      points: (N, 3) float32 LiDAR-frame points, metres (padded; see ``valid``).
+      valid: (N,) bool; padding and non-finite points are ignored.
+      camera: :class:`Camera` (K, T_cam_lidar traced; height, width static).
+      config, lidar: static configuration and sensor description.
+
+    Returns:
+      :class:`Stages` for the camera image.
+    """
+    points = jnp.asarray(points, jnp.float32)
+    valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
+    points = jnp.where(valid[:, None], points, 0.0)
+    normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
+                                  fill_max_gap=config.range_fill_max_gap)
+    return camera_stages_from_points(points, valid, normals_lidar, camera.K, camera.T_cam_lidar,
+                                     height=camera.height, width=camera.width, lidar=lidar, config=config)
+
+
+def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, height: int, width: int,
+                              lidar: LidarSpec, config: SGMConfig, image_size=None) -> Stages:
+    """Steps 1 (projection of points and normals) to 4 for one camera, from prepared sweep normals.
+
+    ``image_size`` (traced (2,) height, width) restricts the image to a window of
+    a larger canvas (multi-camera rigs); the output outside it is 0.
+    """
+    K = jnp.asarray(K, jnp.float32)
+    T = jnp.asarray(T_cam_lidar, jnp.float32)
+    sparse_depth, index = project_to_image(points, valid, K, T, height=height, width=width, valid_size=image_size)
+    hit = index >= 0
+    safe = jnp.where(hit, index, 0).reshape(-1)
+    points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
+    normals_cam = jnp.where(hit[None], _normals_to_camera(normals_lidar[safe], T).reshape(3, height, width), 0.0)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config)
+    if image_size is None:
+        return stages
+    inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
+    return stages._replace(depth=jnp.where(inside, stages.depth, 0.0),
+                           depth_raw=jnp.where(inside, stages.depth_raw, 0.0))
+
+
+def complete_points(points: jax.Array, valid: jax.Array, camera: Camera, *,
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+    """Dense (H, W) float32 depth for ``camera`` from a raw sweep; see :func:`complete_points_stages`."""
+    return complete_points_stages(points, valid, camera, config=config, lidar=lidar).depth

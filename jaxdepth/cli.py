@@ -1,0 +1,197 @@
+"""Command line: a thin layer of argument parsing, exit codes and progress over the library.
+
+Exit codes: 0 success, 1 data error (one-line message) or failed frames, 2 usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+from jaxdepth import __version__
+from jaxdepth.io.errors import JaxdepthError
+
+log = logging.getLogger("jaxdepth")
+
+
+class Progress:
+    """A small progress line on stderr (no dependency); silent with --quiet or when not a TTY."""
+
+    def __init__(self, total: int, *, enabled: bool = True, label: str = ""):
+        self.total, self.count, self.label = total, 0, label
+        self.enabled = enabled
+        self.tty = enabled and sys.stderr.isatty()
+        self.start = time.perf_counter()
+
+    def update(self, name: str, status: str):
+        self.count += 1
+        if not self.enabled:
+            return
+        rate = self.count / max(time.perf_counter() - self.start, 1e-9)
+        line = f"{self.label}[{self.count}/{self.total}] {rate:5.1f} frames/s  {name}: {status}"
+        if status.startswith("failed"):
+            sys.stderr.write(("\r\033[K" if self.tty else "") + line + "\n")
+        elif self.tty:
+            sys.stderr.write("\r\033[K" + line)
+        sys.stderr.flush()
+
+    def close(self):
+        if self.tty:
+            sys.stderr.write("\n")
+
+
+def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest", "ip-basic")):
+    p.add_argument("--method", choices=methods, default="sgm", help="completion method (default: sgm)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--outlier-removal", dest="outlier_removal", action="store_true", default=None,
+                       help="run the paper's outlier removal in front of the method (default for every method)")
+    group.add_argument("--no-outlier-removal", dest="outlier_removal", action="store_false",
+                       help="skip outlier removal")
+    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
+                   help="nearest-seed metric of the distance transform (default: l1)")
+    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
+
+
+def _config_from(args):
+    from jaxdepth._src.config import SGMConfig
+    changes = {"distance_metric": args.distance}
+    if args.outlier_removal is not None:
+        changes["outlier_removal"] = args.outlier_removal
+    if getattr(args, "epsilon", None) is not None:
+        changes["epsilon_m"] = args.epsilon
+    return SGMConfig(**changes)
+
+
+def cmd_demo(args) -> int:
+    from jaxdepth import demo
+    result = demo.run_demo(pathlib.Path(args.out), seed=args.seed, method=args.method, config=_config_from(args))
+    for line in result.report_lines():
+        print(line)
+    return 0
+
+
+def cmd_complete(args) -> int:
+    from jaxdepth import runner
+    from jaxdepth.io.calib import read_intrinsics_txt
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.kitti_layout import list_depth_completion_folder
+
+    src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
+    if src.is_file() or src.suffix.lower() == ".png":
+        if not src.exists():
+            raise InputError(f"{src}: input file not found")
+        if args.intrinsics is None:
+            raise InputError(f"{src}: a single image needs --intrinsics K.txt (9 numbers, row-major K)")
+        jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
+                                K=read_intrinsics_txt(args.intrinsics))]
+    else:
+        K_override = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
+        jobs = [runner.FrameJob(name=name, sparse_path=png, out_path=dst / png.name,
+                                intrinsics_path=k_path, K=K_override)
+                for name, png, k_path in list_depth_completion_folder(src)]
+        _ensure_writable_dir(dst)
+    progress = Progress(len(jobs), enabled=not args.quiet)
+    if args.engine == "ray":
+        from jaxdepth import scale
+        summary = scale.run_jobs_ray(jobs, method=args.method, config=_config_from(args),
+                                     batch_size=args.batch_size, overwrite=args.overwrite,
+                                     address=args.ray_address, on_progress=progress.update)
+    else:
+        summary = runner.run_jobs(jobs, method=args.method, config=_config_from(args), batch_size=args.batch_size,
+                                  overwrite=args.overwrite, on_progress=progress.update)
+    progress.close()
+    return _report(summary, args.quiet)
+
+
+def _ensure_writable_dir(path: pathlib.Path):
+    from jaxdepth.io.errors import OutputError
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{path}: cannot create output folder ({err.strerror or err})") from None
+    if not path.is_dir():
+        raise OutputError(f"{path}: output path exists and is not a folder")
+    import os
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: output folder is not writable")
+
+
+def _report(summary, quiet: bool) -> int:
+    for name, message in summary.failed:
+        print(f"FAILED {name}: {message}", file=sys.stderr)
+    if not quiet or summary.failed:
+        print(f"{len(summary.done)} completed, {len(summary.skipped)} skipped (already done), "
+              f"{len(summary.failed)} failed", file=sys.stderr)
+    return 0 if summary.ok else 1
+
+
+def cmd_eval(args) -> int:
+    from jaxdepth import evaluation
+    table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
+    for line in evaluation.format_table(table):
+        print(line)
+    if args.json:
+        from jaxdepth.io.atomic import atomic_write_bytes
+        atomic_write_bytes(pathlib.Path(args.json), json.dumps(table, indent=2, sort_keys=True).encode())
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="jaxdepth", description=(
+        "Non-learning LiDAR depth completion (Surface Geometry Model, Zhao et al. RA-L 2021) in JAX."))
+    parser.add_argument("--version", action="version", version=f"jaxdepth {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="complete a built-in synthetic street scene and score it (no data needed)")
+    p.add_argument("--out", default="jaxdepth_demo", help="output folder (default: ./jaxdepth_demo)")
+    p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    _add_method_options(p)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("complete", help="complete a KITTI-layout folder (velodyne_raw/ + intrinsics/) or one PNG")
+    p.add_argument("src", help="folder with velodyne_raw/*.png and intrinsics/*.txt, or one sparse depth PNG")
+    p.add_argument("dst", help="output folder (or output PNG for a single image)")
+    p.add_argument("--intrinsics", help="K.txt for a single image (or for every frame of a folder)")
+    _add_method_options(p)
+    p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
+    p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
+    p.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_complete)
+
+    p = sub.add_parser("eval", help="KITTI devkit metrics of predictions against ground truth PNGs")
+    p.add_argument("pred", help="folder of predicted depth PNGs")
+    p.add_argument("gt", help="folder of ground-truth depth PNGs (matched by file name)")
+    p.add_argument("--json", help="write {'mean': ..., 'per_frame': ...} to this file")
+    p.set_defaults(func=cmd_eval)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except JaxdepthError as err:
+        print(f"jaxdepth: error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("jaxdepth: interrupted; finished outputs are complete, re-run to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

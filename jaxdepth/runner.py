@@ -1,0 +1,256 @@
+"""Batched offline completion of many frames: I/O overlapped with compute.
+
+One compiled function per (image size, batch size, method, config): frames are
+grouped by size and run in fixed-size batches; the last batch is padded with
+empty frames, never recompiled. Background threads read/decode inputs and
+encode/write outputs while the device computes. Finished outputs are skipped
+on a re-run, writes are atomic, a bad frame is reported and skipped.
+
+On CPU a batch runs as ``lax.map`` over frames (XLA already uses every core on
+one frame, and vmapped gathers/scatters were measured 2x slower); on GPU/TPU it
+runs as ``vmap``. With several local devices the batch axis is sharded over
+them (``shard_map``), each device mapping over its share.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import functools
+import logging
+import os
+import pathlib
+import queue
+import threading
+from typing import Callable, Iterable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+
+from jaxdepth._src import presets
+from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.methods import complete_with
+from jaxdepth._src.types import LidarSpec
+from jaxdepth.io import errors as io_errors
+from jaxdepth.io.calib import read_intrinsics_txt
+from jaxdepth.io.depth_png import read_depth_png, write_depth_png
+
+log = logging.getLogger("jaxdepth")
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameJob:
+    """One frame to complete: input PNG, intrinsics (file or matrix), output PNG."""
+
+    name: str
+    sparse_path: pathlib.Path
+    out_path: pathlib.Path
+    intrinsics_path: pathlib.Path | None = None
+    K: np.ndarray | None = None
+
+
+@dataclasses.dataclass
+class RunSummary:
+    done: list = dataclasses.field(default_factory=list)
+    skipped: list = dataclasses.field(default_factory=list)
+    failed: list = dataclasses.field(default_factory=list)  # (name, message)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+
+def batch_strategy(backend: str | None = None) -> str:
+    """"map" on CPU (measured faster there), "vmap" on accelerators."""
+    backend = backend or jax.default_backend()
+    return "map" if backend == "cpu" else "vmap"
+
+
+TRACE_COUNTS: dict = {}
+
+
+@functools.lru_cache(maxsize=32)
+def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
+                       lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
+    """Compiled (B, H, W), (B, 3, 3), (4, 4) -> (B, H, W) completion for one bucket.
+
+    ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
+    """
+    key = (batch_size, height, width, method, config, lidar, strategy, devices)
+
+    def one(depth, K, T):
+        return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
+
+    def per_device(depths, Ks, T):
+        if strategy == "vmap":
+            return jax.vmap(one, in_axes=(0, 0, None))(depths, Ks, T)
+        return jax.lax.map(lambda args: one(args[0], args[1], T), (depths, Ks))
+
+    def traced(depths, Ks, T):
+        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
+        if devices > 1:
+            mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
+            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"), PartitionSpec("batch"),
+                                                                 PartitionSpec()),
+                               out_specs=PartitionSpec("batch"))
+            return fn(depths, Ks, T)
+        return per_device(depths, Ks, T)
+
+    return jax.jit(traced)
+
+
+def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,
+                   method: str = "sgm", config: SGMConfig = SGMConfig(),
+                   lidar: LidarSpec = presets.KITTI_HDL64, batch_size: int | None = None,
+                   strategy: str | None = None, devices: int | None = None) -> np.ndarray:
+    """Completes a stack of same-size frames in fixed-size (padded) batches.
+
+    Args:
+      depths: (F, H, W) float32 sparse depths, metres. Ks: (F, 3, 3).
+      batch_size: frames per compiled call (default: F rounded up to the device count).
+      strategy: "map" or "vmap" (default: :func:`batch_strategy`).
+      devices: local devices to shard the batch over (default: all).
+
+    Returns:
+      (F, H, W) float32 dense depths, identical to per-frame calls.
+    """
+    depths = np.asarray(depths, np.float32)
+    Ks = np.asarray(Ks, np.float32)
+    if depths.ndim != 3 or Ks.shape != (depths.shape[0], 3, 3):
+        raise ValueError(f"complete_batch: expected depths (F, H, W) and Ks (F, 3, 3), got {depths.shape}, {Ks.shape}")
+    T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
+    devices = devices or len(jax.local_devices())
+    batch_size = batch_size or depths.shape[0]
+    batch_size = -(-batch_size // devices) * devices
+    fn = batched_completion(batch_size, depths.shape[1], depths.shape[2], method=method, config=config,
+                            lidar=lidar, strategy=strategy or batch_strategy(), devices=devices)
+    out = []
+    for start in range(0, depths.shape[0], batch_size):
+        d, k, n = _pad_batch(depths[start:start + batch_size], Ks[start:start + batch_size], batch_size)
+        out.append(np.asarray(fn(d, k, T))[:n])
+    return np.concatenate(out, axis=0)
+
+
+def _pad_batch(depths: np.ndarray, Ks: np.ndarray, batch_size: int):
+    n = depths.shape[0]
+    if n == batch_size:
+        return depths, Ks, n
+    pad = batch_size - n
+    depths = np.concatenate([depths, np.zeros((pad,) + depths.shape[1:], np.float32)])
+    Ks = np.concatenate([Ks, np.repeat(Ks[-1:], pad, axis=0)])
+    return depths, Ks, n
+
+
+def _load(job: FrameJob):
+    depth = read_depth_png(job.sparse_path)
+    if job.K is not None:
+        K = np.asarray(job.K, np.float32)
+    elif job.intrinsics_path is not None:
+        K = read_intrinsics_txt(job.intrinsics_path)
+    else:
+        raise io_errors.InputError(f"{job.sparse_path}: no intrinsics given (expected intrinsics/<name>.txt or --intrinsics)")
+    h, w = depth.shape
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        src = job.intrinsics_path or "intrinsics"
+        raise io_errors.InputError(
+            f"{src}: field 'K' principal point ({cx:.1f}, {cy:.1f}) expected inside the {w}x{h} image "
+            f"{job.sparse_path.name}")
+    return depth, K
+
+
+def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig = SGMConfig(),
+             lidar: LidarSpec = presets.KITTI_HDL64, T_cam_lidar: np.ndarray | None = None,
+             batch_size: int = 4, overwrite: bool = False, strategy: str | None = None,
+             devices: int | None = None, io_threads: int = 2,
+             on_progress: Callable[[str, str], None] | None = None) -> RunSummary:
+    """Completes every job; never raises for a bad frame (it is recorded in ``failed``).
+
+    ``on_progress(name, status)`` is called once per frame with status "done",
+    "skipped" or "failed: <message>".
+    """
+    summary = RunSummary()
+    notify = on_progress or (lambda name, status: None)
+    todo = []
+    for job in jobs:
+        if job.out_path.exists() and not overwrite:
+            summary.skipped.append(job.name)
+            notify(job.name, "skipped")
+        else:
+            todo.append(job)
+    if not todo:
+        return summary
+    T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
+    devices = devices or len(jax.local_devices())
+    batch_size = -(-max(1, batch_size) // devices) * devices
+    strategy = strategy or batch_strategy()
+    lock = threading.Lock()
+
+    def record_failure(name, message):
+        with lock:
+            summary.failed.append((name, message))
+        notify(name, f"failed: {message}")
+
+    def write(job, depth):
+        try:
+            write_depth_png(job.out_path, depth)
+        except io_errors.JaxdepthError as err:
+            record_failure(job.name, str(err))
+            return
+        except OSError as err:
+            record_failure(job.name, f"{job.out_path}: cannot write ({err.strerror or err})")
+            return
+        with lock:
+            summary.done.append(job.name)
+        notify(job.name, "done")
+
+    pending: dict = {}  # (h, w) -> list of (job, depth, K)
+    with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
+        write_futures = []
+
+        def flush(shape, items):
+            h, w = shape
+            fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
+                                    strategy=strategy, devices=devices)
+            d, k, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]), batch_size)
+            try:
+                result = np.asarray(fn(d, k, T))
+            except Exception as err:  # a compute failure costs this batch, not the run
+                for job, _, _ in items:
+                    record_failure(job.name, f"completion failed: {err}")
+                return
+            for i, (job, _, _) in enumerate(items):
+                write_futures.append(writers.submit(write, job, result[i]))
+
+        # Read ahead at most a few batches so memory stays bounded.
+        window = max(2 * batch_size, 4)
+        futures = queue.deque()
+        jobs_iter = iter(todo)
+        for job in jobs_iter:
+            futures.append((job, readers.submit(_load, job)))
+            if len(futures) >= window:
+                break
+        while futures:
+            job, fut = futures.popleft()
+            nxt = next(jobs_iter, None)
+            if nxt is not None:
+                futures.append((nxt, readers.submit(_load, nxt)))
+            try:
+                depth, K = fut.result()
+            except io_errors.JaxdepthError as err:
+                record_failure(job.name, str(err))
+                continue
+            except OSError as err:
+                record_failure(job.name, f"{job.sparse_path}: {err}")
+                continue
+            items = pending.setdefault(depth.shape, [])
+            items.append((job, depth, K))
+            if len(items) == batch_size:
+                flush(depth.shape, pending.pop(depth.shape))
+        for shape, items in list(pending.items()):
+            flush(shape, items)
+        for f in write_futures:
+            f.result()
+    return summary
