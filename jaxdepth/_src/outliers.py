@@ -124,6 +124,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
                              points_c, row0=hh, col0=hw)
     z_c = jnp.where(depth_c > 0, depth_c, jnp.inf)
     z_eps_c = z_c + jnp.asarray(epsilon_m, jnp.float32)
+    # Materialise the canvases once: XLA would otherwise fuse the angle maths
+    # into every shifted slice that reads it (once per offset).
+    h_c, g_c, z_c, z_eps_c = jax.lax.optimization_barrier((h_c, g_c, z_c, z_eps_c))
 
     wl = width * beams
     # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
@@ -144,6 +147,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
         for dv in range(-hh, hh + 1):
             if dv != 0:
                 removed = visit(removed, 0, dv, hw)
+        # One fusion for the du = 0 column; without the barrier XLA splits it
+        # into one materialised mask per offset and carries them into the loop.
+        removed = jax.lax.optimization_barrier(removed)
 
         def columns_at(k, removed):
             # The sign of du is static (it picks the comparison); k moves the slice.
