@@ -16,6 +16,15 @@ The paper (Zhao et al., RA-L 2021, Sec. III-A) removes a projected LiDAR point
 i.e. the two points are ordered differently seen from the LiDAR than on the
 image (parallax: the LiDAR saw ``i`` past the edge of something nearer), and
 ``i`` is more than ``epsilon`` behind ``j``.
+
+Implementation: a dense sweep over window offsets. Each offset (du, dv) is one
+shifted slice of padded canvases (angle keys, z, z + epsilon) and three to
+five comparisons per pixel, OR-ed into the removal mask; the |du| = k columns
+run in a ``fori_loop`` up to the run-time bound, and row bands without a
+single point are skipped. Visiting each unordered pair once (condition 1 is
+symmetric) would need the pair's result written back at the shifted pixel,
+i.e. one materialised mask per offset, which costs more than the comparisons
+it saves.
 """
 
 from __future__ import annotations
@@ -109,8 +118,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
     depth = sparse_depth.astype(jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
-    n_points = jnp.sum(valid, dtype=jnp.int32)
-    band_has_points = jnp.pad(jnp.any(valid, axis=1), (0, extra)).reshape(n_bands, band).any(axis=1)
+    row_points = jnp.sum(valid, axis=1, dtype=jnp.int32)
+    n_points = jnp.sum(row_points)
+    band_has_points = jnp.pad(row_points, (0, extra)).reshape(n_bands, band).sum(axis=1) > 0
 
     # Everything lives on one padded canvas (hh rows above, hh + extra below,
     # hw columns each side) so that every neighbour offset is a plain slice.
@@ -230,8 +240,12 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         S(i) qualifies, whether or not ``j`` itself is removed, which is what
         the paper's loop does too (it never updates S during the loop).
 
-    Under ``vmap`` the run-time skip of offsets becomes a select: all offsets
-    up to the cap are computed (same result, more work).
+    Condition 2 always uses ``sparse_depth`` as z, also when ``points_cam`` is
+    given.
+
+    Under ``vmap`` the skips become selects: every row band is computed, and
+    the |du| loop runs to the largest bound in the batch (same result, more
+    work).
     """
     sparse_depth = jnp.asarray(sparse_depth)
     if sparse_depth.ndim != 2:
