@@ -1,0 +1,112 @@
+"""Benchmark Step 1: range image + per-point normals of one KITTI HDL-64 sweep.
+
+Reads ../shared/data/kitti/drive_0001_frame05/lidar_data.bin (float32 x, y, z,
+reflectance), pads it to 131072 points with a validity mask, and times
+``range_image`` and ``point_normals`` with the KITTI_HDL64 preset (compile time
+reported separately; median of repeated runs after warm-up). Also times the
+dense case: every pixel of the 352x1216-cropped KITTI ground truth back-projected
+to the LiDAR frame (~430k points padded to 524288). Prints a table and writes
+benchmarks/results/normals.json.
+
+Usage: python benchmarks/bench_normals.py [--repeats 50]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdepth._src.normals import point_normals, range_image
+from jaxdepth._src.presets import KITTI_HDL64, KITTI_K_CAM2, KITTI_T_CAM2_LIDAR
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+DATA = pathlib.Path(os.environ.get("JAXDEPTH_SHARED_DATA", ROOT.parent / "shared" / "data"))
+FRAME = DATA / "kitti" / "drive_0001_frame05"
+
+
+def _pad(points: np.ndarray, size: int):
+    out = np.zeros((size, 3), np.float32)
+    out[: len(points)] = points
+    valid = np.zeros(size, bool)
+    valid[: len(points)] = True
+    return jnp.asarray(out), jnp.asarray(valid)
+
+
+def _dense_points() -> np.ndarray:
+    """Back-projects the cropped ground-truth depth image (352x1216) to LiDAR-frame points."""
+    import cv2
+
+    depth = cv2.imread(str(FRAME / "groundtruth_image_02.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 256.0
+    depth = depth[23:375, 13:1229]
+    h, w = depth.shape
+    K = KITTI_K_CAM2.astype(np.float64).copy()
+    K[0, 2] -= 13
+    K[1, 2] -= 23
+    v, u = np.mgrid[0:h, 0:w]
+    # Fill every pixel (the dense case): empty pixels take a 20 m plane so the
+    # point count matches a completed image; only the count matters for timing.
+    z = np.where(depth > 0, depth, 20.0)
+    x = (u - K[0, 2]) / K[0, 0] * z
+    y = (v - K[1, 2]) / K[1, 1] * z
+    cam = np.stack([x, y, z], -1).reshape(-1, 3)
+    T = np.linalg.inv(KITTI_T_CAM2_LIDAR.astype(np.float64))
+    return (cam @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+
+
+def _time(fn, *args, repeats: int):
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t0
+    for _ in range(3):
+        jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return first, statistics.median(times), min(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=50)
+    args = parser.parse_args()
+
+    raw = np.fromfile(FRAME / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    cases = {"kitti_sweep": (raw, 131072), "kitti_dense_352x1216": (_dense_points(), 524288)}
+    lidar = KITTI_HDL64
+    results = {"device": str(jax.devices()[0]), "jax": jax.__version__, "platform": platform.platform(),
+               "lidar": {"beams": lidar.beams, "columns": lidar.columns}, "cases": {}}
+    for name, (pts, size) in cases.items():
+        points, valid = _pad(pts, size)
+        fns = {
+            "range_image": jax.jit(lambda p, m: range_image(p, m, lidar=lidar)),
+            "point_normals": jax.jit(lambda p, m: point_normals(p, m, lidar=lidar)),
+        }
+        row = {"points": int(len(pts)), "padded": size}
+        for fname, fn in fns.items():
+            first, med, best = _time(fn, points, valid, repeats=args.repeats)
+            row[fname] = {"compile_plus_first_s": round(first, 4), "median_ms": round(med * 1e3, 3),
+                          "min_ms": round(best * 1e3, 3)}
+            print(f"{name:22s} {fname:14s} points={len(pts):7d} pad={size:7d} "
+                  f"median={med * 1e3:8.3f} ms  min={best * 1e3:8.3f} ms  compile+first={first:6.2f} s")
+        results["cases"][name] = row
+    out = ROOT / "benchmarks" / "results" / "normals.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(results, indent=2) + "\n")
+    os.replace(tmp, out)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

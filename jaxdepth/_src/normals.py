@@ -1,0 +1,662 @@
+"""Step 1 of the Surface Geometry Model: spherical range image and surface normals.
+
+Following the paper (its "Surface Normal" paragraph, after Badino et al. 2011),
+every LiDAR point ``p = (x, y, z)`` (LiDAR frame, metres) is mapped to spherical
+coordinates
+
+* range ``r = |p|``,
+* azimuth ``theta = atan2(y, x)`` in ``[-pi, pi]``,
+* elevation ``phi = atan2(z, sqrt(x^2 + y^2)) = asin(z / r)`` in ``[-pi/2, pi/2]``,
+
+and binned into an ``(L, C)`` range image (``L = lidar.beams`` rows,
+``C = lidar.columns`` columns). The surface seen by the sensor is the graph
+``r(theta, phi)``; its normal follows from the partial derivatives ``r_theta``,
+``r_phi`` estimated by finite differences on the range image.
+
+Range-image layout (a :class:`~jaxdepth.LidarSpec` is all that is assumed about the sensor):
+
+* row ``i = floor((fov_up - phi) / (fov_up - fov_down) * L)`` clipped to
+  ``[0, L - 1]``: row 0 is the highest elevation; points outside the vertical
+  field of view fall in the first or last row.
+* column ``j = floor((pi - theta) / (2 pi) * C) mod C``: column 0 starts behind
+  the sensor (``theta = pi``), azimuth decreases to the right, and ``theta = 0``
+  (straight ahead, +x) sits at column ``C / 2``; the image wraps around.
+* the point with the smallest range wins a cell (scatter-min; equal ranges: the
+  smaller point index).
+
+Normal formula and its relation to the paper
+-------------------------------------------
+Let ``e_r, e_theta, e_phi`` be the columns of the paper's
+``R(theta, phi) = Rz(theta) Ry(phi)``::
+
+    e_r     = ( cos(theta) cos(phi),  sin(theta) cos(phi), sin(phi))
+    e_theta = (-sin(theta),           cos(theta),          0       )
+    e_phi   = (-cos(theta) sin(phi), -sin(theta) sin(phi), cos(phi))
+
+The surface is the zero set of ``F(p) = |p| - r(theta(p), phi(p))``. With
+``grad |p| = e_r``, ``grad theta = e_theta / (r cos phi)`` and
+``grad phi = e_phi / r``::
+
+    grad F = e_r - r_theta / (r cos phi) e_theta - r_phi / r e_phi.
+
+The paper prints ``R (1, r_theta / (r cos phi), r_phi / r)^T``: the two
+derivative terms carry the opposite sign relative to the radial term, which is
+not a normal of the surface (a wall ``x = d`` seen at ``phi != 0`` gets a
+spurious z component; a wall seen at a yaw gets the tangential component doubled
+instead of cancelled). This module returns the sensor-facing normal
+
+    n = normalize(-e_r + r_theta / (r cos phi) e_theta + r_phi / r e_phi)
+      = -normalize(grad F)
+      = R (-1, r_theta / (r cos phi), r_phi / r)^T / |...|,
+
+i.e. the paper's vector with the sign of its first (radial) component flipped,
+where ``r_theta`` and ``r_phi`` are true derivatives with respect to the
+increasing angles (finite differences divide by the real, signed angle offsets
+of the neighbouring points, so the column/row direction of the image does not
+enter). The result satisfies ``n . p <= 0`` (it faces the sensor); tests check
+it against ray-cast analytic planes.
+
+Derivative scheme (robust at depth discontinuities)
+--------------------------------------------------
+For each measured cell the nearest measured cell is searched in each of the
+four image directions within ``1 + fill_max_gap`` steps (columns wrap around
+360 degrees, rows do not). In each axis the one-sided neighbour with the
+smaller ``|dr|`` is used (the other side is likely across a depth edge). The
+two chosen neighbours give the offsets ``(dr_h, dtheta_h, dphi_h)`` and
+``(dr_v, dtheta_v, dphi_v)`` measured with the real angles of the points, and
+``(r_theta, r_phi)`` solve the 2x2 system
+``dr_k = r_theta dtheta_k + r_phi dphi_k``. This accounts for neighbours from a
+different beam or azimuth than the cell grid suggests (real sensors do not sit
+on cell centres). With one axis missing, that derivative is 0; with a
+degenerate system, each axis is differenced on its own.
+
+Filling and smoothing (the paper's "extra step to fill in those empty pixels")
+-----------------------------------------------------------------------------
+Empty cells take, for ``max(1, fill_max_gap, smoothing)`` passes, the
+renormalised mean normal of their filled 8-neighbours; cells still empty after
+that face the sensor along their cell-centre ray (``-e_r``). Then every cell is
+replaced by the renormalised ``(2 smoothing + 1)^2`` box mean (columns wrap,
+rows are cut at the border) and oriented so that ``n . e_r <= 0`` along the
+ray of its point (cell centre for empty cells). Points that lost their cell to
+a nearer point read the normal of that cell, oriented towards the sensor along
+their own ray, so every valid point has a unit normal.
+
+Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
+are ~30x slower than a fused polynomial); ``atan2`` uses an octant reduction
+and a least-squares polynomial (max error < 1e-7 rad), sine and cosine a
+quadrant reduction and Taylor series (error < 1e-7). Every division is guarded
+with the safe-``where`` pattern, and the derivative ratios are clipped to
+``+-1e4`` (a surface within 0.006 degrees of grazing), so no NaN or Inf can
+arise from finite input.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import custom_batching
+
+from jaxdepth._src.types import LidarSpec
+
+#: Points closer than this to the sensor origin (metres) are treated as invalid.
+MIN_RANGE_M = 1e-6
+#: Neighbour angle offsets below this (radians) are not used for differences.
+_MIN_ANGLE_STEP = 1e-6
+#: |r_theta / (r cos phi)| and |r_phi / r| are clipped to this.
+_MAX_SLOPE = 1e4
+#: Ridge (relative to the trace) of the 2x2 least-squares system for the slopes:
+#: biases well-spread systems (det ~ trace^2 / 4) by ~4e-5.
+_RIDGE = 1e-5
+#: det / trace^2 of that system (1/4 for neighbours at right angles) at which a
+#: normal gets full weight in the smoothing.
+_MIN_SPREAD = 0.05
+#: Weight in the smoothing of a normal that lacks one of its two derivatives.
+_PARTIAL_WEIGHT = 1e-3
+
+_PI = math.pi
+_TAN_PI_8 = math.tan(math.pi / 8.0)
+# atan(u) ~= u + u^3 P(u^2) on |u| <= tan(pi/8): least-squares fit of
+# (atan(u)/u - 1)/u^2 by a cubic in s = u^2 on 4000 Chebyshev nodes (float64,
+# numpy.linalg.lstsq); measured max abs error 4.8e-8 rad in float32.
+_ATAN_COEFFS = (-0.3333328808480196, 0.19991394133810128, -0.14026550211532, 0.08529792624477861)
+# pi/2 split into a float32 head and a tail for the quadrant reduction.
+_PIO2_HI = float(np.float32(math.pi / 2))
+_PIO2_LO = math.pi / 2 - _PIO2_HI
+
+
+class RangeImage(NamedTuple):
+    """A spherical range image of one sweep.
+
+    Attributes:
+      r: (L, C) float32 range of the winning point, metres; 0 where empty.
+      theta: (L, C) float32 azimuth of the winning point, radians in [-pi, pi];
+        the cell-centre azimuth where empty.
+      phi: (L, C) float32 elevation of the winning point, radians; the
+        cell-centre elevation where empty.
+      index: (L, C) int32 index of the point that won the cell (nearest range;
+        equal ranges: smaller index); -1 where empty.
+      cell: (N,) int32 flat cell index ``row * C + col`` of every valid point
+        (also of points that lost their cell); -1 for invalid points.
+    """
+
+    r: jax.Array
+    theta: jax.Array
+    phi: jax.Array
+    index: jax.Array
+    cell: jax.Array
+
+
+# --------------------------------------------------------------------------- numerics
+
+
+def _atan2(y: jax.Array, x: jax.Array) -> jax.Array:
+    """Polynomial float32 ``atan2(y, x)`` in [-pi, pi] (max error < 1e-7 rad); atan2(0, 0) = 0."""
+    ax = jnp.abs(x)
+    ay = jnp.abs(y)
+    hi = jnp.maximum(ax, ay)
+    lo = jnp.minimum(ax, ay)
+    ok = hi > 0
+    t = jnp.where(ok, lo / jnp.where(ok, hi, 1.0), 0.0)  # in [0, 1]
+    big = t > _TAN_PI_8
+    u = jnp.where(big, (t - 1.0) / (t + 1.0), t)  # |u| <= tan(pi/8)
+    s = u * u
+    c0, c1, c2, c3 = _ATAN_COEFFS
+    p = ((c3 * s + c2) * s + c1) * s + c0
+    a = u + u * s * p
+    a = jnp.where(big, a + _PI / 4, a)
+    a = jnp.where(ay > ax, _PI / 2 - a, a)
+    a = jnp.where(x < 0, _PI - a, a)
+    return jnp.where(y < 0, -a, a)
+
+
+def _sin_cos_small(t: jax.Array, half_width: float):
+    """Float32 (sin t, cos t) by Taylor series for |t| <= half_width (static bound).
+
+    Terms are added until the next one is below 1e-8 at ``half_width``.
+    """
+    t2 = t * t
+    sin_terms, cos_terms = [], []
+    n = 1
+    while True:  # sin: t^n / n! for odd n; cos: t^(n-1) / (n-1)!
+        sin_terms.append((-1) ** (n // 2) / math.factorial(n))
+        cos_terms.append((-1) ** ((n - 1) // 2) / math.factorial(n - 1))
+        if half_width ** (n + 1) / math.factorial(n + 1) < 1e-8 and half_width ** (n + 2) / math.factorial(
+                n + 2) < 1e-8:
+            break
+        n += 2
+    s = jnp.full_like(t, sin_terms[-1])
+    c = jnp.full_like(t, cos_terms[-1])
+    for a, b in zip(sin_terms[-2::-1], cos_terms[-2::-1]):
+        s = s * t2 + a
+        c = c * t2 + b
+    return s * t, c
+
+
+def _azimuth_basis(theta: jax.Array):
+    """(sin, cos) of (L, C) azimuths that lie within half a column of their cell centre.
+
+    Uses the static cell-centre angle and a short Taylor series of the offset.
+    """
+    cols = theta.shape[1]
+    centre = _PI - (np.arange(cols, dtype=np.float64) + 0.5) * (2 * _PI / cols)
+    s_c = np.sin(centre).astype(np.float32)[None, :]
+    c_c = np.cos(centre).astype(np.float32)[None, :]
+    delta = _wrap_angle(theta - centre.astype(np.float32)[None, :])
+    s_d, c_d = _sin_cos_small(delta, _PI / cols + 1e-5)
+    return s_c * c_d + c_c * s_d, c_c * c_d - s_c * s_d
+
+
+def _wrap_angle(d: jax.Array) -> jax.Array:
+    """Wraps an angle difference in (-2 pi, 2 pi) to [-pi, pi]."""
+    d = jnp.where(d > _PI, d - 2 * _PI, d)
+    return jnp.where(d < -_PI, d + 2 * _PI, d)
+
+
+def _safe_div(num, den, ok):
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+# --------------------------------------------------------------- materialisation
+#
+# XLA:CPU fuses a producer into every consumer: shifted slices and per-point
+# gathers would re-run the whole upstream chain per element (measured 5-20x
+# slower). ``lax.optimization_barrier`` is removed before fusion on CPU, so the
+# arrays are passed through a ``lax.cond`` whose predicate is always true but
+# not provable at compile time (an int32 from the data compared with INT32_MIN);
+# a conditional's operands and results are real buffers. Under ``vmap`` the
+# predicate is reduced to a scalar (custom_vmap) so the conditional is not
+# turned into a select; a custom_jvp passes tangents straight through.
+
+
+@custom_batching.custom_vmap
+def _cond_fence(arrays, token):
+    keep = token >= jnp.iinfo(jnp.int32).min  # always true
+    return jax.lax.cond(keep, lambda t: t, lambda t: tuple(jnp.zeros_like(a) for a in t), arrays)
+
+
+@_cond_fence.def_vmap
+def _cond_fence_vmap(axis_size, in_batched, arrays, token):
+    arrays_batched, token_batched = in_batched
+    if token_batched:
+        token = jnp.min(token)
+    arrays = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                   for a, b in zip(arrays, arrays_batched))
+    return _cond_fence(arrays, token), tuple(True for _ in arrays)
+
+
+@jax.custom_jvp
+def _materialise(arrays, token):
+    """Returns ``arrays`` unchanged, computed once into buffers (see above)."""
+    return _cond_fence(tuple(arrays), token)
+
+
+@_materialise.defjvp
+def _materialise_jvp(primals, tangents):
+    arrays, token = primals
+    return _materialise(arrays, token), tuple(tangents[0])
+
+
+# ------------------------------------------------------------------- image shifts
+#
+# Shifts are slices of a padded copy that is materialised first (an
+# optimization barrier): XLA would otherwise fuse a concatenate into every
+# consumer, which is ~6x slower than reading a buffer at an offset.
+
+
+def _pad(arrays, k: int, fills, token):
+    """Pads (L, C) arrays by k (materialised): columns wrap around 360 degrees, rows take ``fill``."""
+    out = []
+    for a, fill in zip(arrays, fills):
+        a = jnp.concatenate([a[:, a.shape[1] - k:], a, a[:, :k]], axis=1) if k else a
+        if k:
+            rows = jnp.full((k, a.shape[1]), fill, a.dtype)
+            a = jnp.concatenate([rows, a, rows], axis=0)
+        out.append(a)
+    return _materialise(tuple(out), token)
+
+
+def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
+    """View of a ``_pad``-ed array: out[i, j] = a[i + di, (j + dj) mod C] (fill outside rows)."""
+    rows = padded.shape[0] - 2 * k
+    cols = padded.shape[1] - 2 * k
+    return jax.lax.slice(padded, (k + di, k + dj), (k + di + rows, k + dj + cols))
+
+
+def _box_sums(arrays, half: int, token):
+    """(2 half + 1)^2 box sums; columns wrap, rows outside the image count as 0."""
+    if half == 0:
+        return tuple(arrays)
+    padded = _pad(arrays, half, [0.0] * len(arrays), token)
+    horiz = []
+    for p in padded:
+        h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
+        for dj in range(1, 2 * half + 1):
+            h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
+        horiz.append(h)
+    horiz = _materialise(tuple(horiz), token)
+    out = []
+    for h in horiz:
+        rows = h.shape[0] - 2 * half
+        v = jax.lax.slice(h, (0, 0), (rows, h.shape[1]))
+        for di in range(1, 2 * half + 1):
+            v = v + jax.lax.slice(h, (di, 0), (di + rows, h.shape[1]))
+        out.append(v)
+    return tuple(out)
+
+
+# --------------------------------------------------------------------- validation
+
+
+def _check_points(points, valid):
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (N, 3), got {tuple(points.shape)}")
+    if valid.shape != (points.shape[0],):
+        raise ValueError(f"valid: expected shape ({points.shape[0]},) matching points, got {tuple(valid.shape)}")
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        raise ValueError(f"points: expected a floating dtype, got {points.dtype}")
+
+
+def _check_options(smoothing, fill_max_gap):
+    for name, value in (("smoothing", smoothing), ("fill_max_gap", fill_max_gap)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
+            raise ValueError(f"{name}: expected a non-negative integer, got {value!r}")
+
+
+def _check_lidar(lidar):
+    if not isinstance(lidar, LidarSpec):
+        raise ValueError(f"lidar: expected a LidarSpec, got {type(lidar).__name__}")
+
+
+# -------------------------------------------------------------------- range image
+
+
+def _cell_centres(lidar: LidarSpec):
+    """Static (1, C) azimuth and (L, 1) elevation of the cell centres, float32 numpy."""
+    cols = np.arange(lidar.columns, dtype=np.float64)
+    rows = np.arange(lidar.beams, dtype=np.float64)
+    theta = _PI - (cols + 0.5) * (2 * _PI / lidar.columns)
+    span = lidar.fov_up_rad - lidar.fov_down_rad
+    phi = lidar.fov_up_rad - (rows + 0.5) * (span / lidar.beams)
+    return theta.astype(np.float32)[None, :], phi.astype(np.float32)[:, None]
+
+
+def _spherical(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
+    """Per-point range, angles, flat cell and validity."""
+    pts = points.astype(jnp.float32)
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    rho2 = x * x + y * y
+    r2 = rho2 + z * z
+    ok = valid.astype(bool) & jnp.isfinite(r2) & (r2 > MIN_RANGE_M * MIN_RANGE_M)
+    r = jnp.where(ok, jnp.sqrt(jnp.where(ok, r2, 1.0)), 0.0)  # safe sqrt: finite gradients
+    rho_ok = ok & (rho2 > 0)
+    rho = jnp.where(rho_ok, jnp.sqrt(jnp.where(rho_ok, rho2, 1.0)), 0.0)
+    theta = _atan2(y, x)
+    phi = _atan2(z, rho)
+    n_rows, n_cols = lidar.beams, lidar.columns
+    col = jnp.floor((_PI - theta) * (n_cols / (2 * _PI))).astype(jnp.int32)
+    col = jnp.where(col >= n_cols, col - n_cols, col)
+    col = jnp.clip(col, 0, n_cols - 1)
+    span = lidar.fov_up_rad - lidar.fov_down_rad
+    row_f = (lidar.fov_up_rad - phi) * (n_rows / span)
+    row = jnp.clip(jnp.floor(jnp.clip(row_f, -1.0, n_rows)), 0, n_rows - 1).astype(jnp.int32)
+    cell = jnp.where(ok, row * n_cols + col, -1)
+    return r, theta, phi, cell, ok
+
+
+def _range_image(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
+    """The range image and each point's materialised flat cell (``L * C`` for invalid points)."""
+    n = points.shape[0]
+    n_rows, n_cols = lidar.beams, lidar.columns
+    n_cells = n_rows * n_cols
+    r, theta, phi, cell, ok = _spherical(points, valid, lidar)
+    slot = jnp.where(ok, cell, n_cells)  # invalid points go to a dump slot
+    # Non-negative float32 ranges order like their int32 bit patterns.
+    key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
+    slot, key, r, theta, phi = _materialise((slot, key, r, theta, phi), slot[0])
+    best = jnp.full((n_cells + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key)
+    win = key == best.at[slot].get(mode="promise_in_bounds")
+    ids = jnp.arange(n, dtype=jnp.int32)
+    idx = jnp.full((n_cells + 1,), n, jnp.int32).at[jnp.where(win, slot, n_cells)].min(ids)[:n_cells]
+    has = idx < n
+    safe = jnp.where(has, idx, 0)
+    theta_c, phi_c = _cell_centres(lidar)
+    r_img = jnp.where(has, r.at[safe].get(mode="promise_in_bounds"), 0.0)
+    th_img = jnp.where(has, theta.at[safe].get(mode="promise_in_bounds"),
+                       jnp.broadcast_to(theta_c, (n_rows, n_cols)).reshape(-1))
+    ph_img = jnp.where(has, phi.at[safe].get(mode="promise_in_bounds"),
+                       jnp.broadcast_to(phi_c, (n_rows, n_cols)).reshape(-1))
+    shape = (n_rows, n_cols)
+    ri = RangeImage(r=r_img.reshape(shape), theta=th_img.reshape(shape), phi=ph_img.reshape(shape),
+                    index=jnp.where(has, idx, -1).reshape(shape), cell=jnp.where(slot < n_cells, slot, -1))
+    return ri, slot
+
+
+@functools.partial(jax.jit, static_argnames=("lidar",))
+def range_image(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec) -> RangeImage:
+    """Bins one LiDAR sweep into a spherical range image (nearest point per cell).
+
+    Args:
+      points: (N, 3) float LiDAR-frame points, metres.
+      valid: (N,) bool. Points that are masked, non-finite or closer than
+        ``MIN_RANGE_M`` (e.g. at the origin) are ignored.
+      lidar: static :class:`~jaxdepth.LidarSpec` giving L = beams rows over
+        [fov_down, fov_up] and C = columns over 360 degrees.
+
+    Returns:
+      :class:`RangeImage` with (L, C) fields ``r``, ``theta``, ``phi``, ``index``
+      and the (N,) ``cell`` of every point (layout in the module docstring).
+
+    Oracle: a NumPy loop over points (tests). Azimuth and elevation come from a
+    float32 polynomial ``atan2`` (error < 1e-7 rad), so a point within ~1e-7 rad
+    of a cell boundary may land in the neighbouring cell compared with float64.
+    """
+    _check_lidar(lidar)
+    points = jnp.asarray(points)
+    valid = jnp.asarray(valid)
+    _check_points(points, valid)
+    return _range_image(points, valid, lidar)[0]
+
+
+# ------------------------------------------------------------------------ normals
+
+
+def _neighbour(padded, k: int, di: int, dj: int, centre):
+    """Offsets to the nearest measured cell within k steps along (di, dj).
+
+    Only neighbours inside the 90-degree cone of the search direction count
+    (|x| >= |y| for columns, |y| >= |x| for rows): a row of the range image may
+    hold two beams, and a point of the other beam next door is a vertical, not
+    a horizontal, neighbour. Returns (ok, x, y, z) with x = dtheta cos(phi),
+    y = dphi (radians) and z = dr / r.
+    """
+    meas, r, th, ph, c_ph, inv_r = centre
+    pm, pr, pt, pp = padded
+    ok = x = y = z = None
+    for s in range(k, 0, -1):  # nearest last, so it overrides farther ones
+        cx = _wrap_angle(_at(pt, k, s * di, s * dj) - th) * c_ph
+        cy = _at(pp, k, s * di, s * dj) - ph
+        cz = (_at(pr, k, s * di, s * dj) - r) * inv_r
+        inside = jnp.abs(cx) >= jnp.abs(cy) if dj else jnp.abs(cy) >= jnp.abs(cx)
+        cok = _at(pm, k, s * di, s * dj) & inside
+        if ok is None:
+            ok, x, y, z = cok, cx, cy, cz
+        else:
+            ok = ok | cok
+            x, y, z = (jnp.where(cok, c, old) for c, old in ((cx, x), (cy, y), (cz, z)))
+    return ok & meas, x, y, z
+
+
+def _basis(th: jax.Array, ph: jax.Array):
+    """Sines and cosines of the cell angles: (s_th, c_th, s_ph, c_ph)."""
+    s_th, c_th = _azimuth_basis(th)
+    s_ph, c_ph = _sin_cos_small(ph, _PI / 2)
+    return s_th, c_th, s_ph, c_ph
+
+
+def _solve_gradient(rows, weights):
+    """Weighted least squares for (a, b) in z_k = a x_k + b y_k; returns (a, b, spread).
+
+    The 2x2 normal equations are solved by Cramer's rule with the determinant
+    and numerators written as sums over pairs of rows (Lagrange's identity),
+    so a set of collinear neighbours gives exactly det = 0 instead of float32
+    cancellation noise. A ridge of ``_RIDGE * trace`` then yields the
+    minimum-norm solution (the unseen derivative is 0) and bounds the noise
+    gain of nearly collinear sets. ``spread = det / trace^2`` is in [0, 1/4].
+    """
+    det = na = nb = 0.0
+    trace = bx = by = 0.0
+    for (_, x, y, z, _), w in zip(rows, weights):
+        trace = trace + w * (x * x + y * y)
+        bx, by = bx + w * x * z, by + w * y * z
+    for j in range(len(rows)):
+        for k in range(j + 1, len(rows)):
+            _, xj, yj, zj, _ = rows[j]
+            _, xk, yk, zk, _ = rows[k]
+            ww = weights[j] * weights[k]
+            c = xj * yk - xk * yj
+            wc = ww * c
+            det = det + wc * c
+            na = na + wc * (yk * zj - yj * zk)
+            nb = nb + wc * (xj * zk - xk * zj)
+    lam = _RIDGE * trace
+    den = det + lam * (trace + lam)
+    ok = trace > 0
+    a = _safe_div(na + lam * bx, den, ok)
+    b = _safe_div(nb + lam * by, den, ok)
+    spread = _safe_div(det, trace * trace, ok)
+    return a, b, spread
+
+
+def _raw_normals(ri: RangeImage, fill_max_gap: int):
+    """Sensor-facing unit normals of measured cells, zeros at empty cells.
+
+    Returns (meas, weight, nx, ny, nz); ``weight`` in [_PARTIAL_WEIGHT, 1] is 1
+    where the neighbours constrain both derivatives and small where they are
+    (nearly) collinear (the unseen derivative is then ~0).
+    """
+    meas = ri.index >= 0
+    r, th, ph = ri.r, ri.theta, ri.phi
+    k = 1 + fill_max_gap
+    token = ri.index[0, 0]
+    padded = _pad((meas, r, th, ph), k, (False, 0.0, 0.0, 0.0), token)
+    s_th, c_th, s_ph, c_ph = _materialise(_basis(th, ph), token)
+    inv_r = _safe_div(1.0, r, meas)
+    rows = []
+    centre = (meas, r, th, ph, c_ph, inv_r)
+    for di, dj in ((0, -1), (0, 1), (-1, 0), (1, 0)):
+        ok, x, y, z = _neighbour(padded, k, di, dj, centre)
+        q = x * x + y * y
+        ok = ok & (q > _MIN_ANGLE_STEP ** 2)
+        rows.append((ok, x, y, z, _safe_div(1.0, q, ok)))
+    # Pass 1 down-weights steep neighbours (likely across a depth edge), pass 2
+    # re-weights by the residual slope of the pass-1 fit (IRLS, Cauchy weights);
+    # each equation is normalised by its angular length.
+    w1 = [jnp.where(ok, iq / (1.0 + z * z * iq), 0.0) for ok, x, y, z, iq in rows]
+    a, b, _ = _solve_gradient(rows, w1)
+    w2 = []
+    for ok, x, y, z, iq in rows:
+        e = z - a * x - b * y
+        w2.append(jnp.where(ok, iq / (1.0 + e * e * iq), 0.0))
+    a, b, spread = _solve_gradient(rows, w2)
+    # Weight for the smoothing: 1 when the neighbours span both directions,
+    # falling linearly to _PARTIAL_WEIGHT as they become collinear.
+    full = jnp.clip(spread * (1.0 / _MIN_SPREAD), _PARTIAL_WEIGHT, 1.0)
+    a = jnp.clip(a, -_MAX_SLOPE, _MAX_SLOPE)
+    b = jnp.clip(b, -_MAX_SLOPE, _MAX_SLOPE)
+    # Materialise the slopes once (else each consumer re-runs the search).
+    a, b, full = _materialise((a, b, full), token)
+
+    inv = jnp.where(meas, jax.lax.rsqrt(1.0 + a * a + b * b), 0.0)  # |(-1, a, b)| >= 1
+    # n = -e_r + a e_theta + b e_phi, normalised (the basis is orthonormal), with
+    # a = r_theta / (r cos phi) and b = r_phi / r.
+    nx = (-c_th * c_ph - a * s_th - b * c_th * s_ph) * inv
+    ny = (-s_th * c_ph + a * c_th - b * s_th * s_ph) * inv
+    nz = (-s_ph + b * c_ph) * inv
+    return meas, full, nx, ny, nz
+
+
+def _normalise(nx, ny, nz, ok):
+    n2 = nx * nx + ny * ny + nz * nz
+    good = ok & (n2 > 1e-12)
+    inv = jnp.where(good, jax.lax.rsqrt(jnp.where(good, n2, 1.0)), 0.0)
+    return good, nx * inv, ny * inv, nz * inv
+
+
+def _smoothed_normals(raw, radius: int, token):
+    """Weighted box mean of the measured cells' raw normals within ``radius`` cells.
+
+    Normals with both derivatives weigh 1, those with a missing derivative
+    (taken as 0) weigh ``_PARTIAL_WEIGHT``, so they only matter where no full
+    estimate is in the window. Returns (has, nx, ny, nz): ``has`` marks cells
+    with a measured cell in the window (their normal is unit), others are zero.
+    """
+    meas, w, nx, ny, nz = raw
+    if radius == 0:
+        return meas, nx, ny, nz
+    sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), radius, token)
+    return _normalise(sx, sy, sz, jnp.ones_like(meas))
+
+
+def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
+    """Every cell's sensor-facing unit normal (three (L, C) channels)."""
+    token = ri.index[0, 0]
+    raw = _raw_normals(ri, fill_max_gap)
+    has, nx, ny, nz = _smoothed_normals(raw, max(1, smoothing), token)
+    if smoothing == 0:  # measured cells keep their own normal, empty ones the 3x3 mean
+        meas, _, rx, ry, rz = raw
+        nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((rx, nx), (ry, ny), (rz, nz)))
+        has = has | meas
+    for _ in range(fill_max_gap):
+        nx, ny, nz, has = _materialise((nx, ny, nz, has), ri.index[0, 0])
+        w = has.astype(jnp.float32)
+        sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), 1, ri.index[0, 0])
+        grow, gx, gy, gz = _normalise(sx, sy, sz, ~has)
+        nx, ny, nz = (jnp.where(grow, g, n) for g, n in ((gx, nx), (gy, ny), (gz, nz)))
+        has = has | grow
+    s_th, c_th, s_ph, c_ph = _basis(ri.theta, ri.phi)
+    ex, ey, ez = c_th * c_ph, s_th * c_ph, s_ph  # e_r along the cell's ray
+    nx, ny, nz = (jnp.where(has, n, -e) for n, e in ((nx, ex), (ny, ey), (nz, ez)))
+    sign = jnp.where(nx * ex + ny * ey + nz * ez > 0, -1.0, 1.0)
+    return nx * sign, ny * sign, nz * sign
+
+
+@functools.partial(jax.jit, static_argnames=("smoothing", "fill_max_gap"))
+def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int = 2) -> jax.Array:
+    """Unit surface normals on the range image (Badino's spherical gradient, sign-corrected).
+
+    Args:
+      ri: a :class:`RangeImage` from :func:`range_image` (``theta`` must lie
+        within half a column of its cell centre, as :func:`range_image` ensures).
+      smoothing: static half width s of the box mean over measured cells'
+        normals (0 disables smoothing of measured cells).
+      fill_max_gap: static; derivatives look up to ``1 + fill_max_gap`` cells
+        in each direction for a measured neighbour, and empty cells are filled
+        by that many extra 3x3 passes.
+
+    Returns:
+      (3, L, C) float32 unit normals (x, y, z) in the LiDAR frame for every cell,
+      facing the sensor (``n . e_r <= 0`` along the cell's ray). Measured cells
+      (and empty cells with a measured cell within ``max(1, s)``) hold the
+      renormalised mean of the raw normals of the measured cells in their
+      ``(2 max(1, s) + 1)^2`` window (with s = 0, measured cells keep their raw
+      normal); remaining empty cells are filled by ``fill_max_gap`` passes of
+      the 3x3 mean of filled neighbours; cells still empty face the sensor
+      (``-e_r``). Filling never changes a measured cell.
+
+    The formula is ``R(theta, phi) (-1, r_theta / (r cos phi), r_phi / r)^T``
+    normalised: the paper's expression with the radial sign flipped, see the
+    module docstring for the derivation and the derivative scheme.
+    Oracle: ray-cast analytic planes (tests).
+    """
+    _check_options(smoothing, fill_max_gap)
+    if not isinstance(ri, RangeImage):
+        raise ValueError(f"ri: expected a RangeImage, got {type(ri).__name__}")
+    if ri.r.ndim != 2 or any(f.shape != ri.r.shape for f in (ri.theta, ri.phi, ri.index)):
+        raise ValueError(
+            "ri: expected (L, C) fields r, theta, phi, index of one shape, got "
+            f"{[tuple(f.shape) for f in (ri.r, ri.theta, ri.phi, ri.index)]}")
+    return jnp.stack(_normal_channels(ri, smoothing, fill_max_gap), axis=0)
+
+
+@functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap"))
+def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec, smoothing: int = 1,
+                  fill_max_gap: int = 2) -> jax.Array:
+    """Unit surface normal of every valid LiDAR point (Step 1 of the paper).
+
+    Args:
+      points: (N, 3) float LiDAR-frame points, metres.
+      valid: (N,) bool; masked, non-finite and origin points get a zero normal.
+      lidar: static :class:`~jaxdepth.LidarSpec` of the range image.
+      smoothing, fill_max_gap: static, see :func:`range_image_normals`.
+
+    Returns:
+      (N, 3) float32 LiDAR-frame normals: unit length and ``n . p <= 0`` for
+      every valid point, zeros for invalid points. A point reads the normal of
+      its range-image cell (also when a nearer point won the cell), i.e.
+      ``range_image_normals(range_image(...))`` at ``cell``, flipped if needed to
+      face the sensor along the point's own ray.
+    """
+    _check_lidar(lidar)
+    _check_options(smoothing, fill_max_gap)
+    points = jnp.asarray(points)
+    valid = jnp.asarray(valid)
+    _check_points(points, valid)
+    ri, slot = _range_image(points, valid, lidar)
+    # Points only sit in measured cells, so the filling of empty cells is skipped.
+    _, nx, ny, nz = _smoothed_normals(_raw_normals(ri, fill_max_gap), smoothing, ri.index[0, 0])
+    # Materialise before gathering, or the gather re-runs the whole chain per point.
+    nx, ny, nz = _materialise((nx.reshape(-1), ny.reshape(-1), nz.reshape(-1)), ri.index[0, 0])
+    ok = slot < nx.shape[0]
+    slot = jnp.where(ok, slot, 0)
+    px = nx.at[slot].get(mode="promise_in_bounds")
+    py = ny.at[slot].get(mode="promise_in_bounds")
+    pz = nz.at[slot].get(mode="promise_in_bounds")
+    p = points.astype(jnp.float32)
+    facing = px * p[:, 0] + py * p[:, 1] + pz * p[:, 2]
+    sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
+    return jnp.stack([px * sign, py * sign, pz * sign], axis=1)

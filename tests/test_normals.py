@@ -1,0 +1,492 @@
+"""Step 1: spherical range image and normals, against ray-cast analytic planes and NumPy loops.
+
+Synthetic sweeps are ray-cast here: a spinning sensor fires one ray per
+(beam, azimuth) and each ray that hits the plane within ``max_range`` gives the
+exact intersection point. The analytic normal of a plane ``n . p = d`` that
+faces the sensor is ``-sign(d) n``.
+
+Tolerances: a one-sided finite difference on the range image estimates the
+normal of a plane with an error of the order of half the angular pitch between
+neighbouring rays (the secant of r(theta, phi) is tilted against the tangent),
+i.e. ~0.1-0.2 degrees for 0.18 x 0.42 degree cells; the 3x3 box mean and
+float32 rounding add less. We assert 1 degree on interior points for
+cell-centred rays and 2 degrees for an irregular beam pattern with azimuth
+jitter (rays off the cell centres, rows with two beams and empty rows). The
+paper's printed sign convention is wrong by tens of degrees here (tested too).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxdepth._src import normals as N
+from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
+from jaxdepth._src.types import LidarSpec
+
+LIDAR = KITTI_HDL64  # 64 x 2048, fov [-24.9, 2] degrees
+SMALL = LidarSpec(beams=16, fov_up_deg=10.0, fov_down_deg=-20.0, columns=64)
+
+
+# ----------------------------------------------------------------------------- ray casting
+
+
+def ideal_angles(lidar: LidarSpec):
+    """Beam elevations and azimuths on the range-image cell centres (radians)."""
+    span = lidar.fov_up_deg - lidar.fov_down_deg
+    elev = np.radians(lidar.fov_up_deg - (np.arange(lidar.beams) + 0.5) * span / lidar.beams)
+    azim = np.pi - (np.arange(lidar.columns) + 0.5) * 2 * np.pi / lidar.columns
+    return elev, azim
+
+
+def irregular_angles(lidar: LidarSpec, seed: int = 0):
+    """An HDL-64-like pattern: 32 beams 1/3 degree apart from the top, 32 beams 1/2 degree
+    apart below (rows of the linear range image get 0, 1 or 2 beams), ~1900 azimuths
+    per turn with a per-beam offset and +-0.3 column jitter (rays off the cell centres)."""
+    rng = np.random.default_rng(seed)
+    upper = 2.0 - np.arange(32) / 3.0
+    lower = upper[-1] - 0.5 - np.arange(32) * 0.5
+    elev = np.radians(np.concatenate([upper, lower]))
+    n_az = 1900
+    azim = np.pi - (np.arange(n_az) + 0.5) * 2 * np.pi / n_az
+    azim = azim[None, :] + rng.uniform(-0.3, 0.3, (64, n_az)) * 2 * np.pi / lidar.columns
+    return elev, azim
+
+
+def cast_plane(normal, d, elev, azim, *, max_range=70.0):
+    """Ray-casts the plane normal . p = d. Returns points (B, A, 3) float32 and hit (B, A) bool."""
+    normal = np.asarray(normal, np.float64)
+    normal = normal / np.linalg.norm(normal)
+    azim = np.broadcast_to(azim, (len(elev),) + np.shape(azim)[-1:])
+    e = elev[:, None]
+    dirs = np.stack([np.cos(e) * np.cos(azim), np.cos(e) * np.sin(azim), np.sin(e) * np.ones_like(azim)], -1)
+    den = dirs @ normal
+    ok = np.abs(den) > 1e-9
+    t = np.where(ok, d / np.where(ok, den, 1.0), -1.0)
+    hit = (t > 0.5) & (t < max_range)
+    pts = np.where(hit[..., None], dirs * t[..., None], 0.0)
+    return pts.astype(np.float32), hit
+
+
+def interior(hit: np.ndarray, margin: int) -> np.ndarray:
+    """Rays whose (2 margin + 1)^2 ray-grid neighbourhood all hit (azimuth wraps)."""
+    out = hit.copy()
+    for di in range(-margin, margin + 1):
+        for dj in range(-margin, margin + 1):
+            shifted = np.roll(hit, dj, axis=1)
+            if di > 0:
+                shifted = np.concatenate([np.zeros_like(shifted[:di]), shifted[:-di]], 0)
+            elif di < 0:
+                shifted = np.concatenate([shifted[-di:], np.zeros_like(shifted[:-di])], 0)
+            out &= shifted
+    return out
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    cos = np.sum(a * b, -1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def padded(points: np.ndarray, hit: np.ndarray, size: int):
+    p = np.zeros((size, 3), np.float32)
+    v = np.zeros(size, bool)
+    flat_p, flat_v = points.reshape(-1, 3), hit.reshape(-1)
+    p[: len(flat_p)] = flat_p
+    v[: len(flat_v)] = flat_v
+    return jnp.asarray(p), jnp.asarray(v)
+
+
+def wall(yaw_deg, d=8.0):
+    a = math.radians(yaw_deg)
+    return np.array([math.cos(a), math.sin(a), 0.0]), d
+
+
+def ground(pitch_deg, roll_deg=0.0, height=1.73):
+    p, r = math.radians(pitch_deg), math.radians(roll_deg)
+    n = np.array([math.sin(p) * math.cos(r), -math.sin(r), math.cos(p) * math.cos(r)])
+    return n, -height
+
+
+SIZE = 131072
+_point_normals = jax.jit(lambda p, v: N.point_normals(p, v, lidar=LIDAR))
+
+
+def check_plane(normal, d, angles, tol_deg, margin=4):
+    elev, azim = angles
+    pts, hit = cast_plane(normal, d, elev, azim)
+    assert hit.sum() > 2000
+    p, v = padded(pts, hit, SIZE)
+    n = np.asarray(_point_normals(p, v))[: hit.size].reshape(hit.shape + (3,))
+    want = -np.sign(d) * np.asarray(normal) / np.linalg.norm(normal)
+    inner = interior(hit, margin)
+    assert inner.sum() > 1000
+    err = angle_deg(n[inner], want[None, :])
+    assert err.max() < tol_deg, (err.max(), np.median(err))
+    # every valid point has a unit normal that faces the sensor
+    assert np.allclose(np.linalg.norm(n[hit], axis=-1), 1.0, atol=1e-5)
+    assert np.all(np.sum(n[hit] * pts[hit], -1) <= 1e-6)
+    assert np.all(n[~hit] == 0)
+    return err
+
+
+# ----------------------------------------------------------------------------- analytic planes
+
+
+@pytest.mark.parametrize("yaw", [0, 20, 40, 60, 90, -90, 180, 215])
+def test_vertical_wall_matches_analytic_normal(yaw):
+    # 180 and 215 put the wall behind the sensor, across the +-pi seam of the image.
+    check_plane(*wall(yaw), ideal_angles(LIDAR), tol_deg=1.0)
+
+
+@pytest.mark.parametrize("pitch,roll", [(0, 0), (4, 0), (-6, 0), (10, 0), (3, 5)])
+def test_ground_plane_matches_analytic_normal(pitch, roll):
+    check_plane(*ground(pitch, roll), ideal_angles(LIDAR), tol_deg=1.0)
+
+
+@pytest.mark.parametrize("plane", [wall(40), wall(-120, 12.0), ground(5), ground(-3, 4)])
+def test_irregular_beams_and_jitter(plane):
+    check_plane(*plane, irregular_angles(LIDAR), tol_deg=2.0)
+
+
+def test_paper_sign_convention_would_fail():
+    """The paper's printed R (1, r_theta / (r cos phi), r_phi / r)^T is far off a yawed wall:
+    rebuilding it from our own (correct) normal shows the sign matters."""
+    normal, d = wall(40)
+    elev, azim = ideal_angles(LIDAR)
+    pts, hit = cast_plane(normal, d, elev, azim)
+    p, v = padded(pts, hit, SIZE)
+    n = np.asarray(_point_normals(p, v))[: hit.size].reshape(hit.shape + (3,))
+    inner = interior(hit, 4)
+    q = pts[inner].astype(np.float64)
+    r = np.linalg.norm(q, axis=-1)
+    th = np.arctan2(q[:, 1], q[:, 0])
+    ph = np.arcsin(q[:, 2] / r)
+    e_r = np.stack([np.cos(th) * np.cos(ph), np.sin(th) * np.cos(ph), np.sin(ph)], -1)
+    e_t = np.stack([-np.sin(th), np.cos(th), 0 * th], -1)
+    e_p = np.stack([-np.cos(th) * np.sin(ph), -np.sin(th) * np.sin(ph), np.cos(ph)], -1)
+    m = n[inner].astype(np.float64)
+    # our n = (-e_r + a e_t + b e_p) / |.|: recover a, b, then form the paper's vector.
+    radial = -np.sum(m * e_r, -1)
+    a = np.sum(m * e_t, -1) / radial
+    b = np.sum(m * e_p, -1) / radial
+    paper = e_r + a[:, None] * e_t + b[:, None] * e_p
+    want = -normal
+    ours = angle_deg(m, want[None, :])
+    theirs = np.minimum(angle_deg(paper, want[None, :]), angle_deg(-paper, want[None, :]))
+    assert ours.max() < 1.0
+    assert np.median(theirs) > 20.0
+
+
+# ----------------------------------------------------------------------------- range image
+
+
+def np_range_image(points: np.ndarray, valid: np.ndarray, lidar: LidarSpec):
+    """Brute-force loop in float64 angles; r from float32 like the library."""
+    L, C = lidar.beams, lidar.columns
+    r_img = np.zeros((L, C), np.float32)
+    index = -np.ones((L, C), np.int64)
+    cell = -np.ones(len(points), np.int64)
+    span = lidar.fov_up_rad - lidar.fov_down_rad
+    for i, (p, ok) in enumerate(zip(points, valid)):
+        if not ok or not np.all(np.isfinite(p)):
+            continue
+        r = np.float32(np.sqrt(np.float64(p[0]) ** 2 + np.float64(p[1]) ** 2 + np.float64(p[2]) ** 2))
+        if not r > N.MIN_RANGE_M:
+            continue
+        th = math.atan2(p[1], p[0])
+        ph = math.atan2(p[2], math.hypot(p[0], p[1]))
+        col = int(math.floor((math.pi - th) * C / (2 * math.pi))) % C
+        row = min(max(int(math.floor((lidar.fov_up_rad - ph) * L / span)), 0), L - 1)
+        c = row * C + col
+        cell[i] = c
+        cur = index.flat[c]
+        if cur < 0 or r < r_img.flat[c]:
+            index.flat[c] = i
+            r_img.flat[c] = r
+    return r_img, index, cell
+
+
+def near_boundary(points: np.ndarray, lidar: LidarSpec, tol=1e-4) -> np.ndarray:
+    """Points whose float64 bin coordinate is within tol of a cell edge (float32 may differ)."""
+    p = points.astype(np.float64)
+    th = np.arctan2(p[:, 1], p[:, 0])
+    ph = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+    u = (np.pi - th) * lidar.columns / (2 * np.pi)
+    span = lidar.fov_up_rad - lidar.fov_down_rad
+    v = (lidar.fov_up_rad - ph) * lidar.beams / span
+    frac = lambda x: np.abs(x - np.round(x))  # noqa: E731
+    return (frac(u) < tol) | (frac(v) < tol)
+
+
+def random_cloud(rng, n, *, dup=0.2, origin=3, nan=2):
+    dirs = rng.normal(size=(n, 3))
+    dirs[:, 2] *= 0.3
+    pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * rng.uniform(0.5, 40.0, (n, 1))
+    k = int(dup * n)
+    pts[rng.choice(n, k)] = pts[rng.choice(n, k)]  # exact duplicates
+    pts[rng.choice(n, origin)] = 0.0
+    pts[rng.choice(n, nan), rng.integers(0, 3, nan)] = np.nan
+    valid = rng.uniform(size=n) > 0.1
+    return pts.astype(np.float32), valid
+
+
+@pytest.mark.parametrize("lidar", [SMALL, NUSCENES_HDL32])
+def test_range_image_matches_numpy_loop(lidar):
+    rng = np.random.default_rng(1)
+    pts, valid = random_cloud(rng, 1024)
+    valid &= ~near_boundary(np.nan_to_num(pts), lidar)
+    r_ref, idx_ref, cell_ref = np_range_image(pts, valid, lidar)
+    ri = N.range_image(jnp.asarray(pts), jnp.asarray(valid), lidar=lidar)
+    assert ri.r.dtype == jnp.float32 and ri.index.dtype == jnp.int32 and ri.cell.dtype == jnp.int32
+    assert ri.r.shape == (lidar.beams, lidar.columns)
+    np.testing.assert_array_equal(np.asarray(ri.cell), cell_ref)
+    np.testing.assert_array_equal(np.asarray(ri.index), idx_ref)
+    np.testing.assert_allclose(np.asarray(ri.r), r_ref, rtol=2e-7, atol=0)
+    has = idx_ref >= 0
+    src = pts[idx_ref[has]].astype(np.float64)
+    th = np.arctan2(src[:, 1], src[:, 0])
+    ph = np.arctan2(src[:, 2], np.hypot(src[:, 0], src[:, 1]))
+    np.testing.assert_allclose(np.asarray(ri.theta)[has], th, atol=3e-7, rtol=0)
+    np.testing.assert_allclose(np.asarray(ri.phi)[has], ph, atol=3e-7, rtol=0)
+    th_c, ph_c = N._cell_centres(lidar)
+    np.testing.assert_allclose(np.asarray(ri.theta)[~has], np.broadcast_to(th_c, has.shape)[~has], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(ri.phi)[~has], np.broadcast_to(ph_c, has.shape)[~has], atol=1e-6)
+
+
+def test_range_image_ties_go_to_smaller_index():
+    p = np.array([[5, 1, 0], [5, 1, 0], [10, 2, 0], [5, 1, 0]], np.float32)
+    ri = N.range_image(jnp.asarray(p), jnp.ones(4, bool), lidar=SMALL)
+    cells = np.asarray(ri.cell)
+    assert len(set(cells.tolist())) == 1
+    assert int(np.asarray(ri.index).flat[cells[0]]) == 0
+    assert (np.asarray(ri.index) >= 0).sum() == 1
+
+
+def test_polynomial_atan2_and_sin_cos():
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(size=20000), [0, 0, 1, -1, 0, 0, -1, 1]]).astype(np.float32)
+    y = np.concatenate([rng.normal(size=20000), [0, 1, 0, 0, -1, -0.0, 1e-30, -1e-30]]).astype(np.float32)
+    got = np.asarray(N._atan2(jnp.asarray(y), jnp.asarray(x)))
+    want = np.arctan2(y.astype(np.float64), x.astype(np.float64))
+    err = np.abs(got - want)
+    err = np.minimum(err, np.abs(err - 2 * np.pi))  # -pi and pi are the same direction
+    assert err.max() < 4e-7
+    a = rng.uniform(-np.pi / 2, np.pi / 2, 20000).astype(np.float32)
+    s, c = N._sin_cos_small(jnp.asarray(a), np.pi / 2)
+    assert np.abs(np.asarray(s) - np.sin(a.astype(np.float64))).max() < 3e-7
+    assert np.abs(np.asarray(c) - np.cos(a.astype(np.float64))).max() < 3e-7
+    cols = 2048
+    centre = np.pi - (np.arange(cols) + 0.5) * 2 * np.pi / cols
+    th = (centre[None, :] + rng.uniform(-0.5, 0.5, (4, cols)) * 2 * np.pi / cols)
+    th = np.where(th > np.pi, th - 2 * np.pi, th).astype(np.float32)
+    s, c = N._azimuth_basis(jnp.asarray(th))
+    assert np.abs(np.asarray(s) - np.sin(th.astype(np.float64))).max() < 3e-7
+    assert np.abs(np.asarray(c) - np.cos(th.astype(np.float64))).max() < 3e-7
+
+
+# ----------------------------------------------------------------------------- every point
+
+
+def test_every_valid_point_gets_a_unit_normal_random_cloud():
+    rng = np.random.default_rng(2)
+    pts, valid = random_cloud(rng, 1024)
+    n = np.asarray(N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL))
+    good = valid & np.all(np.isfinite(pts), 1) & (np.linalg.norm(np.nan_to_num(pts), axis=1) > 0)
+    assert np.all(np.isfinite(n))
+    np.testing.assert_allclose(np.linalg.norm(n[good], axis=1), 1.0, atol=1e-5)
+    assert np.all(n[~good] == 0)
+    assert np.all(np.sum(n[good] * pts[good], 1) <= 1e-5)
+
+
+def test_sparse_isolated_points_face_the_sensor():
+    """A point with no measured neighbour has r_theta = r_phi = 0: n = -p / |p|."""
+    rng = np.random.default_rng(3)
+    # 40 points on distinct, far-apart cells of the 64 x 2048 image.
+    cols = rng.choice(2048 // 8, 40, replace=False) * 8
+    rows = rng.integers(0, 16, 40) * 4
+    elev, azim = ideal_angles(LIDAR)
+    e, a = elev[rows], azim[cols]
+    r = rng.uniform(2, 50, 40)
+    pts = (np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], 1) * r[:, None]).astype(np.float32)
+    p, v = padded(pts, np.ones(40, bool), SIZE)
+    n = np.asarray(_point_normals(p, v))
+    want = -pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    np.testing.assert_allclose(n[:40], want, atol=2e-6)
+    assert np.all(n[40:] == 0)
+    full = np.asarray(N.range_image_normals(N.range_image(p, v, lidar=LIDAR)))
+    assert full.shape == (3, 64, 2048)
+    np.testing.assert_allclose(np.linalg.norm(full, axis=0), 1.0, atol=1e-5)
+
+
+def test_losers_read_their_cell_normal():
+    normal, d = wall(30)
+    elev, azim = ideal_angles(SMALL)
+    pts, hit = cast_plane(normal, d, elev[4:12], azim, max_range=40)  # 512 rays
+    pts, hit = pts.reshape(-1, 3), hit.reshape(-1)
+    # add a slightly farther copy of every hit point: same cell, loses the scatter-min
+    far = pts * np.float32(1.0 + 1e-4)
+    allp = np.concatenate([pts, far])
+    allv = np.concatenate([hit, hit])
+    ri = N.range_image(jnp.asarray(allp), jnp.asarray(allv), lidar=SMALL)
+    n = np.asarray(N.point_normals(jnp.asarray(allp), jnp.asarray(allv), lidar=SMALL))
+    img = np.asarray(N.range_image_normals(ri)).reshape(3, -1).T
+    cell = np.asarray(ri.cell)
+    k = len(pts)
+    assert np.all(np.asarray(ri.index).reshape(-1)[cell[k:][hit]] < k)  # the copies lost
+    np.testing.assert_allclose(n[k:][hit], img[cell[k:][hit]], atol=1e-6)
+    np.testing.assert_allclose(n[:k][hit], n[k:][hit], atol=1e-6)
+
+
+def test_range_image_normals_fill_every_cell():
+    normal, d = ground(0)
+    elev, azim = irregular_angles(LIDAR)
+    pts, hit = cast_plane(normal, d, elev, azim, max_range=30)
+    p, v = padded(pts, hit, SIZE)
+    ri = N.range_image(p, v, lidar=LIDAR)
+    meas = np.asarray(ri.index) >= 0
+    assert 0.2 < meas.mean() < 0.9  # empty rows, columns and the sky are all present
+    for smoothing, gap in [(1, 2), (0, 0)]:
+        img = np.asarray(N.range_image_normals(ri, smoothing=smoothing, fill_max_gap=gap))
+        assert np.all(np.isfinite(img))
+        np.testing.assert_allclose(np.linalg.norm(img, axis=0), 1.0, atol=1e-5)
+        th, ph = np.asarray(ri.theta), np.asarray(ri.phi)
+        e_r = np.stack([np.cos(th) * np.cos(ph), np.sin(th) * np.cos(ph), np.sin(ph)])
+        assert np.all(np.sum(img * e_r, 0) <= 1e-6)
+        # the empty rows between measured ground rows get the ground normal too
+        rows_between = meas.any(1)
+        ground_rows = np.where(rows_between)[0]
+        gap_rows = [i for i in range(ground_rows.min(), ground_rows.max()) if not rows_between[i]]
+        assert gap_rows
+        err = angle_deg(np.moveaxis(img[:, gap_rows], 0, -1), normal[None, None, :])
+        assert np.median(err) < 2.0
+
+
+# ----------------------------------------------------------------------------- invariants
+
+
+def test_jit_equals_eager():
+    """Equal up to float32 rounding (FMA contraction differs): ranges within an ulp,
+    normals within 2e-5 (range differences of ~1 % of r amplify an ulp ~100x)."""
+    rng = np.random.default_rng(4)
+    pts, valid = random_cloud(rng, 1024)
+    p, v = jnp.asarray(pts), jnp.asarray(valid)
+    jitted = N.point_normals(p, v, lidar=SMALL)
+    ri_j = N.range_image(p, v, lidar=SMALL)
+    img_j = N.range_image_normals(ri_j)
+    with jax.disable_jit():
+        eager = N.point_normals(p, v, lidar=SMALL)
+        ri_e = N.range_image(p, v, lidar=SMALL)
+        img_e = N.range_image_normals(ri_e)
+    np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), atol=2e-5)
+    for a, b in zip(ri_j, ri_e):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2.5e-7, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(img_j), np.asarray(img_e), atol=2e-5)
+
+
+def test_vmap_equals_loop():
+    elev = np.radians(np.linspace(9, -19, 16))
+    azim = np.pi - (np.arange(64) + 0.5) * 2 * np.pi / 64
+    sweeps = [cast_plane(*plane, elev, azim, max_range=40) for plane in (wall(10), wall(-100, 5.0), ground(4))]
+    pts = jnp.asarray(np.stack([s[0].reshape(-1, 3) for s in sweeps]))
+    val = jnp.asarray(np.stack([s[1].reshape(-1) for s in sweeps]))
+    batched = jax.vmap(lambda p, v: N.point_normals(p, v, lidar=SMALL))(pts, val)
+    looped = jnp.stack([N.point_normals(p, v, lidar=SMALL) for p, v in zip(pts, val)])
+    np.testing.assert_allclose(np.asarray(batched), np.asarray(looped), atol=1e-6)
+    ri_b = jax.vmap(lambda p, v: N.range_image(p, v, lidar=SMALL))(pts, val)
+    img_b = jax.vmap(N.range_image_normals)(ri_b)
+    for i, (p, v) in enumerate(zip(pts, val)):
+        ri = N.range_image(p, v, lidar=SMALL)
+        for a, b in zip(ri, ri_b):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b[i]))
+        np.testing.assert_allclose(np.asarray(N.range_image_normals(ri)), np.asarray(img_b[i]), atol=1e-6)
+
+
+def test_no_retrace_for_new_data():
+    rng = np.random.default_rng(6)
+    pts, valid = random_cloud(rng, 1024)
+    N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL)
+    before = N.point_normals._cache_size()
+    for _ in range(2):
+        pts, valid = random_cloud(rng, 1024)
+        N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL)
+    assert N.point_normals._cache_size() == before
+
+
+def test_gradient_is_finite():
+    """Gradients flow through ranges and angles (not through the integer cell
+    choice) and stay finite, also for padding points at the origin."""
+    normal, d = wall(25)
+    elev = np.radians(np.linspace(9, -19, 16))
+    azim = np.pi - (np.arange(64) + 0.5) * 2 * np.pi / 64
+    pts, hit = cast_plane(normal, d, elev, azim, max_range=40)
+    p, v = jnp.asarray(pts.reshape(-1, 3)), jnp.asarray(hit.reshape(-1))
+    f = lambda q: jnp.sum(N.point_normals(q, v, lidar=SMALL, smoothing=0, fill_max_gap=0)  # noqa: E731
+                          * jnp.array([1.0, 2.0, 3.0]))
+    g = np.asarray(jax.grad(f)(p))
+    assert np.all(np.isfinite(g))
+    assert np.abs(g[hit.reshape(-1)]).max() > 0
+
+
+@settings(deadline=None, max_examples=12)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_property_unit_normals_and_permutation_invariance(seed):
+    rng = np.random.default_rng(seed)
+    n = 1024
+    pts, valid = random_cloud(rng, n, dup=0.3, origin=2, nan=1)
+    out = np.asarray(N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL))
+    good = valid & np.all(np.isfinite(pts), 1) & (np.linalg.norm(np.nan_to_num(pts), axis=1) > 0)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(np.linalg.norm(out[good], axis=1), 1.0, atol=1e-5)
+    assert np.all(out[~good] == 0)
+    perm = rng.permutation(n)
+    out_p = np.asarray(N.point_normals(jnp.asarray(pts[perm]), jnp.asarray(valid[perm]), lidar=SMALL))
+    np.testing.assert_allclose(out_p, out[perm], atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def test_bad_inputs_raise_value_error():
+    p = jnp.zeros((8, 3))
+    v = jnp.ones(8, bool)
+    with pytest.raises(ValueError, match=r"points: expected shape \(N, 3\), got \(8, 2\)"):
+        N.point_normals(jnp.zeros((8, 2)), v, lidar=SMALL)
+    with pytest.raises(ValueError, match=r"valid: expected shape \(8,\)"):
+        N.range_image(p, jnp.ones(7, bool), lidar=SMALL)
+    with pytest.raises(ValueError, match="smoothing: expected a non-negative integer, got -1"):
+        N.point_normals(p, v, lidar=SMALL, smoothing=-1)
+    with pytest.raises(ValueError, match="lidar: expected a LidarSpec"):
+        N.range_image(p, v, lidar="kitti")
+    with pytest.raises(ValueError, match="ri: expected a RangeImage"):
+        N.range_image_normals((1, 2, 3, 4, 5))
+
+
+def test_options_are_keyword_only():
+    p = jnp.zeros((8, 3))
+    v = jnp.ones(8, bool)
+    with pytest.raises(TypeError):
+        N.range_image(p, v, SMALL)  # noqa
+
+
+# ----------------------------------------------------------------------------- real data
+
+
+def test_kitti_sweep_every_point_and_ground(kitti_frame):
+    raw = np.fromfile(kitti_frame / "lidar_data.bin", np.float32)
+    pts = raw.reshape(-1, 4)[:, :3]
+    p, v = padded(pts, np.ones(len(pts), bool), SIZE)
+    n = np.asarray(_point_normals(p, v))[: len(pts)]
+    assert np.all(np.isfinite(n))
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert np.all(np.sum(n * pts, 1) <= 1e-4)
+    # the road just ahead of the car (sensor 1.73 m above it) is nearly horizontal
+    road = (pts[:, 0] > 4) & (pts[:, 0] < 15) & (np.abs(pts[:, 1]) < 3) & (pts[:, 2] < -1.4)
+    assert road.sum() > 1000
+    err = angle_deg(n[road], np.array([[0.0, 0.0, 1.0]]))
+    assert np.median(err) < 5.0
