@@ -1,0 +1,452 @@
+"""Optional Ray backend: complete datasets larger than one machine (``pip install 'jaxdepth[ray]'``).
+
+The work is a Ray Data pipeline over *job records* (frame name, input/output
+paths, K or intrinsics path), never over images: every actor reads its own
+inputs and writes its own outputs, so only small status rows travel back to the
+driver. Each actor of the pool is a :class:`_CompleteFrames` instance that
+keeps its compiled batch function (:func:`jaxdepth.runner.batched_completion`)
+for the life of the actor, so a frame size compiles once per actor, not once
+per batch.
+
+Results are the same bytes as :func:`jaxdepth.runner.run_jobs` with the same
+``batch_size`` (same compiled function, same padding, same writer).
+
+Paths must be visible under the same name on every node (a shared or network
+file system), and jaxdepth must be installed on every node (or shipped with
+``runtime_env={"py_modules": [jaxdepth]}``).
+
+Ray is imported inside the functions only: importing this module without Ray
+installed works, and calling it raises an :class:`ImportError` that says how to
+install it. ``jaxdepth._src`` never imports Ray.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import logging
+import os
+import pathlib
+import warnings
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from jaxdepth._src import presets
+from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.types import LidarSpec
+
+log = logging.getLogger("jaxdepth")
+
+#: Resources of the throw-away local cluster started when no address is given.
+LOCAL_NUM_CPUS = 2
+LOCAL_OBJECT_STORE_BYTES = 256 * 1024 * 1024
+
+#: Ray Data settings changed for the duration of a run (progress is reported per frame instead).
+_QUIET_CONTEXT = {"enable_progress_bars": False, "print_on_execution_start": False, "enable_auto_log_stats": False}
+
+_INSTALL_HINT = "the Ray engine needs Ray Data: pip install 'jaxdepth[ray]'"
+
+
+def _import_ray():
+    """(ray, ray.data), or ImportError with the install command."""
+    try:
+        import ray
+        import ray.data
+    except ImportError as err:
+        raise ImportError(f"{_INSTALL_HINT} (import failed: {err})") from err
+    return ray, ray.data
+
+
+# --------------------------------------------------------------------------- records
+
+def _record(job) -> dict[str, Any]:
+    """FrameJob -> a flat row that Arrow stores without Python objects."""
+    has_K = job.K is not None
+    K = np.asarray(job.K, np.float64).reshape(9) if has_K else np.zeros(9, np.float64)
+    return {
+        "name": str(job.name),
+        "sparse_path": os.fspath(job.sparse_path),
+        "out_path": os.fspath(job.out_path),
+        "intrinsics_path": "" if job.intrinsics_path is None else os.fspath(job.intrinsics_path),
+        "has_K": has_K,
+        "K": K.tolist(),
+    }
+
+
+def _jobs_from_batch(batch: dict[str, Any]) -> list:
+    """A numpy-format batch of records -> FrameJobs (inverse of :func:`_record`)."""
+    from jaxdepth.runner import FrameJob
+
+    jobs = []
+    for i in range(len(batch["name"])):
+        intrinsics = str(batch["intrinsics_path"][i])
+        K = None
+        if bool(batch["has_K"][i]):
+            # float32 K -> float64 record -> float32 again is exact.
+            K = np.asarray(list(batch["K"][i]), np.float64).reshape(3, 3).astype(np.float32)
+        jobs.append(FrameJob(name=str(batch["name"][i]), sparse_path=pathlib.Path(str(batch["sparse_path"][i])),
+                             out_path=pathlib.Path(str(batch["out_path"][i])),
+                             intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K))
+    return jobs
+
+
+# --------------------------------------------------------------------------- actor UDF
+
+class _CompleteFrames:
+    """Ray Data class UDF: one instance per actor, compiled functions kept across batches.
+
+    ``__call__`` takes a numpy-format batch of job records and returns one status
+    row per frame: ``name``, ``status`` ("done" or "failed") and ``message``
+    (empty when done). A bad input, a failed computation or a failed write is a
+    "failed" row, never an exception, so one bad frame cannot fail the dataset.
+    Outputs are written atomically (:func:`jaxdepth.io.depth_png.write_depth_png`),
+    replacing a file left by an earlier attempt of the same task, so a retried
+    task is idempotent.
+    """
+
+    def __init__(self, *, method: str, config: SGMConfig, lidar: LidarSpec, T_cam_lidar: np.ndarray,
+                 batch_size: int, io_threads: int = 2):
+        import jax
+
+        from jaxdepth import runner
+
+        self._runner = runner
+        self.method, self.config, self.lidar = method, config, lidar
+        self.T = np.asarray(T_cam_lidar, np.float32)
+        self.devices = len(jax.local_devices())
+        # Same rounding as runner.run_jobs: identical compiled function, identical bytes.
+        self.batch_size = -(-max(1, int(batch_size)) // self.devices) * self.devices
+        self.strategy = runner.batch_strategy()
+        self.io_threads = max(1, int(io_threads))
+        self._fns: dict[tuple[int, int], Callable] = {}
+
+    def _fn(self, shape: tuple[int, int]) -> Callable:
+        fn = self._fns.get(shape)
+        if fn is None:
+            fn = self._runner.batched_completion(self.batch_size, shape[0], shape[1], method=self.method,
+                                                 config=self.config, lidar=self.lidar, strategy=self.strategy,
+                                                 devices=self.devices)
+            self._fns[shape] = fn
+        return fn
+
+    def _read(self, job):
+        from jaxdepth.io import errors as io_errors
+
+        try:
+            return self._runner._load(job), None
+        except io_errors.JaxdepthError as err:
+            return None, str(err)
+        except OSError as err:
+            return None, f"{job.sparse_path}: {err}"
+
+    @staticmethod
+    def _write(job, depth) -> str | None:
+        from jaxdepth.io import errors as io_errors
+        from jaxdepth.io.depth_png import write_depth_png
+
+        try:
+            write_depth_png(job.out_path, depth)
+        except io_errors.JaxdepthError as err:
+            return str(err)
+        except OSError as err:
+            return f"{job.out_path}: cannot write ({err.strerror or err})"
+        return None
+
+    def __call__(self, batch: dict[str, Any]) -> dict[str, np.ndarray]:
+        jobs = _jobs_from_batch(batch)
+        failure: dict[str, str] = {}
+        groups: dict[tuple[int, int], list] = {}
+        with cf.ThreadPoolExecutor(self.io_threads) as pool:
+            for job, (loaded, message) in zip(jobs, pool.map(self._read, jobs)):
+                if loaded is None:
+                    failure[job.name] = message
+                else:
+                    groups.setdefault(loaded[0].shape, []).append((job, *loaded))
+            writes = []
+            for shape, items in groups.items():
+                for start in range(0, len(items), self.batch_size):
+                    chunk = items[start:start + self.batch_size]
+                    d, k, n = self._runner._pad_batch(np.stack([it[1] for it in chunk]),
+                                                      np.stack([it[2] for it in chunk]), self.batch_size)
+                    try:
+                        result = np.asarray(self._fn(shape)(d, k, self.T))
+                    except Exception as err:  # a compute failure costs this chunk, not the dataset
+                        for job, _, _ in chunk:
+                            failure[job.name] = f"completion failed: {err}"
+                        continue
+                    writes += [(job, pool.submit(self._write, job, result[i])) for i, (job, _, _) in enumerate(chunk)]
+            for job, future in writes:
+                message = future.result()
+                if message is not None:
+                    failure[job.name] = message
+        names = [job.name for job in jobs]
+        return {
+            "name": np.array(names, dtype=object),
+            "status": np.array(["failed" if n in failure else "done" for n in names], dtype=object),
+            "message": np.array([failure.get(n, "") for n in names], dtype=object),
+        }
+
+
+# --------------------------------------------------------------------------- cluster
+
+def _restore_env(saved: dict[str, str | None]) -> None:
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+@contextlib.contextmanager
+def _local_ray(ray, *, runtime_env: dict | None = None) -> Iterator[None]:
+    """A throw-away single-node Ray on loopback only (no dashboard, no usage stats), shut down on exit.
+
+    ``ray.init`` turns ``_node_ip_address="127.0.0.1"`` into the machine's
+    network address, and Ray then listens on every interface. Ray's one switch
+    for a local-only node is ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`` (read into
+    ``ray_constants.ENABLE_RAY_CLUSTER`` when Ray is imported): it is set in the
+    environment the started processes inherit and, for this process, the
+    already-imported flag is switched off while ``ray.init`` runs; both are
+    restored right after, so a later connection to a real cluster is unaffected.
+    ``RAY_USAGE_STATS_ENABLED`` defaults to 0 while the cluster lives (Ray Data
+    otherwise starts usage pollers in the driver).
+    """
+    saved = {key: os.environ.get(key) for key in ("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "RAY_USAGE_STATS_ENABLED")}
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    try:
+        try:
+            from ray._private import ray_constants  # private: absent or renamed only loses the loopback pin
+        except ImportError:  # pragma: no cover - depends on the Ray version
+            ray_constants = None
+        saved_flag = getattr(ray_constants, "ENABLE_RAY_CLUSTER", None)
+        os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
+        try:
+            if saved_flag is not None:
+                ray_constants.ENABLE_RAY_CLUSTER = False
+            ray.init(address="local", num_cpus=LOCAL_NUM_CPUS, include_dashboard=False,
+                     object_store_memory=LOCAL_OBJECT_STORE_BYTES, runtime_env=runtime_env,
+                     logging_level=logging.WARNING)
+        finally:
+            if saved_flag is not None:
+                ray_constants.ENABLE_RAY_CLUSTER = saved_flag
+            _restore_env({"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": saved["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"]})
+        node_ip = ray.util.get_node_ip_address()
+        if node_ip not in ("127.0.0.1", "::1"):
+            log.warning("ray: the local Ray could not be pinned to loopback (node address %s)", node_ip)
+        try:
+            yield
+        finally:
+            ray.shutdown()
+    finally:
+        _restore_env(saved)
+
+
+@contextlib.contextmanager
+def _connected(ray, address: str | None, runtime_env: dict | None) -> Iterator[None]:
+    """Reuses a connected Ray, connects to ``address`` / ``RAY_ADDRESS``, or starts a local one.
+
+    On exit a local Ray started here is shut down; a connection opened here is
+    closed (``ray.shutdown`` in a driver that connected only disconnects it: the
+    cluster keeps running); a connection that was already open is left alone.
+    """
+    if ray.is_initialized():
+        log.info("ray: using the Ray instance this process is already connected to")
+        yield
+        return
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    if address:
+        log.info("ray: connecting to %s", address)
+        ray.init(address=address, runtime_env=runtime_env, logging_level=logging.WARNING)
+        try:
+            yield
+        finally:
+            ray.shutdown()
+        return
+    log.info("ray: starting a local Ray (%d CPUs, loopback only)", LOCAL_NUM_CPUS)
+    with _local_ray(ray, runtime_env=runtime_env):
+        yield
+
+
+def _fitting_nodes(ray, cpus: float, gpus: float) -> int:
+    """Alive nodes with room for one actor (a CPU-less head node does not count); at least 1."""
+    try:
+        nodes = ray.nodes()
+    except Exception:  # pragma: no cover - only a hint for the pool size
+        return 1
+    fits = 0
+    for node in nodes:
+        resources = node.get("Resources", {})
+        if node.get("Alive") and resources.get("CPU", 0.0) >= cpus and resources.get("GPU", 0.0) >= gpus:
+            fits += 1
+    return max(1, fits)
+
+
+# --------------------------------------------------------------------------- public API
+
+def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGMConfig(),
+                 lidar: LidarSpec = presets.KITTI_HDL64, T_cam_lidar: np.ndarray | None = None,
+                 batch_size: int = 4, overwrite: bool = False, address: str | None = None,
+                 num_actors: int | None = None, cpus_per_actor: float = 1.0, gpus_per_actor: float = 0.0,
+                 max_restarts: int = 3, max_task_retries: int = 3, runtime_env: dict | None = None,
+                 on_progress: Callable[[str, str], None] | None = None):
+    """Completes every job on a Ray cluster; never raises for a bad frame.
+
+    Same contract as :func:`jaxdepth.runner.run_jobs` (and the same output
+    bytes for the same ``batch_size``), with the frames spread over a pool of
+    Ray actors.
+
+    Args:
+      jobs: :class:`jaxdepth.runner.FrameJob` list. Paths must be readable and
+        writable under the same name on every node.
+      method, config, lidar, T_cam_lidar, batch_size, overwrite: as in
+        :func:`jaxdepth.runner.run_jobs`. ``batch_size`` frames of one size go
+        through one compiled call (the last is padded, never recompiled).
+      address: Ray cluster address (``"ray://host:10001"``, ``"host:6379"`` or
+        ``"auto"``): the driver connects, and disconnects at the end, leaving the
+        cluster running. None: the ``RAY_ADDRESS`` environment variable if set,
+        else a local Ray on loopback (2 CPUs, no dashboard) that is shut down at
+        the end. A Ray this process is already connected to is reused as is.
+      num_actors: size of the actor pool (default: one per alive node with room
+        for an actor; the actors are spread over the nodes).
+        Each actor's XLA already uses every core of its node.
+      cpus_per_actor, gpus_per_actor: Ray resources reserved per actor. Ray
+        hides GPUs from an actor that reserves none, so set ``gpus_per_actor=1``
+        to complete on GPUs.
+      max_restarts, max_task_retries: fault tolerance of the actors. A dead
+        actor (crash, lost node, out of memory) is restarted up to
+        ``max_restarts`` times, and the batch it was working on is retried up to
+        ``max_task_retries`` times (on another actor when one is free). A
+        retried batch rewrites its outputs atomically with the same bytes.
+      runtime_env: passed to ``ray.init`` (e.g. ``{"py_modules": [jaxdepth]}``
+        when the cluster does not have jaxdepth installed).
+      on_progress: ``on_progress(name, status)`` once per frame on the driver,
+        status "done", "skipped" or "failed: <message>", as rows arrive.
+
+    Returns:
+      :class:`jaxdepth.runner.RunSummary` with ``done``, ``skipped`` (output
+      already there and ``overwrite`` False; checked on the driver before the
+      dataset is built, so a re-run resumes) and ``failed`` ``(name, message)``.
+
+    Raises:
+      ImportError: Ray Data is not installed (``pip install 'jaxdepth[ray]'``).
+      ValueError: bad ``batch_size``, ``num_actors`` or duplicate output paths.
+      ray.exceptions.RayError: the cluster failed beyond the retries above
+        (bad frames never raise).
+    """
+    from jaxdepth.runner import RunSummary
+
+    if int(batch_size) < 1:
+        raise ValueError(f"run_jobs_ray: field 'batch_size' expected >= 1, got {batch_size}")
+    if num_actors is not None and int(num_actors) < 1:
+        raise ValueError(f"run_jobs_ray: field 'num_actors' expected >= 1 or None, got {num_actors}")
+    outs = [os.fspath(job.out_path) for job in jobs]
+    if len(set(outs)) != len(outs):
+        dup = next(o for o in outs if outs.count(o) > 1)
+        raise ValueError(f"run_jobs_ray: field 'jobs' expected distinct output paths, got {dup!r} twice")
+    ray, ray_data = _import_ray()
+
+    summary = RunSummary()
+    notify = on_progress or (lambda name, status: None)
+    todo = []
+    for job in jobs:
+        if not overwrite and job.out_path.exists():
+            summary.skipped.append(job.name)
+            notify(job.name, "skipped")
+        else:
+            todo.append(job)
+    if not todo:
+        return summary
+    T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
+    if T.shape != (4, 4):
+        raise ValueError(f"run_jobs_ray: field 'T_cam_lidar' expected shape (4, 4), got {T.shape}")
+    batch_size = int(batch_size)
+
+    with _connected(ray, address, runtime_env):
+        actors = int(num_actors) if num_actors is not None else _fitting_nodes(ray, cpus_per_actor, gpus_per_actor)
+        records = [_record(job) for job in todo]
+        blocks = max(1, min(len(records), -(-len(records) // batch_size)))
+        ctx = ray_data.DataContext.get_current()
+        saved = {key: getattr(ctx, key) for key in _QUIET_CONTEXT}
+        data_log = logging.getLogger("ray.data")
+        saved_level = data_log.level
+        for key, value in _QUIET_CONTEXT.items():
+            setattr(ctx, key, value)
+        if not log.isEnabledFor(logging.INFO):
+            # Ray Data's own notes ("progress bars disabled", execution plans) are noise here; its
+            # failures still surface as exceptions, and bad frames as rows.
+            data_log.setLevel(logging.ERROR)
+        try:
+            ds = ray_data.from_items(records, override_num_blocks=blocks)
+            with warnings.catch_warnings():
+                # Ray >= 2.5x deprecates the **ray_remote_args of map_batches in favour of named
+                # parameters, but has none yet for max_restarts / max_task_retries / scheduling.
+                warnings.filterwarnings("ignore", message=".*ray_remote_args.*deprecated")
+                ds = ds.map_batches(
+                    _CompleteFrames,
+                    batch_size=batch_size,
+                    batch_format="numpy",
+                    compute=ray_data.ActorPoolStrategy(size=actors),
+                    fn_constructor_kwargs=dict(method=method, config=config, lidar=lidar, T_cam_lidar=T,
+                                               batch_size=batch_size),
+                    num_cpus=cpus_per_actor,
+                    num_gpus=gpus_per_actor,
+                    max_restarts=max_restarts,
+                    max_task_retries=max_task_retries,
+                    scheduling_strategy="SPREAD",
+                )
+            for row in ds.iter_rows():
+                name, status, message = str(row["name"]), str(row["status"]), str(row["message"])
+                if status == "done":
+                    summary.done.append(name)
+                    notify(name, "done")
+                else:
+                    summary.failed.append((name, message))
+                    notify(name, f"failed: {message}")
+        finally:
+            for key, value in saved.items():
+                setattr(ctx, key, value)
+            data_log.setLevel(saved_level)
+    return summary
+
+
+def complete_folder_ray(src, dst, *, method: str = "sgm", config: SGMConfig = SGMConfig(), batch_size: int = 4,
+                        overwrite: bool = False, address: str | None = None, K: np.ndarray | None = None,
+                        on_progress: Callable[[str, str], None] | None = None):
+    """Completes a KITTI depth-completion folder on Ray: ``dst/<name>.png`` per input frame.
+
+    Args:
+      src: folder in a layout :func:`jaxdepth.io.kitti_layout.list_depth_completion_folder`
+        accepts (``velodyne_raw/*.png`` + ``intrinsics/*.txt``, or flat).
+      dst: output folder (created if missing); one 16-bit KITTI depth PNG per
+        frame, same file name as the input.
+      K: optional (3, 3) intrinsics used for every frame instead of the files.
+      method, config, batch_size, overwrite, address, on_progress: see :func:`run_jobs_ray`.
+
+    Returns:
+      :class:`jaxdepth.runner.RunSummary`.
+
+    Raises:
+      InputError: ``src`` is not a readable depth-completion folder.
+      OutputError: ``dst`` cannot be created.
+    """
+    from jaxdepth.io.errors import OutputError
+    from jaxdepth.io.kitti_layout import list_depth_completion_folder
+    from jaxdepth.runner import FrameJob
+
+    dst = pathlib.Path(dst)
+    frames = list_depth_completion_folder(src)
+    try:
+        dst.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{dst}: cannot create output folder ({err.strerror or err})") from None
+    K = None if K is None else np.asarray(K, np.float32)
+    if K is not None and K.shape != (3, 3):
+        raise ValueError(f"complete_folder_ray: field 'K' expected shape (3, 3), got {K.shape}")
+    jobs = [FrameJob(name=name, sparse_path=png, out_path=dst / png.name, intrinsics_path=txt, K=K)
+            for name, png, txt in frames]
+    return run_jobs_ray(jobs, method=method, config=config, batch_size=batch_size, overwrite=overwrite,
+                        address=address, on_progress=on_progress)
+
+
+__all__ = ["run_jobs_ray", "complete_folder_ray"]

@@ -1,0 +1,222 @@
+"""Ray engine (jaxdepth.scale) against the single-process runner, on a local loopback Ray.
+
+Oracle: :func:`jaxdepth.runner.run_jobs` on the same folder must write the same
+bytes. The folder holds the two real KITTI sparse frames (benchmark crop) when
+../shared/data is there, else synthetic sparse images, plus one corrupt PNG.
+Only needs Ray (``pip install 'jaxdepth[ray]'``), never the shared data.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+pytest.importorskip("ray.data")
+
+from jaxdepth import runner, scale  # noqa: E402
+from jaxdepth._src import presets  # noqa: E402
+from jaxdepth.io.depth_png import read_depth_png, write_depth_png  # noqa: E402
+
+# Ray starts its processes with fork+exec after JAX is up (harmless), and Ray Data reads its own
+# deprecated settings when it copies its context.
+pytestmark = [pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning"),
+              pytest.mark.filterwarnings("ignore::DeprecationWarning:ray.data.context")]
+
+METHOD = "nearest"  # the fastest method: the engines, not the algorithm, are under test
+BATCH = 2
+TOP, LEFT, H, W = 23, 13, 352, 1216  # KITTI benchmark crop of a 375 x 1242 frame
+GOOD = ("frame_02", "frame_03")
+BAD = "frame_bad"
+
+
+def _shared_kitti() -> pathlib.Path:
+    root = os.environ.get("JAXDEPTH_SHARED_DATA")
+    root = pathlib.Path(root) if root else pathlib.Path(__file__).resolve().parents[2] / "shared" / "data"
+    return root / "kitti" / "drive_0001_frame05"
+
+
+def _frames() -> list[tuple[str, np.ndarray, np.ndarray]]:
+    K = np.array(presets.KITTI_K_CAM2, np.float32).copy()
+    K[0, 2] -= LEFT
+    K[1, 2] -= TOP
+    kitti = _shared_kitti()
+    frames = []
+    for name, cam in zip(GOOD, ("02", "03")):
+        png = kitti / f"velodyne_raw_image_{cam}.png"
+        if png.exists():
+            depth = read_depth_png(png)[TOP:TOP + H, LEFT:LEFT + W]
+        else:  # synthetic stand-in: ~4 % of pixels with depths 2..80 m, like the real input
+            rng = np.random.default_rng(int(cam))
+            depth = np.where(rng.random((H, W)) < 0.04, rng.uniform(2.0, 80.0, (H, W)), 0.0).astype(np.float32)
+        frames.append((name, depth, K))
+    return frames
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> pathlib.Path:
+    """KITTI layout: velodyne_raw/*.png + intrinsics/*.txt, two good frames and one corrupt PNG."""
+    root = tmp_path_factory.mktemp("kitti_layout")
+    (root / "velodyne_raw").mkdir()
+    (root / "intrinsics").mkdir()
+    for name, depth, K in _frames():
+        write_depth_png(root / "velodyne_raw" / f"{name}.png", depth)
+        (root / "intrinsics" / f"{name}.txt").write_text(" ".join(f"{v:.9g}" for v in K.reshape(-1)) + "\n")
+    # A PNG signature followed by garbage: the reader must refuse it.
+    (root / "velodyne_raw" / f"{BAD}.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4)
+    (root / "intrinsics" / f"{BAD}.txt").write_text((root / "intrinsics" / f"{GOOD[0]}.txt").read_text())
+    return root
+
+
+def _jobs(src: pathlib.Path, dst: pathlib.Path) -> list:
+    dst.mkdir(parents=True, exist_ok=True)
+    names = [p.stem for p in sorted((src / "velodyne_raw").glob("*.png"))]
+    return [runner.FrameJob(name=n, sparse_path=src / "velodyne_raw" / f"{n}.png", out_path=dst / f"{n}.png",
+                            intrinsics_path=src / "intrinsics" / f"{n}.txt") for n in names]
+
+
+@pytest.fixture(scope="module")
+def reference(folder, tmp_path_factory) -> pathlib.Path:
+    """Outputs of the single-process runner (the oracle)."""
+    dst = tmp_path_factory.mktemp("reference")
+    summary = runner.run_jobs(_jobs(folder, dst), method=METHOD, batch_size=BATCH)
+    assert sorted(summary.done) == list(GOOD)
+    assert [name for name, _ in summary.failed] == [BAD]
+    return dst
+
+
+def _assert_same_outputs(dst: pathlib.Path, reference: pathlib.Path) -> None:
+    assert sorted(p.name for p in dst.glob("*.png")) == [f"{n}.png" for n in GOOD]
+    assert not list(dst.glob(".*.tmp")), "a temporary file was left behind"
+    for name in GOOD:
+        got = (dst / f"{name}.png").read_bytes()
+        assert got == (reference / f"{name}.png").read_bytes(), f"{name}: Ray output differs from run_jobs"
+
+
+def _recorder():
+    calls = []
+    return calls, lambda name, status: calls.append((name, status))
+
+
+def _check_reference_is_completion(folder: pathlib.Path, reference: pathlib.Path) -> None:
+    for name in GOOD:
+        sparse = read_depth_png(folder / "velodyne_raw" / f"{name}.png")
+        dense = read_depth_png(reference / f"{name}.png")
+        assert dense.shape == sparse.shape
+        assert np.count_nonzero(dense) > 10 * np.count_nonzero(sparse)  # densified, not copied
+
+
+def test_local_cluster_is_started_matches_runner_and_is_shut_down(folder, reference, tmp_path, monkeypatch):
+    """address=None: a local Ray is started for the run and shut down after it."""
+    if ray.is_initialized():
+        pytest.skip("another test left Ray running in this process")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    _check_reference_is_completion(folder, reference)
+    calls, record = _recorder()
+    node_ips = set()
+
+    def on_progress(name, status):
+        node_ips.add(ray.util.get_node_ip_address())  # called while the local Ray is up
+        record(name, status)
+
+    dst = tmp_path / "out"
+    summary = scale.run_jobs_ray(_jobs(folder, dst), method=METHOD, batch_size=BATCH, address=None,
+                                 on_progress=on_progress)
+    assert not ray.is_initialized()
+    assert node_ips == {"127.0.0.1"}, "the local Ray was not on loopback only"
+    assert sorted(summary.done) == list(GOOD)
+    assert summary.skipped == []
+    assert [name for name, _ in summary.failed] == [BAD]
+    assert f"{BAD}.png" in summary.failed[0][1]  # the message names the file
+    assert sorted(calls) == sorted([(n, "done") for n in GOOD] + [(BAD, f"failed: {summary.failed[0][1]}")])
+    _assert_same_outputs(dst, reference)
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """One loopback Ray for the rest of the module; run_jobs_ray reuses it and leaves it running."""
+    if ray.is_initialized():
+        yield
+        return
+    with scale._local_ray(ray):
+        assert ray.util.get_node_ip_address() == "127.0.0.1"
+        yield
+
+
+def test_folder_then_rerun_skips_finished_frames(local_ray, folder, reference, tmp_path):
+    dst = tmp_path / "out"
+    first = scale.complete_folder_ray(folder, dst, method=METHOD, batch_size=BATCH)
+    assert ray.is_initialized()  # a cluster this process was already connected to is not shut down
+    assert sorted(first.done) == list(GOOD)
+    assert [name for name, _ in first.failed] == [BAD]
+    _assert_same_outputs(dst, reference)
+    written = {n: (dst / f"{n}.png").stat().st_mtime_ns for n in GOOD}
+
+    # Re-run: finished frames are skipped before any work, the bad one is reported again.
+    calls, on_progress = _recorder()
+    again = scale.complete_folder_ray(folder, dst, method=METHOD, batch_size=BATCH, on_progress=on_progress)
+    assert sorted(again.skipped) == list(GOOD)
+    assert again.done == []
+    assert [name for name, _ in again.failed] == [BAD]
+    assert sorted(c for c in calls if c[1] == "skipped") == [(n, "skipped") for n in GOOD]
+    assert {n: (dst / f"{n}.png").stat().st_mtime_ns for n in GOOD} == written
+
+
+class _CrashOnce(scale._CompleteFrames):
+    """Kills its actor process on the first batch while the flag file exists (removed first)."""
+
+    flag = ""
+
+    def __call__(self, batch):
+        if self.flag and os.path.exists(self.flag):
+            os.remove(self.flag)
+            os._exit(1)
+        return super().__call__(batch)
+
+
+def test_overwrite_with_a_dead_actor_restarted_and_its_batch_retried(local_ray, folder, reference, tmp_path,
+                                                                     monkeypatch):
+    """overwrite=True replaces stale outputs; an actor killed mid-run is restarted and its batch retried."""
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # workers cannot import this test module
+    flag = tmp_path / "crash-once"
+    flag.write_text("")
+    monkeypatch.setattr(_CrashOnce, "flag", str(flag))
+    monkeypatch.setattr(scale, "_CompleteFrames", _CrashOnce)
+    dst = tmp_path / "out"
+    jobs = _jobs(folder, dst)
+    for name in GOOD:  # stale outputs of an older run
+        write_depth_png(dst / f"{name}.png", np.ones((4, 4), np.float32))
+    summary = scale.run_jobs_ray(jobs, method=METHOD, batch_size=BATCH, overwrite=True)
+    assert not flag.exists(), "the actor never crashed: nothing was retried"
+    assert summary.skipped == []
+    assert sorted(summary.done) == list(GOOD)
+    assert [name for name, _ in summary.failed] == [BAD]
+    _assert_same_outputs(dst, reference)
+
+
+def test_without_ray_the_error_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # makes `import ray` raise ImportError
+    with pytest.raises(ImportError, match=r"pip install 'jaxdepth\[ray\]'"):
+        scale.run_jobs_ray([runner.FrameJob(name="x", sparse_path=pathlib.Path("x.png"),
+                                            out_path=pathlib.Path("/nonexistent/x.png"))])
+
+
+def test_bad_arguments_are_rejected_before_ray(tmp_path):
+    job = runner.FrameJob(name="a", sparse_path=tmp_path / "a.png", out_path=tmp_path / "o.png")
+    with pytest.raises(ValueError, match="batch_size"):
+        scale.run_jobs_ray([job], batch_size=0)
+    with pytest.raises(ValueError, match="distinct output paths"):
+        scale.run_jobs_ray([job, job])
+
+
+def test_ray_is_imported_only_when_the_ray_engine_runs():
+    code = ("import sys, jaxdepth, jaxdepth.runner, jaxdepth.scale, jaxdepth.cli\n"
+            "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if m.startswith('ray'))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                            cwd=pathlib.Path(__file__).resolve().parents[1])
+    assert result.returncode == 0, result.stderr
