@@ -1,0 +1,176 @@
+"""The whole SGM pipeline: analytic scenes, invariants, real KITTI accuracy."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth import SGMConfig, complete, complete_points_stages, complete_stages, depth_metrics
+from jaxdepth._src import presets, synthetic
+from jaxdepth._src.types import Camera, LidarSpec
+
+SMALL_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+
+
+def small_camera(T_cam_lidar, h=96, w=160, f=120.0):
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
+    return Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T_cam_lidar, jnp.float32), height=h, width=w)
+
+
+def lidar_to_camera(offset=(-0.3, 0.0, 0.3)):
+    """Forward camera (z = LiDAR x, x = -LiDAR y, y = -LiDAR z); LiDAR at ``offset`` from it (LiDAR frame)."""
+    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = R @ np.asarray(offset)
+    return T.astype(np.float32)
+
+
+def plane_frame(camera, planes):
+    scene = synthetic.scene_arrays(planes=np.asarray(planes, np.float32))
+    points, valid = synthetic.lidar_sweep(scene, lidar=SMALL_LIDAR)
+    dense = synthetic.render_depth(camera, scene)
+    return np.asarray(points), np.asarray(valid), np.asarray(dense)
+
+
+@pytest.mark.parametrize("planes", [
+    [[0.0, 0.0, 1.0, -1.73]],  # flat ground 1.73 m below the LiDAR
+    [[0.05, 0.0, 1.0, -1.73]],  # ground pitched by ~3 degrees
+    [[-np.cos(0.5), -np.sin(0.5), 0.0, -12.0]],  # a wall 12 m ahead, yawed by ~29 degrees
+])
+def test_planar_scene_completes_nearly_exactly(planes):
+    camera = small_camera(lidar_to_camera())
+    points, valid, dense = plane_frame(camera, planes)
+    stages = complete_points_stages(points, valid, camera, lidar=SMALL_LIDAR,
+                                    config=SGMConfig(smoothing_sigma_px=0.0))
+    depth = np.asarray(stages.depth_raw)
+    seeds = np.asarray(stages.inlier_mask)
+    assert seeds.sum() > 200
+    # score where the nearest seed is close and the true surface exists, away from the borders
+    near = (np.abs(np.asarray(stages.du)) + np.abs(np.asarray(stages.dv)) <= 4) & (dense > 0) & (dense < 30)
+    near[:4], near[-4:], near[:, :4], near[:, -4:] = False, False, False, False
+    rel = np.abs(depth[near] - dense[near]) / dense[near]
+    nearest_rel = np.abs(np.asarray(stages.seed_depth)[near] - dense[near]) / dense[near]
+    # Seeds sit on rounded pixel centres, so a seed's depth belongs to a point up to half a pixel
+    # away: on the ground that is a relative error of up to 0.5 / (v - cy). The residual is exact
+    # for exact seeds (tests/test_residual.py); here we ask for sub-percent accuracy.
+    assert np.median(rel) < 1e-2, np.median(rel)
+    # never worse than the nearest seed; on the ground, where depth changes fast along v between
+    # beams, the residual removes most of the nearest-seed error
+    assert np.mean(rel) < np.mean(nearest_rel)
+    if planes[0][2] != 0:
+        assert np.mean(rel) < 0.5 * np.mean(nearest_rel)
+
+
+def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
+    frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=[small_camera(lidar_to_camera())])
+    config = SGMConfig(max_depth_m=60.0)
+    stages = complete_points_stages(frame.points, frame.valid, frame.cameras[0], lidar=SMALL_LIDAR, config=config)
+    for name, value in stages._asdict().items():
+        assert np.all(np.isfinite(np.asarray(value))), name
+    depth = np.asarray(stages.depth)
+    keep = np.asarray(stages.inlier_mask)
+    sparse = np.asarray(stages.sparse_depth)
+    np.testing.assert_array_equal(depth[keep], np.clip(sparse[keep], config.min_depth_m, config.max_depth_m))
+    assert depth.min() >= config.min_depth_m and depth.max() <= config.max_depth_m
+    # every kept seed is its own nearest seed
+    assert np.all(np.asarray(stages.du)[keep] == 0) and np.all(np.asarray(stages.dv)[keep] == 0)
+
+
+def _kitti_like_small(seed):
+    camera = small_camera(lidar_to_camera())
+    frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
+    stages = complete_points_stages(frame.points, frame.valid, camera, lidar=SMALL_LIDAR)
+    return np.asarray(stages.sparse_depth), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
+
+
+def test_vmap_equals_loop_and_jit_does_not_retrace():
+    frames = [_kitti_like_small(s) for s in (0, 1, 2)]
+    depths = np.stack([f[0] for f in frames])
+    Ks = np.stack([f[1] for f in frames])
+    T = frames[0][2]
+    f = lambda d, k: complete(d, k, T, lidar=SMALL_LIDAR)
+    loop = np.stack([np.asarray(f(d, k)) for d, k in zip(depths, Ks)])
+    vmapped = np.asarray(jax.vmap(f)(depths, Ks))
+    np.testing.assert_allclose(vmapped, loop, rtol=1e-5, atol=1e-4)
+    # a new frame and a new K of the same shape reuse the compiled function
+    before = complete_stages._cache_size()
+    f(depths[1] * np.float32(1.01), Ks[1] * np.float32(1.01)).block_until_ready()
+    assert complete_stages._cache_size() == before
+
+
+def test_same_input_same_bytes():
+    depth, K, T = _kitti_like_small(4)
+    a = np.asarray(complete(depth, K, T, lidar=SMALL_LIDAR))
+    b = np.asarray(complete(depth.copy(), K.copy(), T.copy(), lidar=SMALL_LIDAR))
+    assert a.tobytes() == b.tobytes()
+
+
+def test_scaling_the_scene_scales_the_depth():
+    """Metres in, metres out: scaling depths, epsilon and the LiDAR offset by s scales the output by s."""
+    depth, K, T = _kitti_like_small(5)
+    s = 2.0
+    T2 = T.copy()
+    T2[:3, 3] *= s
+    base = SGMConfig(smoothing_sigma_px=0.0)
+    a = np.asarray(complete(depth, K, T, lidar=SMALL_LIDAR, config=base.replace(max_depth_m=1e4)))
+    b = np.asarray(complete(depth * s, K, T2, lidar=SMALL_LIDAR,
+                            config=base.replace(epsilon_m=s * base.epsilon_m, max_depth_m=1e4)))
+    np.testing.assert_allclose(b, s * a, rtol=1e-4, atol=1e-4)
+
+
+def test_empty_input_gives_empty_output():
+    K = np.array([[100, 0, 40], [0, 100, 30], [0, 0, 1]], np.float32)
+    out = np.asarray(complete(np.zeros((60, 80), np.float32), K, lidar=SMALL_LIDAR))
+    assert np.all(out == 0)
+
+
+def test_bad_shapes_raise_clear_errors():
+    with pytest.raises(ValueError, match="sparse_depth"):
+        complete(np.zeros((2, 3, 4), np.float32), np.eye(3))
+    with pytest.raises(ValueError, match="'K'"):
+        complete(np.zeros((30, 40), np.float32), np.eye(4))
+
+
+def test_synthetic_street_sgm_beats_nearest():
+    frame = synthetic.make_street_scene(0)
+    camera = frame.cameras[0]
+    stages = complete_points_stages(frame.points, frame.valid, camera, lidar=frame.lidar)
+    gt = np.asarray(frame.dense_depth[0])
+    sgm = depth_metrics(stages.depth, gt)
+    nearest = depth_metrics(stages.seed_depth, gt)
+    assert float(sgm["rmse"]) < float(nearest["rmse"])
+    assert float(sgm["mae"]) < float(nearest["mae"])
+
+
+@pytest.fixture(scope="module")
+def kitti_frames(kitti_frame):
+    import sys
+    sys.path.insert(0, str(kitti_frame.parents[3] / "main" / "benchmarks"))
+    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    out = {}
+    for cam in (2, 3):
+        K = calib["cameras"][cam]["K"]
+        sparse, K_c = crop_to_benchmark(read_depth_png(kitti_frame / f"velodyne_raw_image_0{cam}.png"), K)
+        gt, _ = crop_to_benchmark(read_depth_png(kitti_frame / f"groundtruth_image_0{cam}.png"), K)
+        out[cam] = (sparse, gt, K_c, calib["cameras"][cam]["T_cam_lidar"])
+    return out
+
+
+def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames):
+    """Issue 3: SGM must clearly beat a nearest-neighbour fill on the real frame (both cameras)."""
+    sgm, nearest = [], []
+    for sparse, gt, K, T in kitti_frames.values():
+        stages = complete_stages(sparse, K, T)
+        no_removal = complete_stages(sparse, K, T, config=SGMConfig(outlier_removal=False))
+        sgm.append(depth_metrics(stages.depth, gt))
+        nearest.append(depth_metrics(no_removal.seed_depth, gt))
+    mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))
+    assert mean(sgm, "rmse") < 0.85 * mean(nearest, "rmse")
+    assert mean(sgm, "mae") < 0.80 * mean(nearest, "mae")
+    # and it is in the range of the published method (the paper's own code: ~954 / 250 mm here)
+    assert mean(sgm, "rmse") < 1100 and mean(sgm, "mae") < 275
