@@ -228,37 +228,49 @@ def _safe_div(num, den, ok):
 # slower). ``lax.optimization_barrier`` is removed before fusion on CPU, so the
 # arrays are passed through a ``lax.cond`` whose predicate is always true but
 # not provable at compile time (an int32 from the data compared with INT32_MIN);
-# a conditional's operands and results are real buffers. Under ``vmap`` the
-# predicate is reduced to a scalar (custom_vmap) so the conditional is not
-# turned into a select; a custom_jvp passes tangents straight through.
+# a conditional's operands and results are real buffers. The producer runs
+# inside the branch, so nothing is copied. Under ``vmap`` the predicate is
+# reduced to a scalar (custom_vmap) so the conditional is not turned into a
+# select; a custom_jvp differentiates ``fn`` directly.
 
 
-@custom_batching.custom_vmap
-def _cond_fence(arrays, token):
-    keep = token >= jnp.iinfo(jnp.int32).min  # always true
-    return jax.lax.cond(keep, lambda t: t, lambda t: tuple(jnp.zeros_like(a) for a in t), arrays)
+def _stage(fn, args, token):
+    """``fn(*args)`` computed in its own conditional: its outputs are real buffers
+    that consumers read instead of re-running ``fn`` (see above).
 
+    Args:
+      fn: function of arrays returning a tuple of arrays.
+      args: tuple of arrays (the conditional's operands).
+      token: int32 scalar from the data; ``token >= INT32_MIN`` always holds.
+    """
+    args = tuple(args)
 
-@_cond_fence.def_vmap
-def _cond_fence_vmap(axis_size, in_batched, arrays, token):
-    arrays_batched, token_batched = in_batched
-    if token_batched:
-        token = jnp.min(token)
-    arrays = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                   for a, b in zip(arrays, arrays_batched))
-    return _cond_fence(arrays, token), tuple(True for _ in arrays)
+    @custom_batching.custom_vmap
+    def run(operands, tok):
+        shapes = jax.eval_shape(fn, *operands)
+        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, lambda ops: fn(*ops),
+                            lambda ops: jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes), operands)
 
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, operands, tok):
+        ops_batched, tok_batched = in_batched
+        if tok_batched:
+            tok = jnp.min(tok)  # one predicate for the batch keeps the conditional
+        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                         for a, b in zip(operands, ops_batched))
+        out = _stage(jax.vmap(fn), operands, tok)
+        return out, jax.tree.map(lambda _: True, out)
 
-@jax.custom_jvp
-def _materialise(arrays, token):
-    """Returns ``arrays`` unchanged, computed once into buffers (see above)."""
-    return _cond_fence(tuple(arrays), token)
+    @jax.custom_jvp
+    def staged(operands, tok):
+        return run(operands, tok)
 
+    @staged.defjvp
+    def staged_jvp(primals, tangents):
+        operands, _ = primals
+        return jax.jvp(fn, operands, tangents[0])
 
-@_materialise.defjvp
-def _materialise_jvp(primals, tangents):
-    arrays, token = primals
-    return _materialise(arrays, token), tuple(tangents[0])
+    return staged(args, jnp.asarray(token, jnp.int32))
 
 
 # ------------------------------------------------------------------- image shifts
@@ -268,16 +280,22 @@ def _materialise_jvp(primals, tangents):
 # consumer, which is ~6x slower than reading a buffer at an offset.
 
 
-def _pad(arrays, k: int, fills, token):
-    """Pads (L, C) arrays by k (materialised): columns wrap around 360 degrees, rows take ``fill``."""
-    out = []
-    for a, fill in zip(arrays, fills):
-        a = jnp.concatenate([a[:, a.shape[1] - k:], a, a[:, :k]], axis=1) if k else a
-        if k:
-            rows = jnp.full((k, a.shape[1]), fill, a.dtype)
-            a = jnp.concatenate([rows, a, rows], axis=0)
-        out.append(a)
-    return _materialise(tuple(out), token)
+def _pad(arrays, k: int, fills, token, wrap=None):
+    """Pads (L, C) arrays by k (materialised): columns wrap around 360 degrees
+    (unless ``wrap[i]`` is False: the array is already column-padded), rows take ``fill``."""
+
+    def pad(*arrays):
+        out = []
+        for i, (a, fill) in enumerate(zip(arrays, fills)):
+            if k and (wrap is None or wrap[i]):
+                a = jnp.concatenate([a[:, a.shape[1] - k:], a, a[:, :k]], axis=1)
+            if k:
+                rows = jnp.full((k, a.shape[1]), fill, a.dtype)
+                a = jnp.concatenate([rows, a, rows], axis=0)
+            out.append(a)
+        return tuple(out)
+
+    return _stage(pad, arrays, token)
 
 
 def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
@@ -292,13 +310,17 @@ def _box_sums(arrays, half: int, token):
     if half == 0:
         return tuple(arrays)
     padded = _pad(arrays, half, [0.0] * len(arrays), token)
-    horiz = []
-    for p in padded:
-        h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
-        for dj in range(1, 2 * half + 1):
-            h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
-        horiz.append(h)
-    horiz = _materialise(tuple(horiz), token)
+
+    def horizontal(*padded):
+        out = []
+        for p in padded:
+            h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
+            for dj in range(1, 2 * half + 1):
+                h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
+            out.append(h)
+        return tuple(out)
+
+    horiz = _stage(horizontal, padded, token)
     out = []
     for h in horiz:
         rows = h.shape[0] - 2 * half
@@ -373,11 +395,14 @@ def _range_image(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
     n = points.shape[0]
     n_rows, n_cols = lidar.beams, lidar.columns
     n_cells = n_rows * n_cols
-    r, theta, phi, cell, ok = _spherical(points, valid, lidar)
-    slot = jnp.where(ok, cell, n_cells)  # invalid points go to a dump slot
-    # Non-negative float32 ranges order like their int32 bit patterns.
-    key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
-    slot, key, r, theta, phi = _materialise((slot, key, r, theta, phi), slot[0])
+    def per_point(points, valid):
+        r, theta, phi, cell, ok = _spherical(points, valid, lidar)
+        slot = jnp.where(ok, cell, n_cells)  # invalid points go to a dump slot
+        # Non-negative float32 ranges order like their int32 bit patterns.
+        key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
+        return slot, key, r, theta, phi
+
+    slot, key, r, theta, phi = _stage(per_point, (points, valid), valid[0].astype(jnp.int32))
     best = jnp.full((n_cells + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key)
     win = key == best.at[slot].get(mode="promise_in_bounds")
     ids = jnp.arange(n, dtype=jnp.int32)
@@ -431,14 +456,16 @@ def _neighbour(padded, k: int, di: int, dj: int, centre):
     Only neighbours inside the 90-degree cone of the search direction count
     (|x| >= |y| for columns, |y| >= |x| for rows): a row of the range image may
     hold two beams, and a point of the other beam next door is a vertical, not
-    a horizontal, neighbour. Returns (ok, x, y, z) with x = dtheta cos(phi),
-    y = dphi (radians) and z = dr / r.
+    a horizontal, neighbour. Returns (xy, z): xy = complex(x, y) with
+    x = dtheta cos(phi) and y = dphi (radians), z = dr / r; all 0 where there
+    is no neighbour. (The padded azimuths are unwrapped across the 360-degree
+    seam, so no wrapping is needed here.)
     """
     meas, r, th, ph, c_ph, inv_r = centre
     pm, pr, pt, pp = padded
     ok = x = y = z = None
     for s in range(k, 0, -1):  # nearest last, so it overrides farther ones
-        cx = _wrap_angle(_at(pt, k, s * di, s * dj) - th) * c_ph
+        cx = (_at(pt, k, s * di, s * dj) - th) * c_ph
         cy = _at(pp, k, s * di, s * dj) - ph
         cz = (_at(pr, k, s * di, s * dj) - r) * inv_r
         inside = jnp.abs(cx) >= jnp.abs(cy) if dj else jnp.abs(cy) >= jnp.abs(cx)
@@ -448,14 +475,14 @@ def _neighbour(padded, k: int, di: int, dj: int, centre):
         else:
             ok = ok | cok
             x, y, z = (jnp.where(cok, c, old) for c, old in ((cx, x), (cy, y), (cz, z)))
-    return ok & meas, x, y, z
+    ok = ok & meas
+    x, y, z = (jnp.where(ok, v, 0.0) for v in (x, y, z))
+    return jax.lax.complex(x, y), z
 
 
-def _basis(th: jax.Array, ph: jax.Array):
-    """Sines and cosines of the cell angles: (s_th, c_th, s_ph, c_ph)."""
-    s_th, c_th = _azimuth_basis(th)
-    s_ph, c_ph = _sin_cos_small(ph, _PI / 2)
-    return s_th, c_th, s_ph, c_ph
+def _basis_pairs(th: jax.Array, ph: jax.Array):
+    """((sin theta, cos theta), (sin phi, cos phi)) of the cell angles."""
+    return _azimuth_basis(th), _sin_cos_small(ph, _PI / 2)
 
 
 def _solve_gradient(rows, weights):
@@ -492,6 +519,31 @@ def _solve_gradient(rows, weights):
     return a, b, spread
 
 
+def _fit_slopes(*rows):
+    """Robust slopes (complex(a, b), smoothing weight) from four (complex(x, y), z) rows."""
+    eqs = []
+    for xy, z in zip(rows[0::2], rows[1::2]):
+        x, y = jnp.real(xy), jnp.imag(xy)
+        q = x * x + y * y
+        ok = q > _MIN_ANGLE_STEP ** 2
+        eqs.append((ok, x, y, z, _safe_div(1.0, q, ok)))
+    # Pass 1 down-weights steep neighbours (likely across a depth edge), pass 2
+    # re-weights by the residual slope of the pass-1 fit (IRLS, Cauchy weights);
+    # each equation is normalised by its angular length.
+    w1 = [jnp.where(ok, iq / (1.0 + z * z * iq), 0.0) for ok, x, y, z, iq in eqs]
+    a, b, _ = _solve_gradient(eqs, w1)
+    w2 = []
+    for ok, x, y, z, iq in eqs:
+        e = z - a * x - b * y
+        w2.append(jnp.where(ok, iq / (1.0 + e * e * iq), 0.0))
+    a, b, spread = _solve_gradient(eqs, w2)
+    # Weight for the smoothing: 1 when the neighbours span both directions,
+    # falling linearly to _PARTIAL_WEIGHT as they become collinear.
+    full = jnp.clip(spread * (1.0 / _MIN_SPREAD), _PARTIAL_WEIGHT, 1.0)
+    ab = jax.lax.complex(jnp.clip(a, -_MAX_SLOPE, _MAX_SLOPE), jnp.clip(b, -_MAX_SLOPE, _MAX_SLOPE))
+    return ab, full
+
+
 def _raw_normals(ri: RangeImage, fill_max_gap: int):
     """Sensor-facing unit normals of measured cells, zeros at empty cells.
 
@@ -503,33 +555,24 @@ def _raw_normals(ri: RangeImage, fill_max_gap: int):
     r, th, ph = ri.r, ri.theta, ri.phi
     k = 1 + fill_max_gap
     token = ri.index[0, 0]
-    padded = _pad((meas, r, th, ph), k, (False, 0.0, 0.0, 0.0), token)
-    s_th, c_th, s_ph, c_ph = _materialise(_basis(th, ph), token)
+    # Columns wrap; azimuths in the pads are unwrapped (left of column 0 lie
+    # azimuths just above +pi, right of the last column just below -pi).
+    cols = th.shape[1]
+    th_wrapped = jnp.concatenate([th[:, cols - k:] + 2 * _PI, th, th[:, :k] - 2 * _PI], axis=1)
+    padded = _pad((meas, r, th_wrapped, ph), k, (False, 0.0, 0.0, 0.0), token, wrap=(True, True, False, True))
+    # Complex numbers carry two float32 channels through one fusion (XLA:CPU
+    # would otherwise compute each output in its own fusion, repeating the work).
+    e_th, e_ph = _stage(lambda th, ph: tuple(jax.lax.complex(c, s) for s, c in _basis_pairs(th, ph)),
+                        (th, ph), token)
+    c_th, s_th, c_ph, s_ph = jnp.real(e_th), jnp.imag(e_th), jnp.real(e_ph), jnp.imag(e_ph)
     inv_r = _safe_div(1.0, r, meas)
-    rows = []
     centre = (meas, r, th, ph, c_ph, inv_r)
+    rows = []
     for di, dj in ((0, -1), (0, 1), (-1, 0), (1, 0)):
-        ok, x, y, z = _neighbour(padded, k, di, dj, centre)
-        q = x * x + y * y
-        ok = ok & (q > _MIN_ANGLE_STEP ** 2)
-        rows.append((ok, x, y, z, _safe_div(1.0, q, ok)))
-    # Pass 1 down-weights steep neighbours (likely across a depth edge), pass 2
-    # re-weights by the residual slope of the pass-1 fit (IRLS, Cauchy weights);
-    # each equation is normalised by its angular length.
-    w1 = [jnp.where(ok, iq / (1.0 + z * z * iq), 0.0) for ok, x, y, z, iq in rows]
-    a, b, _ = _solve_gradient(rows, w1)
-    w2 = []
-    for ok, x, y, z, iq in rows:
-        e = z - a * x - b * y
-        w2.append(jnp.where(ok, iq / (1.0 + e * e * iq), 0.0))
-    a, b, spread = _solve_gradient(rows, w2)
-    # Weight for the smoothing: 1 when the neighbours span both directions,
-    # falling linearly to _PARTIAL_WEIGHT as they become collinear.
-    full = jnp.clip(spread * (1.0 / _MIN_SPREAD), _PARTIAL_WEIGHT, 1.0)
-    a = jnp.clip(a, -_MAX_SLOPE, _MAX_SLOPE)
-    b = jnp.clip(b, -_MAX_SLOPE, _MAX_SLOPE)
-    # Materialise the slopes once (else each consumer re-runs the search).
-    a, b, full = _materialise((a, b, full), token)
+        xy, z = _stage(lambda *a, di=di, dj=dj: _neighbour(a[:4], k, di, dj, a[4:]), padded + centre, token)
+        rows.append((xy, z))
+    ab, full = _stage(_fit_slopes, tuple(a for row in rows for a in row), token)
+    a, b = jnp.real(ab), jnp.imag(ab)
 
     inv = jnp.where(meas, jax.lax.rsqrt(1.0 + a * a + b * b), 0.0)  # |(-1, a, b)| >= 1
     # n = -e_r + a e_theta + b e_phi, normalised (the basis is orthonormal), with
@@ -572,13 +615,13 @@ def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
         nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((rx, nx), (ry, ny), (rz, nz)))
         has = has | meas
     for _ in range(fill_max_gap):
-        nx, ny, nz, has = _materialise((nx, ny, nz, has), ri.index[0, 0])
+        nx, ny, nz, has = _stage(lambda *a: a, (nx, ny, nz, has), ri.index[0, 0])
         w = has.astype(jnp.float32)
         sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), 1, ri.index[0, 0])
         grow, gx, gy, gz = _normalise(sx, sy, sz, ~has)
         nx, ny, nz = (jnp.where(grow, g, n) for g, n in ((gx, nx), (gy, ny), (gz, nz)))
         has = has | grow
-    s_th, c_th, s_ph, c_ph = _basis(ri.theta, ri.phi)
+    (s_th, c_th), (s_ph, c_ph) = _basis_pairs(ri.theta, ri.phi)
     ex, ey, ez = c_th * c_ph, s_th * c_ph, s_ph  # e_r along the cell's ray
     nx, ny, nz = (jnp.where(has, n, -e) for n, e in ((nx, ex), (ny, ey), (nz, ez)))
     sign = jnp.where(nx * ex + ny * ey + nz * ez > 0, -1.0, 1.0)
@@ -649,14 +692,17 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec, smoo
     ri, slot = _range_image(points, valid, lidar)
     # Points only sit in measured cells, so the filling of empty cells is skipped.
     _, nx, ny, nz = _smoothed_normals(_raw_normals(ri, fill_max_gap), smoothing, ri.index[0, 0])
-    # Materialise before gathering, or the gather re-runs the whole chain per point.
-    nx, ny, nz = _materialise((nx.reshape(-1), ny.reshape(-1), nz.reshape(-1)), ri.index[0, 0])
-    ok = slot < nx.shape[0]
-    slot = jnp.where(ok, slot, 0)
-    px = nx.at[slot].get(mode="promise_in_bounds")
-    py = ny.at[slot].get(mode="promise_in_bounds")
-    pz = nz.at[slot].get(mode="promise_in_bounds")
-    p = points.astype(jnp.float32)
-    facing = px * p[:, 0] + py * p[:, 1] + pz * p[:, 2]
-    sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
-    return jnp.stack([px * sign, py * sign, pz * sign], axis=1)
+    n_cells = nx.size
+
+    def per_point(nx, ny, nz, slot, p):
+        # Gathers inside their own stage read buffers (outside, XLA would
+        # re-run the smoothing per gathered point).
+        ok = slot < n_cells
+        idx = jnp.where(ok, slot, 0)
+        px, py, pz = (c.at[idx].get(mode="promise_in_bounds") for c in (nx, ny, nz))
+        facing = px * p[:, 0] + py * p[:, 1] + pz * p[:, 2]
+        sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
+        return (jnp.stack([px * sign, py * sign, pz * sign], axis=1),)
+
+    return _stage(per_point, (nx.reshape(-1), ny.reshape(-1), nz.reshape(-1), slot, points.astype(jnp.float32)),
+                  ri.index[0, 0])[0]
