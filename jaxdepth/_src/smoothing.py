@@ -67,3 +67,66 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
 def default_radius(sigma_px: float) -> int:
     """OpenCV's automatic kernel size for 8-bit images: radius = round(3 sigma)."""
     return max(1, int(math.ceil(3.0 * sigma_px)))
+
+
+def gaussian_kernel_traced(sigma_px: jax.Array, radius_px: int) -> jax.Array:
+    """(2r+1,) float32 sampled Gaussian weights summing to 1, for a traced ``sigma_px``.
+
+    ``sigma_px <= 0`` gives the identity kernel (1 at the centre, 0 elsewhere).
+    The safe-where pattern keeps values and gradients finite at ``sigma_px = 0``.
+    """
+    sigma = jnp.asarray(sigma_px, jnp.float32)
+    x = jnp.arange(-radius_px, radius_px + 1, dtype=jnp.float32)
+    positive = sigma > 0
+    safe_sigma = jnp.where(positive, sigma, 1.0)
+    k = jnp.exp(-0.5 * jnp.square(x / safe_sigma))
+    k = k / jnp.sum(k)
+    return jnp.where(positive, k, (x == 0).astype(jnp.float32))
+
+
+def _blur_axis_traced(image: jax.Array, weights: jax.Array, radius: int, axis: int) -> jax.Array:
+    n = image.shape[axis]
+    padded = jnp.take(image, jnp.asarray(_reflect101_index(n, radius)), axis=axis)
+    out = None
+    for k in range(2 * radius + 1):
+        part = jax.lax.slice_in_dim(padded, k, k + n, axis=axis) * weights[k]
+        out = part if out is None else out + part
+    return out
+
+
+def gaussian_blur_traced(image: jax.Array, sigma_px: jax.Array, *, radius_px: int) -> jax.Array:
+    """:func:`gaussian_blur` with a traced ``sigma_px``: one compiled function for every sigma.
+
+    Use it to ``jax.vmap`` over sigma (parameter sweeps) or to differentiate
+    with respect to it; :func:`gaussian_blur` takes sigma as a static value,
+    folds the weights into constants and recompiles per sigma.
+
+    Args:
+      image: (H, W) float32 (H, W >= 2 when ``radius_px > 0``).
+      sigma_px: scalar standard deviation in pixels (traced); ``<= 0`` returns
+        the input unchanged (identity kernel).
+      radius_px: static kernel half width; the kernel is (2r+1) x (2r+1); 0
+        returns the input.
+
+    Returns:
+      (H, W) float32, equal to ``gaussian_blur(image, sigma_px=s, radius_px=r)``
+      up to float32 rounding of the weights (computed here in float32, there in
+      float64), i.e. ``cv2.GaussianBlur(image, (2r+1, 2r+1), s,
+      borderType=cv2.BORDER_REFLECT_101)``.
+    """
+    if isinstance(radius_px, bool) or int(radius_px) != radius_px or radius_px < 0:
+        raise ValueError(f"gaussian_blur_traced: 'radius_px' expected a non-negative integer, got {radius_px!r}")
+    radius_px = int(radius_px)
+    image = jnp.asarray(image)
+    if image.ndim != 2:
+        raise ValueError(f"gaussian_blur_traced: image expected shape (H, W), got {tuple(image.shape)}")
+    if jnp.ndim(sigma_px) != 0:
+        raise ValueError(f"gaussian_blur_traced: 'sigma_px' expected a scalar, got shape {jnp.shape(sigma_px)}")
+    image = image.astype(jnp.float32)
+    if radius_px == 0:
+        return image
+    if min(image.shape) < 2:
+        raise ValueError(f"gaussian_blur_traced: image expected at least 2x2, got shape {tuple(image.shape)}")
+    weights = gaussian_kernel_traced(sigma_px, radius_px)
+    out = _blur_axis_traced(image, weights, radius_px, axis=0)
+    return _blur_axis_traced(out, weights, radius_px, axis=1)
