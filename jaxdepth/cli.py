@@ -131,6 +131,30 @@ def _report(summary, quiet: bool) -> int:
     return 0 if summary.ok else 1
 
 
+def cmd_complete_rig(args) -> int:
+    import jaxdepth
+    from jaxdepth.io import pad_points, read_points, read_rig_json, write_depth_png
+
+    rig = read_rig_json(args.rig)
+    points, _ = read_points(args.points, columns=args.point_columns)
+    padded, valid = pad_points(points)
+    out_dir = pathlib.Path(args.out_dir)
+    _ensure_writable_dir(out_dir)
+    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+    depth = np.asarray(jaxdepth.complete_rig(padded, valid, cameras, config=_config_from(args), lidar=rig.lidar))
+    failed = 0
+    for i, camera in enumerate(rig.cameras):
+        target = out_dir / f"{camera.name}.png"
+        if target.exists() and not args.overwrite:
+            print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
+            continue
+        write_depth_png(target, depth[i, :camera.height, :camera.width])
+        if not args.quiet:
+            valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
+            print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
+    return 1 if failed else 0
+
+
 def cmd_eval(args) -> int:
     from jaxdepth import evaluation
     table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
@@ -167,6 +191,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_complete)
+
+    p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
+    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
+    p.add_argument("rig", help="rig JSON (see README: lidar beams, cameras with K and T_cam_lidar)")
+    p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
+    p.add_argument("--point-columns", type=int, default=4, help="float32 values per .bin record (KITTI 4, nuScenes 5)")
+    _add_method_options(p, methods=("sgm",))
+    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_complete_rig)
 
     p = sub.add_parser("eval", help="KITTI devkit metrics of predictions against ground truth PNGs")
     p.add_argument("pred", help="folder of predicted depth PNGs")
