@@ -60,26 +60,39 @@ Derivative scheme (robust at depth discontinuities)
 --------------------------------------------------
 For each measured cell the nearest measured cell is searched in each of the
 four image directions within ``1 + fill_max_gap`` steps (columns wrap around
-360 degrees, rows do not). In each axis the one-sided neighbour with the
-smaller ``|dr|`` is used (the other side is likely across a depth edge). The
-two chosen neighbours give the offsets ``(dr_h, dtheta_h, dphi_h)`` and
-``(dr_v, dtheta_v, dphi_v)`` measured with the real angles of the points, and
-``(r_theta, r_phi)`` solve the 2x2 system
-``dr_k = r_theta dtheta_k + r_phi dphi_k``. This accounts for neighbours from a
-different beam or azimuth than the cell grid suggests (real sensors do not sit
-on cell centres). With one axis missing, that derivative is 0; with a
-degenerate system, each axis is differenced on its own.
+360 degrees, rows do not), keeping only neighbours inside the 90-degree cone of
+that direction (a row of a linear range image can hold two beams; the other
+beam's point next door is a vertical neighbour). Each neighbour k gives an
+equation ``z_k = a x_k + b y_k`` with the real angle offsets
+``x_k = dtheta_k cos(phi)``, ``y_k = dphi_k`` and ``z_k = dr_k / r``, where
+``a = r_theta / (r cos phi)`` and ``b = r_phi / r``. (a, b) is their weighted
+least-squares solution, normalised per equation by its angular length, in two
+passes: Cauchy weights on the neighbour's slope |z_k| / |(x_k, y_k)| (a
+neighbour across a depth edge is steep and drops out), then Cauchy weights on
+its residual slope under the first fit (on a smooth surface both sides weigh
+alike, which makes the estimate a central difference). The 2x2 system is
+solved with exact pair-sum formulas and a tiny ridge, so collinear neighbours
+give the minimum-norm answer (the unseen derivative is 0) and an isolated
+point gets ``n = -p / |p|``. Such poorly constrained normals get a weight down
+to ``_PARTIAL_WEIGHT`` in the smoothing, so a well-constrained neighbour wins.
 
 Filling and smoothing (the paper's "extra step to fill in those empty pixels")
 -----------------------------------------------------------------------------
-Empty cells take, for ``max(1, fill_max_gap, smoothing)`` passes, the
-renormalised mean normal of their filled 8-neighbours; cells still empty after
-that face the sensor along their cell-centre ray (``-e_r``). Then every cell is
-replaced by the renormalised ``(2 smoothing + 1)^2`` box mean (columns wrap,
-rows are cut at the border) and oriented so that ``n . e_r <= 0`` along the
-ray of its point (cell centre for empty cells). Points that lost their cell to
-a nearer point read the normal of that cell, oriented towards the sensor along
+Every cell takes the renormalised weighted mean of the raw normals of the
+measured cells in its ``(2 max(1, smoothing) + 1)^2`` window (columns wrap,
+rows are cut at the border); with ``smoothing = 0`` measured cells keep their
+raw normal. Empty cells still without a value are filled by ``fill_max_gap``
+passes of the 3x3 mean of filled neighbours; cells still empty after that face
+the sensor along their cell-centre ray (``-e_r``). Filling never changes a
+measured cell. Every normal is oriented so that ``n . e_r <= 0`` along the ray
+of its point (cell centre for empty cells). Points that lost their cell to a
+nearer point read the normal of that cell, oriented towards the sensor along
 their own ray, so every valid point has a unit normal.
+
+Performance notes: XLA:CPU fuses a producer into every consumer, so shifted
+slices and per-point gathers would re-run upstream work; heavy intermediates
+are computed inside ``_stage`` conditionals (real buffers), and pairs of
+float32 channels travel as one complex64 array so one fusion computes both.
 
 Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
 are ~30x slower than a fused polynomial); ``atan2`` uses an octant reduction
@@ -645,7 +658,7 @@ def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int
       (3, L, C) float32 unit normals (x, y, z) in the LiDAR frame for every cell,
       facing the sensor (``n . e_r <= 0`` along the cell's ray). Measured cells
       (and empty cells with a measured cell within ``max(1, s)``) hold the
-      renormalised mean of the raw normals of the measured cells in their
+      renormalised weighted mean of the raw normals of the measured cells in their
       ``(2 max(1, s) + 1)^2`` window (with s = 0, measured cells keep their raw
       normal); remaining empty cells are filled by ``fill_max_gap`` passes of
       the 3x3 mean of filled neighbours; cells still empty face the sensor
