@@ -1,0 +1,137 @@
+"""The command line: exit codes, one-line errors, resume, atomic outputs, demo."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxdepth import cli, runner
+from jaxdepth.io import read_depth_png
+
+from helpers import small_frames, write_kitti_folder
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return small_frames(3, seed=10)
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "jaxdepth.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=900)
+
+
+def test_help_and_version():
+    result = run_cli("--help")
+    assert result.returncode == 0 and "complete" in result.stdout and "demo" in result.stdout
+    result = run_cli("--version")
+    assert result.returncode == 0 and result.stdout.startswith("jaxdepth ")
+    assert run_cli().returncode == 2
+    assert run_cli("complete").returncode == 2  # argparse usage error
+
+
+def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
+    items, T = frames
+    src = write_kitti_folder(tmp_path / "src", items)
+    (src / "velodyne_raw" / "frame_bad.png").write_bytes(b"not a png at all")
+    (src / "intrinsics" / "frame_bad.txt").write_text("1 0 0 0 1 0 0 0 1\n")
+    dst = tmp_path / "out"
+    code = cli.main(["complete", str(src), str(dst), "--batch-size", "2", "--method", "nearest", "-q"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "FAILED frame_bad:" in err and "frame_bad.png" in err and "Traceback" not in err
+    assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png"]
+    stamps = {p.name: p.stat().st_mtime_ns for p in dst.iterdir()}
+    code = cli.main(["complete", str(src), str(dst), "--batch-size", "2", "--method", "nearest"])
+    err = capsys.readouterr().err
+    assert code == 1 and "0 completed, 3 skipped" in err
+    assert stamps == {p.name: p.stat().st_mtime_ns for p in dst.iterdir()}
+    # nothing but finished PNGs in the output folder (no temp files)
+    assert all(p.suffix == ".png" for p in dst.iterdir())
+
+
+def test_complete_single_image_matches_library(tmp_path, frames):
+    items, T = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    out = tmp_path / "one.png"
+    code = cli.main(["complete", str(src / "velodyne_raw" / "frame_000.png"), str(out),
+                     "--intrinsics", str(src / "intrinsics" / "frame_000.txt"), "--no-outlier-removal", "-q"])
+    assert code == 0
+    from jaxdepth._src.methods import complete_with
+    from jaxdepth import SGMConfig
+    from jaxdepth.io import read_intrinsics_txt
+    expected = np.asarray(complete_with(read_depth_png(src / "velodyne_raw" / "frame_000.png"),
+                                        read_intrinsics_txt(src / "intrinsics" / "frame_000.txt"),
+                                        config=SGMConfig(outlier_removal=False)))
+    np.testing.assert_allclose(read_depth_png(out), expected, atol=1 / 256 + 1e-4)
+
+
+@pytest.mark.parametrize("args,pattern", [
+    (["complete", "/nonexistent/folder", "OUT"], "nonexistent"),
+    (["complete", "/nonexistent/x.png", "OUT.png", "--intrinsics", "K.txt"], "x.png"),
+    (["eval", "/nonexistent/pred", "/nonexistent/gt"], "nonexistent"),
+])
+def test_user_errors_are_one_line_without_traceback(args, pattern, capsys):
+    code = cli.main(args)
+    err = capsys.readouterr().err
+    assert code == 1
+    assert pattern in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_single_image_without_intrinsics_is_a_clear_error(tmp_path, frames, capsys):
+    items, _ = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    code = cli.main(["complete", str(src / "velodyne_raw" / "frame_000.png"), str(tmp_path / "o.png")])
+    assert code == 1 and "--intrinsics" in capsys.readouterr().err
+
+
+def test_unwritable_output_folder(tmp_path, frames, capsys):
+    items, _ = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code = cli.main(["complete", str(src), str(blocker / "sub"), "-q"])
+    err = capsys.readouterr().err
+    assert code == 1 and str(blocker) in err and "Traceback" not in err
+
+
+def test_interrupt_leaves_no_partial_png_and_rerun_completes(tmp_path, frames, monkeypatch, capsys):
+    items, T = frames
+    src = write_kitti_folder(tmp_path / "src", items)
+    dst = tmp_path / "out"
+    from jaxdepth.io import atomic as atomic_mod
+    real_replace = os.replace
+    calls = {"n": 0}
+
+    def interrupted_replace(a, b):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real_replace(a, b)
+
+    monkeypatch.setattr(atomic_mod.os, "replace", interrupted_replace)
+    code = cli.main(["complete", str(src), str(dst), "--batch-size", "1", "--method", "nearest", "-q"])
+    monkeypatch.undo()
+    assert code == 130
+    names = sorted(p.name for p in dst.iterdir())
+    assert all(n.endswith(".png") and n.startswith("frame_") for n in names), names  # no temp file left
+    for p in dst.iterdir():
+        read_depth_png(p)  # every file present is a complete PNG
+    code = cli.main(["complete", str(src), str(dst), "--batch-size", "1", "--method", "nearest", "-q"])
+    assert code == 0
+    assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png"]
+
+
+def test_demo_writes_outputs_and_scores(tmp_path):
+    result = run_cli("demo", "--out", tmp_path / "demo")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "RMSE" in result.stdout and "sgm" in result.stdout
+    depth = read_depth_png(tmp_path / "demo" / "depth.png")
+    assert depth.shape == (352, 1216) and np.all(depth > 0)
+    for name in ("depth_preview.png", "sparse_preview.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 1000
