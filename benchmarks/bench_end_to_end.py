@@ -1,0 +1,207 @@
+"""Speed of the whole SGM against IP_Basic's OpenCV pipeline, measured side by side in one process.
+
+Frame: ../shared/data/kitti/drive_0001_frame05 camera 2, cropped to 352x1216 (random
+~4 % sparse input of that size when the data is missing). Reports medians after
+warm-up (compile time separately), ratios against the OpenCV baselines timed in
+the same run, per-stage times (each stage jitted on its own), batched
+throughput for lax.map and vmap batching, and peak resident memory.
+
+    python benchmarks/bench_end_to_end.py [--repeats 50] [--json benchmarks/results/end_to_end.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import resource
+import statistics
+import sys
+import time
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.ndimage
+
+import jaxdepth
+from jaxdepth import SGMConfig
+from jaxdepth._src import presets
+from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_depth
+from jaxdepth._src.methods import complete_with
+from jaxdepth._src.pipeline import complete_stages
+from jaxdepth.baselines import ip_basic_opencv
+from jaxdepth import runner
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+FRAME = ROOT.parent / "shared" / "data" / "kitti" / "drive_0001_frame05"
+
+
+def load_frame():
+    if FRAME.exists():
+        from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
+        calib = read_kitti_raw_calib(FRAME / "calib_cam_to_cam.txt", FRAME / "calib_velo_to_cam.txt")
+        sparse, K = crop_to_benchmark(read_depth_png(FRAME / "velodyne_raw_image_02.png"), calib["cameras"][2]["K"])
+        return sparse, K, calib["cameras"][2]["T_cam_lidar"], "KITTI drive_0001 frame 5, camera 2, 352x1216"
+    rng = np.random.default_rng(0)
+    sparse = np.where(rng.random((352, 1216)) < 0.04, rng.uniform(2, 80, (352, 1216)), 0).astype(np.float32)
+    K = presets.KITTI_K_CAM2.copy()
+    K[0, 2] -= 13
+    K[1, 2] -= 23
+    return sparse, K, presets.KITTI_T_CAM2_LIDAR, "random 4 % sparse 352x1216 (shared data missing)"
+
+
+def timeit(fn, repeats):
+    """(median ms, min ms) of fn() with block_until_ready inside fn."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times), min(times)
+
+
+def compile_seconds(fn):
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def stage_functions(config: SGMConfig, lidar):
+    """Each paper step jitted on its own (so the per-stage times add up to a separated pipeline)."""
+    from jaxdepth._src.distance import gather_at_seed, nearest_seed
+    from jaxdepth._src.normals import point_normals
+    from jaxdepth._src.outliers import outlier_keep_mask
+    from jaxdepth._src.residual import plane_residual
+    from jaxdepth._src.smoothing import gaussian_blur
+
+    @jax.jit
+    def normals(sparse, K, T):
+        h, w = sparse.shape
+        pts = transform_points(invert_rigid(T), unproject_depth(sparse, K).reshape(-1, 3))
+        n = point_normals(pts, (sparse > 0).reshape(-1), lidar=lidar, smoothing=config.normal_smoothing,
+                          fill_max_gap=config.range_fill_max_gap)
+        return (T[:3, :3] @ n.T).reshape(3, h, w)
+
+    @jax.jit
+    def outliers(sparse, K, T):
+        return outlier_keep_mask(sparse, K, T, beams=lidar.beams, epsilon_m=config.epsilon_m,
+                                 max_half_width_px=config.outlier_max_half_width_px,
+                                 max_half_height_px=config.outlier_max_half_height_px)
+
+    @jax.jit
+    def distance(keep):
+        s = nearest_seed(keep, metric=config.distance_metric)
+        return s.du, s.dv
+
+    @jax.jit
+    def residual_and_smoothing(sparse, keep, normals, du, dv, K):
+        seed_depth = gather_at_seed(jnp.where(keep, sparse, 0.0), du, dv)
+        seed_normal = gather_at_seed(normals, du, dv)
+        dz = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
+                            max_residual_ratio=config.max_residual_ratio)
+        raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + dz, config.min_depth_m, config.max_depth_m), 0.0)
+        out = gaussian_blur(raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
+        return jnp.where(keep, sparse, out)
+
+    return normals, outliers, distance, residual_and_smoothing
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "end_to_end.json"))
+    parser.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 2, 4, 8])
+    args = parser.parse_args(argv)
+    config = SGMConfig()
+    lidar = presets.KITTI_HDL64
+    sparse, K, T, label = load_frame()
+    d, k, t = jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T)
+    results = {"frame": label, "backend": jax.default_backend(), "devices": len(jax.devices()),
+               "jax": jax.__version__, "cpu_count": os.cpu_count(), "load_average": os.getloadavg()}
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+    sgm = lambda: complete_with(d, k, t, method="sgm", config=config, lidar=lidar).block_until_ready()
+    results["sgm_compile_s"] = compile_seconds(sgm)
+    sgm_med, sgm_min = timeit(sgm, args.repeats)
+    ipb = lambda: ip_basic_opencv(sparse, blur_type="gaussian")
+    ipb()
+    ipb_med, ipb_min = timeit(ipb, args.repeats)
+    ipb_bilateral_med, _ = timeit(lambda: ip_basic_opencv(sparse, blur_type="bilateral"), args.repeats)
+    jip = lambda: complete_with(d, k, t, method="ip-basic", config=config.replace(outlier_removal=False),
+                                lidar=lidar).block_until_ready()
+    jip()
+    jip_med, _ = timeit(jip, args.repeats)
+    # interleave once more so both sides saw the same machine state
+    sgm_med2, _ = timeit(sgm, args.repeats)
+    ipb_med2, _ = timeit(ipb, args.repeats)
+    results["end_to_end_ms"] = {"sgm_median": sgm_med, "sgm_min": sgm_min, "sgm_median_second_pass": sgm_med2,
+                                "ip_basic_opencv_gaussian_median": ipb_med, "ip_basic_opencv_gaussian_min": ipb_min,
+                                "ip_basic_opencv_gaussian_median_second_pass": ipb_med2,
+                                "ip_basic_opencv_bilateral_median": ipb_bilateral_med,
+                                "ip_basic_jax_median": jip_med}
+    results["ratio_sgm_over_ip_basic_opencv"] = min(sgm_med, sgm_med2) / min(ipb_med, ipb_med2)
+
+    normals, outliers, distance, finish = stage_functions(config, lidar)
+    n = normals(d, k, t).block_until_ready()
+    keep = outliers(d, k, t).block_until_ready()
+    du, dv = distance(keep)
+    finish(d, keep, n, du, dv, k).block_until_ready()
+    stages = {
+        "range_image_and_normals": timeit(lambda: normals(d, k, t).block_until_ready(), args.repeats)[0],
+        "outlier_removal": timeit(lambda: outliers(d, k, t).block_until_ready(), args.repeats)[0],
+        "distance_transform": timeit(lambda: distance(keep)[0].block_until_ready(), args.repeats)[0],
+        "residual_and_smoothing": timeit(lambda: finish(d, keep, n, du, dv, k).block_until_ready(), args.repeats)[0],
+    }
+    mask = np.asarray(keep)
+    seeds_as_zero = np.where(mask, 0, 255).astype(np.uint8)
+    cv_dt = lambda: cv2.distanceTransformWithLabels(seeds_as_zero, cv2.DIST_L1, 3, labelType=cv2.DIST_LABEL_PIXEL)
+    cv_med, _ = timeit(cv_dt, args.repeats)
+    sp_med, _ = timeit(lambda: scipy.ndimage.distance_transform_edt(~mask, return_indices=True),
+                       max(5, args.repeats // 5))
+    results["stages_ms"] = stages
+    results["stages_sum_ms"] = sum(stages.values())
+    results["distance_baselines_ms"] = {"opencv_l1_labels": cv_med, "scipy_edt_indices": sp_med}
+    results["ratio_distance_over_opencv_l1"] = stages["distance_transform"] / cv_med
+
+    batch = {}
+    for strategy in ("map", "vmap"):
+        for b in args.batch_sizes:
+            depths = np.repeat(sparse[None], b, axis=0)
+            Ks = np.repeat(np.asarray(K, np.float32)[None], b, axis=0)
+            fn = runner.batched_completion(b, sparse.shape[0], sparse.shape[1], method="sgm", config=config,
+                                           lidar=lidar, strategy=strategy, devices=1)
+            call = lambda: fn(depths, Ks, np.asarray(T, np.float32)).block_until_ready()
+            compile_s = compile_seconds(call)
+            med, _ = timeit(call, max(3, args.repeats // (2 * b)))
+            batch[f"{strategy}_b{b}"] = {"compile_s": compile_s, "median_ms": med, "frames_per_s": 1e3 * b / med}
+    results["batched"] = batch
+    results["single_frame_fps"] = 1e3 / min(sgm_med, sgm_med2)
+    results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    results["peak_rss_growth_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
+
+    e = results["end_to_end_ms"]
+    print(f"{label}; backend {results['backend']}, load average {results['load_average'][0]:.2f}")
+    print(f"{'':36s}{'median ms':>10s}")
+    print(f"{'SGM (jaxdepth, outlier removal on)':36s}{min(sgm_med, sgm_med2):10.2f}  (compile {results['sgm_compile_s']:.1f} s)")
+    print(f"{'IP_Basic fast, OpenCV (gaussian)':36s}{min(ipb_med, ipb_med2):10.2f}")
+    print(f"{'IP_Basic fast, OpenCV (bilateral)':36s}{ipb_bilateral_med:10.2f}")
+    print(f"{'IP_Basic fast, jaxdepth (gaussian)':36s}{jip_med:10.2f}")
+    print(f"ratio SGM / IP_Basic OpenCV: {results['ratio_sgm_over_ip_basic_opencv']:.2f}x")
+    for name, ms in stages.items():
+        print(f"  stage {name:32s}{ms:8.2f} ms  ({100 * ms / results['stages_sum_ms']:.0f} %)")
+    print(f"  distance transform / OpenCV L1 with labels ({cv_med:.2f} ms): {results['ratio_distance_over_opencv_l1']:.2f}x;"
+          f" SciPy EDT with indices {sp_med:.2f} ms")
+    for key, row in batch.items():
+        print(f"  batch {key:10s} {row['frames_per_s']:7.1f} frames/s  (compile {row['compile_s']:.1f} s)")
+    print(f"peak RSS {results['peak_rss_mb']:.0f} MB")
+    out = pathlib.Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2, sort_keys=True))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
