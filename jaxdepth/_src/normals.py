@@ -112,8 +112,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import custom_batching
 
+from jaxdepth._src.staging import stage
 from jaxdepth._src.types import LidarSpec
 
 #: Points closer than this to the sensor origin (metres) are treated as invalid.
@@ -236,54 +236,11 @@ def _safe_div(num, den, ok):
 
 # --------------------------------------------------------------- materialisation
 #
-# XLA:CPU fuses a producer into every consumer: shifted slices and per-point
-# gathers would re-run the whole upstream chain per element (measured 5-20x
-# slower). ``lax.optimization_barrier`` is removed before fusion on CPU, so the
-# arrays are passed through a ``lax.cond`` whose predicate is always true but
-# not provable at compile time (an int32 from the data compared with INT32_MIN);
-# a conditional's operands and results are real buffers. The producer runs
-# inside the branch, so nothing is copied. Under ``vmap`` the predicate is
-# reduced to a scalar (custom_vmap) so the conditional is not turned into a
-# select; a custom_jvp differentiates ``fn`` directly.
+# Heavy intermediates are computed inside ``_stage`` conditionals (real buffers
+# that shifted slices and gathers read instead of re-running the producer):
+# see :mod:`jaxdepth._src.staging`.
 
-
-def _stage(fn, args, token):
-    """``fn(*args)`` computed in its own conditional: its outputs are real buffers
-    that consumers read instead of re-running ``fn`` (see above).
-
-    Args:
-      fn: function of arrays returning a tuple of arrays.
-      args: tuple of arrays (the conditional's operands).
-      token: int32 scalar from the data; ``token >= INT32_MIN`` always holds.
-    """
-    args = tuple(args)
-
-    @custom_batching.custom_vmap
-    def run(operands, tok):
-        shapes = jax.eval_shape(fn, *operands)
-        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, lambda ops: fn(*ops),
-                            lambda ops: jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes), operands)
-
-    @run.def_vmap
-    def run_vmap(axis_size, in_batched, operands, tok):
-        ops_batched, tok_batched = in_batched
-        if tok_batched:
-            tok = jnp.min(tok)  # one predicate for the batch keeps the conditional
-        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                         for a, b in zip(operands, ops_batched))
-        out = _stage(jax.vmap(fn), operands, tok)
-        return out, jax.tree.map(lambda _: True, out)
-
-    @jax.custom_jvp
-    def staged(operands, tok):
-        return run(operands, tok)
-
-    @staged.defjvp
-    def staged_jvp(primals, tangents):
-        operands, _ = primals
-        return jax.jvp(fn, operands, tangents[0])
-
-    return staged(args, jnp.asarray(token, jnp.int32))
+_stage = stage
 
 
 # ------------------------------------------------------------------- image shifts
