@@ -96,3 +96,65 @@ def test_colorize_normals():
     np.testing.assert_array_equal(cz.colorize_normals(axis)[0, :, 0], [0, 128, 255])
     with pytest.raises(ValueError, match=r"normals: expected shape \(3, H, W\), got \(9, 11, 3\)"):
         cz.colorize_normals(np.moveaxis(n, 0, -1))
+
+
+# ------------------------------------------------------------- overlays
+
+def _brute_min_filter(d: np.ndarray, r: int) -> np.ndarray:
+    """Smallest valid depth within Chebyshev distance r (inf where none), by loops."""
+    h, w = d.shape
+    out = np.full((h, w), np.inf)
+    for v in range(h):
+        for u in range(w):
+            for y in range(max(0, v - r), min(h, v + r + 1)):
+                for x in range(max(0, u - r), min(w, u + r + 1)):
+                    if np.isfinite(d[y, x]) and d[y, x] > 0:
+                        out[v, u] = min(out[v, u], d[y, x])
+    return out
+
+
+@pytest.mark.parametrize("radius", [0, 1, 2])
+def test_overlay_depth_matches_brute_force_nearest_on_top(radius):
+    rng = np.random.default_rng(10 + radius)
+    d = rng.uniform(2.0, 60.0, (13, 17)).astype(np.float32)
+    d[rng.random(d.shape) < 0.85] = 0.0
+    d[0, 0] = np.nan
+    image = rng.integers(0, 256, (13, 17, 3), dtype=np.uint8)
+    valid = np.isfinite(d) & (d > 0)
+    lo, hi = float(d[valid].min()), float(d[valid].max())
+    out = cz.overlay_depth(image, d, dot_radius_px=radius)
+    assert out.shape == (13, 17, 3) and out.dtype == np.uint8
+    near = _brute_min_filter(d, radius)
+    covered = np.isfinite(near)
+    np.testing.assert_array_equal(out[~covered], image[~covered])
+    lut = cz.colormap_lut("turbo")
+    idx = np.rint((near[covered] - lo) / (hi - lo) * 255).astype(int)
+    np.testing.assert_array_equal(out[covered], lut[idx])
+    assert not np.shares_memory(out, image)
+
+
+def test_overlay_depth_grey_image_empty_depth_and_errors():
+    grey = np.arange(20, dtype=np.uint8).reshape(4, 5)
+    out = cz.overlay_depth(grey, np.zeros((4, 5), np.float32))
+    np.testing.assert_array_equal(out, np.repeat(grey[..., None], 3, axis=-1))
+    with pytest.raises(ValueError, match="image"):
+        cz.overlay_depth(np.zeros((4, 6, 3), np.uint8), np.zeros((4, 5)))
+    with pytest.raises(ValueError, match="uint8"):
+        cz.overlay_depth(np.zeros((4, 5, 3), np.float32), np.zeros((4, 5)))
+    with pytest.raises(ValueError, match="dot_radius_px"):
+        cz.overlay_depth(grey, np.zeros((4, 5)), dot_radius_px=-1)
+
+
+@pytest.mark.parametrize("radius", [0, 1, 3])
+def test_overlay_mask_matches_brute_force(radius):
+    rng = np.random.default_rng(20 + radius)
+    mask = rng.random((11, 14)) < 0.05
+    image = rng.integers(0, 256, (11, 14, 3), dtype=np.uint8)
+    out = cz.overlay_mask(image, mask, color=(255, 0, 0), dot_radius_px=radius)
+    grown = _brute_min_filter(np.where(mask, 1.0, 0.0), radius) == 1.0
+    np.testing.assert_array_equal(out[grown], np.broadcast_to([255, 0, 0], out[grown].shape))
+    np.testing.assert_array_equal(out[~grown], image[~grown])
+    with pytest.raises(ValueError, match="color"):
+        cz.overlay_mask(image, mask, color=(300, 0, 0))
+    with pytest.raises(ValueError, match="mask"):
+        cz.overlay_mask(image, mask.astype(np.uint8))

@@ -88,3 +88,88 @@ def colorize_normals(normals) -> np.ndarray:
     rgb = np.rint((np.clip(np.nan_to_num(n), -1.0, 1.0) + 1.0) * 0.5 * 255.0).astype(np.uint8)
     rgb[empty] = 0
     return rgb
+
+
+def _rgb_canvas(image, shape, name: str) -> np.ndarray:
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"{name}: field 'image' expected dtype uint8, got {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    if img.ndim != 3 or img.shape[-1] != 3:
+        raise ValueError(f"{name}: field 'image' expected shape (H, W) or (H, W, 3), got {img.shape}")
+    if img.shape[:2] != tuple(shape):
+        raise ValueError(f"{name}: field 'image' expected height, width {tuple(shape)}, got {img.shape[:2]}")
+    return img.copy()
+
+
+def _check_radius(radius, name: str) -> int:
+    if isinstance(radius, bool) or int(radius) != radius or radius < 0:
+        raise ValueError(f"{name}: field 'dot_radius_px' expected a non-negative integer, got {radius!r}")
+    return int(radius)
+
+
+def overlay_depth(image, depth, *, dot_radius_px: int = 1, vmin: float | None = None,
+                  vmax: float | None = None, cmap: str = "turbo", invert: bool = False) -> np.ndarray:
+    """Sparse depth painted over a camera image as coloured dots (nearest point on top).
+
+    Args:
+      image: (H, W, 3) uint8 RGB or (H, W) uint8 grey camera image.
+      depth: (H, W) depth, metres; ``<= 0`` or non-finite = no point.
+      dot_radius_px: each point becomes a (2r+1) x (2r+1) square; where squares
+        overlap, the nearest depth wins (a min filter, as a z-buffer would).
+      vmin, vmax, cmap, invert: as :func:`colorize_depth`; the default range is
+        the minimum / maximum of the valid input depths (before the dots grow).
+
+    Returns:
+      (H, W, 3) uint8 RGB: ``image`` where no dot covers the pixel, else the colour
+      :func:`colorize_depth` gives the smallest depth within ``dot_radius_px``
+      (Chebyshev distance) of the pixel.
+    """
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"overlay_depth: field 'depth' expected shape (H, W), got {d.shape}")
+    r = _check_radius(dot_radius_px, "overlay_depth")
+    out = _rgb_canvas(image, d.shape, "overlay_depth")
+    valid = np.isfinite(d) & (d > 0)
+    if not valid.any():
+        return out
+    lo = float(d[valid].min()) if vmin is None else float(vmin)
+    hi = float(d[valid].max()) if vmax is None else float(vmax)
+    z = np.where(valid, d, np.inf).astype(np.float32)
+    if r > 0:
+        z = cv2.erode(z, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                      borderValue=float(np.inf))
+    covered = np.isfinite(z)
+    colours = colorize_depth(np.where(covered, z, 0.0), vmin=lo, vmax=hi, cmap=cmap, invert=invert)
+    out[covered] = colours[covered]
+    return out
+
+
+def overlay_mask(image, mask, *, color=(255, 0, 0), dot_radius_px: int = 1) -> np.ndarray:
+    """Pixels of a mask painted over a camera image as squares of one colour.
+
+    Args:
+      image: (H, W, 3) uint8 RGB or (H, W) uint8 grey.
+      mask: (H, W) bool (e.g. LiDAR pixels removed as outliers).
+      color: RGB triple of integers in [0, 255] (default red).
+      dot_radius_px: each True pixel becomes a (2r+1) x (2r+1) square.
+
+    Returns:
+      (H, W, 3) uint8 RGB: ``color`` within Chebyshev distance ``dot_radius_px``
+      of a True pixel, ``image`` elsewhere.
+    """
+    m = np.asarray(mask)
+    if m.ndim != 2 or m.dtype != bool:
+        raise ValueError(f"overlay_mask: field 'mask' expected a (H, W) bool array, got {m.dtype} {m.shape}")
+    r = _check_radius(dot_radius_px, "overlay_mask")
+    rgb = np.asarray(color)
+    if rgb.shape != (3,) or not np.all((rgb >= 0) & (rgb <= 255)) or not np.all(rgb == np.round(rgb)):
+        raise ValueError(f"overlay_mask: field 'color' expected 3 integers in [0, 255], got {color!r}")
+    out = _rgb_canvas(image, m.shape, "overlay_mask")
+    grown = m.astype(np.uint8)
+    if r > 0:
+        grown = cv2.dilate(grown, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                           borderValue=0)
+    out[grown > 0] = rgb.astype(np.uint8)
+    return out
