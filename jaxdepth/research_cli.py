@@ -1,0 +1,335 @@
+"""Research commands of the command line: the paper's ablations, sparsity study, hidden-point scores.
+
+``register(subparsers)`` adds three subcommands to the ``jaxdepth`` parser
+(:func:`jaxdepth.cli.build_parser` calls it):
+
+``jaxdepth ablation SRC [GT_DIR] [--json OUT] [--distance l1|l2] [--epsilon M]``
+    Tables 1, 5 and 6 of the paper (:func:`jaxdepth.ablation.frame_ablation`)
+    on a KITTI-layout folder: ``SRC/velodyne_raw/*.png`` with
+    ``SRC/intrinsics/*.txt`` (or ``--intrinsics K.txt`` for every frame). The
+    ground truth of ``X.png`` is ``GT_DIR/X.png`` or, KITTI's own naming,
+    ``X`` with ``velodyne_raw`` replaced by ``groundtruth_depth``; ``GT_DIR``
+    defaults to ``SRC/groundtruth_depth``. LiDAR angles use KITTI camera 2's
+    extrinsics (benchmark folders carry none). Frames that cannot be read are
+    reported on stderr and skipped (exit code 1 if any).
+
+``jaxdepth sparsity SWEEP CALIB_DIR GT.png [--camera 2] [--beams 64 32 16] [--json OUT]``
+    The paper's Fig. 6 on one KITTI raw frame: the beam of every point is
+    estimated from its elevation (:mod:`jaxdepth.sparsity`), every 2nd / 4th
+    beam is kept, the sweep is projected into camera ``--camera`` (calibration
+    from ``CALIB_DIR/calib_cam_to_cam.txt`` and ``calib_velo_to_cam.txt``),
+    cropped to the 352 x 1216 benchmark window, completed with SGM and with the
+    nearest fill, and scored against ``GT.png`` (full frame, or already cropped
+    to 352 x 1216). ``--lidar-beams`` gives the recording sensor's beam count
+    (default 64); every entry of ``--beams`` must divide it.
+
+``jaxdepth hidden-eval POINTS RIG.json [--fraction 0.1] [--seed 0] [--scale 1] [--json OUT]``
+    Hidden-point evaluation of one sweep for every camera of a rig JSON
+    (:func:`jaxdepth.hidden_point_scores`): a seeded share of the points is held
+    out, the rest completed, and SGM and the nearest fill are scored where the
+    held-out points project. ``--point-columns`` defaults to 5 for ``*.pcd.bin``
+    (nuScenes) and 4 otherwise; ``--scale`` scales every camera's K and image
+    size (pixel-centre convention); ``--min-range-m`` (default 1.0) drops
+    returns closer to the LiDAR (no-return placeholders, the vehicle itself).
+
+Every command prints a table on stdout, writes ``--json`` atomically, raises
+:class:`jaxdepth.io.errors.JaxdepthError` for bad input (the CLI prints one line
+and exits with 1) and returns its exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+import numpy as np
+
+from jaxdepth.io.errors import InputError, JaxdepthError
+
+
+def _config(args):
+    from jaxdepth._src.config import SGMConfig
+    changes = {"distance_metric": args.distance}
+    if getattr(args, "epsilon", None) is not None:
+        changes["epsilon_m"] = args.epsilon
+    return SGMConfig(**changes)
+
+
+def _add_config_options(p: argparse.ArgumentParser):
+    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
+                   help="nearest-seed metric of the distance transform (default: l1)")
+    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
+
+
+def _write_json(path, payload):
+    from jaxdepth.io.atomic import atomic_write_bytes
+    text = json.dumps(payload, indent=2, sort_keys=True, allow_nan=True)
+    atomic_write_bytes(pathlib.Path(path), text.encode("utf-8"))
+
+
+# ---------------------------------------------------------------- ablation
+
+
+def _gt_path(gt_dir: pathlib.Path, png: pathlib.Path) -> pathlib.Path | None:
+    names = [png.name]
+    if "velodyne_raw" in png.name:
+        names.append(png.name.replace("velodyne_raw", "groundtruth_depth", 1))
+    for name in names:
+        if (gt_dir / name).is_file():
+            return gt_dir / name
+    return None
+
+
+def cmd_ablation(args) -> int:
+    from jaxdepth.ablation import format_ablation, frame_ablation, mean_ablation
+    from jaxdepth.io.calib import read_intrinsics_txt
+    from jaxdepth.io.depth_png import read_depth_png
+    from jaxdepth.io.kitti_layout import list_depth_completion_folder
+
+    src = pathlib.Path(args.src)
+    frames = list_depth_completion_folder(src)
+    gt_dir = pathlib.Path(args.gt) if args.gt else src / "groundtruth_depth"
+    if not gt_dir.is_dir():
+        raise InputError(f"{gt_dir}: ground-truth folder not found (give GT_DIR or SRC/groundtruth_depth/)")
+    K_all = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
+    config = _config(args)
+    per_frame, failed = {}, {}
+    for name, png, k_path in frames:
+        try:
+            gt_path = _gt_path(gt_dir, png)
+            if gt_path is None:
+                raise InputError(f"no ground truth {png.name} in {gt_dir}")
+            if K_all is None and k_path is None:
+                raise InputError("no intrinsics (expected SRC/intrinsics/<name>.txt or --intrinsics K.txt)")
+            K = K_all if K_all is not None else read_intrinsics_txt(k_path)
+            sparse, gt = read_depth_png(png), read_depth_png(gt_path)
+            if sparse.shape != gt.shape:
+                raise InputError(f"sparse input {sparse.shape} and ground truth {gt.shape} differ in shape")
+            per_frame[name] = frame_ablation(sparse, gt, K, config=config)
+        except JaxdepthError as err:
+            failed[name] = str(err)
+            print(f"FAILED {name}: {err}", file=sys.stderr)
+    if not per_frame:
+        raise InputError(f"{src}: no frame could be evaluated ({len(failed)} failed)")
+    mean = mean_ablation(per_frame)
+    for line in format_ablation(mean):
+        print(line)
+    if args.json:
+        _write_json(args.json, {"mean": mean, "per_frame": per_frame, "failed": failed,
+                                "config": {"distance_metric": config.distance_metric,
+                                           "epsilon_m": config.epsilon_m}})
+    if failed:
+        print(f"{len(per_frame)} frames evaluated, {len(failed)} failed", file=sys.stderr)
+    return 1 if failed else 0
+
+
+# ---------------------------------------------------------------- sparsity
+
+
+def _kitti_camera(calib_dir: pathlib.Path, index: int, gt: np.ndarray):
+    """(Camera, gt cropped to the benchmark window) for KITTI camera ``index``."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.types import Camera
+    from jaxdepth.io.calib import read_kitti_raw_calib
+    from jaxdepth.io.kitti_layout import BENCHMARK_SIZE, benchmark_crop_offsets, crop_to_benchmark
+
+    if not calib_dir.is_dir():
+        raise InputError(f"{calib_dir}: calibration folder not found")
+    calib = read_kitti_raw_calib(calib_dir / "calib_cam_to_cam.txt", calib_dir / "calib_velo_to_cam.txt")
+    cam = calib["cameras"][index]
+    K, full = np.asarray(cam["K"], np.float32), (cam["height"], cam["width"])
+    if gt.shape == tuple(BENCHMARK_SIZE) and full != tuple(BENCHMARK_SIZE):
+        top, left = benchmark_crop_offsets(*full)
+        K = K.copy()
+        K[0, 2] -= left
+        K[1, 2] -= top
+        gt_c = gt
+    elif gt.shape == full:
+        gt_c, K = crop_to_benchmark(gt, K)
+    else:
+        raise InputError(f"ground truth shape {gt.shape} expected the camera's {full} (S_rect_0{index}) "
+                         f"or the benchmark crop {tuple(BENCHMARK_SIZE)}")
+    h, w = gt_c.shape
+    return Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(cam["T_cam_lidar"]), height=h, width=w), gt_c
+
+
+def _point_columns(path: pathlib.Path, given):
+    if given is not None:
+        return given
+    return 5 if path.name.lower().endswith(".pcd.bin") else 4
+
+
+def cmd_sparsity(args) -> int:
+    from jaxdepth import sparsity
+    from jaxdepth.io.depth_png import read_depth_png
+    from jaxdepth.io.points import read_points
+    from jaxdepth.io.rig import default_lidar_spec
+
+    sweep = pathlib.Path(args.sweep)
+    points, _ = read_points(sweep, columns=_point_columns(sweep, args.point_columns))
+    gt = read_depth_png(args.gt)
+    camera, gt_c = _kitti_camera(pathlib.Path(args.calib_dir), args.camera, gt)
+    lidar = default_lidar_spec(args.lidar_beams)
+    try:
+        for b in args.beams:
+            sparsity.keep_every_for(lidar, b)
+    except ValueError as err:
+        raise InputError(f"--beams: {err}") from None
+    model = sparsity.beam_model(points, lidar=lidar)
+    counts = np.bincount(model.index[model.index >= 0], minlength=model.beams_found)
+    print(f"beams found from elevation: {model.beams_found} (apex {model.apex_height_m:+.2f} m); points per beam "
+          f"min {counts.min()}, median {int(np.median(counts))}, max {counts.max()}")
+    result = sparsity.sparsity_study(points, None, camera, gt_c, lidar=lidar, beams=args.beams,
+                                     config=_config(args), beam=model.index)
+    result["beams_found"] = model.beams_found
+    result["apex_height_m"] = model.apex_height_m
+    result["points_per_beam"] = counts.tolist()
+    result["camera"] = args.camera
+    for line in sparsity.format_sparsity(result):
+        print(line)
+    if args.json:
+        _write_json(args.json, result)
+    return 0
+
+
+# ---------------------------------------------------------------- hidden-point evaluation
+
+
+def scaled_camera(camera, scale: float):
+    """A :class:`Camera` with image size ``round(size * scale)`` and K scaled with the pixel-centre convention.
+
+    Pixel ``i`` covers ``[i - 0.5, i + 0.5]``, so ``x' + 0.5 = scale (x + 0.5)``.
+    """
+    import jax.numpy as jnp
+
+    from jaxdepth._src.types import Camera
+    if scale == 1.0:
+        return camera
+    K = np.array(camera.K, np.float64)
+    S = np.array([[scale, 0.0, 0.5 * (scale - 1.0)], [0.0, scale, 0.5 * (scale - 1.0)], [0.0, 0.0, 1.0]])
+    return Camera(K=jnp.asarray((S @ K).astype(np.float32)), T_cam_lidar=camera.T_cam_lidar,
+                  height=max(1, round(camera.height * scale)), width=max(1, round(camera.width * scale)))
+
+
+def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.1, seed: int = 0, scale: float = 1.0,
+                min_range_m: float = 1.0, config=None) -> dict:
+    """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
+
+    Returns:
+      {"cameras": {name: {"hidden_pixels", "sgm": {rmse, mae, irmse, imae}, "nearest": {...}}},
+       "mean": {"sgm": {...}, "nearest": {...}}, "points", "hidden_points", "fraction", "seed", "scale"}.
+    """
+    import jax.numpy as jnp
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.hidden import hidden_point_mask, hidden_point_scores
+    from jaxdepth._src.metrics import mean_metrics
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.io.points import pad_points
+
+    config = SGMConfig() if config is None else config
+    padded, valid = pad_points(points)
+    with np.errstate(invalid="ignore", over="ignore"):
+        valid &= np.linalg.norm(padded.astype(np.float64), axis=1) >= min_range_m
+    hidden = hidden_point_mask(valid, fraction=fraction, seed=seed)
+    cameras = stack_cameras([scaled_camera(c.as_camera(), scale) for c in rig.cameras])
+    scores = hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
+                                 config=config, lidar=rig.lidar)
+    keys = ("rmse", "mae", "irmse", "imae")
+    per_camera = {}
+    for i, cam in enumerate(rig.cameras):
+        per_camera[cam.name] = {"hidden_pixels": int(scores["hidden_pixels"][i])}
+        for method in ("sgm", "nearest"):
+            per_camera[cam.name][method] = {k: float(scores[method][k][i]) for k in keys}
+    mean = {}
+    for method in ("sgm", "nearest"):
+        rows = [dict(per_camera[n][method], count=per_camera[n]["hidden_pixels"]) for n in per_camera]
+        m = mean_metrics(rows)
+        mean[method] = {k: float(m[k]) for k in keys}
+    return {"cameras": per_camera, "mean": mean, "points": int(valid.sum()), "hidden_points": int(hidden.sum()),
+            "fraction": fraction, "seed": seed, "scale": scale, "min_range_m": min_range_m}
+
+
+def format_hidden(result: dict) -> list:
+    lines = [f"{'camera':20s}{'hidden px':>10s}{'SGM RMSE':>10s}{'SGM MAE':>9s}{'NN RMSE':>9s}{'NN MAE':>8s}"]
+    for name, row in result["cameras"].items():
+        s, nn = row["sgm"], row["nearest"]
+        lines.append(f"{name[:20]:20s}{row['hidden_pixels']:10d}{s['rmse']:10.1f}{s['mae']:9.1f}"
+                     f"{nn['rmse']:9.1f}{nn['mae']:8.1f}")
+    s, nn = result["mean"]["sgm"], result["mean"]["nearest"]
+    lines.append(f"{'mean':20s}{'':10s}{s['rmse']:10.1f}{s['mae']:9.1f}{nn['rmse']:9.1f}{nn['mae']:8.1f}")
+    lines.append(f"{result['hidden_points']} of {result['points']} points hidden (fraction {result['fraction']}, "
+                 f"seed {result['seed']}); RMSE / MAE in mm at the hidden points; NN = nearest fill")
+    return lines
+
+
+def cmd_hidden_eval(args) -> int:
+    from jaxdepth.io.points import read_points
+    from jaxdepth.io.rig import read_rig_json
+
+    if not 0.0 < args.fraction < 1.0:
+        raise InputError(f"--fraction expected a number in (0, 1), got {args.fraction}")
+    if not 0.0 < args.scale <= 4.0:
+        raise InputError(f"--scale expected a number in (0, 4], got {args.scale}")
+    path = pathlib.Path(args.points)
+    points, _ = read_points(path, columns=_point_columns(path, args.point_columns))
+    rig = read_rig_json(args.rig)
+    result = hidden_eval(points, rig, fraction=args.fraction, seed=args.seed, scale=args.scale,
+                         min_range_m=args.min_range_m, config=_config(args))
+    if result["hidden_points"] == 0:
+        raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
+    for line in format_hidden(result):
+        print(line)
+    if args.json:
+        _write_json(args.json, result)
+    return 0
+
+
+# ---------------------------------------------------------------- registration
+
+
+def register(subparsers) -> None:
+    """Adds ``ablation``, ``sparsity`` and ``hidden-eval`` to an argparse subparsers object."""
+    p = subparsers.add_parser("ablation", help="the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth")
+    p.add_argument("src", help="folder with velodyne_raw/*.png and intrinsics/*.txt")
+    p.add_argument("gt", nargs="?", default=None,
+                   help="folder of ground-truth PNGs with the same names (default: SRC/groundtruth_depth)")
+    p.add_argument("--intrinsics", help="K.txt for every frame (instead of SRC/intrinsics/)")
+    p.add_argument("--json", help="write {'mean': ..., 'per_frame': ...} to this file")
+    _add_config_options(p)
+    p.set_defaults(func=cmd_ablation)
+
+    p = subparsers.add_parser("sparsity", help="the paper's sparsity study: 64 / 32 / 16 simulated beams vs ground truth")
+    p.add_argument("sweep", help="LiDAR sweep (.bin float32 records, .npy, .npz)")
+    p.add_argument("calib_dir", help="folder with KITTI raw calib_cam_to_cam.txt and calib_velo_to_cam.txt")
+    p.add_argument("gt", help="ground-truth depth PNG of the camera (full frame or 352x1216 benchmark crop)")
+    p.add_argument("--camera", type=int, choices=(0, 1, 2, 3), default=2, help="KITTI camera index (default 2)")
+    p.add_argument("--beams", type=int, nargs="+", default=[64, 32, 16],
+                   help="simulated beam counts, divisors of --lidar-beams (default: 64 32 16)")
+    p.add_argument("--lidar-beams", type=int, default=64, help="beams of the recording LiDAR (default 64)")
+    p.add_argument("--point-columns", type=int, default=None,
+                   help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
+    p.add_argument("--json", help="write the table as JSON to this file")
+    _add_config_options(p)
+    p.set_defaults(func=cmd_sparsity)
+
+    p = subparsers.add_parser("hidden-eval", help="hidden-point scores of a sweep for every camera of a rig JSON")
+    p.add_argument("points", help="LiDAR sweep (.bin, .pcd.bin, .npy, .npz)")
+    p.add_argument("rig", help="rig JSON (see jaxdepth.io.rig)")
+    p.add_argument("--point-columns", type=int, default=None,
+                   help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
+    p.add_argument("--fraction", type=float, default=0.1, help="share of the points held out (default 0.1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the held-out draw (default 0)")
+    p.add_argument("--scale", type=float, default=1.0, help="scale of every camera's image size and K (default 1)")
+    p.add_argument("--min-range-m", type=float, default=1.0,
+                   help="drop points closer to the LiDAR than this, metres (default 1.0)")
+    p.add_argument("--json", help="write the per-camera table as JSON to this file")
+    _add_config_options(p)
+    p.set_defaults(func=cmd_hidden_eval)
+
+
+__all__ = ["register", "cmd_ablation", "cmd_sparsity", "cmd_hidden_eval", "hidden_eval", "scaled_camera",
+           "format_hidden"]
