@@ -17,7 +17,7 @@ from jaxdepth._src.normals import (range_image as range_image, point_normals as 
 from jaxdepth._src.outliers import outlier_keep_mask as outlier_keep_mask
 from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
 from jaxdepth._src.residual import plane_residual as plane_residual
-from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur
+from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur, gaussian_blur_traced as gaussian_blur_traced
 from jaxdepth._src.pipeline import (complete as complete, complete_stages as complete_stages,
                                     complete_points as complete_points,
                                     complete_points_stages as complete_points_stages)
@@ -28,7 +28,8 @@ from jaxdepth._src.ip_basic import ip_basic as ip_basic
 from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
                                    mean_metrics as mean_metrics, pair_errors as pair_errors)
 from jaxdepth._src.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
-from jaxdepth._src.colorize import colorize_depth as colorize_depth, colorize_normals as colorize_normals
+from jaxdepth._src.colorize import (colorize_depth as colorize_depth, colorize_normals as colorize_normals,
+                                   overlay_depth as overlay_depth, overlay_mask as overlay_mask)
 from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
 
 __all__ = [
@@ -38,5 +39,5 @@ __all__ = [
     "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "complete_rig",
     "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background", "mean_metrics",
     "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
-    "make_street_scene", "SyntheticFrame",
+    "make_street_scene", "SyntheticFrame", "gaussian_blur_traced", "overlay_depth", "overlay_mask",
 ]

@@ -207,6 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("gt", help="folder of ground-truth depth PNGs (matched by file name)")
     p.add_argument("--json", help="write {'mean': ..., 'per_frame': ...} to this file")
     p.set_defaults(func=cmd_eval)
+
+    from jaxdepth import research_cli
+    research_cli.register(sub)
     return parser
 
 

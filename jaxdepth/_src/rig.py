@@ -60,6 +60,19 @@ def stack_cameras(cameras) -> RigCameras:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def _complete_rig_stages(points, valid, cameras, *, config, lidar):
+    points = jnp.asarray(points, jnp.float32)
+    valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
+    points = jnp.where(valid[:, None], points, 0.0)
+    normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
+                                  fill_max_gap=config.range_fill_max_gap)
+    def per_camera(K, T, size):
+        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=cameras.height,
+                                         width=cameras.width, lidar=lidar, config=config, image_size=size)
+
+    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+
+
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
                         config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
     """SGM completion of one sweep for C cameras; every :class:`Stages` field gains a leading C axis.
@@ -71,16 +84,7 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
     Returns:
       :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals).
     """
-    points = jnp.asarray(points, jnp.float32)
-    valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
-    points = jnp.where(valid[:, None], points, 0.0)
-    normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
-                                  fill_max_gap=config.range_fill_max_gap)
-    def per_camera(K, T, size):
-        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=cameras.height,
-                                         width=cameras.width, lidar=lidar, config=config, image_size=size)
-
-    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    return _complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
 
 
 def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
