@@ -491,3 +491,109 @@ def test_kitti_sweep_every_point_and_ground(kitti_frame):
     assert road.sum() > 1000
     err = angle_deg(n[road], np.array([[0.0, 0.0, 1.0]]))
     assert np.median(err) < 5.0
+
+
+# ----------------------------------------------------------------------------- image input (pixel_normals)
+
+PIX_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+
+
+def _pix_camera(f=120.0, h=96, w=160):
+    from jaxdepth._src.types import Camera
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
+    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)  # forward camera
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = R @ np.array([-0.3, 0.0, 0.3])
+    return Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T, jnp.float32), height=h, width=w)
+
+
+def _pix_frame(seed, camera):
+    from jaxdepth._src import synthetic
+    from jaxdepth._src.geometry import project_to_image
+    frame = synthetic.make_street_scene(seed, lidar=PIX_LIDAR, cameras=[camera])
+    depth, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar,
+                                height=camera.height, width=camera.width)
+    return np.asarray(depth)
+
+
+@jax.jit
+def _pixel_oracle_points(depth, K, T):
+    from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_depth
+    return transform_points(invert_rigid(T), unproject_depth(depth, K).reshape(-1, 3))
+
+
+def pixel_oracle(depth, K, T, lidar, **options):
+    """The composition pixel_normals replaces: every pixel as a point, point_normals, rotation."""
+    pts = _pixel_oracle_points(depth, K, T)
+    n = N.point_normals(pts, jnp.asarray(depth > 0).reshape(-1), lidar=lidar, **options)
+    R = np.asarray(T, np.float64)[:3, :3]
+    return (R @ np.asarray(n, np.float64).T).reshape(3, *depth.shape), np.asarray(pts)
+
+
+def check_pixel_normals(got, depth, K, T, lidar, **options):
+    want, pts = pixel_oracle(depth, K, T, lidar, **options)
+    got = np.asarray(got)
+    assert got.shape == (3, *depth.shape) and got.dtype == np.float32
+    # a pixel whose point lies within float32 rounding of a cell boundary may bin differently
+    stable = ~near_boundary(pts, lidar, tol=1e-5).reshape(depth.shape)
+    np.testing.assert_allclose(got[:, stable], want[:, stable], atol=1e-4)
+    assert np.all(got[:, depth == 0] == 0)
+    return stable
+
+
+@pytest.mark.parametrize("window_columns", [None, PIX_LIDAR.columns, 24])  # auto, whole image, fallback
+def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_columns):
+    camera = _pix_camera()
+    depth = _pix_frame(0, camera)
+    assert (depth > 0).sum() > 500
+    got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns)
+    stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
+    assert stable[depth > 0].mean() > 0.99
+    norms = np.linalg.norm(np.asarray(got)[:, depth > 0], axis=0)
+    np.testing.assert_allclose(norms, 1.0, atol=1e-5)
+
+
+def test_pixel_normals_options_and_wide_camera():
+    """Other smoothing / gap options, and a camera wider than the default window (falls back)."""
+    camera = _pix_camera(f=40.0)  # ~126 degrees wide: more than the 100-degree window
+    depth = _pix_frame(1, camera)
+    for options in (dict(smoothing=0, fill_max_gap=0), dict(smoothing=2, fill_max_gap=1)):
+        got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, **options)
+        check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
+
+
+def test_pixel_normals_vmap_equals_loop_and_jit_equals_eager():
+    cams = [_pix_camera(), _pix_camera(f=40.0)]  # one fits the window, one does not
+    depths = np.stack([_pix_frame(s, c) for s, c in zip((2, 3), cams)])
+    Ks = jnp.stack([c.K for c in cams])
+    T = cams[0].T_cam_lidar
+    f = lambda d, k: N.pixel_normals(d, k, T, lidar=PIX_LIDAR)  # noqa: E731
+    loop = np.stack([np.asarray(f(d, k)) for d, k in zip(depths, Ks)])
+    np.testing.assert_allclose(np.asarray(jax.vmap(f)(depths, Ks)), loop, atol=1e-6)
+    with jax.disable_jit():
+        eager = np.asarray(f(depths[0][:48, :80], Ks[0]))
+    np.testing.assert_allclose(np.asarray(f(depths[0][:48, :80], Ks[0])), eager, atol=2e-5)
+
+
+def test_pixel_normals_bad_inputs_raise():
+    camera = _pix_camera()
+    depth = jnp.zeros((96, 160))
+    with pytest.raises(ValueError, match=r"pixel_normals: field 'sparse_depth' expected shape \(H, W\)"):
+        N.pixel_normals(depth[None], camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR)
+    with pytest.raises(ValueError, match=r"pixel_normals: field 'K' expected shape \(3, 3\), got \(3, 4\)"):
+        N.pixel_normals(depth, jnp.zeros((3, 4)), camera.T_cam_lidar, lidar=PIX_LIDAR)
+    with pytest.raises(TypeError):
+        N.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
+
+
+def test_pixel_normals_kitti_frame(kitti_frame):
+    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    depth, K = crop_to_benchmark(read_depth_png(kitti_frame / "velodyne_raw_image_02.png"),
+                                 calib["cameras"][2]["K"])
+    T = calib["cameras"][2]["T_cam_lidar"]
+    depth, K, T = np.asarray(depth, np.float32), np.asarray(K, np.float32), np.asarray(T, np.float32)
+    got = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64)
+    stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
+    assert stable[depth > 0].mean() > 0.999

@@ -113,7 +113,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import stage
+from jaxdepth._src.staging import cond_all, stage
 from jaxdepth._src.types import LidarSpec
 
 #: Points closer than this to the sensor origin (metres) are treated as invalid.
@@ -210,17 +210,24 @@ def _sin_cos_small(t: jax.Array, half_width: float):
     return s * t, c
 
 
-def _azimuth_basis(theta: jax.Array):
+def _azimuth_basis(theta: jax.Array, window=None):
     """(sin, cos) of (L, C) azimuths that lie within half a column of their cell centre.
 
     Uses the static cell-centre angle and a short Taylor series of the offset.
+    ``window = (col0, total_cols)``: the array holds the columns ``col0,
+    col0 + 1, ...`` (mod ``total_cols``, ``col0`` traced) of a wider image.
     """
     cols = theta.shape[1]
-    centre = _PI - (np.arange(cols, dtype=np.float64) + 0.5) * (2 * _PI / cols)
-    s_c = np.sin(centre).astype(np.float32)[None, :]
-    c_c = np.cos(centre).astype(np.float32)[None, :]
-    delta = _wrap_angle(theta - centre.astype(np.float32)[None, :])
-    s_d, c_d = _sin_cos_small(delta, _PI / cols + 1e-5)
+    total = cols if window is None else window[1]
+    centre = _PI - (np.arange(total, dtype=np.float64) + 0.5) * (2 * _PI / total)
+    tables = (np.sin(centre).astype(np.float32), np.cos(centre).astype(np.float32), centre.astype(np.float32))
+    if window is None:
+        s_c, c_c, cen = (a[None, :] for a in tables)
+    else:
+        s_c, c_c, cen = (jax.lax.dynamic_slice(jnp.asarray(np.concatenate([a, a[:cols]])), (window[0],),
+                                               (cols,))[None, :] for a in tables)
+    delta = _wrap_angle(theta - cen)
+    s_d, c_d = _sin_cos_small(delta, _PI / total + 1e-5)
     return s_c * c_d + c_c * s_d, c_c * c_d - s_c * s_d
 
 
@@ -338,9 +345,13 @@ def _cell_centres(lidar: LidarSpec):
 
 
 def _spherical(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
-    """Per-point range, angles, flat cell and validity."""
+    """Per-point range, angles, flat cell and validity of (N, 3) points."""
     pts = points.astype(jnp.float32)
-    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    return _spherical_xyz(pts[:, 0], pts[:, 1], pts[:, 2], valid, lidar)
+
+
+def _spherical_xyz(x, y, z, valid, lidar: LidarSpec):
+    """Range, angles, flat cell and validity of points given as coordinate arrays (any shape)."""
     rho2 = x * x + y * y
     r2 = rho2 + z * z
     ok = valid.astype(bool) & jnp.isfinite(r2) & (r2 > MIN_RANGE_M * MIN_RANGE_M)
@@ -360,19 +371,31 @@ def _spherical(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
     return r, theta, phi, cell, ok
 
 
+def _slot_and_key(r, cell, ok, n_cells: int):
+    """Scatter slot (``n_cells`` = dump for invalid points) and int32 order key of the range."""
+    slot = jnp.where(ok, cell, n_cells)
+    # Non-negative float32 ranges order like their int32 bit patterns.
+    key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
+    return slot, key
+
+
 def _range_image(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
     """The range image and each point's materialised flat cell (``L * C`` for invalid points)."""
-    n = points.shape[0]
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_cells = n_rows * n_cols
+    n_cells = lidar.beams * lidar.columns
+
     def per_point(points, valid):
         r, theta, phi, cell, ok = _spherical(points, valid, lidar)
-        slot = jnp.where(ok, cell, n_cells)  # invalid points go to a dump slot
-        # Non-negative float32 ranges order like their int32 bit patterns.
-        key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
-        return slot, key, r, theta, phi
+        return _slot_and_key(r, cell, ok, n_cells) + (r, theta, phi)
 
     slot, key, r, theta, phi = _stage(per_point, (points, valid), valid[0].astype(jnp.int32))
+    return _bin(slot, key, r, theta, phi, lidar), slot
+
+
+def _bin(slot, key, r, theta, phi, lidar: LidarSpec) -> RangeImage:
+    """Scatter-min of (N,) points into the range image (nearest range; ties: smaller index)."""
+    n = slot.shape[0]
+    n_rows, n_cols = lidar.beams, lidar.columns
+    n_cells = n_rows * n_cols
     best = jnp.full((n_cells + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key)
     win = key == best.at[slot].get(mode="promise_in_bounds")
     ids = jnp.arange(n, dtype=jnp.int32)
@@ -386,9 +409,8 @@ def _range_image(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
     ph_img = jnp.where(has, phi.at[safe].get(mode="promise_in_bounds"),
                        jnp.broadcast_to(phi_c, (n_rows, n_cols)).reshape(-1))
     shape = (n_rows, n_cols)
-    ri = RangeImage(r=r_img.reshape(shape), theta=th_img.reshape(shape), phi=ph_img.reshape(shape),
-                    index=jnp.where(has, idx, -1).reshape(shape), cell=jnp.where(slot < n_cells, slot, -1))
-    return ri, slot
+    return RangeImage(r=r_img.reshape(shape), theta=th_img.reshape(shape), phi=ph_img.reshape(shape),
+                      index=jnp.where(has, idx, -1).reshape(shape), cell=jnp.where(slot < n_cells, slot, -1))
 
 
 @functools.partial(jax.jit, static_argnames=("lidar",))
@@ -450,9 +472,9 @@ def _neighbour(padded, k: int, di: int, dj: int, centre):
     return jax.lax.complex(x, y), z
 
 
-def _basis_pairs(th: jax.Array, ph: jax.Array):
-    """((sin theta, cos theta), (sin phi, cos phi)) of the cell angles."""
-    return _azimuth_basis(th), _sin_cos_small(ph, _PI / 2)
+def _basis_pairs(th: jax.Array, ph: jax.Array, window=None):
+    """((sin theta, cos theta), (sin phi, cos phi)) of the cell angles (``window``: see _azimuth_basis)."""
+    return _azimuth_basis(th, window), _sin_cos_small(ph, _PI / 2)
 
 
 def _solve_gradient(rows, weights):
@@ -514,7 +536,7 @@ def _fit_slopes(*rows):
     return ab, full
 
 
-def _raw_normals(ri: RangeImage, fill_max_gap: int):
+def _raw_normals(ri: RangeImage, fill_max_gap: int, window=None):
     """Sensor-facing unit normals of measured cells, zeros at empty cells.
 
     Returns (meas, weight, nx, ny, nz); ``weight`` in [_PARTIAL_WEIGHT, 1] is 1
@@ -532,8 +554,12 @@ def _raw_normals(ri: RangeImage, fill_max_gap: int):
     padded = _pad((meas, r, th_wrapped, ph), k, (False, 0.0, 0.0, 0.0), token, wrap=(True, True, False, True))
     # Complex numbers carry two float32 channels through one fusion (XLA:CPU
     # would otherwise compute each output in its own fusion, repeating the work).
-    e_th, e_ph = _stage(lambda th, ph: tuple(jax.lax.complex(c, s) for s, c in _basis_pairs(th, ph)),
-                        (th, ph), token)
+    # (The window start is an operand: a stage may not close over traced values.)
+    start = () if window is None else (window[0],)
+    e_th, e_ph = _stage(
+        lambda th, ph, *start: tuple(jax.lax.complex(c, s) for s, c in _basis_pairs(
+            th, ph, None if window is None else (start[0], window[1]))),
+        (th, ph) + start, token)
     c_th, s_th, c_ph, s_ph = jnp.real(e_th), jnp.imag(e_th), jnp.real(e_ph), jnp.imag(e_ph)
     inv_r = _safe_div(1.0, r, meas)
     centre = (meas, r, th, ph, c_ph, inv_r)
@@ -676,3 +702,212 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec, smoo
 
     return _stage(per_point, (nx.reshape(-1), ny.reshape(-1), nz.reshape(-1), slot, points.astype(jnp.float32)),
                   ri.index[0, 0])[0]
+
+
+# ------------------------------------------------------------------ image input
+
+
+def _pixel_lidar_xyz(depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, v=None, u=None):
+    """LiDAR-frame (x, y, z) of every pixel's back-projected point, three (H, W) planes.
+
+    ``p_cam = depth K^-1 (u, v, 1)`` (as ``geometry.unproject_depth``) and
+    ``p_lidar = R^T (p_cam - t)`` (as ``transform_points(invert_rigid(T), .)``),
+    written per channel so no (H, W, 3) array is formed. ``v``, ``u`` (float32
+    row and column of each depth value) default to the pixel grid of ``depth``.
+    """
+    if v is None:
+        h, w = depth.shape
+        v = jnp.arange(h, dtype=jnp.float32)[:, None]
+        u = jnp.arange(w, dtype=jnp.float32)[None, :]
+    yn = (v - K[1, 2]) / K[1, 1]
+    xn = (u - K[0, 2] - K[0, 1] * yn) / K[0, 0]
+    xc, yc, zc = xn * depth, yn * depth, depth
+    R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
+    ti = -(R.T @ t)
+    return tuple(R[0, i] * xc + R[1, i] * yc + R[2, i] * zc + ti[i] for i in range(3))
+
+
+def _pixel_slots(depth, K, T, lidar: LidarSpec, token):
+    """Per pixel: flat range-image cell (``L C`` where the pixel has no point) and scatter key."""
+    n_cells = lidar.beams * lidar.columns
+
+    def per_pixel(depth, K, T):
+        x, y, z = _pixel_lidar_xyz(depth, K, T)
+        r, _, _, cell, ok = _spherical_xyz(x, y, z, depth > 0, lidar)
+        return _slot_and_key(r, cell, ok, n_cells)
+
+    return _stage(per_pixel, (depth, K, T), token)
+
+
+def _window_slot(slot, col0, lidar: LidarSpec, window_cols: int):
+    """Flat cell of ``slot`` in the (L, window_cols) window starting at column ``col0``
+    (``L window_cols`` when the pixel has no point or its cell is outside the window)."""
+    n_cols = lidar.columns
+    n_cells = lidar.beams * n_cols
+    if window_cols == n_cols:
+        return slot
+    row = slot // n_cols
+    col = slot - row * n_cols - col0
+    col = jnp.where(col < 0, col + n_cols, col)
+    inside = (slot < n_cells) & (col < window_cols)
+    return jnp.where(inside, row * window_cols + col, lidar.beams * window_cols)
+
+
+def _pixel_normals_in_window(depth, K, T, slot, key, best, col0, token, *, lidar: LidarSpec, window_cols: int,
+                             smoothing: int, fill_max_gap: int):
+    """Camera-frame (3, H, W) normals of the pixels from the range-image columns
+    ``col0 .. col0 + window_cols - 1`` (mod C); every pixel's cell must lie in
+    that window at least ``max(1 + fill_max_gap, smoothing)`` columns from its
+    edges (unless the window is the whole image), then the result equals that
+    of the whole range image.
+
+    ``slot``, ``key``: from :func:`_pixel_slots`; ``best``: (L C,) scatter-min of
+    ``key`` over ``slot``. Binning as :func:`_range_image` on the back-projected
+    pixels (flat pixel index = point index); the winners' range and angles are
+    recomputed per cell from their depth (the same float32 expressions).
+    """
+    h, w = depth.shape
+    n = h * w
+    n_rows, n_cols = lidar.beams, lidar.columns
+    n_cells = n_rows * n_cols
+    n_win = n_rows * window_cols
+    window = None if window_cols == n_cols else (col0, n_cols)
+    flat_slot, flat_key = slot.reshape(-1), key.reshape(-1)
+    win = flat_key == best.at[jnp.minimum(flat_slot, n_cells - 1)].get(mode="promise_in_bounds")
+    wslot = _window_slot(flat_slot, col0, lidar, window_cols)
+    ids = jnp.arange(n, dtype=jnp.int32)
+    # Pixels without a point carry the out-of-bounds slot and are dropped.
+    idx = jnp.full((n_win,), n, jnp.int32).at[jnp.where(win, wslot, n_win)].min(ids, mode="drop")
+
+    def per_cell(idx, depth, K, T, col0):
+        has = idx < n
+        safe = jnp.where(has, idx, 0)
+        z = jnp.where(has, depth.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
+        v = (safe // w).astype(jnp.float32)
+        u = (safe - (safe // w) * w).astype(jnp.float32)
+        x, y, z = _pixel_lidar_xyz(z, K, T, v=v, u=u)
+        r, theta, phi, _, _ = _spherical_xyz(x, y, z, has, lidar)
+        theta_c, phi_c = _cell_centres(lidar)
+        theta_c = jax.lax.dynamic_slice(jnp.concatenate([theta_c, theta_c[:, :window_cols]], axis=1),
+                                        (0, col0), (1, window_cols))
+        shape = (n_rows, window_cols)
+        th = jnp.where(has, theta, jnp.broadcast_to(theta_c, shape).reshape(-1))
+        ph = jnp.where(has, phi, jnp.broadcast_to(phi_c, shape).reshape(-1))
+        return (jnp.where(has, r, 0.0).reshape(shape), th.reshape(shape), ph.reshape(shape),
+                jnp.where(has, idx, -1).reshape(shape))
+
+    r, th, ph, index = _stage(per_cell, (idx, depth, K, T, col0), token)
+    ri = RangeImage(r=r, theta=th, phi=ph, index=index, cell=jnp.zeros((0,), jnp.int32))
+    # Pixels only sit in measured cells, so the filling of empty cells is skipped.
+    _, nx, ny, nz = _smoothed_normals(_raw_normals(ri, fill_max_gap, window), smoothing, token)
+
+    def facing(nx, ny, nz, slot, depth, K, T, col0):
+        # Gathers inside their own stage read buffers (outside, XLA would
+        # re-run the smoothing per gathered pixel). Packs the window cell and
+        # whether its normal must be flipped to face the pixel's own ray.
+        ws = _window_slot(slot, col0, lidar, window_cols)
+        ok = ws < n_win
+        idx = jnp.where(ok, ws, 0)
+        px, py, pz = (c.reshape(-1).at[idx].get(mode="promise_in_bounds") for c in (nx, ny, nz))
+        x, y, z = _pixel_lidar_xyz(depth, K, T)
+        flip = (px * x + py * y + pz * z > 0).astype(jnp.int32)
+        return (jnp.where(ok, 2 * idx + flip, -1),)
+
+    code = _stage(facing, (nx, ny, nz, slot, depth, K, T, col0), token)[0]
+    R = T[:3, :3]
+    n_cam = jnp.concatenate([(R[i, 0] * nx + R[i, 1] * ny + R[i, 2] * nz).reshape(-1) for i in range(3)])
+
+    def out(n_cam, code):
+        ok = code >= 0
+        idx = jnp.where(ok, code >> 1, 0)
+        sign = jnp.where(ok, 1.0 - 2.0 * (code & 1).astype(jnp.float32), 0.0)
+        # One gather over the three stacked channels (a stack of three gathers
+        # is ~3x slower on CPU).
+        idx3 = idx[None] + (jnp.arange(3, dtype=jnp.int32) * n_win)[:, None, None]
+        return (n_cam.at[idx3].get(mode="promise_in_bounds") * sign[None],)
+
+    return _stage(out, (n_cam, code), token)[0]
+
+
+def default_window_columns(lidar: LidarSpec) -> int:
+    """Static width of the range-image window used for camera images: 100 degrees
+    of azimuth (a multiple of 8 columns), or all columns for a coarse LiDAR."""
+    cols = -(-lidar.columns * 100 // 360)
+    cols = -(-cols // 8) * 8
+    return min(cols, lidar.columns)
+
+
+def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: int):
+    """Range-image column at which a window centred on the image's central ray starts."""
+    ray = jnp.stack([((width - 1) / 2 - K[0, 2] - K[0, 1] * ((height - 1) / 2 - K[1, 2]) / K[1, 1]) / K[0, 0],
+                     ((height - 1) / 2 - K[1, 2]) / K[1, 1], jnp.float32(1.0)])
+    d = T[:3, :3].T @ ray
+    theta = jnp.arctan2(d[1], d[0])
+    n_cols = lidar.columns
+    centre = jnp.floor((_PI - theta) * (n_cols / (2 * _PI))).astype(jnp.int32)
+    return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
+
+
+@functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns"))
+def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
+                  smoothing: int = 1, fill_max_gap: int = 2, window_columns: int | None = None) -> jax.Array:
+    """Camera-frame unit normal of every pixel of a sparse depth image (Step 1 on image input).
+
+    Each pixel with depth is back-projected through ``K`` (pixel centre) and
+    carried into the LiDAR frame with ``T_cam_lidar``; these points are binned
+    into the spherical range image and read their cell's normal, exactly as
+
+        R @ point_normals(transform_points(invert_rigid(T), unproject_depth(d, K).reshape(-1, 3)),
+                          (d > 0).reshape(-1), ...).T
+
+    reshaped to (3, H, W) (``R = T_cam_lidar[:3, :3]``), up to float32 rounding.
+    Unlike that composition no per-point (N, 3) arrays are formed: the per-pixel
+    work is one fused pass over (H, W) planes before the scatter into the
+    range image and one gather after it.
+
+    Args:
+      sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
+        is not a finite positive number) marks an empty pixel.
+      K: (3, 3) float32 intrinsics of that image.
+      T_cam_lidar: (4, 4) float32 LiDAR -> camera transform.
+      lidar: static :class:`~jaxdepth.LidarSpec` of the range image.
+      smoothing, fill_max_gap: static, see :func:`range_image_normals`.
+
+    Returns:
+      (3, H, W) float32 camera-frame normals (x, y, z): unit length and facing
+      the LiDAR (``n . (p_cam - t) <= 0``) at pixels with depth, zeros elsewhere.
+    """
+    _check_lidar(lidar)
+    _check_options(smoothing, fill_max_gap)
+    sparse_depth = jnp.asarray(sparse_depth)
+    if sparse_depth.ndim != 2:
+        raise ValueError(f"pixel_normals: field 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
+    K = jnp.asarray(K, jnp.float32)
+    if K.shape != (3, 3):
+        raise ValueError(f"pixel_normals: field 'K' expected shape (3, 3), got {K.shape}")
+    T = jnp.asarray(T_cam_lidar, jnp.float32)
+    if T.shape != (4, 4):
+        raise ValueError(f"pixel_normals: field 'T_cam_lidar' expected shape (4, 4), got {T.shape}")
+    depth = sparse_depth.astype(jnp.float32)
+    depth = jnp.where(jnp.isfinite(depth) & (depth > 0), depth, 0.0)
+    n_rows, n_cols = lidar.beams, lidar.columns
+    n_cells = n_rows * n_cols
+    token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
+    slot, key = _pixel_slots(depth, K, T, lidar, token)
+    best = jnp.full((n_cells,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot.reshape(-1)].min(
+        key.reshape(-1), mode="drop")
+    options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
+    full = functools.partial(_pixel_normals_in_window, window_cols=n_cols, **options)
+    wc = default_window_columns(lidar) if window_columns is None else int(window_columns)
+    margin = max(1 + fill_max_gap, smoothing)
+    if wc + 2 * margin > n_cols:  # a window would not save work
+        return full(depth, K, T, slot, key, best, jnp.int32(0), token)
+    col0 = _window_start(K, T, depth.shape[0], depth.shape[1], lidar, wc)
+    # Every occupied column must lie at least `margin` columns inside the
+    # window: then the neighbour search and the smoothing never reach its
+    # edges and the window gives exactly the whole image's normals.
+    occupied = jnp.max((best != jnp.iinfo(jnp.int32).max).reshape(n_rows, n_cols).astype(jnp.int32), axis=0) > 0
+    rel = jnp.mod(jnp.arange(n_cols, dtype=jnp.int32) - col0, n_cols)
+    fits = ~jnp.any(occupied & ((rel < margin) | (rel >= wc - margin)))
+    windowed = functools.partial(_pixel_normals_in_window, window_cols=wc, **options)
+    return cond_all(fits, windowed, full, depth, K, T, slot, key, best, col0, token)

@@ -20,8 +20,8 @@ import numpy as np
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geometry import project_to_image, transform_points, unproject_depth, invert_rigid
-from jaxdepth._src.normals import point_normals
+from jaxdepth._src.geometry import project_to_image, transform_points
+from jaxdepth._src.normals import pixel_normals, point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
@@ -93,13 +93,11 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
     if T_cam_lidar is None:
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
-    h, w = sparse_depth.shape
     sparse_depth = jnp.where(jnp.isfinite(sparse_depth) & (sparse_depth > 0), sparse_depth, 0.0)
-    points_cam = unproject_depth(sparse_depth, K).reshape(h * w, 3)
-    points_lidar = transform_points(invert_rigid(T_cam_lidar), points_cam)
-    normals_lidar = point_normals(points_lidar, (sparse_depth > 0).reshape(-1), lidar=lidar,
-                                  smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
-    normals_cam = _normals_to_camera(normals_lidar, T_cam_lidar).reshape(3, h, w)
+    # Equals R @ point_normals(pixels back-projected into the LiDAR frame) up to
+    # float32 rounding, without per-point (N, 3) work over all H W pixels.
+    normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
+                                fill_max_gap=config.range_fill_max_gap)
     return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config)
 
 

@@ -75,3 +75,40 @@ def fence(*arrays, token=None):
     if token is None:
         token = jnp.ravel(arrays[0])[0].astype(jnp.int32)  # any int32 value will do
     return stage(lambda *a: a, arrays, token)
+
+
+def cond_all(pred, true_fn, false_fn, *operands):
+    """``lax.cond(pred, true_fn, false_fn, *operands)`` that stays a conditional under ``vmap``.
+
+    ``lax.cond`` with a batched predicate becomes a select that runs both
+    branches. Here a batched predicate is reduced with ``all``: the batch
+    takes ``true_fn`` only when every member would, else ``false_fn``. Use it
+    only where both branches compute the same result (``true_fn`` being a fast
+    path valid under ``pred``), so the choice never changes the output.
+    Differentiable (the JVP follows ``lax.cond`` per member).
+    """
+
+    @custom_batching.custom_vmap
+    def run(pred, operands):
+        return jax.lax.cond(pred, true_fn, false_fn, *operands)
+
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, pred, operands):
+        pred_batched, ops_batched = in_batched
+        if pred_batched:
+            pred = jnp.all(pred)
+        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                         for a, b in zip(operands, ops_batched))
+        out = cond_all(pred, jax.vmap(true_fn), jax.vmap(false_fn), *operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    @jax.custom_jvp
+    def chosen(pred, operands):
+        return run(pred, operands)
+
+    @chosen.defjvp
+    def chosen_jvp(primals, tangents):
+        pred, operands = primals
+        return jax.jvp(lambda ops: jax.lax.cond(pred, true_fn, false_fn, *ops), (operands,), (tangents[1],))
+
+    return chosen(jnp.asarray(pred, bool), tuple(operands))
