@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.staging import stage
+
 
 def gaussian_kernel_1d(sigma_px: float, radius_px: int) -> np.ndarray:
     """(2r+1,) float64 sampled Gaussian weights summing to 1 (host-side, static)."""
@@ -33,15 +35,27 @@ def _reflect101_index(n: int, radius: int) -> np.ndarray:
     return np.where(idx >= n, period - idx, idx)
 
 
-def _blur_axis(image: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
-    radius = (len(weights) - 1) // 2
+def _reflect101_pad(image: jax.Array, radius: int, axis: int) -> jax.Array:
+    """Pads ``axis`` by ``radius`` mirrored rows/columns (edge not repeated), by slices."""
     n = image.shape[axis]
-    padded = jnp.take(image, jnp.asarray(_reflect101_index(n, radius)), axis=axis)
+    idx = _reflect101_index(n, radius)
+    lo = [jax.lax.slice_in_dim(image, int(i), int(i) + 1, axis=axis) for i in idx[:radius]]
+    hi = [jax.lax.slice_in_dim(image, int(i), int(i) + 1, axis=axis) for i in idx[n + radius:]]
+    return jnp.concatenate(lo + [image] + hi, axis=axis)
+
+
+def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
+    n = padded.shape[axis] - (len(weights) - 1)
     out = None
     for k, weight in enumerate(weights):
         part = jax.lax.slice_in_dim(padded, k, k + n, axis=axis) * jnp.float32(weight)
         out = part if out is None else out + part
     return out
+
+
+def _blur_axis(image: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
+    radius = (len(weights) - 1) // 2
+    return _taps(_reflect101_pad(image, radius, axis), weights, axis)
 
 
 def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.Array:
@@ -60,8 +74,16 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
         return image
     if min(image.shape[-2:]) < 2:
         raise ValueError(f"gaussian_blur: image expected at least 2x2, got shape {image.shape}")
-    out = _blur_axis(image.astype(jnp.float32), weights, axis=image.ndim - 2)
-    return _blur_axis(out, weights, axis=image.ndim - 1)
+    # Each pass reads a materialised input (stage fences): XLA would otherwise
+    # fuse the producer of ``image`` into every tap, and the vertical pass into
+    # every tap of the horizontal one (25 re-runs of the upstream work).
+    rows, cols = image.ndim - 2, image.ndim - 1
+    radius = (len(weights) - 1) // 2
+    image = image.astype(jnp.float32)
+    token = jax.lax.bitcast_convert_type(jnp.ravel(image)[0], jnp.int32)
+    padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
+    vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]
+    return _taps(vertical, weights, cols)
 
 
 def default_radius(sigma_px: float) -> int:
