@@ -172,5 +172,17 @@ def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames):
     mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))
     assert mean(sgm, "rmse") < 0.85 * mean(nearest, "rmse")
     assert mean(sgm, "mae") < 0.80 * mean(nearest, "mae")
-    # and it is in the range of the published method (the paper's own code: ~954 / 250 mm here)
-    assert mean(sgm, "rmse") < 1100 and mean(sgm, "mae") < 275
+    # and it matches the published method (the paper's own code: ~954 / 250 mm here; we measure
+    # 951 / 249 with the default config), with a margin for float32 / XLA version differences
+    assert mean(sgm, "rmse") < 975 and mean(sgm, "mae") < 255
+
+
+def test_kitti_sgm_beats_ip_basic(kitti_frames):
+    from jaxdepth import complete_with
+    sgm, ipb = [], []
+    for sparse, gt, K, T in kitti_frames.values():
+        sgm.append(depth_metrics(complete_stages(sparse, K, T).depth, gt))
+        ipb.append(depth_metrics(complete_with(sparse, K, T, method="ip-basic",
+                                               config=SGMConfig(outlier_removal=False)), gt))
+    mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))
+    assert mean(sgm, "rmse") < mean(ipb, "rmse") and mean(sgm, "mae") < mean(ipb, "mae")

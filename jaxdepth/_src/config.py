@@ -24,18 +24,23 @@ class SGMConfig:
         projected points; offsets beyond this cap are never visited.
       outlier_max_half_height_px: static cap on the vertical half window. The
         paper's bound |dv| < H/L is static (image height, beam count).
-      distance_metric: "l1" (city block, exact; the paper's Appendix uses l1) or
-        "l2" (exact Euclidean) for the nearest-seed transform of Step 3.
+      distance_metric: "l2" (exact Euclidean, the default: the nearest LiDAR pixel
+        in the image plane) or "l1" (city block, exact; the paper's Appendix
+        measures l1 distances; about 4x faster, about 17 mm RMSE worse on KITTI).
       normal_smoothing: half width of the box filter that smooths normals on
         the range image (0 disables). The paper fills and smooths normals so
         every point has one.
       range_fill_max_gap: empty range-image cells up to this many columns from a
         measured cell borrow its range when computing derivatives.
       min_abs_denom: the residual's denominator n . ((u-pu)/fu, (v-pv)/fv, 1)
-        below this magnitude (grazing surface) gives Delta z = 0 (finite values
-        and gradients).
+        below this magnitude (surface seen within ~0.6 degrees of grazing) gives
+        Delta z = 0 (finite values and gradients). The road seen from 1.65 m has
+        a denominator of about 1.65 / distance, so 0.01 keeps the residual up to
+        ~165 m; 0.05 would switch it off beyond ~33 m.
       max_residual_ratio: |Delta z| is clipped to this fraction of z'.
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
+        The paper gives no value; the default 1.4 with radius 3 is OpenCV's
+        ``GaussianBlur(depth, (7, 7), 0)``.
       smoothing_radius_px: Gaussian kernel half width, pixels (kernel 2r+1).
       keep_measured_depth: LiDAR pixels kept by Step 2 keep their measured depth
         in the output (after smoothing).
@@ -46,13 +51,13 @@ class SGMConfig:
     epsilon_m: float = 1.0
     outlier_max_half_width_px: int = 12
     outlier_max_half_height_px: int = 24
-    distance_metric: str = "l1"
+    distance_metric: str = "l2"
     normal_smoothing: int = 1
     range_fill_max_gap: int = 2
-    min_abs_denom: float = 0.05
+    min_abs_denom: float = 0.01
     max_residual_ratio: float = 0.5
-    smoothing_sigma_px: float = 1.0
-    smoothing_radius_px: int = 2
+    smoothing_sigma_px: float = 1.4
+    smoothing_radius_px: int = 3
     keep_measured_depth: bool = True
     min_depth_m: float = 0.1
     max_depth_m: float = 150.0
