@@ -43,6 +43,14 @@ def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.
     return R @ normals_lidar.T
 
 
+def _gather_seeds(seed_field, normals, du, dv):
+    """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals in one gather:
+    the four float32 channels travel as two complex64 ones (half the gathered elements)."""
+    packed = jnp.stack([jax.lax.complex(normals[0], normals[1]), jax.lax.complex(normals[2], seed_field)])
+    got = gather_at_seed(packed, du, dv)
+    return jnp.imag(got[1]), jnp.stack([jnp.real(got[0]), jnp.imag(got[0]), jnp.real(got[1])])
+
+
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
                    config: SGMConfig) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
@@ -55,8 +63,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     else:
         keep = has_depth
     seeds = nearest_seed(keep, metric=config.distance_metric)
-    seed_depth = gather_at_seed(jnp.where(keep, sparse_depth, 0.0), seeds.du, seeds.dv)
-    seed_normal = gather_at_seed(normals_cam, seeds.du, seeds.dv)
+    seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, seeds.du, seeds.dv)
     residual = plane_residual(seed_depth, seed_normal, seeds.du, seeds.dv, K,
                               min_abs_denom=config.min_abs_denom,
                               max_residual_ratio=config.max_residual_ratio)
