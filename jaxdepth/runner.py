@@ -20,7 +20,7 @@ import functools
 import logging
 import os
 import pathlib
-import queue
+import collections
 import threading
 from typing import Callable, Iterable, Sequence
 
@@ -161,6 +161,19 @@ def _load(job: FrameJob):
     return depth, K
 
 
+def pending_jobs(jobs: Iterable[FrameJob], *, overwrite: bool, summary: RunSummary,
+                 notify: Callable[[str, str], None]) -> list:
+    """The jobs still to run: a finished output is recorded as skipped (resume) unless ``overwrite``."""
+    todo = []
+    for job in jobs:
+        if job.out_path.exists() and not overwrite:
+            summary.skipped.append(job.name)
+            notify(job.name, "skipped")
+        else:
+            todo.append(job)
+    return todo
+
+
 def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig = SGMConfig(),
              lidar: LidarSpec = presets.KITTI_HDL64, T_cam_lidar: np.ndarray | None = None,
              batch_size: int = 4, overwrite: bool = False, strategy: str | None = None,
@@ -173,13 +186,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     """
     summary = RunSummary()
     notify = on_progress or (lambda name, status: None)
-    todo = []
-    for job in jobs:
-        if job.out_path.exists() and not overwrite:
-            summary.skipped.append(job.name)
-            notify(job.name, "skipped")
-        else:
-            todo.append(job)
+    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
     if not todo:
         return summary
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
@@ -226,7 +233,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
 
         # Read ahead at most a few batches so memory stays bounded.
         window = max(2 * batch_size, 4)
-        futures = queue.deque()
+        futures = collections.deque()
         jobs_iter = iter(todo)
         for job in jobs_iter:
             futures.append((job, readers.submit(_load, job)))

@@ -348,13 +348,8 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
 
     summary = RunSummary()
     notify = on_progress or (lambda name, status: None)
-    todo = []
-    for job in jobs:
-        if not overwrite and job.out_path.exists():
-            summary.skipped.append(job.name)
-            notify(job.name, "skipped")
-        else:
-            todo.append(job)
+    from jaxdepth.runner import pending_jobs
+    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
     if not todo:
         return summary
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
