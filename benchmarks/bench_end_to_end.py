@@ -71,14 +71,21 @@ def compile_seconds(fn):
 
 def stage_functions(config: SGMConfig, lidar):
     """Each paper step jitted on its own (so the per-stage times add up to a separated pipeline)."""
-    from jaxdepth._src.distance import gather_at_seed, nearest_seed
-    from jaxdepth._src.normals import point_normals
+    from jaxdepth._src.distance import nearest_seed
+    from jaxdepth._src.pipeline import _gather_seeds
+    from jaxdepth._src.normals import pixel_normals, point_normals
     from jaxdepth._src.outliers import outlier_keep_mask
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur
 
     @jax.jit
     def normals(sparse, K, T):
+        return pixel_normals(sparse, K, T, lidar=lidar, smoothing=config.normal_smoothing,
+                             fill_max_gap=config.range_fill_max_gap)
+
+    @jax.jit
+    def normals_point_composition(sparse, K, T):
+        """The former image path: every pixel back-projected as a point for point_normals."""
         h, w = sparse.shape
         pts = transform_points(invert_rigid(T), unproject_depth(sparse, K).reshape(-1, 3))
         n = point_normals(pts, (sparse > 0).reshape(-1), lidar=lidar, smoothing=config.normal_smoothing,
@@ -98,15 +105,14 @@ def stage_functions(config: SGMConfig, lidar):
 
     @jax.jit
     def residual_and_smoothing(sparse, keep, normals, du, dv, K):
-        seed_depth = gather_at_seed(jnp.where(keep, sparse, 0.0), du, dv)
-        seed_normal = gather_at_seed(normals, du, dv)
+        seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse, 0.0), normals, du, dv)
         dz = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                             max_residual_ratio=config.max_residual_ratio)
         raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + dz, config.min_depth_m, config.max_depth_m), 0.0)
         out = gaussian_blur(raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
         return jnp.where(keep, sparse, out)
 
-    return normals, outliers, distance, residual_and_smoothing
+    return normals, outliers, distance, residual_and_smoothing, normals_point_composition
 
 
 def main(argv=None):
@@ -144,11 +150,12 @@ def main(argv=None):
                                 "ip_basic_jax_median": jip_med}
     results["ratio_sgm_over_ip_basic_opencv"] = min(sgm_med, sgm_med2) / min(ipb_med, ipb_med2)
 
-    normals, outliers, distance, finish = stage_functions(config, lidar)
+    normals, outliers, distance, finish, normals_old = stage_functions(config, lidar)
     n = normals(d, k, t).block_until_ready()
     keep = outliers(d, k, t).block_until_ready()
     du, dv = distance(keep)
     finish(d, keep, n, du, dv, k).block_until_ready()
+    normals_old(d, k, t).block_until_ready()
     stages = {
         "range_image_and_normals": timeit(lambda: normals(d, k, t).block_until_ready(), args.repeats)[0],
         "outlier_removal": timeit(lambda: outliers(d, k, t).block_until_ready(), args.repeats)[0],
@@ -162,6 +169,8 @@ def main(argv=None):
     sp_med, _ = timeit(lambda: scipy.ndimage.distance_transform_edt(~mask, return_indices=True),
                        max(5, args.repeats // 5))
     results["stages_ms"] = stages
+    results["normals_point_composition_ms"] = timeit(lambda: normals_old(d, k, t).block_until_ready(),
+                                                     args.repeats)[0]
     results["stages_sum_ms"] = sum(stages.values())
     results["distance_baselines_ms"] = {"opencv_l1_labels": cv_med, "scipy_edt_indices": sp_med}
     results["ratio_distance_over_opencv_l1"] = stages["distance_transform"] / cv_med
@@ -192,6 +201,7 @@ def main(argv=None):
     print(f"ratio SGM / IP_Basic OpenCV: {results['ratio_sgm_over_ip_basic_opencv']:.2f}x")
     for name, ms in stages.items():
         print(f"  stage {name:32s}{ms:8.2f} ms  ({100 * ms / results['stages_sum_ms']:.0f} %)")
+    print(f"  (normals the former way, every pixel as a point: {results['normals_point_composition_ms']:.2f} ms)")
     print(f"  distance transform / OpenCV L1 with labels ({cv_med:.2f} ms): {results['ratio_distance_over_opencv_l1']:.2f}x;"
           f" SciPy EDT with indices {sp_med:.2f} ms")
     for key, row in batch.items():

@@ -25,6 +25,7 @@ from jaxdepth._src.normals import pixel_normals, point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
+from jaxdepth._src.staging import fence
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
 DEFAULT_CONFIG = SGMConfig()
@@ -62,9 +63,14 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
             max_half_height_px=config.outlier_max_half_height_px, points_cam=points_cam)
     else:
         keep = has_depth
+    # Stage fences (real buffers): XLA would otherwise fuse each producer into
+    # its consumers and re-run it there (the mask into every step of the
+    # distance transform's loops, the offsets into every gather).
+    keep, = fence(keep)
     seeds = nearest_seed(keep, metric=config.distance_metric)
-    seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, seeds.du, seeds.dv)
-    residual = plane_residual(seed_depth, seed_normal, seeds.du, seeds.dv, K,
+    du, dv = fence(seeds.du, seeds.dv)
+    seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
+    residual = plane_residual(seed_depth, seed_normal, du, dv, K,
                               min_abs_denom=config.min_abs_denom,
                               max_residual_ratio=config.max_residual_ratio)
     has_seed = seed_depth > 0
@@ -74,7 +80,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
     return Stages(sparse_depth=sparse_depth, normals=normals_cam, inlier_mask=keep, seed_depth=seed_depth,
-                  du=seeds.du, dv=seeds.dv, residual=residual, depth_raw=depth_raw, depth=depth)
+                  du=du, dv=dv, residual=residual, depth_raw=depth_raw, depth=depth)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))

@@ -1,0 +1,128 @@
+"""The optimised pipeline equals a plain composition of the public stage functions.
+
+``complete_stages`` bins image pixels straight into the range image
+(``pixel_normals``, on a window of range-image columns), packs gathers, and
+fences intermediates so XLA does not re-run them. None of that may change the
+result beyond float32 rounding. The reference here is the straightforward
+composition: every pixel back-projected as an (N, 3) point for
+``point_normals``, ``outlier_keep_mask``, ``nearest_seed``, two
+``gather_at_seed`` calls, ``plane_residual``, and OpenCV's Gaussian blur (an
+independent oracle for the smoothing). Timings live in benchmarks/, never here.
+
+Tolerances: normals 1e-4 (ranges computed in a different fusion differ by an
+ulp, which finite differences over ~1 % range steps amplify ~100x); the
+residual and depths inherit that through ``z' du / fu / denominator``
+(measured on KITTI: up to 1e-3 m on 8 m residuals far from their seed), so
+1e-3 relative plus 2e-3 m; masks, seed offsets and seed depths are exact.
+"""
+
+from __future__ import annotations
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdepth import SGMConfig
+from jaxdepth._src import presets, synthetic
+from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.geometry import invert_rigid, project_to_image, transform_points, unproject_depth
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.outliers import outlier_keep_mask
+from jaxdepth._src.pipeline import complete, complete_stages
+from jaxdepth._src.residual import plane_residual
+from jaxdepth._src.types import Camera, LidarSpec
+
+SMALL_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+
+
+def reference_stages(sparse, K, T, *, config: SGMConfig, lidar: LidarSpec) -> dict:
+    """Steps 1-4 composed from the public stage functions, one after the other."""
+    sparse = np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0).astype(np.float32)
+    K = jnp.asarray(K, jnp.float32)
+    T = jnp.asarray(T, jnp.float32)
+    h, w = sparse.shape
+    points = transform_points(invert_rigid(T), unproject_depth(jnp.asarray(sparse), K).reshape(-1, 3))
+    n_lidar = point_normals(points, jnp.asarray(sparse > 0).reshape(-1), lidar=lidar,
+                            smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
+    normals = (T[:3, :3] @ n_lidar.T).reshape(3, h, w)
+    if config.outlier_removal:
+        keep = outlier_keep_mask(sparse, K, T, beams=lidar.beams, epsilon_m=config.epsilon_m,
+                                 max_half_width_px=config.outlier_max_half_width_px,
+                                 max_half_height_px=config.outlier_max_half_height_px)
+    else:
+        keep = jnp.asarray(sparse > 0)
+    seeds = nearest_seed(keep, metric=config.distance_metric)
+    seed_depth = gather_at_seed(jnp.where(keep, sparse, 0.0), seeds.du, seeds.dv)
+    seed_normal = gather_at_seed(normals, seeds.du, seeds.dv)
+    residual = plane_residual(seed_depth, seed_normal, seeds.du, seeds.dv, K, min_abs_denom=config.min_abs_denom,
+                              max_residual_ratio=config.max_residual_ratio)
+    seed_depth, residual, keep = (np.asarray(a) for a in (seed_depth, residual, keep))
+    has_seed = seed_depth > 0
+    depth_raw = np.where(has_seed, np.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
+    depth_raw = depth_raw.astype(np.float32)
+    r = config.smoothing_radius_px
+    depth = cv2.GaussianBlur(depth_raw, (2 * r + 1, 2 * r + 1), config.smoothing_sigma_px,
+                             borderType=cv2.BORDER_REFLECT_101) if config.smoothing_sigma_px > 0 else depth_raw
+    if config.keep_measured_depth:
+        depth = np.where(keep, sparse, depth)
+    depth = np.where(has_seed, np.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
+    return dict(sparse_depth=sparse, normals=np.asarray(normals), inlier_mask=keep, seed_depth=seed_depth,
+                du=np.asarray(seeds.du), dv=np.asarray(seeds.dv), residual=residual, depth_raw=depth_raw,
+                depth=depth)
+
+
+def check_equal(got, want):
+    for name in ("sparse_depth", "inlier_mask", "du", "dv", "seed_depth"):
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), want[name], err_msg=name)
+    np.testing.assert_allclose(np.asarray(got.normals), want["normals"], atol=1e-4, err_msg="normals")
+    for name in ("residual", "depth_raw", "depth"):
+        np.testing.assert_allclose(np.asarray(getattr(got, name)), want[name], rtol=1e-3, atol=2e-3,
+                                   err_msg=name)
+
+
+def small_frame(seed, f=120.0, h=96, w=160):
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
+    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)  # forward camera
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = R @ np.array([-0.3, 0.0, 0.3])
+    camera = Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T, jnp.float32), height=h, width=w)
+    frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
+    depth, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
+    return np.asarray(depth), K, T.astype(np.float32)
+
+
+@pytest.mark.parametrize("config", [SGMConfig(), SGMConfig(outlier_removal=False, distance_metric="l2"),
+                                    SGMConfig(smoothing_sigma_px=0.0, keep_measured_depth=False)])
+def test_synthetic_frame_equals_reference(config):
+    sparse, K, T = small_frame(0)
+    assert (sparse > 0).sum() > 500
+    got = complete_stages(sparse, K, T, config=config, lidar=SMALL_LIDAR)
+    check_equal(got, reference_stages(sparse, K, T, config=config, lidar=SMALL_LIDAR))
+
+
+def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
+    """A camera wider than the normals' column window (exact fallback), alone and in a batch."""
+    frames = [small_frame(1), small_frame(2, f=40.0)]
+    for sparse, K, T in frames:
+        got = complete_stages(sparse, K, T, lidar=SMALL_LIDAR)
+        check_equal(got, reference_stages(sparse, K, T, config=SGMConfig(), lidar=SMALL_LIDAR))
+    depths = np.stack([f[0] for f in frames])
+    Ks = np.stack([f[1] for f in frames])
+    batched = np.asarray(jax.vmap(lambda d, k: complete(d, k, frames[0][2], lidar=SMALL_LIDAR))(depths, Ks))
+    for i, (sparse, K, T) in enumerate(frames):
+        want = reference_stages(sparse, K, T, config=SGMConfig(), lidar=SMALL_LIDAR)["depth"]
+        np.testing.assert_allclose(batched[i], want, rtol=1e-3, atol=2e-3)
+
+
+def test_kitti_frame_equals_reference(kitti_frame):
+    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    sparse, K = crop_to_benchmark(read_depth_png(kitti_frame / "velodyne_raw_image_02.png"),
+                                  calib["cameras"][2]["K"])
+    T = np.asarray(calib["cameras"][2]["T_cam_lidar"], np.float32)
+    sparse, K = np.asarray(sparse, np.float32), np.asarray(K, np.float32)
+    got = complete_stages(sparse, K, T, lidar=presets.KITTI_HDL64)
+    check_equal(got, reference_stages(sparse, K, T, config=SGMConfig(), lidar=presets.KITTI_HDL64))
