@@ -118,14 +118,16 @@ def stage_functions(config: SGMConfig, lidar):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--distance", choices=("l1", "l2"), default=SGMConfig().distance_metric,
+                        help="nearest-seed metric (default: the SGMConfig default)")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "end_to_end.json"))
     parser.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 2, 4, 8])
     args = parser.parse_args(argv)
-    config = SGMConfig()
+    config = SGMConfig(distance_metric=args.distance)
     lidar = presets.KITTI_HDL64
     sparse, K, T, label = load_frame()
     d, k, t = jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T)
-    results = {"frame": label, "backend": jax.default_backend(), "devices": len(jax.devices()),
+    results = {"frame": label, "distance_metric": config.distance_metric, "backend": jax.default_backend(), "devices": len(jax.devices()),
                "jax": jax.__version__, "cpu_count": os.cpu_count(), "load_average": os.getloadavg()}
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
