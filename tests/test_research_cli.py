@@ -56,7 +56,7 @@ def test_register_adds_the_subcommands():
     parser = argparse.ArgumentParser()
     research_cli.register(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["ablation", "src"])
-    assert args.func is research_cli.cmd_ablation and args.gt is None and args.distance == "l1"
+    assert args.func is research_cli.cmd_ablation and args.gt is None and args.distance == jaxdepth.SGMConfig().distance_metric
     args = parser.parse_args(["sparsity", "s.bin", "calib", "gt.png"])
     assert args.func is research_cli.cmd_sparsity and args.beams == [64, 32, 16] and args.camera == 2
     args = parser.parse_args(["hidden-eval", "p.bin", "rig.json", "--scale", "0.5"])
