@@ -90,7 +90,6 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
                   du=du, dv=dv, residual=residual, depth_raw=depth_raw, depth=depth)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
 def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
                     config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
     """All intermediate products of SGM completion of one sparse depth image.
@@ -107,6 +106,12 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
     Returns:
       :class:`Stages`; ``.depth`` is the (H, W) float32 dense depth in metres.
     """
+    # One call form for every caller: jit keys its cache on which keywords were passed.
+    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def _complete_stages(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
     K = jnp.asarray(K, jnp.float32)
     _check_image_inputs(sparse_depth, K)
@@ -131,7 +136,6 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
     return complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
 def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
                            config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
     """All intermediate products of SGM completion from a raw sweep, for one camera.
@@ -145,6 +149,11 @@ def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, 
     Returns:
       :class:`Stages` for the camera image.
     """
+    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def _complete_points_stages(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
