@@ -76,6 +76,33 @@ def cmd_demo(args) -> int:
     return 0
 
 
+_DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
+
+
+def split_cpu_into_devices(count: int | None = None) -> int:
+    """Asks XLA for one host (CPU) device per core, so the runner shards a batch over
+    the cores: each core completes its own frames (measured ~1.4x the frames/s of one
+    device using both cores on each frame; same bytes out).
+
+    Only possible before JAX starts its backends; does nothing (returns 0) if they
+    already run or ``XLA_FLAGS`` already sets a device count. Returns the count set.
+    Accelerators are unaffected (the runner uses the default backend's devices).
+    """
+    import os
+    count = (os.cpu_count() or 1) if count is None else int(count)
+    flags = os.environ.get("XLA_FLAGS", "")
+    if count < 2 or _DEVICE_COUNT_FLAG in flags:
+        return 0
+    try:
+        from jax._src import xla_bridge
+        if xla_bridge.backends_are_initialized():
+            return 0
+    except (ImportError, AttributeError):  # a JAX without this check: leave XLA as it is
+        return 0
+    os.environ["XLA_FLAGS"] = f"{flags} {_DEVICE_COUNT_FLAG}={count}".strip()
+    return count
+
+
 def cmd_complete(args) -> int:
     from jaxdepth import runner
     from jaxdepth.io.calib import read_intrinsics_txt
@@ -96,6 +123,8 @@ def cmd_complete(args) -> int:
                                 intrinsics_path=k_path, K=K_override)
                 for name, png, k_path in list_depth_completion_folder(src)]
         _ensure_writable_dir(dst)
+    if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
+        split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     progress = Progress(len(jobs), enabled=not args.quiet)
     if args.engine == "ray":
         from jaxdepth import scale
@@ -186,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
+    p.add_argument("--cpu-devices", type=int, default=0, metavar="N",
+                   help="on CPU, split the cores into N host devices that each complete their own frames "
+                        "(default 0: one per core; 1: off; ignored if XLA_FLAGS sets a device count)")
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")

@@ -191,7 +191,9 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
         return summary
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
     devices = devices or len(jax.local_devices())
-    batch_size = -(-max(1, batch_size) // devices) * devices
+    # A short run (e.g. one image) is not padded up to a full default batch.
+    batch_size = min(max(1, batch_size), len(todo))
+    batch_size = -(-batch_size // devices) * devices
     strategy = strategy or batch_strategy()
     lock = threading.Lock()
 

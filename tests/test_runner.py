@@ -118,3 +118,36 @@ def test_two_simulated_devices_match_one(tmp_path):
     result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "sharded-ok" in result.stdout
+
+
+def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames):
+    items, T = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    png = next((src / "velodyne_raw").glob("*.png"))
+    job = runner.FrameJob(name=png.name, sparse_path=png, out_path=tmp_path / "one.png",
+                          intrinsics_path=src / "intrinsics" / (png.stem + ".txt"))
+    runner.TRACE_COUNTS.clear()
+    summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1)
+    assert summary.ok and summary.done == [png.name]
+    (key,) = runner.TRACE_COUNTS
+    assert key[0] == 1  # compiled for a batch of one frame, not four
+
+
+SPLIT = r"""
+import os, sys
+from jaxdepth.cli import split_cpu_into_devices
+first = split_cpu_into_devices(2)
+again = split_cpu_into_devices(3)   # XLA_FLAGS now sets a count: left alone
+import jax
+n = len(jax.local_devices())
+late = split_cpu_into_devices(4)    # backends running: too late, left alone
+print("split", first, again, n, late, os.environ["XLA_FLAGS"].count("device_count"))
+"""
+
+
+def test_cli_splits_the_cpu_into_one_device_per_core_before_jax_starts():
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAX_PLATFORMS"] = "cpu"
+    result = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "split 2 0 2 0 1" in result.stdout, result.stdout
