@@ -727,106 +727,171 @@ def _pixel_lidar_xyz(depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, v=N
     return tuple(R[0, i] * xc + R[1, i] * yc + R[2, i] * zc + ti[i] for i in range(3))
 
 
-def _pixel_slots(depth, K, T, lidar: LidarSpec, token):
-    """Per pixel: flat range-image cell (``L C`` where the pixel has no point) and scatter key."""
-    n_cells = lidar.beams * lidar.columns
-
-    def per_pixel(depth, K, T):
-        x, y, z = _pixel_lidar_xyz(depth, K, T)
-        r, _, _, cell, ok = _spherical_xyz(x, y, z, depth > 0, lidar)
-        return _slot_and_key(r, cell, ok, n_cells)
-
-    return _stage(per_pixel, (depth, K, T), token)
+# Bits per chunk of the validity mask in :func:`_compact_pixels` (one uint32 word).
+_CHUNK = 32
 
 
-def _window_slot(slot, col0, lidar: LidarSpec, window_cols: int):
-    """Flat cell of ``slot`` in the (L, window_cols) window starting at column ``col0``
-    (``L window_cols`` when the pixel has no point or its cell is outside the window)."""
-    n_cols = lidar.columns
-    n_cells = lidar.beams * n_cols
-    if window_cols == n_cols:
-        return slot
-    row = slot // n_cols
-    col = slot - row * n_cols - col0
-    col = jnp.where(col < 0, col + n_cols, col)
-    inside = (slot < n_cells) & (col < window_cols)
-    return jnp.where(inside, row * window_cols + col, lidar.beams * window_cols)
+def _upper_ones(n: int):
+    return jnp.asarray(np.triu(np.ones((n, n), np.float32)))
 
 
-def _pixel_normals_in_window(depth, K, T, slot, key, best, col0, token, *, lidar: LidarSpec, window_cols: int,
-                             smoothing: int, fill_max_gap: int):
-    """Camera-frame (3, H, W) normals of the pixels from the range-image columns
-    ``col0 .. col0 + window_cols - 1`` (mod C); every pixel's cell must lie in
-    that window at least ``max(1 + fill_max_gap, smoothing)`` columns from its
-    edges (unless the window is the whole image), then the result equals that
-    of the whole range image.
+def _inclusive_prefix(x: jax.Array) -> jax.Array:
+    """Inclusive prefix sum of a (n,) float32 array of non-negative integers whose total is below 2^24.
 
-    ``slot``, ``key``: from :func:`_pixel_slots`; ``best``: (L C,) scatter-min of
-    ``key`` over ``slot``. Binning as :func:`_range_image` on the back-projected
-    pixels (flat pixel index = point index); the winners' range and angles are
-    recomputed per cell from their depth (the same float32 expressions).
+    Written as small matrix products with a triangular matrix of ones (groups of
+    ``_CHUNK``, recursively over the group totals): exact in float32 for such
+    integers, and far faster on XLA:CPU than ``cumsum`` (a reduce-window).
+    """
+    n = x.shape[0]
+    if n <= _CHUNK:
+        return x @ _upper_ones(n)
+    groups = -(-n // _CHUNK)
+    within = jnp.pad(x, (0, groups * _CHUNK - n)).reshape(groups, _CHUNK) @ _upper_ones(_CHUNK)
+    totals = within[:, -1]
+    return (within + (_inclusive_prefix(totals) - totals)[:, None]).reshape(-1)[:n]
+
+
+def _compact_pixels(valid: jax.Array, capacity: int, token):
+    """Flat indices of the first ``capacity`` True entries of ``valid`` (increasing), and their count.
+
+    Args:
+      valid: (n,) bool, n < 2^24.
+      capacity: static number of output slots.
+
+    Returns:
+      ``(pix, total)``: (capacity,) int32 indices of the True entries in order,
+      ``n`` in the slots at or after ``total``; int32 number of True entries
+      (may exceed ``capacity``: then only the first ``capacity`` are listed).
+
+    No per-element scatter over the n entries (XLA:CPU scatters and gathers
+    cost ~2-5 ns per element): the mask is packed into 32-bit words (a
+    reduction along the minor axis), their population counts are prefix-summed
+    (:func:`_inclusive_prefix`), and each output slot m finds its word as the
+    number of words whose inclusive prefix is <= m (a scatter-add of a 1 per
+    word at its prefix, then a prefix sum), then the rank-th set bit of that
+    word by a 5-step binary search on population counts.
+    """
+    n = valid.shape[0]
+    words = -(-n // _CHUNK)
+    bits = jnp.pad(valid, (0, words * _CHUNK - n)).reshape(words, _CHUNK).astype(jnp.uint32)
+    mask = jnp.sum(bits << jnp.arange(_CHUNK, dtype=jnp.uint32), axis=1, dtype=jnp.uint32)
+    count = jax.lax.population_count(mask).astype(jnp.int32)
+    incl = _inclusive_prefix(count.astype(jnp.float32)).astype(jnp.int32)
+    hits = jnp.zeros((capacity,), jnp.float32).at[incl].add(1.0, mode="drop")
+    word = jnp.minimum(_inclusive_prefix(hits).astype(jnp.int32), words - 1)
+    packed = jnp.stack([incl - count, jax.lax.bitcast_convert_type(mask, jnp.int32)], axis=1)
+    # Materialised before the gather (fused, the gather would re-run the prefix sums).
+    word, packed, total = _stage(lambda *a: a, (word, packed, incl[-1]), token)
+    start_mask = _stage(lambda p, w: (p.at[w].get(mode="promise_in_bounds"),), (packed, word), token)[0]
+    slot = jnp.arange(capacity, dtype=jnp.int32)
+    rank = slot - start_mask[:, 0]
+    m = jax.lax.bitcast_convert_type(start_mask[:, 1], jnp.uint32)
+    bit = jnp.zeros_like(rank)
+    for w in (16, 8, 4, 2, 1):  # position of the rank-th set bit of m
+        low = m & jnp.uint32((1 << w) - 1)
+        pc = jax.lax.population_count(low).astype(jnp.int32)
+        up = rank >= pc
+        rank = jnp.where(up, rank - pc, rank)
+        m = jnp.where(up, m >> w, low)
+        bit = bit + jnp.where(up, w, 0)
+    return jnp.where(slot < total, word * _CHUNK + bit, n), total
+
+
+def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_cols: int):
+    """Per listed pixel: back-projected LiDAR-frame point, range-image window cell and scatter key.
+
+    Args:
+      pix: (P,) int32 flat pixel indices into ``depth`` (``H W`` or a pixel
+        without depth: no point).
+      depth: (H, W) float32 camera depth, 0 where empty.
+      col0: int32 first range-image column of the window (0 for the whole image).
+
+    Returns (stage outputs, real buffers): ``ok`` (P,) bool, ``col`` (P,) int32
+    range-image column (relative to ``col0``, mod C), ``slot`` (P,) int32 flat
+    window cell ``row * window_cols + col`` (``L window_cols`` for no point or a
+    cell outside the window), ``key`` (P,) int32 range bits, ``r``, ``theta``,
+    ``phi``, ``x``, ``y``, ``z`` (P,) float32. The float32 expressions are those
+    of :func:`_range_image` applied to ``unproject_depth`` + ``transform_points``.
     """
     h, w = depth.shape
-    n = h * w
     n_rows, n_cols = lidar.beams, lidar.columns
-    n_cells = n_rows * n_cols
+    n_win = n_rows * window_cols
+
+    def per_point(pix, depth, K, T, col0):
+        listed = pix < h * w
+        safe = jnp.where(listed, pix, 0)
+        d = jnp.where(listed, depth.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
+        v = safe // w
+        u = (safe - v * w).astype(jnp.float32)
+        x, y, z = _pixel_lidar_xyz(d, K, T, v=v.astype(jnp.float32), u=u)
+        r, theta, phi, cell, ok = _spherical_xyz(x, y, z, d > 0, lidar)
+        row = cell // n_cols
+        col = cell - row * n_cols - col0
+        col = jnp.where(col < 0, col + n_cols, col)
+        inside = ok & (col < window_cols)
+        slot = jnp.where(inside, row * window_cols + col, n_win)
+        key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
+        return ok, col, slot, key, r, theta, phi, x, y, z
+
+    return _stage(per_point, (pix, depth, K, T, col0), token)
+
+
+def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpec, window_cols: int,
+                             smoothing: int, fill_max_gap: int, identity: bool):
+    """Camera-frame (3, H, W) normals of the listed pixels (from :func:`_pixel_points`), zeros elsewhere.
+
+    Every point's cell must lie in the window ``col0 .. col0 + window_cols - 1``
+    (mod C) at least ``max(1 + fill_max_gap, smoothing)`` columns from its edges
+    (unless the window is the whole image): then the neighbour search and the
+    smoothing never reach the edges and the result equals that of the whole
+    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter).
+    """
+    ok, _, slot, key, r, theta, phi, x, y, z = pts
+    n_pts = slot.shape[0]
+    n_rows, n_cols = lidar.beams, lidar.columns
     n_win = n_rows * window_cols
     window = None if window_cols == n_cols else (col0, n_cols)
-    flat_slot, flat_key = slot.reshape(-1), key.reshape(-1)
-    win = flat_key == best.at[jnp.minimum(flat_slot, n_cells - 1)].get(mode="promise_in_bounds")
-    wslot = _window_slot(flat_slot, col0, lidar, window_cols)
-    ids = jnp.arange(n, dtype=jnp.int32)
-    # Pixels without a point carry the out-of-bounds slot and are dropped.
-    idx = jnp.full((n_win,), n, jnp.int32).at[jnp.where(win, wslot, n_win)].min(ids, mode="drop")
+    # Nearest range wins a cell (scatter-min of the range bits), ties the
+    # smaller point index = the smaller pixel index (points are listed in
+    # pixel order). Slot n_win collects points without a cell.
+    best = jnp.full((n_win + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key, mode="promise_in_bounds")
+    win = ok & (key == best.at[slot].get(mode="promise_in_bounds"))
+    ids = jnp.arange(n_pts, dtype=jnp.int32)
+    idx = jnp.full((n_win + 1,), n_pts, jnp.int32).at[jnp.where(win, slot, n_win)].min(
+        ids, mode="promise_in_bounds")[:n_win]
 
-    def per_cell(idx, depth, K, T, col0):
-        has = idx < n
+    def per_cell(idx, r, theta, phi, col0):
+        has = idx < n_pts
         safe = jnp.where(has, idx, 0)
-        z = jnp.where(has, depth.reshape(-1).at[safe].get(mode="promise_in_bounds"), 0.0)
-        v = (safe // w).astype(jnp.float32)
-        u = (safe - (safe // w) * w).astype(jnp.float32)
-        x, y, z = _pixel_lidar_xyz(z, K, T, v=v, u=u)
-        r, theta, phi, _, _ = _spherical_xyz(x, y, z, has, lidar)
         theta_c, phi_c = _cell_centres(lidar)
         theta_c = jax.lax.dynamic_slice(jnp.concatenate([theta_c, theta_c[:, :window_cols]], axis=1),
                                         (0, col0), (1, window_cols))
-        shape = (n_rows, window_cols)
-        th = jnp.where(has, theta, jnp.broadcast_to(theta_c, shape).reshape(-1))
-        ph = jnp.where(has, phi, jnp.broadcast_to(phi_c, shape).reshape(-1))
-        return (jnp.where(has, r, 0.0).reshape(shape), th.reshape(shape), ph.reshape(shape),
-                jnp.where(has, idx, -1).reshape(shape))
+        img_shape = (n_rows, window_cols)
+        get = lambda a: a.at[safe].get(mode="promise_in_bounds")  # noqa: E731
+        th = jnp.where(has, get(theta), jnp.broadcast_to(theta_c, img_shape).reshape(-1))
+        ph = jnp.where(has, get(phi), jnp.broadcast_to(phi_c, img_shape).reshape(-1))
+        return (jnp.where(has, get(r), 0.0).reshape(img_shape), th.reshape(img_shape), ph.reshape(img_shape),
+                jnp.where(has, idx, -1).reshape(img_shape))
 
-    r, th, ph, index = _stage(per_cell, (idx, depth, K, T, col0), token)
-    ri = RangeImage(r=r, theta=th, phi=ph, index=index, cell=jnp.zeros((0,), jnp.int32))
-    # Pixels only sit in measured cells, so the filling of empty cells is skipped.
+    r_img, th_img, ph_img, index = _stage(per_cell, (idx, r, theta, phi, col0), token)
+    ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
+    # Points only sit in measured cells, so the filling of empty cells is skipped.
     _, nx, ny, nz = _smoothed_normals(_raw_normals(ri, fill_max_gap, window), smoothing, token)
 
-    def facing(nx, ny, nz, slot, depth, K, T, col0):
+    def per_point(nx, ny, nz, slot, ok, x, y, z, R):
         # Gathers inside their own stage read buffers (outside, XLA would
-        # re-run the smoothing per gathered pixel). Packs the window cell and
-        # whether its normal must be flipped to face the pixel's own ray.
-        ws = _window_slot(slot, col0, lidar, window_cols)
-        ok = ws < n_win
-        idx = jnp.where(ok, ws, 0)
-        px, py, pz = (c.reshape(-1).at[idx].get(mode="promise_in_bounds") for c in (nx, ny, nz))
-        x, y, z = _pixel_lidar_xyz(depth, K, T)
-        flip = (px * x + py * y + pz * z > 0).astype(jnp.int32)
-        return (jnp.where(ok, 2 * idx + flip, -1),)
+        # re-run the smoothing per gathered point).
+        cell = jnp.where(ok, slot, 0)
+        px, py, pz = (c.reshape(-1).at[cell].get(mode="promise_in_bounds") for c in (nx, ny, nz))
+        sign = jnp.where(ok, jnp.where(px * x + py * y + pz * z > 0, -1.0, 1.0), 0.0)
+        return tuple((R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3))
 
-    code = _stage(facing, (nx, ny, nz, slot, depth, K, T, col0), token)[0]
-    R = T[:3, :3]
-    n_cam = jnp.concatenate([(R[i, 0] * nx + R[i, 1] * ny + R[i, 2] * nz).reshape(-1) for i in range(3)])
-
-    def out(n_cam, code):
-        ok = code >= 0
-        idx = jnp.where(ok, code >> 1, 0)
-        sign = jnp.where(ok, 1.0 - 2.0 * (code & 1).astype(jnp.float32), 0.0)
-        # One gather over the three stacked channels (a stack of three gathers
-        # is ~3x slower on CPU).
-        idx3 = idx[None] + (jnp.arange(3, dtype=jnp.int32) * n_win)[:, None, None]
-        return (n_cam.at[idx3].get(mode="promise_in_bounds") * sign[None],)
-
-    return _stage(out, (n_cam, code), token)[0]
+    n_cam = jnp.stack(_stage(per_point, (nx, ny, nz, slot, ok, x, y, z, R), token))
+    h, w = shape
+    if identity:
+        return n_cam.reshape(3, h, w)
+    out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
+    return out.reshape(3, h, w)
 
 
 def default_window_columns(lidar: LidarSpec) -> int:
@@ -848,9 +913,10 @@ def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: 
     return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
 
 
-@functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns"))
+@functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns", "max_points"))
 def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
-                  smoothing: int = 1, fill_max_gap: int = 2, window_columns: int | None = None) -> jax.Array:
+                  smoothing: int = 1, fill_max_gap: int = 2, window_columns: int | None = None,
+                  max_points: int | None = None) -> jax.Array:
     """Camera-frame unit normal of every pixel of a sparse depth image (Step 1 on image input).
 
     Each pixel with depth is back-projected through ``K`` (pixel centre) and
@@ -890,24 +956,49 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
         raise ValueError(f"pixel_normals: field 'T_cam_lidar' expected shape (4, 4), got {T.shape}")
     depth = sparse_depth.astype(jnp.float32)
     depth = jnp.where(jnp.isfinite(depth) & (depth > 0), depth, 0.0)
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_cells = n_rows * n_cols
+    h, w = depth.shape
+    n_pix = h * w
+    n_cols = lidar.columns
     token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
-    slot, key = _pixel_slots(depth, K, T, lidar, token)
-    best = jnp.full((n_cells,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot.reshape(-1)].min(
-        key.reshape(-1), mode="drop")
+    R = T[:3, :3]
     options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
-    full = functools.partial(_pixel_normals_in_window, window_cols=n_cols, **options)
+
+    def dense(depth, K, T):
+        # Every pixel is a point slot and the whole range image is used (as
+        # fast as the listed path only when most pixels have depth).
+        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)  # (a branch may not close over tracers)
+        pix = jnp.arange(n_pix, dtype=jnp.int32)
+        pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=n_cols)
+        return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=n_cols,
+                                        identity=True, **options)
+
+    capacity = -(-n_pix // 16) if max_points is None else int(max_points)
+    capacity = min(max(capacity, 1), n_pix)
+    if capacity == n_pix:
+        return dense(depth, K, T)
+    pix, total = _compact_pixels((depth > 0).reshape(-1), capacity, token)
     wc = default_window_columns(lidar) if window_columns is None else int(window_columns)
     margin = max(1 + fill_max_gap, smoothing)
     if wc + 2 * margin > n_cols:  # a window would not save work
-        return full(depth, K, T, slot, key, best, jnp.int32(0), token)
-    col0 = _window_start(K, T, depth.shape[0], depth.shape[1], lidar, wc)
-    # Every occupied column must lie at least `margin` columns inside the
-    # window: then the neighbour search and the smoothing never reach its
-    # edges and the window gives exactly the whole image's normals.
-    occupied = jnp.max((best != jnp.iinfo(jnp.int32).max).reshape(n_rows, n_cols).astype(jnp.int32), axis=0) > 0
-    rel = jnp.mod(jnp.arange(n_cols, dtype=jnp.int32) - col0, n_cols)
-    fits = ~jnp.any(occupied & ((rel < margin) | (rel >= wc - margin)))
-    windowed = functools.partial(_pixel_normals_in_window, window_cols=wc, **options)
-    return cond_all(fits, windowed, full, depth, K, T, slot, key, best, col0, token)
+        wc = n_cols
+        col0 = jnp.int32(0)
+        fits = total <= capacity
+    else:
+        col0 = _window_start(K, T, h, w, lidar, wc)
+    pts = _pixel_points(pix, depth, K, T, col0, token, lidar=lidar, window_cols=wc)
+    if wc < n_cols:
+        # Every point must lie at least `margin` columns inside the window:
+        # then the neighbour search and the smoothing never reach its edges
+        # and the window gives exactly the whole image's normals.
+        ok, col = pts[0], pts[1]
+        fits = (total <= capacity) & ~jnp.any(ok & ((col < margin) | (col >= wc - margin)))
+
+    def listed(pix, col0, R, depth, K, T, *pts):
+        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
+        return _pixel_normals_of_points(pix, pts, col0, R, (h, w), token, window_cols=wc, identity=False,
+                                        **options)
+
+    def fallback(pix, col0, R, depth, K, T, *pts):
+        return dense(depth, K, T)
+
+    return cond_all(fits, listed, fallback, pix, col0, R, depth, K, T, *pts)
