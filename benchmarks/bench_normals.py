@@ -5,8 +5,12 @@ reflectance), pads it to 131072 points with a validity mask, and times
 ``range_image`` and ``point_normals`` with the KITTI_HDL64 preset (compile time
 reported separately; median of repeated runs after warm-up). Also times the
 dense case: every pixel of the 352x1216-cropped KITTI ground truth back-projected
-to the LiDAR frame (~430k points padded to 524288). Prints a table and writes
-benchmarks/results/normals.json.
+to the LiDAR frame (~430k points padded to 524288). Then ``pixel_normals`` on
+the KITTI benchmark frame (``bench_end_to_end.load_frame()``, ~18.9k LiDAR
+pixels of 352x1216, SGMConfig defaults smoothing=1, fill_max_gap=2) against the
+frozen pre-speed-up version (``normals.py`` at commit ``REFERENCE_COMMIT``,
+loaded with ``git show``), timed interleaved in the same process, with the
+largest output difference. Prints a table and writes benchmarks/results/normals.json.
 
 Usage: python benchmarks/bench_normals.py [--repeats 50]
 """
@@ -14,11 +18,15 @@ Usage: python benchmarks/bench_normals.py [--repeats 50]
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import pathlib
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
@@ -31,6 +39,71 @@ from jaxdepth._src.presets import KITTI_HDL64, KITTI_K_CAM2, KITTI_T_CAM2_LIDAR
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DATA = pathlib.Path(os.environ.get("JAXDEPTH_SHARED_DATA", ROOT.parent / "shared" / "data"))
 FRAME = DATA / "kitti" / "drive_0001_frame05"
+#: The last commit before pixel_normals listed the pixels with depth (its normals.py is the reference).
+REFERENCE_COMMIT = "070cbc9"
+
+
+def _reference_module():
+    """normals.py at REFERENCE_COMMIT as a module, or None when git or the commit is unavailable."""
+    try:
+        src = subprocess.run(["git", "show", f"{REFERENCE_COMMIT}:jaxdepth/_src/normals.py"], cwd=ROOT,
+                             check=True, capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    path = pathlib.Path(tempfile.mkdtemp()) / "normals_reference.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("normals_reference", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _interleaved(fns: dict, repeats: int):
+    """{name: (compile_plus_first_s, median_ms, min_ms)}, the functions timed round-robin."""
+    first = {}
+    for name, fn in fns.items():
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        first[name] = time.perf_counter() - t0
+    for _ in range(3):
+        for fn in fns.values():
+            jax.block_until_ready(fn())
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append((time.perf_counter() - t0) * 1e3)
+    return {name: (first[name], statistics.median(t), min(t)) for name, t in times.items()}
+
+
+def pixel_case(repeats: int):
+    """pixel_normals on the KITTI benchmark frame: new vs the reference version, same process."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_end_to_end import load_frame
+
+    from jaxdepth._src.normals import pixel_normals
+
+    sparse, K, T, name = load_frame()
+    d, K, T = (jnp.asarray(a, jnp.float32) for a in (sparse, K, T))
+    lidar = KITTI_HDL64
+    fns = {"pixel_normals": jax.jit(lambda d, K, T: pixel_normals(d, K, T, lidar=lidar))}
+    ref = _reference_module()
+    if ref is not None:
+        fns["pixel_normals_reference"] = jax.jit(lambda d, K, T: ref.pixel_normals(d, K, T, lidar=lidar))
+    timed = _interleaved({k: (lambda f=f: f(d, K, T)) for k, f in fns.items()}, repeats)
+    row = {"frame": name, "lidar_pixels": int(np.sum(np.asarray(sparse) > 0))}
+    for fname, (first, med, best) in timed.items():
+        row[fname] = {"compile_plus_first_s": round(first, 4), "median_ms": round(med, 3), "min_ms": round(best, 3)}
+        print(f"{'kitti_frame_352x1216':22s} {fname:24s} median={med:8.3f} ms  min={best:8.3f} ms  "
+              f"compile+first={first:6.2f} s")
+    if ref is not None:
+        diff = float(np.max(np.abs(np.asarray(fns["pixel_normals"](d, K, T))
+                                   - np.asarray(fns["pixel_normals_reference"](d, K, T)))))
+        row["max_abs_diff_vs_reference"] = diff
+        row["reference_commit"] = REFERENCE_COMMIT
+        print(f"max |new - reference| = {diff:.3g}")
+    return row
 
 
 def _pad(points: np.ndarray, size: int):
@@ -100,6 +173,7 @@ def main():
             print(f"{name:22s} {fname:14s} points={len(pts):7d} pad={size:7d} "
                   f"median={med * 1e3:8.3f} ms  min={best * 1e3:8.3f} ms  compile+first={first:6.2f} s")
         results["cases"][name] = row
+    results["cases"]["kitti_frame_pixel_normals"] = pixel_case(args.repeats)
     out = ROOT / "benchmarks" / "results" / "normals.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".json.tmp")

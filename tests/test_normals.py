@@ -542,16 +542,40 @@ def check_pixel_normals(got, depth, K, T, lidar, **options):
     return stable
 
 
-@pytest.mark.parametrize("window_columns", [None, PIX_LIDAR.columns, 24])  # auto, whole image, fallback
-def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_columns):
+# The synthetic frames have ~5000 points in 96 x 160 pixels, more than the default
+# capacity of the listed path (H W / 16): max_points=LISTED takes the listed path,
+# None the dense fallback.
+LISTED = 8192
+
+
+@pytest.mark.parametrize("window_columns, max_points", [
+    (None, LISTED),  # auto window
+    (PIX_LIDAR.columns, LISTED),  # whole range image
+    (24, LISTED),  # window too narrow: dense fallback
+    (None, None),  # more points than the capacity: dense fallback
+])
+def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_columns, max_points):
     camera = _pix_camera()
     depth = _pix_frame(0, camera)
     assert (depth > 0).sum() > 500
-    got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns)
+    got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
+                          max_points=max_points)
     stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
     assert stable[depth > 0].mean() > 0.99
     norms = np.linalg.norm(np.asarray(got)[:, depth > 0], axis=0)
     np.testing.assert_allclose(norms, 1.0, atol=1e-5)
+
+
+def test_compact_pixels_lists_true_entries_in_order():
+    rng = np.random.default_rng(7)
+    compact = jax.jit(N._compact_pixels, static_argnums=1)
+    for n, p, capacity in ((37, 0.3, 20), (5000, 0.05, 400), (40000, 0.5, 1024), (64, 1.0, 64), (100, 0.0, 8)):
+        valid = rng.random(n) < p
+        pix, total = compact(jnp.asarray(valid), capacity, jnp.int32(0))
+        want = np.flatnonzero(valid)[:capacity]
+        assert int(total) == valid.sum()
+        np.testing.assert_array_equal(np.asarray(pix)[:len(want)], want)
+        assert np.all(np.asarray(pix)[len(want):] == n)
 
 
 def test_pixel_normals_options_and_wide_camera():
@@ -559,7 +583,7 @@ def test_pixel_normals_options_and_wide_camera():
     camera = _pix_camera(f=40.0)  # ~126 degrees wide: more than the 100-degree window
     depth = _pix_frame(1, camera)
     for options in (dict(smoothing=0, fill_max_gap=0), dict(smoothing=2, fill_max_gap=1)):
-        got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, **options)
+        got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
         check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
 
 
@@ -568,7 +592,7 @@ def test_pixel_normals_vmap_equals_loop_and_jit_equals_eager():
     depths = np.stack([_pix_frame(s, c) for s, c in zip((2, 3), cams)])
     Ks = jnp.stack([c.K for c in cams])
     T = cams[0].T_cam_lidar
-    f = lambda d, k: N.pixel_normals(d, k, T, lidar=PIX_LIDAR)  # noqa: E731
+    f = lambda d, k: N.pixel_normals(d, k, T, lidar=PIX_LIDAR, max_points=LISTED)  # noqa: E731
     loop = np.stack([np.asarray(f(d, k)) for d, k in zip(depths, Ks)])
     np.testing.assert_allclose(np.asarray(jax.vmap(f)(depths, Ks)), loop, atol=1e-6)
     with jax.disable_jit():
@@ -594,6 +618,9 @@ def test_pixel_normals_kitti_frame(kitti_frame):
                                  calib["cameras"][2]["K"])
     T = calib["cameras"][2]["T_cam_lidar"]
     depth, K, T = np.asarray(depth, np.float32), np.asarray(K, np.float32), np.asarray(T, np.float32)
-    got = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64)
+    got = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
     stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
     assert stable[depth > 0].mean() > 0.999
+    # the dense fallback (every pixel a point slot, whole range image) gives the same normals
+    dense = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
