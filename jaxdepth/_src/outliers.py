@@ -17,14 +17,34 @@ i.e. the two points are ordered differently seen from the LiDAR than on the
 image (parallax: the LiDAR saw ``i`` past the edge of something nearer), and
 ``i`` is more than ``epsilon`` behind ``j``.
 
-Implementation: a dense sweep over window offsets. Each offset (du, dv) is one
-shifted slice of padded canvases (angle keys, z, z + epsilon) and three to
-five comparisons per pixel, OR-ed into the removal mask; the |du| = k columns
-run in a ``fori_loop`` up to the run-time bound, and row bands without a
-single point are skipped. Visiting each unordered pair once (condition 1 is
-symmetric) would need the pair's result written back at the shifted pixel,
-i.e. one materialised mask per offset, which costs more than the comparisons
-it saves.
+Implementation: a cheap exact prefilter, then the full test at the few
+candidates it leaves.
+
+1. Prefilter (dense, integer). Condition 1 needs an order inversion: for a
+   neighbour to the right (du > 0) ``theta_i > theta_j``, i.e. ``theta_i``
+   exceeds the minimum of theta over the right half of the window; likewise the
+   maximum over the left half, the minimum of phi over the rows below, the
+   maximum over the rows above. These window extrema are separable (a vertical
+   pass, then a horizontal one). They run on int16 keys ``floor(angle *
+   16383)``: a non-decreasing map of the float angle, so ``theta_i > theta_j``
+   implies ``key_i >= key_j`` and the test ``key_i >= min key_j`` never loses a
+   removal (ties only add candidates); int16 runs twice the SIMD lanes of
+   float32. Empty pixels get a key that the extrema ignore. On the KITTI frame
+   about 2 % of the points pass (~430 of 18.9k), where the dense sweep over all
+   9 x 11 offsets did 3-5 float comparisons per pixel and offset.
+2. Compaction. The candidate mask is packed into 32-bit words; a prefix sum of
+   their popcounts gives every candidate a slot, found back from the slot by
+   a binary search over the words and one within the word (no scatter, no
+   ``nonzero``).
+3. Exact test, per chunk of candidate slots: gather the window's depths (and
+   points), recompute the angles exactly as before, and evaluate conditions 1
+   and 2 in float32 for every offset; removed candidates are cleared in the
+   mask. The result is bit-identical to the dense sweep it replaces.
+
+Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
+time; the horizontal prefilter pass is compiled for each small ``k`` and chosen
+by ``lax.switch`` (under ``vmap``, the batch's largest ``k``: a wider window
+only adds candidates), and the exact test loops over column groups up to ``k``.
 """
 
 from __future__ import annotations
@@ -35,6 +55,10 @@ import numbers
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax import custom_batching
+
+from jaxdepth._src.staging import stage
 
 
 def _pseudo_angle(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -51,16 +75,14 @@ def _pseudo_angle(a: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.where(b >= 0, s, jnp.where(a >= 0, 2.0, -2.0) - s)
 
 
-def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam: jax.Array | None,
-                  *, row0: int = 0, col0: int = 0):
-    """Order keys (h, g) of each pixel's point seen from the LiDAR origin ``t`` (camera axes).
+def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Order keys (h, g) of points seen from the LiDAR origin ``t`` (camera axes).
 
-    ``depth`` may be a padded canvas whose pixel (row0, col0) is image pixel (0, 0).
+    ``depth`` (metres, 0 where empty) at pixel rows ``v`` and columns ``u``
+    (float32, broadcastable to ``depth``); ``points_cam`` None (back-project
+    the pixel) or a (3, ...) array of camera-frame points of the same shape.
     """
     if points_cam is None:
-        h, w = depth.shape
-        v = jnp.arange(-row0, h - row0, dtype=jnp.float32)[:, None]
-        u = jnp.arange(-col0, w - col0, dtype=jnp.float32)[None, :]
         y_n = (v - K[1, 2]) / K[1, 1]
         x_n = (u - K[0, 2] - K[0, 1] * y_n) / K[0, 0]
         qx = depth * x_n - t[0]
@@ -71,24 +93,6 @@ def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam: jax.
         qy = points_cam[1] - t[1]
         qz = points_cam[2] - t[2]
     return _pseudo_angle(qx, qz), _pseudo_angle(qy, qz)
-
-
-def _flip(du: int, dv: int, h_p, g_p, h_q, g_q):
-    """Condition 1 for the pixel pair (p, q = p + (du, dv)); symmetric in p and q.
-
-    ``(u_p - u_q)(h_p - h_q) < 0`` with ``u_p - u_q = -du`` is ``h_p > h_q`` for
-    du > 0, ``h_p < h_q`` for du < 0 and never true for du = 0 (same for v, g).
-    """
-    terms = []
-    if du > 0:
-        terms.append(h_p > h_q)
-    elif du < 0:
-        terms.append(h_p < h_q)
-    if dv > 0:
-        terms.append(g_p > g_q)
-    elif dv < 0:
-        terms.append(g_p < g_q)
-    return functools.reduce(jnp.logical_or, terms)
 
 
 def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px: int,
@@ -104,80 +108,202 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     return max(half_width, 0), max(half_height, 0)
 
 
-#: Rows per band: bands without a single valid pixel are skipped at run time.
-_BAND_ROWS = 32
+#: int16 order key: ``floor(angle * _QSCALE)``; pseudo-angles lie in [-2, 2].
+_QSCALE = 16383.0
+#: Key of an empty pixel (or an angle that is NaN): the minima ignore it, and
+#: ``key + 1`` wraps to int16 min, which the maxima ignore.
+_QNONE = 32767
+#: Widest horizontal half window with its own compiled prefilter pass; wider
+#: run-time windows use the static cap (a superset: more candidates, same mask).
+_STATIC_K = 8
+#: Candidate slots tested per loop step.
+_CHUNK = 512
+#: Column offsets per side tested per step of the exact test (|du| in (j G, (j + 1) G]).
+_GROUP = 4
+
+
+def _switch_widest(index, branches, *operands):
+    """``lax.switch(index, branches, *operands)``; under ``vmap`` the batch's largest index.
+
+    Only for branches that are valid for any index at least the true one (here:
+    wider prefilter windows), so that one branch serves the whole batch.
+    """
+
+    @custom_batching.custom_vmap
+    def run(index, operands):
+        return jax.lax.switch(index, branches, *operands)
+
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, index, operands):
+        index_batched, ops_batched = in_batched
+        if index_batched:
+            index = jnp.max(index)
+        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                         for a, b in zip(operands, ops_batched))
+        out = _switch_widest(index, [jax.vmap(fn) for fn in branches], *operands)
+        return out, True
+
+    return run(index, tuple(operands))
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height):
     height, width = sparse_depth.shape
     hh, hw = half_height, half_width
-    band = min(_BAND_ROWS, height)
-    n_bands = -(-height // band)
-    extra = n_bands * band - height            # empty rows completing the last band
-
+    padded_width = width + 2 * hw
     depth = sparse_depth.astype(jnp.float32)
+    points = None if points_cam is None else points_cam.astype(jnp.float32)
+    K = K.astype(jnp.float32)
+    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
+    eps = jnp.asarray(epsilon_m, jnp.float32)
+    inf = jnp.float32(jnp.inf)
+    none = np.int16(_QNONE)   # NumPy constants: staged functions must not close over tracers
+    one = np.int16(1)
+
     valid = (depth > 0) & jnp.isfinite(depth)
-    row_points = jnp.sum(valid, axis=1, dtype=jnp.int32)
-    n_points = jnp.sum(row_points)
-    band_has_points = jnp.pad(row_points, (0, extra)).reshape(n_bands, band).sum(axis=1) > 0
-
-    # Everything lives on one padded canvas (hh rows above, hh + extra below,
-    # hw columns each side) so that every neighbour offset is a plain slice.
-    # Empty pixels and padding have z + eps = +inf: condition 2 (z_p > z_q +
-    # eps) is then false for them as neighbours, and as centres they are
-    # masked out at the end.
-    pad = ((hh, hh + extra), (hw, hw))
-    depth_c = jnp.pad(jnp.where(valid, depth, 0.0), pad)
-    points_c = None if points_cam is None else jnp.pad(points_cam.astype(jnp.float32), ((0, 0), *pad))
-    h_c, g_c = _lidar_angles(depth_c, K.astype(jnp.float32), T_cam_lidar.astype(jnp.float32)[:3, 3],
-                             points_c, row0=hh, col0=hw)
-    z_c = jnp.where(depth_c > 0, depth_c, jnp.inf)
-    z_eps_c = z_c + jnp.asarray(epsilon_m, jnp.float32)
-    # Materialise the canvases once: XLA would otherwise fuse the angle maths
-    # into every shifted slice that reads it (once per offset).
-    h_c, g_c, z_c, z_eps_c = jax.lax.optimization_barrier((h_c, g_c, z_c, z_eps_c))
-
+    # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
+    n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
+        jnp.sum(valid, dtype=jnp.int32)
     wl = width * beams
     # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
     k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), hw), 0)
 
-    def band_removed(b):
-        r0 = b * band
-        centre = lambda a: jax.lax.dynamic_slice(a, (hh + r0, hw), (band, width))
-        h_p, g_p, z_p = centre(h_c), centre(g_c), centre(z_c)
+    # --- 1. prefilter -------------------------------------------------------
+    # Keys on a canvas padded by the window (hh rows, hw columns each side).
+    # The padding is done on the depth alone: a pad fused into the angle maths
+    # compiles to scalar code (~6x slower).
+    def pad_depth(depth, *pts):
+        pad = ((hh, hh), (hw, hw))
+        ok = (depth > 0) & jnp.isfinite(depth)
+        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p, ((0, 0), *pad)) for p in pts)
 
-        def visit(removed, du_sign, dv, col):
-            """ORs in the removals caused by the neighbours at (col - hw, dv)."""
-            q = lambda a: jax.lax.dynamic_slice(a, (hh + r0 + dv, col), (band, width))
-            flip = _flip(du_sign, dv, h_p, g_p, q(h_c), q(g_c))
-            return removed | (flip & (z_p > q(z_eps_c)))
+    def keys(depth_c, K, t, *points_c):   # (K, t are operands: a closure may not be batched)
+        v = jnp.arange(-hh, height + hh, dtype=jnp.float32)[:, None]
+        u = jnp.arange(-hw, width + hw, dtype=jnp.float32)[None, :]
+        h, g = _lidar_angles(depth_c, K, t, points_c[0] if points_c else None, v, u)
 
-        removed = jnp.zeros((band, width), bool)
-        for dv in range(-hh, hh + 1):
-            if dv != 0:
-                removed = visit(removed, 0, dv, hw)
-        # One fusion for the du = 0 column; without the barrier XLA splits it
-        # into one materialised mask per offset and carries them into the loop.
-        removed = jax.lax.optimization_barrier(removed)
+        def key(a):
+            q = jnp.clip(jnp.floor(a * jnp.float32(_QSCALE)), -32767.0, 32766.0).astype(jnp.int16)
+            return jnp.where((depth_c > 0) & (a == a), q, none)
+        return key(h), key(g)
 
-        def columns_at(k, removed):
-            # The sign of du is static (it picks the comparison); k moves the slice.
-            for du_sign in (1, -1):
-                for dv in range(-hh, hh + 1):
-                    removed = visit(removed, du_sign, dv, hw + du_sign * k)
-            return removed
+    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
+    key_h, key_g = stage(keys, (canvas[0], K, t) + canvas[1:], n_points)
 
-        # Offsets beyond the run-time bound are skipped, not masked; the body
-        # compiles once whatever the cap.
-        return jax.lax.fori_loop(1, k_max + 1, columns_at, removed)
+    def vertical(key_h, key_g):
+        """Column extrema: theta over all 2 hh + 1 rows; phi over the hh rows below / above.
 
-    def per_band(b, removed):
-        rows = jax.lax.cond(band_has_points[b], band_removed, lambda b: jnp.zeros((band, width), bool), b)
-        return jax.lax.dynamic_update_slice(removed, rows, (b * band, 0))
+        Maxima run on ``key + 1`` (int16 wrap-around), which sends empty pixels to int16 min.
+        """
+        rows = lambda a, dv: a[hh + dv:hh + dv + height]
+        h_min, h_max = rows(key_h, -hh), rows(key_h, -hh) + one
+        for dv in range(-hh + 1, hh + 1):
+            h_min = jnp.minimum(h_min, rows(key_h, dv))
+            h_max = jnp.maximum(h_max, rows(key_h, dv) + one)
+        g_min = jnp.full((height, padded_width), none)
+        g_max = jnp.full((height, padded_width), np.int16(-32768))
+        for dv in range(1, hh + 1):
+            g_min = jnp.minimum(g_min, rows(key_g, dv))
+            g_max = jnp.maximum(g_max, rows(key_g, -dv) + one)
+        return jnp.stack([h_min, h_max, g_min, g_max])
 
-    removed = jax.lax.fori_loop(0, n_bands, per_band, jnp.zeros((n_bands * band, width), bool))
-    return valid & ~removed[:height]
+    extrema = stage(vertical, (key_h, key_g), n_points)
+    words_per_row = -(-width // 32)
+
+    def candidates(k, extrema, key_h, key_g, valid):
+        """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32))."""
+        cols = lambda a, du: a[:, hw + du:hw + du + width]
+        h_right = jnp.full((height, width), none)              # min theta key, 0 < du <= k
+        h_left = jnp.full((height, width), np.int16(-32768))  # max (theta key + 1), -k <= du < 0
+        g_below, g_above = cols(extrema[2], 0), cols(extrema[3], 0)
+        for du in range(1, k + 1):
+            h_right = jnp.minimum(h_right, cols(extrema[0], du))
+            h_left = jnp.maximum(h_left, cols(extrema[1], -du))
+            g_below = jnp.minimum(g_below, jnp.minimum(cols(extrema[2], du), cols(extrema[2], -du)))
+            g_above = jnp.maximum(g_above, jnp.maximum(cols(extrema[3], du), cols(extrema[3], -du)))
+        kh = key_h[hh:hh + height, hw:hw + width]
+        kg = key_g[hh:hh + height, hw:hw + width]
+        cand = valid & ((kh >= h_right) | (kh + one <= h_left) | (kg >= g_below) | (kg + one <= g_above))
+        if width % 32:
+            cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
+        bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
+        return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
+
+    widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
+    words = _switch_widest(jnp.minimum(k_max, len(widths) - 1),
+                           [functools.partial(candidates, k) for k in widths], extrema, key_h, key_g, valid)
+
+    # --- 2. compaction ------------------------------------------------------
+    popc = jax.lax.population_count(words).astype(jnp.int32)
+    row_incl = jnp.cumsum(popc, axis=1)
+    row_end = jnp.cumsum(row_incl[:, -1])
+    word_end = (row_incl + (row_end - row_incl[:, -1])[:, None]).reshape(-1)   # inclusive prefix
+    words, popc = words.reshape(-1), popc.reshape(-1)
+    n_words = word_end.shape[0]
+    count = row_end[-1]
+
+    def locate(slot):
+        """Pixel (row, column) of candidate number ``slot`` (0 <= slot < count)."""
+        get = lambda a, i: a.at[i].get(mode="promise_in_bounds")
+        pos = jnp.zeros_like(slot)           # number of words ending at or before slot
+        step = 1 << (n_words.bit_length() - 1)
+        while step:
+            nxt = pos + step
+            ok = (nxt <= n_words) & (get(word_end, jnp.minimum(nxt, n_words) - 1) <= slot)
+            pos = jnp.where(ok, nxt, pos)
+            step >>= 1
+        w = jnp.minimum(pos, n_words - 1)
+        word = get(words, w)
+        rank = (slot - get(word_end, w) + get(popc, w)).astype(jnp.uint32)   # wanted set bit, 0-based
+        bit = jnp.zeros_like(word)
+        for b in (16, 8, 4, 2, 1):
+            c = jax.lax.population_count((word >> bit) & jnp.uint32((1 << b) - 1))
+            take = rank >= c
+            rank = jnp.where(take, rank - c, rank)
+            bit = jnp.where(take, bit + b, bit)
+        return w // words_per_row, (w % words_per_row) * 32 + bit.astype(jnp.int32)
+
+    # --- 3. exact test ------------------------------------------------------
+    flat_depth = depth.reshape(-1)
+    flat_points = None if points is None else points.reshape(3, -1)
+
+    def point_values(v, u):
+        """(theta key, phi key, z) at pixels (v, u), int32 arrays of any shape; +inf z off the image."""
+        inside = (v >= 0) & (v < height) & (u >= 0) & (u < width)
+        idx = jnp.where(inside, v * width + u, 0)
+        d = flat_depth.at[idx].get(mode="promise_in_bounds")
+        ok = inside & (d > 0) & jnp.isfinite(d)
+        d = jnp.where(ok, d, 0.0)
+        p = None if flat_points is None else flat_points.at[:, idx].get(mode="promise_in_bounds")
+        h, g = _lidar_angles(d, K, t, p, v.astype(jnp.float32), u.astype(jnp.float32))
+        return h, g, jnp.where(ok, d, inf)
+
+    group = max(min(hw, _GROUP), 1)
+    dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, None, :]
+    base = jnp.arange(-group, group + 1, dtype=jnp.int32)[None, :, None]   # du of group 0
+    n_groups = jnp.maximum((k_max + group - 1) // group, 1)
+
+    def test_chunk(c, keep):
+        slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
+        row, col = locate(jnp.minimum(slot, jnp.maximum(count - 1, 0)))
+        row, col = row[:, None, None], col[:, None, None]
+        h_p, g_p, z_p = point_values(row, col)
+
+        def column_group(j, removed):
+            du = base + j * group * jnp.sign(base)          # group j: |du| in (j G, (j + 1) G], and du = 0
+            h_q, g_q, z_q = point_values(row + dv, col + du)
+            flip = (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
+                    | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
+            hit = flip & (z_p > z_q + eps) & (jnp.abs(du) <= k_max)
+            return removed | jnp.any(hit, axis=(1, 2))
+
+        removed = jax.lax.fori_loop(0, n_groups, column_group, jnp.zeros((_CHUNK,), bool))
+        flat = jnp.where(slot < count, row[:, 0, 0] * width + col[:, 0, 0], height * width)
+        return keep.at[flat].set(~removed, mode="drop")
+
+    n_chunks = (count + _CHUNK - 1) // _CHUNK
+    keep = jax.lax.fori_loop(0, n_chunks, test_chunk, valid.reshape(-1))
+    return keep.reshape(height, width)
 
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
