@@ -1,27 +1,35 @@
-"""Run time of step 3 (nearest_seed) against OpenCV and SciPy, in one process.
+"""Run time of step 3 (nearest_seed) against its previous version, OpenCV and SciPy, in one process.
 
-Mask: the real KITTI sparse input (``velodyne_raw_image_02.png``, cropped the
-benchmark way to the bottom 352 rows and columns 13..1228); a random ~4 % mask
-of the same size when the shared data is missing.
+Mask: the real KITTI sparse input of the end-to-end benchmark
+(``bench_end_to_end.load_frame()``: drive_0001 frame 5, camera 2, cropped to
+352 x 1216), ``sparse > 0``; a random ~4 % mask of that size when the shared
+data is missing.
 
-    PYTHONPATH=. python benchmarks/bench_distance.py [--runs 50] [--json benchmarks/results/distance.json]
+    PYTHONPATH=. python benchmarks/bench_distance.py [--runs 40] [--json benchmarks/results/distance.json]
 
 Compared (all return distances and the nearest seed):
 - jaxdepth nearest_seed, metric "l1" and "l2" (distance, du, dv);
+- the same function as of commit ``REFERENCE_COMMIT`` (before the speed work,
+  loaded from git into a private module): "ref_l1", "ref_l2".  Its outputs
+  must be bit-identical to the current ones (checked before timing);
 - cv2.distanceTransformWithLabels(~mask, cv2.DIST_L1, 3, labelType=cv2.DIST_LABEL_PIXEL);
 - scipy.ndimage.distance_transform_edt(~mask, return_indices=True).
-Times are medians after a warm-up call; compile time (lower + compile) is
-reported separately.  The machine may be shared: only the ratios measured in
-the same run mean much.  The script also checks that the distances agree.
+All methods run interleaved (one call of each per round, many rounds) so that
+load changes on a shared machine hit every method alike; medians and minima
+after a warm-up call, compile time (lower + compile) separately.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import pathlib
 import platform
+import subprocess
+import sys
+import tempfile
 import time
 
 import cv2
@@ -34,72 +42,91 @@ import scipy.ndimage as ndi
 from jaxdepth._src.distance import nearest_seed
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-PNG = ROOT.parent / "shared" / "data" / "kitti" / "drive_0001_frame05" / "velodyne_raw_image_02.png"
+REFERENCE_COMMIT = "070cbc9"  # nearest_seed before the l2 speed work (Meijster with an (H + 1) * W buffer)
 
 
 def load_mask() -> tuple[np.ndarray, str]:
-    if PNG.exists():
-        depth = cv2.imread(str(PNG), cv2.IMREAD_UNCHANGED)
-        return depth[-352:, 13:1229] > 0, f"KITTI {PNG.name} (bottom 352 rows, cols 13..1228)"
-    rng = np.random.default_rng(0)
-    return rng.random((352, 1216)) < 0.04, "random 4 % mask (shared data missing)"
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_end_to_end import load_frame
+
+    sparse, _, _, source = load_frame()
+    return np.asarray(sparse) > 0, source + ", sparse > 0"
 
 
-def median_ms(fn, runs: int) -> tuple[float, float]:
-    fn()  # warm-up
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times) * 1e3), float(np.min(times) * 1e3)
+def reference_nearest_seed():
+    """nearest_seed as of REFERENCE_COMMIT (git show into a temporary module), or None."""
+    try:
+        src = subprocess.run(["git", "show", f"{REFERENCE_COMMIT}:jaxdepth/_src/distance.py"], cwd=ROOT,
+                             check=True, capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
+        f.write(src)
+    spec = importlib.util.spec_from_file_location("_distance_reference", f.name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    os.unlink(f.name)
+    return module.nearest_seed
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=50)
+    parser.add_argument("--runs", type=int, default=40)
     parser.add_argument("--json", type=pathlib.Path, default=ROOT / "benchmarks" / "results" / "distance.json")
     args = parser.parse_args()
 
     mask, source = load_mask()
     src = (~mask).astype(np.uint8)  # OpenCV / SciPy measure the distance to zero pixels
     mask_j = jnp.asarray(mask)
+    reference = reference_nearest_seed()
 
     rows = {}
-    compiled = {}
+    methods = {}
+    for prefix, fn in (("jax", nearest_seed), ("ref", reference)):
+        if fn is None:
+            continue
+        for metric in ("l1", "l2"):
+            t0 = time.perf_counter()
+            exe = jax.jit(fn, static_argnames="metric").lower(mask_j, metric=metric).compile()
+            rows[f"{prefix}_{metric}"] = {"compile_s": time.perf_counter() - t0}
+            methods[f"{prefix}_{metric}"] = lambda exe=exe: jax.block_until_ready(exe(mask_j))
+    methods["opencv_l1"] = lambda: cv2.distanceTransformWithLabels(src, cv2.DIST_L1, 3,
+                                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    methods["scipy_edt"] = lambda: ndi.distance_transform_edt(src, return_indices=True)
+
+    # Agreement: distances with OpenCV / SciPy (their labels may name another equally near
+    # seed), every output bit-identical with the reference version.
+    outs = {name: methods[name]() for name in methods}
+    assert np.array_equal(np.asarray(outs["jax_l1"].distance), outs["opencv_l1"][0]), "L1 differs from OpenCV"
+    assert np.allclose(np.asarray(outs["jax_l2"].distance), outs["scipy_edt"][0], rtol=1e-6, atol=0), \
+        "L2 differs from SciPy"
+    identical = {}
     for metric in ("l1", "l2"):
-        t0 = time.perf_counter()
-        exe = jax.jit(nearest_seed, static_argnames="metric").lower(mask_j, metric=metric).compile()
-        compile_s = time.perf_counter() - t0
-        compiled[metric] = exe
-        rows[f"jax_{metric}"] = {"compile_s": compile_s}
+        if f"ref_{metric}" in outs:
+            identical[metric] = all(np.array_equal(np.asarray(a), np.asarray(b))
+                                    for a, b in zip(outs[f"jax_{metric}"], outs[f"ref_{metric}"]))
+            assert identical[metric], f"{metric}: outputs differ from the reference version"
 
-    def run_jax(metric):
-        return lambda: jax.block_until_ready(compiled[metric](mask_j))
+    times = {name: [] for name in methods}
+    for _ in range(args.runs):
+        for name, fn in methods.items():
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+    for name, ts in times.items():
+        rows.setdefault(name, {}).update({"median_ms": float(np.median(ts) * 1e3),
+                                          "min_ms": float(np.min(ts) * 1e3), "runs": args.runs})
 
-    def run_cv():
-        return cv2.distanceTransformWithLabels(src, cv2.DIST_L1, 3, labelType=cv2.DIST_LABEL_PIXEL)
-
-    def run_scipy():
-        return ndi.distance_transform_edt(src, return_indices=True)
-
-    # Agreement check (distances, not labels: ties may pick different seeds).
-    l1 = compiled["l1"](mask_j)
-    l2 = compiled["l2"](mask_j)
-    assert np.array_equal(np.asarray(l1.distance), run_cv()[0]), "L1 distances differ from OpenCV"
-    assert np.allclose(np.asarray(l2.distance), run_scipy()[0], rtol=1e-6, atol=0), "L2 differs from SciPy"
-
-    # Interleave the pairs so that load changes hit both sides of each ratio.
-    for name, fn, runs in (("jax_l1", run_jax("l1"), args.runs), ("opencv_l1", run_cv, args.runs),
-                           ("jax_l2", run_jax("l2"), max(args.runs // 3, 5)),
-                           ("scipy_edt", run_scipy, max(args.runs // 3, 5))):
-        med, best = median_ms(fn, runs)
-        rows.setdefault(name, {}).update({"median_ms": med, "min_ms": best, "runs": runs})
+    def ratio(a, b):
+        return rows[a]["median_ms"] / rows[b]["median_ms"] if a in rows and b in rows else None
 
     ratios = {
-        "jax_l1 / opencv_l1": rows["jax_l1"]["median_ms"] / rows["opencv_l1"]["median_ms"],
-        "jax_l2 / scipy_edt": rows["jax_l2"]["median_ms"] / rows["scipy_edt"]["median_ms"],
-        "jax_l2 / opencv_l1": rows["jax_l2"]["median_ms"] / rows["opencv_l1"]["median_ms"],
+        "jax_l2 / ref_l2": ratio("jax_l2", "ref_l2"),
+        "jax_l1 / ref_l1": ratio("jax_l1", "ref_l1"),
+        "jax_l2 / jax_l1": ratio("jax_l2", "jax_l1"),
+        "jax_l1 / opencv_l1": ratio("jax_l1", "opencv_l1"),
+        "jax_l2 / opencv_l1": ratio("jax_l2", "opencv_l1"),
+        "jax_l2 / scipy_edt": ratio("jax_l2", "scipy_edt"),
     }
 
     print(f"mask: {source}, shape {mask.shape}, {mask.mean() * 100:.2f} % seeds")
@@ -108,12 +135,16 @@ def main() -> None:
         comp = f"{r['compile_s']:10.2f}" if "compile_s" in r else f"{'':>10}"
         print(f"{name:<12} {r['median_ms']:10.2f} {r['min_ms']:9.2f} {comp}")
     for k, v in ratios.items():
-        print(f"{k:<22} {v:6.2f}")
+        if v is not None:
+            print(f"{k:<22} {v:6.2f}")
+    print("bit-identical to the reference:", identical or "reference unavailable")
 
     result = {
         "mask": source,
         "shape": list(mask.shape),
         "seed_fraction": float(mask.mean()),
+        "reference_commit": REFERENCE_COMMIT if reference is not None else None,
+        "bit_identical_to_reference": identical,
         "timings": rows,
         "ratios": ratios,
         "environment": {

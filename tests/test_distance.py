@@ -243,6 +243,51 @@ def test_l2_wide_stack_layout():
     _check_result(nearest_seed(jnp.asarray(mask), metric="l2"), mask, "l2")
 
 
+def _both_column_passes(mask: np.ndarray):
+    """l2 column pass results of the linked-stack pass and of the buffer-stack pass."""
+    from jaxdepth._src.distance import _l2_column_pass, _l2_column_pass_linked, _row_pass
+
+    h, w = mask.shape
+    row_key_t = _row_pass(jnp.asarray(mask))
+    new = jax.jit(_l2_column_pass_linked, static_argnums=1)(row_key_t, h + w)
+    old = jax.jit(_l2_column_pass, static_argnums=1)(row_key_t, h + w)
+    return new, old
+
+
+@pytest.mark.parametrize("shape,density", [((1, 1), 1.0), ((1, 40), 0.1), ((40, 1), 0.1), ((7, 9), 0.0),
+                                           ((7, 9), 1.0), ((131, 67), 0.01), ((64, 64), 0.2)])
+def test_l2_linked_equals_buffer_stack(shape, density):
+    """The linked stack (default) makes the same decisions as the (H + 1) * W buffer stack."""
+    mask = _random_mask(shape, density, seed=shape[0] * 1000 + shape[1])
+    new, old = _both_column_passes(mask)
+    assert bool(new[3]) == bool(old[3]) == bool(mask.any())
+    if mask.any():
+        for a, b in zip(new[:3], old[:3]):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_l2_linked_equals_buffer_stack_kitti(kitti_frame):
+    """Bit-identical seed rows, g and right flags on the real KITTI mask (and its transpose)."""
+    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
+    mask = png[-352:, 13:1229] > 0
+    for m in (mask, np.ascontiguousarray(mask[::-1])):
+        new, old = _both_column_passes(m)
+        for a, b in zip(new, old):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_l2_single_seed_anywhere():
+    """One seed: every pixel points at it (first/last row and column, interior)."""
+    h, w = 9, 11
+    v, u = np.indices((h, w))
+    for sv, su in [(0, 0), (h - 1, w - 1), (0, w - 1), (4, 5)]:
+        mask = np.zeros((h, w), bool)
+        mask[sv, su] = True
+        res = nearest_seed(jnp.asarray(mask), metric="l2")
+        np.testing.assert_array_equal(np.asarray(res.du), su - u)
+        np.testing.assert_array_equal(np.asarray(res.dv), sv - v)
+
+
 def test_large_shapes_trace():
     """4096 x 4096 fits both metrics' integer budgets (trace only, no run)."""
     spec = jax.ShapeDtypeStruct((4096, 4096), jnp.bool_)

@@ -23,11 +23,20 @@ the leading axis of a row-major array (all other pixels vectorised):
    - ``"l2"``: ``min_r h(r, u)**2 + (r - v)**2``, the lower envelope of
      parabolas (Meijster, Roerdink and Hesselink 2000; the same 1-D problem as
      Felzenszwalb and Huttenlocher 2012) in exact int32 arithmetic.  Every
-     column keeps a stack of parabolas (start row, seed row, ``right``, ``h``)
-     in a fixed ``(H + 1) * W`` buffer.  A ``lax.scan`` over the rows pushes
-     each row's parabola after an inner ``lax.while_loop`` has popped, in all
-     columns at once, the parabolas it hides (at most H pops per column in
-     total); a second scan walks the envelope.
+     column keeps a stack of parabolas (start row, seed row, ``right``, ``h``
+     packed in one int32), all columns in lock step.  The stack is a linked
+     list keyed by the parabola's row (:func:`_l2_column_pass_linked`): the
+     top lives in the loop carry and row ``i`` of an ``(H, W)`` buffer holds
+     the entry under parabola ``i``, written in place when ``i`` is pushed, so
+     a push is a contiguous row write, never a scatter, and a pop is one
+     gather of W entries.  A ``fori_loop`` over the seeded rows pushes each
+     row's parabola after popping the ones it hides (two unrolled pop
+     attempts, then a ``while_loop`` for the rare deeper pops); a backward
+     loop walks the envelope, stepping at most one entry down per row.  The
+     start row uses a float32 division where that is exact.  Shapes whose
+     entries do not fit one int32 keep the older variant with an ``(H + 1) *
+     W`` buffer and scatters (:func:`_l2_column_pass`); both make the same
+     decisions and return the same result.
 
 The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
 place (the backward loop reads the forward result and overwrites it); on CPU
@@ -57,6 +66,7 @@ _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
 _L2_MAX_SIDE = 2**15  # squared distances (H - 1)**2 + (W - 1)**2 must fit in int32
 _PIB = "promise_in_bounds"
+_UNROLLED_POPS = 2  # KITTI: most seeded rows pop twice in some column
 
 
 class NearestSeed(NamedTuple):
@@ -295,6 +305,121 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, n[0] > 0
 
 
+def _fits_linked(h: int, w: int) -> bool:
+    """Whether :func:`_l2_column_pass_linked` applies: one int32 per stack entry."""
+    return _stack_layout(h, w)[0] == 1
+
+
+def _floor_div_exact_f32(h: int, w: int) -> bool:
+    """float32 ``floor(num / den)`` is exact when ``num + den < 2**24`` for every step.
+
+    ``num <= (H - 1)**2 + (W - 1)**2`` and ``den <= 2 (H - 1)``: both operands
+    are exact in float32 and the correctly rounded quotient of ``k + f``
+    (``1/den <= f < 1``) cannot reach ``k + 1`` because its rounding error is
+    below ``(k + 1) 2**-24 <= (num + den) 2**-24 / den < 1 / den``.
+    """
+    return (h - 1) ** 2 + (w - 1) ** 2 + 2 * h < 2**24
+
+
+def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
+    """Exact 1-D squared-Euclidean transform along every column (Meijster, linked stack).
+
+    The same lower envelope of parabolas ``f_s(v) = g(s)**2 + (v - s)**2`` as
+    :func:`_l2_column_pass`, with the same integer decisions, but the stack is
+    a linked list keyed by the parabola's row so that no step scatters:
+
+    - ``top`` (W,) int32 is the packed stack top (start row t, seed row s,
+      right, g) or -1 for an empty stack;
+    - ``below`` (H, W) int32: row ``i`` holds the entry that was under
+      parabola ``i`` when it was pushed.  Step ``i`` writes row ``i`` in place
+      (a contiguous ``dynamic_update_slice``), so pushing costs no scatter; a
+      pop reads ``below[s(top), u]`` (one gather over the W columns).
+
+    Build: a ``fori_loop`` over the rows; the first pop attempt is unrolled
+    (most rows pop in some column) and a ``while_loop`` pops the rest, then the
+    new parabola is pushed with the first row where it is strictly lower (a
+    float32 division when exact, see :func:`_floor_div_exact_f32`).
+    Walk: a backward ``fori_loop`` from the last row, following ``below``
+    once whenever the current entry starts after the row (starts strictly
+    increase along the stack, so one step back per row suffices).
+
+    Args:
+      row_key_t: (W, H) row-pass result ``(g << 1) | right``; rows with
+        ``g >= far`` have no seed and are skipped.
+      far: ``H + W``.
+
+    Returns:
+      (seed_row, g, right, has_seed) like :func:`_l2_column_pass`.
+    """
+    w, h = row_key_t.shape
+    rb = max(_bits(h), 1)
+    gb = max(_bits(w), 1)
+    _, pack, unpack = _stack_layout(h, w)
+    s_mask = (1 << rb) - 1
+    low_mask = (1 << (rb + 1 + gb)) - 1
+    t_shift = rb + 1 + gb
+    use_f32 = _floor_div_exact_f32(h, w)
+    hk = row_key_t.T.astype(jnp.int32)
+    col = jnp.arange(w, dtype=jnp.int32)
+
+    def seed_row(e):
+        return (e >> (gb + 1)) & s_mask
+
+    def follow(below, e):
+        # Entry under e (garbage where e is -1; callers select it away).
+        return below.reshape(-1).at[seed_row(e) * w + col].get(mode=_PIB)
+
+    def build(i, state):
+        top, below = state
+        x = hk[i]
+        g = x >> 1
+        valid = g < far
+        g2 = g * g
+
+        def loses(top):
+            # Same test as _l2_column_pass: the top is not below parabola i at
+            # its own start row t (equal values keep the smaller row).
+            t, s, _, g_s = unpack((top,))
+            return valid & (top >= 0) & ((t - s) ** 2 + g_s * g_s > (t - i) ** 2 + g2)
+
+        def pop(top):
+            return jnp.where(loses(top), follow(below, top), top)
+
+        for _ in range(_UNROLLED_POPS):
+            top = pop(top)
+        top = lax.while_loop(lambda top: jnp.any(loses(top)), pop, top)
+        nonempty = top >= 0
+        _, s, _, g_s = unpack((top,))
+        num = jnp.maximum(i * i - s * s + g2 - g_s * g_s, 0)
+        den = 2 * jnp.maximum(i - s, 1)
+        if use_f32:
+            quot = jnp.floor(num.astype(jnp.float32) / den.astype(jnp.float32)).astype(jnp.int32)
+        else:
+            quot = lax.div(num, den)
+        start = 1 + quot
+        push = valid & (~nonempty | (start < h))
+        below = lax.dynamic_update_index_in_dim(below, top, i, 0)
+        new, = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
+        return jnp.where(push, new, top), below
+
+    # Rows without any seed push nothing: the build runs from the first to the
+    # last seeded row only (runtime bounds; ``below`` rows outside are never read).
+    seeded = hk[:, 0] < (far << 1)
+    first = jnp.argmax(seeded).astype(jnp.int32)
+    stop = jnp.where(jnp.any(seeded), h - jnp.argmax(seeded[::-1]).astype(jnp.int32), 0)
+    empty = jnp.full((w,), -1, jnp.int32)
+    top, below = lax.fori_loop(first, stop, build, (empty, jnp.zeros((h, w), jnp.int32)))
+
+    def walk(k, state):
+        current, out = state
+        v = h - 1 - k
+        current = jnp.where((current >> t_shift) > v, follow(below, current), current)
+        return current, lax.dynamic_update_index_in_dim(out, current & low_mask, v, 0)
+
+    _, packed = lax.fori_loop(0, h, walk, (top, jnp.zeros((h, w), jnp.int32)))
+    return seed_row(packed), packed & ((1 << gb) - 1), (packed >> gb) & 1, top[0] >= 0
+
+
 @functools.partial(jax.jit, static_argnames="metric")
 def nearest_seed(seed_mask: jax.Array, *, metric: str = "l1") -> NearestSeed:
     """Nearest seed and its distance for every pixel (exact distance transform).
@@ -342,7 +467,8 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = "l1") -> NearestSeed:
         du = jnp.where((key & 1) == 1, abs_du, -abs_du)
         distance = dist.astype(jnp.float32)
     else:
-        seed_row, g, right, has_seed = _l2_column_pass(row_key_t, far)
+        column_pass = _l2_column_pass_linked if _fits_linked(h, w) else _l2_column_pass
+        seed_row, g, right, has_seed = column_pass(row_key_t, far)
         dv = seed_row - v
         du = jnp.where(right == 1, g, -g)
         distance = jnp.sqrt((du * du + dv * dv).astype(jnp.float32))
