@@ -189,6 +189,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
     canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
     key_h, key_g = stage(keys, (canvas[0], K, t) + canvas[1:], n_points)
+    depth_c, points_c = canvas[0], (canvas[1] if len(canvas) > 1 else None)
 
     def vertical(key_h, key_g):
         """Column extrema: theta over all 2 hh + 1 rows; phi over the hh rows below / above.
@@ -264,41 +265,47 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
         return w // words_per_row, (w % words_per_row) * 32 + bit.astype(jnp.int32)
 
     # --- 3. exact test ------------------------------------------------------
-    flat_depth = depth.reshape(-1)
-    flat_points = None if points is None else points.reshape(3, -1)
+    # Window blocks of B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices of
+    # the padded canvases. Block b starts at du = -k + b B, clipped so that it
+    # stays on the canvas (a clipped block overlaps the previous one: harmless).
+    group = max(min(hw, _GROUP), 0)
+    block = 2 * group + 1
+    n_blocks = jnp.maximum((2 * k_max + block) // block, 1)       # ceil((2 k + 1) / B)
+    dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, :, None]
+    offsets = jnp.arange(block, dtype=jnp.int32)[None, None, :]
+    slices = jax.lax.GatherDimensionNumbers(offset_dims=(1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
 
-    def point_values(v, u):
-        """(theta key, phi key, z) at pixels (v, u), int32 arrays of any shape; +inf z off the image."""
-        inside = (v >= 0) & (v < height) & (u >= 0) & (u < width)
-        idx = jnp.where(inside, v * width + u, 0)
-        d = flat_depth.at[idx].get(mode="promise_in_bounds")
-        ok = inside & (d > 0) & jnp.isfinite(d)
-        d = jnp.where(ok, d, 0.0)
-        p = None if flat_points is None else flat_points.at[:, idx].get(mode="promise_in_bounds")
-        h, g = _lidar_angles(d, K, t, p, v.astype(jnp.float32), u.astype(jnp.float32))
-        return h, g, jnp.where(ok, d, inf)
+    def window(canvas_, row, col0):
+        starts = jnp.stack([row, col0], axis=-1)
+        return jax.lax.gather(canvas_, starts, slices, (2 * hh + 1, block), mode="promise_in_bounds")
 
-    group = max(min(hw, _GROUP), 1)
-    dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, None, :]
-    base = jnp.arange(-group, group + 1, dtype=jnp.int32)[None, :, None]   # du of group 0
-    n_groups = jnp.maximum((k_max + group - 1) // group, 1)
+    def angles_at(row, col, window_of):
+        """Angles (h, g) and z of the pixels ``window_of`` picks from the padded canvases."""
+        d = window_of(depth_c)
+        v = (row - hh).astype(jnp.float32)
+        u = (col - hw).astype(jnp.float32)
+        p = None if points_c is None else jnp.stack([window_of(points_c[i]) for i in range(3)])
+        h, g = _lidar_angles(d, K, t, p, v, u)
+        return h, g, jnp.where(d > 0, d, inf)
 
     def test_chunk(c, keep):
         slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
         row, col = locate(jnp.minimum(slot, jnp.maximum(count - 1, 0)))
-        row, col = row[:, None, None], col[:, None, None]
-        h_p, g_p, z_p = point_values(row, col)
+        r_p, c_p = (row + hh)[:, None, None], (col + hw)[:, None, None]
+        h_p, g_p, z_p = angles_at(r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
 
-        def column_group(j, removed):
-            du = base + j * group * jnp.sign(base)          # group j: |du| in (j G, (j + 1) G], and du = 0
-            h_q, g_q, z_q = point_values(row + dv, col + du)
+        def column_block(b, removed):
+            start = jnp.clip(b * block - k_max, -hw, hw - 2 * group)
+            col0 = col + hw + start
+            du = start + offsets
+            h_q, g_q, z_q = angles_at(r_p + dv, c_p + du, lambda a: window(a, row, col0))
             flip = (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
                     | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
             hit = flip & (z_p > z_q + eps) & (jnp.abs(du) <= k_max)
             return removed | jnp.any(hit, axis=(1, 2))
 
-        removed = jax.lax.fori_loop(0, n_groups, column_group, jnp.zeros((_CHUNK,), bool))
-        flat = jnp.where(slot < count, row[:, 0, 0] * width + col[:, 0, 0], height * width)
+        removed = jax.lax.fori_loop(0, n_blocks, column_block, jnp.zeros((_CHUNK,), bool))
+        flat = jnp.where(slot < count, row * width + col, height * width)
         return keep.at[flat].set(~removed, mode="drop")
 
     n_chunks = (count + _CHUNK - 1) // _CHUNK
