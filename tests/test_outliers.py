@@ -13,9 +13,21 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxdepth._src import outliers as outliers_module
 from jaxdepth._src import presets
 from jaxdepth._src.geometry import invert_rigid, project_to_image, transform_points
-from jaxdepth._src.outliers import _keep_mask, outlier_keep_mask
+from jaxdepth._src.outliers import _keep_mask, outlier_keep_mask, window_half_sizes
+
+from conftest import REPO
+
+
+def _frozen():
+    """The pre-rewrite dense sweep, kept verbatim in benchmarks/bench_outliers.py."""
+    import sys
+    if str(REPO / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(REPO / "benchmarks"))
+    from bench_outliers import frozen_keep_mask
+    return frozen_keep_mask
 
 SETTINGS = dict(deadline=None, max_examples=12, derandomize=True,
                 suppress_health_check=[hypothesis.HealthCheck.too_slow])
@@ -147,6 +159,61 @@ def test_matches_paper_double_loop_kitti_crop(kitti_frame, r0, c0):
     want = paper_double_loop(crop, K, presets.KITTI_T_CAM2_LIDAR, **kw)
     assert (crop > 0).sum() > 1000 and (~want & (crop > 0)).sum() > 5   # a non-trivial case
     np.testing.assert_array_equal(got, want)
+
+
+# ----------------------------------------------------------------------------- frozen dense sweep
+def test_equals_frozen_dense_sweep_kitti(kitti_frame):
+    """Bit-identical to the previous implementation (the dense sweep over all
+    window offsets) on the real frame: official sparse input of both cameras
+    (image-only path) and the raw HDL-64E sweep projected with the camera-2
+    calibration (image-only and raw-sweep paths)."""
+    frozen = _frozen()
+    K, T = _kitti_K(), presets.KITTI_T_CAM2_LIDAR
+    for name in ("velodyne_raw_image_02.png", "velodyne_raw_image_03.png"):
+        sparse = _kitti_crop(kitti_frame, name)
+        got = np.asarray(outlier_keep_mask(sparse, K, T, beams=64))
+        assert (~got & (sparse > 0)).sum() > 50
+        np.testing.assert_array_equal(got, np.asarray(frozen(sparse, K, T, beams=64)), err_msg=name)
+    scan = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    depth, index = project_to_image(jnp.asarray(scan), jnp.ones(len(scan), bool), K, T, height=352, width=1216)
+    depth, index = np.asarray(depth), np.asarray(index)
+    p_cam = np.asarray(transform_points(T, jnp.asarray(scan)))
+    points = np.moveaxis(np.where((index >= 0)[..., None], p_cam[np.maximum(index, 0)], 0.0), -1, 0)
+    points = points.astype(np.float32)
+    np.testing.assert_array_equal(np.asarray(outlier_keep_mask(depth, K, T, beams=64)),
+                                  np.asarray(frozen(depth, K, T, beams=64)), err_msg="sweep, image path")
+    np.testing.assert_array_equal(np.asarray(outlier_keep_mask(depth, K, T, beams=64, points_cam=points)),
+                                  np.asarray(frozen(depth, K, T, beams=64, points_cam=points)),
+                                  err_msg="sweep, raw path")
+
+
+@pytest.mark.parametrize("seed, shape, beams, density, caps", [
+    (1, (40, 100), 2, 0.004, (12, 24)),   # k = 11 > _STATIC_K: the static-cap prefilter, 3 column blocks
+    (2, (8, 70), 8, 0.3, (12, 24)),       # half height 0; width not a multiple of 32
+    (3, (96, 320), 64, 0.3, (12, 24)),    # > _CHUNK removals: several chunks of candidates
+    (4, (60, 90), 16, 0.1, (3, 2)),       # small caps
+])
+def test_equals_frozen_dense_sweep_configurations(seed, shape, beams, density, caps):
+    frozen = _frozen()
+    rng = np.random.default_rng(seed)
+    K, T = _camera(rng, *shape)
+    depth = _random_sparse(rng, *shape, density)
+    depth[1, 1] = depth[2, 3] = 5.0
+    kw = dict(beams=beams, max_half_width_px=caps[0], max_half_height_px=caps[1])
+    n = int((depth > 0).sum())
+    half_width, _ = window_half_sizes(*shape, beams=beams, max_half_width_px=caps[0], max_half_height_px=caps[1])
+    k = min((shape[1] * beams - 1) // n, half_width)
+    assert k > 0
+    points = np.stack([rng.normal(0, 3, shape), rng.normal(0, 1, shape), depth]).astype(np.float32)
+    points[:, 1, 1] = np.nan                 # a valid pixel with a NaN point: no comparison holds
+    points[0, 2, 3] = np.inf
+    got = np.asarray(outlier_keep_mask(depth, K, T, **kw))
+    np.testing.assert_array_equal(got, np.asarray(frozen(depth, K, T, **kw)))
+    if seed == 3:
+        assert (~got & (depth > 0)).sum() > outliers_module._CHUNK
+    got_raw = np.asarray(outlier_keep_mask(depth, K, T, points_cam=points, **kw))
+    assert (got_raw != (depth > 0)).any()
+    np.testing.assert_array_equal(got_raw, np.asarray(frozen(depth, K, T, points_cam=points, **kw)))
 
 
 # ----------------------------------------------------------------------------- analytic scene
