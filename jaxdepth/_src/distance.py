@@ -404,7 +404,7 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
 
     # Rows without any seed push nothing: the build runs from the first to the
     # last seeded row only (runtime bounds; ``below`` rows outside are never read).
-    seeded = hk[:, 0] < (far << 1)
+    seeded = row_key_t[0] < (far << 1)
     first = jnp.argmax(seeded).astype(jnp.int32)
     stop = jnp.where(jnp.any(seeded), h - jnp.argmax(seeded[::-1]).astype(jnp.int32), 0)
     empty = jnp.full((w,), -1, jnp.int32)
