@@ -276,6 +276,30 @@ def test_l2_linked_equals_buffer_stack_kitti(kitti_frame):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.parametrize("metric", METRICS)
+def test_kitti_tie_rule_sampled_brute_force(metric, kitti_frame):
+    """Real KITTI mask: du, dv equal an exhaustive search (raster-order tie rule) on sampled pixels.
+
+    The samples cover the seedless top rows, the borders and random pixels.
+    """
+    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
+    mask = png[-352:, 13:1229] > 0
+    res = nearest_seed(jnp.asarray(mask), metric=metric)
+    h, w = mask.shape
+    rng = np.random.default_rng(5)
+    pv = np.concatenate([rng.integers(0, h, 1500), np.zeros(200, int), np.full(200, h - 1), rng.integers(0, 100, 300)])
+    pu = np.concatenate([rng.integers(0, w, 1500), rng.integers(0, w, 400), rng.integers(0, w, 300)])
+    pv = np.concatenate([pv, rng.integers(0, h, 100), rng.integers(0, h, 100)])
+    pu = np.concatenate([pu, np.zeros(100, int), np.full(100, w - 1)])
+    sv, su = np.nonzero(mask)  # raster order
+    dv = sv[None, :] - pv[:, None]
+    du = su[None, :] - pu[:, None]
+    d = np.abs(dv) + np.abs(du) if metric == "l1" else dv * dv + du * du
+    best = np.argmin(d, axis=1)  # first minimum = smallest seed row, then column
+    np.testing.assert_array_equal(np.asarray(res.dv)[pv, pu], dv[np.arange(len(pv)), best])
+    np.testing.assert_array_equal(np.asarray(res.du)[pv, pu], du[np.arange(len(pv)), best])
+
+
 def test_l2_single_seed_anywhere():
     """One seed: every pixel points at it (first/last row and column, interior)."""
     h, w = 9, 11
