@@ -44,7 +44,13 @@ candidates it leaves.
 Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
 time; the horizontal prefilter pass is compiled for each small ``k`` and chosen
 by ``lax.switch`` (under ``vmap``, the batch's largest ``k``: a wider window
-only adds candidates), and the exact test loops over column groups up to ``k``.
+only adds candidates), and the exact test loops over column blocks up to ``k``.
+
+Why it is fast on XLA:CPU: every dense pass is one vectorised fusion, fenced
+(``staging.stage``) so that shifted reads hit buffers instead of re-running the
+producer: pad the depth, int16 keys (the only divisions), vertical extrema,
+horizontal extrema + candidate words. The float work per (point, offset) now
+runs only at ~2 % of the points, from (11 x 9)-window slice gathers.
 """
 
 from __future__ import annotations
@@ -376,9 +382,13 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
     Condition 2 always uses ``sparse_depth`` as z, also when ``points_cam`` is
     given.
 
-    Under ``vmap`` the skips become selects: every row band is computed, and
-    the |du| loop runs to the largest bound in the batch (same result, more
-    work).
+    Under ``vmap`` the prefilter uses the widest window of the batch (a wider
+    window only adds candidates) and the candidate loops run to the largest
+    count and bound in the batch: same result per member, a little more work.
+
+    Speed (KITTI frame, 352 x 1216, ~18.9k points, 2-core CPU): ~1.2 ms (quiet)
+    to ~2.5 ms (shared machine), against ~5-8 ms for the dense sweep it replaced
+    (benchmarks/bench_outliers.py times both in one process).
     """
     sparse_depth = jnp.asarray(sparse_depth)
     if sparse_depth.ndim != 2:
