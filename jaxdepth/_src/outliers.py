@@ -86,7 +86,8 @@ def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: j
 
     ``depth`` (metres, 0 where empty) at pixel rows ``v`` and columns ``u``
     (float32, broadcastable to ``depth``); ``points_cam`` None (back-project
-    the pixel) or a (3, ...) array of camera-frame points of the same shape.
+    the pixel) or camera-frame points: a (3, ...) array or three arrays, each of
+    the shape of ``depth``.
     """
     if points_cam is None:
         y_n = (v - K[1, 2]) / K[1, 1]
@@ -181,12 +182,13 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     def pad_depth(depth, *pts):
         pad = ((hh, hh), (hw, hw))
         ok = (depth > 0) & jnp.isfinite(depth)
-        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p, ((0, 0), *pad)) for p in pts)
+        # One pad per point channel: a pad of the (3, H, W) stack runs ~2x slower.
+        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p[i], pad) for p in pts for i in range(3))
 
     def keys(depth_c, K, t, *points_c):   # (K, t are operands: a closure may not be batched)
         v = jnp.arange(-hh, height + hh, dtype=jnp.float32)[:, None]
         u = jnp.arange(-hw, width + hw, dtype=jnp.float32)[None, :]
-        h, g = _lidar_angles(depth_c, K, t, points_c[0] if points_c else None, v, u)
+        h, g = _lidar_angles(depth_c, K, t, points_c if points_c else None, v, u)
 
         def key(a):
             q = jnp.clip(jnp.floor(a * jnp.float32(_QSCALE)), -32767.0, 32766.0).astype(jnp.int16)
@@ -195,7 +197,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
     canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
     key_h, key_g = stage(keys, (canvas[0], K, t) + canvas[1:], n_points)
-    depth_c, points_c = canvas[0], (canvas[1] if len(canvas) > 1 else None)
+    depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
 
     def vertical(key_h, key_g):
         """Column extrema: theta over all 2 hh + 1 rows; phi over the hh rows below / above.
