@@ -300,6 +300,28 @@ def test_kitti_tie_rule_sampled_brute_force(metric, kitti_frame):
     np.testing.assert_array_equal(np.asarray(res.du)[pv, pu], du[np.arange(len(pv)), best])
 
 
+def test_l2_vmap_keeps_row_loops_unbatched():
+    """Under vmap the l2 build loop shares its bounds across the batch (a batched loop
+    counter would turn every row read and write into gathers and scatters, ~5x slower),
+    and nested vmap == loop."""
+    from jaxdepth._src.distance import _batch_bounds
+
+    first, stop = jax.vmap(_batch_bounds)(jnp.array([3, 1, 5]), jnp.array([7, 9, 2]))
+    np.testing.assert_array_equal(np.asarray(first), [1, 1, 1])
+    np.testing.assert_array_equal(np.asarray(stop), [9, 9, 9])
+    assert _batch_bounds(jnp.int32(3), jnp.int32(7)) == (3, 7)
+    masks = np.stack([_random_mask((40, 33), d, seed=20 + i) for i, d in enumerate([0.0, 0.02, 0.1, 0.3])])
+    masks[1, :10] = False  # different first seeded rows per member
+    masks[2, 30:] = False
+    fn = jax.vmap(lambda m: nearest_seed(m, metric="l2"))
+    nested = jax.vmap(fn)(jnp.asarray(masks.reshape(2, 2, 40, 33)))
+    for i, mask in enumerate(masks):
+        single = nearest_seed(jnp.asarray(mask), metric="l2")
+        for name, a, b in zip(NearestSeed._fields, nested, single):
+            np.testing.assert_array_equal(np.asarray(a).reshape((4,) + a.shape[2:])[i], np.asarray(b),
+                                          err_msg=name)
+
+
 def test_l2_single_seed_anywhere():
     """One seed: every pixel points at it (first/last row and column, interior)."""
     h, w = 9, 11
