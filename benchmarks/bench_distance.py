@@ -14,8 +14,8 @@ Compared (all return distances and the nearest seed):
   must be bit-identical to the current ones (checked before timing);
 - cv2.distanceTransformWithLabels(~mask, cv2.DIST_L1, 3, labelType=cv2.DIST_LABEL_PIXEL);
 - scipy.ndimage.distance_transform_edt(~mask, return_indices=True).
-All methods run interleaved (one call of each per round, many rounds) so that
-load changes on a shared machine hit every method alike; medians and minima
+All methods run interleaved (one call of each per round in a shuffled order,
+many rounds) so that load changes on a shared machine hit every method alike; medians and minima
 after a warm-up call, compile time (lower + compile) separately.
 """
 
@@ -108,8 +108,12 @@ def main() -> None:
             assert identical[metric], f"{metric}: outputs differ from the reference version"
 
     times = {name: [] for name in methods}
+    order = list(methods)
+    rng = np.random.default_rng(0)
     for _ in range(args.runs):
-        for name, fn in methods.items():
+        rng.shuffle(order)  # no method always runs right after SciPy's cache-thrashing call
+        for name in order:
+            fn = methods[name]
             t0 = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)
