@@ -9,8 +9,10 @@ to the LiDAR frame (~430k points padded to 524288). Then ``pixel_normals`` on
 the KITTI benchmark frame (``bench_end_to_end.load_frame()``, ~18.9k LiDAR
 pixels of 352x1216, SGMConfig defaults smoothing=1, fill_max_gap=2) against the
 frozen pre-speed-up version (``normals.py`` at commit ``REFERENCE_COMMIT``,
-loaded with ``git show``), timed interleaved in the same process, with the
-largest output difference. Prints a table and writes benchmarks/results/normals.json.
+loaded with ``git show``) and the listed-pixels version (``LISTED_COMMIT``),
+timed interleaved in the same process, with the largest output differences.
+``point_normals`` on the sweep cases is timed interleaved against
+``LISTED_COMMIT`` too. Prints a table and writes benchmarks/results/normals.json.
 
 Usage: python benchmarks/bench_normals.py [--repeats 50]
 """
@@ -41,18 +43,20 @@ DATA = pathlib.Path(os.environ.get("JAXDEPTH_SHARED_DATA", ROOT.parent / "shared
 FRAME = DATA / "kitti" / "drive_0001_frame05"
 #: The last commit before pixel_normals listed the pixels with depth (its normals.py is the reference).
 REFERENCE_COMMIT = "070cbc9"
+#: pixel_normals lists the pixels with depth; before the fit / smoothing fusions were merged.
+LISTED_COMMIT = "58cfbac"
 
 
-def _reference_module():
-    """normals.py at REFERENCE_COMMIT as a module, or None when git or the commit is unavailable."""
+def _reference_module(commit: str = REFERENCE_COMMIT):
+    """normals.py at ``commit`` as a module, or None when git or the commit is unavailable."""
     try:
-        src = subprocess.run(["git", "show", f"{REFERENCE_COMMIT}:jaxdepth/_src/normals.py"], cwd=ROOT,
+        src = subprocess.run(["git", "show", f"{commit}:jaxdepth/_src/normals.py"], cwd=ROOT,
                              check=True, capture_output=True, text=True).stdout
     except (OSError, subprocess.CalledProcessError):
         return None
-    path = pathlib.Path(tempfile.mkdtemp()) / "normals_reference.py"
+    path = pathlib.Path(tempfile.mkdtemp()) / f"normals_{commit}.py"
     path.write_text(src)
-    spec = importlib.util.spec_from_file_location("normals_reference", path)
+    spec = importlib.util.spec_from_file_location(f"normals_{commit}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -88,21 +92,24 @@ def pixel_case(repeats: int):
     d, K, T = (jnp.asarray(a, jnp.float32) for a in (sparse, K, T))
     lidar = KITTI_HDL64
     fns = {"pixel_normals": jax.jit(lambda d, K, T: pixel_normals(d, K, T, lidar=lidar))}
-    ref = _reference_module()
-    if ref is not None:
-        fns["pixel_normals_reference"] = jax.jit(lambda d, K, T: ref.pixel_normals(d, K, T, lidar=lidar))
+    refs = {"reference": (REFERENCE_COMMIT, _reference_module(REFERENCE_COMMIT)),
+            "listed": (LISTED_COMMIT, _reference_module(LISTED_COMMIT))}
+    for tag, (_, ref) in refs.items():
+        if ref is not None:
+            fns[f"pixel_normals_{tag}"] = jax.jit(lambda d, K, T, ref=ref: ref.pixel_normals(d, K, T, lidar=lidar))
     timed = _interleaved({k: (lambda f=f: f(d, K, T)) for k, f in fns.items()}, repeats)
     row = {"frame": name, "lidar_pixels": int(np.sum(np.asarray(sparse) > 0))}
     for fname, (first, med, best) in timed.items():
         row[fname] = {"compile_plus_first_s": round(first, 4), "median_ms": round(med, 3), "min_ms": round(best, 3)}
-        print(f"{'kitti_frame_352x1216':22s} {fname:24s} median={med:8.3f} ms  min={best:8.3f} ms  "
+        print(f"{'kitti_frame_352x1216':22s} {fname:28s} median={med:8.3f} ms  min={best:8.3f} ms  "
               f"compile+first={first:6.2f} s")
-    if ref is not None:
-        diff = float(np.max(np.abs(np.asarray(fns["pixel_normals"](d, K, T))
-                                   - np.asarray(fns["pixel_normals_reference"](d, K, T)))))
-        row["max_abs_diff_vs_reference"] = diff
-        row["reference_commit"] = REFERENCE_COMMIT
-        print(f"max |new - reference| = {diff:.3g}")
+    new = np.asarray(fns["pixel_normals"](d, K, T))
+    for tag, (commit, ref) in refs.items():
+        if ref is not None:
+            diff = float(np.max(np.abs(new - np.asarray(fns[f"pixel_normals_{tag}"](d, K, T)))))
+            row[f"max_abs_diff_vs_{tag}"] = diff
+            row[f"{tag}_commit"] = commit
+            print(f"max |new - {tag} ({commit})| = {diff:.3g}")
     return row
 
 
@@ -135,18 +142,6 @@ def _dense_points() -> np.ndarray:
     return (cam @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
 
 
-def _time(fn, *args, repeats: int):
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    for _ in range(3):
-        jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return first, statistics.median(times), min(times)
 
 
 def main():
@@ -155,6 +150,7 @@ def main():
     args = parser.parse_args()
 
     raw = np.fromfile(FRAME / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    listed = _reference_module(LISTED_COMMIT)
     cases = {"kitti_sweep": (raw, 131072), "kitti_dense_352x1216": (_dense_points(), 524288)}
     lidar = KITTI_HDL64
     results = {"device": str(jax.devices()[0]), "jax": jax.__version__, "platform": platform.platform(),
@@ -165,13 +161,20 @@ def main():
             "range_image": jax.jit(lambda p, m: range_image(p, m, lidar=lidar)),
             "point_normals": jax.jit(lambda p, m: point_normals(p, m, lidar=lidar)),
         }
+        if listed is not None:
+            fns["point_normals_listed"] = jax.jit(lambda p, m: listed.point_normals(p, m, lidar=lidar))
         row = {"points": int(len(pts)), "padded": size}
-        for fname, fn in fns.items():
-            first, med, best = _time(fn, points, valid, repeats=args.repeats)
-            row[fname] = {"compile_plus_first_s": round(first, 4), "median_ms": round(med * 1e3, 3),
-                          "min_ms": round(best * 1e3, 3)}
-            print(f"{name:22s} {fname:14s} points={len(pts):7d} pad={size:7d} "
-                  f"median={med * 1e3:8.3f} ms  min={best * 1e3:8.3f} ms  compile+first={first:6.2f} s")
+        timed = _interleaved({k: (lambda f=f: f(points, valid)) for k, f in fns.items()}, args.repeats)
+        for fname, (first, med, best) in timed.items():
+            row[fname] = {"compile_plus_first_s": round(first, 4), "median_ms": round(med, 3), "min_ms": round(best, 3)}
+            print(f"{name:22s} {fname:20s} points={len(pts):7d} pad={size:7d} "
+                  f"median={med:8.3f} ms  min={best:8.3f} ms  compile+first={first:6.2f} s")
+        if listed is not None:
+            diff = float(np.max(np.abs(np.asarray(fns["point_normals"](points, valid))
+                                       - np.asarray(fns["point_normals_listed"](points, valid)))))
+            row["point_normals_max_abs_diff_vs_listed"] = diff
+            row["listed_commit"] = LISTED_COMMIT
+            print(f"max |point_normals - listed ({LISTED_COMMIT})| = {diff:.3g}")
         results["cases"][name] = row
     results["cases"]["kitti_frame_pixel_normals"] = pixel_case(args.repeats)
     out = ROOT / "benchmarks" / "results" / "normals.json"
