@@ -287,13 +287,13 @@ def test_kitti_tie_rule_sampled_brute_force(metric, kitti_frame):
     res = nearest_seed(jnp.asarray(mask), metric=metric)
     h, w = mask.shape
     rng = np.random.default_rng(5)
-    pv = np.concatenate([rng.integers(0, h, 1500), np.zeros(200, int), np.full(200, h - 1), rng.integers(0, 100, 300)])
-    pu = np.concatenate([rng.integers(0, w, 1500), rng.integers(0, w, 400), rng.integers(0, w, 300)])
-    pv = np.concatenate([pv, rng.integers(0, h, 100), rng.integers(0, h, 100)])
-    pu = np.concatenate([pu, np.zeros(100, int), np.full(100, w - 1)])
-    sv, su = np.nonzero(mask)  # raster order
-    dv = sv[None, :] - pv[:, None]
-    du = su[None, :] - pu[:, None]
+    pv = np.concatenate([rng.integers(0, h, 600), np.zeros(100, int), np.full(100, h - 1), rng.integers(0, 100, 200)])
+    pu = np.concatenate([rng.integers(0, w, 600), rng.integers(0, w, 200), rng.integers(0, w, 200)])
+    pv = np.concatenate([pv, rng.integers(0, h, 50), rng.integers(0, h, 50)])
+    pu = np.concatenate([pu, np.zeros(50, int), np.full(50, w - 1)])
+    sv, su = (a.astype(np.int32) for a in np.nonzero(mask))  # raster order
+    dv = sv[None, :] - pv[:, None].astype(np.int32)  # (1100, ~19k) int32: ~80 MB per array
+    du = su[None, :] - pu[:, None].astype(np.int32)
     d = np.abs(dv) + np.abs(du) if metric == "l1" else dv * dv + du * du
     best = np.argmin(d, axis=1)  # first minimum = smallest seed row, then column
     np.testing.assert_array_equal(np.asarray(res.dv)[pv, pu], dv[np.arange(len(pv)), best])
