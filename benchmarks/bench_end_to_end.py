@@ -7,6 +7,7 @@ the same run, per-stage times (each stage jitted on its own), batched
 throughput for lax.map and vmap batching, and peak resident memory.
 
     python benchmarks/bench_end_to_end.py [--repeats 50] [--json benchmarks/results/end_to_end.json]
+        [--profile DIR]   # also write a jax.profiler trace of 10 frames (TensorBoard / Perfetto)
 """
 
 from __future__ import annotations
@@ -69,6 +70,25 @@ def compile_seconds(fn):
     return time.perf_counter() - start
 
 
+def profile_frames(fn, directory: str, frames: int = 10, top: int = 15):
+    """Writes a ``jax.profiler`` trace of ``frames`` calls and returns the XLA ops with the
+    largest total time per frame (a loop's time includes the ops inside it)."""
+    import collections
+    import glob
+    import gzip
+    with jax.profiler.trace(directory):
+        for _ in range(frames):
+            fn()
+    traces = sorted(glob.glob(os.path.join(directory, "**", "*.trace.json.gz"), recursive=True))
+    events = json.load(gzip.open(traces[-1]))["traceEvents"]
+    totals = collections.Counter()
+    for event in events:
+        name = event.get("name", "")
+        if event.get("ph") == "X" and not name.startswith(("$", "Thunk", "Pjit", "Common", "PjRt")):
+            totals[name] += event.get("dur", 0.0)
+    return [(name, dur / frames / 1e3) for name, dur in totals.most_common(top)]
+
+
 def stage_functions(config: SGMConfig, lidar):
     """Each paper step jitted on its own (so the per-stage times add up to a separated pipeline)."""
     from jaxdepth._src.distance import nearest_seed
@@ -122,6 +142,7 @@ def main(argv=None):
                         help="nearest-seed metric (default: the SGMConfig default)")
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "end_to_end.json"))
     parser.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 2, 4, 8])
+    parser.add_argument("--profile", metavar="DIR", help="write a jax.profiler trace of 10 frames to DIR")
     args = parser.parse_args(argv)
     config = SGMConfig(distance_metric=args.distance)
     lidar = presets.KITTI_HDL64
@@ -209,6 +230,11 @@ def main(argv=None):
     for key, row in batch.items():
         print(f"  batch {key:10s} {row['frames_per_s']:7.1f} frames/s  (compile {row['compile_s']:.1f} s)")
     print(f"peak RSS {results['peak_rss_mb']:.0f} MB")
+    if args.profile:
+        results["profile_top_ops_ms"] = profile_frames(sgm, args.profile)
+        print(f"profile (trace in {args.profile}; ms per frame, profiler overhead included):")
+        for name, ms in results["profile_top_ops_ms"]:
+            print(f"  {ms:8.2f}  {name}")
     out = pathlib.Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2, sort_keys=True))

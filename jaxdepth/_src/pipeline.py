@@ -143,7 +143,14 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
     ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
     exactly what a Python loop gives.
     """
-    return complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
+    return _complete_depth(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def _complete_depth(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
+    # Its own jit: only the depth leaves the computation, so XLA drops or fuses
+    # away the intermediate stages instead of writing each of them out.
+    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
 
 
 def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
@@ -198,4 +205,9 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
 def complete_points(points: jax.Array, valid: jax.Array, camera: Camera, *,
                     config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
     """Dense (H, W) float32 depth for ``camera`` from a raw sweep; see :func:`complete_points_stages`."""
-    return complete_points_stages(points, valid, camera, config=config, lidar=lidar).depth
+    return _complete_points_depth(points, valid, camera, config=config, lidar=lidar)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def _complete_points_depth(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
+    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar).depth
