@@ -97,13 +97,16 @@ def test_vmap_equals_loop_and_jit_does_not_retrace():
     vmapped = np.asarray(jax.vmap(f)(depths, Ks))
     np.testing.assert_allclose(vmapped, loop, rtol=1e-5, atol=1e-4)
     # a new frame and a new K of the same shape reuse the compiled function
-    from jaxdepth._src.pipeline import _complete_stages
-    before = _complete_stages._cache_size()
+    from jaxdepth._src.pipeline import _complete_depth, _complete_stages
+    before = _complete_depth._cache_size()
     f(depths[1] * np.float32(1.01), Ks[1] * np.float32(1.01)).block_until_ready()
-    assert _complete_stages._cache_size() == before
-    # the public function and the wrapper share one compiled function, whichever keywords are passed
+    assert _complete_depth._cache_size() == before
+    # the public stage function compiles once, whichever keywords are passed
     complete_stages(depths[1], Ks[1], T, lidar=SMALL_LIDAR).depth.block_until_ready()
-    assert _complete_stages._cache_size() == before
+    stages_before = _complete_stages._cache_size()
+    complete_stages(depths[2], Ks[2], T, config=SGMConfig(), lidar=SMALL_LIDAR).depth.block_until_ready()
+    assert _complete_stages._cache_size() == stages_before
+    np.testing.assert_array_equal(np.asarray(complete_stages(depths[0], Ks[0], T, lidar=SMALL_LIDAR).depth), loop[0])
 
 
 def test_same_input_same_bytes():
