@@ -91,14 +91,26 @@ their own ray, so every valid point has a unit normal.
 
 Performance notes: XLA:CPU fuses a producer into every consumer, so shifted
 slices and per-point gathers would re-run upstream work; heavy intermediates
-are computed inside ``_stage`` conditionals (real buffers), and pairs of
-float32 channels travel as one complex64 array so one fusion computes both.
+are computed inside ``_stage`` conditionals (real buffers). Inside a stage XLA
+gives every output its own fusion (which redoes all the cheap work it needs)
+and materialises any division or square root that several outputs share, so
+stages are cut to have few outputs: pairs of float32 channels travel as one
+complex64 array, the two horizontal and the two vertical neighbour searches
+each form one stage with three complex outputs, the robust fit runs in three
+stages (pass 1 -> complex(a, b); pass-2 weights -> two complex pairs; final
+solve -> complex(a, b) and the weight; five fusions instead of ~16 that each
+re-read the rows), and the normal, its smoothing weight and the zero/wrap
+padding for the box sums form one stage, the box's row sums a second and its
+column sums with the renormalisation a third. Per point, the normal is read
+with two gathers (complex (x, y) and z).
 Gathers and scatters cost ~2-5 ns per element on XLA:CPU, elementwise work far
 less, so on image input (:func:`pixel_normals`) the few % of pixels with depth
 are listed first with elementwise passes, small triangular matrix products
 (prefix sums) and a scatter over the 32-pixel words of the mask only
 (:func:`_compact_pixels`); back-projection, ``atan2`` binning, the
-scatter-mins and the gathers then run on those points only.
+scatter-mins and the gathers then run on those points only (the
+back-projection and both ``atan2`` in one stage with three complex outputs,
+the binning in a second).
 
 Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
 are ~30x slower than a fused polynomial); ``atan2`` uses an octant reduction
@@ -1118,12 +1130,6 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
       max_points: static capacity of the listed path (default ``ceil(H W / 16)``,
         6.25 % of the pixels); frames with more pixels with depth take the
         dense path. Only speed depends on it.
-
-    Args:
-      sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
-        is not a finite positive number) marks an empty pixel.
-      K: (3, 3) float32 intrinsics of that image.
-      T_cam_lidar: (4, 4) float32 LiDAR -> camera transform.
 
     Returns:
       (3, H, W) float32 camera-frame normals (x, y, z): unit length and facing
