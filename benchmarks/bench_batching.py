@@ -1,6 +1,6 @@
 """Throughput of batched offline processing and of multi-camera rigs.
 
-* frames/s against batch size for 352x1216 KITTI-size frames, lax.map and vmap batching;
+* frames/s against batch size for 352x1216 KITTI-size frames: a loop of single-frame calls, lax.map and vmap;
 * frames/s of rig completion (one sweep, C cameras vmapped) for 1, 2 and 6 cameras;
 * one device against two simulated host devices (XLA_FLAGS=--xla_force_host_platform_device_count=2,
   run in a subprocess), batch sharded with shard_map;
@@ -57,7 +57,7 @@ def frames_section(batch_sizes, strategies, devices, repeats):
             depths = np.repeat(sparse[None], b, axis=0)
             Ks = np.repeat(np.asarray(K, np.float32)[None], b, axis=0)
             Tf = np.asarray(T, np.float32)
-            compile_s, med = timed(lambda: fn(depths, Ks, Tf).block_until_ready(), repeats)
+            compile_s, med = timed(lambda: jax.block_until_ready(fn(depths, Ks, Tf)), repeats)
             out[f"{strategy}_b{b}_d{devices}"] = {"compile_s": compile_s, "median_s": med, "frames_per_s": b / med}
     return out
 
@@ -85,10 +85,10 @@ def main(argv=None):
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:  # two simulated devices
-        print(json.dumps(frames_section([2, 4, 8], ["map", "vmap"], len(jax.local_devices()), args.repeats)))
+        print(json.dumps(frames_section([2, 4, 8], ["loop", "map", "vmap"], len(jax.local_devices()), args.repeats)))
         return 0
     results = {"backend": jax.default_backend(), "load_average": os.getloadavg(), "jax": jax.__version__}
-    results["frames_one_device"] = frames_section(args.batch_sizes, ["map", "vmap"], 1, args.repeats)
+    results["frames_one_device"] = frames_section(args.batch_sizes, ["loop", "map", "vmap"], 1, args.repeats)
     results["rig"] = rig_section(args.repeats)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     child = subprocess.run([sys.executable, __file__, "--child", "--repeats", str(args.repeats)], env=env,

@@ -199,13 +199,13 @@ def main(argv=None):
     results["ratio_distance_over_opencv_l1"] = stages["distance_transform"] / cv_med
 
     batch = {}
-    for strategy in ("map", "vmap"):
+    for strategy in runner.STRATEGIES:
         for b in args.batch_sizes:
             depths = np.repeat(sparse[None], b, axis=0)
             Ks = np.repeat(np.asarray(K, np.float32)[None], b, axis=0)
             fn = runner.batched_completion(b, sparse.shape[0], sparse.shape[1], method="sgm", config=config,
                                            lidar=lidar, strategy=strategy, devices=1)
-            call = lambda: fn(depths, Ks, np.asarray(T, np.float32)).block_until_ready()
+            call = lambda: jax.block_until_ready(fn(depths, Ks, np.asarray(T, np.float32)))
             compile_s = compile_seconds(call)
             med, _ = timeit(call, max(3, args.repeats // (2 * b)))
             batch[f"{strategy}_b{b}"] = {"compile_s": compile_s, "median_ms": med, "frames_per_s": 1e3 * b / med}
