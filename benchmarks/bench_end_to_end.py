@@ -172,6 +172,15 @@ def main(argv=None):
                                 "ip_basic_opencv_bilateral_median": ipb_bilateral_med,
                                 "ip_basic_jax_median": jip_med}
     results["ratio_sgm_over_ip_basic_opencv"] = min(sgm_med, sgm_med2) / min(ipb_med, ipb_med2)
+    # Alternating calls see the same machine state (this VM's speed drifts by
+    # tens of percent over seconds): the median of the per-pair ratios.
+    pairs = []
+    for _ in range(2 * args.repeats):
+        pairs.append((timeit(sgm, 1)[0], timeit(ipb, 1)[0]))
+    results["alternating"] = {
+        "sgm_median_ms": statistics.median(p[0] for p in pairs),
+        "ip_basic_opencv_median_ms": statistics.median(p[1] for p in pairs),
+        "median_ratio": statistics.median(p[0] / p[1] for p in pairs)}
 
     normals, outliers, distance, finish, normals_old = stage_functions(config, lidar)
     n = normals(d, k, t).block_until_ready()
@@ -222,6 +231,9 @@ def main(argv=None):
     print(f"{'IP_Basic fast, OpenCV (bilateral)':36s}{ipb_bilateral_med:10.2f}")
     print(f"{'IP_Basic fast, jaxdepth (gaussian)':36s}{jip_med:10.2f}")
     print(f"ratio SGM / IP_Basic OpenCV: {results['ratio_sgm_over_ip_basic_opencv']:.2f}x")
+    alt = results["alternating"]
+    print(f"alternating calls: SGM {alt['sgm_median_ms']:.2f} ms, IP_Basic OpenCV {alt['ip_basic_opencv_median_ms']:.2f} ms,"
+          f" median ratio {alt['median_ratio']:.2f}x")
     for name, ms in stages.items():
         print(f"  stage {name:32s}{ms:8.2f} ms  ({100 * ms / results['stages_sum_ms']:.0f} %)")
     print(f"  (normals the former way, every pixel as a point: {results['normals_point_composition_ms']:.2f} ms)")

@@ -31,7 +31,7 @@ def test_batched_equals_single_frame_calls(frames, strategy):
     Ks = np.stack([k for _, k in items])
     batched = runner.complete_batch(depths, Ks, T, batch_size=2, strategy=strategy)
     single = np.stack([np.asarray(complete_with(d, k, T)) for d, k in items])
-    if strategy == "loop":  # the CPU default: single-frame calls, the same bytes
+    if strategy == "loop":  # single-frame calls: the same bytes
         assert batched.tobytes() == single.tobytes()
     # XLA may fuse the per-frame body differently inside a compiled batch: float32 rounding only
     np.testing.assert_allclose(batched, single, rtol=1e-6, atol=1e-5)
