@@ -305,17 +305,23 @@ def _box_sums(arrays, half: int, token):
     if half == 0:
         return tuple(arrays)
     padded = _pad(arrays, half, [0.0] * len(arrays), token)
+    horiz = _stage(lambda *p: _row_box_sums(p, half), padded, token)
+    return _column_box_sums(horiz, half)
 
-    def horizontal(*padded):
-        out = []
-        for p in padded:
-            h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
-            for dj in range(1, 2 * half + 1):
-                h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
-            out.append(h)
-        return tuple(out)
 
-    horiz = _stage(horizontal, padded, token)
+def _row_box_sums(padded, half: int):
+    """Sums of 2 half + 1 neighbouring columns of each (R, C + 2 half) array -> (R, C)."""
+    out = []
+    for p in padded:
+        h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
+        for dj in range(1, 2 * half + 1):
+            h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
+        out.append(h)
+    return tuple(out)
+
+
+def _column_box_sums(horiz, half: int):
+    """Sums of 2 half + 1 neighbouring rows of each (R + 2 half, C) array -> (R, C)."""
     out = []
     for h in horiz:
         rows = h.shape[0] - 2 * half
@@ -730,29 +736,13 @@ def _cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None
             out.append(jnp.concatenate([rows, a, rows], axis=0))
         return tuple(out)
 
-    def horizontal(*padded):
-        out = []
-        for p in padded:
-            h = jax.lax.slice(p, (0, 0), (p.shape[0], p.shape[1] - 2 * half))
-            for dj in range(1, 2 * half + 1):
-                h = h + jax.lax.slice(p, (0, dj), (p.shape[0], p.shape[1] - 2 * half + dj))
-            out.append(h)
-        return tuple(out)
-
     def vertical(*horiz):
-        out = []
-        for h in horiz:
-            rows = h.shape[0] - 2 * half
-            v = jax.lax.slice(h, (0, 0), (rows, h.shape[1]))
-            for di in range(1, 2 * half + 1):
-                v = v + jax.lax.slice(h, (di, 0), (di + rows, h.shape[1]))
-            out.append(v)
-        sxy, sz = out
+        sxy, sz = _column_box_sums(horiz, half)
         _, nx, ny, nz = _normalise(jnp.real(sxy), jnp.imag(sxy), sz, True)
         return jax.lax.complex(nx, ny), nz
 
     padded = _stage(weighted_padded, slopes, token)
-    horiz = _stage(horizontal, padded, token)
+    horiz = _stage(lambda *p: _row_box_sums(p, half), padded, token)
     return _stage(vertical, horiz, token)
 
 

@@ -62,9 +62,8 @@ import numbers
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import custom_batching
 
-from jaxdepth._src.staging import stage
+from jaxdepth._src.staging import stage, switch_widest
 
 
 def _pseudo_angle(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -127,30 +126,6 @@ _STATIC_K = 8
 _CHUNK = 512
 #: Column offsets per side tested per step of the exact test (|du| in (j G, (j + 1) G]).
 _GROUP = 4
-
-
-def _switch_widest(index, branches, *operands):
-    """``lax.switch(index, branches, *operands)``; under ``vmap`` the batch's largest index.
-
-    Only for branches that are valid for any index at least the true one (here:
-    wider prefilter windows), so that one branch serves the whole batch.
-    """
-
-    @custom_batching.custom_vmap
-    def run(index, operands):
-        return jax.lax.switch(index, branches, *operands)
-
-    @run.def_vmap
-    def run_vmap(axis_size, in_batched, index, operands):
-        index_batched, ops_batched = in_batched
-        if index_batched:
-            index = jnp.max(index)
-        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                         for a, b in zip(operands, ops_batched))
-        out = _switch_widest(index, [jax.vmap(fn) for fn in branches], *operands)
-        return out, True
-
-    return run(index, tuple(operands))
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height"))
@@ -239,7 +214,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
         return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
 
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
-    words = _switch_widest(jnp.minimum(k_max, len(widths) - 1),
+    words = switch_widest(jnp.minimum(k_max, len(widths) - 1),
                            [functools.partial(candidates, k) for k in widths], extrema, key_h, key_g, valid)
 
     # --- 2. compaction ------------------------------------------------------

@@ -112,3 +112,29 @@ def cond_all(pred, true_fn, false_fn, *operands):
         return jax.jvp(lambda ops: jax.lax.cond(pred, true_fn, false_fn, *ops), (operands,), (tangents[1],))
 
     return chosen(jnp.asarray(pred, bool), tuple(operands))
+
+
+def switch_widest(index, branches, *operands):
+    """``lax.switch(index, branches, *operands)`` that stays a switch under ``vmap``.
+
+    A batched ``index`` is reduced with ``max``: the whole batch takes the
+    branch of its largest index. Use it only for branches that are valid for
+    any index at least the true one (e.g. wider windows that give the same
+    result with more work), so the choice never changes the output.
+    """
+
+    @custom_batching.custom_vmap
+    def run(index, operands):
+        return jax.lax.switch(index, branches, *operands)
+
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, index, operands):
+        index_batched, ops_batched = in_batched
+        if index_batched:
+            index = jnp.max(index)
+        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                         for a, b in zip(operands, ops_batched))
+        out = switch_widest(index, [jax.vmap(fn) for fn in branches], *operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return run(index, tuple(operands))

@@ -1,0 +1,46 @@
+"""Stage fences and batch-aware conditionals: identities, and what they do under vmap."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdepth._src.staging import cond_all, fence, stage, switch_widest
+
+
+def test_fence_and_stage_are_identities_under_jit_and_vmap():
+    x = jnp.arange(12.0).reshape(3, 4)
+    f = jax.jit(lambda a: fence(a * 2.0, a + 1.0))
+    np.testing.assert_array_equal(f(x)[0], x * 2.0)
+    np.testing.assert_array_equal(f(x)[1], x + 1.0)
+    g = jax.vmap(lambda a: stage(lambda b: (jnp.sin(b),), (a,), jnp.int32(0))[0])
+    np.testing.assert_array_equal(g(x), jnp.sin(x))
+    grad = jax.grad(lambda a: fence(a * a)[0].sum())(x)
+    np.testing.assert_allclose(grad, 2 * x)
+
+
+def test_switch_widest_is_switch_alone_and_takes_the_largest_index_in_a_batch():
+    branches = [lambda a, i=i: (a + i, jnp.int32(i)) for i in range(3)]
+    x = jnp.ones((4,))
+    for i in range(3):
+        got, which = jax.jit(lambda j, a: switch_widest(j, branches, a))(jnp.int32(i), x)
+        want, want_which = jax.lax.switch(i, branches, x)
+        np.testing.assert_array_equal(got, want)
+        assert int(which) == int(want_which) == i
+    idx = jnp.array([0, 2, 1], jnp.int32)
+    xs = jnp.stack([x, 2 * x, 3 * x])
+    got, which = jax.vmap(lambda i, a: switch_widest(i, branches, a))(idx, xs)
+    np.testing.assert_array_equal(which, [2, 2, 2])
+    np.testing.assert_array_equal(got, xs + 2)
+
+
+def test_cond_all_takes_the_fast_branch_only_when_every_member_may():
+    fast = lambda a: (a * 2.0, jnp.int32(1))
+    slow = lambda a: (a + a, jnp.int32(0))
+    xs = jnp.arange(6.0).reshape(3, 2)
+    out, which = jax.vmap(lambda p, a: cond_all(p, fast, slow, a))(jnp.array([True, True, True]), xs)
+    np.testing.assert_array_equal(which, [1, 1, 1])
+    out, which = jax.vmap(lambda p, a: cond_all(p, fast, slow, a))(jnp.array([True, False, True]), xs)
+    np.testing.assert_array_equal(which, [0, 0, 0])
+    np.testing.assert_array_equal(out, xs * 2.0)
