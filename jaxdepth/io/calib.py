@@ -21,21 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from jaxdepth.io.errors import PathLike, field_error, file_error
+from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 
 #: Tolerance of the rotation checks (KITTI prints 7 significant digits).
 ROTATION_TOL = 1e-3
 
 
 def _read_text(path: pathlib.Path) -> str:
-    if not path.exists():
-        raise file_error(path, "file not found")
-    if path.is_dir():
-        raise file_error(path, "is a folder, expected a text file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    data = read_input_bytes(path, expected="a text file")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -17,7 +17,7 @@ import zlib
 import numpy as np
 
 from jaxdepth.io.atomic import atomic_write_png
-from jaxdepth.io.errors import PathLike, file_error
+from jaxdepth.io.errors import PathLike, file_error, read_input_bytes
 
 _LOG = logging.getLogger("jaxdepth")
 
@@ -28,14 +28,7 @@ _MAX_PIXELS = 1 << 28  # refuse absurd headers before allocating
 
 
 def _read_bytes(path: pathlib.Path) -> bytes:
-    if not path.exists():
-        raise file_error(path, "file not found")
-    if path.is_dir():
-        raise file_error(path, "is a folder, expected a PNG file")
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    return read_input_bytes(path, expected="a PNG file")
 
 
 def _png_header(path: pathlib.Path, data: bytes) -> tuple[int, int, int, int]:

@@ -43,3 +43,23 @@ def field_error(path: PathLike, field: str, expected: str, got: object) -> Input
 def file_error(path: PathLike, message: str) -> InputError:
     """Builds ``InputError("<path>: <message>")``."""
     return InputError(f"{os.fspath(path)}: {message}")
+
+
+def check_input_file(path: PathLike, *, expected: str) -> None:
+    """Raises :class:`InputError` naming ``path`` when it is missing or a folder
+    (``expected`` says what it should be, e.g. "a PNG file")."""
+    if not os.path.exists(path):
+        raise file_error(path, "file not found")
+    if os.path.isdir(path):
+        raise file_error(path, f"is a folder, expected {expected}")
+
+
+def read_input_bytes(path: PathLike, *, expected: str) -> bytes:
+    """The bytes of an input file; :class:`InputError` naming it when it is missing,
+    a folder or unreadable (every reader's common first step)."""
+    check_input_file(path, expected=expected)
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except OSError as exc:
+        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc

@@ -24,7 +24,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from jaxdepth.io.errors import InputError, PathLike, file_error
+from jaxdepth.io.errors import InputError, PathLike, check_input_file, file_error, read_input_bytes
 
 #: Smallest padded size: sweeps are padded to max(MIN_BUCKET, next power of two).
 MIN_BUCKET = 1024
@@ -50,10 +50,7 @@ def _split(path: pathlib.Path, array: np.ndarray, columns: int, what: str) -> tu
 
 def _read_bin(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
     record = 4 * columns
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    raw = read_input_bytes(path, expected="a point file")
     if len(raw) == 0:
         raise file_error(path, f"file is empty, expected float32 records of {columns} values")
     if len(raw) % record:
@@ -151,10 +148,7 @@ def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.nda
     """
     columns = _check_columns(columns)
     path = pathlib.Path(path)
-    if not path.exists():
-        raise file_error(path, "file not found")
-    if path.is_dir():
-        raise file_error(path, "is a folder, expected a point file")
+    check_input_file(path, expected="a point file")
     suffix = path.suffix.lower()
     if suffix == ".bin":
         return _read_bin(path, columns)

@@ -30,7 +30,7 @@ from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import Camera, LidarSpec
 from jaxdepth.io.atomic import atomic_write_bytes
 from jaxdepth.io.calib import read_kitti_raw_calib
-from jaxdepth.io.errors import PathLike, field_error, file_error
+from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 from jaxdepth.io.kitti_layout import BENCHMARK_SIZE, benchmark_crop_offsets
 
 #: Tolerance of the rigid-transform check: |R^T R - I| and |det R - 1|.
@@ -239,14 +239,7 @@ class Rig:
 
 
 def _load_json(path: pathlib.Path) -> Any:
-    if not path.exists():
-        raise file_error(path, "file not found")
-    if path.is_dir():
-        raise file_error(path, "is a folder, expected a JSON file")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise file_error(path, f"cannot read: {exc.strerror or exc}") from exc
+    raw = read_input_bytes(path, expected="a JSON file")
 
     def no_duplicates(pairs):
         keys = [k for k, _ in pairs]
