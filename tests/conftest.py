@@ -12,6 +12,11 @@ import pytest
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 
+# The CLI keeps compiled functions in ~/.cache/jaxdepth/xla; the suite (and the CLI
+# subprocesses it starts) must not write there. test_cli's compile-cache test turns it
+# on for its own subprocesses, with a temporary XDG_CACHE_HOME.
+os.environ["JAXDEPTH_COMPILE_CACHE"] = "0"
+
 
 def _shared_data_dir() -> pathlib.Path:
     env = os.environ.get("JAXDEPTH_SHARED_DATA")

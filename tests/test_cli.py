@@ -135,3 +135,31 @@ def test_demo_writes_outputs_and_scores(tmp_path):
     assert depth.shape == (352, 1216) and np.all(depth > 0)
     for name in ("depth_preview.png", "sparse_preview.png"):
         assert (tmp_path / "demo" / name).stat().st_size > 1000
+
+
+def _cache_files(folder: pathlib.Path) -> dict:
+    return {p.name: p.stat().st_mtime_ns for p in folder.rglob("*-cache")} if folder.exists() else {}
+
+
+def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, frames):
+    items, _ = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    png, K = src / "velodyne_raw" / "frame_000.png", src / "intrinsics" / "frame_000.txt"
+    env = {k: v for k, v in os.environ.items() if k not in ("JAXDEPTH_COMPILE_CACHE", "JAX_COMPILATION_CACHE_DIR")}
+
+    def run(out, cache_home, *options):
+        result = subprocess.run(
+            [sys.executable, "-m", "jaxdepth.cli", *options, "complete", str(png), str(out), "--intrinsics", str(K),
+             "-q"], env=dict(env, XDG_CACHE_HOME=str(cache_home)), capture_output=True, text=True, timeout=900)
+        assert result.returncode == 0, result.stderr[-2000:]
+        return out.read_bytes()
+
+    folder = tmp_path / "cache" / "jaxdepth" / "xla"
+    first = run(tmp_path / "first.png", tmp_path / "cache")
+    stored = _cache_files(folder)
+    assert stored, "the compiled completion was not stored"
+    second = run(tmp_path / "second.png", tmp_path / "cache")
+    assert _cache_files(folder) == stored  # read back, not compiled and written again
+    off = run(tmp_path / "off.png", tmp_path / "cache_off", "--no-compile-cache")
+    assert not (tmp_path / "cache_off").exists()
+    assert first == second == off
