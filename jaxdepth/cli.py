@@ -54,7 +54,7 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
     group.add_argument("--no-outlier-removal", dest="outlier_removal", action="store_false",
                        help="skip outlier removal")
     p.add_argument("--distance", choices=("l1", "l2"), default="l2",
-                   help="nearest-seed metric of the distance transform (default: l2; l1 makes SGM ~1.8x faster)")
+                   help="nearest-seed metric of the distance transform (default: l2; l1 makes SGM 1.5-1.8x faster)")
     p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
 
 

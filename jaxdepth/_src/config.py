@@ -27,8 +27,8 @@ class SGMConfig:
       distance_metric: "l2" (exact Euclidean, the default: the nearest LiDAR pixel
         in the image plane) or "l1" (city block, exact; the paper's Appendix
         measures l1 distances and cites Rosenfeld and Pfaltz's city-block transform;
-        the transform is ~4.5x faster, the whole SGM ~1.8x, about 17 mm RMSE worse
-        on our two KITTI frames).
+        on a KITTI frame the transform is 4-4.5x faster and the whole SGM 1.5-1.8x,
+        about 17 mm RMSE worse on our two KITTI frames).
       normal_smoothing: half width of the box filter that smooths normals on
         the range image (0 disables). The paper fills and smooths normals so
         every point has one.
