@@ -9,6 +9,7 @@ import argparse
 import json
 import logging
 import pathlib
+import stat
 import sys
 import time
 
@@ -106,6 +107,35 @@ def split_cpu_into_devices(count: int | None = None) -> int:
 _COMPILE_CACHE_MAX_BYTES = 1 << 30
 
 
+def _trim_compile_cache(folder: pathlib.Path, max_bytes: int) -> int:
+    """Deletes the files of ``folder`` written longest ago until at most ``max_bytes`` remain.
+
+    JAX's own size cap (``jax_compilation_cache_max_size``) needs the optional
+    ``filelock`` package, which a plain ``pip install jaxdepth`` does not bring,
+    and without it JAX refuses every cache read and write; so the cap is kept
+    here, once per run, by modification time (ties: file name). Files that
+    vanish or cannot be deleted meanwhile are skipped. Returns the bytes left.
+    """
+    entries = []
+    for path in folder.iterdir():
+        try:
+            info = path.stat()
+        except OSError:
+            continue
+        if stat.S_ISREG(info.st_mode):
+            entries.append((info.st_mtime_ns, path.name, info.st_size, path))
+    total = sum(entry[2] for entry in entries)
+    for _, _, size, path in sorted(entries):
+        if total <= max_bytes:
+            break
+        try:
+            path.unlink()
+        except OSError:
+            continue
+        total -= size
+    return total
+
+
 def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     """Keeps compiled XLA executables on disk (JAX's persistent compilation cache), so a
     later run for the same image size, config and JAX version skips compilation
@@ -113,7 +143,8 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     being imports and tracing). Outputs are the same bytes with or without it.
 
     The folder is ``$XDG_CACHE_HOME/jaxdepth/xla`` (default ``~/.cache/jaxdepth/xla``),
-    capped at 1 GiB (JAX evicts the least recently used entries). Left off when
+    capped at 1 GiB (at the start of each run the entries written longest ago are
+    deleted beyond that, see :func:`_trim_compile_cache`). Left off when
     ``enabled`` is False (``--no-compile-cache``), when ``JAXDEPTH_COMPILE_CACHE=0``, when
     JAX already has a cache folder (``JAX_COMPILATION_CACHE_DIR``), or when the folder
     cannot be created or written. Returns the folder in use, or None.
@@ -134,9 +165,8 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     if not os.access(folder, os.W_OK | os.X_OK):
         log.info("compile cache off: %s is not writable", folder)
         return None
+    _trim_compile_cache(folder, _COMPILE_CACHE_MAX_BYTES)
     jax.config.update("jax_compilation_cache_dir", str(folder))
-    if jax.config.jax_compilation_cache_max_size < 0:
-        jax.config.update("jax_compilation_cache_max_size", _COMPILE_CACHE_MAX_BYTES)
     return folder
 
 

@@ -147,11 +147,18 @@ def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, f
     png, K = src / "velodyne_raw" / "frame_000.png", src / "intrinsics" / "frame_000.txt"
     env = {k: v for k, v in os.environ.items() if k not in ("JAXDEPTH_COMPILE_CACHE", "JAX_COMPILATION_CACHE_DIR")}
 
+    # As after a plain `pip install jaxdepth`: without the optional `filelock`
+    # package, which JAX needs for its own size cap.
+    without_filelock = ("import runpy, sys; sys.modules['filelock'] = None; sys.argv[0] = 'jaxdepth'; "
+                        "runpy.run_module('jaxdepth.cli', run_name='__main__')")
+
     def run(out, cache_home, *options):
         result = subprocess.run(
-            [sys.executable, "-m", "jaxdepth.cli", *options, "complete", str(png), str(out), "--intrinsics", str(K),
-             "-q"], env=dict(env, XDG_CACHE_HOME=str(cache_home)), capture_output=True, text=True, timeout=900)
+            [sys.executable, "-c", without_filelock, *options, "complete", str(png), str(out), "--intrinsics",
+             str(K), "-q"], env=dict(env, XDG_CACHE_HOME=str(cache_home)), capture_output=True, text=True,
+            timeout=900)
         assert result.returncode == 0, result.stderr[-2000:]
+        assert "cache" not in result.stderr, result.stderr[-2000:]
         return out.read_bytes()
 
     folder = tmp_path / "cache" / "jaxdepth" / "xla"
@@ -163,3 +170,30 @@ def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, f
     off = run(tmp_path / "off.png", tmp_path / "cache_off", "--no-compile-cache")
     assert not (tmp_path / "cache_off").exists()
     assert first == second == off
+
+
+def test_compile_cache_trim_deletes_the_oldest_files_beyond_the_cap(tmp_path):
+    from jaxdepth.cli import _trim_compile_cache
+
+    sizes = {"a-cache": 300, "b-cache": 200, "c-cache": 400, "d-cache": 100, "e-cache": 250}
+    written = {"a-cache": 5, "b-cache": 1, "c-cache": 3, "d-cache": 3, "e-cache": 9}  # c, d: same time
+    for name, size in sizes.items():
+        path = tmp_path / name
+        path.write_bytes(b"x" * size)
+        os.utime(path, ns=(written[name] * 10**9, written[name] * 10**9))
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "big").write_bytes(b"x" * 5000)  # folders are not entries
+
+    def files():
+        return sorted(p.name for p in tmp_path.iterdir() if p.is_file())
+
+    # Oldest first: b (t=1), then c before d (t=3, by name), then a (t=5), e (t=9).
+    assert _trim_compile_cache(tmp_path, 1250) == 1250
+    assert files() == sorted(sizes)
+    assert _trim_compile_cache(tmp_path, 1000) == 1250 - 200 - 400
+    assert files() == ["a-cache", "d-cache", "e-cache"]
+    assert _trim_compile_cache(tmp_path, 400) == 250
+    assert files() == ["e-cache"]
+    assert (tmp_path / "sub" / "big").exists()
+    assert _trim_compile_cache(tmp_path, 0) == 0
+    assert not any(p.is_file() for p in tmp_path.iterdir())
