@@ -165,7 +165,10 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     if not os.access(folder, os.W_OK | os.X_OK):
         log.info("compile cache off: %s is not writable", folder)
         return None
-    _trim_compile_cache(folder, _COMPILE_CACHE_MAX_BYTES)
+    try:
+        _trim_compile_cache(folder, _COMPILE_CACHE_MAX_BYTES)
+    except OSError as err:  # e.g. a folder that cannot be listed: the cache still works
+        log.info("compile cache not trimmed: %s (%s)", folder, err.strerror or err)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     return folder
 

@@ -197,3 +197,23 @@ def test_compile_cache_trim_deletes_the_oldest_files_beyond_the_cap(tmp_path):
     assert (tmp_path / "sub" / "big").exists()
     assert _trim_compile_cache(tmp_path, 0) == 0
     assert not any(p.is_file() for p in tmp_path.iterdir())
+
+
+def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monkeypatch):
+    import jax
+
+    from jaxdepth import cli
+
+    def refuse(folder, max_bytes):
+        raise PermissionError(13, "Permission denied", str(folder))
+
+    monkeypatch.setattr(cli, "_trim_compile_cache", refuse)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("JAXDEPTH_COMPILE_CACHE", raising=False)
+    before = jax.config.jax_compilation_cache_dir
+    assert before is None  # the suite itself never uses a compile cache
+    try:
+        assert cli.use_compile_cache(True) == tmp_path / "jaxdepth" / "xla"
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jaxdepth" / "xla")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
