@@ -23,11 +23,13 @@
     to 352 x 1216). ``--lidar-beams`` gives the recording sensor's beam count
     (default 64); every entry of ``--beams`` must divide it.
 
-``jaxdepth hidden-eval POINTS RIG.json [--fraction 0.1] [--seed 0] [--scale 1] [--json OUT]``
+``jaxdepth hidden-eval POINTS RIG.json [--fraction 0.2] [--seeds 0 1 2 3 4] [--scale 1] [--json OUT]``
     Hidden-point evaluation of one sweep for every camera of a rig JSON
     (:func:`jaxdepth.hidden_point_scores`): a seeded share of the points is held
-    out, the rest completed, and SGM and the nearest fill are scored where the
-    held-out points project. ``--point-columns`` defaults to 5 for ``*.pcd.bin``
+    out, the rest completed, and the SGM, the SGM without outlier removal, the
+    nearest fill and IP_Basic are scored against the held-out points' own
+    z-buffer (filtered by nothing any method does). Each seed is one draw;
+    the table averages the draws. ``--point-columns`` defaults to 5 for ``*.pcd.bin``
     (nuScenes) and 4 otherwise; ``--scale`` scales every camera's K and image
     size (pixel-centre convention); ``--min-range-m`` (default 1.0) drops
     returns closer to the LiDAR (no-return placeholders, the vehicle itself).
@@ -214,55 +216,80 @@ def scaled_camera(camera, scale: float):
                   height=max(1, round(camera.height * scale)), width=max(1, round(camera.width * scale)))
 
 
-def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.1, seed: int = 0, scale: float = 1.0,
+def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
                 min_range_m: float = 1.0, config=None) -> dict:
     """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
 
+    Every seed draws its own held-out set; per-camera metrics are the mean over
+    the draws, the "mean" row the mean over every camera image of every draw
+    (the devkit's data-set score, :func:`jaxdepth.mean_metrics`).
+
     Returns:
-      {"cameras": {name: {"hidden_pixels", "sgm": {rmse, mae, irmse, imae}, "nearest": {...}}},
-       "mean": {"sgm": {...}, "nearest": {...}}, "points", "hidden_points", "fraction", "seed", "scale"}.
+      {"cameras": {name: {"hidden_pixels", method: {rmse, mae, irmse, imae}, ...}},
+       "mean": {method: {...}}, "methods", "points", "hidden_points", "fraction", "seeds", "scale"},
+      methods as :data:`jaxdepth._src.hidden.METHODS`.
     """
     import jax.numpy as jnp
 
     from jaxdepth._src.config import SGMConfig
-    from jaxdepth._src.hidden import hidden_point_mask, hidden_point_scores
+    from jaxdepth._src.hidden import METHODS, hidden_point_mask, hidden_point_scores
     from jaxdepth._src.metrics import mean_metrics
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io.points import pad_points
 
     config = SGMConfig() if config is None else config
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("hidden_eval: 'seeds' expected at least one seed, got none")
     padded, valid = pad_points(points)
     with np.errstate(invalid="ignore", over="ignore"):
         valid &= np.linalg.norm(padded.astype(np.float64), axis=1) >= min_range_m
-    hidden = hidden_point_mask(valid, fraction=fraction, seed=seed)
     cameras = stack_cameras([scaled_camera(c.as_camera(), scale) for c in rig.cameras])
-    scores = hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
-                                 config=config, lidar=rig.lidar)
     keys = ("rmse", "mae", "irmse", "imae")
+    rows = {cam.name: [] for cam in rig.cameras}
+    hidden_total = 0
+    for seed in seeds:
+        hidden = hidden_point_mask(valid, fraction=fraction, seed=seed)
+        hidden_total += int(hidden.sum())
+        scores = hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
+                                     config=config, lidar=rig.lidar)
+        for i, cam in enumerate(rig.cameras):
+            row = {"hidden_pixels": int(scores["hidden_pixels"][i])}
+            for method in METHODS:
+                row[method] = {k: float(scores[method][k][i]) for k in keys}
+            rows[cam.name].append(row)
     per_camera = {}
-    for i, cam in enumerate(rig.cameras):
-        per_camera[cam.name] = {"hidden_pixels": int(scores["hidden_pixels"][i])}
-        for method in ("sgm", "nearest"):
-            per_camera[cam.name][method] = {k: float(scores[method][k][i]) for k in keys}
+    for name, draws in rows.items():
+        per_camera[name] = {"hidden_pixels": int(round(np.mean([d["hidden_pixels"] for d in draws])))}
+        for method in METHODS:
+            per_camera[name][method] = {k: float(np.mean([d[method][k] for d in draws])) for k in keys}
     mean = {}
-    for method in ("sgm", "nearest"):
-        rows = [dict(per_camera[n][method], count=per_camera[n]["hidden_pixels"]) for n in per_camera]
-        m = mean_metrics(rows)
+    for method in METHODS:
+        m = mean_metrics([dict(d[method], count=d["hidden_pixels"]) for draws in rows.values() for d in draws])
         mean[method] = {k: float(m[k]) for k in keys}
-    return {"cameras": per_camera, "mean": mean, "points": int(valid.sum()), "hidden_points": int(hidden.sum()),
-            "fraction": fraction, "seed": seed, "scale": scale, "min_range_m": min_range_m}
+    return {"cameras": per_camera, "mean": mean, "methods": list(METHODS), "points": int(valid.sum()),
+            "hidden_points": hidden_total // len(seeds), "fraction": fraction, "seeds": seeds, "scale": scale,
+            "min_range_m": min_range_m,
+            "targets": "held-out points' own per-pixel z-buffer, unfiltered"}
+
+
+_SHORT = {"sgm": "SGM", "sgm_no_removal": "SGM-noOR", "nearest": "nearest", "ip_basic": "IP_Basic"}
 
 
 def format_hidden(result: dict) -> list:
-    lines = [f"{'camera':20s}{'hidden px':>10s}{'SGM RMSE':>10s}{'SGM MAE':>9s}{'NN RMSE':>9s}{'NN MAE':>8s}"]
+    methods = result["methods"]
+    head = f"{'camera':16s}{'px':>6s}" + "".join(f"{_SHORT[m] + ' RMSE/MAE':>22s}" for m in methods)
+    lines = [head]
+
+    def cells(row):
+        return "".join(f"{row[m]['rmse']:>13.1f} /{row[m]['mae']:>7.1f}" for m in methods)
+
     for name, row in result["cameras"].items():
-        s, nn = row["sgm"], row["nearest"]
-        lines.append(f"{name[:20]:20s}{row['hidden_pixels']:10d}{s['rmse']:10.1f}{s['mae']:9.1f}"
-                     f"{nn['rmse']:9.1f}{nn['mae']:8.1f}")
-    s, nn = result["mean"]["sgm"], result["mean"]["nearest"]
-    lines.append(f"{'mean':20s}{'':10s}{s['rmse']:10.1f}{s['mae']:9.1f}{nn['rmse']:9.1f}{nn['mae']:8.1f}")
-    lines.append(f"{result['hidden_points']} of {result['points']} points hidden (fraction {result['fraction']}, "
-                 f"seed {result['seed']}); RMSE / MAE in mm at the hidden points; NN = nearest fill")
+        lines.append(f"{name[:16]:16s}{row['hidden_pixels']:6d}" + cells(row))
+    lines.append(f"{'mean':16s}{'':6s}" + cells(result["mean"]))
+    lines.append(f"{result['hidden_points']} of {result['points']} points hidden per draw (fraction "
+                 f"{result['fraction']}, seeds {result['seeds']}); mm at the held-out points' own z-buffer "
+                 f"(unfiltered); SGM-noOR = SGM without outlier removal; nearest and IP_Basic without removal")
     return lines
 
 
@@ -277,7 +304,7 @@ def cmd_hidden_eval(args) -> int:
     path = pathlib.Path(args.points)
     points, _ = read_points(path, columns=_point_columns(path, args.point_columns))
     rig = read_rig_json(args.rig)
-    result = hidden_eval(points, rig, fraction=args.fraction, seed=args.seed, scale=args.scale,
+    result = hidden_eval(points, rig, fraction=args.fraction, seeds=args.seeds, scale=args.scale,
                          min_range_m=args.min_range_m, config=_config(args))
     if result["hidden_points"] == 0:
         raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
@@ -321,8 +348,9 @@ def register(subparsers) -> None:
     p.add_argument("rig", help="rig JSON (see jaxdepth.io.rig)")
     p.add_argument("--point-columns", type=int, default=None,
                    help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
-    p.add_argument("--fraction", type=float, default=0.1, help="share of the points held out (default 0.1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the held-out draw (default 0)")
+    p.add_argument("--fraction", type=float, default=0.2, help="share of the points held out (default 0.2)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
+                   help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")
     p.add_argument("--scale", type=float, default=1.0, help="scale of every camera's image size and K (default 1)")
     p.add_argument("--min-range-m", type=float, default=1.0,
                    help="drop points closer to the LiDAR than this, metres (default 1.0)")

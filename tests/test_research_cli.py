@@ -60,7 +60,8 @@ def test_register_adds_the_subcommands():
     args = parser.parse_args(["sparsity", "s.bin", "calib", "gt.png"])
     assert args.func is research_cli.cmd_sparsity and args.beams == [64, 32, 16] and args.camera == 2
     args = parser.parse_args(["hidden-eval", "p.bin", "rig.json", "--scale", "0.5"])
-    assert args.func is research_cli.cmd_hidden_eval and args.fraction == 0.1 and args.scale == 0.5
+    assert args.func is research_cli.cmd_hidden_eval and args.fraction == 0.2 and args.scale == 0.5
+    assert args.seeds == [0, 1, 2, 3, 4]
     with pytest.raises(SystemExit):
         parser.parse_args(["sparsity", "s.bin", "calib", "gt.png", "--camera", "7"])
 
@@ -200,7 +201,8 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
     rig_path, rig = nuscenes_rig
     sweep = glob.glob(str(nuscenes_sample / "*LIDAR_TOP*.pcd.bin"))[0]
     out_json = tmp_path / "hidden.json"
-    code, out, err = run(capsys, "hidden-eval", sweep, rig_path, "--scale", "0.25", "--json", out_json)
+    code, out, err = run(capsys, "hidden-eval", sweep, rig_path, "--scale", "0.25", "--seeds", "3",
+                         "--json", out_json)
     assert code == 0, err
     doc = json.loads(out_json.read_text())
     names = [c.name for c in rig.cameras]
@@ -209,20 +211,45 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
     points, _ = read_points(sweep, columns=5)
     padded, valid = jaxdepth.io.pad_points(points)
     valid &= np.linalg.norm(padded, axis=1) >= 1.0
-    hidden = jaxdepth.hidden_point_mask(valid, fraction=0.1, seed=0)
+    hidden = jaxdepth.hidden_point_mask(valid, fraction=0.2, seed=3)
     cams = jaxdepth.stack_cameras([research_cli.scaled_camera(c.as_camera(), 0.25) for c in rig.cameras])
     assert (cams.height, cams.width) == (225, 400)
     scores = jaxdepth.hidden_point_scores(padded, valid, hidden, cams, lidar=rig.lidar)
     assert doc["hidden_points"] == int(hidden.sum()) and doc["points"] == int(valid.sum())
     for i, name in enumerate(names):
         assert doc["cameras"][name]["hidden_pixels"] == int(scores["hidden_pixels"][i]) > 0
-        for method in ("sgm", "nearest"):
+        for method in ("sgm", "sgm_no_removal", "nearest", "ip_basic"):
             for key in ("rmse", "mae"):
                 np.testing.assert_allclose(doc["cameras"][name][method][key], float(scores[method][key][i]),
                                            rtol=1e-6)
         line = next(l for l in out.splitlines() if l.startswith(name + " "))
         assert int(line.split()[1]) == doc["cameras"][name]["hidden_pixels"]
+    # The mean row is the mean over camera images (the devkit's data-set score).
     np.testing.assert_allclose(doc["mean"]["sgm"]["rmse"], np.mean(np.asarray(scores["sgm"]["rmse"])), rtol=1e-5)
+    assert doc["targets"].startswith("held-out points' own per-pixel z-buffer")
+
+
+def test_hidden_point_targets_are_the_hidden_z_buffer():
+    """Targets come from the hidden points alone, whatever the SGM removes: a
+    hidden far point that a given near point hides from the camera stays a
+    target, and the SGM's outlier removal cannot drop it."""
+    import jax.numpy as jnp
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]], np.float32)
+    T = np.eye(4, dtype=np.float32)
+    cams = jaxdepth.stack_cameras([jaxdepth.Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T),
+                                                   height=48, width=64)])
+    rng = np.random.default_rng(0)
+    far = np.stack([rng.uniform(-8, 8, 400), rng.uniform(-6, 6, 400), np.full(400, 20.0)], 1)
+    near = np.stack([rng.uniform(-1, 1, 100), rng.uniform(-1, 1, 100), np.full(100, 4.0)], 1)
+    points = np.concatenate([far, near]).astype(np.float32)
+    valid = np.ones(len(points), bool)
+    hidden = np.zeros(len(points), bool)
+    hidden[:40] = True
+    scores = jaxdepth.hidden_point_scores(points, valid, hidden, cams, lidar=jaxdepth.LidarSpec(beams=16))
+    from jaxdepth._src.geometry import project_to_image
+    gt, _ = project_to_image(jnp.asarray(points), jnp.asarray(hidden), jnp.asarray(K), jnp.asarray(T),
+                             height=48, width=64)
+    assert int(scores["hidden_pixels"][0]) == int((np.asarray(gt) > 0).sum()) > 30
 
 
 def test_scaled_camera_keeps_projections_consistent():

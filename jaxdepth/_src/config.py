@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 
 _METRICS = ("l1", "l2")
+_OUTLIER_TESTS = ("footprint", "paper")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -18,6 +19,13 @@ class SGMConfig:
 
     Attributes:
       outlier_removal: run Step 2 (the paper's Algorithm 1).
+      outlier_test: condition 1 of Algorithm 1. "footprint" (default): point i
+        is removed only if, between the LiDAR's view and the camera's, it passes
+        behind a nearer point j through j's own footprint (a W L / N by H / L
+        cell): the paper's order flip measured along the direction of the
+        parallax, for any mounting. "paper": the paper's axis-aligned flips
+        (u order vs azimuth or v order vs elevation) anywhere in S(i), which
+        assume a LiDAR beside the camera.
       epsilon_m: Algorithm 1's depth margin epsilon, metres (paper: 1.0 m).
       outlier_max_half_width_px: static cap on the horizontal half window. The
         paper's bound |du| < W*L/N is computed at run time from the number N of
@@ -50,6 +58,7 @@ class SGMConfig:
     """
 
     outlier_removal: bool = True
+    outlier_test: str = "footprint"
     epsilon_m: float = 1.0
     outlier_max_half_width_px: int = 12
     outlier_max_half_height_px: int = 24
@@ -69,6 +78,9 @@ class SGMConfig:
             raise ValueError(
                 f"SGMConfig: field 'distance_metric' expected one of {_METRICS}, "
                 f"got {self.distance_metric!r}")
+        if self.outlier_test not in _OUTLIER_TESTS:
+            raise ValueError(
+                f"SGMConfig: field 'outlier_test' expected one of {_OUTLIER_TESTS}, got {self.outlier_test!r}")
         if not self.epsilon_m >= 0:
             raise ValueError(f"SGMConfig: field 'epsilon_m' expected >= 0, got {self.epsilon_m!r}")
         if not 0 < self.min_depth_m < self.max_depth_m:

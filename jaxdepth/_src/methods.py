@@ -15,17 +15,13 @@ from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.ip_basic import ip_basic
-from jaxdepth._src.outliers import outlier_keep_mask
+from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.pipeline import DEFAULT_CONFIG, complete_stages
 from jaxdepth._src.types import LidarSpec
 
 
 def _keep_mask(sparse_depth, K, T_cam_lidar, config: SGMConfig, lidar: LidarSpec):
-    if not config.outlier_removal:
-        return sparse_depth > 0
-    return outlier_keep_mask(sparse_depth, K, T_cam_lidar, beams=lidar.beams, epsilon_m=config.epsilon_m,
-                             max_half_width_px=config.outlier_max_half_width_px,
-                             max_half_height_px=config.outlier_max_half_height_px)
+    return keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=lidar.beams, config=config)
 
 
 def _sgm(sparse_depth, K, T_cam_lidar, *, config, lidar):

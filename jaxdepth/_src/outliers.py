@@ -101,6 +101,35 @@ def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: j
     return _pseudo_angle(qx, qz), _pseudo_angle(qy, qz)
 
 
+def _lidar_view(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Where each point is seen from the LiDAR origin and from the camera, pixels.
+
+    ``(a_u, a_v)``: the pixel of a camera with the same orientation and
+    intrinsics placed at the LiDAR origin ``t``; ``(b_u, b_v)``: the point's own
+    camera pixel, exact (sub-pixel) for given ``points_cam``, the pixel centre
+    (u, v) for back-projected pixels. ``ok`` is False where the point is not in
+    front of the LiDAR's virtual camera (q_z <= 1 mm). Arguments as
+    :func:`_lidar_angles`.
+    """
+    if points_cam is None:
+        y_n = (v - K[1, 2]) / K[1, 1]
+        x_n = (u - K[0, 2] - K[0, 1] * y_n) / K[0, 0]
+        px, py, pz = depth * x_n, depth * y_n, depth
+        b_u, b_v = u, v
+    else:
+        px, py, pz = points_cam[0], points_cam[1], points_cam[2]
+        inv_p = 1.0 / jnp.where(pz > 0, pz, 1.0)
+        b_u, b_v = K[0, 0] * px * inv_p + K[0, 1] * py * inv_p + K[0, 2], K[1, 1] * py * inv_p + K[1, 2]
+    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
+    ok = qz > 1e-3
+    inv = 1.0 / jnp.where(ok, qz, 1.0)
+    return K[0, 0] * qx * inv + K[0, 1] * qy * inv + K[0, 2], K[1, 1] * qy * inv + K[1, 2], b_u, b_v, ok
+
+
+#: Condition-1 forms of the exact test (static option ``test``).
+TESTS = ("footprint", "paper")
+
+
 def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px: int,
                       max_half_height_px: int) -> tuple[int, int]:
     """Static (half_width, half_height) of the window visited, pixels.
@@ -114,11 +143,6 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     return max(half_width, 0), max(half_height, 0)
 
 
-#: int16 order key: ``floor(angle * _QSCALE)``; pseudo-angles lie in [-2, 2].
-_QSCALE = 16383.0
-#: Key of an empty pixel (or an angle that is NaN): the minima ignore it, and
-#: ``key + 1`` wraps to int16 min, which the maxima ignore.
-_QNONE = 32767
 #: Widest horizontal half window with its own compiled prefilter pass; wider
 #: run-time windows use the static cap (a superset: more candidates, same mask).
 _STATIC_K = 8
@@ -128,96 +152,47 @@ _CHUNK = 512
 _GROUP = 4
 
 
-@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height"))
-def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height):
-    height, width = sparse_depth.shape
-    hh, hw = half_height, half_width
-    padded_width = width + 2 * hw
-    depth = sparse_depth.astype(jnp.float32)
-    points = None if points_cam is None else points_cam.astype(jnp.float32)
-    K = K.astype(jnp.float32)
-    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
-    eps = jnp.asarray(epsilon_m, jnp.float32)
-    inf = jnp.float32(jnp.inf)
-    none = np.int16(_QNONE)   # NumPy constants: staged functions must not close over tracers
-    one = np.int16(1)
+def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
+    """``out[i] = min(x[i:i + size])`` along ``axis`` (length shrinks by ``size - 1``).
 
-    valid = (depth > 0) & jnp.isfinite(depth)
-    # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
-    n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
-        jnp.sum(valid, dtype=jnp.int32)
-    wl = width * beams
-    # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
-    k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), hw), 0)
+    Doubling: minima over 1, 2, 4, ... elements, then two overlapping runs of
+    the largest power of two cover the window (about log2(size) passes instead
+    of ``size``).
+    """
+    n = x.shape[axis] - size + 1
+    take = lambda a, start, length: jax.lax.slice_in_dim(a, start, start + length, axis=axis)
+    run, width = x, 1
+    while 2 * width <= size:
+        run = jnp.minimum(take(run, 0, run.shape[axis] - width), take(run, width, run.shape[axis] - width))
+        width *= 2
+    return jnp.minimum(take(run, 0, n), take(run, size - width, n))
 
-    # --- 1. prefilter -------------------------------------------------------
-    # Keys on a canvas padded by the window (hh rows, hw columns each side).
-    # The padding is done on the depth alone: a pad fused into the angle maths
-    # compiles to scalar code (~6x slower).
-    def pad_depth(depth, *pts):
-        pad = ((hh, hh), (hw, hw))
-        ok = (depth > 0) & jnp.isfinite(depth)
-        # One pad per point channel: a pad of the (3, H, W) stack runs ~2x slower.
-        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p[i], pad) for p in pts for i in range(3))
 
-    def keys(depth_c, K, t, *points_c):   # (K, t are operands: a closure may not be batched)
-        v = jnp.arange(-hh, height + hh, dtype=jnp.float32)[:, None]
-        u = jnp.arange(-hw, width + hw, dtype=jnp.float32)[None, :]
-        h, g = _lidar_angles(depth_c, K, t, points_c if points_c else None, v, u)
+def _prefilter_words(k, z_rows, depth_c, eps, *, height, width, hh, hw):
+    """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
-        def key(a):
-            q = jnp.clip(jnp.floor(a * jnp.float32(_QSCALE)), -32767.0, 32766.0).astype(jnp.int16)
-            return jnp.where((depth_c > 0) & (a == a), q, none)
-        return key(h), key(g)
-
-    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
-    key_h, key_g = stage(keys, (canvas[0], K, t) + canvas[1:], n_points)
-    depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
-
-    def vertical(key_h, key_g):
-        """Column extrema: theta over all 2 hh + 1 rows; phi over the hh rows below / above.
-
-        Maxima run on ``key + 1`` (int16 wrap-around), which sends empty pixels to int16 min.
-        """
-        rows = lambda a, dv: a[hh + dv:hh + dv + height]
-        h_min, h_max = rows(key_h, -hh), rows(key_h, -hh) + one
-        for dv in range(-hh + 1, hh + 1):
-            h_min = jnp.minimum(h_min, rows(key_h, dv))
-            h_max = jnp.maximum(h_max, rows(key_h, dv) + one)
-        g_min = jnp.full((height, padded_width), none)
-        g_max = jnp.full((height, padded_width), np.int16(-32768))
-        for dv in range(1, hh + 1):
-            g_min = jnp.minimum(g_min, rows(key_g, dv))
-            g_max = jnp.maximum(g_max, rows(key_g, -dv) + one)
-        return jnp.stack([h_min, h_max, g_min, g_max])
-
-    extrema = stage(vertical, (key_h, key_g), n_points)
+    A candidate has a pixel more than ``eps`` nearer in its window (condition 2,
+    which every form of condition 1 needs): ``z_i > min_window(z) + eps``.
+    ``z_rows`` holds the column minima over the 2 hh + 1 rows (empty = inf).
+    """
     words_per_row = -(-width // 32)
+    z_min = _sliding_min(z_rows[:, hw - k:hw + k + width], 2 * k + 1, axis=1)
+    z = depth_c[hh:hh + height, hw:hw + width]
+    cand = (z > 0) & (z > z_min + eps)
+    if width % 32:
+        cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
+    bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
+    return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
 
-    def candidates(k, extrema, key_h, key_g, valid):
-        """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32))."""
-        cols = lambda a, du: a[:, hw + du:hw + du + width]
-        h_right = jnp.full((height, width), none)              # min theta key, 0 < du <= k
-        h_left = jnp.full((height, width), np.int16(-32768))  # max (theta key + 1), -k <= du < 0
-        g_below, g_above = cols(extrema[2], 0), cols(extrema[3], 0)
-        for du in range(1, k + 1):
-            h_right = jnp.minimum(h_right, cols(extrema[0], du))
-            h_left = jnp.maximum(h_left, cols(extrema[1], -du))
-            g_below = jnp.minimum(g_below, jnp.minimum(cols(extrema[2], du), cols(extrema[2], -du)))
-            g_above = jnp.maximum(g_above, jnp.maximum(cols(extrema[3], du), cols(extrema[3], -du)))
-        kh = key_h[hh:hh + height, hw:hw + width]
-        kg = key_g[hh:hh + height, hw:hw + width]
-        cand = valid & ((kh >= h_right) | (kh + one <= h_left) | (kg >= g_below) | (kg + one <= g_above))
-        if width % 32:
-            cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
-        bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
-        return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
 
-    widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
-    words = switch_widest(jnp.minimum(k_max, len(widths) - 1),
-                           [functools.partial(candidates, k) for k in widths], extrema, key_h, key_g, valid)
+def _compact(words, width):
+    """Prefix sums of the packed candidate words and ``locate(slot) -> (row, column)``.
 
-    # --- 2. compaction ------------------------------------------------------
+    Every candidate gets a slot 0 .. count - 1 in raster order; ``locate`` finds
+    its word by binary search over the inclusive prefix sums and its bit by a
+    search over the word's popcounts (no scatter, no ``nonzero``).
+    """
+    words_per_row = words.shape[1]
     popc = jax.lax.population_count(words).astype(jnp.int32)
     row_incl = jnp.cumsum(popc, axis=1)
     row_end = jnp.cumsum(row_incl[:, -1])
@@ -227,7 +202,6 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     count = row_end[-1]
 
     def locate(slot):
-        """Pixel (row, column) of candidate number ``slot`` (0 <= slot < count)."""
         get = lambda a, i: a.at[i].get(mode="promise_in_bounds")
         pos = jnp.zeros_like(slot)           # number of words ending at or before slot
         step = 1 << (n_words.bit_length() - 1)
@@ -247,6 +221,80 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
             bit = jnp.where(take, bit + b, bit)
         return w // words_per_row, (w % words_per_row) * 32 + bit.astype(jnp.int32)
 
+    return count, locate
+
+
+#: Smallest parallax move that counts, pixels: below it a crossing is float rounding.
+_MIN_MOVE_PX = 1e-3
+
+
+def _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
+    """Condition 1 between centre points p and window points q at pixel offset (du, dv) = q - p.
+
+    ``view_*`` are what ``_lidar_angles`` ("paper") or :func:`_lidar_view`
+    ("footprint") return.
+    """
+    if test == "paper":
+        (h_p, g_p), (h_q, g_q) = view_p, view_q
+        return (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
+                | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
+    (au_p, av_p, bu_p, bv_p, ok_p), (au_q, av_q, bu_q, bv_q, ok_q) = view_p, view_q
+    # Offsets of p from q in cells (W L / N by H / L pixels): seen from the
+    # LiDAR (ra), on the image (rb), and p's move relative to q between them (m).
+    ra_u, ra_v = (au_p - au_q) / cell_u, (av_p - av_q) / cell_v
+    rb_u, rb_v = (bu_p - bu_q) / cell_u, (bv_p - bv_q) / cell_v
+    m_u, m_v = rb_u - ra_u, rb_v - ra_v
+    m2 = m_u * m_u + m_v * m_v
+    passes = (ra_u * m_u + ra_v * m_v < 0) & (rb_u * m_u + rb_v * m_v > 0)
+    cross = ra_u * m_v - ra_v * m_u
+    through_cell = 4.0 * cross * cross < m2
+    moved = m2 * (cell_u * cell_v) > _MIN_MOVE_PX ** 2
+    return ok_p & ok_q & moved & passes & through_cell
+
+
+@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
+def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height,
+               test="footprint"):
+    """Algorithm 1 in three phases: prefilter (condition 2), compaction, exact test (see module docstring)."""
+    height, width = sparse_depth.shape
+    hh, hw = half_height, half_width
+    depth = sparse_depth.astype(jnp.float32)
+    points = None if points_cam is None else points_cam.astype(jnp.float32)
+    K = K.astype(jnp.float32)
+    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
+    eps = jnp.asarray(epsilon_m, jnp.float32)
+    inf = jnp.float32(jnp.inf)
+
+    valid = (depth > 0) & jnp.isfinite(depth)
+    # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
+    n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
+        jnp.sum(valid, dtype=jnp.int32)
+    wl = width * beams
+    # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
+    k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), hw), 0)
+    cell_u = jnp.float32(wl) / jnp.maximum(n_points, 1).astype(jnp.float32)   # W L / N, pixels
+    cell_v = jnp.float32(height / beams)                                       # H / L, pixels
+
+    # --- 1. prefilter -------------------------------------------------------
+    # Canvases padded by the window (hh rows, hw columns each side), one pad
+    # per channel (a pad of the (3, H, W) stack runs ~2x slower).
+    def pad_depth(depth, *pts):
+        pad = ((hh, hh), (hw, hw))
+        ok = (depth > 0) & jnp.isfinite(depth)
+        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p[i], pad) for p in pts for i in range(3))
+
+    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
+    depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
+    # (A NumPy inf: staged functions must not close over JAX values.)
+    z_rows, = stage(lambda d: (_sliding_min(jnp.where(d > 0, d, np.float32(np.inf)), 2 * hh + 1, axis=0),),
+                    (depth_c,), n_points)
+    widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
+    branches = [functools.partial(_prefilter_words, k, height=height, width=width, hh=hh, hw=hw) for k in widths]
+    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, z_rows, depth_c, eps)
+
+    # --- 2. compaction ------------------------------------------------------
+    count, locate = _compact(words, width)
+
     # --- 3. exact test ------------------------------------------------------
     # Window blocks of B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices of
     # the padded canvases. Block b starts at du = -k + b B, clipped so that it
@@ -257,33 +305,32 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, :, None]
     offsets = jnp.arange(block, dtype=jnp.int32)[None, None, :]
     slices = jax.lax.GatherDimensionNumbers(offset_dims=(1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
+    view_fn = _lidar_angles if test == "paper" else _lidar_view
 
     def window(canvas_, row, col0):
         starts = jnp.stack([row, col0], axis=-1)
         return jax.lax.gather(canvas_, starts, slices, (2 * hh + 1, block), mode="promise_in_bounds")
 
-    def angles_at(row, col, window_of):
-        """Angles (h, g) and z of the pixels ``window_of`` picks from the padded canvases."""
+    def view_at(row, col, window_of):
+        """LiDAR view of the pixels ``window_of`` picks from the padded canvases, and their z."""
         d = window_of(depth_c)
         v = (row - hh).astype(jnp.float32)
         u = (col - hw).astype(jnp.float32)
         p = None if points_c is None else jnp.stack([window_of(points_c[i]) for i in range(3)])
-        h, g = _lidar_angles(d, K, t, p, v, u)
-        return h, g, jnp.where(d > 0, d, inf)
+        return view_fn(d, K, t, p, v, u), jnp.where(d > 0, d, inf)
 
     def test_chunk(c, keep):
         slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
         row, col = locate(jnp.minimum(slot, jnp.maximum(count - 1, 0)))
         r_p, c_p = (row + hh)[:, None, None], (col + hw)[:, None, None]
-        h_p, g_p, z_p = angles_at(r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
+        view_p, z_p = view_at(r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
 
         def column_block(b, removed):
             start = jnp.clip(b * block - k_max, -hw, hw - 2 * group)
             col0 = col + hw + start
             du = start + offsets
-            h_q, g_q, z_q = angles_at(r_p + dv, c_p + du, lambda a: window(a, row, col0))
-            flip = (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
-                    | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
+            view_q, z_q = view_at(r_p + dv, c_p + du, lambda a: window(a, row, col0))
+            flip = _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v)
             hit = flip & (z_p > z_q + eps) & (jnp.abs(du) <= k_max)
             return removed | jnp.any(hit, axis=(1, 2))
 
@@ -298,7 +345,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
                       epsilon_m: float = 1.0, max_half_width_px: int = 12, max_half_height_px: int = 24,
-                      points_cam: jax.Array | None = None) -> jax.Array:
+                      points_cam: jax.Array | None = None, test: str = "footprint") -> jax.Array:
     """Occlusion outlier mask of a sparse LiDAR depth image (the paper's Algorithm 1).
 
     Args:
@@ -386,6 +433,8 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         raise ValueError(f"outlier_keep_mask: field 'beams' expected a positive integer, got {beams!r}")
     if isinstance(epsilon_m, numbers.Real) and not (math.isfinite(epsilon_m) and epsilon_m >= 0):
         raise ValueError(f"outlier_keep_mask: field 'epsilon_m' expected a finite value >= 0, got {epsilon_m!r}")
+    if test not in TESTS:
+        raise ValueError(f"outlier_keep_mask: field 'test' expected one of {TESTS}, got {test!r}")
     for name, value in (("max_half_width_px", max_half_width_px), ("max_half_height_px", max_half_height_px)):
         if int(value) != value or value < 0:
             raise ValueError(f"outlier_keep_mask: field {name!r} expected a non-negative integer, got {value!r}")
@@ -394,4 +443,17 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         height, width, beams=int(beams), max_half_width_px=int(max_half_width_px),
         max_half_height_px=int(max_half_height_px))
     return _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, jnp.asarray(epsilon_m, jnp.float32),
-                      beams=int(beams), half_width=half_width, half_height=half_height)
+                      beams=int(beams), half_width=half_width, half_height=half_height, test=test)
+
+
+def keep_mask_for_config(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
+                         config, points_cam: jax.Array | None = None) -> jax.Array:
+    """Step 2 as an :class:`~jaxdepth.SGMConfig` asks: :func:`outlier_keep_mask`, or every sparse pixel
+    when ``config.outlier_removal`` is off. The one place where config fields map to the stage's options.
+    """
+    if not config.outlier_removal:
+        return sparse_depth > 0
+    return outlier_keep_mask(sparse_depth, K, T_cam_lidar, beams=beams, epsilon_m=config.epsilon_m,
+                             max_half_width_px=config.outlier_max_half_width_px,
+                             max_half_height_px=config.outlier_max_half_height_px, points_cam=points_cam,
+                             test=config.outlier_test)

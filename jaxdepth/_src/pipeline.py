@@ -29,7 +29,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.normals import pixel_normals, point_normals
-from jaxdepth._src.outliers import outlier_keep_mask
+from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
 from jaxdepth._src.staging import fence
@@ -68,14 +68,7 @@ def _gather_seeds(seed_field, normals, du, dv):
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
                    config: SGMConfig) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
-    has_depth = sparse_depth > 0
-    if config.outlier_removal:
-        keep = outlier_keep_mask(
-            sparse_depth, K, T_cam_lidar, beams=beams, epsilon_m=config.epsilon_m,
-            max_half_width_px=config.outlier_max_half_width_px,
-            max_half_height_px=config.outlier_max_half_height_px, points_cam=points_cam)
-    else:
-        keep = has_depth
+    keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
