@@ -8,6 +8,8 @@ jaxdepth presets, 64 beams, epsilon 1 m, default caps (12, 24) px.
     PYTHONPATH=. python benchmarks/bench_outliers.py [--runs 50] [--json benchmarks/results/outliers.json]
 
 Rows:
+- jax_*: the paper's axis-aligned condition 1 (``test="paper"``);
+- footprint_*: the default footprint form of condition 1, same paths;
 - jax_image: the image-only path (angles back-projected from pixel centres);
 - jax_raw: the raw-sweep path (points_cam given; here the same back-projected
   points, so only the time differs);
@@ -311,9 +313,14 @@ def main(argv=None) -> int:
     p_j = jnp.asarray(pts)
     batch = (jnp.asarray(np.stack([sparse, sparse3])), jnp.stack([K_j, K_j]), jnp.stack([T_j, T_j]))
 
-    image_fn = jax.jit(lambda d, k, t: outlier_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS))
-    raw_fn = jax.jit(lambda d, k, t, p: outlier_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS, points_cam=p))
-    vmap_fn = jax.jit(jax.vmap(lambda d, k, t: outlier_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS)))
+    paper = dict(beams=BEAMS, epsilon_m=EPS, test="paper")
+    image_fn = jax.jit(lambda d, k, t: outlier_keep_mask(d, k, t, **paper))
+    raw_fn = jax.jit(lambda d, k, t, p: outlier_keep_mask(d, k, t, points_cam=p, **paper))
+    vmap_fn = jax.jit(jax.vmap(lambda d, k, t: outlier_keep_mask(d, k, t, **paper)))
+    foot = dict(beams=BEAMS, epsilon_m=EPS, test="footprint")
+    foot_image = jax.jit(lambda d, k, t: outlier_keep_mask(d, k, t, **foot))
+    foot_raw = jax.jit(lambda d, k, t, p: outlier_keep_mask(d, k, t, points_cam=p, **foot))
+    foot_vmap = jax.jit(jax.vmap(lambda d, k, t: outlier_keep_mask(d, k, t, **foot)))
     frozen_image = jax.jit(lambda d, k, t: frozen_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS))
     frozen_raw = jax.jit(lambda d, k, t, p: frozen_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS, points_cam=p))
     frozen_vmap = jax.jit(jax.vmap(lambda d, k, t: frozen_keep_mask(d, k, t, beams=BEAMS, epsilon_m=EPS)))
@@ -324,7 +331,10 @@ def main(argv=None) -> int:
                             ("jax_vmap2_per_image", vmap_fn, batch),
                             ("frozen_image", frozen_image, (d_j, K_j, T_j)),
                             ("frozen_raw", frozen_raw, (d_j, K_j, T_j, p_j)),
-                            ("frozen_vmap2_per_image", frozen_vmap, batch)):
+                            ("frozen_vmap2_per_image", frozen_vmap, batch),
+                            ("footprint_image", foot_image, (d_j, K_j, T_j)),
+                            ("footprint_raw", foot_raw, (d_j, K_j, T_j, p_j)),
+                            ("footprint_vmap2_per_image", foot_vmap, batch)):
         t0 = time.perf_counter()
         exe = fn.lower(*fargs).compile()
         rows[name] = {"compile_s": time.perf_counter() - t0}
@@ -344,13 +354,14 @@ def main(argv=None) -> int:
                                  for name, (exe, fargs) in compiled.items()}, args.runs)
     for name in compiled:
         rows[name].update(timings[name])
-    for name in ("jax_vmap2_per_image", "frozen_vmap2_per_image"):
+    for name in ("jax_vmap2_per_image", "frozen_vmap2_per_image", "footprint_vmap2_per_image"):
         rows[name].update({k: rows[name][k] / 2 for k in ("median_ms", "min_ms", "cpu_median_ms")})
     rows["numpy_offsets"] = timed(lambda: numpy_offsets(sparse, K, T, beams=BEAMS, eps=EPS),
                                   max(args.runs // 10, 3))
 
     # Effect on the official input, and on the raw sweep (image-only vs raw path).
-    effect = {"input": errors(sparse, truth, sparse > 0), "after": errors(sparse, truth, keep)}
+    effect = {"input": errors(sparse, truth, sparse > 0), "after": errors(sparse, truth, keep),
+              "after_footprint": errors(sparse, truth, run("footprint_image"))}
     scan = np.fromfile(FRAME / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
     depth_s, index = project_to_image(jnp.asarray(scan), jnp.ones(len(scan), bool), K_j, T_j, height=H, width=W)
     depth_s, index = np.asarray(depth_s), np.asarray(index)
@@ -381,8 +392,11 @@ def main(argv=None) -> int:
         new, old = rows[f"jax_{path}"], rows[f"frozen_{path}"]
         print(f"speed-up {path:<16} median {old['median_ms'] / new['median_ms']:5.2f}x, "
               f"min {old['min_ms'] / new['min_ms']:5.2f}x")
+        foot_row = rows[f"footprint_{path}"]
+        print(f"footprint {path:<15} median {old['median_ms'] / foot_row['median_ms']:5.2f}x the frozen sweep")
     print(f"{'effect':<24} {'RMSE mm':>8} {'MAE mm':>8} {'pixels':>7} {'keep %':>7}")
-    for name in ("input", "after", "sweep_input", "sweep_after_image_path", "sweep_after_raw_path"):
+    for name in ("input", "after", "after_footprint", "sweep_input", "sweep_after_image_path",
+                 "sweep_after_raw_path"):
         e = effect[name]
         print(f"{name:<24} {e['rmse_mm']:8.0f} {e['mae_mm']:8.0f} {e['pixels']:7d} {100 * e['keep_ratio']:7.1f}")
     print("paper (KITTI val, 1000 frames): RMSE 1595 -> 663 mm, MAE 202 -> 82 mm, keep 94.0 %")

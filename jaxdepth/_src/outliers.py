@@ -17,40 +17,53 @@ i.e. the two points are ordered differently seen from the LiDAR than on the
 image (parallax: the LiDAR saw ``i`` past the edge of something nearer), and
 ``i`` is more than ``epsilon`` behind ``j``.
 
-Implementation: a cheap exact prefilter, then the full test at the few
-candidates it leaves.
+Condition 1, two forms (static option ``test``):
 
-1. Prefilter (dense, integer). Condition 1 needs an order inversion: for a
-   neighbour to the right (du > 0) ``theta_i > theta_j``, i.e. ``theta_i``
-   exceeds the minimum of theta over the right half of the window; likewise the
-   maximum over the left half, the minimum of phi over the rows below, the
-   maximum over the rows above. These window extrema are separable (a vertical
-   pass, then a horizontal one). They run on int16 keys ``floor(angle *
-   16383)``: a non-decreasing map of the float angle, so ``theta_i > theta_j``
-   implies ``key_i >= key_j`` and the test ``key_i >= min key_j`` never loses a
-   removal (ties only add candidates); int16 runs twice the SIMD lanes of
-   float32. Empty pixels get a key that the extrema ignore. On the KITTI frame
-   about 2 % of the points pass (~430 of 18.9k), where the dense sweep over all
-   9 x 11 offsets did 3-5 float comparisons per pixel and offset.
+* ``"paper"``: the paper's axis-aligned flips, as written. They stand for
+  "i slid behind j" when the LiDAR sits beside the camera (KITTI), where the
+  parallax moves points along image rows. When the LiDAR sits behind or ahead
+  of the camera (nuScenes' roof LiDAR is 0.4-1.0 m behind its cameras), the
+  parallax is radial: points of neighbouring scan lines swap their u order
+  on open ground, where nothing can hide anything (tests/test_outliers.py,
+  ``test_radial_offset_over_open_ground_removes_nothing``).
+* ``"footprint"`` (default): the same flip, measured along the direction in
+  which ``i`` actually moves relative to ``j`` between the two views, and only
+  when that move passes through ``j``'s own footprint. Let ``a`` be where a
+  point is seen by a camera with this camera's axes and K placed at the LiDAR
+  origin, ``b`` its camera pixel; in cells of ``W L / N`` by ``H / L`` pixels
+  (the paper's point spacings, the sides of S) let ``ra = a_i - a_j``,
+  ``rb = b_i - b_j`` and ``m = rb - ra``. Then ``i`` passes behind ``j`` when
+  ``ra . m < 0 < rb . m`` (it crosses over ``j``) and ``|ra x m| / |m| < 1/2``
+  (it crosses within half a cell of ``j``: through the part of the image that
+  ``j``'s surface covers). For a sideways LiDAR this is the paper's u flip
+  between points less than half a line apart; a deeper occluder's region is
+  the union of its points' cells, so a hidden point crosses some cell of it.
+
+Implementation: an exact prefilter, then the full test at the candidates it
+leaves.
+
+1. Prefilter (dense). Both forms need condition 2: a pixel more than epsilon
+   nearer in the window (separable window minimum of depth, doubling passes).
+   The footprint form also needs ``|rb|^2 < |m|^2 + 1/4``; the parallax move
+   ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
+   ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
+   on a smooth surface need only look for a nearer pixel in a small box
+   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass.
 2. Compaction. The candidate mask is packed into 32-bit words; a prefix sum of
    their popcounts gives every candidate a slot, found back from the slot by
    a binary search over the words and one within the word (no scatter, no
    ``nonzero``).
 3. Exact test, per chunk of candidate slots: gather the window's depths (and
-   points), recompute the angles exactly as before, and evaluate conditions 1
-   and 2 in float32 for every offset; removed candidates are cleared in the
-   mask. The result is bit-identical to the dense sweep it replaces.
+   points), recompute the LiDAR view, and evaluate conditions 1 and 2 in
+   float32 for every offset; removed candidates are cleared in the mask. The
+   ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
 
 Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
 time; the horizontal prefilter pass is compiled for each small ``k`` and chosen
 by ``lax.switch`` (under ``vmap``, the batch's largest ``k``: a wider window
 only adds candidates), and the exact test loops over column blocks up to ``k``.
-
-Why it is fast on XLA:CPU: every dense pass is one vectorised fusion, fenced
-(``staging.stage``) so that shifted reads hit buffers instead of re-running the
-producer: pad the depth, int16 keys (the only divisions), vertical extrema,
-horizontal extrema + candidate words. The float work per (point, offset) now
-runs only at ~2 % of the points, from (11 x 9)-window slice gathers.
+Every dense pass is one fusion, fenced (``staging.stage``) so that shifted
+reads hit buffers instead of re-running the producer.
 """
 
 from __future__ import annotations
@@ -168,21 +181,101 @@ def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
     return jnp.minimum(take(run, 0, n), take(run, size - width, n))
 
 
-def _prefilter_words(k, z_rows, depth_c, eps, *, height, width, hh, hw):
+#: Normalised radius of the footprint prefilter's small box (see _prefilter_words).
+_SMALL_RADIUS = 0.6
+
+
+def _small_box(k: int, capped: bool, cell_v: float, hh: int) -> tuple[int, int]:
+    """Static half sizes (columns, rows) of a box holding every offset with |du| < r W L / N and |dv| < r H / L.
+
+    In the branch for half window k < cap, W L / N <= k + 1; the capped branch
+    may have any W L / N, so it keeps its full width.
+    """
+    hu = k if capped else min(k, math.ceil(_SMALL_RADIUS * (k + 1)) - 1)
+    hv = min(hh, max(math.ceil(_SMALL_RADIUS * cell_v) - 1, 0))
+    return max(hu, 0), hv
+
+
+def _prefilter_words(k, capped, rows, depth_c, w_c, eps, cell_u, move_coef, *, height, width, hh, hw, cell_v,
+                     footprint):
     """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
-    A candidate has a pixel more than ``eps`` nearer in its window (condition 2,
-    which every form of condition 1 needs): ``z_i > min_window(z) + eps``.
-    ``z_rows`` holds the column minima over the 2 hh + 1 rows (empty = inf).
+    Every form of condition 1 needs condition 2: a pixel more than ``eps``
+    nearer in the window, ``z_i > min_window(z) + eps``.
+
+    The footprint form needs more. A crossing of j's cell means
+    0 < rb.m < |m|^2 and |rb x m| < |m| / 2, so |rb|^2 < |m|^2 + 1/4 (offsets
+    in cells; m = the difference of the two points' parallax moves b - a). The
+    move of a point at camera depth Z seen at pixel b is exactly
+    ``(c - t_z b) / (Z - t_z)`` per axis (c_u = f_u t_x + s t_y + t_z c_x,
+    c_v = f_v t_y + t_z c_y), so with w = 1 / (Z - t_z)
+
+        |m_u| <= |c_u - t_z b_u,i| |w_i - w_j| + |t_z| w_j |b_u,i - b_u,j|,
+
+    bounded over the window by the window extrema of w. A point whose bound
+    D_i gives D_i^2 + 1/4 < r^2 can only be removed by a nearer pixel inside
+    the box of normalised half size r; on smooth surfaces, where inverse depth
+    varies little within a window, most points take that small box.
+    ``rows`` holds the column (vertical) extrema of :func:`_prefilter_rows`.
     """
     words_per_row = -(-width // 32)
-    z_min = _sliding_min(z_rows[:, hw - k:hw + k + width], 2 * k + 1, axis=1)
-    z = depth_c[hh:hh + height, hw:hw + width]
-    cand = (z > 0) & (z > z_min + eps)
+    cols = lambda a, half: a[:, hw - half:hw + half + width]
+    centre = lambda a: a[hh:hh + height, hw:hw + width]
+    z = centre(depth_c)      # inf where the pixel takes no part
+    z_full = _sliding_min(cols(rows[0], k), 2 * k + 1, axis=1)
+    cand = (z < np.float32(np.inf)) & (z > z_full + eps)
+    if footprint:
+        hu, _ = _small_box(k, capped, cell_v, hh)
+        z_small = _sliding_min(cols(rows[1], hu), 2 * hu + 1, axis=1)
+        w = centre(w_c)
+        w_lo = _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1)
+        w_hi = -_sliding_min(cols(rows[3], k), 2 * k + 1, axis=1)
+        spread = jnp.maximum(w_hi - w, w - w_lo)
+        v = jnp.arange(height, dtype=jnp.float32)[:, None]
+        u = jnp.arange(width, dtype=jnp.float32)[None, :]
+        c_u, c_v, t_z = move_coef[0], move_coef[1], move_coef[2]
+        # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
+        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1)
+        d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
+        reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v + 1e-3) ** 2 + 0.25
+        small = reach2 < _SMALL_RADIUS ** 2
+        cand = cand & (~small | (z > z_small + eps))
     if width % 32:
         cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
     bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
     return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
+
+
+def _prefilter_fields(depth_c, t, *points_c, footprint):
+    """Per-pixel inputs of the prefilter on the padded canvas (one fenced stage).
+
+    Returns (z, w): z = depth where the pixel can take part, else inf (a pixel
+    takes part when it has depth and, for the footprint form, lies in front of
+    the LiDAR's virtual camera, as the exact test requires); w = 1 / (Z - t_z)
+    with Z the point's camera depth, 0 where the pixel does not take part
+    (footprint form only; the z of the depth image otherwise).
+    """
+    ok = depth_c > 0
+    if not footprint:
+        return jnp.where(ok, depth_c, np.float32(np.inf)), depth_c
+    big_z = points_c[2] if points_c else depth_c
+    reach = big_z - t[2]
+    ok = ok & (reach > 1e-3) & jnp.isfinite(reach)
+    return jnp.where(ok, depth_c, np.float32(np.inf)), jnp.where(ok, 1.0 / jnp.where(ok, reach, 1.0), 0.0)
+
+
+def _prefilter_rows(z, w, *, height, hh, hv, footprint):
+    """Column (vertical) extrema of the prefilter fields: z minima over the
+    window's 2 hh + 1 rows and over the small box's 2 hv + 1 rows, then (footprint
+    form) the minimum and the negated maximum of w over 2 hh + 1 rows (pixels
+    that take no part excluded)."""
+    inf = np.float32(np.inf)
+    rows = [_sliding_min(z, 2 * hh + 1, axis=0), _sliding_min(z[hh - hv:hh + hv + height], 2 * hv + 1, axis=0)]
+    if footprint:
+        part = z < inf
+        rows.append(_sliding_min(jnp.where(part, w, inf), 2 * hh + 1, axis=0))
+        rows.append(_sliding_min(jnp.where(part, -w, inf), 2 * hh + 1, axis=0))
+    return tuple(rows)
 
 
 def _compact(words, width):
@@ -285,12 +378,19 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
     canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
     depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
-    # (A NumPy inf: staged functions must not close over JAX values.)
-    z_rows, = stage(lambda d: (_sliding_min(jnp.where(d > 0, d, np.float32(np.inf)), 2 * hh + 1, axis=0),),
-                    (depth_c,), n_points)
+    footprint = test == "footprint"
+    _, hv = _small_box(0, True, height / beams, hh)
+    fields = stage(functools.partial(_prefilter_fields, footprint=footprint),
+                   (depth_c, t) + (() if points_c is None else tuple(points_c)), n_points)
+    rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), fields,
+                 n_points)
+    # Parallax-move coefficients (c_u, c_v, t_z); see _prefilter_words.
+    move_coef = jnp.stack([K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]])
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
-    branches = [functools.partial(_prefilter_words, k, height=height, width=width, hh=hh, hw=hw) for k in widths]
-    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, z_rows, depth_c, eps)
+    branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
+                                  cell_v=height / beams, footprint=footprint) for k in widths]
+    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, rows, fields[0], fields[1], eps, cell_u,
+                          move_coef)
 
     # --- 2. compaction ------------------------------------------------------
     count, locate = _compact(words, width)
@@ -366,35 +466,25 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         None, each pixel's point is back-projected from its centre through
         ``K`` (image-only input: angles then carry the +-0.5 px rounding of
         the projection).
+      test: static form of condition 1: "footprint" (default) or "paper" (see
+        the module docstring).
 
     Returns:
       (H, W) bool: True where a sparse pixel is kept; False where it is
       removed and where the pixel is empty.
 
-    Angles. The paper uses the spherical angles (theta, phi) of each point in
-    the LiDAR frame. Their orientation is a matter of axes (KITTI's LiDAR has
-    theta growing to the left, against u), so here they are measured from the
-    LiDAR origin in camera-aligned axes, ``q = p_cam - t``, with signs chosen
-    so that they grow with u and v:
+    Angles ("paper" form). The paper uses the spherical angles (theta, phi) of
+    each point in the LiDAR frame. Their orientation is a matter of axes, so
+    here they are measured from the LiDAR origin in camera-aligned axes,
+    ``q = p_cam - t``: theta = atan2(q_x, q_z) grows with u, phi = atan2(q_y,
+    q_z) (the tilt of the ray's y-z projection) grows with v; for a zero
+    LiDAR-camera offset angle order and pixel order are identical. Only order
+    matters, so ``atan2`` is replaced by a strictly increasing stand-in. The
+    "footprint" form works with the same rays projected through K (where a
+    camera at the LiDAR would see each point); points not in front of that
+    virtual camera (q_z <= 1 mm) are never compared.
 
-      theta = atan2(q_x, q_z)   (azimuth, grows with u),
-      phi   = atan2(q_y, q_z)   (tilt in the y-z plane, grows with v).
-
-    Condition 1 is then exactly the paper's test, read as "the order of the two
-    points as seen from the LiDAR differs from their order on the image". Note
-    phi is the tilt of the ray's y-z projection, not the elevation
-    ``atan2(q_y, hypot(q_x, q_z))``: both agree on order when the two points
-    share an azimuth, and for a zero LiDAR-camera offset (t = 0, no skew in
-    ``K``) this choice makes angle order and pixel order identical, so nothing
-    is ever removed without parallax; the elevation can disagree with the row
-    order between points a few columns apart at wide field angles (scan lines
-    bow in the image) and would then flag points no occlusion explains. Only
-    order matters, so ``atan2`` is replaced by a strictly increasing stand-in
-    (``_pseudo_angle``). Points closer than the LiDAR is ahead of the camera
-    (``q_z <= 0``) get the continuation of atan2 past +-pi/2; their order has
-    no meaning there.
-
-    Differences from the paper's double loop (the test oracle):
+    Differences from the paper's double loop (the test oracles, one per form):
       * one point per pixel (the projection's z-buffer winner); ``N`` is the
         number of valid pixels, counted at run time;
       * the horizontal window is capped at ``max_half_width_px`` (the paper's
@@ -410,9 +500,8 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
     window only adds candidates) and the candidate loops run to the largest
     count and bound in the batch: same result per member, a little more work.
 
-    Speed (KITTI frame, 352 x 1216, ~18.9k points, 2-core CPU): ~1.2 ms (quiet)
-    to ~2.5 ms (shared machine), against ~5-8 ms for the dense sweep it replaced
-    (benchmarks/bench_outliers.py times both in one process).
+    Speed: benchmarks/bench_outliers.py times both forms against the frozen
+    dense sweep in one process (results in benchmarks/results/outliers.json).
     """
     sparse_depth = jnp.asarray(sparse_depth)
     if sparse_depth.ndim != 2:
