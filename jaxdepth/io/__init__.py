@@ -35,6 +35,9 @@ from jaxdepth.io.rig import rig_from_kitti_raw as rig_from_kitti_raw
 from jaxdepth.io.rig import rig_from_nuscenes_calibration as rig_from_nuscenes_calibration
 from jaxdepth.io.rig import rig_to_json_text as rig_to_json_text
 from jaxdepth.io.rig import write_rig_json as write_rig_json
+from jaxdepth.io.sweep_frame import SweepFrame as SweepFrame
+from jaxdepth.io.sweep_frame import prepare_sweep as prepare_sweep
+from jaxdepth.io.sweep_frame import shift_rig as shift_rig
 
 __all__ = [
     "BENCHMARK_SIZE",
@@ -44,6 +47,7 @@ __all__ = [
     "OutputError",
     "Rig",
     "RigCamera",
+    "SweepFrame",
     "atomic_write_bytes",
     "atomic_write_png",
     "benchmark_crop_offsets",
@@ -60,6 +64,8 @@ __all__ = [
     "read_kitti_raw_calib",
     "read_points",
     "read_rig_json",
+    "prepare_sweep",
+    "shift_rig",
     "rig_from_kitti_raw",
     "rig_from_nuscenes_calibration",
     "rig_to_json_text",

@@ -11,7 +11,11 @@ Format (metres, pixels; ``p_cam = T_cam_lidar @ p_lidar``)::
 ``lidar`` may also give ``fov_up_deg``, ``fov_down_deg``, ``columns`` (defaults
 from the beam count: 64 -> :data:`~jaxdepth._src.presets.KITTI_HDL64`, 32 ->
 :data:`~jaxdepth._src.presets.NUSCENES_HDL32`, otherwise fov +2 / -24.9 degrees
-and 2048 columns) and ``units`` (only ``"m"``). Cameras take exactly the five
+and 2048 columns), ``units`` (only ``"m"``) and ``origin_m``: ``[x, y, z]``, where
+the sensor sits in the frame the sweep's points are given in (metres). Leave it
+out when the points are in the LiDAR's own frame (KITTI, nuScenes) or when the
+library should estimate it from the sweep (:mod:`jaxdepth.io.sweep_frame`);
+``T_cam_lidar`` always maps points of the sweep's frame into the camera. Cameras take exactly the five
 fields above. Unknown fields are errors (a misspelt optional field would
 otherwise be ignored silently).
 """
@@ -37,7 +41,7 @@ from jaxdepth.io.kitti_layout import BENCHMARK_SIZE, benchmark_crop_offsets
 RIGID_TOL = 1e-3
 
 _LIDAR_DEFAULTS = {64: KITTI_HDL64, 32: NUSCENES_HDL32}
-_LIDAR_FIELDS = ("beams", "fov_up_deg", "fov_down_deg", "columns", "units")
+_LIDAR_FIELDS = ("beams", "fov_up_deg", "fov_down_deg", "columns", "units", "origin_m")
 _CAMERA_FIELDS = ("name", "width", "height", "K", "T_cam_lidar")
 
 
@@ -202,10 +206,17 @@ class Rig:
     Attributes:
       lidar: static :class:`LidarSpec` (beams, field of view, range-image columns).
       cameras: non-empty tuple of :class:`RigCamera` with distinct names.
+      lidar_origin_m: where the LiDAR sits in the sweep's frame, metres, as a
+        tuple of 3 floats; None when not stated (the points' origin, or an
+        estimate from the sweep, see :func:`jaxdepth.io.prepare_sweep`).
+      lidar_stated: names of the ``lidar`` fields the source stated (the rest
+        are defaults that an estimate from the sweep may replace).
     """
 
     lidar: LidarSpec
     cameras: tuple[RigCamera, ...]
+    lidar_origin_m: tuple[float, float, float] | None = None
+    lidar_stated: frozenset = frozenset(("beams", "fov_up_deg", "fov_down_deg", "columns"))
 
     def __post_init__(self):
         if not isinstance(self.lidar, LidarSpec):
@@ -219,11 +230,18 @@ class Rig:
         if dupes:
             raise ValueError(f"Rig: field 'cameras' expected distinct names, got duplicates {dupes}")
         object.__setattr__(self, "cameras", cameras)
+        if self.lidar_origin_m is not None:
+            origin = tuple(float(x) for x in np.asarray(self.lidar_origin_m, np.float64).reshape(-1))
+            if len(origin) != 3 or not all(math.isfinite(x) for x in origin):
+                raise ValueError(f"Rig: field 'lidar_origin_m' expected 3 finite floats, got {self.lidar_origin_m!r}")
+            object.__setattr__(self, "lidar_origin_m", origin)
+        object.__setattr__(self, "lidar_stated", frozenset(self.lidar_stated))
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Rig):
             return NotImplemented
-        return self.lidar == other.lidar and self.cameras == other.cameras
+        return (self.lidar == other.lidar and self.cameras == other.cameras
+                and self.lidar_origin_m == other.lidar_origin_m)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -276,6 +294,12 @@ def _number(value: Any, field: str) -> float:
     return float(value)
 
 
+def _parse_origin(value: Any) -> tuple[float, float, float]:
+    if not isinstance(value, list) or len(value) != 3:
+        raise _Bad("lidar.origin_m", "a list of 3 numbers [x, y, z] (metres)", _describe(value))
+    return tuple(_number(x, f"lidar.origin_m[{i}]") for i, x in enumerate(value))
+
+
 def _parse_lidar(value: Any) -> LidarSpec:
     lidar = _object(value, "lidar", _LIDAR_FIELDS)
     if "beams" not in lidar:
@@ -301,6 +325,9 @@ def _parse_rig(doc: Any) -> Rig:
         if key not in top:
             raise _Bad(key, "a field (required)", "nothing")
     lidar = _parse_lidar(top["lidar"])
+    lidar_doc = top["lidar"]
+    origin = _parse_origin(lidar_doc["origin_m"]) if "origin_m" in lidar_doc else None
+    stated = frozenset(k for k in ("beams", "fov_up_deg", "fov_down_deg", "columns") if k in lidar_doc)
     cams_value = top["cameras"]
     if not isinstance(cams_value, list) or not cams_value:
         raise _Bad("cameras", "a non-empty list of cameras", _describe(cams_value))
@@ -318,7 +345,7 @@ def _parse_rig(doc: Any) -> Rig:
                        _describe(values[0]))
         seen[values[0]] = i
         cameras.append(RigCamera(*values))
-    return Rig(lidar=lidar, cameras=tuple(cameras))
+    return Rig(lidar=lidar, cameras=tuple(cameras), lidar_origin_m=origin, lidar_stated=stated)
 
 
 def read_rig_json(path: PathLike) -> Rig:
@@ -357,8 +384,11 @@ def _matrix_text(a: np.ndarray, indent: str) -> str:
 def rig_to_json_text(rig: Rig) -> str:
     """The JSON text :func:`write_rig_json` writes (deterministic; one matrix row per line)."""
     spec = rig.lidar
-    lidar = json.dumps({"beams": int(spec.beams), "fov_up_deg": float(spec.fov_up_deg),
-                        "fov_down_deg": float(spec.fov_down_deg), "columns": int(spec.columns), "units": "m"})
+    fields = {"beams": int(spec.beams), "fov_up_deg": float(spec.fov_up_deg),
+              "fov_down_deg": float(spec.fov_down_deg), "columns": int(spec.columns), "units": "m"}
+    if rig.lidar_origin_m is not None:
+        fields["origin_m"] = [float(x) for x in rig.lidar_origin_m]
+    lidar = json.dumps(fields)
     cams = []
     for cam in rig.cameras:
         ind = "      "

@@ -1,0 +1,154 @@
+"""Put a sweep in its LiDAR's own frame before completion (host side, NumPy).
+
+The SGM measures the LiDAR's angles (range image, Badino normals, Algorithm 1's
+view from the LiDAR) from the origin of the points' frame. KITTI and nuScenes
+sweeps are in the sensor's own frame; many other datasets give sweeps in a
+vehicle frame whose origin lies on the ground, 1.5-2 m from the sensor, and
+measured from there every angle is wrong.
+
+:func:`prepare_sweep` moves the points so that the sensor sits at the origin
+and moves every camera's ``T_cam_lidar`` with them (the cameras see exactly
+the same points). Where the sensor sits comes from, in order:
+
+1. the rig (``lidar.origin_m`` in the rig JSON, :attr:`Rig.lidar_origin_m`);
+2. an estimate from the sweep itself
+   (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): for one
+   spinning multi-beam LiDAR, every beam is a cone of constant elevation
+   about the sensor, which fixes its position, beam count and vertical field
+   of view. Fields the rig did not state (field of view) are taken from it.
+3. the points' origin, when the sweep does not look like one spinning LiDAR
+   (a merged cloud of several sensors, a non-repetitive or raster scan). The
+   geometry of Algorithm 1 cannot be trusted then, and
+   :attr:`SweepFrame.outlier_removal_trusted` is False: callers turn outlier
+   removal off rather than delete good points.
+
+Everything estimated is logged on ``logging.getLogger("jaxdepth")`` and
+summarised in :attr:`SweepFrame.notes`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+
+from jaxdepth._src.types import LidarSpec
+from jaxdepth.io.rig import Rig, RigCamera
+
+log = logging.getLogger("jaxdepth")
+
+#: An estimated origin closer than this to the points' origin is taken as the points' origin, metres.
+ORIGIN_SNAP_M = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepFrame:
+    """A sweep moved into its sensor's frame, and the rig that goes with it.
+
+    Attributes:
+      points: (N, 3) float32 points, metres, sensor at the origin (NaN rows kept as they were).
+      rig: the :class:`Rig` with every ``T_cam_lidar`` composed with the shift and the
+        LiDAR spec completed from the estimate where the rig left it open.
+      origin_m: (3,) float64 where the sensor sits in the input points' frame.
+      origin_source: "rig", "estimate" or "points" (the points' own origin).
+      outlier_removal_trusted: False when the sweep does not look like one
+        spinning LiDAR and nothing stated its origin.
+      notes: human-readable lines of what was stated, estimated and assumed.
+    """
+
+    points: np.ndarray
+    rig: Rig
+    origin_m: np.ndarray
+    origin_source: str
+    outlier_removal_trusted: bool
+    notes: tuple
+
+
+def shift_rig(rig: Rig, origin_m, lidar: LidarSpec | None = None) -> Rig:
+    """``rig`` for points moved by ``-origin_m``: each ``T_cam_lidar`` becomes ``T @ [I | origin]``."""
+    origin = np.asarray(origin_m, np.float64).reshape(3)
+    shift = np.eye(4)
+    shift[:3, 3] = origin
+    cameras = tuple(RigCamera(c.name, c.width, c.height, c.K,
+                              (np.asarray(c.T_cam_lidar, np.float64) @ shift).astype(np.float32))
+                    for c in rig.cameras)
+    return Rig(lidar=rig.lidar if lidar is None else lidar, cameras=cameras, lidar_origin_m=None,
+               lidar_stated=rig.lidar_stated)
+
+
+def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = None,
+                  estimate: bool = True) -> SweepFrame:
+    """Moves ``points`` (and the rig's extrinsics) so that the LiDAR sits at the origin.
+
+    Args:
+      points: (N, >= 3) float points of one sweep, metres, in the frame the
+        rig's ``T_cam_lidar`` maps from (extra columns are ignored).
+      rig: the :class:`Rig`; ``rig.lidar_origin_m`` (if not None) is used as is.
+      ring: optional (N,) beam index per point (e.g. nuScenes' 5th column):
+        sharpens the estimate.
+      estimate: estimate what the rig leaves open from the sweep (default);
+        False keeps the points' origin and the rig's spec.
+
+    Returns:
+      :class:`SweepFrame`.
+    """
+    xyz = np.asarray(points, np.float32)[:, :3]
+    notes = []
+    spec = rig.lidar
+    trusted = True
+    if rig.lidar_origin_m is not None:
+        origin = np.asarray(rig.lidar_origin_m, np.float64)
+        source = "rig"
+        notes.append(f"LiDAR origin stated by the rig: {_fmt(origin)} m")
+    elif not estimate:
+        origin, source = np.zeros(3), "points"
+        notes.append("LiDAR origin assumed at the points' origin (no estimate asked for)")
+    else:
+        from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
+        est = estimate_lidar_geometry(xyz, ring=ring)
+        notes.append(f"estimated from the sweep: {est.describe()}")
+        if est.spinning:
+            origin = np.asarray(est.origin_m, np.float64)
+            if np.linalg.norm(origin) < ORIGIN_SNAP_M:
+                origin, source = np.zeros(3), "points"
+                notes.append("LiDAR origin: the points' origin (the estimate is within "
+                             f"{100 * ORIGIN_SNAP_M:.0f} cm of it)")
+            else:
+                source = "estimate"
+                notes.append(f"LiDAR origin estimated at {_fmt(origin)} m in the points' frame")
+            spec = _complete_spec(rig, est, notes)
+        else:
+            origin, source = np.zeros(3), "points"
+            trusted = False
+            notes.append("the sweep does not look like one spinning LiDAR (merged sensors or a non-spinning "
+                         "scan): LiDAR origin assumed at the points' origin, outlier removal not trusted")
+    for line in notes:
+        log.info("%s", line)
+    moved = xyz if not origin.any() else (xyz.astype(np.float64) - origin).astype(np.float32)
+    new_rig = shift_rig(rig, origin, spec) if (origin.any() or spec is not rig.lidar) else rig
+    return SweepFrame(points=moved, rig=new_rig, origin_m=origin, origin_source=source,
+                      outlier_removal_trusted=trusted, notes=tuple(notes))
+
+
+def _complete_spec(rig: Rig, est, notes: list) -> LidarSpec:
+    spec = rig.lidar
+    if est.beams is not None and "beams" in rig.lidar_stated and est.beams != spec.beams:
+        notes.append(f"the rig states {spec.beams} beams, the sweep shows {est.beams}: keeping the rig's")
+    if est.fov_up_deg is None or est.fov_down_deg is None:
+        return spec
+    if "fov_up_deg" in rig.lidar_stated or "fov_down_deg" in rig.lidar_stated:
+        return spec
+    new = LidarSpec(beams=spec.beams, fov_up_deg=float(est.fov_up_deg), fov_down_deg=float(est.fov_down_deg),
+                    columns=spec.columns)
+    if new != spec:
+        notes.append(f"vertical field of view from the sweep: {new.fov_up_deg:+.2f} / {new.fov_down_deg:+.2f} deg "
+                     f"(the rig left it open; default was {spec.fov_up_deg:+.2f} / {spec.fov_down_deg:+.2f})")
+    return new
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{x:+.3f}" for x in np.asarray(v, np.float64)) + ")"
+
+
+__all__ = ["SweepFrame", "prepare_sweep", "shift_rig", "ORIGIN_SNAP_M"]

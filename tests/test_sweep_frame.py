@@ -1,0 +1,114 @@
+"""Putting a sweep in its LiDAR's frame: rig origin field, shifted extrinsics, invariance."""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth._src import presets
+from jaxdepth._src.geometry import project_to_image
+from jaxdepth._src.synthetic import make_street_scene
+from jaxdepth.io import InputError, Rig, RigCamera, prepare_sweep, read_rig_json, shift_rig, write_rig_json
+
+
+def _rig_from_frame(frame, *, origin=None, T_extra=None):
+    cams = []
+    for i, cam in enumerate(frame.cameras):
+        T = np.asarray(cam.T_cam_lidar, np.float64)
+        if T_extra is not None:
+            T = T @ T_extra
+        cams.append(RigCamera(f"cam{i}", cam.width, cam.height, np.asarray(cam.K), T.astype(np.float32)))
+    return Rig(lidar=frame.lidar, cameras=tuple(cams), lidar_origin_m=origin)
+
+
+@pytest.fixture(scope="module")
+def street():
+    return make_street_scene(0, cameras="stereo", image_scale=0.25)
+
+
+def test_origin_round_trips_through_json(tmp_path, street):
+    rig = _rig_from_frame(street, origin=(0.8, -0.1, 1.9))
+    path = write_rig_json(tmp_path / "rig.json", rig)
+    back = read_rig_json(path)
+    assert back.lidar_origin_m == pytest.approx((0.8, -0.1, 1.9)) and back == rig
+    doc = json.loads(path.read_text())
+    assert doc["lidar"]["origin_m"] == pytest.approx([0.8, -0.1, 1.9])
+
+
+@pytest.mark.parametrize("value, message", [
+    ([1.0, 2.0], "lidar.origin_m"),
+    ("up", "lidar.origin_m"),
+    ([0.0, "a", 1.0], r"lidar.origin_m\[1\]"),
+])
+def test_bad_origin_names_the_field(tmp_path, value, message):
+    doc = {"lidar": {"beams": 32, "origin_m": value},
+           "cameras": [{"name": "c", "width": 8, "height": 6, "K": [[5, 0, 4], [0, 5, 3], [0, 0, 1]],
+                        "T_cam_lidar": np.eye(4).tolist()}]}
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=message):
+        read_rig_json(path)
+
+
+def test_stated_fields_are_recorded(tmp_path):
+    doc = {"lidar": {"beams": 16},
+           "cameras": [{"name": "c", "width": 8, "height": 6, "K": [[5, 0, 4], [0, 5, 3], [0, 0, 1]],
+                        "T_cam_lidar": np.eye(4).tolist()}]}
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps(doc))
+    rig = read_rig_json(path)
+    assert rig.lidar_stated == frozenset({"beams"}) and rig.lidar_origin_m is None
+
+
+def test_shift_keeps_every_projection(street):
+    """Points moved by -o and extrinsics composed with +o: every camera sees the same depth image."""
+    origin = np.array([0.9, 0.2, 1.8])
+    rig = _rig_from_frame(street)
+    shifted = shift_rig(rig, origin)
+    moved = (street.points.astype(np.float64) - origin).astype(np.float32)
+    for a, b in zip(rig.cameras, shifted.cameras):
+        da, _ = project_to_image(jnp.asarray(street.points), jnp.asarray(street.valid), a.K, a.T_cam_lidar,
+                                 height=a.height, width=a.width)
+        db, _ = project_to_image(jnp.asarray(moved), jnp.asarray(street.valid), b.K, b.T_cam_lidar,
+                                 height=b.height, width=b.width)
+        da, db = np.asarray(da), np.asarray(db)
+        assert ((da > 0) == (db > 0)).mean() > 0.999
+        both = (da > 0) & (db > 0)
+        np.testing.assert_allclose(da[both], db[both], rtol=1e-5, atol=1e-5)
+
+
+def test_stated_origin_recovers_the_sensor_frame(street):
+    """A sweep given in a vehicle frame (sensor 1.7 m up, 1.2 m ahead of the origin) with its origin
+    stated in the rig completes like the sweep in the sensor's own frame."""
+    origin = np.array([1.2, 0.0, 1.7])
+    to_vehicle = np.eye(4)
+    to_vehicle[:3, 3] = -origin                 # p_sensor = p_vehicle - origin
+    vehicle_points = (street.points.astype(np.float64) + origin).astype(np.float32)
+    rig_vehicle = _rig_from_frame(street, origin=tuple(origin), T_extra=to_vehicle)
+    frame = prepare_sweep(vehicle_points, rig_vehicle)
+    assert frame.origin_source == "rig" and frame.outlier_removal_trusted
+    np.testing.assert_allclose(frame.points, street.points, atol=2e-6 * 60)
+    sensor_rig = _rig_from_frame(street)
+    for a, b in zip(frame.rig.cameras, sensor_rig.cameras):
+        np.testing.assert_allclose(a.T_cam_lidar, b.T_cam_lidar, atol=1e-6)
+    valid = jnp.asarray(street.valid)
+    got = jaxdepth.complete_rig(jnp.asarray(frame.points), valid,
+                                jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras]),
+                                lidar=street.lidar)
+    want = jaxdepth.complete_rig(jnp.asarray(street.points), valid,
+                                 jaxdepth.stack_cameras([c.as_camera() for c in sensor_rig.cameras]),
+                                 lidar=street.lidar)
+    got, want = np.asarray(got), np.asarray(want)
+    close = np.abs(got - want) <= 1e-3 * np.maximum(want, 1.0)
+    assert close.mean() > 0.995
+
+
+def test_no_estimate_keeps_the_points(street):
+    rig = _rig_from_frame(street)
+    frame = prepare_sweep(street.points, rig, estimate=False)
+    assert frame.origin_source == "points" and frame.rig is rig
+    np.testing.assert_array_equal(frame.points, street.points)
