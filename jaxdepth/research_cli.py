@@ -217,9 +217,14 @@ def scaled_camera(camera, scale: float):
 
 
 def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
-                min_range_m: float = 1.0, config=None) -> dict:
+                min_range_m: float = 1.0, config=None, ring: np.ndarray | None = None,
+                estimate: bool = True) -> dict:
     """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
 
+    The sweep is first put in its LiDAR's frame (:func:`jaxdepth.io.prepare_sweep`:
+    the rig's ``lidar_origin_m``, else an estimate from the sweep, ``ring``
+    sharpening it); where the sweep does not look like one spinning LiDAR,
+    outlier removal is turned off (reported in ``"sweep_notes"``).
     Every seed draws its own held-out set; per-camera metrics are the mean over
     the draws, the "mean" row the mean over every camera image of every draw
     (the devkit's data-set score, :func:`jaxdepth.mean_metrics`).
@@ -237,11 +242,17 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io.points import pad_points
 
+    from jaxdepth.io.sweep_frame import prepare_sweep
+
     config = SGMConfig() if config is None else config
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise InputError("hidden_eval: 'seeds' expected at least one seed, got none")
-    padded, valid = pad_points(points)
+    frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+    rig = frame.rig
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    padded, valid = pad_points(frame.points)
     with np.errstate(invalid="ignore", over="ignore"):
         valid &= np.linalg.norm(padded.astype(np.float64), axis=1) >= min_range_m
     cameras = stack_cameras([scaled_camera(c.as_camera(), scale) for c in rig.cameras])
@@ -269,7 +280,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
         mean[method] = {k: float(m[k]) for k in keys}
     return {"cameras": per_camera, "mean": mean, "methods": list(METHODS), "points": int(valid.sum()),
             "hidden_points": hidden_total // len(seeds), "fraction": fraction, "seeds": seeds, "scale": scale,
-            "min_range_m": min_range_m,
+            "min_range_m": min_range_m, "sweep_notes": list(frame.notes),
+            "outlier_removal": bool(config.outlier_removal),
             "targets": "held-out points' own per-pixel z-buffer, unfiltered"}
 
 
@@ -293,6 +305,19 @@ def format_hidden(result: dict) -> list:
     return lines
 
 
+def ring_column(extra: np.ndarray, columns: int) -> np.ndarray | None:
+    """The beam (ring) index of a 5-column sweep (nuScenes: x, y, z, intensity, ring) when the
+    5th column holds small non-negative integers; None otherwise."""
+    if columns != 5 or extra.shape[1] < 2:
+        return None
+    ring = extra[:, 1]
+    finite = np.isfinite(ring)
+    if not finite.any() or np.any(ring[finite] != np.round(ring[finite])) or np.any(ring[finite] < 0) \
+            or np.any(ring[finite] > 1023):
+        return None
+    return ring
+
+
 def cmd_hidden_eval(args) -> int:
     from jaxdepth.io.points import read_points
     from jaxdepth.io.rig import read_rig_json
@@ -302,12 +327,16 @@ def cmd_hidden_eval(args) -> int:
     if not 0.0 < args.scale <= 4.0:
         raise InputError(f"--scale expected a number in (0, 4], got {args.scale}")
     path = pathlib.Path(args.points)
-    points, _ = read_points(path, columns=_point_columns(path, args.point_columns))
+    columns = _point_columns(path, args.point_columns)
+    points, extra = read_points(path, columns=columns)
     rig = read_rig_json(args.rig)
     result = hidden_eval(points, rig, fraction=args.fraction, seeds=args.seeds, scale=args.scale,
+                         ring=ring_column(extra, columns), estimate=not args.no_estimate,
                          min_range_m=args.min_range_m, config=_config(args))
     if result["hidden_points"] == 0:
         raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
+    for note in result["sweep_notes"]:
+        print(f"sweep: {note}", file=sys.stderr)
     for line in format_hidden(result):
         print(line)
     if args.json:
@@ -349,6 +378,8 @@ def register(subparsers) -> None:
     p.add_argument("--point-columns", type=int, default=None,
                    help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
     p.add_argument("--fraction", type=float, default=0.2, help="share of the points held out (default 0.2)")
+    p.add_argument("--no-estimate", action="store_true",
+                   help="do not estimate the LiDAR's position / field of view from the sweep (see README, Rig JSON)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
                    help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")
     p.add_argument("--scale", type=float, default=1.0, help="scale of every camera's image size and K (default 1)")

@@ -253,6 +253,31 @@ def test_matches_footprint_double_loop_random(seed, density, shape, raw):
     _assert_matches_footprint(got, *footprint_double_loop(depth, K, T, points_cam=points, **kw))
 
 
+@pytest.mark.parametrize("seed, far, t_z", [(0, 400.0, 0.0), (1, 300.0, 1.2), (2, 40.0, 2.5), (3, 260.0, -1.0)])
+def test_footprint_prefilter_edge_depths(seed, far, t_z):
+    """The prefilter keys saturate at 256 m and the parallax bound divides by Z - t_z: depths past
+    256 m, a LiDAR ahead of the camera (points closer than it are never compared) and points just
+    in front of it must not lose a removal."""
+    rng = np.random.default_rng(seed)
+    shape = (30, 48)
+    K, T = _camera(rng, *shape)
+    T[:3, 3] = (0.5, -0.3, t_z)
+    depth = rng.uniform(0.6 * far, far, shape)
+    near = rng.random(shape) < 0.3
+    depth[near] = rng.uniform(max(t_z, 0.0) + 0.0005, max(t_z, 0.0) + 6.0, near.sum())
+    depth[rng.random(shape) >= 0.2] = 0.0
+    depth = depth.astype(np.float32)
+    for raw in (False, True):
+        points = None
+        if raw:
+            v, u = np.mgrid[0:shape[0], 0:shape[1]]
+            rays = np.linalg.inv(K.astype(np.float64)) @ np.stack([u + 0.3, v - 0.2, np.ones(shape)]).reshape(3, -1)
+            points = (rays.reshape(3, *shape) * depth).astype(np.float32)
+        kw = dict(beams=8, epsilon_m=1.0, max_half_width_px=6, max_half_height_px=24, points_cam=points)
+        got = np.asarray(outlier_keep_mask(depth, K, T, **kw))
+        _assert_matches_footprint(got, *footprint_double_loop(depth, K, T, **kw))
+
+
 @pytest.mark.parametrize("r0, c0", [(110, 150), (100, 880)])
 def test_matches_footprint_double_loop_kitti_crop(kitti_frame, r0, c0):
     sparse = _kitti_crop(kitti_frame, "velodyne_raw_image_03.png")

@@ -196,12 +196,58 @@ def _small_box(k: int, capped: bool, cell_v: float, hh: int) -> tuple[int, int]:
     return max(hu, 0), hv
 
 
-def _prefilter_words(k, capped, rows, depth_c, w_c, eps, cell_u, move_coef, *, height, width, hh, hw, cell_v,
-                     footprint):
+#: Depth keys of the prefilter: uint16 ``floor(z * _ZQ)`` (1/256 m steps, as KITTI's PNGs), saturating
+#: at _ZSAT (256 m); _ZNONE marks a pixel that takes no part (the minima ignore it).
+_ZQ = 256.0
+_ZSAT = 65534
+_ZNONE = 65535
+
+
+def _z_key(z, part):
+    return jnp.where(part, jnp.clip(jnp.floor(z * np.float32(_ZQ)), 0.0, float(_ZSAT)), float(_ZNONE)
+                     ).astype(jnp.uint16)
+
+
+def _prefilter_fields(depth_c, t, *points_c, footprint):
+    """Per-pixel inputs of the prefilter on the padded canvas (one fenced stage).
+
+    A pixel takes part when it has depth and, for the footprint form, lies in
+    front of the LiDAR's virtual camera (as the exact test requires). Returns
+    uint16 keys (see :data:`_ZQ`): the depth key, then (footprint form, raw
+    path) the key of the point's own camera depth Z; and, footprint form, the
+    inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima.
+    """
+    ok = (depth_c > 0) & jnp.isfinite(depth_c)
+    if not footprint:
+        return (_z_key(depth_c, ok),)
+    big_z = points_c[2] if points_c else depth_c
+    ok = ok & (big_z - t[2] > 1e-3) & jnp.isfinite(big_z)
+    z_key = _z_key(depth_c, ok)
+    big_key = z_key if not points_c else _z_key(big_z, ok)
+    inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
+    return (z_key, inverted) if not points_c else (z_key, inverted, big_key)
+
+
+def _prefilter_rows(*keys, height, hh, hv, footprint):
+    """Column (vertical) minima of the prefilter keys: the depth key over the window's 2 hh + 1 rows
+    and over the small box's 2 hv + 1 rows, then (footprint form) the inverted Z key and (raw path)
+    the Z key over 2 hh + 1 rows."""
+    z_key = keys[0]
+    rows = [_sliding_min(z_key, 2 * hh + 1, axis=0)]
+    if footprint:
+        rows.append(_sliding_min(z_key[hh - hv:hh + hv + height], 2 * hv + 1, axis=0))
+        rows += [_sliding_min(k, 2 * hh + 1, axis=0) for k in keys[1:]]
+    return tuple(rows)
+
+
+def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, move_coef, *, height, width, hh, hw,
+                     cell_v, footprint):
     """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
     Every form of condition 1 needs condition 2: a pixel more than ``eps``
-    nearer in the window, ``z_i > min_window(z) + eps``.
+    nearer in the window, ``z_i > min_window(z) + eps``, tested on uint16 keys
+    ``floor(z * 256)``: ``key_i >= min key + floor(256 eps)`` follows from it
+    (a superset; a saturated key always passes).
 
     The footprint form needs more. A crossing of j's cell means
     0 < rb.m < |m|^2 and |rb x m| < |m| / 2, so |rb|^2 < |m|^2 + 1/4 (offsets
@@ -212,70 +258,50 @@ def _prefilter_words(k, capped, rows, depth_c, w_c, eps, cell_u, move_coef, *, h
 
         |m_u| <= |c_u - t_z b_u,i| |w_i - w_j| + |t_z| w_j |b_u,i - b_u,j|,
 
-    bounded over the window by the window extrema of w. A point whose bound
-    D_i gives D_i^2 + 1/4 < r^2 can only be removed by a nearer pixel inside
-    the box of normalised half size r; on smooth surfaces, where inverse depth
-    varies little within a window, most points take that small box.
-    ``rows`` holds the column (vertical) extrema of :func:`_prefilter_rows`.
+    bounded over the window from the window extrema of Z (their keys, rounded
+    outwards). A point whose bound D_i gives D_i^2 + 1/4 < r^2 can only be
+    removed by a nearer pixel inside the box of normalised half size r; on
+    smooth surfaces, where inverse depth varies little within a window, most
+    points take that small box. ``rows`` holds the column minima of
+    :func:`_prefilter_rows`.
     """
     words_per_row = -(-width // 32)
     cols = lambda a, half: a[:, hw - half:hw + half + width]
     centre = lambda a: a[hh:hh + height, hw:hw + width]
-    z = centre(depth_c)      # inf where the pixel takes no part
-    z_full = _sliding_min(cols(rows[0], k), 2 * k + 1, axis=1)
-    cand = (z < np.float32(np.inf)) & (z > z_full + eps)
+    key = centre(z_key_c).astype(jnp.int32)
+    margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
+
+    def nearer_in(min_rows, half):
+        low = _sliding_min(cols(min_rows, half), 2 * half + 1, axis=1).astype(jnp.int32)
+        return (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
+
+    cand = (key < _ZNONE) & nearer_in(rows[0], k)
     if footprint:
         hu, _ = _small_box(k, capped, cell_v, hh)
-        z_small = _sliding_min(cols(rows[1], hu), 2 * hu + 1, axis=1)
-        w = centre(w_c)
-        w_lo = _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1)
-        w_hi = -_sliding_min(cols(rows[3], k), 2 * k + 1, axis=1)
+        c_u, c_v, t_z = move_coef[0], move_coef[1], move_coef[2]
+        z_lo_key = rows[0] if len(rows) == 3 else rows[3]
+        z_lo = _sliding_min(cols(z_lo_key, k), 2 * k + 1, axis=1).astype(jnp.float32) / np.float32(_ZQ)
+        z_hi_key = np.float32(_ZSAT) - _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1).astype(jnp.float32)
+        reach_lo = z_lo - t_z
+        w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
+        reach_hi = (z_hi_key + 1.0) / np.float32(_ZQ) - t_z
+        w_lo = jnp.where(z_hi_key < _ZSAT, 1.0 / jnp.maximum(reach_hi, 1e-3), 0.0)
+        big_z = centre(big_z_c)
+        reach = big_z - t_z
+        w = 1.0 / jnp.where(reach > 1e-3, reach, 1.0)
         spread = jnp.maximum(w_hi - w, w - w_lo)
         v = jnp.arange(height, dtype=jnp.float32)[:, None]
         u = jnp.arange(width, dtype=jnp.float32)[None, :]
-        c_u, c_v, t_z = move_coef[0], move_coef[1], move_coef[2]
         # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
         d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1)
         d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
         reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v + 1e-3) ** 2 + 0.25
-        small = reach2 < _SMALL_RADIUS ** 2
-        cand = cand & (~small | (z > z_small + eps))
+        small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
+        cand = cand & (~small | nearer_in(rows[1], hu))
     if width % 32:
         cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
     bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
     return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
-
-
-def _prefilter_fields(depth_c, t, *points_c, footprint):
-    """Per-pixel inputs of the prefilter on the padded canvas (one fenced stage).
-
-    Returns (z, w): z = depth where the pixel can take part, else inf (a pixel
-    takes part when it has depth and, for the footprint form, lies in front of
-    the LiDAR's virtual camera, as the exact test requires); w = 1 / (Z - t_z)
-    with Z the point's camera depth, 0 where the pixel does not take part
-    (footprint form only; the z of the depth image otherwise).
-    """
-    ok = depth_c > 0
-    if not footprint:
-        return jnp.where(ok, depth_c, np.float32(np.inf)), depth_c
-    big_z = points_c[2] if points_c else depth_c
-    reach = big_z - t[2]
-    ok = ok & (reach > 1e-3) & jnp.isfinite(reach)
-    return jnp.where(ok, depth_c, np.float32(np.inf)), jnp.where(ok, 1.0 / jnp.where(ok, reach, 1.0), 0.0)
-
-
-def _prefilter_rows(z, w, *, height, hh, hv, footprint):
-    """Column (vertical) extrema of the prefilter fields: z minima over the
-    window's 2 hh + 1 rows and over the small box's 2 hv + 1 rows, then (footprint
-    form) the minimum and the negated maximum of w over 2 hh + 1 rows (pixels
-    that take no part excluded)."""
-    inf = np.float32(np.inf)
-    rows = [_sliding_min(z, 2 * hh + 1, axis=0), _sliding_min(z[hh - hv:hh + hv + height], 2 * hv + 1, axis=0)]
-    if footprint:
-        part = z < inf
-        rows.append(_sliding_min(jnp.where(part, w, inf), 2 * hh + 1, axis=0))
-        rows.append(_sliding_min(jnp.where(part, -w, inf), 2 * hh + 1, axis=0))
-    return tuple(rows)
 
 
 def _compact(words, width):
@@ -380,17 +406,18 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
     footprint = test == "footprint"
     _, hv = _small_box(0, True, height / beams, hh)
-    fields = stage(functools.partial(_prefilter_fields, footprint=footprint),
-                   (depth_c, t) + (() if points_c is None else tuple(points_c)), n_points)
-    rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), fields,
+    keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
+                 (depth_c, t) + (() if points_c is None else tuple(points_c)), n_points)
+    rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), keys,
                  n_points)
     # Parallax-move coefficients (c_u, c_v, t_z); see _prefilter_words.
     move_coef = jnp.stack([K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]])
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
     branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
                                   cell_v=height / beams, footprint=footprint) for k in widths]
-    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, rows, fields[0], fields[1], eps, cell_u,
-                          move_coef)
+    big_z_c = depth_c if points_c is None else points_c[2]
+    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, rows, keys[0], depth_c, big_z_c, eps,
+                          cell_u, move_coef)
 
     # --- 2. compaction ------------------------------------------------------
     count, locate = _compact(words, width)
