@@ -41,7 +41,7 @@ def load_frames(frame_dir: pathlib.Path = FRAME):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "accuracy_kitti.json"))
-    parser.add_argument("--distance", choices=("l1", "l2"), default="l2")
+    parser.add_argument("--distance", choices=("l1", "l2"), default=SGMConfig().distance_metric)
     args = parser.parse_args(argv)
     if not FRAME.exists():
         print(f"shared data not found: {FRAME}", file=sys.stderr)

@@ -60,8 +60,8 @@ def _config(args):
 
 
 def _add_config_options(p: argparse.ArgumentParser):
-    p.add_argument("--distance", choices=("l1", "l2"), default="l2",
-                   help="nearest-seed metric of the distance transform (default: l2)")
+    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
+                   help="nearest-seed metric of the distance transform (default: l1, city block; l2: Euclidean)")
     p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
 
 

@@ -49,3 +49,30 @@ def test_array_functions_state_shapes():
                  "depth_metrics", "ip_basic"):
         doc = getattr(jaxdepth, name).__doc__
         assert "(H, W)" in doc or "(N, 3)" in doc or "(N," in doc, name
+
+
+# Stage options that are SGMConfig fields under another name (issue 14: the stages' own
+# defaults must be SGMConfig's, so calling a stage alone gives the pipeline's step).
+CONFIG_FIELD_OF_OPTION = {"metric": "distance_metric", "min_abs_denom": "min_abs_denom",
+                          "max_residual_ratio": "max_residual_ratio", "epsilon_m": "epsilon_m",
+                          "max_half_width_px": "outlier_max_half_width_px",
+                          "max_half_height_px": "outlier_max_half_height_px",
+                          "smoothing": "normal_smoothing", "fill_max_gap": "range_fill_max_gap"}
+
+
+def test_stage_defaults_are_the_config_defaults():
+    config = jaxdepth.SGMConfig()
+    checked, differ = 0, []
+    for name, fn in public_callables():
+        try:
+            params = inspect.signature(fn).parameters.values()
+        except (TypeError, ValueError):
+            continue
+        for p in params:
+            field = CONFIG_FIELD_OF_OPTION.get(p.name)
+            if field is None or p.default is inspect.Parameter.empty:
+                continue
+            checked += 1
+            if p.default != getattr(config, field):
+                differ.append(f"{name}({p.name}={p.default!r}) vs SGMConfig.{field}={getattr(config, field)!r}")
+    assert checked >= 5 and not differ, differ

@@ -67,6 +67,8 @@ import jax
 import jax.numpy as jnp
 from jax import custom_batching, lax
 
+from jaxdepth._src.config import SGMConfig
+
 _METRICS = ("l1", "l2")
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -455,13 +457,14 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
 
 
 @functools.partial(jax.jit, static_argnames="metric")
-def nearest_seed(seed_mask: jax.Array, *, metric: str = "l1") -> NearestSeed:
+def nearest_seed(seed_mask: jax.Array, *, metric: str = SGMConfig().distance_metric) -> NearestSeed:
     """Nearest seed and its distance for every pixel (exact distance transform).
 
     Args:
       seed_mask: (H, W) bool, True at seed pixels.  Any H, W >= 1.
       metric: static; ``"l1"`` (city block, ``|du| + |dv|``) or ``"l2"``
-        (Euclidean, ``sqrt(du**2 + dv**2)``).  Both are exact.
+        (Euclidean, ``sqrt(du**2 + dv**2)``).  Both are exact.  Default:
+        ``SGMConfig().distance_metric`` (``"l1"``).
 
     Returns:
       :class:`NearestSeed`: ``distance`` (H, W) float32 pixels; ``du``, ``dv``

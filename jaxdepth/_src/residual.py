@@ -14,12 +14,15 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.geometry import pixel_grid
+
+_DEFAULTS = SGMConfig()
 
 
 def plane_residual(seed_depth: jax.Array, seed_normal: jax.Array, du: jax.Array, dv: jax.Array,
-                   K: jax.Array, *, min_abs_denom: float = 0.05,
-                   max_residual_ratio: float = 0.5) -> jax.Array:
+                   K: jax.Array, *, min_abs_denom: float = _DEFAULTS.min_abs_denom,
+                   max_residual_ratio: float = _DEFAULTS.max_residual_ratio) -> jax.Array:
     """Delta z for every pixel from its nearest seed.
 
     Args:
@@ -29,8 +32,9 @@ def plane_residual(seed_depth: jax.Array, seed_normal: jax.Array, du: jax.Array,
       K: (3, 3) intrinsics (fu = K[0,0], fv = K[1,1], pu = K[0,2], pv = K[1,2]).
       min_abs_denom: |denominator| at or below this (surface seen at a grazing
         angle, or a zero normal) gives Delta z = 0. The safe-where pattern keeps
-        values and gradients finite.
-      max_residual_ratio: |Delta z| is clipped to this fraction of z'.
+        values and gradients finite. Default: ``SGMConfig().min_abs_denom``.
+      max_residual_ratio: |Delta z| is clipped to this fraction of z'. Default:
+        ``SGMConfig().max_residual_ratio``.
 
     Returns:
       (H, W) float32 Delta z in metres; 0 where there is no seed.
