@@ -112,3 +112,60 @@ def test_no_estimate_keeps_the_points(street):
     frame = prepare_sweep(street.points, rig, estimate=False)
     assert frame.origin_source == "points" and frame.rig is rig
     np.testing.assert_array_equal(frame.points, street.points)
+
+
+# ---------------------------------------------------------------- the estimate from the sweep
+from jaxdepth.io.lidar_estimate import estimate_lidar_geometry  # noqa: E402
+from jaxdepth._src.types import LidarSpec  # noqa: E402
+
+
+@pytest.mark.parametrize("spec", [LidarSpec(beams=16, fov_up_deg=15.0, fov_down_deg=-15.0, columns=1800),
+                                  presets.NUSCENES_HDL32, presets.KITTI_HDL64])
+def test_spinning_sweep_in_its_frame_is_recognised(spec):
+    frame = make_street_scene(0, lidar=spec, image_scale=0.25)
+    points = frame.points[frame.valid]
+    est = estimate_lidar_geometry(points)
+    assert est.spinning and np.array_equal(est.origin_m, np.zeros(3))
+    ring = np.repeat(np.arange(spec.beams), spec.columns)[frame.valid]   # row major (beam, column)
+    with_ring = estimate_lidar_geometry(points, ring=ring)
+    assert with_ring.spinning and with_ring.beams == len(np.unique(ring))
+    top = spec.fov_up_deg if ring.min() == 0 else None
+    if top is not None:
+        assert abs(with_ring.fov_up_deg - spec.fov_up_deg) < 0.05
+    assert abs(with_ring.fov_down_deg - spec.fov_down_deg) < 0.05
+
+
+@pytest.mark.parametrize("offset", [(1.2, -0.1, 1.8), (-0.9, 0.0, 1.6)])
+def test_vehicle_frame_and_cones_are_not_trusted(offset):
+    frame = make_street_scene(0, lidar=presets.NUSCENES_HDL32, image_scale=0.25)
+    points = frame.points[frame.valid] + np.asarray(offset, np.float32)
+    ring = np.repeat(np.arange(32), presets.NUSCENES_HDL32.columns)[frame.valid]
+    assert not estimate_lidar_geometry(points).spinning
+    assert not estimate_lidar_geometry(points, ring=ring).spinning
+    cone = frame.points[frame.valid]
+    cone = cone[cone[:, 0] > np.abs(cone[:, 1])]                 # a forward-looking scan: no full turn
+    est = estimate_lidar_geometry(cone)
+    assert not est.spinning and est.azimuth_cover < 0.5
+
+
+def test_prepare_sweep_backs_off_for_a_vehicle_frame(street):
+    rig = _rig_from_frame(street)
+    frame = prepare_sweep(street.points[street.valid] + np.float32([1.2, -0.1, 1.8]), rig)
+    assert not frame.outlier_removal_trusted and frame.origin_source == "points"
+    assert any("lidar.origin_m" in note for note in frame.notes)
+    inframe = prepare_sweep(street.points[street.valid], rig)
+    assert inframe.outlier_removal_trusted and inframe.rig is rig
+
+
+@pytest.mark.shared_data
+def test_real_sweeps_are_in_their_sensor_frame(kitti_frame, nuscenes_sample):
+    import glob
+    from jaxdepth.io import read_points
+    kitti = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    assert estimate_lidar_geometry(kitti).spinning
+    assert not estimate_lidar_geometry(kitti + np.float32([-0.8, 0.3, 1.73])).spinning
+    points, extra = read_points(glob.glob(str(nuscenes_sample / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    est = estimate_lidar_geometry(points, ring=extra[:, 1])
+    assert est.spinning and est.beams == 32
+    assert abs(est.fov_up_deg - 10.67) < 0.5 and abs(est.fov_down_deg + 30.67) < 1.0
+    assert not estimate_lidar_geometry(points + np.float32([0.94, 0.0, 1.84]), ring=extra[:, 1]).spinning

@@ -11,16 +11,17 @@ and moves every camera's ``T_cam_lidar`` with them (the cameras see exactly
 the same points). Where the sensor sits comes from, in order:
 
 1. the rig (``lidar.origin_m`` in the rig JSON, :attr:`Rig.lidar_origin_m`);
-2. an estimate from the sweep itself
-   (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): for one
-   spinning multi-beam LiDAR, every beam is a cone of constant elevation
-   about the sensor, which fixes its position, beam count and vertical field
-   of view. Fields the rig did not state (field of view) are taken from it.
-3. the points' origin, when the sweep does not look like one spinning LiDAR
-   (a merged cloud of several sensors, a non-repetitive or raster scan). The
-   geometry of Algorithm 1 cannot be trusted then, and
+2. otherwise the points' origin, checked against the sweep itself
+   (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): around its
+   own sensor a spinning multi-beam LiDAR's points lie on rings of constant
+   elevation. With ring indices the beam count and the vertical field of view
+   come from the rings too (used where the rig left them open). When the sweep
+   does not look like one spinning LiDAR around the points' origin (a vehicle
+   frame, a merged cloud of several sensors, a non-repetitive or raster scan),
+   the geometry of Algorithm 1 cannot be trusted and
    :attr:`SweepFrame.outlier_removal_trusted` is False: callers turn outlier
-   removal off rather than delete good points.
+   removal off rather than delete good points, and the note says to state
+   ``lidar.origin_m``.
 
 Everything estimated is logged on ``logging.getLogger("jaxdepth")`` and
 summarised in :attr:`SweepFrame.notes`.
@@ -121,8 +122,9 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
         else:
             origin, source = np.zeros(3), "points"
             trusted = False
-            notes.append("the sweep does not look like one spinning LiDAR (merged sensors or a non-spinning "
-                         "scan): LiDAR origin assumed at the points' origin, outlier removal not trusted")
+            notes.append("the sweep does not look like one spinning LiDAR around the points' origin (a vehicle "
+                         "frame, merged sensors or a non-spinning scan): outlier removal is turned off; state "
+                         "where the sensor sits with lidar.origin_m in the rig JSON to keep it")
     for line in notes:
         log.info("%s", line)
     moved = xyz if not origin.any() else (xyz.astype(np.float64) - origin).astype(np.float32)
