@@ -3,34 +3,77 @@
 Zhao, Bai, Zhang, Huang, "A Surface Geometry Model for LiDAR Depth Completion",
 IEEE RA-L 2021. Every stage is a pure, jit-compiled, fixed-shape JAX function,
 so completion vmaps over frames and cameras.
+
+The public names load on first use (PEP 562 ``__getattr__``): ``import jaxdepth`` and
+``jaxdepth --help`` do not import JAX, and ``from jaxdepth import complete`` works as usual.
 """
+
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-from jaxdepth._src.config import SGMConfig as SGMConfig
-from jaxdepth._src.types import Camera as Camera, LidarSpec as LidarSpec, Stages as Stages
-from jaxdepth._src.presets import (KITTI_HDL64 as KITTI_HDL64, NUSCENES_HDL32 as NUSCENES_HDL32,
-                                   KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2)
-from jaxdepth._src.geometry import project_to_image as project_to_image, unproject_depth as unproject_depth
-from jaxdepth._src.normals import (range_image as range_image, point_normals as point_normals,
-                                   range_image_normals as range_image_normals)
-from jaxdepth._src.outliers import outlier_keep_mask as outlier_keep_mask
-from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
-from jaxdepth._src.residual import plane_residual as plane_residual
-from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur, gaussian_blur_traced as gaussian_blur_traced
-from jaxdepth._src.pipeline import (complete as complete, complete_stages as complete_stages,
-                                    complete_points as complete_points,
-                                    complete_points_stages as complete_points_stages)
-from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
-                               complete_rig as complete_rig, complete_rig_stages as complete_rig_stages)
-from jaxdepth._src.methods import complete_with as complete_with
-from jaxdepth._src.ip_basic import ip_basic as ip_basic
-from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
-                                   mean_metrics as mean_metrics, pair_errors as pair_errors)
-from jaxdepth._src.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
-from jaxdepth._src.colorize import (colorize_depth as colorize_depth, colorize_normals as colorize_normals,
-                                   overlay_depth as overlay_depth, overlay_mask as overlay_mask)
-from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
+if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDEs
+    from jaxdepth._src.config import SGMConfig as SGMConfig
+    from jaxdepth._src.types import Camera as Camera, LidarSpec as LidarSpec, Stages as Stages
+    from jaxdepth._src.presets import (KITTI_HDL64 as KITTI_HDL64, NUSCENES_HDL32 as NUSCENES_HDL32,
+                                       KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2)
+    from jaxdepth._src.geometry import project_to_image as project_to_image, unproject_depth as unproject_depth
+    from jaxdepth._src.normals import (range_image as range_image, point_normals as point_normals,
+                                       range_image_normals as range_image_normals)
+    from jaxdepth._src.outliers import outlier_keep_mask as outlier_keep_mask
+    from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
+    from jaxdepth._src.residual import plane_residual as plane_residual
+    from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur, gaussian_blur_traced as gaussian_blur_traced
+    from jaxdepth._src.pipeline import (complete as complete, complete_stages as complete_stages,
+                                        complete_points as complete_points,
+                                        complete_points_stages as complete_points_stages)
+    from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
+                                   complete_rig as complete_rig, complete_rig_stages as complete_rig_stages)
+    from jaxdepth._src.methods import complete_with as complete_with
+    from jaxdepth._src.ip_basic import ip_basic as ip_basic
+    from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
+                                       mean_metrics as mean_metrics, pair_errors as pair_errors)
+    from jaxdepth._src.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
+    from jaxdepth._src.colorize import (colorize_depth as colorize_depth, colorize_normals as colorize_normals,
+                                       overlay_depth as overlay_depth, overlay_mask as overlay_mask)
+    from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
+
+# module -> public names it provides (loaded by __getattr__ on first access)
+_LAZY = {
+    'jaxdepth._src.config': ('SGMConfig',),
+    'jaxdepth._src.types': ('Camera', 'LidarSpec', 'Stages'),
+    'jaxdepth._src.presets': ('KITTI_HDL64', 'NUSCENES_HDL32', 'KITTI_T_CAM2_LIDAR', 'KITTI_K_CAM2'),
+    'jaxdepth._src.geometry': ('project_to_image', 'unproject_depth'),
+    'jaxdepth._src.normals': ('range_image', 'point_normals', 'range_image_normals'),
+    'jaxdepth._src.outliers': ('outlier_keep_mask',),
+    'jaxdepth._src.distance': ('nearest_seed', 'gather_at_seed'),
+    'jaxdepth._src.residual': ('plane_residual',),
+    'jaxdepth._src.smoothing': ('gaussian_blur', 'gaussian_blur_traced'),
+    'jaxdepth._src.pipeline': ('complete', 'complete_stages', 'complete_points', 'complete_points_stages'),
+    'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'complete_rig', 'complete_rig_stages'),
+    'jaxdepth._src.methods': ('complete_with',),
+    'jaxdepth._src.ip_basic': ('ip_basic',),
+    'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),
+    'jaxdepth._src.hidden': ('hidden_point_mask', 'hidden_point_scores'),
+    'jaxdepth._src.colorize': ('colorize_depth', 'colorize_normals', 'overlay_depth', 'overlay_mask'),
+    'jaxdepth._src.synthetic': ('make_street_scene', 'SyntheticFrame'),
+}
+_MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
+
+
+def __getattr__(name):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module 'jaxdepth' has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE_OF))
+
 
 __all__ = [
     "SGMConfig", "Camera", "LidarSpec", "Stages", "KITTI_HDL64", "NUSCENES_HDL32", "KITTI_T_CAM2_LIDAR",

@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from jaxdepth import __version__
+from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 
 log = logging.getLogger("jaxdepth")
@@ -79,6 +80,7 @@ def cmd_demo(args) -> int:
 
 
 _DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
+_PNG_COMPRESSION_DEFAULT = DEFAULT_PNG_COMPRESSION
 
 
 def split_cpu_into_devices(count: int | None = None) -> int:
@@ -196,6 +198,9 @@ def cmd_complete(args) -> int:
         _ensure_writable_dir(dst)
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
         split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
+    if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
+        print("jaxdepth: error: --png-compression is only supported with --engine local", file=sys.stderr)
+        return 2
     progress = Progress(len(jobs), enabled=not args.quiet)
     if args.engine == "ray":
         from jaxdepth import scale
@@ -204,9 +209,16 @@ def cmd_complete(args) -> int:
                                      address=args.ray_address, on_progress=progress.update)
     else:
         summary = runner.run_jobs(jobs, method=args.method, config=_config_from(args), batch_size=args.batch_size,
-                                  overwrite=args.overwrite, on_progress=progress.update)
+                                  overwrite=args.overwrite, png_compression=args.png_compression,
+                                  io_threads=_io_threads(), on_progress=progress.update)
     progress.close()
-    return _report(summary, args.quiet)
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _io_threads() -> int:
+    """Decode / encode threads of the local runner: one per core, at least 2."""
+    import os
+    return max(2, os.cpu_count() or 1)
 
 
 def _ensure_writable_dir(path: pathlib.Path):
@@ -222,13 +234,31 @@ def _ensure_writable_dir(path: pathlib.Path):
         raise OutputError(f"{path}: output folder is not writable")
 
 
-def _report(summary, quiet: bool) -> int:
+def _report(summary, quiet: bool, *, t_start: float | None = None) -> int:
     for name, message in summary.failed:
         print(f"FAILED {name}: {message}", file=sys.stderr)
     if not quiet or summary.failed:
         print(f"{len(summary.done)} completed, {len(summary.skipped)} skipped (already done), "
               f"{len(summary.failed)} failed", file=sys.stderr)
+    if not quiet and t_start is not None:
+        print(_timing_line(summary, t_start, time.perf_counter()), file=sys.stderr)
     return 0 if summary.ok else 1
+
+
+def _timing_line(summary, t_start: float, t_end: float) -> str:
+    """Wall time, start-up (command start -> frames start: imports, JAX, listing) and first-frame
+    latency (command start -> first output in place: adds compile-cache load and one batch)."""
+    total = t_end - t_start
+    parts = [f"{total:.1f} s"]
+    if summary.done:
+        parts[0] += f" ({len(summary.done) / max(total, 1e-9):.1f} frames/s)"
+    started = getattr(summary, "started_at", None)
+    if started is not None:
+        parts.append(f"start-up {started - t_start:.2f} s")
+    first = getattr(summary, "first_output_at", None)
+    if first is not None:
+        parts.append(f"first frame written at {first - t_start:.2f} s")
+    return "time: " + ", ".join(parts)
 
 
 def cmd_complete_rig(args) -> int:
@@ -289,6 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
+    p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,
+                   metavar="0-9",
+                   help=f"zlib level of the output PNGs (default {_PNG_COMPRESSION_DEFAULT}: fast; 9: smallest, "
+                        "slowest; 0: no compression, ~2.5x the bytes); the depth values are the same at every level")
     p.add_argument("--cpu-devices", type=int, default=0, metavar="N",
                    help="on CPU, split the cores into N host devices that each complete their own frames "
                         "(default 0: one per core; 1: off; ignored if XLA_FLAGS sets a device count)")
@@ -319,13 +353,56 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _accelerator_plugin_installed() -> bool:
+    """Whether a JAX accelerator plugin could be installed (checked without importing JAX):
+    an entry point of group ``jax_plugins`` (jax-cuda12-plugin, ...), a ``jax_plugins``
+    namespace package, or ``libtpu``."""
+    import importlib.metadata
+    import importlib.util
+    try:
+        if importlib.metadata.entry_points(group="jax_plugins"):
+            return True
+    except Exception:  # a broken distribution's metadata: assume a plugin may be there
+        return True
+    return any(importlib.util.find_spec(name) is not None for name in ("jax_plugins", "libtpu"))
+
+
+class _HideBackendProbes(logging.Filter):
+    """Drops JAX's "Unable to initialize backend 'tpu'" notes (JAX probes every platform it knows)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Unable to initialize backend")
+
+
+def _quiet_jax_start():
+    """The CLI's JAX start-up, set before JAX is imported (never in library code).
+
+    With ``JAX_PLATFORMS`` unset and no accelerator plugin installed, JAX would only
+    find the CPU anyway: say so (``JAX_PLATFORMS=cpu``), which skips the probes of
+    other platforms and their "Unable to initialize backend" messages. A user's own
+    ``JAX_PLATFORMS`` (even empty) is kept. The probe messages are filtered as well.
+    """
+    import os
+    logging.getLogger("jax._src.xla_bridge").addFilter(_HideBackendProbes())
+    if "jax" in sys.modules or "JAX_PLATFORMS" in os.environ:
+        return
+    if not _accelerator_plugin_installed():
+        os.environ["JAX_PLATFORMS"] = "cpu"
+
+
 def main(argv=None) -> int:
+    t_start = time.perf_counter()
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    # Our own logger follows -v; other libraries' (JAX's) INFO notes are not shown to users.
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    if args.verbose:
+        log.setLevel(logging.INFO)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    _quiet_jax_start()
+    args.t_start = t_start
     use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)

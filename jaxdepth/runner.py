@@ -28,6 +28,7 @@ import os
 import pathlib
 import collections
 import threading
+import time
 from typing import Callable, Iterable, Sequence
 
 import jax
@@ -41,7 +42,7 @@ from jaxdepth._src.methods import complete_with
 from jaxdepth._src.types import LidarSpec
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
-from jaxdepth.io.depth_png import read_depth_png, write_depth_png
+from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png, write_depth_png
 
 log = logging.getLogger("jaxdepth")
 
@@ -62,6 +63,8 @@ class RunSummary:
     done: list = dataclasses.field(default_factory=list)
     skipped: list = dataclasses.field(default_factory=list)
     failed: list = dataclasses.field(default_factory=list)  # (name, message)
+    started_at: float | None = None  # time.perf_counter() when run_jobs started
+    first_output_at: float | None = None  # time.perf_counter() when the first output was in place
 
     @property
     def ok(self) -> bool:
@@ -209,13 +212,20 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
              lidar: LidarSpec = presets.KITTI_HDL64, T_cam_lidar: np.ndarray | None = None,
              batch_size: int = 4, overwrite: bool = False, strategy: str | None = None,
              devices: int | None = None, io_threads: int = 2,
+             png_compression: int = DEFAULT_PNG_COMPRESSION,
              on_progress: Callable[[str, str], None] | None = None) -> RunSummary:
     """Completes every job; never raises for a bad frame (it is recorded in ``failed``).
 
     ``on_progress(name, status)`` is called once per frame with status "done",
-    "skipped" or "failed: <message>".
+    "skipped" or "failed: <message>". ``png_compression``: zlib level 0-9 of the
+    outputs (:func:`jaxdepth.io.depth_png.encode_depth_png`; same values at every level).
+
+    The main thread only batches and dispatches: batch k+1 is handed to the devices
+    (asynchronously) before batch k's result is collected, while ``io_threads``
+    threads each decode inputs and encode + write outputs (OpenCV, NumPy and zlib
+    release the GIL).
     """
-    summary = RunSummary()
+    summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
     todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
     if not todo:
@@ -235,7 +245,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
 
     def write(job, depth):
         try:
-            write_depth_png(job.out_path, depth)
+            write_depth_png(job.out_path, depth, compression=png_compression)
         except io_errors.JaxdepthError as err:
             record_failure(job.name, str(err))
             return
@@ -244,11 +254,25 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
             return
         with lock:
             summary.done.append(job.name)
+            if summary.first_output_at is None:
+                summary.first_output_at = time.perf_counter()
         notify(job.name, "done")
 
     pending: dict = {}  # (h, w) -> list of (job, depth, K)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         write_futures = []
+        in_flight = []  # at most one dispatched batch whose result is not collected yet
+
+        def collect():
+            items, out = in_flight.pop()
+            try:
+                result = np.asarray(out)
+            except Exception as err:  # a compute failure costs this batch, not the run
+                for job, _, _ in items:
+                    record_failure(job.name, f"completion failed: {err}")
+                return
+            for i, (job, _, _) in enumerate(items):
+                write_futures.append(writers.submit(write, job, result[i]))
 
         def flush(shape, items):
             h, w = shape
@@ -256,13 +280,15 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
                                     strategy=strategy, devices=devices)
             d, k, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]), batch_size)
             try:
-                result = np.asarray(fn(d, k, T))
-            except Exception as err:  # a compute failure costs this batch, not the run
+                out = fn(d, k, T)  # dispatched; runs while the previous batch is collected
+            except Exception as err:
                 for job, _, _ in items:
                     record_failure(job.name, f"completion failed: {err}")
-                return
-            for i, (job, _, _) in enumerate(items):
-                write_futures.append(writers.submit(write, job, result[i]))
+                out = None
+            if in_flight:
+                collect()
+            if out is not None:
+                in_flight.append((items, out))
 
         # Read ahead at most a few batches so memory stays bounded.
         window = max(2 * batch_size, 4)
@@ -291,6 +317,8 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
                 flush(depth.shape, pending.pop(depth.shape))
         for shape, items in list(pending.items()):
             flush(shape, items)
+        if in_flight:
+            collect()
         for f in write_futures:
             f.result()
     return summary

@@ -35,6 +35,37 @@ def test_help_and_version():
     assert run_cli("complete").returncode == 2  # argparse usage error
 
 
+def test_help_version_and_usage_errors_do_not_import_jax():
+    """Issue 14: the answers that need no computation come without JAX's ~0.6 s import."""
+    script = ("import sys\n"
+              "from jaxdepth import cli\n"
+              "codes = []\n"
+              "for argv in (['--help'], ['--version'], [], ['complete'], ['complete', 'a', 'b', '--distance', 'l3'],\n"
+              "             ['demo', '--help'], ['complete', '--help']):\n"
+              "    try:\n"
+              "        codes.append(cli.main(argv))\n"
+              "    except SystemExit as exit:\n"
+              "        codes.append(exit.code)\n"
+              "print(codes, 'jax' in sys.modules, 'jaxlib' in sys.modules)\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip().splitlines()[-1] == "[0, 0, 2, 2, 2, 0, 0] False False", result.stdout[-2000:]
+
+
+def test_verbose_run_does_not_show_jax_backend_probes(tmp_path, frames):
+    """Issue 14: JAX's "Unable to initialize backend 'tpu'" note never reaches the user, even with -v."""
+    items, _ = frames
+    src = write_kitti_folder(tmp_path / "src", items[:1])
+    env = {k: v for k, v in os.environ.items() if k != "JAX_PLATFORMS"}
+    result = subprocess.run(
+        [sys.executable, "-m", "jaxdepth.cli", "-v", "--no-compile-cache", "complete",
+         str(src / "velodyne_raw" / "frame_000.png"), str(tmp_path / "out.png"),
+         "--intrinsics", str(src / "intrinsics" / "frame_000.txt"), "--method", "nearest"],
+        env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Unable to initialize backend" not in result.stderr, result.stderr[-2000:]
+
+
 def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items)
@@ -217,3 +248,25 @@ def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monk
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jaxdepth" / "xla")
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_png_compression_option_changes_size_not_values_and_summary_has_timings(tmp_path, frames, capsys):
+    """Issue 14: --png-compression 0-9; the decoded depth is the same at every level; the summary
+    reports start-up and first-frame latency."""
+    items, _ = frames
+    src = write_kitti_folder(tmp_path / "src", items[:2])
+    outs = {}
+    for level in ("0", "9", None):
+        dst = tmp_path / f"out_{level}"
+        extra = [] if level is None else ["--png-compression", level]
+        code = cli.main(["complete", str(src), str(dst), "--method", "nearest", "--batch-size", "2", *extra])
+        err = capsys.readouterr().err
+        assert code == 0, err
+        assert "2 completed" in err and "start-up" in err and "first frame written at" in err
+        outs[level] = {p.name: p for p in sorted(dst.iterdir())}
+    for name in outs["0"]:
+        np.testing.assert_array_equal(read_depth_png(outs["0"][name]), read_depth_png(outs["9"][name]))
+        np.testing.assert_array_equal(read_depth_png(outs["0"][name]), read_depth_png(outs[None][name]))
+        assert outs["0"][name].stat().st_size > outs["9"][name].stat().st_size
+    with pytest.raises(SystemExit):
+        cli.main(["complete", str(src), str(tmp_path / "bad"), "--png-compression", "10"])

@@ -188,3 +188,53 @@ def test_write_overwrite_flag(tmp_path):
     np.testing.assert_array_equal(read_depth_png(path), np.ones((2, 2)))
     write_depth_png(path, np.zeros((2, 2), np.float32))
     np.testing.assert_array_equal(read_depth_png(path), np.zeros((2, 2)))
+
+
+def _dense_kitti_like(kitti_frame):
+    """A dense depth map with real structure: the ground truth with its holes filled row-wise."""
+    gt = read_depth_png(kitti_frame / "groundtruth_image_02.png")
+    filled = np.maximum.accumulate(gt, axis=1)
+    return filled.astype(np.float32)
+
+
+def test_compression_levels_store_the_same_values_and_bytes_are_deterministic(tmp_path, kitti_frame):
+    """Issue 14: --png-compression changes size and time only; OpenCV (an independent decoder) and
+    our reader get the same uint16 values at every level, and a level always gives the same bytes."""
+    depth = _dense_kitti_like(kitti_frame)
+    want = encode_depth_uint16(depth)
+    sizes = {}
+    for level in range(10):
+        a, b = tmp_path / f"a{level}.png", tmp_path / f"b{level}.png"
+        write_depth_png(a, depth, compression=level)
+        write_depth_png(b, depth.copy(), compression=level)
+        assert a.read_bytes() == b.read_bytes()
+        np.testing.assert_array_equal(cv2.imread(str(a), cv2.IMREAD_UNCHANGED), want)
+        np.testing.assert_array_equal(read_depth_png(a), read_depth_png(tmp_path / "a0.png"))
+        sizes[level] = a.stat().st_size
+    assert sizes[0] > 2 * sizes[1] and sizes[9] <= sizes[1]
+    # the default is a valid level and equals passing it explicitly
+    write_depth_png(tmp_path / "d.png", depth)
+    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
+    assert (tmp_path / "d.png").read_bytes() == (tmp_path / f"a{DEFAULT_PNG_COMPRESSION}.png").read_bytes()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (5, 1), (3, 4)])
+def test_encode_depth_png_matches_opencv_on_small_and_extreme_values(shape):
+    from jaxdepth.io import encode_depth_png
+    rng = np.random.default_rng(sum(shape))
+    array = rng.integers(0, 65536, shape).astype(np.uint16)
+    array.flat[0] = 65535
+    data = encode_depth_png(array, compression=6)
+    np.testing.assert_array_equal(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED), array)
+
+
+def test_encode_depth_png_rejects_bad_levels_and_arrays(tmp_path):
+    from jaxdepth.io import encode_depth_png
+    ok = np.zeros((2, 2), np.uint16)
+    for level in (-1, 10, 1.5, True):
+        with pytest.raises(ValueError, match=f"'compression' expected an integer 0-9, got {level!r}"):
+            encode_depth_png(ok, compression=level)
+    with pytest.raises(ValueError, match="uint16"):
+        encode_depth_png(np.zeros((2, 2), np.float32))
+    with pytest.raises(OutputError, match="ending in .png"):
+        write_depth_png(tmp_path / "x.jpg", np.zeros((2, 2), np.float32))

@@ -16,8 +16,8 @@ import zlib
 
 import numpy as np
 
-from jaxdepth.io.atomic import atomic_write_png
-from jaxdepth.io.errors import PathLike, file_error, read_input_bytes
+from jaxdepth.io.atomic import atomic_write_bytes
+from jaxdepth.io.errors import OutputError, PathLike, file_error, read_input_bytes
 
 _LOG = logging.getLogger("jaxdepth")
 
@@ -25,6 +25,13 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _COLOUR_TYPES = {0: "greyscale", 2: "RGB colour", 3: "palette colour", 4: "greyscale + alpha", 6: "RGBA colour"}
 _SCALE = 256.0
 _MAX_PIXELS = 1 << 28  # refuse absurd headers before allocating
+_UP_FILTER = 2  # PNG row filter type "Up": each byte minus the byte above it
+
+#: zlib level of the depth PNGs jaxdepth writes (0 = stored, 9 = smallest; any level decodes to
+#: the same values, and KITTI's devkit reads them all). Measured on a completed 352x1216 KITTI
+#: frame: level 1 encodes in ~1/3 of the time of OpenCV's level 3 for ~8 % more bytes (340 vs
+#: 315 kB); level 0 takes ~1 ms but writes 857 kB. See README, Command line.
+DEFAULT_PNG_COMPRESSION = 1
 
 
 def _read_bytes(path: pathlib.Path) -> bytes:
@@ -109,7 +116,10 @@ def encode_depth_uint16(depth_m: np.ndarray) -> np.ndarray:
         raise ValueError(f"write_depth_png: field 'depth_m' expected a non-empty (H, W) array, got shape {depth.shape}")
     if depth.dtype.kind not in "fiub":
         raise ValueError(f"write_depth_png: field 'depth_m' expected real numbers, got dtype {depth.dtype}")
-    scaled = np.rint(depth.astype(np.float64) * _SCALE)
+    if depth.dtype == np.float32:  # x * 256 is exact in float32: the same result as float64, fewer bytes
+        scaled = np.rint(depth * np.float32(_SCALE))
+    else:
+        scaled = np.rint(depth.astype(np.float64) * _SCALE)
     nan = np.isnan(scaled)
     if nan.any():
         raise ValueError(f"write_depth_png: field 'depth_m' expected no NaN (use 0 for missing depth), "
@@ -122,7 +132,47 @@ def encode_depth_uint16(depth_m: np.ndarray) -> np.ndarray:
     return np.clip(scaled, 0, 65535).astype(np.uint16)
 
 
-def write_depth_png(path: PathLike, depth_m: np.ndarray, *, overwrite: bool = True) -> pathlib.Path:
+def _chunk(tag: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
+
+
+def encode_depth_png(depth_u16: np.ndarray, *, compression: int = DEFAULT_PNG_COMPRESSION) -> bytes:
+    """Encodes a uint16 depth image as 16-bit greyscale PNG bytes.
+
+    Args:
+      depth_u16: (H, W) uint16 (KITTI: metres * 256), e.g. from :func:`encode_depth_uint16`.
+      compression: zlib level 0-9 (0 stores the rows uncompressed, 9 is the smallest
+        and slowest); every level decodes to the same values.
+
+    Returns:
+      The PNG file's bytes: IHDR, one IDAT, IEND. Every row uses the PNG filter "Up"
+      (the difference to the row above, which suits depth maps), then one zlib
+      stream at ``compression``: the same array and level always give the same bytes.
+      NumPy filters and zlib compresses (releasing the GIL), so threads encode in
+      parallel; OpenCV's encoder tries five filters per row and is ~2-3x slower here.
+
+    Raises:
+      ValueError: not a non-empty 2-D uint16 array, or a level outside 0-9.
+    """
+    array = np.asarray(depth_u16)
+    if array.dtype != np.uint16 or array.ndim != 2 or array.shape[0] < 1 or array.shape[1] < 1:
+        raise ValueError(f"encode_depth_png: field 'depth_u16' expected a non-empty (H, W) uint16 array, "
+                         f"got shape {array.shape} dtype {array.dtype}")
+    if isinstance(compression, bool) or int(compression) != compression or not 0 <= compression <= 9:
+        raise ValueError(f"encode_depth_png: field 'compression' expected an integer 0-9, got {compression!r}")
+    h, w = array.shape
+    big_endian = array.astype(">u2").view(np.uint8).reshape(h, 2 * w)
+    rows = np.empty((h, 2 * w + 1), np.uint8)
+    rows[:, 0] = _UP_FILTER
+    rows[0, 1:] = big_endian[0]
+    np.subtract(big_endian[1:], big_endian[:-1], out=rows[1:, 1:])  # uint8: modulo 256, as PNG wants
+    header = struct.pack(">IIBBBBB", w, h, 16, 0, 0, 0, 0)  # 16-bit greyscale, no interlace
+    return (_PNG_SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", zlib.compress(rows, int(compression)))
+            + _chunk(b"IEND", b""))
+
+
+def write_depth_png(path: PathLike, depth_m: np.ndarray, *, overwrite: bool = True,
+                    compression: int = DEFAULT_PNG_COMPRESSION) -> pathlib.Path:
     """Writes a depth map as a KITTI depth PNG, atomically.
 
     Args:
@@ -130,14 +180,21 @@ def write_depth_png(path: PathLike, depth_m: np.ndarray, *, overwrite: bool = Tr
       depth_m: (H, W) float depth in metres, 0 = empty. Not modified.
       overwrite: replace an existing file (default); ``False`` raises
         :class:`~jaxdepth.io.errors.OutputError` if the file exists.
+      compression: zlib level 0-9 of the PNG (see :func:`encode_depth_png`); the
+        stored values do not depend on it, only the file size and the time.
 
     Returns:
       The path written.
 
     Values are stored as ``clip(round(depth_m * 256), 0, 65535)`` (see
-    :func:`encode_depth_uint16`); the same input always gives the same bytes.
+    :func:`encode_depth_uint16`); the same input and level always give the same bytes.
     """
-    return atomic_write_png(path, encode_depth_uint16(depth_m), overwrite=overwrite)
+    path = pathlib.Path(path)
+    if path.suffix.lower() != ".png":
+        raise OutputError(f"{path}: expected a file name ending in .png, got suffix '{path.suffix}'")
+    data = encode_depth_png(encode_depth_uint16(depth_m), compression=compression)
+    return atomic_write_bytes(path, data, overwrite=overwrite)
 
 
-__all__ = ["read_depth_png", "write_depth_png", "encode_depth_uint16"]
+__all__ = ["read_depth_png", "write_depth_png", "encode_depth_uint16", "encode_depth_png",
+           "DEFAULT_PNG_COMPRESSION"]
