@@ -56,7 +56,7 @@ def frames_section(batch_sizes, strategies, devices, repeats):
                                            lidar=presets.KITTI_HDL64, strategy=strategy, devices=devices)
             depths = np.repeat(sparse[None], b, axis=0)
             Ks = np.repeat(np.asarray(K, np.float32)[None], b, axis=0)
-            Tf = np.asarray(T, np.float32)
+            Tf = np.ascontiguousarray(np.broadcast_to(np.asarray(T, np.float32), (depths.shape[0], 4, 4)))
             compile_s, med = timed(lambda: jax.block_until_ready(fn(depths, Ks, Tf)), repeats)
             out[f"{strategy}_b{b}_d{devices}"] = {"compile_s": compile_s, "median_s": med, "frames_per_s": b / med}
     return out

@@ -214,7 +214,8 @@ def main(argv=None):
             Ks = np.repeat(np.asarray(K, np.float32)[None], b, axis=0)
             fn = runner.batched_completion(b, sparse.shape[0], sparse.shape[1], method="sgm", config=config,
                                            lidar=lidar, strategy=strategy, devices=1)
-            call = lambda: jax.block_until_ready(fn(depths, Ks, np.asarray(T, np.float32)))
+            Ts = np.ascontiguousarray(np.broadcast_to(np.asarray(T, np.float32), (depths.shape[0], 4, 4)))
+            call = lambda: jax.block_until_ready(fn(depths, Ks, Ts))
             compile_s = compile_seconds(call)
             med, _ = timeit(call, max(3, args.repeats // (2 * b)))
             batch[f"{strategy}_b{b}"] = {"compile_s": compile_s, "median_ms": med, "frames_per_s": 1e3 * b / med}

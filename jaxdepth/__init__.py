@@ -16,7 +16,8 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
     from jaxdepth._src.config import SGMConfig as SGMConfig
     from jaxdepth._src.types import Camera as Camera, LidarSpec as LidarSpec, Stages as Stages
     from jaxdepth._src.presets import (KITTI_HDL64 as KITTI_HDL64, NUSCENES_HDL32 as NUSCENES_HDL32,
-                                       KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2)
+                                       KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2,
+                                       KITTI_T_CAM3_LIDAR as KITTI_T_CAM3_LIDAR)
     from jaxdepth._src.geometry import project_to_image as project_to_image, unproject_depth as unproject_depth
     from jaxdepth._src.normals import (range_image as range_image, point_normals as point_normals,
                                        range_image_normals as range_image_normals)
@@ -42,7 +43,8 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
 _LAZY = {
     'jaxdepth._src.config': ('SGMConfig',),
     'jaxdepth._src.types': ('Camera', 'LidarSpec', 'Stages'),
-    'jaxdepth._src.presets': ('KITTI_HDL64', 'NUSCENES_HDL32', 'KITTI_T_CAM2_LIDAR', 'KITTI_K_CAM2'),
+    'jaxdepth._src.presets': ('KITTI_HDL64', 'NUSCENES_HDL32', 'KITTI_T_CAM2_LIDAR', 'KITTI_T_CAM3_LIDAR',
+                              'KITTI_K_CAM2'),
     'jaxdepth._src.geometry': ('project_to_image', 'unproject_depth'),
     'jaxdepth._src.normals': ('range_image', 'point_normals', 'range_image_normals'),
     'jaxdepth._src.outliers': ('outlier_keep_mask',),
@@ -77,6 +79,7 @@ def __dir__():
 
 __all__ = [
     "SGMConfig", "Camera", "LidarSpec", "Stages", "KITTI_HDL64", "NUSCENES_HDL32", "KITTI_T_CAM2_LIDAR",
+    "KITTI_T_CAM3_LIDAR",
     "KITTI_K_CAM2", "project_to_image", "unproject_depth", "range_image", "point_normals", "range_image_normals",
     "outlier_keep_mask", "nearest_seed", "gather_at_seed", "plane_residual", "gaussian_blur", "complete",
     "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "complete_rig",

@@ -182,18 +182,28 @@ def cmd_complete(args) -> int:
     from jaxdepth.io.errors import InputError
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
 
+    from jaxdepth.io.calib import read_extrinsic_txt
+    from jaxdepth.io.kitti_layout import KittiExtrinsics
+
     src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
+    if args.extrinsic is not None and (args.camera is not None or args.calib_dir is not None):
+        raise InputError("--extrinsic gives the extrinsic itself: use it without --camera / --calib-dir")
+    if args.extrinsic is not None:
+        T_fixed = read_extrinsic_txt(args.extrinsic)
+        extrinsic_of = lambda path: T_fixed  # noqa: E731
+    else:
+        extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if src.is_file() or src.suffix.lower() == ".png":
         if not src.exists():
             raise InputError(f"{src}: input file not found")
         if args.intrinsics is None:
             raise InputError(f"{src}: a single image needs --intrinsics K.txt (9 numbers, row-major K)")
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
-                                K=read_intrinsics_txt(args.intrinsics))]
+                                K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src))]
     else:
         K_override = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
         jobs = [runner.FrameJob(name=name, sparse_path=png, out_path=dst / png.name,
-                                intrinsics_path=k_path, K=K_override)
+                                intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png))
                 for name, png, k_path in list_depth_completion_folder(src)]
         _ensure_writable_dir(dst)
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
@@ -263,17 +273,35 @@ def _timing_line(summary, t_start: float, t_end: float) -> str:
 
 def cmd_complete_rig(args) -> int:
     import jaxdepth
-    from jaxdepth.io import pad_points, read_points, read_rig_json, write_depth_png
+    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json, write_depth_png
+    from jaxdepth.research_cli import ring_column
 
     rig = read_rig_json(args.rig)
-    points, _ = read_points(args.points, columns=args.point_columns)
-    padded, valid = pad_points(points)
+    columns = infer_point_columns(args.points, args.point_columns)
+    points, extra = read_points(args.points, columns=columns)
+    frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=not args.no_estimate)
+    config = _config_from(args)
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    if not args.quiet:
+        for note in frame.notes:
+            print(f"sweep: {note}", file=sys.stderr)
+    rig = frame.rig
+    padded, valid = pad_points(frame.points)
     out_dir = pathlib.Path(args.out_dir)
     _ensure_writable_dir(out_dir)
     cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    depth = np.asarray(jaxdepth.complete_rig(padded, valid, cameras, config=_config_from(args), lidar=rig.lidar))
+    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar)
+    depth = np.asarray(stages.depth)
+    seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
     failed = 0
     for i, camera in enumerate(rig.cameras):
+        if seen[i] == 0:
+            message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
+                       f"(check T_cam_lidar in {args.rig}: it maps the sweep's frame into the camera, which "
+                       "looks along +z, x right, y down)")
+            log.warning("%s", message)
+            print(f"warning: {message}", file=sys.stderr)
         target = out_dir / f"{camera.name}.png"
         if target.exists() and not args.overwrite:
             print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
@@ -316,6 +344,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("src", help="folder with velodyne_raw/*.png and intrinsics/*.txt, or one sparse depth PNG")
     p.add_argument("dst", help="output folder (or output PNG for a single image)")
     p.add_argument("--intrinsics", help="K.txt for a single image (or for every frame of a folder)")
+    p.add_argument("--camera", type=int, choices=(0, 1, 2, 3), default=None,
+                   help="KITTI camera whose LiDAR extrinsic to use (default: the file name's _image_0X suffix, "
+                        "else 2; built-in 2011_09_26 calibration for cameras 2 and 3)")
+    p.add_argument("--calib-dir", default=None, metavar="DIR",
+                   help="KITTI raw calibration per recording date: DIR/<date>/calib_cam_to_cam.txt and "
+                        "calib_velo_to_cam.txt (date from the file name), or the two files directly in DIR")
+    p.add_argument("--extrinsic", default=None, metavar="T.txt",
+                   help="LiDAR -> camera extrinsic for every frame: 12 (3x4) or 16 (4x4) numbers, row major")
     _add_method_options(p)
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
@@ -336,7 +372,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
     p.add_argument("rig", help="rig JSON (see README: lidar beams, cameras with K and T_cam_lidar)")
     p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
-    p.add_argument("--point-columns", type=int, default=4, help="float32 values per .bin record (KITTI 4, nuScenes 5)")
+    p.add_argument("--point-columns", type=int, default=None,
+                   help="float32 values per .bin record (default: 5 for *.pcd.bin, else the one of 4 or 5 that "
+                        "the file size fits; a size that fits both must be given)")
+    p.add_argument("--no-estimate", action="store_true",
+                   help="do not check the sweep against its LiDAR (see README, Rig JSON: lidar.origin_m)")
     _add_method_options(p, methods=("sgm",))
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("-q", "--quiet", action="store_true")

@@ -159,9 +159,8 @@ def _kitti_camera(calib_dir: pathlib.Path, index: int, gt: np.ndarray):
 
 
 def _point_columns(path: pathlib.Path, given):
-    if given is not None:
-        return given
-    return 5 if path.name.lower().endswith(".pcd.bin") else 4
+    from jaxdepth.io.points import infer_point_columns
+    return infer_point_columns(path, given)
 
 
 def cmd_sparsity(args) -> int:
@@ -285,7 +284,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
             "targets": "held-out points' own per-pixel z-buffer, unfiltered"}
 
 
-_SHORT = {"sgm": "SGM", "sgm_no_removal": "SGM-noOR", "nearest": "nearest", "ip_basic": "IP_Basic"}
+_SHORT = {"sgm": "SGM", "sgm_no_removal": "SGM-noOR", "nearest": "nearest", "nearest_l2": "nearest-L2",
+          "ip_basic": "IP_Basic"}
 
 
 def format_hidden(result: dict) -> list:
@@ -301,7 +301,8 @@ def format_hidden(result: dict) -> list:
     lines.append(f"{'mean':16s}{'':6s}" + cells(result["mean"]))
     lines.append(f"{result['hidden_points']} of {result['points']} points hidden per draw (fraction "
                  f"{result['fraction']}, seeds {result['seeds']}); mm at the held-out points' own z-buffer "
-                 f"(unfiltered); SGM-noOR = SGM without outlier removal; nearest and IP_Basic without removal")
+                 f"(unfiltered); SGM-noOR = SGM without outlier removal; nearest = the SGM's own seeds (its metric), "
+                 f"nearest-L2 = Euclidean nearest; nearest and IP_Basic without removal")
     return lines
 
 

@@ -49,13 +49,15 @@ log = logging.getLogger("jaxdepth")
 
 @dataclasses.dataclass(frozen=True)
 class FrameJob:
-    """One frame to complete: input PNG, intrinsics (file or matrix), output PNG."""
+    """One frame to complete: input PNG, intrinsics (file or matrix), output PNG, and optionally the
+    frame's own LiDAR -> camera extrinsic ``T_cam_lidar`` (4, 4) (None: the run's default)."""
 
     name: str
     sparse_path: pathlib.Path
     out_path: pathlib.Path
     intrinsics_path: pathlib.Path | None = None
     K: np.ndarray | None = None
+    T_cam_lidar: np.ndarray | None = None
 
 
 @dataclasses.dataclass
@@ -86,7 +88,9 @@ TRACE_COUNTS: dict = {}
 @functools.lru_cache(maxsize=32)
 def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
                        lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
-    """(B, H, W), (B, 3, 3), (4, 4) -> (B, H, W) completion for one bucket (one compiled function).
+    """(B, H, W), (B, 3, 3), (B, 4, 4) -> (B, H, W) completion for one bucket (one compiled function).
+
+    Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
 
     ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
     """
@@ -105,31 +109,30 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         single = jax.jit(traced_one)
         targets = jax.local_devices()[:devices]
 
-        def run(depths, Ks, T):
+        def run(depths, Ks, Ts):
             if depths.shape != (batch_size, height, width):
                 raise ValueError(f"batched completion: depths expected shape {(batch_size, height, width)}, "
                                  f"got {depths.shape}")
             # Dispatch every frame first (asynchronous), then collect.
-            outs = [single(*jax.device_put((depths[i], Ks[i], T), targets[i % len(targets)]))
+            outs = [single(*jax.device_put((depths[i], Ks[i], Ts[i]), targets[i % len(targets)]))
                     for i in range(batch_size)]
             return np.stack([np.asarray(out) for out in outs])
 
         return run
 
-    def per_device(depths, Ks, T):
+    def per_device(depths, Ks, Ts):
         if strategy == "vmap":
-            return jax.vmap(one, in_axes=(0, 0, None))(depths, Ks, T)
-        return jax.lax.map(lambda args: one(args[0], args[1], T), (depths, Ks))
+            return jax.vmap(one)(depths, Ks, Ts)
+        return jax.lax.map(lambda args: one(*args), (depths, Ks, Ts))
 
-    def traced(depths, Ks, T):
+    def traced(depths, Ks, Ts):
         TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
-            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"), PartitionSpec("batch"),
-                                                                 PartitionSpec()),
+            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 3,
                                out_specs=PartitionSpec("batch"), check_vma=False)
-            return fn(depths, Ks, T)
-        return per_device(depths, Ks, T)
+            return fn(depths, Ks, Ts)
+        return per_device(depths, Ks, Ts)
 
     return jax.jit(traced)
 
@@ -142,6 +145,7 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
 
     Args:
       depths: (F, H, W) float32 sparse depths, metres. Ks: (F, 3, 3).
+      T_cam_lidar: (4, 4) for every frame or (F, 4, 4) per frame (default: KITTI camera 2's).
       batch_size: frames per compiled call (default: F rounded up to the device count).
       strategy: "loop", "map" or "vmap" (default: :func:`batch_strategy`).
       devices: local devices to shard the batch over (default: all).
@@ -155,6 +159,10 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
     if depths.ndim != 3 or Ks.shape != (depths.shape[0], 3, 3):
         raise ValueError(f"complete_batch: expected depths (F, H, W) and Ks (F, 3, 3), got {depths.shape}, {Ks.shape}")
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
+    if T.shape not in ((4, 4), (depths.shape[0], 4, 4)):
+        raise ValueError(f"complete_batch: 'T_cam_lidar' expected shape (4, 4) or {(depths.shape[0], 4, 4)}, "
+                         f"got {T.shape}")
+    Ts = np.ascontiguousarray(np.broadcast_to(T, (depths.shape[0], 4, 4)))
     devices = devices or len(jax.local_devices())
     batch_size = batch_size or depths.shape[0]
     batch_size = -(-batch_size // devices) * devices
@@ -162,19 +170,21 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
                             lidar=lidar, strategy=strategy or batch_strategy(), devices=devices)
     out = []
     for start in range(0, depths.shape[0], batch_size):
-        d, k, n = _pad_batch(depths[start:start + batch_size], Ks[start:start + batch_size], batch_size)
-        out.append(np.asarray(fn(d, k, T))[:n])
+        d, k, t, n = _pad_batch(depths[start:start + batch_size], Ks[start:start + batch_size],
+                                Ts[start:start + batch_size], batch_size)
+        out.append(np.asarray(fn(d, k, t))[:n])
     return np.concatenate(out, axis=0)
 
 
-def _pad_batch(depths: np.ndarray, Ks: np.ndarray, batch_size: int):
+def _pad_batch(depths: np.ndarray, Ks: np.ndarray, Ts: np.ndarray, batch_size: int):
     n = depths.shape[0]
     if n == batch_size:
-        return depths, Ks, n
+        return depths, Ks, Ts, n
     pad = batch_size - n
     depths = np.concatenate([depths, np.zeros((pad,) + depths.shape[1:], np.float32)])
     Ks = np.concatenate([Ks, np.repeat(Ks[-1:], pad, axis=0)])
-    return depths, Ks, n
+    Ts = np.concatenate([Ts, np.repeat(Ts[-1:], pad, axis=0)])
+    return depths, Ks, Ts, n
 
 
 def _load(job: FrameJob):
@@ -258,7 +268,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
                 summary.first_output_at = time.perf_counter()
         notify(job.name, "done")
 
-    pending: dict = {}  # (h, w) -> list of (job, depth, K)
+    pending: dict = {}  # (h, w) -> list of (job, depth, K, T)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         write_futures = []
         in_flight = []  # at most one dispatched batch whose result is not collected yet
@@ -268,21 +278,22 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
             try:
                 result = np.asarray(out)
             except Exception as err:  # a compute failure costs this batch, not the run
-                for job, _, _ in items:
+                for job, *_ in items:
                     record_failure(job.name, f"completion failed: {err}")
                 return
-            for i, (job, _, _) in enumerate(items):
+            for i, (job, *_) in enumerate(items):
                 write_futures.append(writers.submit(write, job, result[i]))
 
         def flush(shape, items):
             h, w = shape
             fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
                                     strategy=strategy, devices=devices)
-            d, k, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]), batch_size)
+            d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
+                                    np.stack([it[3] for it in items]), batch_size)
             try:
-                out = fn(d, k, T)  # dispatched; runs while the previous batch is collected
+                out = fn(d, k, t)  # dispatched; runs while the previous batch is collected
             except Exception as err:
-                for job, _, _ in items:
+                for job, *_ in items:
                     record_failure(job.name, f"completion failed: {err}")
                 out = None
             if in_flight:
@@ -312,7 +323,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
                 record_failure(job.name, f"{job.sparse_path}: {err}")
                 continue
             items = pending.setdefault(depth.shape, [])
-            items.append((job, depth, K))
+            items.append((job, depth, K, T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)))
             if len(items) == batch_size:
                 flush(depth.shape, pending.pop(depth.shape))
         for shape, items in list(pending.items()):

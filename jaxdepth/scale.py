@@ -64,6 +64,8 @@ def _record(job) -> dict[str, Any]:
     """FrameJob -> a flat row that Arrow stores without Python objects."""
     has_K = job.K is not None
     K = np.asarray(job.K, np.float64).reshape(9) if has_K else np.zeros(9, np.float64)
+    has_T = getattr(job, "T_cam_lidar", None) is not None
+    T = np.asarray(job.T_cam_lidar, np.float64).reshape(16) if has_T else np.zeros(16, np.float64)
     return {
         "name": str(job.name),
         "sparse_path": os.fspath(job.sparse_path),
@@ -71,6 +73,8 @@ def _record(job) -> dict[str, Any]:
         "intrinsics_path": "" if job.intrinsics_path is None else os.fspath(job.intrinsics_path),
         "has_K": has_K,
         "K": K.tolist(),
+        "has_T": has_T,
+        "T": T.tolist(),
     }
 
 
@@ -85,9 +89,12 @@ def _jobs_from_batch(batch: dict[str, Any]) -> list:
         if bool(batch["has_K"][i]):
             # float32 K -> float64 record -> float32 again is exact.
             K = np.asarray(list(batch["K"][i]), np.float64).reshape(3, 3).astype(np.float32)
+        T = None
+        if bool(batch["has_T"][i]):
+            T = np.asarray(list(batch["T"][i]), np.float64).reshape(4, 4).astype(np.float32)
         jobs.append(FrameJob(name=str(batch["name"][i]), sparse_path=pathlib.Path(str(batch["sparse_path"][i])),
                              out_path=pathlib.Path(str(batch["out_path"][i])),
-                             intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K))
+                             intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K, T_cam_lidar=T))
     return jobs
 
 
@@ -162,20 +169,22 @@ class _CompleteFrames:
                 if loaded is None:
                     failure[job.name] = message
                 else:
-                    groups.setdefault(loaded[0].shape, []).append((job, *loaded))
+                    T = self.T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)
+                    groups.setdefault(loaded[0].shape, []).append((job, *loaded, T))
             writes = []
             for shape, items in groups.items():
                 for start in range(0, len(items), self.batch_size):
                     chunk = items[start:start + self.batch_size]
-                    d, k, n = self._runner._pad_batch(np.stack([it[1] for it in chunk]),
-                                                      np.stack([it[2] for it in chunk]), self.batch_size)
+                    d, k, t, n = self._runner._pad_batch(np.stack([it[1] for it in chunk]),
+                                                         np.stack([it[2] for it in chunk]),
+                                                         np.stack([it[3] for it in chunk]), self.batch_size)
                     try:
-                        result = np.asarray(self._fn(shape)(d, k, self.T))
+                        result = np.asarray(self._fn(shape)(d, k, t))
                     except Exception as err:  # a compute failure costs this chunk, not the dataset
-                        for job, _, _ in chunk:
+                        for job, *_ in chunk:
                             failure[job.name] = f"completion failed: {err}"
                         continue
-                    writes += [(job, pool.submit(self._write, job, result[i])) for i, (job, _, _) in enumerate(chunk)]
+                    writes += [(job, pool.submit(self._write, job, result[i])) for i, (job, *_) in enumerate(chunk)]
             for job, future in writes:
                 message = future.result()
                 if message is not None:

@@ -218,7 +218,7 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
     assert doc["hidden_points"] == int(hidden.sum()) and doc["points"] == int(valid.sum())
     for i, name in enumerate(names):
         assert doc["cameras"][name]["hidden_pixels"] == int(scores["hidden_pixels"][i]) > 0
-        for method in ("sgm", "sgm_no_removal", "nearest", "ip_basic"):
+        for method in ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic"):
             for key in ("rmse", "mae"):
                 np.testing.assert_allclose(doc["cameras"][name][method][key], float(scores[method][key][i]),
                                            rtol=1e-6)

@@ -10,8 +10,9 @@ outlier) is still a target, so removing its visible twins in the input is
 scored as an error; read the scores with that in mind.
 
 Methods on the same input: the SGM as configured, the SGM without outlier
-removal, the nearest-LiDAR-pixel fill it starts from (no removal) and IP_Basic
-(no removal).
+removal, the nearest-LiDAR-pixel fill it starts from (its own distance metric,
+no removal), the Euclidean nearest fill ("nearest_l2"; the same as "nearest"
+when the SGM runs with ``distance_metric="l2"``) and IP_Basic (no removal).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def hidden_point_mask(valid: np.ndarray, *, fraction: float = 0.1, seed: int = 0
     return valid & (draw < fraction)
 
 
-METHODS = ("sgm", "sgm_no_removal", "nearest", "ip_basic")
+METHODS = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic")
 
 
 def hidden_point_scores(points: jax.Array, valid: jax.Array, hidden: jax.Array, cameras: RigCameras, *,
@@ -70,6 +71,11 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar):
     given = valid & ~hidden
     stages = _complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
     plain = _complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
+    if config.distance_metric == "l2":
+        euclid = plain.seed_depth
+    else:
+        euclid = _complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
+            outlier_removal=False, distance_metric="l2")).seed_depth
 
     def gt_for(K, T, size):
         depth, _ = project_to_image(points, hidden, K, T, height=cameras.height, width=cameras.width,
@@ -79,7 +85,7 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar):
     gt = jax.vmap(gt_for)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
     score = jax.vmap(depth_metrics)
     predictions = {"sgm": stages.depth, "sgm_no_removal": plain.depth, "nearest": plain.seed_depth,
-                   "ip_basic": jax.vmap(ip_basic)(plain.sparse_depth)}
+                   "nearest_l2": euclid, "ip_basic": jax.vmap(ip_basic)(plain.sparse_depth)}
     out = {name: score(predictions[name], gt) for name in METHODS}
     out["hidden_pixels"] = jnp.sum(gt > 0, axis=(1, 2)).astype(jnp.int32)
     return out

@@ -33,20 +33,36 @@ _P_RECT_02 = np.array(
      [0.0, 0.0, 1.0, 2.745884e-03]], dtype=np.float64)
 
 
-def _kitti_cam2_T() -> np.ndarray:
+_P_RECT_03 = np.array(
+    [[7.215377e+02, 0.0, 6.095593e+02, -3.395242e+02],
+     [0.0, 7.215377e+02, 1.728540e+02, 2.199936e+00],
+     [0.0, 0.0, 1.0, 2.729905e-03]], dtype=np.float64)
+
+
+def _kitti_cam_T(P_rect: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = _R_RECT_00 @ _R_VELO_TO_CAM
     T[:3, 3] = _R_RECT_00 @ _T_VELO_TO_CAM
-    K = _P_RECT_02[:, :3]
-    t_cam = np.linalg.solve(K, _P_RECT_02[:, 3])
+    K = P_rect[:, :3]
+    t_cam = np.linalg.solve(K, P_rect[:, 3])
     shift = np.eye(4)
     shift[:3, 3] = t_cam
     return (shift @ T).astype(np.float32)
 
 
+def _kitti_cam2_T() -> np.ndarray:
+    return _kitti_cam_T(_P_RECT_02)
+
+
 #: (4, 4) LiDAR -> rectified left colour camera (KITTI camera 2), 2011_09_26.
 #: The documented default extrinsic for completing a bare sparse depth image.
 KITTI_T_CAM2_LIDAR: np.ndarray = _kitti_cam2_T()
+
+#: (4, 4) LiDAR -> rectified right colour camera (KITTI camera 3), 2011_09_26.
+KITTI_T_CAM3_LIDAR: np.ndarray = _kitti_cam_T(_P_RECT_03)
+
+#: KITTI colour camera index -> its 2011_09_26 extrinsic.
+KITTI_T_CAM_LIDAR = {2: KITTI_T_CAM2_LIDAR, 3: KITTI_T_CAM3_LIDAR}
 
 #: (3, 3) KITTI camera 2 intrinsics at full size (1242 x 375), 2011_09_26.
 KITTI_K_CAM2: np.ndarray = _P_RECT_02[:, :3].astype(np.float32)

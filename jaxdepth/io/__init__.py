@@ -28,6 +28,7 @@ from jaxdepth.io.kitti_layout import crop_to_benchmark as crop_to_benchmark
 from jaxdepth.io.kitti_layout import list_depth_completion_folder as list_depth_completion_folder
 from jaxdepth.io.points import MIN_BUCKET as MIN_BUCKET
 from jaxdepth.io.points import bucket_size as bucket_size
+from jaxdepth.io.points import infer_point_columns as infer_point_columns
 from jaxdepth.io.points import pad_points as pad_points
 from jaxdepth.io.points import read_points as read_points
 # jaxdepth.io.rig builds Camera / LidarSpec pytrees and so imports JAX (as does sweep_frame, through it):
@@ -77,6 +78,7 @@ __all__ = [
     "encode_depth_png",
     "encode_depth_uint16",
     "encode_png",
+    "infer_point_columns",
     "list_depth_completion_folder",
     "pad_points",
     "read_depth_png",

@@ -146,6 +146,35 @@ def read_intrinsics_txt(path: PathLike) -> np.ndarray:
     return K.astype(np.float32)
 
 
+def read_extrinsic_txt(path: PathLike) -> np.ndarray:
+    """Reads a LiDAR -> camera extrinsic: 12 (3 x 4) or 16 (4 x 4) numbers, row major.
+
+    Args:
+      path: text file with the numbers separated by white space and/or commas,
+        on one or several lines; ``p_cam = T @ p_lidar``.
+
+    Returns:
+      (4, 4) float32 rigid transform.
+
+    Raises:
+      InputError: missing file, not 12 or 16 numbers, non-finite values, a
+        rotation part that is not a rotation, or a 4 x 4 whose last row is not
+        (0, 0, 0, 1). The message names the file and the field.
+    """
+    path = pathlib.Path(path)
+    text = _read_text(path)
+    count = len(text.replace(",", " ").split())
+    if count not in (12, 16):
+        raise field_error(path, "T_cam_lidar", "12 (3x4) or 16 (4x4) numbers, row major", f"{count} numbers")
+    values = _parse_floats(path, "T_cam_lidar", text, count)
+    T = np.eye(4)
+    T[:3] = values[:12].reshape(3, 4)
+    if count == 16 and np.max(np.abs(values[12:] - [0.0, 0.0, 0.0, 1.0])) > 1e-6:
+        raise field_error(path, "T_cam_lidar", "last row (0, 0, 0, 1)", values[12:].tolist())
+    _check_rotation(path, "T_cam_lidar", T[:3, :3])
+    return T.astype(np.float32)
+
+
 def read_kitti_raw_calib(cam_to_cam_path: PathLike, velo_to_cam_path: PathLike) -> dict[str, Any]:
     """Reads KITTI raw ``calib_cam_to_cam.txt`` + ``calib_velo_to_cam.txt``.
 
@@ -218,4 +247,4 @@ def read_kitti_object_calib(path: PathLike) -> dict[str, Any]:
     return _cameras(path, P, names, R_rect, _rigid(Tr[:, :3], Tr[:, 3]), sizes)
 
 
-__all__ = ["read_intrinsics_txt", "read_kitti_raw_calib", "read_kitti_object_calib"]
+__all__ = ["read_extrinsic_txt", "read_intrinsics_txt", "read_kitti_raw_calib", "read_kitti_object_calib"]

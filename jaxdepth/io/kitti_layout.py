@@ -9,6 +9,7 @@ columns 13..1228, so ``cx -= 13`` and ``cy -= 23``.
 from __future__ import annotations
 
 import pathlib
+import re
 
 import numpy as np
 
@@ -142,4 +143,81 @@ def list_depth_completion_folder(src: PathLike) -> list[tuple[str, pathlib.Path,
     return frames
 
 
-__all__ = ["BENCHMARK_SIZE", "benchmark_crop_offsets", "crop_to_benchmark", "list_depth_completion_folder"]
+_CAMERA_SUFFIX = re.compile(r"_image_0([0-3])$")
+_DATE = re.compile(r"(\d{4}_\d{2}_\d{2})_drive_")
+
+
+def kitti_camera_from_name(stem: str) -> int | None:
+    """KITTI camera index from a depth-completion file stem ending in ``_image_0X``, else None.
+
+    >>> kitti_camera_from_name("2011_09_26_drive_0001_sync_velodyne_raw_0000000005_image_03")
+    3
+    """
+    match = _CAMERA_SUFFIX.search(stem)
+    return int(match.group(1)) if match else None
+
+
+def kitti_date_from_name(stem: str) -> str | None:
+    """Recording date (``2011_09_26``) from a KITTI file stem holding ``<date>_drive_``, else None."""
+    match = _DATE.search(stem)
+    return match.group(1) if match else None
+
+
+class KittiExtrinsics:
+    """The LiDAR -> camera extrinsic of each KITTI depth-completion frame.
+
+    The camera is the file name's ``_image_0X`` suffix (``camera`` overrides it;
+    neither: camera 2). Without ``calib_dir`` the 2011_09_26 calibration built
+    into jaxdepth is used (cameras 2 and 3); with it, the per-date KITTI raw
+    calibration: ``calib_dir/<date>/calib_cam_to_cam.txt`` and
+    ``calib_velo_to_cam.txt`` (the raw data's own layout), or the two files
+    directly in ``calib_dir`` for every date. The date comes from the file name
+    (``<date>_drive_...``). Calibrations are read once per date.
+    """
+
+    def __init__(self, calib_dir: PathLike | None = None, *, camera: int | None = None):
+        self.calib_dir = None if calib_dir is None else pathlib.Path(calib_dir)
+        if self.calib_dir is not None:
+            _require_folder(self.calib_dir, "calibration folder")
+        if camera is not None and camera not in (0, 1, 2, 3):
+            raise ValueError(f"KittiExtrinsics: field 'camera' expected 0, 1, 2 or 3, got {camera!r}")
+        self.camera = camera
+        self._by_date: dict = {}
+
+    def camera_of(self, stem: str) -> int:
+        if self.camera is not None:
+            return self.camera
+        found = kitti_camera_from_name(stem)
+        return 2 if found is None else found
+
+    def __call__(self, path: PathLike):
+        """(4, 4) float32 extrinsic of the frame stored at ``path``."""
+        import numpy as np
+
+        path = pathlib.Path(path)
+        cam = self.camera_of(path.stem)
+        if self.calib_dir is None:
+            from jaxdepth._src.presets import KITTI_T_CAM_LIDAR
+            if cam not in KITTI_T_CAM_LIDAR:
+                raise file_error(path, f"camera {cam} has no built-in extrinsic (cameras 2 and 3 do); "
+                                 "pass --calib-dir with the KITTI raw calibration")
+            return np.asarray(KITTI_T_CAM_LIDAR[cam], np.float32)
+        folder = self.calib_dir
+        if not (folder / "calib_cam_to_cam.txt").is_file():
+            date = kitti_date_from_name(path.stem)
+            if date is None:
+                raise file_error(path, "no recording date in the file name (expected '<YYYY_MM_DD>_drive_...') "
+                                 f"to pick its calibration from {self.calib_dir}")
+            folder = self.calib_dir / date
+            if not (folder / "calib_cam_to_cam.txt").is_file():
+                raise file_error(folder, f"no KITTI raw calibration for {date} (expected calib_cam_to_cam.txt and "
+                                 f"calib_velo_to_cam.txt) for frame '{path.name}'")
+        if folder not in self._by_date:
+            from jaxdepth.io.calib import read_kitti_raw_calib
+            self._by_date[folder] = read_kitti_raw_calib(folder / "calib_cam_to_cam.txt",
+                                                         folder / "calib_velo_to_cam.txt")
+        return np.asarray(self._by_date[folder]["cameras"][cam]["T_cam_lidar"], np.float32)
+
+
+__all__ = ["BENCHMARK_SIZE", "benchmark_crop_offsets", "crop_to_benchmark", "list_depth_completion_folder",
+           "kitti_camera_from_name", "kitti_date_from_name", "KittiExtrinsics"]

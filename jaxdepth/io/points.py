@@ -127,6 +127,34 @@ def _read_npz(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]
     return _split(path, array, columns, f"array '{key}'")
 
 
+def infer_point_columns(path: PathLike, given: int | None = None) -> int:
+    """Float32 values per point of a sweep file, from the file when not ``given``.
+
+    ``*.pcd.bin`` (nuScenes: x, y, z, intensity, ring) has 5. A plain ``.bin``
+    has 4 (KITTI: x, y, z, reflectance) or 5: the one its byte size fits; a size
+    that fits both is refused (reading it the wrong way gives garbage points
+    and no error). ``.npy`` / ``.npz`` carry their own shape (4 assumed, checked
+    by :func:`read_points`).
+
+    Raises:
+      InputError: the size of a plain ``.bin`` fits both 4 and 5 columns.
+    """
+    if given is not None:
+        return int(given)
+    path = pathlib.Path(path)
+    name = path.name.lower()
+    if name.endswith(".pcd.bin"):
+        return 5
+    if path.suffix.lower() != ".bin" or not path.is_file():
+        return 4
+    size = path.stat().st_size
+    fits = [c for c in (4, 5) if size and size % (4 * c) == 0]
+    if len(fits) == 2:
+        raise file_error(path, f"size {size} bytes fits both 4 and 5 float32 values per point; "
+                         "pass --point-columns (KITTI: 4, nuScenes .pcd.bin: 5)")
+    return fits[0] if fits else 4
+
+
 def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Reads a LiDAR sweep.
 
@@ -208,4 +236,4 @@ def pad_points(points: np.ndarray, *, bucket: int | None = None) -> tuple[np.nda
     return padded, valid
 
 
-__all__ = ["read_points", "pad_points", "bucket_size", "MIN_BUCKET"]
+__all__ = ["read_points", "infer_point_columns", "pad_points", "bucket_size", "MIN_BUCKET"]

@@ -1,0 +1,157 @@
+"""Issue 13, part 3: the right camera and the right point format, always."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth import cli
+from jaxdepth._src import presets
+from jaxdepth.io import InputError, read_depth_png, read_kitti_raw_calib, write_depth_png
+from jaxdepth.io.calib import read_extrinsic_txt
+from jaxdepth.io.kitti_layout import KittiExtrinsics, crop_to_benchmark, kitti_camera_from_name, kitti_date_from_name
+from jaxdepth.io.points import infer_point_columns
+
+NAME = "2011_09_26_drive_0001_sync_velodyne_raw_0000000005_image_0{}"
+
+
+# ---------------------------------------------------------------- names and calibration
+def test_camera_and_date_from_kitti_names():
+    assert kitti_camera_from_name(NAME.format(2)) == 2 and kitti_camera_from_name(NAME.format(3)) == 3
+    assert kitti_camera_from_name("0000000005") is None and kitti_camera_from_name("x_image_03_crop") is None
+    assert kitti_date_from_name(NAME.format(2)) == "2011_09_26" and kitti_date_from_name("0000000005") is None
+
+
+def test_built_in_extrinsics_match_the_shared_calibration(kitti_frame):
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    for cam, T in ((2, presets.KITTI_T_CAM2_LIDAR), (3, presets.KITTI_T_CAM3_LIDAR)):
+        np.testing.assert_allclose(T, calib["cameras"][cam]["T_cam_lidar"], atol=1e-6)
+    # Cameras 2 and 3 sit 0.54 m apart along x.
+    assert abs(presets.KITTI_T_CAM2_LIDAR[0, 3] - presets.KITTI_T_CAM3_LIDAR[0, 3] - 0.537) < 0.01
+
+
+def test_per_date_calibration_folder(tmp_path, kitti_frame):
+    for date in ("2011_09_26", "2011_09_28"):
+        (tmp_path / date).mkdir()
+        for f in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+            shutil.copy(kitti_frame / f, tmp_path / date / f)
+    # A different date gets a different (here: edited) calibration.
+    velo = (tmp_path / "2011_09_28" / "calib_velo_to_cam.txt").read_text().splitlines()
+    velo = [("T: 0.1 -0.2 -0.3" if line.startswith("T:") else line) for line in velo]
+    (tmp_path / "2011_09_28" / "calib_velo_to_cam.txt").write_text("\n".join(velo) + "\n")
+    extrinsics = KittiExtrinsics(tmp_path)
+    T26 = extrinsics(tmp_path / f"{NAME.format(3)}.png")
+    T28 = extrinsics(tmp_path / f"{NAME.format(3).replace('09_26', '09_28')}.png")
+    np.testing.assert_allclose(T26, presets.KITTI_T_CAM3_LIDAR, atol=1e-6)
+    assert np.abs(T28 - T26).max() > 0.05
+    with pytest.raises(InputError, match="2011_10_03"):
+        extrinsics(tmp_path / f"{NAME.format(2).replace('09_26', '10_03')}.png")
+    with pytest.raises(InputError, match="recording date"):
+        extrinsics(tmp_path / "0000000005.png")
+    assert KittiExtrinsics(tmp_path, camera=2).camera_of(NAME.format(3)) == 2
+
+
+@pytest.mark.parametrize("text, message", [
+    ("1 0 0 0\n0 1 0 0\n0 0 1", r"12 \(3x4\) or 16 \(4x4\) numbers"),
+    ("1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 2", r"last row \(0, 0, 0, 1\)"),
+    ("2 0 0 0 0 1 0 0 0 0 1 0", "a rotation"),
+    ("1 0 0 0 0 1 0 0 0 0 1 nan", "finite"),
+])
+def test_extrinsic_file_errors(tmp_path, text, message):
+    path = tmp_path / "T.txt"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as err:
+        read_extrinsic_txt(path)
+    assert "T.txt" in str(err.value)
+
+
+def test_extrinsic_file_reads_3x4_and_4x4(tmp_path):
+    T = presets.KITTI_T_CAM3_LIDAR
+    (tmp_path / "a.txt").write_text(" ".join(f"{x:.9g}" for x in T[:3].ravel()))
+    (tmp_path / "b.txt").write_text("\n".join(", ".join(f"{x:.9g}" for x in row) for row in T))
+    for name in ("a.txt", "b.txt"):
+        np.testing.assert_allclose(read_extrinsic_txt(tmp_path / name), T, atol=1e-7)
+
+
+# ---------------------------------------------------------------- point format
+@pytest.mark.parametrize("n_floats, name, expected", [
+    (4 * 7, "a.bin", 4),          # 112 bytes: 4 columns only
+    (5 * 7, "a.bin", 5),          # 140 bytes: 5 columns only
+    (20 * 3, "a.pcd.bin", 5),     # fits both, but *.pcd.bin is nuScenes' 5-column format
+])
+def test_point_columns_follow_the_file(tmp_path, n_floats, name, expected):
+    path = tmp_path / name
+    np.zeros(n_floats, np.float32).tofile(path)
+    assert infer_point_columns(path) == expected
+    assert infer_point_columns(path, 4) == 4
+
+
+def test_ambiguous_bin_is_refused(tmp_path, capsys):
+    path = tmp_path / "sweep.bin"
+    np.zeros(20 * 50, np.float32).tofile(path)          # 4000 bytes: 250 x 4 or 200 x 5
+    with pytest.raises(InputError, match="fits both 4 and 5"):
+        infer_point_columns(path)
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"lidar": {"beams": 32}, "cameras": [
+        {"name": "c", "width": 16, "height": 12, "K": [[10, 0, 8], [0, 10, 6], [0, 0, 1]],
+         "T_cam_lidar": np.eye(4).tolist()}]}))
+    code = cli.main(["complete-rig", str(path), str(rig), str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1 and "--point-columns" in err and "Traceback" not in err
+
+
+def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
+    """The README's example rig (identity extrinsic) with points ahead along the LiDAR's x axis:
+    the camera looks along +z and sees none of them."""
+    rng = np.random.default_rng(0)
+    pts = np.stack([rng.uniform(5, 30, 3000), rng.uniform(-5, 5, 3000), rng.uniform(-5, -1, 3000),
+                    np.zeros(3000)], 1).astype(np.float32)
+    pts = pts[(pts[:, 1] > 0.1) | (pts[:, 1] < -0.1)]
+    sweep = tmp_path / "sweep.npy"
+    np.save(sweep, pts)
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"lidar": {"beams": 64}, "cameras": [
+        {"name": "CAM_FRONT", "width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]],
+         "T_cam_lidar": np.eye(4).tolist()}]}))
+    code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
+    err = capsys.readouterr().err
+    assert code == 0 and "CAM_FRONT: no LiDAR point projects into this camera" in err
+
+
+# ---------------------------------------------------------------- the shared frame through the CLI
+@pytest.mark.parametrize("crop", [True, False])
+def test_cli_uses_each_cameras_own_extrinsic(tmp_path, kitti_frame, crop):
+    """Done when of issue 13: the CLI on the shared KITTI frame in depth-completion layout equals the
+    API called with each camera's own extrinsic."""
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    src = tmp_path / "src"
+    (src / "velodyne_raw").mkdir(parents=True)
+    (src / "intrinsics").mkdir()
+    expected = {}
+    for cam in (2, 3):
+        sparse = read_depth_png(kitti_frame / f"velodyne_raw_image_0{cam}.png")
+        K = calib["cameras"][cam]["K"]
+        if crop:
+            sparse, K = crop_to_benchmark(sparse, K)
+        name = NAME.format(cam)
+        write_depth_png(src / "velodyne_raw" / f"{name}.png", sparse)
+        (src / "intrinsics" / f"{name}.txt").write_text(" ".join(f"{x:.9g}" for x in np.asarray(K).ravel()))
+        K = np.asarray(" ".join(f"{x:.9g}" for x in np.asarray(K).ravel()).split(), np.float32).reshape(3, 3)
+        api = np.asarray(jaxdepth.complete(read_depth_png(src / "velodyne_raw" / f"{name}.png"), K,
+                                           calib["cameras"][cam]["T_cam_lidar"]))
+        wrong = np.asarray(jaxdepth.complete(read_depth_png(src / "velodyne_raw" / f"{name}.png"), K,
+                                             presets.KITTI_T_CAM2_LIDAR))
+        expected[name] = (api, wrong)
+    dst = tmp_path / "dst"
+    assert cli.main(["complete", str(src), str(dst), "--quiet", "--batch-size", "1", "--cpu-devices", "1"]) == 0
+    for name, (api, wrong) in expected.items():
+        got = read_depth_png(dst / f"{name}.png")
+        want = np.round(np.clip(api, 0, 255.99) * 256) / 256
+        close = np.abs(got - want) <= 1.0 / 256 + 1e-6
+        assert close.mean() > 0.9995, name
+        if name.endswith("3"):
+            assert np.mean(np.abs(got - wrong) > 0.05) > 0.001     # camera 2's extrinsic would differ
