@@ -14,7 +14,10 @@ away) near points shift by roughly offset / range radians and the rings smear.
 - without them: the share of points within 0.15 degrees of a peak of the
   elevation histogram (:data:`MIN_ON_PEAKS`);
 - in both cases the sweep must cover the full turn of azimuth (a rosette or
-  raster scan does not).
+  raster scan does not), and the ground must lie at least
+  :data:`MIN_SENSOR_HEIGHT_M` below (or above) the origin: a vehicle frame's
+  origin on the road is no sensor position (dense 64-beam rings pass the
+  histogram test even from a wrong origin).
 
 It does not move the origin: searching the position that tightens the rings
 found look-alike optima on real sweeps (the HDL-32E's lasers do not share one
@@ -48,6 +51,9 @@ PEAK_TOL_DEG = 0.15
 MIN_AZIMUTH_COVER = 0.9
 #: Ring tightness is judged on points farther than this, metres (near points show the lasers' offsets).
 MIN_RANGE_M = 2.0
+#: A LiDAR on a vehicle sits well above the road: a ground plane closer than this below (or above)
+#: the points' origin means the origin is not the sensor (a vehicle frame on the ground), metres.
+MIN_SENSOR_HEIGHT_M = 0.6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +67,8 @@ class LidarEstimate:
       spinning: the sweep looks like one spinning multi-beam LiDAR around ``origin_m``.
       on_peaks: share of points within 0.15 degrees of a peak.
       azimuth_cover: share of 5-degree azimuth sectors with points.
+      ground_z_m: height of the ground plane in the points' frame (the most common z among the
+        lowest fifth of points 3-15 m away horizontally), or None if too few such points.
     """
 
     origin_m: np.ndarray
@@ -70,12 +78,14 @@ class LidarEstimate:
     spinning: bool
     on_peaks: float
     azimuth_cover: float
+    ground_z_m: float | None = None
 
     def describe(self) -> str:
         where = "(" + ", ".join(f"{x:+.2f}" for x in self.origin_m) + ") m"
         if not self.spinning:
-            return (f"not one spinning LiDAR ({100 * self.on_peaks:.0f} % of points on elevation rings, "
-                    f"{100 * self.azimuth_cover:.0f} % of the azimuth covered)")
+            ground = "" if self.ground_z_m is None else f", ground at z = {self.ground_z_m:+.2f} m"
+            return (f"not one spinning LiDAR around the points' origin ({100 * self.on_peaks:.0f} % of points "
+                    f"on elevation rings, {100 * self.azimuth_cover:.0f} % of the azimuth covered{ground})")
         if self.beams is None:
             return (f"one spinning LiDAR at the points' origin {where} ({100 * self.on_peaks:.0f} % of points "
                     "on elevation rings; no ring indices for beams and field of view)")
@@ -128,6 +138,18 @@ def _peaks(el: np.ndarray) -> np.ndarray:
     return np.asarray(merged)
 
 
+def _ground_z(q: np.ndarray) -> float | None:
+    """Most common z (5 cm bins) among the lowest fifth of the points 3-15 m away horizontally."""
+    rho = np.hypot(q[:, 0], q[:, 1])
+    z = q[(rho > 3.0) & (rho < 15.0), 2]
+    if z.size < 200:
+        return None
+    low = z[z <= np.quantile(z, 0.2)]
+    bins = np.floor(low / 0.05).astype(np.int64)
+    values, counts = np.unique(bins, return_counts=True)
+    return float((values[int(np.argmax(counts))] + 0.5) * 0.05)
+
+
 def estimate_lidar_geometry(points: np.ndarray, *, ring: np.ndarray | None = None) -> LidarEstimate:
     """Sensor position, beam count and vertical field of view of one sweep (see the module docstring).
 
@@ -165,12 +187,15 @@ def estimate_lidar_geometry(points: np.ndarray, *, ring: np.ndarray | None = Non
         on_peaks = _on_peaks(el)
         centres = _peaks(el)
         beams = int(centres.size)
-    spinning = bool(cover >= MIN_AZIMUTH_COVER and on_peaks >= MIN_ON_PEAKS and 4 <= beams <= 256)
+    ground = _ground_z(q)
+    above_ground = ground is None or abs(ground) >= MIN_SENSOR_HEIGHT_M
+    spinning = bool(cover >= MIN_AZIMUTH_COVER and on_peaks >= MIN_ON_PEAKS and 4 <= beams <= 256 and above_ground)
     known = spinning and ring is not None
     return LidarEstimate(origin_m=origin, beams=beams if known else None,
                          fov_up_deg=float(centres.max()) if known else None,
                          fov_down_deg=float(centres.min()) if known else None,
-                         spinning=spinning, on_peaks=on_peaks, azimuth_cover=cover)
+                         spinning=spinning, on_peaks=on_peaks, azimuth_cover=cover,
+                         ground_z_m=ground)
 
 
 __all__ = ["LidarEstimate", "estimate_lidar_geometry"]
