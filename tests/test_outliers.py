@@ -653,3 +653,17 @@ def test_validation_errors(kwargs, message):
 def test_options_are_keyword_only():
     with pytest.raises(TypeError):
         outlier_keep_mask(np.zeros((4, 4), np.float32), np.eye(3), np.eye(4), 4)  # beams positional
+
+
+def test_vmap_over_epsilon_only_equals_loop():
+    """A parameter sweep: epsilon batched, the image shared (unbatched operands inside the kernel)."""
+    rng = np.random.default_rng(12)
+    K, T = _camera(rng, 24, 40)
+    depth = _random_sparse(rng, 24, 40, 0.15)
+    eps = np.array([0.0, 0.5, 1.0, 3.0], np.float32)
+    for test in ("footprint", "paper"):
+        fn = lambda e: outlier_keep_mask(depth, K, T, beams=6, epsilon_m=e, test=test)
+        batched = np.asarray(jax.vmap(fn)(jnp.asarray(eps)))
+        for i, e in enumerate(eps):
+            np.testing.assert_array_equal(batched[i], np.asarray(fn(jnp.float32(e))))
+        assert (batched[0] != batched[-1]).any()

@@ -44,3 +44,13 @@ def test_cond_all_takes_the_fast_branch_only_when_every_member_may():
     out, which = jax.vmap(lambda p, a: cond_all(p, fast, slow, a))(jnp.array([True, False, True]), xs)
     np.testing.assert_array_equal(which, [0, 0, 0])
     np.testing.assert_array_equal(out, xs * 2.0)
+
+
+def test_switch_widest_broadcasts_unbatched_pytree_operands():
+    """An unbatched tuple operand next to a batched one (a vmap over a parameter only)."""
+    branches = [lambda pair, s: pair[0] * s + pair[1], lambda pair, s: pair[0] * s + pair[1] + 0.0]
+    pair = (jnp.arange(3.0), jnp.ones(3))
+    scales = jnp.array([1.0, 2.0, 3.0, 4.0])
+    got = jax.vmap(lambda s: switch_widest(jnp.int32(1), branches, pair, s))(scales)
+    want = jnp.stack([pair[0] * s + pair[1] for s in scales])
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

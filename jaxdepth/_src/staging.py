@@ -132,8 +132,9 @@ def switch_widest(index, branches, *operands):
         index_batched, ops_batched = in_batched
         if index_batched:
             index = jnp.max(index)
-        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                         for a, b in zip(operands, ops_batched))
+        # Operands may be pytrees (tuples of arrays): broadcast leaf by leaf.
+        operands = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
+                                tuple(operands), tuple(ops_batched))
         out = switch_widest(index, [jax.vmap(fn) for fn in branches], *operands)
         return out, jax.tree.map(lambda _: True, out)
 
