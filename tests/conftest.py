@@ -49,3 +49,17 @@ def kitti_frame(shared_data) -> pathlib.Path:
 @pytest.fixture(scope="session")
 def nuscenes_sample(shared_data) -> pathlib.Path:
     return require_shared("nuscenes", "sample")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop JAX's compiled programs after each test module.
+
+    The suite compiles a few hundred programs; kept for the whole session they
+    once ended a full run with a crash inside XLA:CPU (SIGSEGV while unwinding,
+    not reproducible module by module). Modules do not share compilations
+    that matter for time, so each starts clean.
+    """
+    yield
+    import jax
+    jax.clear_caches()
