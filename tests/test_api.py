@@ -9,7 +9,7 @@ import jaxdepth
 OPTION_NAMES = {"config", "lidar", "metric", "epsilon_m", "beams", "sigma_px", "radius_px", "method",
                 "max_half_width_px", "max_half_height_px", "smoothing", "fill_max_gap", "min_abs_denom",
                 "max_residual_ratio", "fill", "fraction", "seed", "vmin", "vmax", "cmap", "max_depth",
-                "blur_type", "extrapolate", "height", "width"}
+                "blur_type", "extrapolate", "height", "width", "test", "points_cam"}
 
 
 # Positional on purpose: the scene seed is the function's only data; a traced sigma is data to vmap over.
@@ -23,6 +23,17 @@ def public_callables():
             yield name, obj
 
 
+def public_parameters():
+    """(function name, inspect.Parameter) of every public function with a signature."""
+    for name, fn in public_callables():
+        try:
+            params = inspect.signature(fn).parameters.values()
+        except (TypeError, ValueError):
+            continue
+        for p in params:
+            yield name, p
+
+
 def test_every_public_name_is_documented():
     missing = [name for name in jaxdepth.__all__ if not (getattr(jaxdepth, name).__doc__ or "").strip()]
     assert not missing, missing
@@ -30,15 +41,10 @@ def test_every_public_name_is_documented():
 
 def test_options_are_keyword_only():
     offenders = []
-    for name, fn in public_callables():
-        try:
-            params = inspect.signature(fn).parameters.values()
-        except (TypeError, ValueError):
-            continue
-        for p in params:
-            if ((name, p.name) not in DATA_ARGUMENTS and p.name in OPTION_NAMES
-                    and p.kind is not inspect.Parameter.KEYWORD_ONLY):
-                offenders.append(f"{name}({p.name})")
+    for name, p in public_parameters():
+        if ((name, p.name) not in DATA_ARGUMENTS and p.name in OPTION_NAMES
+                and p.kind is not inspect.Parameter.KEYWORD_ONLY):
+            offenders.append(f"{name}({p.name})")
     assert not offenders, offenders
 
 
@@ -57,22 +63,18 @@ CONFIG_FIELD_OF_OPTION = {"metric": "distance_metric", "min_abs_denom": "min_abs
                           "max_residual_ratio": "max_residual_ratio", "epsilon_m": "epsilon_m",
                           "max_half_width_px": "outlier_max_half_width_px",
                           "max_half_height_px": "outlier_max_half_height_px",
-                          "smoothing": "normal_smoothing", "fill_max_gap": "range_fill_max_gap"}
+                          "smoothing": "normal_smoothing", "fill_max_gap": "range_fill_max_gap",
+                          "test": "outlier_test"}
 
 
 def test_stage_defaults_are_the_config_defaults():
     config = jaxdepth.SGMConfig()
     checked, differ = 0, []
-    for name, fn in public_callables():
-        try:
-            params = inspect.signature(fn).parameters.values()
-        except (TypeError, ValueError):
+    for name, p in public_parameters():
+        field = CONFIG_FIELD_OF_OPTION.get(p.name)
+        if field is None or p.default is inspect.Parameter.empty:
             continue
-        for p in params:
-            field = CONFIG_FIELD_OF_OPTION.get(p.name)
-            if field is None or p.default is inspect.Parameter.empty:
-                continue
-            checked += 1
-            if p.default != getattr(config, field):
-                differ.append(f"{name}({p.name}={p.default!r}) vs SGMConfig.{field}={getattr(config, field)!r}")
+        checked += 1
+        if p.default != getattr(config, field):
+            differ.append(f"{name}({p.name}={p.default!r}) vs SGMConfig.{field}={getattr(config, field)!r}")
     assert checked >= 5 and not differ, differ

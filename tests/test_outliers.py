@@ -168,6 +168,16 @@ def _random_sparse(rng, height, width, density):
     return depth.astype(np.float32)
 
 
+def _points_near_pixels(rng, K, depth, spread=0.5):
+    """(3, H, W) camera-frame points at each pixel's depth, off the pixel centre by up to ``spread`` px."""
+    shape = depth.shape
+    v, u = np.mgrid[0:shape[0], 0:shape[1]]
+    jitter = rng.uniform(-spread, spread, (2, *shape))
+    rays = np.linalg.inv(K.astype(np.float64)) @ np.stack(
+        [u + jitter[0], v + jitter[1], np.ones(shape)]).reshape(3, -1)
+    return (rays.reshape(3, *shape) * depth).astype(np.float32)
+
+
 def _kitti_crop(kitti_frame, name):
     raw = cv2.imread(str(kitti_frame / name), cv2.IMREAD_UNCHANGED)
     return raw[23:375, 13:1229].astype(np.float32) / 256.0
@@ -203,11 +213,7 @@ def test_matches_paper_double_loop_points_cam(seed):
     shape = (24, 40)
     K, T = _camera(rng, *shape)
     depth = _random_sparse(rng, *shape, 0.1)
-    v, u = np.mgrid[0:shape[0], 0:shape[1]]
-    jitter = rng.uniform(-0.5, 0.5, (2, *shape))
-    rays = np.linalg.inv(K.astype(np.float64)) @ np.stack(
-        [u + jitter[0], v + jitter[1], np.ones(shape)]).reshape(3, -1)
-    points = (rays.reshape(3, *shape) * depth).astype(np.float32)
+    points = _points_near_pixels(rng, K, depth)
     kw = dict(beams=6, epsilon_m=0.5, max_half_width_px=12, max_half_height_px=24)
     got = np.asarray(outlier_keep_mask(depth, K, T, points_cam=points, test="paper", **kw))
     np.testing.assert_array_equal(got, paper_double_loop(depth, K, T, points_cam=points, **kw))
@@ -240,13 +246,7 @@ def test_matches_footprint_double_loop_random(seed, density, shape, raw):
     rng = np.random.default_rng(seed)
     K, T = _camera(rng, *shape)
     depth = _random_sparse(rng, *shape, density)
-    points = None
-    if raw:
-        v, u = np.mgrid[0:shape[0], 0:shape[1]]
-        jitter = rng.uniform(-0.5, 0.5, (2, *shape))
-        rays = np.linalg.inv(K.astype(np.float64)) @ np.stack(
-            [u + jitter[0], v + jitter[1], np.ones(shape)]).reshape(3, -1)
-        points = (rays.reshape(3, *shape) * depth).astype(np.float32)
+    points = _points_near_pixels(rng, K, depth) if raw else None
     kw = dict(beams=6, epsilon_m=1.0, max_half_width_px=4, max_half_height_px=24)
     got = np.asarray(outlier_keep_mask(depth, K, T, points_cam=points, **kw))
     assert got.dtype == np.bool_ and got.shape == shape
@@ -542,13 +542,7 @@ def test_no_parallax_removes_nothing(seed, raw):
     K[0, 0] = K[1, 1] = 0.4 * shape[1]          # ~ 100 degrees horizontal field of view
     T[:3, 3] = 0.0
     depth = _random_sparse(rng, *shape, 0.05)    # few points: a wide |du| window
-    points = None
-    if raw:
-        v, u = np.mgrid[0:shape[0], 0:shape[1]]
-        sub = rng.uniform(-0.49, 0.49, (2, *shape))
-        rays = np.linalg.inv(K.astype(np.float64)) @ np.stack(
-            [u + sub[0], v + sub[1], np.ones(shape)]).reshape(3, -1)
-        points = (rays.reshape(3, *shape) * depth).astype(np.float32)
+    points = _points_near_pixels(rng, K, depth, spread=0.49) if raw else None
     keep = np.asarray(outlier_keep_mask(depth, K, T, beams=4, max_half_width_px=12,
                                         max_half_height_px=24, epsilon_m=0.0, points_cam=points))
     np.testing.assert_array_equal(keep, depth > 0)
