@@ -14,9 +14,10 @@ Nearest fill: "nearest" is the SGM's own seeds (its distance metric, city block 
   held out, target = the held-out points' own z-buffer, unfiltered, mean over
   draws): the two shared KITTI raw sweeps with cameras 2 and 3, and the
   nuScenes sample with its six cameras;
-- synthetic, exact depth: the sensor zoo (``jaxdepth._src.synthetic.SENSOR_ZOO``):
-  spinning 16-128 beams at the sensor origin and in a vehicle frame, merged
-  clouds, rosette and raster scans; cameras forward, sideways, backward. Each
+- synthetic, exact depth: the sensor zoo (``ZOO`` below, ray-cast with
+  ``jaxdepth._src.synthetic.cast_rays`` in the procedural street): spinning
+  16-128 beams at the sensor origin and in a vehicle frame, merged clouds,
+  rosette and raster scans; cameras forward, sideways, backward. Each
   sweep goes through :func:`jaxdepth.io.prepare_sweep` as the CLI does (origin
   estimated from the sweep, removal off where it cannot be trusted).
 
