@@ -315,12 +315,14 @@ def cmd_complete_rig(args) -> int:
 
 def cmd_eval(args) -> int:
     from jaxdepth import evaluation
+    from jaxdepth.io.atomic import atomic_write_bytes
     table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
     for line in evaluation.format_table(table):
         print(line)
     if args.json:
-        from jaxdepth.io.atomic import atomic_write_bytes
         atomic_write_bytes(pathlib.Path(args.json), json.dumps(table, indent=2, sort_keys=True).encode())
+    if args.csv:
+        atomic_write_bytes(pathlib.Path(args.csv), evaluation.format_csv(table).encode())
     return 0
 
 
@@ -382,10 +384,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=cmd_complete_rig)
 
-    p = sub.add_parser("eval", help="KITTI devkit metrics of predictions against ground truth PNGs")
-    p.add_argument("pred", help="folder of predicted depth PNGs")
-    p.add_argument("gt", help="folder of ground-truth depth PNGs (matched by file name)")
-    p.add_argument("--json", help="write {'mean': ..., 'per_frame': ...} to this file")
+    p = sub.add_parser(
+        "eval", help="KITTI devkit metrics of predictions against ground truth PNGs, paired by frame",
+        description="Scores every prediction PNG under PRED_ROOT against the ground-truth PNG of the same frame "
+                    "under GT_ROOT (KITTI devkit metrics: RMSE / MAE in mm, iRMSE / iMAE in 1/km; the mean is over "
+                    "frames). Either side may be a flat folder or a tree, walked recursively. Frames are identified "
+                    "by drive, camera and frame number for KITTI names (<drive>_velodyne_raw_<frame>_image_0X.png "
+                    "pairs with <drive>_groundtruth_depth_<frame>_image_0X.png and with "
+                    "<drive>/proj_depth/groundtruth/image_0X/<frame>.png), else by the path below the root "
+                    "(same names, complete-rig's <camera>.png). Frames on one side only are listed, not scored.")
+    p.add_argument("pred", metavar="PRED_ROOT", help="folder or tree of predicted depth PNGs")
+    p.add_argument("gt", metavar="GT_ROOT",
+                   help="folder or tree of ground-truth depth PNGs (e.g. data_depth_annotated/val, or a selection "
+                        "folder: its groundtruth_depth/ is used)")
+    p.add_argument("--json", metavar="PATH",
+                   help="write mean, per-frame metrics, the file pairs and the unmatched files to this JSON file")
+    p.add_argument("--csv", metavar="PATH",
+                   help="write one row per frame to this CSV file: frame, rmse_mm, mae_mm, irmse_per_km, "
+                        "imae_per_km, prediction, ground_truth (the paired files)")
     p.set_defaults(func=cmd_eval)
 
     from jaxdepth import research_cli

@@ -1,15 +1,36 @@
-"""Scoring folders of predictions against ground truth with KITTI devkit metrics.
+"""Scoring predictions against ground truth with KITTI devkit metrics.
 
-Predictions and ground truth are KITTI depth PNGs matched by file name (a
-``complete-rig`` output folder, ``<camera>.png``, is scored against a folder of
-per-camera ground truth the same way). Per-frame metrics follow the devkit
-(empty predictions filled by ``interpolate_background``), and the dataset score
-is the mean over frames.
+Contract:
+
+* ``PRED_ROOT`` and ``GT_ROOT`` are folders of KITTI depth PNGs (uint16, metres *
+  256), flat or nested: both are walked recursively for ``*.png`` (hidden files
+  skipped, folder links followed).
+* Files are paired by **frame identity** (:func:`frame_identity`), not by file
+  name, so a flat folder of ``jaxdepth complete`` outputs (named like the sparse
+  input, ``..._velodyne_raw_<frame>_image_02.png``) pairs with the selection
+  folder's ``..._groundtruth_depth_<frame>_image_02.png`` or with the KITTI
+  ``<drive>/proj_depth/groundtruth/image_02/<frame>.png`` tree.
+* Two files of one side with the same identity are an error naming both.
+* Ground-truth frames without a prediction are listed (``missing_predictions``)
+  and **not scored**: the mean is over the paired frames only (the devkit would
+  score a missing prediction as an empty one, i.e. -1 m everywhere; we report
+  instead of guessing). Predictions without ground truth are listed
+  (``unmatched_predictions``) and not scored either: the annotated KITTI sets
+  leave out frames (e.g. the first and last five of each drive), so a complete
+  run over a drive has them. Neither is an error; no pair at all is.
+* Per-frame metrics follow the devkit (empty predictions filled by
+  ``interpolate_background``; RMSE / MAE in mm over ``gt > 0``, iRMSE / iMAE in
+  1/km), and the data-set score is the mean over frames.
 """
 
 from __future__ import annotations
 
+import csv
+import io
+import os
 import pathlib
+import re
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,6 +39,123 @@ from jaxdepth.io.depth_png import read_depth_png
 from jaxdepth.io.errors import InputError
 
 METRIC_KEYS = ("rmse", "mae", "irmse", "imae")
+CSV_COLUMNS = ("frame", "rmse_mm", "mae_mm", "irmse_per_km", "imae_per_km", "prediction", "ground_truth")
+
+# Kinds (the <name> of a layout, see frame_identity) that mark a file's role.
+GROUND_TRUTH_KINDS = frozenset({"groundtruth", "groundtruth_depth"})
+CAMERA_IMAGE_KINDS = frozenset({"image"})  # RGB images of a selection folder: never depth
+_SELECTION_SUBFOLDERS = frozenset({"velodyne_raw", "groundtruth_depth", "image"})
+
+_KITTI_DRIVE = r"\d{4}_\d{2}_\d{2}_drive_\d{4}_sync"
+_SELECTION_NAME = re.compile(
+    rf"^(?P<drive>{_KITTI_DRIVE})_(?P<kind>\w+?)_(?P<frame>\d{{10}})_(?P<camera>image_0\d)\.png$")
+_TREE_CAMERA = re.compile(r"^image_0\d$")
+_SHOW = 3  # names shown of an unmatched list
+
+
+def frame_identity(relpath) -> tuple[str, str | None]:
+    """The frame a depth PNG belongs to, from its path relative to the folder walked.
+
+    Args:
+      relpath: ``str`` or ``PurePath`` of the PNG relative to PRED_ROOT / GT_ROOT
+        (``/``-separated; only the last five components matter).
+
+    Returns:
+      ``(identity, kind)``: ``identity`` is the pairing key (a prediction and a
+      ground truth with equal identities are scored together); ``kind`` is the
+      layout's ``<name>`` (``velodyne_raw``, ``groundtruth``, ``sgm``, ...) or None.
+
+    Layouts, first match wins (``X`` a camera digit, ``F`` a frame number):
+
+    =====================  ==============================================================  ==================================
+    layout                 path                                                            identity (kind)
+    =====================  ==============================================================  ==================================
+    KITTI tree             ``<drive>/proj_depth/<name>/image_0X/<F>.png``                  ``<drive>/image_0X/<F>`` (<name>)
+    KITTI selection name   ``[...]/<drive>_<name>_<F>_image_0X.png``, <drive> like           ``<drive>/image_0X/<F>`` (<name>)
+                           ``2011_09_26_drive_0002_sync``, <F> 10 digits
+    selection subfolder    ``[...]/<sub>/<file>.png``, <sub> one of ``velodyne_raw``,       ``[...]/<file>.png`` (<sub>)
+                           ``groundtruth_depth``, ``image``
+    anything else          ``[...]/<file>.png`` (same names on both sides, a                the path itself (None)
+                           ``complete-rig`` folder's ``<camera>.png``)
+    =====================  ==============================================================  ==================================
+
+    So ``2011_09_26_drive_0002_sync_velodyne_raw_0000000005_image_02.png``,
+    ``2011_09_26_drive_0002_sync_groundtruth_depth_0000000005_image_02.png`` and
+    ``2011_09_26_drive_0002_sync/proj_depth/groundtruth/image_02/0000000005.png``
+    all are ``2011_09_26_drive_0002_sync/image_02/0000000005``; ``_image_03`` is
+    another frame.
+    """
+    parts = pathlib.PurePosixPath(pathlib.PurePath(relpath).as_posix()).parts
+    name = parts[-1]
+    if len(parts) >= 5 and parts[-4] == "proj_depth" and _TREE_CAMERA.match(parts[-2]) and name.endswith(".png"):
+        return f"{parts[-5]}/{parts[-2]}/{name[:-4]}", parts[-3]
+    m = _SELECTION_NAME.match(name)
+    if m:
+        return f"{m['drive']}/{m['camera']}/{m['frame']}", m["kind"]
+    if len(parts) >= 2 and parts[-2] in _SELECTION_SUBFOLDERS:
+        return "/".join(parts[:-2] + (name,)), parts[-2]
+    return "/".join(parts), None
+
+
+class _Entry(NamedTuple):
+    identity: str
+    kind: str | None
+    rel: str  # path relative to the root, '/'-separated
+
+
+def _walk_pngs(root: pathlib.Path) -> list:
+    """Relative paths ('/'-separated, sorted) of every non-hidden ``*.png`` under ``root``."""
+    found, seen = [], set()
+    for folder, subfolders, files in os.walk(root, followlinks=True):
+        real = os.path.realpath(folder)
+        if real in seen:  # a folder link back up the tree
+            subfolders[:] = []
+            continue
+        seen.add(real)
+        subfolders[:] = sorted(d for d in subfolders if not d.startswith("."))
+        rel_folder = pathlib.PurePath(folder).relative_to(root)
+        found += [(rel_folder / f).as_posix() for f in files if f.endswith(".png") and not f.startswith(".")]
+    return sorted(found)
+
+
+def collect_frames(root, *, side: str) -> tuple[dict, list]:
+    """The depth PNGs under ``root`` keyed by :func:`frame_identity`.
+
+    Args:
+      root: folder, walked recursively.
+      side: ``"prediction"`` or ``"ground truth"``. Camera images (kind ``image``)
+        are skipped on both sides. On the ground-truth side, when any file is
+        marked as ground truth (kind ``groundtruth`` / ``groundtruth_depth``), only
+        those are read (a merged KITTI tree or a whole selection folder holds the
+        LiDAR input beside them); on the prediction side such files are skipped
+        unless nothing else is there.
+
+    Returns:
+      ``({identity: relative path}, [relative paths skipped by the rules above])``.
+
+    Raises:
+      InputError: ``root`` is not a folder, or two files share an identity.
+    """
+    root = pathlib.Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: folder not found (expected a folder of {side} depth PNGs)")
+    entries = [_Entry(*frame_identity(rel), rel) for rel in _walk_pngs(root)]
+    kept = [e for e in entries if e.kind not in CAMERA_IMAGE_KINDS]
+    marked = [e for e in kept if e.kind in GROUND_TRUTH_KINDS]
+    if side == "ground truth":
+        kept = marked or kept
+    elif side == "prediction":
+        kept = [e for e in kept if e.kind not in GROUND_TRUTH_KINDS] or kept
+    else:
+        raise ValueError(f"collect_frames: side expected 'prediction' or 'ground truth', got {side!r}")
+    frames = {}
+    for e in kept:
+        if e.identity in frames:
+            raise InputError(f"{root}: {side} files '{frames[e.identity]}' and '{e.rel}' are the same frame "
+                             f"'{e.identity}'; expected one {side} per frame (pass a folder that holds one set)")
+        frames[e.identity] = e.rel
+    kept_rel = set(frames.values())
+    return frames, [e.rel for e in entries if e.rel not in kept_rel]
 
 
 def evaluate_pairs(pairs) -> dict:
@@ -34,36 +172,98 @@ def evaluate_pairs(pairs) -> dict:
     return {"mean": {k: float(mean[k]) for k in METRIC_KEYS}, "per_frame": per_frame}
 
 
-def _png_files(folder: pathlib.Path) -> dict:
-    if not folder.is_dir():
-        raise InputError(f"{folder}: folder not found")
-    files = {p.name: p for p in sorted(folder.glob("*.png"))}
-    if not files and (folder / "velodyne_raw").is_dir():
-        files = {p.name: p for p in sorted((folder / "velodyne_raw").glob("*.png"))}
-    if not files and (folder / "groundtruth_depth").is_dir():
-        files = {p.name: p for p in sorted((folder / "groundtruth_depth").glob("*.png"))}
-    return files
+def _examples(names) -> str:
+    shown = ", ".join(names[:_SHOW])
+    return shown + (", ..." if len(names) > _SHOW else "")
 
 
-def evaluate_folders(pred_dir: pathlib.Path, gt_dir: pathlib.Path) -> dict:
-    """Metrics of every prediction PNG that has a ground-truth PNG of the same name."""
-    preds, gts = _png_files(pred_dir), _png_files(gt_dir)
+def _read_pair(pred_root: pathlib.Path, gt_root: pathlib.Path, identity: str, pair: dict):
+    pred_path, gt_path = pred_root / pair["prediction"], gt_root / pair["ground_truth"]
+    pred, gt = read_depth_png(pred_path), read_depth_png(gt_path)
+    if pred.shape != gt.shape:
+        raise InputError(f"{pred_path}: prediction shape {pred.shape} expected to equal the shape {gt.shape} "
+                         f"of its ground truth {gt_path} (frame '{identity}')")
+    return identity, pred, gt
+
+
+def evaluate_folders(pred_dir, gt_dir) -> dict:
+    """KITTI devkit metrics of every prediction PNG under ``pred_dir`` paired with a
+    ground-truth PNG under ``gt_dir`` by :func:`frame_identity`.
+
+    Returns:
+      dict (JSON-ready): ``mean`` and ``per_frame[identity]`` (``rmse``, ``mae`` in
+      mm, ``irmse``, ``imae`` in 1/km), ``pairs[identity]`` (``prediction``,
+      ``ground_truth``: paths relative to ``prediction_root`` / ``ground_truth_root``),
+      ``missing_predictions`` / ``unmatched_predictions`` (relative paths of the
+      ground truth without prediction / the predictions without ground truth, not
+      scored) and ``ignored`` (relative paths skipped by :func:`collect_frames`).
+      Frames are in identity order.
+
+    Raises:
+      InputError: a folder is missing or holds no PNG, no frame pairs, two files of
+        one side are the same frame, a PNG is unreadable, or a pair differs in shape.
+    """
+    pred_dir, gt_dir = pathlib.Path(pred_dir), pathlib.Path(gt_dir)
+    preds, pred_ignored = collect_frames(pred_dir, side="prediction")
+    gts, gt_ignored = collect_frames(gt_dir, side="ground truth")
+    if not preds:
+        raise InputError(f"{pred_dir}: no prediction PNG found (searched every subfolder)")
+    if not gts:
+        raise InputError(f"{gt_dir}: no ground-truth PNG found (searched every subfolder)")
     names = sorted(set(preds) & set(gts))
     if not names:
-        raise InputError(f"{pred_dir}: no prediction PNG has a ground-truth PNG of the same name in {gt_dir}")
-    missing = sorted(set(gts) - set(preds))
-    table = evaluate_pairs((n, read_depth_png(preds[n]), read_depth_png(gts[n])) for n in names)
-    table["missing_predictions"] = missing
+        raise InputError(
+            f"{pred_dir}: no prediction PNG has a ground-truth PNG of the same frame in {gt_dir} "
+            f"({len(preds)} predictions, e.g. {_examples(sorted(preds.values()))}; "
+            f"{len(gts)} ground truths, e.g. {_examples(sorted(gts.values()))})")
+    pairs = {n: {"prediction": preds[n], "ground_truth": gts[n]} for n in names}
+    table = evaluate_pairs(_read_pair(pred_dir, gt_dir, n, pairs[n]) for n in names)
+    table.update(
+        prediction_root=str(pred_dir), ground_truth_root=str(gt_dir), pairs=pairs,
+        missing_predictions=sorted(gts[n] for n in set(gts) - set(preds)),
+        unmatched_predictions=sorted(preds[n] for n in set(preds) - set(gts)),
+        ignored={"prediction": pred_ignored, "ground_truth": gt_ignored})
     return table
 
 
 def format_table(table: dict) -> list:
-    lines = [f"{'frame':40s}{'RMSE mm':>10s}{'MAE mm':>10s}{'iRMSE 1/km':>12s}{'iMAE 1/km':>11s}"]
-    for name, m in table["per_frame"].items():
-        lines.append(f"{name[:40]:40s}{m['rmse']:10.1f}{m['mae']:10.1f}{m['irmse']:12.2f}{m['imae']:11.2f}")
-    m = table["mean"]
-    lines.append(f"{'mean (' + str(len(table['per_frame'])) + ' frames)':40s}"
-                 f"{m['rmse']:10.1f}{m['mae']:10.1f}{m['irmse']:12.2f}{m['imae']:11.2f}")
-    if table.get("missing_predictions"):
-        lines.append(f"warning: {len(table['missing_predictions'])} ground-truth frames have no prediction")
+    """Printable lines: one per frame (full identity; the column as wide as the
+    longest), the mean, then warnings about unscored files."""
+    count = len(table["per_frame"])
+    mean_label = f"mean ({count} frames)"
+    width = max([len("frame"), len(mean_label)] + [len(n) for n in table["per_frame"]]) + 2
+    lines = [f"{'frame':{width}s}{'RMSE mm':>10s}{'MAE mm':>10s}{'iRMSE 1/km':>12s}{'iMAE 1/km':>11s}"]
+    rows = list(table["per_frame"].items()) + [(mean_label, table["mean"])]
+    for name, m in rows:
+        lines.append(f"{name:{width}s}{m['rmse']:10.1f}{m['mae']:10.1f}{m['irmse']:12.2f}{m['imae']:11.2f}")
+    unmatched = table.get("unmatched_predictions") or []
+    if unmatched:
+        lines.append(f"warning: {len(unmatched)} predictions have no ground truth (not scored): {_examples(unmatched)}")
+    ignored = table.get("ignored") or {}
+    for side, files in sorted(ignored.items()):
+        if files:
+            lines.append(f"note: {len(files)} {side.replace('_', ' ')} files ignored (camera images, or LiDAR input "
+                         f"beside ground truth): {_examples(files)}")
+    missing = table.get("missing_predictions") or []
+    if missing:
+        lines.append(f"warning: {len(missing)} ground-truth frames have no prediction (not scored, not in the "
+                     f"mean): {_examples(missing)}")
     return lines
+
+
+def format_csv(table: dict) -> str:
+    """Per-frame CSV text: ``frame`` (identity), ``rmse_mm``, ``mae_mm``,
+    ``irmse_per_km``, ``imae_per_km`` (shortest round-trip floats, ``nan`` for a
+    frame without ground-truth pixels), ``prediction`` and ``ground_truth`` (the
+    paired files, joined to the roots as given). Rows in identity order; ``\\n``
+    line ends."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    pred_root = pathlib.Path(table["prediction_root"])
+    gt_root = pathlib.Path(table["ground_truth_root"])
+    for name, m in table["per_frame"].items():
+        pair = table["pairs"][name]
+        writer.writerow([name] + [repr(float(m[k])) for k in METRIC_KEYS]
+                        + [str(pred_root / pair["prediction"]), str(gt_root / pair["ground_truth"])])
+    return out.getvalue()
