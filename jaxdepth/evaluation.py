@@ -228,7 +228,8 @@ def evaluate_folders(pred_dir, gt_dir) -> dict:
 
 def format_table(table: dict) -> list:
     """Printable lines: one per frame (full identity; the column as wide as the
-    longest), the mean, then warnings about unscored files."""
+    longest), the mean, then warnings naming the unscored files (first three, joined
+    to their root)."""
     count = len(table["per_frame"])
     mean_label = f"mean ({count} frames)"
     width = max([len("frame"), len(mean_label)] + [len(n) for n in table["per_frame"]]) + 2
@@ -236,15 +237,16 @@ def format_table(table: dict) -> list:
     rows = list(table["per_frame"].items()) + [(mean_label, table["mean"])]
     for name, m in rows:
         lines.append(f"{name:{width}s}{m['rmse']:10.1f}{m['mae']:10.1f}{m['irmse']:12.2f}{m['imae']:11.2f}")
-    unmatched = table.get("unmatched_predictions") or []
+    roots = {side: pathlib.Path(table.get(f"{side}_root", "")) for side in ("prediction", "ground_truth")}
+    unmatched = [str(roots["prediction"] / f) for f in table.get("unmatched_predictions") or []]
     if unmatched:
         lines.append(f"warning: {len(unmatched)} predictions have no ground truth (not scored): {_examples(unmatched)}")
-    ignored = table.get("ignored") or {}
-    for side, files in sorted(ignored.items()):
+    for side, files in sorted((table.get("ignored") or {}).items()):
         if files:
+            files = [str(roots[side] / f) for f in files]
             lines.append(f"note: {len(files)} {side.replace('_', ' ')} files ignored (camera images, or LiDAR input "
                          f"beside ground truth): {_examples(files)}")
-    missing = table.get("missing_predictions") or []
+    missing = [str(roots["ground_truth"] / f) for f in table.get("missing_predictions") or []]
     if missing:
         lines.append(f"warning: {len(missing)} ground-truth frames have no prediction (not scored, not in the "
                      f"mean): {_examples(missing)}")
