@@ -50,6 +50,8 @@ _KITTI_DRIVE = r"\d{4}_\d{2}_\d{2}_drive_\d{4}_sync"
 _SELECTION_NAME = re.compile(
     rf"^(?P<drive>{_KITTI_DRIVE})_(?P<kind>\w+?)_(?P<frame>\d{{10}})_(?P<camera>image_0\d)\.png$")
 _TREE_CAMERA = re.compile(r"^image_0\d$")
+# A role word as a whole '_'-separated token of a file name (not the whole stem).
+_ROLE_TOKEN = re.compile(r"(?:^|_)(velodyne_raw|groundtruth_depth|groundtruth)(?=_|\.png$)")
 _SHOW = 3  # names shown of an unmatched list
 
 
@@ -73,6 +75,10 @@ def frame_identity(relpath) -> tuple[str, str | None]:
     KITTI tree             ``<drive>/proj_depth/<name>/image_0X/<F>.png``                  ``<drive>/image_0X/<F>`` (<name>)
     KITTI selection name   ``[...]/<drive>_<name>_<F>_image_0X.png``, <drive> like           ``<drive>/image_0X/<F>`` (<name>)
                            ``2011_09_26_drive_0002_sync``, <F> 10 digits
+    other names            as below, with a ``_``-separated word ``velodyne_raw``,          the path without the word (word)
+                           ``groundtruth_depth`` or ``groundtruth`` dropped:
+                           ``x_velodyne_raw_7.png`` and ``x_groundtruth_7.png`` are
+                           ``x_7.png``
     selection subfolder    ``[...]/<sub>/<file>.png``, <sub> one of ``velodyne_raw``,       ``[...]/<file>.png`` (<sub>)
                            ``groundtruth_depth``, ``image``
     anything else          ``[...]/<file>.png`` (same names on both sides, a                the path itself (None)
@@ -92,9 +98,15 @@ def frame_identity(relpath) -> tuple[str, str | None]:
     m = _SELECTION_NAME.match(name)
     if m:
         return f"{m['drive']}/{m['camera']}/{m['frame']}", m["kind"]
-    if len(parts) >= 2 and parts[-2] in _SELECTION_SUBFOLDERS:
-        return "/".join(parts[:-2] + (name,)), parts[-2]
-    return "/".join(parts), None
+    folders = parts[:-1]
+    kind = None
+    if folders and folders[-1] in _SELECTION_SUBFOLDERS:
+        folders, kind = folders[:-1], folders[-1]
+    m = _ROLE_TOKEN.search(name)
+    if m and name[:-4] != m[1]:
+        end = m.end() + (1 if m.start() == 0 else 0)  # drop one '_' beside the word
+        name, kind = name[:m.start()] + name[end:], m[1]
+    return "/".join(folders + (name,)), kind
 
 
 class _Entry(NamedTuple):

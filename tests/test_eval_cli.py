@@ -195,7 +195,13 @@ def _tree(drive, kind, frame, cam):
     ("CAM_FRONT.png", "CAM_FRONT.png", None),
     ("sweep_7/CAM_FRONT.png", "sweep_7/CAM_FRONT.png", None),
     ("a/proj_depth/x/image_02/sub/f.png", "a/proj_depth/x/image_02/sub/f.png", None),  # not the tree layout
-    ("drive_0002_velodyne_raw_5_image_02.png", "drive_0002_velodyne_raw_5_image_02.png", None),  # no KITTI drive
+    ("d/drive_0002_velodyne_raw_5_image_02.png", "d/drive_0002_5_image_02.png", "velodyne_raw"),  # not a KITTI drive
+    ("d/drive_0002_groundtruth_depth_5_image_02.png", "d/drive_0002_5_image_02.png", "groundtruth_depth"),
+    ("velodyne_raw_image_03.png", "image_03.png", "velodyne_raw"),
+    ("groundtruth_image_03.png", "image_03.png", "groundtruth"),
+    ("groundtruth_depth/f_groundtruth.png", "f.png", "groundtruth"),
+    ("groundtruth.png", "groundtruth.png", None),  # the whole stem is no frame name
+    ("my_velodyne_rawish_1.png", "my_velodyne_rawish_1.png", None),  # only whole words
 ])
 def test_frame_identity_layouts(relpath, identity, kind):
     assert evaluation.frame_identity(relpath) == (identity, kind)
