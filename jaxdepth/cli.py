@@ -391,8 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "frames). Either side may be a flat folder or a tree, walked recursively. Frames are identified "
                     "by drive, camera and frame number for KITTI names (<drive>_velodyne_raw_<frame>_image_0X.png "
                     "pairs with <drive>_groundtruth_depth_<frame>_image_0X.png and with "
-                    "<drive>/proj_depth/groundtruth/image_0X/<frame>.png), else by the path below the root "
-                    "(same names, complete-rig's <camera>.png). Frames on one side only are listed, not scored.")
+                    "<drive>/proj_depth/groundtruth/image_0X/<frame>.png), else by the path below the root with a "
+                    "velodyne_raw / groundtruth_depth / groundtruth word dropped (same names, complete-rig's "
+                    "<camera>.png). Frames on one side only are listed, not scored; two files of one frame are "
+                    "an error.")
     p.add_argument("pred", metavar="PRED_ROOT", help="folder or tree of predicted depth PNGs")
     p.add_argument("gt", metavar="GT_ROOT",
                    help="folder or tree of ground-truth depth PNGs (e.g. data_depth_annotated/val, or a selection "

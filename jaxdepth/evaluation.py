@@ -12,9 +12,9 @@ Contract:
   ``<drive>/proj_depth/groundtruth/image_02/<frame>.png`` tree.
 * Two files of one side with the same identity are an error naming both.
 * Ground-truth frames without a prediction are listed (``missing_predictions``)
-  and **not scored**: the mean is over the paired frames only (the devkit would
-  score a missing prediction as an empty one, i.e. -1 m everywhere; we report
-  instead of guessing). Predictions without ground truth are listed
+  and **not scored**: the mean is over the paired frames only (the official
+  devkit expects a prediction for every ground-truth file, so a benchmark number
+  needs this list empty; we report instead of scoring a made-up prediction). Predictions without ground truth are listed
   (``unmatched_predictions``) and not scored either: the annotated KITTI sets
   leave out frames (e.g. the first and last five of each drive), so a complete
   run over a drive has them. Neither is an error; no pair at all is.
@@ -60,30 +60,31 @@ def frame_identity(relpath) -> tuple[str, str | None]:
 
     Args:
       relpath: ``str`` or ``PurePath`` of the PNG relative to PRED_ROOT / GT_ROOT
-        (``/``-separated; only the last five components matter).
+        (``/``-separated; the KITTI rules look at the last five components only).
 
     Returns:
       ``(identity, kind)``: ``identity`` is the pairing key (a prediction and a
       ground truth with equal identities are scored together); ``kind`` is the
       layout's ``<name>`` (``velodyne_raw``, ``groundtruth``, ``sgm``, ...) or None.
 
-    Layouts, first match wins (``X`` a camera digit, ``F`` a frame number):
+    Layouts, first match wins (``X`` a camera digit, ``F`` a frame number), except
+    that the selection-subfolder and role-word rules apply one after the other:
 
-    =====================  ==============================================================  ==================================
-    layout                 path                                                            identity (kind)
-    =====================  ==============================================================  ==================================
-    KITTI tree             ``<drive>/proj_depth/<name>/image_0X/<F>.png``                  ``<drive>/image_0X/<F>`` (<name>)
-    KITTI selection name   ``[...]/<drive>_<name>_<F>_image_0X.png``, <drive> like           ``<drive>/image_0X/<F>`` (<name>)
-                           ``2011_09_26_drive_0002_sync``, <F> 10 digits
-    other names            as below, with a ``_``-separated word ``velodyne_raw``,          the path without the word (word)
-                           ``groundtruth_depth`` or ``groundtruth`` dropped:
-                           ``x_velodyne_raw_7.png`` and ``x_groundtruth_7.png`` are
-                           ``x_7.png``
-    selection subfolder    ``[...]/<sub>/<file>.png``, <sub> one of ``velodyne_raw``,       ``[...]/<file>.png`` (<sub>)
-                           ``groundtruth_depth``, ``image``
-    anything else          ``[...]/<file>.png`` (same names on both sides, a                the path itself (None)
-                           ``complete-rig`` folder's ``<camera>.png``)
-    =====================  ==============================================================  ==================================
+    =====================  ====================================================  ==================================
+    layout                 path                                                  identity (kind)
+    =====================  ====================================================  ==================================
+    KITTI tree             ``<drive>/proj_depth/<name>/image_0X/<F>.png``        ``<drive>/image_0X/<F>`` (<name>)
+    KITTI selection        ``[...]/<drive>_<name>_<F>_image_0X.png``, <drive>    ``<drive>/image_0X/<F>`` (<name>)
+                           like ``2011_09_26_drive_0002_sync``, <F> 10 digits
+    selection subfolder    ``[...]/<sub>/<file>.png``, <sub> one of              ``[...]/<file>.png`` (<sub>), then:
+                           ``velodyne_raw``, ``groundtruth_depth``, ``image``
+    role word              ``[...]/<a>_<word>_<b>.png``, <word> one of           ``[...]/<a>_<b>.png`` (<word>)
+                           ``velodyne_raw``, ``groundtruth_depth``,
+                           ``groundtruth`` (a whole ``_``-separated word, not
+                           the whole stem; also at the start or the end)
+    anything else          ``[...]/<file>.png``: same names on both sides,       the path itself (None)
+                           ``complete-rig``'s ``<camera>.png``
+    =====================  ====================================================  ==================================
 
     So ``2011_09_26_drive_0002_sync_velodyne_raw_0000000005_image_02.png``,
     ``2011_09_26_drive_0002_sync_groundtruth_depth_0000000005_image_02.png`` and
