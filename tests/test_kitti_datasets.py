@@ -126,6 +126,24 @@ def test_raw_drive_folder_date_folder_and_camera_option_give_the_same_jobs(raw_t
     assert kitti_datasets.detect_kitti_layout(raw_tree / DATE_A / DRIVE_A) == "kitti-raw"
 
 
+@pytest.mark.parametrize("extra,pattern", [
+    (["--method", "nearest"], "sgm only"),
+    (["--calib-dir", "."], "--calib-dir is for depth-completion trees"),
+    (["--intrinsics", "K.txt"], "--intrinsics does not apply"),
+])
+def test_raw_options_that_do_not_apply_are_refused_before_any_work(raw_tree, tmp_path, capsys, extra, pattern):
+    code = cli.main(["complete", str(raw_tree), str(tmp_path / "out"), *extra])
+    err = capsys.readouterr().err
+    assert code == 1 and pattern in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_crop_on_a_selection_folder_is_refused(tmp_path, capsys):
+    frame = require_shared("kitti", "drive_0001_frame05")
+    assert cli.main(["complete", str(frame), str(tmp_path / "out"), "--crop"]) == 1
+    assert "--crop needs a KITTI raw or object folder" in capsys.readouterr().err
+
+
 def test_raw_drive_without_date_calibration_is_a_clear_error(raw_tree, tmp_path):
     lone = tmp_path / "x" / DRIVE_A
     shutil.copytree(raw_tree / DATE_A / DRIVE_A, lone)
