@@ -348,6 +348,12 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     (asynchronously) before batch k's result is collected, while ``io_threads``
     threads each decode inputs and encode + write outputs (OpenCV, NumPy and zlib
     release the GIL).
+
+    Sweep jobs (``FrameJob.image_size`` set) are batched per (power-of-two point
+    bucket, image size): one compiled function each, like depth images per size.
+
+    Raises:
+      ValueError: sweep jobs with a ``method`` other than "sgm".
     """
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")

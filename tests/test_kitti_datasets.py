@@ -287,3 +287,16 @@ def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path
     assert local.ok
     for i, job in enumerate(scan.jobs):
         np.testing.assert_array_equal(_png_u16(job.out_path), _png_u16(tmp_path / "local" / f"{i}.png"))
+
+
+def test_sweeps_of_different_lengths_group_by_power_of_two_bucket(raw_tree, tmp_path):
+    """A short sweep lands in a smaller bucket (its own compiled batch); equal buckets share one."""
+    (job,) = kitti_datasets.kitti_raw_jobs(raw_tree / DATE_A, tmp_path, camera=2, crop=True).jobs
+    short = tmp_path / "short.bin"
+    short.write_bytes(job.sparse_path.read_bytes()[:16 * 60000])
+    keys = []
+    for path in (job.sparse_path, short):
+        data, K = runner._load(runner.FrameJob(**{**job.__dict__, "sparse_path": path}))
+        keys.append(runner._group_key(job, data))
+        assert data[0].shape[0] == data[1].shape[0] and data[1].sum() == path.stat().st_size // 16
+    assert keys == [("sweep", 131072, 352, 1216), ("sweep", 65536, 352, 1216)]
