@@ -250,7 +250,10 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     scan = kitti_datasets.discover_kitti(src, dst, camera=args.camera, crop=args.crop,
                                          name=args.name or args.method, calib_dir=args.calib_dir)
     if scan is None:
-        has_pngs = (src / "velodyne_raw").exists() or any(p.suffix.lower() == ".png" for p in src.iterdir())
+        try:
+            has_pngs = (src / "velodyne_raw").exists() or any(p.suffix.lower() == ".png" for p in src.iterdir())
+        except OSError:  # an unreadable folder: the selection-folder reader names the problem
+            has_pngs = True
         if not has_pngs:
             raise InputError(kitti_datasets.unknown_layout_message(src))
         return None
