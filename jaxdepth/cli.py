@@ -186,14 +186,24 @@ def cmd_complete(args) -> int:
     from jaxdepth.io.kitti_layout import KittiExtrinsics
 
     src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
+    scan = _discover_dataset(src, dst, args)
+    pre_failed = [] if scan is None else scan.failed
+    if scan is None and getattr(args, "crop", False):
+        raise InputError(f"{src}: --crop needs a KITTI raw or object folder (LiDAR sweeps)")
     if args.extrinsic is not None and (args.camera is not None or args.calib_dir is not None):
         raise InputError("--extrinsic gives the extrinsic itself: use it without --camera / --calib-dir")
-    if args.extrinsic is not None:
+    if scan is not None:
+        jobs = scan.jobs
+    elif args.extrinsic is not None:
         T_fixed = read_extrinsic_txt(args.extrinsic)
         extrinsic_of = lambda path: T_fixed  # noqa: E731
     else:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
-    if src.is_file() or src.suffix.lower() == ".png":
+    if scan is not None:
+        _ensure_writable_dir(dst)
+        from jaxdepth.io.kitti_datasets import make_output_folders
+        make_output_folders(jobs)
+    elif src.is_file() or src.suffix.lower() == ".png":
         if not src.exists():
             raise InputError(f"{src}: input file not found")
         if args.intrinsics is None:
@@ -211,7 +221,9 @@ def cmd_complete(args) -> int:
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
         print("jaxdepth: error: --png-compression is only supported with --engine local", file=sys.stderr)
         return 2
-    progress = Progress(len(jobs), enabled=not args.quiet)
+    progress = Progress(len(jobs) + len(pre_failed), enabled=not args.quiet)
+    for name, message in pre_failed:
+        progress.update(name, f"failed: {message}")
     if args.engine == "ray":
         from jaxdepth import scale
         summary = scale.run_jobs_ray(jobs, method=args.method, config=_config_from(args),
@@ -222,7 +234,37 @@ def cmd_complete(args) -> int:
                                   overwrite=args.overwrite, png_compression=args.png_compression,
                                   io_threads=_io_threads(), on_progress=progress.update)
     progress.close()
+    summary.failed[:0] = pre_failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
+    """The :class:`jaxdepth.io.kitti_datasets.DatasetScan` of a dataset root, None for a selection /
+    flat folder or one file; one line on stderr says what was found. A folder in no known layout
+    is an error listing the layouts understood."""
+    from jaxdepth.io import kitti_datasets
+    from jaxdepth.io.errors import InputError
+
+    if not src.is_dir():
+        return None
+    scan = kitti_datasets.discover_kitti(src, dst, camera=args.camera, crop=args.crop,
+                                         name=args.name or args.method, calib_dir=args.calib_dir)
+    if scan is None:
+        try:
+            has_pngs = (src / "velodyne_raw").exists() or any(p.suffix.lower() == ".png" for p in src.iterdir())
+        except OSError:  # an unreadable folder: the selection-folder reader names the problem
+            has_pngs = True
+        if not has_pngs:
+            raise InputError(kitti_datasets.unknown_layout_message(src))
+        return None
+    for option, given in (("--intrinsics", args.intrinsics), ("--extrinsic", args.extrinsic)):
+        if given is not None:
+            raise InputError(f"{src}: {option} does not apply to a {scan.layout} folder (its calibration is used)")
+    if scan.jobs and scan.jobs[0].image_size is not None and args.method != "sgm":
+        raise InputError(f"{src}: LiDAR sweeps complete with --method sgm only, got {args.method}")
+    if not args.quiet:
+        print(f"found {scan.summary}", file=sys.stderr)
+    return scan
 
 
 def _io_threads() -> int:
@@ -342,16 +384,36 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p)
     p.set_defaults(func=cmd_demo)
 
-    p = sub.add_parser("complete", help="complete a KITTI-layout folder (velodyne_raw/ + intrinsics/) or one PNG")
-    p.add_argument("src", help="folder with velodyne_raw/*.png and intrinsics/*.txt, or one sparse depth PNG")
+    p = sub.add_parser(
+        "complete", help="complete a KITTI dataset root (raw, depth-completion train/val, object), a selection "
+                         "folder or one PNG",
+        description="Completes every frame of SRC into DST. SRC layouts: KITTI raw (a date folder, one drive, or "
+                    "a folder of dates: velodyne_points/data/*.bin, calibration per date) -> "
+                    "DST/<drive>/proj_depth/<name>/image_0X/<frame>.png; KITTI depth-completion train/val "
+                    "(<drive>/proj_depth/velodyne_raw/image_0X/*.png, needs --calib-dir) -> the same tree with "
+                    "<name> for velodyne_raw; KITTI object training/testing (velodyne/, calib/, image_2/) -> "
+                    "DST/<split>/depth_2/<frame>.png; a selection folder (velodyne_raw/ + intrinsics/) or flat "
+                    "folder of PNGs -> DST/<file>.png; one PNG with --intrinsics -> DST. Finished outputs are "
+                    "skipped (re-run to resume).")
+    p.add_argument("src", help="dataset root (see above), folder with velodyne_raw/*.png and intrinsics/*.txt, "
+                               "or one sparse depth PNG")
     p.add_argument("dst", help="output folder (or output PNG for a single image)")
     p.add_argument("--intrinsics", help="K.txt for a single image (or for every frame of a folder)")
     p.add_argument("--camera", type=int, choices=(0, 1, 2, 3), default=None,
-                   help="KITTI camera whose LiDAR extrinsic to use (default: the file name's _image_0X suffix, "
-                        "else 2; built-in 2011_09_26 calibration for cameras 2 and 3)")
+                   help="KITTI camera: for a selection folder the one whose LiDAR extrinsic to use (default: the "
+                        "file name's _image_0X suffix, else 2; built-in 2011_09_26 calibration for cameras 2 and "
+                        "3); for a dataset root the only camera to complete (default: raw 2 and 3, train/val every "
+                        "image_0X found, object 2)")
     p.add_argument("--calib-dir", default=None, metavar="DIR",
                    help="KITTI raw calibration per recording date: DIR/<date>/calib_cam_to_cam.txt and "
-                        "calib_velo_to_cam.txt (date from the file name), or the two files directly in DIR")
+                        "calib_velo_to_cam.txt (date from the file or drive name), or the two files directly in DIR "
+                        "(selection folders and depth-completion train/val trees)")
+    p.add_argument("--crop", action="store_true",
+                   help="KITTI raw / object: complete the 352x1216 benchmark crop (bottom rows, centre columns) "
+                        "instead of the full frame")
+    p.add_argument("--name", default=None,
+                   help="output folder under proj_depth/ for KITTI raw and train/val trees (default: the method, "
+                        "e.g. sgm)")
     p.add_argument("--extrinsic", default=None, metavar="T.txt",
                    help="LiDAR -> camera extrinsic for every frame: 12 (3x4) or 16 (4x4) numbers, row major")
     _add_method_options(p)

@@ -50,7 +50,15 @@ log = logging.getLogger("jaxdepth")
 @dataclasses.dataclass(frozen=True)
 class FrameJob:
     """One frame to complete: input PNG, intrinsics (file or matrix), output PNG, and optionally the
-    frame's own LiDAR -> camera extrinsic ``T_cam_lidar`` (4, 4) (None: the run's default)."""
+    frame's own LiDAR -> camera extrinsic ``T_cam_lidar`` (4, 4) (None: the run's default).
+
+    A *sweep job* (``image_size`` set) reads a LiDAR sweep from ``sparse_path`` instead
+    (``.bin`` float32 records of ``point_columns`` values, x, y, z first, metres; None:
+    :func:`jaxdepth.io.points.infer_point_columns`) and completes it with
+    :func:`jaxdepth.complete_points` (SGM only) into an image of ``image_size`` =
+    (height, width) pixels with ``K`` and ``T_cam_lidar``. Sweeps are padded to the
+    power-of-two buckets of :func:`jaxdepth.io.points.bucket_size`.
+    """
 
     name: str
     sparse_path: pathlib.Path
@@ -58,6 +66,8 @@ class FrameJob:
     intrinsics_path: pathlib.Path | None = None
     K: np.ndarray | None = None
     T_cam_lidar: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
+    point_columns: int | None = None
 
 
 @dataclasses.dataclass
@@ -137,6 +147,59 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     return jax.jit(traced)
 
 
+@functools.lru_cache(maxsize=32)
+def batched_sweep_completion(batch_size: int, points: int, height: int, width: int, *, config: SGMConfig,
+                             lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
+    """(B, P, 3), (B, P), (B, 3, 3), (B, 4, 4) -> (B, H, W) SGM completion of padded sweeps (one bucket).
+
+    Frame i is :func:`jaxdepth.complete_points` of ``points[i]``, ``valid[i]`` for the
+    camera (``K[i]``, ``T[i]``, ``height`` x ``width``); K and T are traced. Strategies
+    and devices as in :func:`batched_completion`. ``TRACE_COUNTS`` counts its traces too.
+    """
+    if strategy not in STRATEGIES:
+        raise ValueError(f"batched_sweep_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
+    from jaxdepth._src.pipeline import complete_points
+    from jaxdepth._src.types import Camera
+
+    key = ("sweep", batch_size, points, height, width, config, lidar, strategy, devices)
+
+    def one(pts, valid, K, T):
+        return complete_points(pts, valid, Camera(K=K, T_cam_lidar=T, height=height, width=width),
+                               config=config, lidar=lidar)
+
+    def counted(fn):
+        def traced(*args):
+            TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
+            return fn(*args)
+        return traced
+
+    if strategy == "loop":
+        single = jax.jit(counted(one))
+        targets = jax.local_devices()[:devices]
+
+        def run(*args):
+            outs = [single(*jax.device_put(tuple(a[i] for a in args), targets[i % len(targets)]))
+                    for i in range(batch_size)]
+            return np.stack([np.asarray(out) for out in outs])
+
+        return run
+
+    def per_device(*args):
+        if strategy == "vmap":
+            return jax.vmap(one)(*args)
+        return jax.lax.map(lambda a: one(*a), args)
+
+    def sharded(*args):
+        if devices > 1:
+            mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
+            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 4,
+                               out_specs=PartitionSpec("batch"), check_vma=False)
+            return fn(*args)
+        return per_device(*args)
+
+    return jax.jit(counted(sharded))
+
+
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,
                    method: str = "sgm", config: SGMConfig = SGMConfig(),
                    lidar: LidarSpec = presets.KITTI_HDL64, batch_size: int | None = None,
@@ -187,7 +250,58 @@ def _pad_batch(depths: np.ndarray, Ks: np.ndarray, Ts: np.ndarray, batch_size: i
     return depths, Ks, Ts, n
 
 
+def _load_sweep(job: FrameJob):
+    """A sweep job's input: ((padded (P, 3), valid (P,)), K), K checked against ``image_size``."""
+    from jaxdepth.io.points import infer_point_columns, pad_points, read_points
+
+    points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns))
+    if job.K is None:
+        raise io_errors.InputError(f"{job.sparse_path}: no intrinsics given for this sweep (field 'K' of the job)")
+    K = np.asarray(job.K, np.float32)
+    h, w = (int(s) for s in job.image_size)
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        raise io_errors.InputError(f"{job.sparse_path}: field 'K' principal point ({cx:.1f}, {cy:.1f}) expected "
+                                   f"inside the {w}x{h} image")
+    return pad_points(points), K
+
+
+def _group_key(job: FrameJob, data) -> tuple:
+    """Frames with equal keys share one compiled batch: (H, W) for a depth image,
+    ("sweep", P, H, W) for a sweep padded to P points."""
+    if job.image_size is None:
+        return data.shape
+    return ("sweep", data[0].shape[0]) + tuple(int(s) for s in job.image_size)
+
+
+def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config: SGMConfig, lidar: LidarSpec,
+                strategy: str, devices: int):
+    """(compiled function, padded argument arrays, real frame count) of one group's batch.
+
+    ``items``: up to ``batch_size`` tuples (job, data, K, T) of one :func:`_group_key`.
+    """
+    if key[0] != "sweep":
+        h, w = key
+        fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
+                                strategy=strategy, devices=devices)
+        d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
+                                np.stack([it[3] for it in items]), batch_size)
+        return fn, (d, k, t), n
+    if method != "sgm":
+        raise ValueError(f"sweeps complete with method 'sgm' only, got {method!r}")
+    _, points, h, w = key
+    fn = batched_sweep_completion(batch_size, points, h, w, config=config, lidar=lidar, strategy=strategy,
+                                  devices=devices)
+    pts = np.stack([it[1][0] for it in items])
+    valid = np.stack([it[1][1] for it in items])
+    d, k, t, n = _pad_batch(pts, np.stack([it[2] for it in items]), np.stack([it[3] for it in items]), batch_size)
+    valid = np.concatenate([valid, np.zeros((batch_size - n,) + valid.shape[1:], bool)])
+    return fn, (d, valid, k, t), n
+
+
 def _load(job: FrameJob):
+    if job.image_size is not None:
+        return _load_sweep(job)
     depth = read_depth_png(job.sparse_path)
     if job.K is not None:
         K = np.asarray(job.K, np.float32)
@@ -234,7 +348,15 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     (asynchronously) before batch k's result is collected, while ``io_threads``
     threads each decode inputs and encode + write outputs (OpenCV, NumPy and zlib
     release the GIL).
+
+    Sweep jobs (``FrameJob.image_size`` set) are batched per (power-of-two point
+    bucket, image size): one compiled function each, like depth images per size.
+
+    Raises:
+      ValueError: sweep jobs with a ``method`` other than "sgm".
     """
+    if method != "sgm" and any(job.image_size is not None for job in jobs):
+        raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
     summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
     todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
@@ -268,7 +390,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
                 summary.first_output_at = time.perf_counter()
         notify(job.name, "done")
 
-    pending: dict = {}  # (h, w) -> list of (job, depth, K, T)
+    pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         write_futures = []
         in_flight = []  # at most one dispatched batch whose result is not collected yet
@@ -284,14 +406,11 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
             for i, (job, *_) in enumerate(items):
                 write_futures.append(writers.submit(write, job, result[i]))
 
-        def flush(shape, items):
-            h, w = shape
-            fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
-                                    strategy=strategy, devices=devices)
-            d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
-                                    np.stack([it[3] for it in items]), batch_size)
+        def flush(key, items):
+            fn, args, n = _group_call(key, items, batch_size=batch_size, method=method, config=config,
+                                      lidar=lidar, strategy=strategy, devices=devices)
             try:
-                out = fn(d, k, t)  # dispatched; runs while the previous batch is collected
+                out = fn(*args)  # dispatched; runs while the previous batch is collected
             except Exception as err:
                 for job, *_ in items:
                     record_failure(job.name, f"completion failed: {err}")
@@ -322,12 +441,13 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
             except OSError as err:
                 record_failure(job.name, f"{job.sparse_path}: {err}")
                 continue
-            items = pending.setdefault(depth.shape, [])
+            key = _group_key(job, depth)
+            items = pending.setdefault(key, [])
             items.append((job, depth, K, T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)))
             if len(items) == batch_size:
-                flush(depth.shape, pending.pop(depth.shape))
-        for shape, items in list(pending.items()):
-            flush(shape, items)
+                flush(key, pending.pop(key))
+        for key, items in list(pending.items()):
+            flush(key, items)
         if in_flight:
             collect()
         for f in write_futures:

@@ -4,7 +4,8 @@ The work is a Ray Data pipeline over *job records* (frame name, input/output
 paths, K or intrinsics path), never over images: every actor reads its own
 inputs and writes its own outputs, so only small status rows travel back to the
 driver. Each actor of the pool is a :class:`_CompleteFrames` instance that
-keeps its compiled batch function (:func:`jaxdepth.runner.batched_completion`)
+keeps its compiled batch functions (:func:`jaxdepth.runner.batched_completion`,
+:func:`jaxdepth.runner.batched_sweep_completion` for sweep jobs, both cached per process)
 for the life of the actor, so a frame size compiles once per actor, not once
 per batch.
 
@@ -75,6 +76,9 @@ def _record(job) -> dict[str, Any]:
         "K": K.tolist(),
         "has_T": has_T,
         "T": T.tolist(),
+        # sweep jobs: (height, width) of the image, values per point (0: none / inferred)
+        "image_size": [0, 0] if job.image_size is None else [int(s) for s in job.image_size],
+        "point_columns": 0 if job.point_columns is None else int(job.point_columns),
     }
 
 
@@ -92,9 +96,12 @@ def _jobs_from_batch(batch: dict[str, Any]) -> list:
         T = None
         if bool(batch["has_T"][i]):
             T = np.asarray(list(batch["T"][i]), np.float64).reshape(4, 4).astype(np.float32)
+        size = tuple(int(s) for s in batch["image_size"][i])
+        columns = int(batch["point_columns"][i])
         jobs.append(FrameJob(name=str(batch["name"][i]), sparse_path=pathlib.Path(str(batch["sparse_path"][i])),
                              out_path=pathlib.Path(str(batch["out_path"][i])),
-                             intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K, T_cam_lidar=T))
+                             intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K, T_cam_lidar=T,
+                             image_size=size if size[0] > 0 else None, point_columns=columns or None))
     return jobs
 
 
@@ -126,16 +133,6 @@ class _CompleteFrames:
         self.batch_size = -(-max(1, int(batch_size)) // self.devices) * self.devices
         self.strategy = runner.batch_strategy()
         self.io_threads = max(1, int(io_threads))
-        self._fns: dict[tuple[int, int], Callable] = {}
-
-    def _fn(self, shape: tuple[int, int]) -> Callable:
-        fn = self._fns.get(shape)
-        if fn is None:
-            fn = self._runner.batched_completion(self.batch_size, shape[0], shape[1], method=self.method,
-                                                 config=self.config, lidar=self.lidar, strategy=self.strategy,
-                                                 devices=self.devices)
-            self._fns[shape] = fn
-        return fn
 
     def _read(self, job):
         from jaxdepth.io import errors as io_errors
@@ -170,16 +167,17 @@ class _CompleteFrames:
                     failure[job.name] = message
                 else:
                     T = self.T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)
-                    groups.setdefault(loaded[0].shape, []).append((job, *loaded, T))
+                    groups.setdefault(self._runner._group_key(job, loaded[0]), []).append((job, *loaded, T))
             writes = []
-            for shape, items in groups.items():
+            for key, items in groups.items():
                 for start in range(0, len(items), self.batch_size):
                     chunk = items[start:start + self.batch_size]
-                    d, k, t, n = self._runner._pad_batch(np.stack([it[1] for it in chunk]),
-                                                         np.stack([it[2] for it in chunk]),
-                                                         np.stack([it[3] for it in chunk]), self.batch_size)
                     try:
-                        result = np.asarray(self._fn(shape)(d, k, t))
+                        # The runner's compiled functions (cached per process, so per actor) and padding.
+                        fn, args, _ = self._runner._group_call(
+                            key, chunk, batch_size=self.batch_size, method=self.method, config=self.config,
+                            lidar=self.lidar, strategy=self.strategy, devices=self.devices)
+                        result = np.asarray(fn(*args))
                     except Exception as err:  # a compute failure costs this chunk, not the dataset
                         for job, *_ in chunk:
                             failure[job.name] = f"completion failed: {err}"
@@ -353,6 +351,8 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
     if len(set(outs)) != len(outs):
         dup = next(o for o in outs if outs.count(o) > 1)
         raise ValueError(f"run_jobs_ray: field 'jobs' expected distinct output paths, got {dup!r} twice")
+    if method != "sgm" and any(job.image_size is not None for job in jobs):
+        raise ValueError(f"run_jobs_ray: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
     ray, ray_data = _import_ray()
 
     summary = RunSummary()

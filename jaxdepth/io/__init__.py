@@ -34,7 +34,8 @@ from jaxdepth.io.points import read_points as read_points
 # jaxdepth.io.rig builds Camera / LidarSpec pytrees and so imports JAX (as does sweep_frame, through it):
 # their names load on first use (PEP 562), so the rest of the I/O edge (and `jaxdepth --help`) stays JAX-free.
 _LAZY = {name: "rig" for name in ('Rig', 'RigCamera', 'default_lidar_spec', 'read_rig_json', 'rig_from_kitti_raw',
-                                  'rig_from_nuscenes_calibration', 'rig_to_json_text', 'write_rig_json')}
+                                  'rig_from_kitti_object', 'rig_from_nuscenes_calibration', 'rig_to_json_text',
+                                  'write_rig_json')}
 _LAZY.update({name: "sweep_frame" for name in ("SweepFrame", "prepare_sweep", "shift_rig")})
 
 if TYPE_CHECKING:
@@ -43,6 +44,7 @@ if TYPE_CHECKING:
     from jaxdepth.io.rig import default_lidar_spec as default_lidar_spec
     from jaxdepth.io.rig import read_rig_json as read_rig_json
     from jaxdepth.io.rig import rig_from_kitti_raw as rig_from_kitti_raw
+    from jaxdepth.io.rig import rig_from_kitti_object as rig_from_kitti_object
     from jaxdepth.io.rig import rig_from_nuscenes_calibration as rig_from_nuscenes_calibration
     from jaxdepth.io.rig import rig_to_json_text as rig_to_json_text
     from jaxdepth.io.rig import write_rig_json as write_rig_json
@@ -90,6 +92,7 @@ __all__ = [
     "prepare_sweep",
     "shift_rig",
     "rig_from_kitti_raw",
+    "rig_from_kitti_object",
     "rig_from_nuscenes_calibration",
     "rig_to_json_text",
     "write_depth_png",

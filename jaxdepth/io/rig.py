@@ -33,7 +33,7 @@ import numpy as np
 from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import Camera, LidarSpec
 from jaxdepth.io.atomic import atomic_write_bytes
-from jaxdepth.io.calib import read_kitti_raw_calib
+from jaxdepth.io.calib import read_kitti_object_calib, read_kitti_raw_calib
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 from jaxdepth.io.kitti_layout import BENCHMARK_SIZE, benchmark_crop_offsets
 
@@ -452,6 +452,54 @@ def rig_from_kitti_raw(cam_to_cam: PathLike, velo_to_cam: PathLike, *, cameras: 
     return Rig(lidar=KITTI_HDL64, cameras=tuple(out))
 
 
+def rig_from_kitti_object(calib_path: PathLike, *, width: int, height: int, cameras: Iterable[int] = (2,),
+                          crop: bool = False) -> Rig:
+    """A rig from one KITTI 3D-object calibration file (``training/calib/000000.txt``).
+
+    Args:
+      calib_path: the frame's calibration (``P0``..``P3``, ``R0_rect``,
+        ``Tr_velo_to_cam``; see :func:`~jaxdepth.io.calib.read_kitti_object_calib`).
+      width, height: image size in pixels (the object format does not store it: take it
+        from the frame's ``image_2/<frame>.png``; KITTI's are 1224-1242 x 370-375).
+      cameras: KITTI camera indices (2: ``image_2``, the left colour camera; 3: ``image_3``);
+        named ``image_0i`` as in :func:`rig_from_kitti_raw`.
+      crop: describe the 352 x 1216 benchmark crop (bottom rows, centre columns) instead
+        of the full frame.
+
+    Returns:
+      A :class:`Rig` with the HDL-64E preset :data:`KITTI_HDL64`; ``K`` of camera i is
+      the left 3x3 block of ``Pi``, ``T_cam_lidar`` as documented in :mod:`jaxdepth.io.calib`.
+
+    Raises:
+      ValueError: bad ``cameras``.
+      InputError: a bad calibration file, or (named ``image``) a non-positive size or one
+        smaller than the crop.
+    """
+    indices = tuple(cameras)
+    if not indices or any(isinstance(i, bool) or i not in (0, 1, 2, 3) for i in indices):
+        raise ValueError(f"rig_from_kitti_object: field 'cameras' expected KITTI indices in 0..3, got {indices}")
+    calib = read_kitti_object_calib(calib_path)
+    if isinstance(width, bool) or isinstance(height, bool) or int(width) < 1 or int(height) < 1:
+        raise field_error(calib_path, "image", "a positive width and height", f"{width}x{height}")
+    width, height = int(width), int(height)
+    out = []
+    for i in indices:
+        c = calib["cameras"][i]
+        K = np.array(c["K"], np.float64)
+        w, h = width, height
+        if crop:
+            try:
+                top, left = benchmark_crop_offsets(h, w)
+            except ValueError:
+                raise field_error(calib_path, "image", f"an image of at least {BENCHMARK_SIZE[1]}x"
+                                  f"{BENCHMARK_SIZE[0]} for crop=True", f"{w}x{h}") from None
+            K[0, 2] -= left
+            K[1, 2] -= top
+            h, w = BENCHMARK_SIZE
+        out.append(RigCamera(f"image_0{i}", w, h, K, c["T_cam_lidar"]))
+    return Rig(lidar=KITTI_HDL64, cameras=tuple(out))
+
+
 def rig_from_nuscenes_calibration(path: PathLike, *, width: int = 1600, height: int = 900) -> Rig:
     """A rig from a nuScenes calibration JSON (``{"cameras": {NAME: {"cam2img", "lidar2cam"}}}``).
 
@@ -501,4 +549,4 @@ def rig_from_nuscenes_calibration(path: PathLike, *, width: int = 1600, height: 
 
 
 __all__ = ["Rig", "RigCamera", "read_rig_json", "write_rig_json", "rig_to_json_text", "rig_from_kitti_raw",
-           "rig_from_nuscenes_calibration", "default_lidar_spec", "RIGID_TOL"]
+           "rig_from_kitti_object", "rig_from_nuscenes_calibration", "default_lidar_spec", "RIGID_TOL"]
