@@ -25,10 +25,13 @@ hidden from where it is now) are not all caught by Algorithm 1, and moving objec
 leave trails (as in the devkit's multi-sweep clouds); outlier removal stays on by
 default because without it even more hidden points would become seeds.
 
-Scheduling: a reader thread pool loads samples ahead; sample i is dispatched
-(asynchronously) to local device ``i mod n`` (on CPU, one host device per core
-with ``jaxdepth.cli.split_cpu_into_devices``) before earlier results are
-collected; writer threads encode and write the PNGs.
+Scheduling: a reader thread pool loads samples ahead; each sample is dispatched
+(asynchronously) before the previous result is collected; writer threads encode
+and write the PNGs. One device by default (``devices``: round robin over several,
+each compiling its own copy); the CLI does not split the CPU into host devices
+for this job (``--cpu-devices`` has no effect): XLA already spreads one sample
+over the cores, and splitting the cameras of a sample over two host devices
+measured no faster on 2 cores.
 """
 
 from __future__ import annotations
@@ -86,11 +89,11 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify) -> list
     for token in tables.samples():
         try:
             _, cams = nusc.sample_cameras(tables, token)
-        except JaxdepthError as err:
+            paths = [(channel, nusc.output_path(dst, tables.version, channel, sd["token"])) for channel, sd in cams]
+        except (JaxdepthError, ValueError) as err:
             summary.failed.append((token, str(err)))
             notify(token, f"failed: {err}")
             continue
-        paths = [(channel, nusc.output_path(dst, tables.version, channel, sd["token"])) for channel, sd in cams]
         missing = [(c, p) for c, p in paths if overwrite or not p.exists()]
         if not missing:
             summary.skipped.append(token)
@@ -125,7 +128,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool):
 
 
 def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True, config=None,
-                 overwrite: bool = False, png_compression: int | None = None, devices: int | None = None,
+                 overwrite: bool = False, png_compression: int | None = None, devices: int = 1,
                  io_threads: int = 2, on_progress: Callable[[str, str], None] | None = None, tables=None):
     """Completes every sample of ``<dataroot>/<version>`` into ``<dst>/<version>/<CHANNEL>/<token>.png``.
 
@@ -140,7 +143,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       config: :class:`~jaxdepth.SGMConfig` (default: the library's).
       overwrite: recompute outputs that exist (default False: resume).
       png_compression: zlib level 0-9 of the PNGs (default: the library's fast level).
-      devices: local devices to spread samples over (default: all).
+      devices: local devices to deal samples out to, round robin (default 1: each device
+        compiles its own copy, and on CPU one device already uses every core within a sample;
+        sharding a sample's cameras over 2 host devices measured no faster here).
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).
@@ -176,7 +181,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
-    targets = jax.local_devices()[:devices] if devices else jax.local_devices()
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"run_nuscenes: 'devices' expected an integer >= 1, got {devices!r}")
+    targets = jax.local_devices()[:devices]
     lock = threading.Lock()
 
     def fail(token, message):
@@ -262,7 +269,8 @@ def add_cli_options(parser) -> None:
     """The nuScenes options of ``jaxdepth complete`` (no JAX import)."""
     group = parser.add_argument_group(
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
-                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm only)")
+                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm, local engine; "
+                    "--batch-size and --cpu-devices have no effect: one sample's cameras are one batch)")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
     group.add_argument("--sweeps", type=int, default=1, metavar="N",
@@ -298,8 +306,6 @@ def run_cli(args) -> int:
     cli._ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
-    if len(tables.tables["sample"]) > 1 and args.cpu_devices != 1:
-        cli.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     progress = cli.Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     summary = run_nuscenes(args.src, dst, version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                            config=cli._config_from(args), overwrite=args.overwrite,

@@ -162,7 +162,7 @@ def test_quaternion_matches_scipy():
     for q in rng.normal(size=(20, 4)) * rng.uniform(0.1, 10, size=(20, 1)):
         want = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
         np.testing.assert_allclose(quaternion_matrix(q), want, atol=1e-12)
-    with pytest.raises(ValueError, match="rotation"):
+    with pytest.raises(ValueError, match=r"field 'rotation' expected a non-zero quaternion \[w, x, y, z\], got \[0.0"):
         quaternion_matrix([0, 0, 0, 0])
 
 
@@ -365,3 +365,22 @@ def test_command_line_options_reach_the_job(dataroot, tmp_path, monkeypatch):
         (3, False, True, 6)
     assert (defaults["sweeps"], defaults["ego_motion"], defaults["overwrite"]) == (1, True, False)
     assert cli.main(argv + ["--sweeps", "0"]) == 2
+
+
+def test_bad_records_cost_their_sample_and_name_the_file(dataroot):
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import InputError
+    root, _, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    t.tables["ego_pose"]["ep_CAM_FRONT_s1"]["rotation"] = None
+    with pytest.raises(InputError, match=r"ego_pose.json: field 'ep_CAM_FRONT_s1.rotation' expected a list of numbers, got None"):
+        nusc.sample_inputs(t, "s1")
+    t.tables["calibrated_sensor"]["cs_CAM_BACK"]["camera_intrinsic"] = [[1, 0, 0], [0, 1, 0]]
+    with pytest.raises(InputError, match=r"calibrated_sensor.json: field 'cs_CAM_BACK.camera_intrinsic' expected a 3x3"):
+        nusc.sample_inputs(t, "s2")
+    t.tables["sample_data"]["lidar_s2"]["prev"] = "gone"
+    with pytest.raises(InputError, match=r"sample_data.json: field 'token' expected a record referenced by "
+                                         r"sample_data 'lidar_s2' prev, got no record 'gone'"):
+        nusc.accumulate_sweeps(t, t.tables["sample_data"]["lidar_s2"], sweeps=2)
+    with pytest.raises(ValueError, match="plain file name"):
+        nusc.output_path("out", VERSION, "CAM_FRONT", "../escape")

@@ -56,6 +56,7 @@ import dataclasses
 import json
 import math
 import pathlib
+import re
 from typing import Any
 
 import numpy as np
@@ -72,6 +73,18 @@ POINT_COLUMNS = 5
 MULTISWEEP_MIN_DISTANCE_M = 1.0
 
 
+def _floats(value, where: str) -> np.ndarray:
+    """A flat float64 array of ``value``; ValueError naming ``where`` if it is not a list of numbers."""
+    text = repr(value)
+    text = text if len(text) <= 60 else text[:57] + "..."
+    if not isinstance(value, (list, tuple, np.ndarray)):
+        raise ValueError(f"field '{where}' expected a list of numbers, got {text}")
+    try:
+        return np.asarray(value, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"field '{where}' expected a list of numbers, got {text}") from None
+
+
 def quaternion_matrix(q, *, where: str = "rotation") -> np.ndarray:
     """(3, 3) float64 rotation of a quaternion ``(w, x, y, z)`` (nuScenes / pyquaternion order).
 
@@ -81,10 +94,10 @@ def quaternion_matrix(q, *, where: str = "rotation") -> np.ndarray:
     >>> np.round(quaternion_matrix([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)]), 6).tolist()
     [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     """
-    q = np.asarray(q, np.float64).reshape(-1)
+    q = _floats(q, where)
     norm = float(np.linalg.norm(q)) if q.size == 4 else 0.0
     if q.size != 4 or not np.all(np.isfinite(q)) or norm < 1e-9:
-        raise ValueError(f"'{where}' expected a non-zero quaternion [w, x, y, z], got {q.tolist()}")
+        raise ValueError(f"field '{where}' expected a non-zero quaternion [w, x, y, z], got {q.tolist()}")
     w, x, y, z = q / norm
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -95,9 +108,9 @@ def quaternion_matrix(q, *, where: str = "rotation") -> np.ndarray:
 
 def pose_matrix(translation, rotation, *, where: str = "pose") -> np.ndarray:
     """(4, 4) float64 ``[[R(rotation), translation], [0, 0, 0, 1]]`` (child -> parent frame)."""
-    t = np.asarray(translation, np.float64).reshape(-1)
+    t = _floats(translation, f"{where}.translation")
     if t.size != 3 or not np.all(np.isfinite(t)):
-        raise ValueError(f"'{where}.translation' expected 3 finite numbers, got {t.tolist()}")
+        raise ValueError(f"field '{where}.translation' expected 3 finite numbers, got {t.tolist()}")
     T = np.eye(4)
     T[:3, :3] = quaternion_matrix(rotation, where=f"{where}.rotation")
     T[:3, 3] = t
@@ -210,7 +223,7 @@ def load_tables(dataroot: PathLike, version: str) -> NuScenesTables:
 def _pose(tables: NuScenesTables, table: str, token: Any, referrer: str) -> np.ndarray:
     record = tables.record(table, token, referrer=referrer)
     try:
-        return pose_matrix(record.get("translation"), record.get("rotation"), where=f"{table} {token!r}")
+        return pose_matrix(record.get("translation"), record.get("rotation"), where=str(token))
     except ValueError as err:
         raise file_error(tables.table_path(table), str(err)) from None
 
@@ -380,8 +393,19 @@ def sample_inputs(tables: NuScenesTables, sample_token: str, *, sweeps: int = 1,
     return SampleInputs(token=sample_token, lidar_token=lidar_sd["token"], points=points, cameras=tuple(cameras))
 
 
+_SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+
+
 def output_path(dst: PathLike, version: str, channel: str, sample_data_token: str) -> pathlib.Path:
-    """``<dst>/<version>/<channel>/<sample_data_token>.png``: where a camera's completed depth goes."""
+    """``<dst>/<version>/<channel>/<sample_data_token>.png``: where a camera's completed depth goes.
+
+    Raises ValueError when the channel or the token is not a plain file name
+    (letters, digits, ``_ . -``; nuScenes tokens are 32 hex digits).
+    """
+    for field, name in (("channel", channel), ("sample_data token", sample_data_token)):
+        if not isinstance(name, str) or not _SAFE_NAME.fullmatch(name):
+            raise ValueError(f"output_path: {field} expected a plain file name (letters, digits, _ . -), "
+                             f"got {name!r}")
     return pathlib.Path(dst) / version / channel / f"{sample_data_token}.png"
 
 
