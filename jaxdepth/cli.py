@@ -185,6 +185,9 @@ def cmd_complete(args) -> int:
     from jaxdepth.io.calib import read_extrinsic_txt
     from jaxdepth.io.kitti_layout import KittiExtrinsics
 
+    if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
+        from jaxdepth import nuscenes_job
+        return nuscenes_job.run_cli(args)
     src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
     scan = _discover_dataset(src, dst, args)
     pre_failed = [] if scan is None else scan.failed
@@ -430,6 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    from jaxdepth import nuscenes_job
+    nuscenes_job.add_cli_options(p)
     p.set_defaults(func=cmd_complete)
 
     p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")

@@ -1,0 +1,386 @@
+"""nuScenes dataroot -> depth PNG per camera (jaxdepth.io.nuscenes, jaxdepth.nuscenes_job, `complete --nusc-version`).
+
+The dataroot is a fake v1.0-mini table set built in tmp_path around the shared
+sample's real sweep and calibration (copied into tmp_path by the test only).
+Cameras are the sample's six, at a quarter of the resolution (400 x 225, K
+scaled) to keep the tests fast. Oracles: SciPy's quaternions and plain NumPy for
+the transform chain, a NumPy z-buffer for the projection, and the existing
+library path (``rig_from_nuscenes_calibration`` -> ``read_points`` ->
+``prepare_sweep`` -> ``complete_rig``) for the completion.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tests.conftest import require_shared
+
+VERSION = "v1.0-mini"
+SCALE = 0.25
+WIDTH, HEIGHT = 400, 225
+LIDAR_FILE = "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
+T0 = 1532402927647951  # the sample's LiDAR timestamp, microseconds
+D_CAM_M = 0.5  # sample 2: the vehicle moved this far forward (ego +x) between the LiDAR and the cameras
+D_SWEEP_M = 0.4  # sample 2: and this far between its previous sweep and its key frame
+
+
+# ---------------------------------------------------------------- oracle helpers (SciPy / NumPy)
+
+
+def wxyz(R: np.ndarray) -> list:
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, np.float64)).as_quat()
+    return [float(w), float(x), float(y), float(z)]
+
+
+def oracle_pose(record: dict) -> np.ndarray:
+    w, x, y, z = record["rotation"]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
+    T[:3, 3] = record["translation"]
+    return T
+
+
+def moved(pose: dict, forward_m: float) -> dict:
+    """``pose`` (ego -> global) with the vehicle moved ``forward_m`` along its own +x."""
+    R = oracle_pose(pose)[:3, :3]
+    return {"rotation": pose["rotation"], "translation": (np.asarray(pose["translation"]) + R[:, 0] * forward_m).tolist()}
+
+
+def zbuffer(points: np.ndarray, K: np.ndarray, T: np.ndarray, height: int, width: int) -> np.ndarray:
+    """NumPy projection, nearest point per pixel, pixel = round(u), round(v), depth > 0.1 m."""
+    p = points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    z = p[:, 2]
+    front = z > 0.1
+    uv = p[front] @ K.T
+    u = np.round(uv[:, 0] / uv[:, 2]).astype(np.int64)
+    v = np.round(uv[:, 1] / uv[:, 2]).astype(np.int64)
+    z = z[front]
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    depth = np.full((height, width), np.inf)
+    np.minimum.at(depth, (v[inside], u[inside]), z[inside])
+    depth[np.isinf(depth)] = 0.0
+    return depth
+
+
+# ---------------------------------------------------------------- the fake dataroot
+
+
+def build_dataroot(root: pathlib.Path, sample_dir: pathlib.Path) -> dict:
+    """A v1.0-mini table set: sample s1 (all ego poses equal), s2 (cameras 0.5 m ahead of the
+    LiDAR, one earlier sweep 0.4 m behind), s3 (its LiDAR file is missing). Returns the tables."""
+    calib = json.loads((sample_dir / "calibration.json").read_text())
+    (root / "samples" / "LIDAR_TOP").mkdir(parents=True)
+    (root / "sweeps" / "LIDAR_TOP").mkdir(parents=True)
+    shutil.copyfile(sample_dir / LIDAR_FILE, root / "samples" / "LIDAR_TOP" / "s1.pcd.bin")
+    shutil.copyfile(sample_dir / LIDAR_FILE, root / "samples" / "LIDAR_TOP" / "s2.pcd.bin")
+    shutil.copyfile(sample_dir / LIDAR_FILE, root / "sweeps" / "LIDAR_TOP" / "s2_prev.pcd.bin")
+    lidar2ego = np.asarray(calib["lidar2ego"])
+    ego2global = np.asarray(calib["ego2global"])
+    channels = list(calib["cameras"])
+    sensor = [{"token": "sensor_lidar", "channel": "LIDAR_TOP", "modality": "lidar"}]
+    cs = [{"token": "cs_lidar", "sensor_token": "sensor_lidar", "translation": lidar2ego[:3, 3].tolist(),
+           "rotation": wxyz(lidar2ego[:3, :3]), "camera_intrinsic": []}]
+    for ch in channels:
+        cam2ego = np.asarray(calib["cameras"][ch]["cam2ego"])
+        K = np.diag([SCALE, SCALE, 1.0]) @ np.asarray(calib["cameras"][ch]["cam2img"])
+        sensor.append({"token": f"sensor_{ch}", "channel": ch, "modality": "camera"})
+        cs.append({"token": f"cs_{ch}", "sensor_token": f"sensor_{ch}", "translation": cam2ego[:3, 3].tolist(),
+                   "rotation": wxyz(cam2ego[:3, :3]), "camera_intrinsic": K.tolist()})
+    base = {"rotation": wxyz(ego2global[:3, :3]), "translation": ego2global[:3, 3].tolist()}
+    ego, sample, sample_data = [], [], []
+
+    def add(token, sample_token, ts, pose, cs_token, filename, key, w=0, h=0, prev=""):
+        ego.append({"token": f"ep_{token}", "timestamp": ts, **pose})
+        sample_data.append({"token": token, "sample_token": sample_token, "ego_pose_token": f"ep_{token}",
+                            "calibrated_sensor_token": cs_token, "timestamp": ts, "fileformat": "",
+                            "is_key_frame": key, "height": h, "width": w, "filename": filename,
+                            "prev": prev, "next": ""})
+
+    plans = {"s1": (0, 0.0, 0.0), "s2": (500_000, D_CAM_M, None), "s3": (1_000_000, 0.0, 0.0)}
+    for name, (dt, d_cam, _) in plans.items():
+        ts = T0 + dt
+        sample.append({"token": name, "timestamp": ts, "scene_token": "scene0", "prev": "", "next": ""})
+        prev = ""
+        if name == "s2":
+            add("lidar_s2_prev", "s2", ts - 50_000, moved(base, -D_SWEEP_M), "cs_lidar",
+                "sweeps/LIDAR_TOP/s2_prev.pcd.bin", False)
+            prev = "lidar_s2_prev"
+        add(f"lidar_{name}", name, ts, base, "cs_lidar", f"samples/LIDAR_TOP/{name}.pcd.bin", True, prev=prev)
+        for ch in channels:
+            add(f"{ch}_{name}", name, ts - 30_000, moved(base, d_cam), f"cs_{ch}", f"samples/{ch}/{name}.jpg", True,
+                WIDTH, HEIGHT)
+    tables = {"sensor": sensor, "calibrated_sensor": cs, "ego_pose": ego, "sample": sample,
+              "sample_data": sample_data,
+              "scene": [{"token": "scene0", "log_token": "log0", "nbr_samples": 3, "first_sample_token": "s1",
+                         "last_sample_token": "s3", "name": "scene-0001", "description": ""}],
+              "log": [{"token": "log0", "logfile": "n015-2018-07-24-11-22-45+0800", "vehicle": "n015",
+                       "date_captured": "2018-07-24", "location": "singapore-onenorth"}]}
+    for empty in ("category", "attribute", "visibility", "instance", "sample_annotation", "map"):
+        tables[empty] = []
+    folder = root / VERSION
+    folder.mkdir()
+    for name, records in tables.items():
+        (folder / f"{name}.json").write_text(json.dumps(records))
+    return tables
+
+
+@pytest.fixture(scope="module")
+def dataroot(tmp_path_factory):
+    sample_dir = require_shared("nuscenes", "sample")
+    root = tmp_path_factory.mktemp("nuscenes")
+    tables = build_dataroot(root, sample_dir)
+    return root, tables, sample_dir
+
+
+@pytest.fixture(scope="module")
+def first_run(dataroot, tmp_path_factory):
+    from jaxdepth.nuscenes_job import run_nuscenes
+    root, _, _ = dataroot
+    dst = tmp_path_factory.mktemp("out")
+    seen = []
+    summary = run_nuscenes(root, dst, version=VERSION, on_progress=lambda n, s: seen.append((n, s)))
+    return dst, summary, seen
+
+
+def by_token(records):
+    return {r["token"]: r for r in records}
+
+
+# ---------------------------------------------------------------- geometry
+
+
+def test_quaternion_matches_scipy():
+    from jaxdepth.io.nuscenes import quaternion_matrix
+    rng = np.random.default_rng(0)
+    for q in rng.normal(size=(20, 4)) * rng.uniform(0.1, 10, size=(20, 1)):
+        want = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+        np.testing.assert_allclose(quaternion_matrix(q), want, atol=1e-12)
+    with pytest.raises(ValueError, match=r"field 'rotation' expected a non-zero quaternion \[w, x, y, z\], got \[0.0"):
+        quaternion_matrix([0, 0, 0, 0])
+
+
+def test_transform_chain_matches_numpy(dataroot):
+    """T_cam_lidar = inv(C_cam) inv(E(t_cam)) E(t_lidar) C_lidar, against SciPy matrices; with the vehicle
+    D_CAM_M ahead at the camera's time, a LiDAR point's camera coordinates move by -R_cam^T (D, 0, 0)."""
+    from jaxdepth.io import nuscenes as nusc
+    root, tables, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    cs, ep, sd = by_token(tables["calibrated_sensor"]), by_token(tables["ego_pose"]), by_token(tables["sample_data"])
+    points = np.fromfile(root / "samples" / "LIDAR_TOP" / "s2.pcd.bin", np.float32).reshape(-1, 5)[:, :3]
+    for name in ("s1", "s2"):
+        lidar = sd[f"lidar_{name}"]
+        for ch in ("CAM_FRONT", "CAM_BACK_LEFT"):
+            cam = sd[f"{ch}_{name}"]
+            want = (np.linalg.inv(oracle_pose(cs[cam["calibrated_sensor_token"]]))
+                    @ np.linalg.inv(oracle_pose(ep[cam["ego_pose_token"]]))
+                    @ oracle_pose(ep[lidar["ego_pose_token"]]) @ oracle_pose(cs["cs_lidar"]))
+            got = nusc.camera_from_lidar(t, cam, lidar)
+            np.testing.assert_allclose(got, want, atol=1e-9)
+            static = np.linalg.inv(oracle_pose(cs[cam["calibrated_sensor_token"]])) @ oracle_pose(cs["cs_lidar"])
+            np.testing.assert_allclose(nusc.camera_from_lidar(t, cam, lidar, ego_motion=False), static, atol=1e-9)
+            if name == "s1":  # equal ego poses: compensation changes nothing
+                np.testing.assert_allclose(got, static, atol=1e-9)
+            else:  # by hand: p_cam' = p_cam - R_cam^T (D, 0, 0)
+                R_cam = oracle_pose(cs[cam["calibrated_sensor_token"]])[:3, :3]
+                p_static = points @ static[:3, :3].T + static[:3, 3]
+                p_got = points @ got[:3, :3].T + got[:3, 3]
+                np.testing.assert_allclose(p_got, p_static - R_cam.T @ [D_CAM_M, 0.0, 0.0], atol=1e-6)
+
+
+def test_ego_translation_shifts_projected_depth(dataroot):
+    """The library's projection with the tables' T equals a NumPy z-buffer of the points moved by hand,
+    and CAM_FRONT's depths drop by about D_CAM_M (its axis is the vehicle's +x)."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.geometry import project_to_image
+    from jaxdepth.io import nuscenes as nusc
+    root, tables, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    inputs = nusc.sample_inputs(t, "s2")
+    still = nusc.sample_inputs(t, "s2", ego_motion=False)
+    cs = by_token(tables["calibrated_sensor"])
+    points = inputs.points[:, :3]
+    for cam, cam0 in zip(inputs.cameras, still.cameras):
+        C = oracle_pose(cs[f"cs_{cam.channel}"])
+        # by hand: LiDAR -> ego, the ego frame at the camera's time is D_CAM_M further along +x, -> camera
+        p_ego = points.astype(np.float64) @ oracle_pose(cs["cs_lidar"])[:3, :3].T + oracle_pose(cs["cs_lidar"])[:3, 3]
+        p_cam_ego = p_ego - [D_CAM_M, 0.0, 0.0]
+        want = zbuffer(np.c_[p_cam_ego, np.zeros(len(p_cam_ego))], cam.K, np.linalg.inv(C), HEIGHT, WIDTH)
+        got, index = project_to_image(jnp.asarray(points), jnp.ones(len(points), bool),
+                                      jnp.asarray(cam.K, jnp.float32), jnp.asarray(cam.T_cam_lidar, jnp.float32),
+                                      height=HEIGHT, width=WIDTH)
+        got, index = np.asarray(got), np.asarray(index)
+        same = (got > 0) == (want > 0)
+        assert same.mean() > 0.999, cam.channel  # float32 vs float64 rounding may move a pixel or two
+        both = (got > 0) & (want > 0)
+        np.testing.assert_allclose(got[both], want[both], atol=1e-3)
+        # each pixel's point is D_CAM_M * (camera z axis . ego x) nearer than without compensation
+        hit = index[got > 0]
+        z_still = points[hit].astype(np.float64) @ cam0.T_cam_lidar[2, :3] + cam0.T_cam_lidar[2, 3]
+        np.testing.assert_allclose(got[got > 0], z_still - D_CAM_M * C[0, 2], atol=1e-3)
+        if cam.channel == "CAM_FRONT":
+            assert C[0, 2] > 0.99  # it looks along the vehicle's +x: depths drop by ~D_CAM_M
+
+
+def test_multisweep_accumulation_by_hand(dataroot):
+    """Two sweeps: each without its 1 m box, the earlier one moved by the vehicle's D_SWEEP_M (devkit semantics)."""
+    from jaxdepth.io import nuscenes as nusc
+    root, tables, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    raw = np.fromfile(root / "samples" / "LIDAR_TOP" / "s2.pcd.bin", np.float32).reshape(-1, 5)
+    key = t.tables["sample_data"]["lidar_s2"]
+    np.testing.assert_array_equal(nusc.accumulate_sweeps(t, key, sweeps=1), raw)  # as recorded
+    kept = raw[~((np.abs(raw[:, 0]) < 1.0) & (np.abs(raw[:, 1]) < 1.0))]
+    R_lidar = oracle_pose(by_token(tables["calibrated_sensor"])["cs_lidar"])[:3, :3]
+    earlier = kept.copy()
+    # the earlier sweep was taken D_SWEEP_M further back: in the key frame its points sit R^T (-D, 0, 0) away
+    earlier[:, :3] = kept[:, :3] + R_lidar.T @ [-D_SWEEP_M, 0.0, 0.0]
+    for sweeps in (2, 5):  # 5: the scene starts after 2, the walk stops there
+        got = nusc.accumulate_sweeps(t, key, sweeps=sweeps)
+        assert got.shape == (2 * len(kept), 5)
+        np.testing.assert_array_equal(got[:len(kept)], kept)
+        np.testing.assert_allclose(got[len(kept):, :3], earlier[:, :3], atol=1e-5)
+        np.testing.assert_array_equal(got[len(kept):, 3:], kept[:, 3:])
+
+
+# ---------------------------------------------------------------- the job
+
+
+def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_path):
+    """s1 (ego poses equal) completes exactly as the existing rig path does from a calibration JSON."""
+    import jaxdepth
+    from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
+    root, tables, sample_dir = dataroot
+    dst, summary, _ = first_run
+    cs = by_token(tables["calibrated_sensor"])
+    doc = {"cameras": {}}
+    for ch in json.loads((sample_dir / "calibration.json").read_text())["cameras"]:
+        lidar2cam = np.linalg.inv(oracle_pose(cs[f"cs_{ch}"])) @ oracle_pose(cs["cs_lidar"])
+        doc["cameras"][ch] = {"cam2img": cs[f"cs_{ch}"]["camera_intrinsic"], "lidar2cam": lidar2cam.tolist()}
+    (tmp_path / "calibration.json").write_text(json.dumps(doc))
+    rig = rig_from_nuscenes_calibration(tmp_path / "calibration.json", width=WIDTH, height=HEIGHT)
+    points, extra = read_points(sample_dir / LIDAR_FILE, columns=5)
+    frame = prepare_sweep(points, rig, ring=extra[:, -1])
+    assert frame.outlier_removal_trusted
+    padded, valid = pad_points(frame.points)
+    cameras = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
+    want = np.asarray(jaxdepth.complete_rig(padded, valid, cameras, lidar=frame.rig.lidar))
+    for i, cam in enumerate(frame.rig.cameras):
+        out = dst / VERSION / cam.name / f"{cam.name}_s1.png"
+        got = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+        assert got.dtype == np.uint16 and got.shape == (HEIGHT, WIDTH)
+        expected = encode_depth_uint16(want[i])
+        assert np.count_nonzero(expected) > 0.5 * expected.size, cam.name
+        np.testing.assert_array_equal(got, expected, err_msg=cam.name)
+
+
+def test_output_tree_resume_and_bad_sample(dataroot, first_run):
+    from jaxdepth.nuscenes_job import run_nuscenes
+    root, tables, _ = dataroot
+    dst, summary, seen = first_run
+    channels = sorted(r["channel"] for r in tables["sensor"] if r["modality"] == "camera")
+    files = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*") if p.is_file())
+    assert files == sorted(f"{VERSION}/{ch}/{ch}_{s}.png" for ch in channels for s in ("s1", "s2"))
+    assert sorted(summary.done) == ["s1", "s2"] and summary.skipped == []
+    [(name, message)] = summary.failed
+    assert name == "s3" and "s3.pcd.bin" in message and "not found" in message
+    assert sorted(seen) == [("s1", "done"), ("s2", "done"), ("s3", f"failed: {message}")]
+    from jaxdepth.nuscenes_job import TRACE_COUNTS
+    assert set(TRACE_COUNTS.values()) == {1}  # s1 and s2 share the point bucket and the canvas: one trace
+    stamps = {f: (dst / f).stat().st_mtime_ns for f in files}
+    again = run_nuscenes(root, dst, version=VERSION)
+    assert sorted(again.skipped) == ["s1", "s2"] and again.done == [] and [n for n, _ in again.failed] == ["s3"]
+    assert {f: (dst / f).stat().st_mtime_ns for f in files} == stamps
+    # a partly written sample: only the missing camera is recomputed, with the same bytes
+    lost = dst / VERSION / "CAM_BACK" / "CAM_BACK_s2.png"
+    before = lost.read_bytes()
+    lost.unlink()
+    third = run_nuscenes(root, dst, version=VERSION)
+    assert third.done == ["s2"] and lost.read_bytes() == before
+    assert all((dst / f).stat().st_mtime_ns == stamps[f] for f in files if not f.endswith("CAM_BACK_s2.png"))
+    assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
+
+
+def test_command_line(dataroot, tmp_path, capsys):
+    """`jaxdepth complete DATAROOT DST --nusc-version v1.0-mini`: exit 1 naming the bad sample, then 0 once
+    it is fixed (the others are skipped); usage errors exit 2; a missing version lists the ones found."""
+    from jaxdepth import cli
+    root, _, sample_dir = dataroot
+    dst = tmp_path / "out"
+    assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "FAILED s3:" in err and "s3.pcd.bin" in err
+    assert len(list((dst / VERSION).rglob("*.png"))) == 12
+    fixed = root / "samples" / "LIDAR_TOP" / "s3.pcd.bin"
+    shutil.copyfile(sample_dir / LIDAR_FILE, fixed)
+    try:
+        assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION]) == 0
+        err = capsys.readouterr().err
+        assert "1 completed, 2 skipped (already done), 0 failed" in err
+        assert len(list((dst / VERSION).rglob("*.png"))) == 18
+    finally:
+        fixed.unlink()
+    assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "--method", "nearest"]) == 2
+    assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "--extrinsic", "T.txt"]) == 2
+    capsys.readouterr()
+    assert cli.main(["complete", str(root), str(dst), "--nusc-version", "v1.0-trainval"]) == 1
+    assert "v1.0-trainval: nuScenes version folder not found (found: v1.0-mini)" in capsys.readouterr().err
+
+
+def test_bad_tables_name_the_file(tmp_path):
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import InputError
+    folder = tmp_path / VERSION
+    folder.mkdir()
+    for name in nusc.TABLES:
+        (folder / f"{name}.json").write_text("[]")
+    (folder / "ego_pose.json").write_text('{"token": "x"}')
+    with pytest.raises(InputError, match=r"ego_pose.json: expected a JSON list of records, got dict"):
+        nusc.load_tables(tmp_path, VERSION)
+    (folder / "ego_pose.json").unlink()
+    with pytest.raises(InputError, match=r"ego_pose.json: file not found"):
+        nusc.load_tables(tmp_path, VERSION)
+
+
+def test_command_line_options_reach_the_job(dataroot, tmp_path, monkeypatch):
+    from jaxdepth import cli, nuscenes_job
+    from jaxdepth.runner import RunSummary
+    root, _, _ = dataroot
+    calls = []
+    monkeypatch.setattr(nuscenes_job, "run_nuscenes", lambda *a, **k: calls.append((a, k)) or RunSummary())
+    argv = ["complete", str(root), str(tmp_path / "o"), "--nusc-version", VERSION, "-q"]
+    assert cli.main(argv + ["--sweeps", "3", "--no-ego-motion", "--overwrite", "--png-compression", "6"]) == 0
+    assert cli.main(argv) == 0
+    (first, options), (_, defaults) = calls
+    assert first == (str(root), tmp_path / "o")
+    assert options["version"] == VERSION and options["tables"].version == VERSION
+    assert (options["sweeps"], options["ego_motion"], options["overwrite"], options["png_compression"]) == \
+        (3, False, True, 6)
+    assert (defaults["sweeps"], defaults["ego_motion"], defaults["overwrite"]) == (1, True, False)
+    assert cli.main(argv + ["--sweeps", "0"]) == 2
+
+
+def test_bad_records_cost_their_sample_and_name_the_file(dataroot):
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import InputError
+    root, _, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    t.tables["ego_pose"]["ep_CAM_FRONT_s1"]["rotation"] = None
+    with pytest.raises(InputError, match=r"ego_pose.json: field 'ep_CAM_FRONT_s1.rotation' expected a list of numbers, got None"):
+        nusc.sample_inputs(t, "s1")
+    t.tables["calibrated_sensor"]["cs_CAM_BACK"]["camera_intrinsic"] = [[1, 0, 0], [0, 1, 0]]
+    with pytest.raises(InputError, match=r"calibrated_sensor.json: field 'cs_CAM_BACK.camera_intrinsic' expected a 3x3"):
+        nusc.sample_inputs(t, "s2")
+    t.tables["sample_data"]["lidar_s2"]["prev"] = "gone"
+    with pytest.raises(InputError, match=r"sample_data.json: field 'token' expected a record referenced by "
+                                         r"sample_data 'lidar_s2' prev, got no record 'gone'"):
+        nusc.accumulate_sweeps(t, t.tables["sample_data"]["lidar_s2"], sweeps=2)
+    with pytest.raises(ValueError, match="plain file name"):
+        nusc.output_path("out", VERSION, "CAM_FRONT", "../escape")
