@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets
-from jaxdepth.ablation import format_ablation, frame_ablation, mean_ablation
+from jaxdepth.research.ablation import format_ablation, frame_ablation, mean_ablation
 from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -50,7 +50,8 @@ from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth.io import prepare_sweep, read_points, rig_from_kitti_raw  # noqa: E402
 from jaxdepth.io import rig_from_nuscenes_calibration  # noqa: E402
-from jaxdepth.research_cli import hidden_eval, ring_column  # noqa: E402
+from jaxdepth.research.cli import hidden_eval
+from jaxdepth.io.points import ring_column  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 METHODS = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic")

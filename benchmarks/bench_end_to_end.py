@@ -33,7 +33,7 @@ from jaxdepth._src import presets
 from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_depth
 from jaxdepth._src.methods import complete_with
 from jaxdepth._src.pipeline import complete_stages
-from jaxdepth.baselines import ip_basic_opencv
+from jaxdepth.research.baselines import ip_basic_opencv
 from jaxdepth import runner
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

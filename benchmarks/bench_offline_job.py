@@ -6,7 +6,7 @@ at most 0.7x the wall time of a plain one-process loop
 
     for each PNG: cv2.imread(path, cv2.IMREAD_ANYDEPTH) -> IP_Basic fast mode -> cv2.imwrite (uint16)
 
-over the same folder (IP_Basic: `jaxdepth.baselines.ip_basic_opencv`, Gaussian blur as in
+over the same folder (IP_Basic: `jaxdepth.research.baselines.ip_basic_opencv`, Gaussian blur as in
 `bench_end_to_end.py`, loaded from its file so the loop never imports JAX; OpenCV's own
 `imwrite` defaults).
 

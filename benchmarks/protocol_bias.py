@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import jaxdepth  # noqa: E402
 from accuracy_rigs import ZOO, zoo_frame  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
-from jaxdepth._src.hidden import hidden_point_mask  # noqa: E402
+from jaxdepth.research.hidden import hidden_point_mask  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth.io import Rig, pad_points, prepare_sweep  # noqa: E402

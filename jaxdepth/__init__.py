@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
     from jaxdepth._src.ip_basic import ip_basic as ip_basic
     from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
                                        mean_metrics as mean_metrics, pair_errors as pair_errors)
-    from jaxdepth._src.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
+    from jaxdepth.research.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
     from jaxdepth._src.colorize import (colorize_depth as colorize_depth, colorize_normals as colorize_normals,
                                        overlay_depth as overlay_depth, overlay_mask as overlay_mask)
     from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
@@ -56,7 +56,7 @@ _LAZY = {
     'jaxdepth._src.methods': ('complete_with',),
     'jaxdepth._src.ip_basic': ('ip_basic',),
     'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),
-    'jaxdepth._src.hidden': ('hidden_point_mask', 'hidden_point_scores'),
+    'jaxdepth.research.hidden': ('hidden_point_mask', 'hidden_point_scores'),
     'jaxdepth._src.colorize': ('colorize_depth', 'colorize_normals', 'overlay_depth', 'overlay_mask'),
     'jaxdepth._src.synthetic': ('make_street_scene', 'SyntheticFrame'),
 }

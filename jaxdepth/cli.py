@@ -319,7 +319,7 @@ def _timing_line(summary, t_start: float, t_end: float) -> str:
 def cmd_complete_rig(args) -> int:
     import jaxdepth
     from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json, write_depth_png
-    from jaxdepth.research_cli import ring_column
+    from jaxdepth.io.points import ring_column
 
     rig = read_rig_json(args.rig)
     columns = infer_point_columns(args.points, args.point_columns)
@@ -359,7 +359,7 @@ def cmd_complete_rig(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from jaxdepth import evaluation
+    from jaxdepth.research import evaluation
     from jaxdepth.io.atomic import atomic_write_bytes
     table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
     for line in evaluation.format_table(table):
@@ -473,7 +473,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "imae_per_km, prediction, ground_truth (the paired files)")
     p.set_defaults(func=cmd_eval)
 
-    from jaxdepth import research_cli
+    from jaxdepth.research import cli as research_cli
     research_cli.register(sub)
     return parser
 

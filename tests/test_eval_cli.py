@@ -150,7 +150,7 @@ import csv  # noqa: E402
 
 import cv2  # noqa: E402
 
-from jaxdepth import evaluation  # noqa: E402
+from jaxdepth.research import evaluation  # noqa: E402
 
 DRIVE = "2011_09_26_drive_0002_sync"
 DRIVE_B = "2011_09_29_drive_0071_sync"

@@ -1,4 +1,4 @@
-"""IP_Basic in JAX against the OpenCV oracle (jaxdepth.baselines), step by step and whole."""
+"""IP_Basic in JAX against the OpenCV oracle (jaxdepth.research.baselines), step by step and whole."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxdepth import baselines
+from jaxdepth.research import baselines
 from jaxdepth._src import ip_basic as ipb
 from jaxdepth._src import metrics
 

@@ -61,7 +61,7 @@ def test_uses_only_the_public_api(name):
     source = "\n".join(c.source for c in _read(name).cells if c.cell_type == "code")
     assert "_src" not in source, f"{name} reaches into jaxdepth._src"
     imports = set(re.findall(r"^\s*(?:import|from)\s+(jaxdepth[\w.]*)", source, flags=re.M))
-    assert imports and imports <= {"jaxdepth", "jaxdepth.io", "jaxdepth.ablation", "jaxdepth.evaluation"}, imports
+    assert imports and imports <= {"jaxdepth", "jaxdepth.io", "jaxdepth.research.ablation", "jaxdepth.research.evaluation"}, imports
     assert "jax.config.update" not in source
 
 

@@ -1,4 +1,4 @@
-"""Research subcommands (jaxdepth.research_cli): ablation, sparsity, hidden-eval.
+"""Research subcommands (jaxdepth.research.cli): ablation, sparsity, hidden-eval.
 
 Each runs through jaxdepth.cli.main (exit codes, one-line errors) with the
 commands registered on the lead's parser; the printed tables and the JSON are
@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth import cli, research_cli, sparsity
-from jaxdepth.ablation import frame_ablation, mean_ablation
+from jaxdepth import cli
+from jaxdepth.research import cli as research_cli, sparsity
+from jaxdepth.research.ablation import frame_ablation, mean_ablation
 from jaxdepth.io import (crop_to_benchmark, read_depth_png, read_kitti_raw_calib, read_points,
                          rig_from_nuscenes_calibration, write_depth_png, write_rig_json)
 

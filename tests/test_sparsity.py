@@ -1,4 +1,4 @@
-"""jaxdepth.sparsity: beam estimation from elevation, beam subsampling, the sparsity study.
+"""jaxdepth.research.sparsity: beam estimation from elevation, beam subsampling, the sparsity study.
 
 Oracles: synthetic sweeps whose beam of every point is known (make_street_scene
 is row major over (beam, column)); the KITTI sweep's own ring order (it is
@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import jaxdepth
-from jaxdepth import sparsity
+from jaxdepth.research import sparsity
 from jaxdepth.io import read_points
 
 from conftest import require_shared

@@ -2,7 +2,7 @@
 
 Ku, Harakeh, Waslander, "In Defense of Classical Image Processing: Fast Depth
 Completion on the CPU", CRV 2018.  Written from the paper's description; the
-reference oracle is :func:`jaxdepth.baselines.ip_basic_opencv`, the same steps with
+reference oracle is :func:`jaxdepth.research.baselines.ip_basic_opencv`, the same steps with
 OpenCV, which this module matches to float32 rounding.
 
 Contract: one (H, W) float32 depth image in metres per call (``vmap`` for batches),
@@ -233,7 +233,7 @@ def ip_basic(sparse_depth: jax.Array, *, max_depth: float = 100.0, extrapolate: 
       The final blur is kept only at pixels that are valid before it, so empty
       pixels never receive blurred values (both this and the OpenCV oracle do so).
       Borders follow OpenCV's defaults (see the module docstring).  Against
-      :func:`jaxdepth.baselines.ip_basic_opencv` every morphological step and the
+      :func:`jaxdepth.research.baselines.ip_basic_opencv` every morphological step and the
       median are exact; the Gaussian/bilateral blur differs by float32 rounding.
     """
     d = jnp.asarray(sparse_depth)

@@ -236,4 +236,17 @@ def pad_points(points: np.ndarray, *, bucket: int | None = None) -> tuple[np.nda
     return padded, valid
 
 
-__all__ = ["read_points", "infer_point_columns", "pad_points", "bucket_size", "MIN_BUCKET"]
+def ring_column(extra: np.ndarray, columns: int) -> np.ndarray | None:
+    """The beam (ring) index of a 5-column sweep (nuScenes: x, y, z, intensity, ring) when the
+    5th column holds small non-negative integers; None otherwise."""
+    if columns != 5 or extra.shape[1] < 2:
+        return None
+    ring = extra[:, 1]
+    finite = np.isfinite(ring)
+    if not finite.any() or np.any(ring[finite] != np.round(ring[finite])) or np.any(ring[finite] < 0) \
+            or np.any(ring[finite] > 1023):
+        return None
+    return ring
+
+
+__all__ = ["read_points", "infer_point_columns", "pad_points", "bucket_size", "MIN_BUCKET", "ring_column"]

@@ -4,7 +4,7 @@
 (:func:`jaxdepth.cli.build_parser` calls it):
 
 ``jaxdepth ablation SRC [GT_DIR] [--json OUT] [--distance l1|l2] [--epsilon M]``
-    Tables 1, 5 and 6 of the paper (:func:`jaxdepth.ablation.frame_ablation`)
+    Tables 1, 5 and 6 of the paper (:func:`jaxdepth.research.ablation.frame_ablation`)
     on a KITTI-layout folder: ``SRC/velodyne_raw/*.png`` with
     ``SRC/intrinsics/*.txt`` (or ``--intrinsics K.txt`` for every frame). The
     ground truth of ``X.png`` is ``GT_DIR/X.png`` or, KITTI's own naming,
@@ -15,7 +15,7 @@
 
 ``jaxdepth sparsity SWEEP CALIB_DIR GT.png [--camera 2] [--beams 64 32 16] [--json OUT]``
     The paper's Fig. 6 on one KITTI raw frame: the beam of every point is
-    estimated from its elevation (:mod:`jaxdepth.sparsity`), every 2nd / 4th
+    estimated from its elevation (:mod:`jaxdepth.research.sparsity`), every 2nd / 4th
     beam is kept, the sweep is projected into camera ``--camera`` (calibration
     from ``CALIB_DIR/calib_cam_to_cam.txt`` and ``calib_velo_to_cam.txt``),
     cropped to the 352 x 1216 benchmark window, completed with SGM and with the
@@ -85,7 +85,7 @@ def _gt_path(gt_dir: pathlib.Path, png: pathlib.Path) -> pathlib.Path | None:
 
 
 def cmd_ablation(args) -> int:
-    from jaxdepth.ablation import format_ablation, frame_ablation, mean_ablation
+    from jaxdepth.research.ablation import format_ablation, frame_ablation, mean_ablation
     from jaxdepth.io.calib import read_intrinsics_txt
     from jaxdepth.io.depth_png import read_depth_png
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
@@ -164,7 +164,7 @@ def _point_columns(path: pathlib.Path, given):
 
 
 def cmd_sparsity(args) -> int:
-    from jaxdepth import sparsity
+    from jaxdepth.research import sparsity
     from jaxdepth.io.depth_png import read_depth_png
     from jaxdepth.io.points import read_points
     from jaxdepth.io.rig import default_lidar_spec
@@ -231,12 +231,12 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     Returns:
       {"cameras": {name: {"hidden_pixels", method: {rmse, mae, irmse, imae}, ...}},
        "mean": {method: {...}}, "methods", "points", "hidden_points", "fraction", "seeds", "scale"},
-      methods as :data:`jaxdepth._src.hidden.METHODS`.
+      methods as :data:`jaxdepth.research.hidden.METHODS`.
     """
     import jax.numpy as jnp
 
     from jaxdepth._src.config import SGMConfig
-    from jaxdepth._src.hidden import METHODS, hidden_point_mask, hidden_point_scores
+    from jaxdepth.research.hidden import METHODS, hidden_point_mask, hidden_point_scores
     from jaxdepth._src.metrics import mean_metrics
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io.points import pad_points
@@ -306,21 +306,8 @@ def format_hidden(result: dict) -> list:
     return lines
 
 
-def ring_column(extra: np.ndarray, columns: int) -> np.ndarray | None:
-    """The beam (ring) index of a 5-column sweep (nuScenes: x, y, z, intensity, ring) when the
-    5th column holds small non-negative integers; None otherwise."""
-    if columns != 5 or extra.shape[1] < 2:
-        return None
-    ring = extra[:, 1]
-    finite = np.isfinite(ring)
-    if not finite.any() or np.any(ring[finite] != np.round(ring[finite])) or np.any(ring[finite] < 0) \
-            or np.any(ring[finite] > 1023):
-        return None
-    return ring
-
-
 def cmd_hidden_eval(args) -> int:
-    from jaxdepth.io.points import read_points
+    from jaxdepth.io.points import read_points, ring_column
     from jaxdepth.io.rig import read_rig_json
 
     if not 0.0 < args.fraction < 1.0:
