@@ -1,19 +1,28 @@
-"""The notebooks in notebooks/ run top to bottom, are stored without outputs and use only the public API.
+"""The notebooks in notebooks/ run top to bottom, are stored *with* their outputs and use only the public API.
 
-Each notebook runs in a fresh kernel started from this interpreter (a kernelspec written to a temporary
-JUPYTER_PATH, so the kernel has the same environment as the tests whatever PATH says), with cwd =
-notebooks/ and JAXDEPTH_SHARED_DATA pointing at the shared data. The executed copy lives in memory only;
-the stored notebook is never rewritten. Notebooks that need the shared data skip locally and fail under CI
-when it is missing (``require_shared``).
+Stored with outputs (written by ``notebooks/execute.py``) so that they read on a code host without running:
+every code cell executed once, in order, without errors; every cell that draws a figure holds its PNG; no
+volatile metadata; each file under 1.5 MB.
+
+Execution: each notebook runs in a fresh kernel started from this interpreter (a kernelspec written to a
+temporary JUPYTER_PATH, so the kernel has the same environment as the tests whatever PATH says), with cwd =
+notebooks/ and JAXDEPTH_SHARED_DATA pointing at the shared data. The executed copy lives in memory only; the
+stored notebook is never rewritten (its bytes are compared before and after). Notebooks that need the shared
+data skip locally and fail under CI when it is missing (``require_shared``). The three take about 1.5-3.5 min
+of wall time on a 2-core VM (slow marker).
 """
 
 from __future__ import annotations
 
+import base64
+import importlib.util
+import io
 import json
 import os
 import re
 import sys
 
+import numpy as np
 import pytest
 
 from conftest import REPO, require_shared
@@ -35,10 +44,24 @@ CASES = {
 
 #: figures each notebook must draw (image/png outputs)
 MIN_FIGURES = {"01_four_steps_kitti.ipynb": 6, "02_nuscenes_surround.ipynb": 2, "03_parameter_sweep.ipynb": 1}
+MAX_BYTES = 1_500_000
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def _read(name: str):
     return nbformat.read(NOTEBOOKS / name, as_version=4)
+
+
+def _code_cells(nb):
+    return [cell for cell in nb.cells if cell.cell_type == "code"]
+
+
+def _draws_figure(source: str) -> bool:
+    return re.search(r"\bplt\.show\(\)", source) is not None
+
+
+def _figures(cell) -> int:
+    return sum("image/png" in output.get("data", {}) for output in cell.get("outputs", []))
 
 
 def test_every_notebook_is_tested():
@@ -46,14 +69,83 @@ def test_every_notebook_is_tested():
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_stored_without_outputs_and_valid(name):
+def test_stored_with_outputs_and_valid(name):
+    path = NOTEBOOKS / name
+    assert path.stat().st_size < MAX_BYTES, f"{name}: {path.stat().st_size} bytes stored (limit {MAX_BYTES})"
     nb = _read(name)
     nbformat.validate(nb)
-    for i, cell in enumerate(nb.cells):
-        if cell.cell_type == "code":
-            assert cell.outputs == [], f"{name} cell {i}: outputs are stored (strip them)"
-            assert cell.execution_count is None, f"{name} cell {i}: execution count {cell.execution_count} stored"
     assert nb.metadata.get("kernelspec", {}).get("name") == "python3"
+    cells = _code_cells(nb)
+    counts = [cell.execution_count for cell in cells]
+    # executed top to bottom in one kernel: 1, 2, ..., n (a stripped or half-run notebook fails here)
+    assert counts == list(range(1, len(cells) + 1)), f"{name}: execution counts {counts}"
+    for i, cell in enumerate(nb.cells):
+        assert "execution" not in cell.metadata, f"{name} cell {i}: timing metadata stored"
+        if cell.cell_type != "code":
+            continue
+        errors = [o for o in cell.outputs if o.output_type == "error"]
+        assert not errors, f"{name} cell {i}: stored error {errors[0].get('ename')}: {errors[0].get('evalue')}"
+        if _draws_figure(cell.source):
+            assert _figures(cell) >= 1, f"{name} cell {i} draws a figure but stores none"
+        for output in cell.outputs:
+            if "image/png" in output.get("data", {}):
+                png = base64.b64decode(output["data"]["image/png"])
+                assert png.startswith(PNG_SIGNATURE), f"{name} cell {i}: image/png output is not a PNG"
+                assert png[25] == 3, f"{name} cell {i}: PNG colour type {png[25]}, expected 3 (palette: " \
+                                     "stored by notebooks/execute.py)"
+    figures = sum(_figures(cell) for cell in cells)
+    assert figures >= MIN_FIGURES[name], f"{name}: {figures} figures stored, expected {MIN_FIGURES[name]}"
+    assert sum(_draws_figure(cell.source) for cell in cells) >= MIN_FIGURES[name]
+
+
+def test_stored_check_rejects_a_stripped_notebook(tmp_path):
+    """The stored-output check above fails on what it guards against (outputs stripped, one cell not run)."""
+    nb = _read("03_parameter_sweep.ipynb")
+    assert any(_draws_figure(c.source) and _figures(c) for c in _code_cells(nb))
+    stripped = nbformat.from_dict(json.loads(json.dumps(nb)))
+    for cell in _code_cells(stripped):
+        cell.outputs, cell.execution_count = [], None
+    assert [c.execution_count for c in _code_cells(stripped)] != list(range(1, len(_code_cells(stripped)) + 1))
+    assert not any(_figures(c) for c in _code_cells(stripped))
+
+
+def _load_execute_script():
+    spec = importlib.util.spec_from_file_location("notebooks_execute", NOTEBOOKS / "execute.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_execute_script_compacts_figures_and_drops_timing():
+    """notebooks/execute.py: PNGs become 8-bit palette PNGs of the same size and nearly the same colours
+    (checked against the decoded original); cell timing metadata is dropped; the kernelspec is portable."""
+    Image = pytest.importorskip("PIL.Image")
+    execute = _load_execute_script()
+    rng = np.random.default_rng(0)
+    smooth = np.linspace(0, 255, 200)[None, :, None] * np.array([1.0, 0.5, 0.2])
+    rgba = np.concatenate([np.broadcast_to(smooth, (60, 200, 3)), np.full((60, 200, 1), 255.0)], axis=-1)
+    rgba[:20, :20, :3] = rng.integers(0, 256, (20, 20, 3))
+    buffer = io.BytesIO()
+    Image.fromarray(rgba.astype(np.uint8), "RGBA").save(buffer, format="png")
+    compact = base64.b64decode(execute.compact_png(base64.b64encode(buffer.getvalue()).decode()))
+    image = Image.open(io.BytesIO(compact))
+    assert image.mode == "P" and image.size == (200, 60)
+    error = np.abs(np.asarray(image.convert("RGB"), float) - rgba[..., :3])
+    assert np.median(error) <= 4 and error[20:].max() <= 24, (np.median(error), error[20:].max())
+    assert compact == base64.b64decode(execute.compact_png(base64.b64encode(buffer.getvalue()).decode()))
+
+    nb = nbformat.v4.new_notebook(metadata={"kernelspec": {"name": "jaxdepth-notebooks", "display_name": "x",
+                                                           "language": "python"},
+                                            "language_info": {"name": "python", "version": "3.12.3"}})
+    cell = nbformat.v4.new_code_cell("print(1)", execution_count=1, metadata={"execution": {"iopub.status.idle": "x"}})
+    cell.outputs = [nbformat.v4.new_output("display_data", data={"image/png": base64.b64encode(
+        buffer.getvalue()).decode()})]
+    nb.cells = [cell]
+    execute.normalise(nb)
+    nbformat.validate(nb)
+    assert nb.metadata.kernelspec["name"] == "python3" and nb.metadata.language_info == {"name": "python"}
+    assert "execution" not in nb.cells[0].metadata
+    assert base64.b64decode(nb.cells[0].outputs[0].data["image/png"])[25] == 3
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -87,7 +179,11 @@ def test_notebook_runs(name, kernel_dir, monkeypatch):
                                                                       os.environ.get("JUPYTER_PATH")])))
     env = dict(os.environ, JAXDEPTH_SHARED_DATA=str(shared), PYDEVD_DISABLE_FILE_VALIDATION="1")
     env.pop("MPLBACKEND", None)  # the kernel's inline backend renders the figures
+    stored_bytes = (NOTEBOOKS / name).read_bytes()
+    stored = _read(name)
     nb = _read(name)
+    for cell in _code_cells(nb):                     # run from a clean slate, not on top of the stored outputs
+        cell.outputs, cell.execution_count = [], None
     client = nbclient.NotebookClient(nb, kernel_name=KERNEL, timeout=600,
                                      resources={"metadata": {"path": str(NOTEBOOKS)}})
     client.execute(env=env)          # raises CellExecutionError with the cell's traceback on any error
@@ -96,6 +192,7 @@ def test_notebook_runs(name, kernel_dir, monkeypatch):
     assert not [o for o in outputs if o.output_type == "error"]
     figures = sum("image/png" in o.get("data", {}) for o in outputs)
     assert figures >= MIN_FIGURES[name], f"{name}: {figures} figures drawn, expected {MIN_FIGURES[name]}"
-    assert _read(name).cells[0].source == nb.cells[0].source  # the stored file was not touched
-    for cell in _read(name).cells:
-        assert cell.get("outputs", []) == []
+    # the stored outputs are those of this code: the same figures in the same cells
+    assert [_figures(c) for c in _code_cells(nb)] == [_figures(c) for c in _code_cells(stored)], \
+        f"{name}: stored figures differ from a fresh run (re-run python notebooks/execute.py)"
+    assert (NOTEBOOKS / name).read_bytes() == stored_bytes  # the stored file was not touched
