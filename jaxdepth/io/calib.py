@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from jaxdepth.io.checks import ROTATION_TOL, pinhole_problem, rotation_problem  # noqa: F401 (ROTATION_TOL: public name)
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 
 #: Tolerance of the rotation checks (KITTI prints 7 significant digits).
-ROTATION_TOL = 1e-3
 
 
 def _read_text(path: pathlib.Path) -> str:
@@ -74,21 +74,15 @@ def _floats(path: pathlib.Path, fields: dict[str, str], key: str, count: int) ->
 
 
 def _check_K(path: pathlib.Path, field: str, K: np.ndarray) -> None:
-    """Pinhole K: positive focal lengths, K[1, 0] == 0, bottom row (0, 0, 1)."""
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise field_error(path, field, "positive focal lengths fx, fy", f"fx={K[0, 0]:g}, fy={K[1, 1]:g}")
-    if abs(K[1, 0]) > 1e-9 or np.max(np.abs(K[2] - [0.0, 0.0, 1.0])) > 1e-6:
-        raise field_error(path, field, "a pinhole matrix with K[1, 0] = 0 and last row (0, 0, 1)",
-                          f"K[1, 0]={K[1, 0]:g}, last row {K[2].tolist()}")
+    problem = pinhole_problem(K)
+    if problem is not None:
+        raise field_error(path, field, *problem)
 
 
 def _check_rotation(path: pathlib.Path, field: str, R: np.ndarray) -> None:
-    with np.errstate(over="ignore", invalid="ignore"):  # huge entries give inf / nan: rejected below
-        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-        det = float(np.linalg.det(R))
-    if not (err <= ROTATION_TOL and abs(det - 1.0) <= ROTATION_TOL):
-        raise field_error(path, field, f"a rotation (R^T R = I within {ROTATION_TOL:g}, det = +1)",
-                          f"max |R^T R - I| = {err:.3g}, det = {det:.6g}")
+    problem = rotation_problem(R)
+    if problem is not None:
+        raise field_error(path, field, *problem)
 
 
 def _split_P(path: pathlib.Path, field: str, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

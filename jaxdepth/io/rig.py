@@ -34,11 +34,12 @@ from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import Camera, LidarSpec
 from jaxdepth.io.atomic import atomic_write_bytes
 from jaxdepth.io.calib import read_kitti_object_calib, read_kitti_raw_calib
+from jaxdepth.io.checks import ROTATION_TOL, pinhole_problem, rigid_problem
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 from jaxdepth.io.kitti_layout import BENCHMARK_SIZE, benchmark_crop_offsets
 
 #: Tolerance of the rigid-transform check: |R^T R - I| and |det R - 1|.
-RIGID_TOL = 1e-3
+RIGID_TOL = ROTATION_TOL
 
 _LIDAR_DEFAULTS = {64: KITTI_HDL64, 32: NUSCENES_HDL32}
 _LIDAR_FIELDS = ("beams", "fov_up_deg", "fov_down_deg", "columns", "units", "origin_m")
@@ -107,23 +108,15 @@ def _describe(x: Any) -> str:
 
 
 def _check_K(K: np.ndarray, field: str) -> None:
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise _Bad(field, "positive focal lengths K[0][0], K[1][1]", f"fx={K[0, 0]:g}, fy={K[1, 1]:g}")
-    if abs(K[1, 0]) > 1e-9 or np.max(np.abs(K[2] - [0.0, 0.0, 1.0])) > 1e-6:
-        raise _Bad(field, "a pinhole matrix with K[1][0] = 0 and last row [0, 0, 1]",
-                   f"K[1][0]={K[1, 0]:g}, last row {K[2].tolist()}")
+    problem = pinhole_problem(K)
+    if problem is not None:
+        raise _Bad(field, *problem)
 
 
 def _check_T(T: np.ndarray, field: str) -> None:
-    if np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > 1e-6:
-        raise _Bad(field, "last row [0, 0, 0, 1]", T[3].tolist())
-    R = T[:3, :3]
-    with np.errstate(over="ignore", invalid="ignore"):  # huge entries give inf / nan: rejected below
-        err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-        det = float(np.linalg.det(R))
-    if not (err <= RIGID_TOL and abs(det - 1.0) <= RIGID_TOL):
-        raise _Bad(field, f"a rigid transform (R^T R = I within {RIGID_TOL:g}, det R = +1)",
-                   f"max |R^T R - I| = {err:.3g}, det R = {det:.6g}")
+    problem = rigid_problem(T, tol=RIGID_TOL)
+    if problem is not None:
+        raise _Bad(field, *problem)
 
 
 def _positive_int(value: Any, field: str) -> int:
