@@ -427,22 +427,10 @@ def rig_from_kitti_raw(cam_to_cam: PathLike, velo_to_cam: PathLike, *, cameras: 
     if not indices or any(isinstance(i, bool) or i not in (0, 1, 2, 3) for i in indices):
         raise ValueError(f"rig_from_kitti_raw: field 'cameras' expected KITTI indices in 0..3, got {indices}")
     calib = read_kitti_raw_calib(cam_to_cam, velo_to_cam)
-    out = []
-    for i in indices:
-        c = calib["cameras"][i]
-        K = np.array(c["K"], np.float64)
-        width, height = c["width"], c["height"]
-        if crop:
-            try:
-                top, left = benchmark_crop_offsets(height, width)
-            except ValueError:
-                raise field_error(cam_to_cam, f"S_rect_0{i}", f"an image of at least {BENCHMARK_SIZE[1]}x"
-                                  f"{BENCHMARK_SIZE[0]} for crop=True", f"{width}x{height}") from None
-            K[0, 2] -= left
-            K[1, 2] -= top
-            height, width = BENCHMARK_SIZE
-        out.append(RigCamera(f"image_0{i}", width, height, K, c["T_cam_lidar"]))
-    return Rig(lidar=KITTI_HDL64, cameras=tuple(out))
+    cams = calib["cameras"]
+    return Rig(lidar=KITTI_HDL64, cameras=tuple(
+        _kitti_camera(i, cams[i], cams[i]["width"], cams[i]["height"], crop=crop, path=cam_to_cam,
+                      size_field=f"S_rect_0{i}") for i in indices))
 
 
 def rig_from_kitti_object(calib_path: PathLike, *, width: int, height: int, cameras: Iterable[int] = (2,),
@@ -475,22 +463,25 @@ def rig_from_kitti_object(calib_path: PathLike, *, width: int, height: int, came
     if isinstance(width, bool) or isinstance(height, bool) or int(width) < 1 or int(height) < 1:
         raise field_error(calib_path, "image", "a positive width and height", f"{width}x{height}")
     width, height = int(width), int(height)
-    out = []
-    for i in indices:
-        c = calib["cameras"][i]
-        K = np.array(c["K"], np.float64)
-        w, h = width, height
-        if crop:
-            try:
-                top, left = benchmark_crop_offsets(h, w)
-            except ValueError:
-                raise field_error(calib_path, "image", f"an image of at least {BENCHMARK_SIZE[1]}x"
-                                  f"{BENCHMARK_SIZE[0]} for crop=True", f"{w}x{h}") from None
-            K[0, 2] -= left
-            K[1, 2] -= top
-            h, w = BENCHMARK_SIZE
-        out.append(RigCamera(f"image_0{i}", w, h, K, c["T_cam_lidar"]))
-    return Rig(lidar=KITTI_HDL64, cameras=tuple(out))
+    return Rig(lidar=KITTI_HDL64, cameras=tuple(
+        _kitti_camera(i, calib["cameras"][i], width, height, crop=crop, path=calib_path, size_field="image")
+        for i in indices))
+
+
+def _kitti_camera(index: int, calib_camera: dict, width: int, height: int, *, crop: bool, path: PathLike,
+                  size_field: str) -> RigCamera:
+    """KITTI camera ``index`` as ``image_0<index>``, full frame or the 352 x 1216 benchmark crop."""
+    K = np.array(calib_camera["K"], np.float64)
+    if crop:
+        try:
+            top, left = benchmark_crop_offsets(height, width)
+        except ValueError:
+            raise field_error(path, size_field, f"an image of at least {BENCHMARK_SIZE[1]}x"
+                              f"{BENCHMARK_SIZE[0]} for crop=True", f"{width}x{height}") from None
+        K[0, 2] -= left
+        K[1, 2] -= top
+        height, width = BENCHMARK_SIZE
+    return RigCamera(f"image_0{index}", width, height, K, calib_camera["T_cam_lidar"])
 
 
 def rig_from_nuscenes_calibration(path: PathLike, *, width: int = 1600, height: int = 900) -> Rig:
