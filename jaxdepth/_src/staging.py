@@ -22,6 +22,45 @@ import jax.numpy as jnp
 from jax import custom_batching
 
 
+def _steered(scalar, operands, *, single, batched, reduce, tangent_fn=None):
+    """``single(scalar, operands)`` as a ``custom_vmap`` whose batch rule keeps one scalar.
+
+    Under ``vmap`` a batched ``scalar`` is reduced with ``reduce`` (so a
+    conditional stays a conditional instead of a select of both branches),
+    unbatched operands are broadcast leaf by leaf, and ``batched(scalar,
+    operands)`` computes the whole batch. With ``tangent_fn``, JVPs are
+    ``jax.jvp(tangent_fn(scalar), (operands,), (operand_tangents,))``.
+    """
+
+    @custom_batching.custom_vmap
+    def run(scalar, operands):
+        return single(scalar, operands)
+
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, scalar, operands):
+        scalar_batched, ops_batched = in_batched
+        if scalar_batched:
+            scalar = reduce(scalar)
+        operands = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
+                                tuple(operands), tuple(ops_batched))
+        out = batched(scalar, operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    if tangent_fn is None:
+        return run(scalar, operands)
+
+    @jax.custom_jvp
+    def differentiable(scalar, operands):
+        return run(scalar, operands)
+
+    @differentiable.defjvp
+    def differentiable_jvp(primals, tangents):
+        scalar, operands = primals
+        return jax.jvp(tangent_fn(scalar), (operands,), (tangents[1],))
+
+    return differentiable(scalar, operands)
+
+
 def stage(fn, args, token):
     """``fn(*args)`` computed in its own conditional: its outputs are real buffers
     that consumers read instead of re-running ``fn``.
@@ -36,34 +75,16 @@ def stage(fn, args, token):
     Returns:
       ``fn(*args)``, bit-identical to calling it directly.
     """
-    args = tuple(args)
 
-    @custom_batching.custom_vmap
-    def run(operands, tok):
+    def single(tok, operands):
         shapes = jax.eval_shape(fn, *operands)
         return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, lambda ops: fn(*ops),
                             lambda ops: jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes), operands)
 
-    @run.def_vmap
-    def run_vmap(axis_size, in_batched, operands, tok):
-        ops_batched, tok_batched = in_batched
-        if tok_batched:
-            tok = jnp.min(tok)  # one predicate for the batch keeps the conditional
-        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                         for a, b in zip(operands, ops_batched))
-        out = stage(jax.vmap(fn), operands, tok)
-        return out, jax.tree.map(lambda _: True, out)
-
-    @jax.custom_jvp
-    def staged(operands, tok):
-        return run(operands, tok)
-
-    @staged.defjvp
-    def staged_jvp(primals, tangents):
-        operands, _ = primals
-        return jax.jvp(fn, operands, tangents[0])
-
-    return staged(args, jnp.asarray(token, jnp.int32))
+    # The batched token is reduced to one predicate for the batch, which keeps the conditional.
+    return _steered(jnp.asarray(token, jnp.int32), tuple(args), single=single, reduce=jnp.min,
+                    batched=lambda tok, ops: stage(jax.vmap(fn), ops, tok),
+                    tangent_fn=lambda _: (lambda ops: fn(*ops)))
 
 
 def fence(*arrays, token=None):
@@ -87,31 +108,10 @@ def cond_all(pred, true_fn, false_fn, *operands):
     path valid under ``pred``), so the choice never changes the output.
     Differentiable (the JVP follows ``lax.cond`` per member).
     """
-
-    @custom_batching.custom_vmap
-    def run(pred, operands):
-        return jax.lax.cond(pred, true_fn, false_fn, *operands)
-
-    @run.def_vmap
-    def run_vmap(axis_size, in_batched, pred, operands):
-        pred_batched, ops_batched = in_batched
-        if pred_batched:
-            pred = jnp.all(pred)
-        operands = tuple(a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
-                         for a, b in zip(operands, ops_batched))
-        out = cond_all(pred, jax.vmap(true_fn), jax.vmap(false_fn), *operands)
-        return out, jax.tree.map(lambda _: True, out)
-
-    @jax.custom_jvp
-    def chosen(pred, operands):
-        return run(pred, operands)
-
-    @chosen.defjvp
-    def chosen_jvp(primals, tangents):
-        pred, operands = primals
-        return jax.jvp(lambda ops: jax.lax.cond(pred, true_fn, false_fn, *ops), (operands,), (tangents[1],))
-
-    return chosen(jnp.asarray(pred, bool), tuple(operands))
+    return _steered(jnp.asarray(pred, bool), tuple(operands), reduce=jnp.all,
+                    single=lambda p, ops: jax.lax.cond(p, true_fn, false_fn, *ops),
+                    batched=lambda p, ops: cond_all(p, jax.vmap(true_fn), jax.vmap(false_fn), *ops),
+                    tangent_fn=lambda p: (lambda ops: jax.lax.cond(p, true_fn, false_fn, *ops)))
 
 
 def switch_widest(index, branches, *operands):
@@ -121,21 +121,8 @@ def switch_widest(index, branches, *operands):
     branch of its largest index. Use it only for branches that are valid for
     any index at least the true one (e.g. wider windows that give the same
     result with more work), so the choice never changes the output.
+    Operands may be pytrees (tuples of arrays).
     """
-
-    @custom_batching.custom_vmap
-    def run(index, operands):
-        return jax.lax.switch(index, branches, *operands)
-
-    @run.def_vmap
-    def run_vmap(axis_size, in_batched, index, operands):
-        index_batched, ops_batched = in_batched
-        if index_batched:
-            index = jnp.max(index)
-        # Operands may be pytrees (tuples of arrays): broadcast leaf by leaf.
-        operands = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
-                                tuple(operands), tuple(ops_batched))
-        out = switch_widest(index, [jax.vmap(fn) for fn in branches], *operands)
-        return out, jax.tree.map(lambda _: True, out)
-
-    return run(index, tuple(operands))
+    return _steered(index, tuple(operands), reduce=jnp.max,
+                    single=lambda i, ops: jax.lax.switch(i, branches, *ops),
+                    batched=lambda i, ops: switch_widest(i, [jax.vmap(fn) for fn in branches], *ops))
