@@ -335,47 +335,55 @@ def cmd_hidden_eval(args) -> int:
 # ---------------------------------------------------------------- registration
 
 
+_POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
+                                          help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
+
+# subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
+# the SGM options of _add_config_options.
+_SUBCOMMANDS = {
+    "ablation": ("the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth", cmd_ablation, (
+        ("src", dict(help="folder with velodyne_raw/*.png and intrinsics/*.txt")),
+        ("gt", dict(nargs="?", default=None,
+                    help="folder of ground-truth PNGs with the same names (default: SRC/groundtruth_depth)")),
+        ("--intrinsics", dict(help="K.txt for every frame (instead of SRC/intrinsics/)")),
+        ("--json", dict(help="write {'mean': ..., 'per_frame': ...} to this file")),
+    )),
+    "sparsity": ("the paper's sparsity study: 64 / 32 / 16 simulated beams vs ground truth", cmd_sparsity, (
+        ("sweep", dict(help="LiDAR sweep (.bin float32 records, .npy, .npz)")),
+        ("calib_dir", dict(help="folder with KITTI raw calib_cam_to_cam.txt and calib_velo_to_cam.txt")),
+        ("gt", dict(help="ground-truth depth PNG of the camera (full frame or 352x1216 benchmark crop)")),
+        ("--camera", dict(type=int, choices=(0, 1, 2, 3), default=2, help="KITTI camera index (default 2)")),
+        ("--beams", dict(type=int, nargs="+", default=[64, 32, 16],
+                         help="simulated beam counts, divisors of --lidar-beams (default: 64 32 16)")),
+        ("--lidar-beams", dict(type=int, default=64, help="beams of the recording LiDAR (default 64)")),
+        _POINT_COLUMNS,
+        ("--json", dict(help="write the table as JSON to this file")),
+    )),
+    "hidden-eval": ("hidden-point scores of a sweep for every camera of a rig JSON", cmd_hidden_eval, (
+        ("points", dict(help="LiDAR sweep (.bin, .pcd.bin, .npy, .npz)")),
+        ("rig", dict(help="rig JSON (see jaxdepth.io.rig)")),
+        _POINT_COLUMNS,
+        ("--fraction", dict(type=float, default=0.2, help="share of the points held out (default 0.2)")),
+        ("--no-estimate", dict(action="store_true", help="do not estimate the LiDAR's position / field of view "
+                                                         "from the sweep (see README, Rig JSON)")),
+        ("--seeds", dict(type=int, nargs="+", default=[0, 1, 2, 3, 4],
+                         help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")),
+        ("--scale", dict(type=float, default=1.0, help="scale of every camera's image size and K (default 1)")),
+        ("--min-range-m", dict(type=float, default=1.0,
+                               help="drop points closer to the LiDAR than this, metres (default 1.0)")),
+        ("--json", dict(help="write the per-camera table as JSON to this file")),
+    )),
+}
+
+
 def register(subparsers) -> None:
     """Adds ``ablation``, ``sparsity`` and ``hidden-eval`` to an argparse subparsers object."""
-    p = subparsers.add_parser("ablation", help="the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth")
-    p.add_argument("src", help="folder with velodyne_raw/*.png and intrinsics/*.txt")
-    p.add_argument("gt", nargs="?", default=None,
-                   help="folder of ground-truth PNGs with the same names (default: SRC/groundtruth_depth)")
-    p.add_argument("--intrinsics", help="K.txt for every frame (instead of SRC/intrinsics/)")
-    p.add_argument("--json", help="write {'mean': ..., 'per_frame': ...} to this file")
-    _add_config_options(p)
-    p.set_defaults(func=cmd_ablation)
-
-    p = subparsers.add_parser("sparsity", help="the paper's sparsity study: 64 / 32 / 16 simulated beams vs ground truth")
-    p.add_argument("sweep", help="LiDAR sweep (.bin float32 records, .npy, .npz)")
-    p.add_argument("calib_dir", help="folder with KITTI raw calib_cam_to_cam.txt and calib_velo_to_cam.txt")
-    p.add_argument("gt", help="ground-truth depth PNG of the camera (full frame or 352x1216 benchmark crop)")
-    p.add_argument("--camera", type=int, choices=(0, 1, 2, 3), default=2, help="KITTI camera index (default 2)")
-    p.add_argument("--beams", type=int, nargs="+", default=[64, 32, 16],
-                   help="simulated beam counts, divisors of --lidar-beams (default: 64 32 16)")
-    p.add_argument("--lidar-beams", type=int, default=64, help="beams of the recording LiDAR (default 64)")
-    p.add_argument("--point-columns", type=int, default=None,
-                   help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
-    p.add_argument("--json", help="write the table as JSON to this file")
-    _add_config_options(p)
-    p.set_defaults(func=cmd_sparsity)
-
-    p = subparsers.add_parser("hidden-eval", help="hidden-point scores of a sweep for every camera of a rig JSON")
-    p.add_argument("points", help="LiDAR sweep (.bin, .pcd.bin, .npy, .npz)")
-    p.add_argument("rig", help="rig JSON (see jaxdepth.io.rig)")
-    p.add_argument("--point-columns", type=int, default=None,
-                   help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)")
-    p.add_argument("--fraction", type=float, default=0.2, help="share of the points held out (default 0.2)")
-    p.add_argument("--no-estimate", action="store_true",
-                   help="do not estimate the LiDAR's position / field of view from the sweep (see README, Rig JSON)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4],
-                   help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")
-    p.add_argument("--scale", type=float, default=1.0, help="scale of every camera's image size and K (default 1)")
-    p.add_argument("--min-range-m", type=float, default=1.0,
-                   help="drop points closer to the LiDAR than this, metres (default 1.0)")
-    p.add_argument("--json", help="write the per-camera table as JSON to this file")
-    _add_config_options(p)
-    p.set_defaults(func=cmd_hidden_eval)
+    for command, (help_text, handler, arguments) in _SUBCOMMANDS.items():
+        p = subparsers.add_parser(command, help=help_text)
+        for name, options in arguments:
+            p.add_argument(name, **options)
+        _add_config_options(p)
+        p.set_defaults(func=handler)
 
 
 __all__ = ["register", "cmd_ablation", "cmd_sparsity", "cmd_hidden_eval", "hidden_eval", "scaled_camera",
