@@ -229,6 +229,7 @@ def _column_box_sums(horiz, half: int):
 
 
 def check_options(smoothing, fill_max_gap):
+    """Raises ValueError unless smoothing and fill_max_gap are non-negative Python integers."""
     for name, value in (("smoothing", smoothing), ("fill_max_gap", fill_max_gap)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
             raise ValueError(f"{name}: expected a non-negative integer, got {value!r}")

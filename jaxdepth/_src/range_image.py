@@ -71,6 +71,7 @@ class RangeImage(NamedTuple):
 
 
 def check_points(points, valid):
+    """Raises ValueError unless points is (N, 3) floating and valid is (N,)."""
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points: expected shape (N, 3), got {tuple(points.shape)}")
     if valid.shape != (points.shape[0],):
@@ -80,6 +81,7 @@ def check_points(points, valid):
 
 
 def check_lidar(lidar):
+    """Raises ValueError unless lidar is a LidarSpec."""
     if not isinstance(lidar, LidarSpec):
         raise ValueError(f"lidar: expected a LidarSpec, got {type(lidar).__name__}")
 
