@@ -93,7 +93,8 @@ def stage_functions(config: SGMConfig, lidar):
     """Each paper step jitted on its own (so the per-stage times add up to a separated pipeline)."""
     from jaxdepth._src.distance import nearest_seed
     from jaxdepth._src.pipeline import _gather_seeds
-    from jaxdepth._src.normals import pixel_normals, point_normals
+    from jaxdepth._src.normals import point_normals
+    from jaxdepth._src.pixel_normals import pixel_normals
     from jaxdepth._src.outliers import outlier_keep_mask
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur

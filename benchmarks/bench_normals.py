@@ -35,7 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.normals import point_normals, range_image
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.range_image import range_image
 from jaxdepth._src.presets import KITTI_HDL64, KITTI_K_CAM2, KITTI_T_CAM2_LIDAR
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -86,7 +87,7 @@ def pixel_case(repeats: int):
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from bench_end_to_end import load_frame
 
-    from jaxdepth._src.normals import pixel_normals
+    from jaxdepth._src.pixel_normals import pixel_normals
 
     sparse, K, T, name = load_frame()
     d, K, T = (jnp.asarray(a, jnp.float32) for a in (sparse, K, T))

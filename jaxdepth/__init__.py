@@ -19,8 +19,8 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
                                        KITTI_T_CAM2_LIDAR as KITTI_T_CAM2_LIDAR, KITTI_K_CAM2 as KITTI_K_CAM2,
                                        KITTI_T_CAM3_LIDAR as KITTI_T_CAM3_LIDAR)
     from jaxdepth._src.geometry import project_to_image as project_to_image, unproject_depth as unproject_depth
-    from jaxdepth._src.normals import (range_image as range_image, point_normals as point_normals,
-                                       range_image_normals as range_image_normals)
+    from jaxdepth._src.range_image import range_image as range_image
+    from jaxdepth._src.normals import point_normals as point_normals, range_image_normals as range_image_normals
     from jaxdepth._src.outliers import outlier_keep_mask as outlier_keep_mask
     from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
     from jaxdepth._src.residual import plane_residual as plane_residual
@@ -46,7 +46,8 @@ _LAZY = {
     'jaxdepth._src.presets': ('KITTI_HDL64', 'NUSCENES_HDL32', 'KITTI_T_CAM2_LIDAR', 'KITTI_T_CAM3_LIDAR',
                               'KITTI_K_CAM2'),
     'jaxdepth._src.geometry': ('project_to_image', 'unproject_depth'),
-    'jaxdepth._src.normals': ('range_image', 'point_normals', 'range_image_normals'),
+    'jaxdepth._src.range_image': ('range_image',),
+    'jaxdepth._src.normals': ('point_normals', 'range_image_normals'),
     'jaxdepth._src.outliers': ('outlier_keep_mask',),
     'jaxdepth._src.distance': ('nearest_seed', 'gather_at_seed'),
     'jaxdepth._src.residual': ('plane_residual',),

@@ -27,7 +27,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from jaxdepth._src import compaction, fastmath
 from jaxdepth._src import normals as N
+from jaxdepth._src import pixel_normals as PN
+from jaxdepth._src import range_image as RI
 from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import LidarSpec
 
@@ -198,7 +201,7 @@ def np_range_image(points: np.ndarray, valid: np.ndarray, lidar: LidarSpec):
         if not ok or not np.all(np.isfinite(p)):
             continue
         r = np.float32(np.sqrt(np.float64(p[0]) ** 2 + np.float64(p[1]) ** 2 + np.float64(p[2]) ** 2))
-        if not r > N.MIN_RANGE_M:
+        if not r > RI.MIN_RANGE_M:
             continue
         th = math.atan2(p[1], p[0])
         ph = math.atan2(p[2], math.hypot(p[0], p[1]))
@@ -243,7 +246,7 @@ def test_range_image_matches_numpy_loop(lidar):
     pts, valid = random_cloud(rng, 1024)
     valid &= ~near_boundary(np.nan_to_num(pts), lidar)
     r_ref, idx_ref, cell_ref = np_range_image(pts, valid, lidar)
-    ri = N.range_image(jnp.asarray(pts), jnp.asarray(valid), lidar=lidar)
+    ri = RI.range_image(jnp.asarray(pts), jnp.asarray(valid), lidar=lidar)
     assert ri.r.dtype == jnp.float32 and ri.index.dtype == jnp.int32 and ri.cell.dtype == jnp.int32
     assert ri.r.shape == (lidar.beams, lidar.columns)
     np.testing.assert_array_equal(np.asarray(ri.cell), cell_ref)
@@ -255,14 +258,14 @@ def test_range_image_matches_numpy_loop(lidar):
     ph = np.arctan2(src[:, 2], np.hypot(src[:, 0], src[:, 1]))
     np.testing.assert_allclose(np.asarray(ri.theta)[has], th, atol=3e-7, rtol=0)
     np.testing.assert_allclose(np.asarray(ri.phi)[has], ph, atol=3e-7, rtol=0)
-    th_c, ph_c = N._cell_centres(lidar)
+    th_c, ph_c = RI.cell_centres(lidar)
     np.testing.assert_allclose(np.asarray(ri.theta)[~has], np.broadcast_to(th_c, has.shape)[~has], atol=1e-6)
     np.testing.assert_allclose(np.asarray(ri.phi)[~has], np.broadcast_to(ph_c, has.shape)[~has], atol=1e-6)
 
 
 def test_range_image_ties_go_to_smaller_index():
     p = np.array([[5, 1, 0], [5, 1, 0], [10, 2, 0], [5, 1, 0]], np.float32)
-    ri = N.range_image(jnp.asarray(p), jnp.ones(4, bool), lidar=SMALL)
+    ri = RI.range_image(jnp.asarray(p), jnp.ones(4, bool), lidar=SMALL)
     cells = np.asarray(ri.cell)
     assert len(set(cells.tolist())) == 1
     assert int(np.asarray(ri.index).flat[cells[0]]) == 0
@@ -273,13 +276,13 @@ def test_polynomial_atan2_and_sin_cos():
     rng = np.random.default_rng(0)
     x = np.concatenate([rng.normal(size=20000), [0, 0, 1, -1, 0, 0, -1, 1]]).astype(np.float32)
     y = np.concatenate([rng.normal(size=20000), [0, 1, 0, 0, -1, -0.0, 1e-30, -1e-30]]).astype(np.float32)
-    got = np.asarray(N._atan2(jnp.asarray(y), jnp.asarray(x)))
+    got = np.asarray(fastmath.atan2(jnp.asarray(y), jnp.asarray(x)))
     want = np.arctan2(y.astype(np.float64), x.astype(np.float64))
     err = np.abs(got - want)
     err = np.minimum(err, np.abs(err - 2 * np.pi))  # -pi and pi are the same direction
     assert err.max() < 4e-7
     a = rng.uniform(-np.pi / 2, np.pi / 2, 20000).astype(np.float32)
-    s, c = N._sin_cos_small(jnp.asarray(a), np.pi / 2)
+    s, c = fastmath.sin_cos_small(jnp.asarray(a), np.pi / 2)
     assert np.abs(np.asarray(s) - np.sin(a.astype(np.float64))).max() < 3e-7
     assert np.abs(np.asarray(c) - np.cos(a.astype(np.float64))).max() < 3e-7
     cols = 2048
@@ -320,7 +323,7 @@ def test_sparse_isolated_points_face_the_sensor():
     want = -pts / np.linalg.norm(pts, axis=1, keepdims=True)
     np.testing.assert_allclose(n[:40], want, atol=2e-6)
     assert np.all(n[40:] == 0)
-    full = np.asarray(N.range_image_normals(N.range_image(p, v, lidar=LIDAR)))
+    full = np.asarray(N.range_image_normals(RI.range_image(p, v, lidar=LIDAR)))
     assert full.shape == (3, 64, 2048)
     np.testing.assert_allclose(np.linalg.norm(full, axis=0), 1.0, atol=1e-5)
 
@@ -334,7 +337,7 @@ def test_losers_read_their_cell_normal():
     far = pts * np.float32(1.0 + 1e-4)
     allp = np.concatenate([pts, far])
     allv = np.concatenate([hit, hit])
-    ri = N.range_image(jnp.asarray(allp), jnp.asarray(allv), lidar=SMALL)
+    ri = RI.range_image(jnp.asarray(allp), jnp.asarray(allv), lidar=SMALL)
     n = np.asarray(N.point_normals(jnp.asarray(allp), jnp.asarray(allv), lidar=SMALL))
     img = np.asarray(N.range_image_normals(ri)).reshape(3, -1).T
     cell = np.asarray(ri.cell)
@@ -349,7 +352,7 @@ def test_range_image_normals_fill_every_cell():
     elev, azim = irregular_angles(LIDAR)
     pts, hit = cast_plane(normal, d, elev, azim, max_range=30)
     p, v = padded(pts, hit, SIZE)
-    ri = N.range_image(p, v, lidar=LIDAR)
+    ri = RI.range_image(p, v, lidar=LIDAR)
     meas = np.asarray(ri.index) >= 0
     assert 0.2 < meas.mean() < 0.9  # empty rows, columns and the sky are all present
     for smoothing, gap in [(1, 2), (0, 0)]:
@@ -378,11 +381,11 @@ def test_jit_equals_eager():
     pts, valid = random_cloud(rng, 1024)
     p, v = jnp.asarray(pts), jnp.asarray(valid)
     jitted = N.point_normals(p, v, lidar=SMALL)
-    ri_j = N.range_image(p, v, lidar=SMALL)
+    ri_j = RI.range_image(p, v, lidar=SMALL)
     img_j = N.range_image_normals(ri_j)
     with jax.disable_jit():
         eager = N.point_normals(p, v, lidar=SMALL)
-        ri_e = N.range_image(p, v, lidar=SMALL)
+        ri_e = RI.range_image(p, v, lidar=SMALL)
         img_e = N.range_image_normals(ri_e)
     np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), atol=2e-5)
     for a, b in zip(ri_j, ri_e):
@@ -399,10 +402,10 @@ def test_vmap_equals_loop():
     batched = jax.vmap(lambda p, v: N.point_normals(p, v, lidar=SMALL))(pts, val)
     looped = jnp.stack([N.point_normals(p, v, lidar=SMALL) for p, v in zip(pts, val)])
     np.testing.assert_allclose(np.asarray(batched), np.asarray(looped), atol=1e-6)
-    ri_b = jax.vmap(lambda p, v: N.range_image(p, v, lidar=SMALL))(pts, val)
+    ri_b = jax.vmap(lambda p, v: RI.range_image(p, v, lidar=SMALL))(pts, val)
     img_b = jax.vmap(N.range_image_normals)(ri_b)
     for i, (p, v) in enumerate(zip(pts, val)):
-        ri = N.range_image(p, v, lidar=SMALL)
+        ri = RI.range_image(p, v, lidar=SMALL)
         for a, b in zip(ri, ri_b):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b[i]))
         np.testing.assert_allclose(np.asarray(N.range_image_normals(ri)), np.asarray(img_b[i]), atol=1e-6)
@@ -459,11 +462,11 @@ def test_bad_inputs_raise_value_error():
     with pytest.raises(ValueError, match=r"points: expected shape \(N, 3\), got \(8, 2\)"):
         N.point_normals(jnp.zeros((8, 2)), v, lidar=SMALL)
     with pytest.raises(ValueError, match=r"valid: expected shape \(8,\)"):
-        N.range_image(p, jnp.ones(7, bool), lidar=SMALL)
+        RI.range_image(p, jnp.ones(7, bool), lidar=SMALL)
     with pytest.raises(ValueError, match="smoothing: expected a non-negative integer, got -1"):
         N.point_normals(p, v, lidar=SMALL, smoothing=-1)
     with pytest.raises(ValueError, match="lidar: expected a LidarSpec"):
-        N.range_image(p, v, lidar="kitti")
+        RI.range_image(p, v, lidar="kitti")
     with pytest.raises(ValueError, match="ri: expected a RangeImage"):
         N.range_image_normals((1, 2, 3, 4, 5))
 
@@ -472,7 +475,7 @@ def test_options_are_keyword_only():
     p = jnp.zeros((8, 3))
     v = jnp.ones(8, bool)
     with pytest.raises(TypeError):
-        N.range_image(p, v, SMALL)  # noqa
+        RI.range_image(p, v, SMALL)  # noqa
 
 
 # ----------------------------------------------------------------------------- real data
@@ -558,7 +561,7 @@ def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_column
     camera = _pix_camera()
     depth = _pix_frame(0, camera)
     assert (depth > 0).sum() > 500
-    got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
+    got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
                           max_points=max_points)
     stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
     assert stable[depth > 0].mean() > 0.99
@@ -566,9 +569,9 @@ def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_column
     np.testing.assert_allclose(norms, 1.0, atol=1e-5)
 
 
-def test_compact_pixels_lists_true_entries_in_order():
+def test_compact_indices_lists_true_entries_in_order():
     rng = np.random.default_rng(7)
-    compact = jax.jit(N._compact_pixels, static_argnums=1)
+    compact = jax.jit(compaction.compact_indices, static_argnums=1)
     for n, p, capacity in ((37, 0.3, 20), (5000, 0.05, 400), (40000, 0.5, 1024), (64, 1.0, 64), (100, 0.0, 8)):
         valid = rng.random(n) < p
         pix, total = compact(jnp.asarray(valid), capacity, jnp.int32(0))
@@ -583,7 +586,7 @@ def test_pixel_normals_options_and_wide_camera():
     camera = _pix_camera(f=40.0)  # ~126 degrees wide: more than the 100-degree window
     depth = _pix_frame(1, camera)
     for options in (dict(smoothing=0, fill_max_gap=0), dict(smoothing=2, fill_max_gap=1)):
-        got = N.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
+        got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
         check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
 
 
@@ -592,7 +595,7 @@ def test_pixel_normals_vmap_equals_loop_and_jit_equals_eager():
     depths = np.stack([_pix_frame(s, c) for s, c in zip((2, 3), cams)])
     Ks = jnp.stack([c.K for c in cams])
     T = cams[0].T_cam_lidar
-    f = lambda d, k: N.pixel_normals(d, k, T, lidar=PIX_LIDAR, max_points=LISTED)  # noqa: E731
+    f = lambda d, k: PN.pixel_normals(d, k, T, lidar=PIX_LIDAR, max_points=LISTED)  # noqa: E731
     loop = np.stack([np.asarray(f(d, k)) for d, k in zip(depths, Ks)])
     np.testing.assert_allclose(np.asarray(jax.vmap(f)(depths, Ks)), loop, atol=1e-6)
     with jax.disable_jit():
@@ -604,11 +607,11 @@ def test_pixel_normals_bad_inputs_raise():
     camera = _pix_camera()
     depth = jnp.zeros((96, 160))
     with pytest.raises(ValueError, match=r"pixel_normals: field 'sparse_depth' expected shape \(H, W\)"):
-        N.pixel_normals(depth[None], camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR)
+        PN.pixel_normals(depth[None], camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR)
     with pytest.raises(ValueError, match=r"pixel_normals: field 'K' expected shape \(3, 3\), got \(3, 4\)"):
-        N.pixel_normals(depth, jnp.zeros((3, 4)), camera.T_cam_lidar, lidar=PIX_LIDAR)
+        PN.pixel_normals(depth, jnp.zeros((3, 4)), camera.T_cam_lidar, lidar=PIX_LIDAR)
     with pytest.raises(TypeError):
-        N.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
+        PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
 
 
 def _kitti_image(kitti_frame):
@@ -622,11 +625,11 @@ def _kitti_image(kitti_frame):
 
 def test_pixel_normals_kitti_frame(kitti_frame):
     depth, K, T = _kitti_image(kitti_frame)
-    got = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
+    got = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
     stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
     assert stable[depth > 0].mean() > 0.999
     # the dense fallback (every pixel a point slot, whole range image) gives the same normals
-    dense = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
+    dense = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
     np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
 
 
@@ -662,7 +665,7 @@ def test_kitti_equal_to_reference_version(kitti_frame):
     if ref is None:
         pytest.skip(f"git show {REFERENCE_COMMIT} unavailable")
     depth, K, T = _kitti_image(kitti_frame)
-    got = np.asarray(N.pixel_normals(depth, K, T, lidar=KITTI_HDL64))
+    got = np.asarray(PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64))
     want = np.asarray(jax.jit(lambda d, k, t: ref.pixel_normals(d, k, t, lidar=KITTI_HDL64))(depth, K, T))
     np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
     assert np.array_equal(got == 0, want == 0)

@@ -14,6 +14,32 @@ import jax
 import jax.numpy as jnp
 
 
+def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill):
+    """Per-slot minimum of ``key`` and the smallest index that attains it (a z-buffer).
+
+    Args:
+      slot: (N,) int32 slot of every entry in ``[0, size]``; ``size`` is a dump
+        slot for entries that take no part (it is not returned). Slots are
+        promised in bounds (no check).
+      key: (N,) keys ordered by ``<`` (float32 depths, or int32 bit patterns of
+        non-negative float32 ranges); entries in the dump slot may hold anything.
+      size: static number of real slots.
+      fill: the key of an empty slot (``inf``, or ``INT32_MAX`` for int32 keys).
+
+    Returns:
+      ``(best, index)``: (size,) smallest key per slot (``fill`` where empty) and
+      (size,) int32 index of the entry that won the slot: the smallest index among
+      equal keys, ``N`` where empty. Scatter-min makes the result independent of
+      the order in which duplicates are applied.
+    """
+    n = slot.shape[0]
+    best = jnp.full((size + 1,), fill, key.dtype).at[slot].min(key, mode="promise_in_bounds")
+    win = key == best.at[slot].get(mode="promise_in_bounds")
+    ids = jnp.arange(n, dtype=jnp.int32)
+    idx = jnp.full((size + 1,), n, jnp.int32).at[jnp.where(win, slot, size)].min(ids, mode="promise_in_bounds")
+    return best[:size], idx[:size]
+
+
 def transform_points(T: jax.Array, points: jax.Array) -> jax.Array:
     """Applies a (4, 4) rigid transform to (N, 3) points; returns (N, 3)."""
     T = jnp.asarray(T, jnp.float32)
@@ -81,12 +107,9 @@ def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_li
         inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
     dump = height * width
     flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
-    zbuf = jnp.full((dump + 1,), jnp.inf, jnp.float32).at[flat].min(jnp.where(inside, z, jnp.inf))
-    winner = inside & (zbuf[flat] == z)
-    idx = jnp.full((dump + 1,), n, jnp.int32).at[flat].min(
-        jnp.where(winner, jnp.arange(n, dtype=jnp.int32), n))
-    depth = jnp.where(jnp.isfinite(zbuf[:dump]), zbuf[:dump], 0.0).reshape(height, width)
-    index = jnp.where(idx[:dump] == n, -1, idx[:dump]).reshape(height, width)
+    zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
+    depth = jnp.where(jnp.isfinite(zbuf), zbuf, 0.0).reshape(height, width)
+    index = jnp.where(idx == n, -1, idx).reshape(height, width)
     return depth, index
 
 
@@ -95,6 +118,44 @@ def pixel_grid(height: int, width: int):
     v, u = jnp.meshgrid(jnp.arange(height, dtype=jnp.float32),
                         jnp.arange(width, dtype=jnp.float32), indexing="ij")
     return v, u
+
+
+def pixel_rays(K: jax.Array, v: jax.Array, u: jax.Array):
+    """Normalised camera rays through pixels: ``K^-1 (u, v, 1) = (x, y, 1)``.
+
+    Args:
+      K: (3, 3) float32 intrinsics (skew ``K[0, 1]`` allowed).
+      v, u: float32 pixel rows and columns (pixel centres on integers), any
+        broadcastable shapes.
+
+    Returns:
+      ``(x, y)``: float32 camera-frame x / z and y / z of the rays, of the
+      broadcast shape. The one back-projection of the package: every caller
+      gets the same float32 operations in the same order.
+    """
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return x, y
+
+
+def backproject(depth: jax.Array, K: jax.Array, v: jax.Array | None = None, u: jax.Array | None = None):
+    """Camera-frame points ``depth K^-1 (u, v, 1)`` as three channels.
+
+    Args:
+      depth: float32 depth z, metres, any shape; (H, W) when ``v``, ``u`` are omitted.
+      K: (3, 3) float32 intrinsics.
+      v, u: float32 row and column of every depth value (broadcastable to
+        ``depth``); default: the pixel grid of an (H, W) ``depth``.
+
+    Returns:
+      ``(x, y, z)``: float32 metres, each of ``depth``'s shape (``z`` is ``depth``).
+    """
+    if v is None:
+        h, w = depth.shape
+        v = jnp.arange(h, dtype=jnp.float32)[:, None]
+        u = jnp.arange(w, dtype=jnp.float32)[None, :]
+    x, y = pixel_rays(K, v, u)
+    return x * depth, y * depth, depth
 
 
 def unproject_depth(depth: jax.Array, K: jax.Array) -> jax.Array:
@@ -110,6 +171,4 @@ def unproject_depth(depth: jax.Array, K: jax.Array) -> jax.Array:
     K = jnp.asarray(K, jnp.float32)
     h, w = depth.shape
     v, u = pixel_grid(h, w)
-    y = (v - K[1, 2]) / K[1, 1]
-    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    return jnp.stack([x * depth, y * depth, depth], axis=-1)
+    return jnp.stack(backproject(depth, K, v, u), axis=-1)

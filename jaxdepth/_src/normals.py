@@ -1,4 +1,4 @@
-"""Step 1 of the Surface Geometry Model: spherical range image and surface normals.
+"""Step 1 of the Surface Geometry Model: surface normals from the spherical range image.
 
 Following the paper (its "Surface Normal" paragraph, after Badino et al. 2011),
 every LiDAR point ``p = (x, y, z)`` (LiDAR frame, metres) is mapped to spherical
@@ -11,18 +11,8 @@ coordinates
 and binned into an ``(L, C)`` range image (``L = lidar.beams`` rows,
 ``C = lidar.columns`` columns). The surface seen by the sensor is the graph
 ``r(theta, phi)``; its normal follows from the partial derivatives ``r_theta``,
-``r_phi`` estimated by finite differences on the range image.
-
-Range-image layout (a :class:`~jaxdepth.LidarSpec` is all that is assumed about the sensor):
-
-* row ``i = floor((fov_up - phi) / (fov_up - fov_down) * L)`` clipped to
-  ``[0, L - 1]``: row 0 is the highest elevation; points outside the vertical
-  field of view fall in the first or last row.
-* column ``j = floor((pi - theta) / (2 pi) * C) mod C``: column 0 starts behind
-  the sensor (``theta = pi``), azimuth decreases to the right, and ``theta = 0``
-  (straight ahead, +x) sits at column ``C / 2``; the image wraps around.
-* the point with the smallest range wins a cell (scatter-min; equal ranges: the
-  smaller point index).
+``r_phi`` estimated by finite differences on the range image
+(:mod:`jaxdepth._src.range_image` bins the points and documents its layout).
 
 Normal formula and its relation to the paper
 -------------------------------------------
@@ -91,7 +81,7 @@ their own ray, so every valid point has a unit normal.
 
 Performance notes: XLA:CPU fuses a producer into every consumer, so shifted
 slices and per-point gathers would re-run upstream work; heavy intermediates
-are computed inside ``_stage`` conditionals (real buffers). Inside a stage XLA
+are computed inside ``staging.stage`` conditionals (real buffers). Inside a stage XLA
 gives every output its own fusion (which redoes all the cheap work it needs)
 and materialises any division or square root that several outputs share, so
 stages are cut to have few outputs: pairs of float32 channels travel as one
@@ -103,19 +93,14 @@ re-read the rows), and the normal, its smoothing weight and the zero/wrap
 padding for the box sums form one stage, the box's row sums a second and its
 column sums with the renormalisation a third. Per point, the normal is read
 with two gathers (complex (x, y) and z).
-Gathers and scatters cost ~2-5 ns per element on XLA:CPU, elementwise work far
-less, so on image input (:func:`pixel_normals`) the few % of pixels with depth
-are listed first with elementwise passes, small triangular matrix products
-(prefix sums) and a scatter over the 32-pixel words of the mask only
-(:func:`_compact_pixels`); back-projection, ``atan2`` binning, the
-scatter-mins and the gathers then run on those points only (the
-back-projection and both ``atan2`` in one stage with three complex outputs,
-the binning in a second).
+The image-plane entry (a sparse depth image and K instead of points) is
+:func:`jaxdepth._src.pixel_normals.pixel_normals`; it builds the same range
+image from the pixels with depth and reuses :func:`cell_normals` and
+:func:`normals_at_points`.
 
 Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
-are ~30x slower than a fused polynomial); ``atan2`` uses an octant reduction
-and a least-squares polynomial (max error < 1e-7 rad), sine and cosine a
-quadrant reduction and Taylor series (error < 1e-7). Every division is guarded
+are ~30x slower than a fused polynomial): ``atan2``, sine and cosine come from
+:mod:`jaxdepth._src.fastmath` (errors < 1e-7). Every division is guarded
 with the safe-``where`` pattern, and the derivative ratios are clipped to
 ``+-1e4`` (a surface within 0.006 degrees of grazing), so no NaN or Inf can
 arise from finite input.
@@ -124,18 +109,16 @@ arise from finite input.
 from __future__ import annotations
 
 import functools
-import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import cond_all, stage
+from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
+from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
+from jaxdepth._src.staging import stage
 from jaxdepth._src.types import LidarSpec
 
-#: Points closer than this to the sensor origin (metres) are treated as invalid.
-MIN_RANGE_M = 1e-6
 #: Neighbour angle offsets below this (radians) are not used for differences.
 _MIN_ANGLE_STEP = 1e-6
 #: |r_theta / (r cos phi)| and |r_phi / r| are clipped to this.
@@ -149,83 +132,8 @@ _MIN_SPREAD = 0.05
 #: Weight in the smoothing of a normal that lacks one of its two derivatives.
 _PARTIAL_WEIGHT = 1e-3
 
-_PI = math.pi
-_TAN_PI_8 = math.tan(math.pi / 8.0)
-# atan(u) ~= u + u^3 P(u^2) on |u| <= tan(pi/8): least-squares fit of
-# (atan(u)/u - 1)/u^2 by a cubic in s = u^2 on 4000 Chebyshev nodes (float64,
-# numpy.linalg.lstsq); measured max abs error 4.8e-8 rad in float32.
-_ATAN_COEFFS = (-0.3333328808480196, 0.19991394133810128, -0.14026550211532, 0.08529792624477861)
-# pi/2 split into a float32 head and a tail for the quadrant reduction.
-_PIO2_HI = float(np.float32(math.pi / 2))
-_PIO2_LO = math.pi / 2 - _PIO2_HI
-
-
-class RangeImage(NamedTuple):
-    """A spherical range image of one sweep.
-
-    Attributes:
-      r: (L, C) float32 range of the winning point, metres; 0 where empty.
-      theta: (L, C) float32 azimuth of the winning point, radians in [-pi, pi];
-        the cell-centre azimuth where empty.
-      phi: (L, C) float32 elevation of the winning point, radians; the
-        cell-centre elevation where empty.
-      index: (L, C) int32 index of the point that won the cell (nearest range;
-        equal ranges: smaller index); -1 where empty.
-      cell: (N,) int32 flat cell index ``row * C + col`` of every valid point
-        (also of points that lost their cell); -1 for invalid points.
-    """
-
-    r: jax.Array
-    theta: jax.Array
-    phi: jax.Array
-    index: jax.Array
-    cell: jax.Array
-
 
 # --------------------------------------------------------------------------- numerics
-
-
-def _atan2(y: jax.Array, x: jax.Array) -> jax.Array:
-    """Polynomial float32 ``atan2(y, x)`` in [-pi, pi] (max error < 1e-7 rad); atan2(0, 0) = 0."""
-    ax = jnp.abs(x)
-    ay = jnp.abs(y)
-    hi = jnp.maximum(ax, ay)
-    lo = jnp.minimum(ax, ay)
-    ok = hi > 0
-    t = jnp.where(ok, lo / jnp.where(ok, hi, 1.0), 0.0)  # in [0, 1]
-    big = t > _TAN_PI_8
-    u = jnp.where(big, (t - 1.0) / (t + 1.0), t)  # |u| <= tan(pi/8)
-    s = u * u
-    c0, c1, c2, c3 = _ATAN_COEFFS
-    p = ((c3 * s + c2) * s + c1) * s + c0
-    a = u + u * s * p
-    a = jnp.where(big, a + _PI / 4, a)
-    a = jnp.where(ay > ax, _PI / 2 - a, a)
-    a = jnp.where(x < 0, _PI - a, a)
-    return jnp.where(y < 0, -a, a)
-
-
-def _sin_cos_small(t: jax.Array, half_width: float):
-    """Float32 (sin t, cos t) by Taylor series for |t| <= half_width (static bound).
-
-    Terms are added until the next one is below 1e-8 at ``half_width``.
-    """
-    t2 = t * t
-    sin_terms, cos_terms = [], []
-    n = 1
-    while True:  # sin: t^n / n! for odd n; cos: t^(n-1) / (n-1)!
-        sin_terms.append((-1) ** (n // 2) / math.factorial(n))
-        cos_terms.append((-1) ** ((n - 1) // 2) / math.factorial(n - 1))
-        if half_width ** (n + 1) / math.factorial(n + 1) < 1e-8 and half_width ** (n + 2) / math.factorial(
-                n + 2) < 1e-8:
-            break
-        n += 2
-    s = jnp.full_like(t, sin_terms[-1])
-    c = jnp.full_like(t, cos_terms[-1])
-    for a, b in zip(sin_terms[-2::-1], cos_terms[-2::-1]):
-        s = s * t2 + a
-        c = c * t2 + b
-    return s * t, c
 
 
 def _azimuth_basis(theta: jax.Array, window=None):
@@ -237,35 +145,20 @@ def _azimuth_basis(theta: jax.Array, window=None):
     """
     cols = theta.shape[1]
     total = cols if window is None else window[1]
-    centre = _PI - (np.arange(total, dtype=np.float64) + 0.5) * (2 * _PI / total)
+    centre = PI - (np.arange(total, dtype=np.float64) + 0.5) * (2 * PI / total)
     tables = (np.sin(centre).astype(np.float32), np.cos(centre).astype(np.float32), centre.astype(np.float32))
     if window is None:
         s_c, c_c, cen = (a[None, :] for a in tables)
     else:
         s_c, c_c, cen = (jax.lax.dynamic_slice(jnp.asarray(np.concatenate([a, a[:cols]])), (window[0],),
                                                (cols,))[None, :] for a in tables)
-    delta = _wrap_angle(theta - cen)
-    s_d, c_d = _sin_cos_small(delta, _PI / total + 1e-5)
+    delta = wrap_angle(theta - cen)
+    s_d, c_d = sin_cos_small(delta, PI / total + 1e-5)
     return s_c * c_d + c_c * s_d, c_c * c_d - s_c * s_d
-
-
-def _wrap_angle(d: jax.Array) -> jax.Array:
-    """Wraps an angle difference in (-2 pi, 2 pi) to [-pi, pi]."""
-    d = jnp.where(d > _PI, d - 2 * _PI, d)
-    return jnp.where(d < -_PI, d + 2 * _PI, d)
 
 
 def _safe_div(num, den, ok):
     return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
-
-
-# --------------------------------------------------------------- materialisation
-#
-# Heavy intermediates are computed inside ``_stage`` conditionals (real buffers
-# that shifted slices and gathers read instead of re-running the producer):
-# see :mod:`jaxdepth._src.staging`.
-
-_stage = stage
 
 
 # ------------------------------------------------------------------- image shifts
@@ -290,7 +183,7 @@ def _pad(arrays, k: int, fills, token, wrap=None):
             out.append(a)
         return tuple(out)
 
-    return _stage(pad, arrays, token)
+    return stage(pad, arrays, token)
 
 
 def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
@@ -305,7 +198,7 @@ def _box_sums(arrays, half: int, token):
     if half == 0:
         return tuple(arrays)
     padded = _pad(arrays, half, [0.0] * len(arrays), token)
-    horiz = _stage(lambda *p: _row_box_sums(p, half), padded, token)
+    horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
     return _column_box_sums(horiz, half)
 
 
@@ -335,144 +228,11 @@ def _column_box_sums(horiz, half: int):
 # --------------------------------------------------------------------- validation
 
 
-def _check_points(points, valid):
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points: expected shape (N, 3), got {tuple(points.shape)}")
-    if valid.shape != (points.shape[0],):
-        raise ValueError(f"valid: expected shape ({points.shape[0]},) matching points, got {tuple(valid.shape)}")
-    if not jnp.issubdtype(points.dtype, jnp.floating):
-        raise ValueError(f"points: expected a floating dtype, got {points.dtype}")
-
-
-def _check_options(smoothing, fill_max_gap):
+def check_options(smoothing, fill_max_gap):
+    """Raises ValueError unless smoothing and fill_max_gap are non-negative Python integers."""
     for name, value in (("smoothing", smoothing), ("fill_max_gap", fill_max_gap)):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
             raise ValueError(f"{name}: expected a non-negative integer, got {value!r}")
-
-
-def _check_lidar(lidar):
-    if not isinstance(lidar, LidarSpec):
-        raise ValueError(f"lidar: expected a LidarSpec, got {type(lidar).__name__}")
-
-
-# -------------------------------------------------------------------- range image
-
-
-def _cell_centres(lidar: LidarSpec):
-    """Static (1, C) azimuth and (L, 1) elevation of the cell centres, float32 numpy."""
-    cols = np.arange(lidar.columns, dtype=np.float64)
-    rows = np.arange(lidar.beams, dtype=np.float64)
-    theta = _PI - (cols + 0.5) * (2 * _PI / lidar.columns)
-    span = lidar.fov_up_rad - lidar.fov_down_rad
-    phi = lidar.fov_up_rad - (rows + 0.5) * (span / lidar.beams)
-    return theta.astype(np.float32)[None, :], phi.astype(np.float32)[:, None]
-
-
-def _spherical(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
-    """Per-point range, angles, flat cell and validity of (N, 3) points."""
-    pts = points.astype(jnp.float32)
-    return _spherical_xyz(pts[:, 0], pts[:, 1], pts[:, 2], valid, lidar)
-
-
-def _spherical_xyz(x, y, z, valid, lidar: LidarSpec):
-    """Range, angles, flat cell and validity of points given as coordinate arrays (any shape)."""
-    r, theta, phi, ok = _angles_xyz(x, y, z, valid)
-    row, col = _row_col(theta, phi, lidar)
-    cell = jnp.where(ok, row * lidar.columns + col, -1)
-    return r, theta, phi, cell, ok
-
-
-def _angles_xyz(x, y, z, valid):
-    """Range (0 where invalid), azimuth, elevation and validity of coordinate arrays."""
-    rho2 = x * x + y * y
-    r2 = rho2 + z * z
-    ok = valid.astype(bool) & jnp.isfinite(r2) & (r2 > MIN_RANGE_M * MIN_RANGE_M)
-    r = jnp.where(ok, jnp.sqrt(jnp.where(ok, r2, 1.0)), 0.0)  # safe sqrt: finite gradients
-    rho_ok = ok & (rho2 > 0)
-    rho = jnp.where(rho_ok, jnp.sqrt(jnp.where(rho_ok, rho2, 1.0)), 0.0)
-    theta = _atan2(y, x)
-    phi = _atan2(z, rho)
-    return r, theta, phi, ok
-
-
-def _row_col(theta, phi, lidar: LidarSpec):
-    """Range-image row and column (int32, in range) of azimuths and elevations."""
-    n_rows, n_cols = lidar.beams, lidar.columns
-    col = jnp.floor((_PI - theta) * (n_cols / (2 * _PI))).astype(jnp.int32)
-    col = jnp.where(col >= n_cols, col - n_cols, col)
-    col = jnp.clip(col, 0, n_cols - 1)
-    span = lidar.fov_up_rad - lidar.fov_down_rad
-    row_f = (lidar.fov_up_rad - phi) * (n_rows / span)
-    row = jnp.clip(jnp.floor(jnp.clip(row_f, -1.0, n_rows)), 0, n_rows - 1).astype(jnp.int32)
-    return row, col
-
-
-def _slot_and_key(r, cell, ok, n_cells: int):
-    """Scatter slot (``n_cells`` = dump for invalid points) and int32 order key of the range."""
-    slot = jnp.where(ok, cell, n_cells)
-    # Non-negative float32 ranges order like their int32 bit patterns.
-    key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
-    return slot, key
-
-
-def _range_image(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
-    """The range image and each point's materialised flat cell (``L * C`` for invalid points)."""
-    n_cells = lidar.beams * lidar.columns
-
-    def per_point(points, valid):
-        r, theta, phi, cell, ok = _spherical(points, valid, lidar)
-        return _slot_and_key(r, cell, ok, n_cells) + (r, theta, phi)
-
-    slot, key, r, theta, phi = _stage(per_point, (points, valid), valid[0].astype(jnp.int32))
-    return _bin(slot, key, r, theta, phi, lidar), slot
-
-
-def _bin(slot, key, r, theta, phi, lidar: LidarSpec) -> RangeImage:
-    """Scatter-min of (N,) points into the range image (nearest range; ties: smaller index)."""
-    n = slot.shape[0]
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_cells = n_rows * n_cols
-    best = jnp.full((n_cells + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key)
-    win = key == best.at[slot].get(mode="promise_in_bounds")
-    ids = jnp.arange(n, dtype=jnp.int32)
-    idx = jnp.full((n_cells + 1,), n, jnp.int32).at[jnp.where(win, slot, n_cells)].min(ids)[:n_cells]
-    has = idx < n
-    safe = jnp.where(has, idx, 0)
-    theta_c, phi_c = _cell_centres(lidar)
-    r_img = jnp.where(has, r.at[safe].get(mode="promise_in_bounds"), 0.0)
-    th_img = jnp.where(has, theta.at[safe].get(mode="promise_in_bounds"),
-                       jnp.broadcast_to(theta_c, (n_rows, n_cols)).reshape(-1))
-    ph_img = jnp.where(has, phi.at[safe].get(mode="promise_in_bounds"),
-                       jnp.broadcast_to(phi_c, (n_rows, n_cols)).reshape(-1))
-    shape = (n_rows, n_cols)
-    return RangeImage(r=r_img.reshape(shape), theta=th_img.reshape(shape), phi=ph_img.reshape(shape),
-                      index=jnp.where(has, idx, -1).reshape(shape), cell=jnp.where(slot < n_cells, slot, -1))
-
-
-@functools.partial(jax.jit, static_argnames=("lidar",))
-def range_image(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec) -> RangeImage:
-    """Bins one LiDAR sweep into a spherical range image (nearest point per cell).
-
-    Args:
-      points: (N, 3) float LiDAR-frame points, metres.
-      valid: (N,) bool. Points that are masked, non-finite or closer than
-        ``MIN_RANGE_M`` (e.g. at the origin) are ignored.
-      lidar: static :class:`~jaxdepth.LidarSpec` giving L = beams rows over
-        [fov_down, fov_up] and C = columns over 360 degrees.
-
-    Returns:
-      :class:`RangeImage` with (L, C) fields ``r``, ``theta``, ``phi``, ``index``
-      and the (N,) ``cell`` of every point (layout in the module docstring).
-
-    Oracle: a NumPy loop over points (tests). Azimuth and elevation come from a
-    float32 polynomial ``atan2`` (error < 1e-7 rad), so a point within ~1e-7 rad
-    of a cell boundary may land in the neighbouring cell compared with float64.
-    """
-    _check_lidar(lidar)
-    points = jnp.asarray(points)
-    valid = jnp.asarray(valid)
-    _check_points(points, valid)
-    return _range_image(points, valid, lidar)[0]
 
 
 # ------------------------------------------------------------------------ normals
@@ -510,7 +270,7 @@ def _neighbour(padded, k: int, di: int, dj: int, centre):
 
 def _basis_pairs(th: jax.Array, ph: jax.Array, window=None):
     """((sin theta, cos theta), (sin phi, cos phi)) of the cell angles (``window``: see _azimuth_basis)."""
-    return _azimuth_basis(th, window), _sin_cos_small(ph, _PI / 2)
+    return _azimuth_basis(th, window), sin_cos_small(ph, PI / 2)
 
 
 def _solve_gradient(rows, weights):
@@ -608,9 +368,9 @@ def _fit_slopes(rows, token):
     two complex pairs, and the final solve reads those weights.
     """
     rows = tuple(rows)
-    ab1, = _stage(_fit_pass1, rows, token)
-    w01, w23 = _stage(_fit_weights2, (ab1,) + rows, token)
-    return _stage(_fit_pass2, (w01, w23) + rows, token)
+    ab1, = stage(_fit_pass1, rows, token)
+    w01, w23 = stage(_fit_weights2, (ab1,) + rows, token)
+    return stage(_fit_pass2, (w01, w23) + rows, token)
 
 
 def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
@@ -630,7 +390,7 @@ def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
     def pad(meas, r, th, ph):
         # Columns wrap; azimuths in the pads are unwrapped (left of column 0
         # lie azimuths just above +pi, right of the last column just below -pi).
-        th = jnp.concatenate([th[:, cols - k:] + 2 * _PI, th, th[:, :k] - 2 * _PI], axis=1)
+        th = jnp.concatenate([th[:, cols - k:] + 2 * PI, th, th[:, :k] - 2 * PI], axis=1)
         out = []
         for a, fill in ((meas, False), (r, 0.0), (th, 0.0), (ph, 0.0)):
             if a is not th:
@@ -639,12 +399,12 @@ def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
             out.append(jnp.concatenate([rows, a, rows], axis=0))
         return tuple(out)
 
-    padded = _stage(pad, (meas, r, th, ph), token)
+    padded = stage(pad, (meas, r, th, ph), token)
     # Complex numbers carry two float32 channels through one fusion (XLA:CPU
     # would otherwise compute each output in its own fusion, repeating the work).
     # (The window start is an operand: a stage may not close over traced values.)
     start = () if window is None else (window[0],)
-    e_th, e_ph = _stage(
+    e_th, e_ph = stage(
         lambda th, ph, *start: tuple(jax.lax.complex(c, s) for s, c in _basis_pairs(
             th, ph, None if window is None else (start[0], window[1]))),
         (th, ph) + start, token)
@@ -659,7 +419,7 @@ def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
 
     rows = []
     for dirs in (((0, -1), (0, 1)), ((-1, 0), (1, 0))):
-        rows.extend(_stage(functools.partial(neighbours, dirs=dirs), padded + (meas, r, th, ph, e_ph), token))
+        rows.extend(stage(functools.partial(neighbours, dirs=dirs), padded + (meas, r, th, ph, e_ph), token))
     ab, full = _fit_slopes(rows, token)
     return meas, e_th, e_ph, ab, full
 
@@ -708,7 +468,7 @@ def _smoothed_normals(raw, radius: int, token):
     return _normalise(sx, sy, sz, jnp.ones_like(meas))
 
 
-def _cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
+def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
     """Smoothed normals of the cells (as :func:`_smoothed_normals` of :func:`_raw_normals`)
     packed for per-point gathers: (complex(nx, ny), nz), (L, C), materialised.
 
@@ -724,7 +484,7 @@ def _cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None
         def raw(meas, e_th, e_ph, ab):
             nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
             return jax.lax.complex(nx, ny), nz
-        return _stage(raw, slopes[:4], token)
+        return stage(raw, slopes[:4], token)
     half = smoothing
 
     def weighted_padded(meas, e_th, e_ph, ab, full):
@@ -741,9 +501,9 @@ def _cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None
         _, nx, ny, nz = _normalise(jnp.real(sxy), jnp.imag(sxy), sz, True)
         return jax.lax.complex(nx, ny), nz
 
-    padded = _stage(weighted_padded, slopes, token)
-    horiz = _stage(lambda *p: _row_box_sums(p, half), padded, token)
-    return _stage(vertical, horiz, token)
+    padded = stage(weighted_padded, slopes, token)
+    horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
+    return stage(vertical, horiz, token)
 
 
 def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
@@ -756,7 +516,7 @@ def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
         nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((rx, nx), (ry, ny), (rz, nz)))
         has = has | meas
     for _ in range(fill_max_gap):
-        nx, ny, nz, has = _stage(lambda *a: a, (nx, ny, nz, has), ri.index[0, 0])
+        nx, ny, nz, has = stage(lambda *a: a, (nx, ny, nz, has), ri.index[0, 0])
         w = has.astype(jnp.float32)
         sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), 1, ri.index[0, 0])
         grow, gx, gy, gz = _normalise(sx, sy, sz, ~has)
@@ -769,12 +529,39 @@ def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
     return nx * sign, ny * sign, nz * sign
 
 
+def normals_at_points(nxy, nz, slot, ok, xyz, token):
+    """Each point's cell normal and the sign that turns it towards the sensor along the point's ray.
+
+    Args:
+      nxy, nz: (L, C) cell normals packed as by :func:`cell_normals`
+        (complex64 (nx, ny) and float32 nz).
+      slot: (N,) int32 flat cell of every point (read only where ``ok``).
+      ok: (N,) bool, points that have a cell.
+      xyz: three (N,) float32 LiDAR-frame coordinates of the points, metres.
+      token: int32 scalar fencing the gather stage.
+
+    Returns:
+      ``(nx, ny, nz, sign)``: (N,) float32 cell normal and sign (+-1 where
+      ``ok``, so that ``sign n . p <= 0``; 0 elsewhere). The gathers run in their
+      own stage (fused into the output, XLA would gather once per output
+      element): two gathers per point.
+    """
+    gxy, gz = stage(lambda nxy, nz, idx: tuple(c.reshape(-1).at[idx].get(mode="promise_in_bounds")
+                                                   for c in (nxy, nz)),
+                     (nxy, nz, jnp.where(ok, slot, 0)), token)
+    px, py, pz = jnp.real(gxy), jnp.imag(gxy), gz
+    x, y, z = xyz
+    facing = px * x + py * y + pz * z
+    sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
+    return px, py, pz, sign
+
+
 @functools.partial(jax.jit, static_argnames=("smoothing", "fill_max_gap"))
 def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int = 2) -> jax.Array:
     """Unit surface normals on the range image (Badino's spherical gradient, sign-corrected).
 
     Args:
-      ri: a :class:`RangeImage` from :func:`range_image` (``theta`` must lie
+      ri: a :class:`RangeImage` from :func:`~jaxdepth._src.range_image.range_image` (``theta`` must lie
         within half a column of its cell centre, as :func:`range_image` ensures).
       smoothing: static half width s of the box mean over measured cells'
         normals (0 disables smoothing of measured cells).
@@ -797,7 +584,7 @@ def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int
     module docstring for the derivation and the derivative scheme.
     Oracle: ray-cast analytic planes (tests).
     """
-    _check_options(smoothing, fill_max_gap)
+    check_options(smoothing, fill_max_gap)
     if not isinstance(ri, RangeImage):
         raise ValueError(f"ri: expected a RangeImage, got {type(ri).__name__}")
     if ri.r.ndim != 2 or any(f.shape != ri.r.shape for f in (ri.theta, ri.phi, ri.index)):
@@ -825,363 +612,16 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec, smoo
       ``range_image_normals(range_image(...))`` at ``cell``, flipped if needed to
       face the sensor along the point's own ray.
     """
-    _check_lidar(lidar)
-    _check_options(smoothing, fill_max_gap)
+    check_lidar(lidar)
+    check_options(smoothing, fill_max_gap)
     points = jnp.asarray(points)
     valid = jnp.asarray(valid)
-    _check_points(points, valid)
-    ri, slot = _range_image(points, valid, lidar)
+    check_points(points, valid)
+    ri, slot = range_image_and_slots(points, valid, lidar)
     token = ri.index[0, 0]
     # Points only sit in measured cells, so the filling of empty cells is skipped.
-    nxy, nz = _cell_normals(ri, smoothing, fill_max_gap)
-    n_cells = nz.size
-    ok = slot < n_cells
-    # Gathers in their own stage read buffers (fused into the output, XLA
-    # would gather once per output element); two gathers per point.
-    gxy, gz = _stage(lambda nxy, nz, idx: tuple(c.reshape(-1).at[idx].get(mode="promise_in_bounds")
-                                                   for c in (nxy, nz)),
-                     (nxy, nz, jnp.where(ok, slot, 0)), token)
-    px, py, pz = jnp.real(gxy), jnp.imag(gxy), gz
+    nxy, nz = cell_normals(ri, smoothing, fill_max_gap)
+    ok = slot < nz.size
     p = points.astype(jnp.float32)
-    facing = px * p[:, 0] + py * p[:, 1] + pz * p[:, 2]
-    sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
+    px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, (p[:, 0], p[:, 1], p[:, 2]), token)
     return jnp.stack([px * sign, py * sign, pz * sign], axis=1)
-
-
-# ------------------------------------------------------------------ image input
-
-
-def _pixel_lidar_xyz(depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, v=None, u=None):
-    """LiDAR-frame (x, y, z) of every pixel's back-projected point, three (H, W) planes.
-
-    ``p_cam = depth K^-1 (u, v, 1)`` (as ``geometry.unproject_depth``) and
-    ``p_lidar = R^T (p_cam - t)`` (as ``transform_points(invert_rigid(T), .)``),
-    written per channel so no (H, W, 3) array is formed. ``v``, ``u`` (float32
-    row and column of each depth value) default to the pixel grid of ``depth``.
-    """
-    if v is None:
-        h, w = depth.shape
-        v = jnp.arange(h, dtype=jnp.float32)[:, None]
-        u = jnp.arange(w, dtype=jnp.float32)[None, :]
-    yn = (v - K[1, 2]) / K[1, 1]
-    xn = (u - K[0, 2] - K[0, 1] * yn) / K[0, 0]
-    xc, yc, zc = xn * depth, yn * depth, depth
-    R, t = T_cam_lidar[:3, :3], T_cam_lidar[:3, 3]
-    ti = -(R.T @ t)
-    return tuple(R[0, i] * xc + R[1, i] * yc + R[2, i] * zc + ti[i] for i in range(3))
-
-
-# Bits per chunk of the validity mask in :func:`_compact_pixels` (one uint32 word).
-_CHUNK = 32
-
-
-def _upper_ones(n: int):
-    return jnp.asarray(np.triu(np.ones((n, n), np.float32)))
-
-
-def _inclusive_prefix(x: jax.Array) -> jax.Array:
-    """Inclusive prefix sum of a (n,) float32 array of non-negative integers whose total is below 2^24.
-
-    Written as small matrix products with a triangular matrix of ones (groups of
-    ``_CHUNK``, recursively over the group totals): exact in float32 for such
-    integers, and far faster on XLA:CPU than ``cumsum`` (a reduce-window).
-    """
-    n = x.shape[0]
-    if n <= _CHUNK:
-        return x @ _upper_ones(n)
-    groups = -(-n // _CHUNK)
-    within = jnp.pad(x, (0, groups * _CHUNK - n)).reshape(groups, _CHUNK) @ _upper_ones(_CHUNK)
-    totals = within[:, -1]
-    return (within + (_inclusive_prefix(totals) - totals)[:, None]).reshape(-1)[:n]
-
-
-def _compact_pixels(valid: jax.Array, capacity: int, token):
-    """Flat indices of the first ``capacity`` True entries of ``valid`` (increasing), and their count.
-
-    Args:
-      valid: (n,) bool, n < 2^24.
-      capacity: static number of output slots.
-
-    Returns:
-      ``(pix, total)``: (capacity,) int32 indices of the True entries in order,
-      ``n`` in the slots at or after ``total``; int32 number of True entries
-      (may exceed ``capacity``: then only the first ``capacity`` are listed).
-
-    No per-element scatter over the n entries (XLA:CPU scatters and gathers
-    cost ~2-5 ns per element): the mask is packed into 32-bit words (an
-    OR of 32 strided slices), their population counts are prefix-summed
-    (:func:`_inclusive_prefix`), and each output slot m finds its word as the
-    number of words whose inclusive prefix is <= m (a scatter-add of a 1 per
-    word at its prefix, then a prefix sum), then the rank-th set bit of that
-    word by a 5-step binary search on population counts.
-    """
-    n = valid.shape[0]
-    words = -(-n // _CHUNK)
-    bits = jnp.pad(valid, (0, words * _CHUNK - n))
-    # Bit i of word m is entry 32 m + i: an OR of 32 strided slices (one loop
-    # fusion, ~2x faster on XLA:CPU than a sum over the minor axis).
-    mask = jnp.zeros((words,), jnp.uint32)
-    for i in range(_CHUNK):
-        mask = mask | (jax.lax.slice(bits, (i,), (words * _CHUNK,), (_CHUNK,)).astype(jnp.uint32) << i)
-    count = jax.lax.population_count(mask).astype(jnp.int32)
-    incl = _inclusive_prefix(count.astype(jnp.float32)).astype(jnp.int32)
-    hits = jnp.zeros((capacity,), jnp.float32).at[incl].add(1.0, mode="drop")
-    word = jnp.minimum(_inclusive_prefix(hits).astype(jnp.int32), words - 1)
-    packed = jnp.stack([incl - count, jax.lax.bitcast_convert_type(mask, jnp.int32)], axis=1)
-    # Materialised before the gather (fused, the gather would re-run the prefix sums).
-    word, packed, total = _stage(lambda *a: a, (word, packed, incl[-1]), token)
-    start_mask = _stage(lambda p, w: (p.at[w].get(mode="promise_in_bounds"),), (packed, word), token)[0]
-    slot = jnp.arange(capacity, dtype=jnp.int32)
-    rank = slot - start_mask[:, 0]
-    m = jax.lax.bitcast_convert_type(start_mask[:, 1], jnp.uint32)
-    bit = jnp.zeros_like(rank)
-    for w in (16, 8, 4, 2, 1):  # position of the rank-th set bit of m
-        low = m & jnp.uint32((1 << w) - 1)
-        pc = jax.lax.population_count(low).astype(jnp.int32)
-        up = rank >= pc
-        rank = jnp.where(up, rank - pc, rank)
-        m = jnp.where(up, m >> w, low)
-        bit = bit + jnp.where(up, w, 0)
-    return jnp.where(slot < total, word * _CHUNK + bit, n), total
-
-
-class _PixelPoints(NamedTuple):
-    """Per listed pixel (P,) arrays from :func:`_pixel_points` (stage outputs, real buffers)."""
-
-    thph: jax.Array  # complex64 (theta, phi), radians
-    xy: jax.Array  # complex64 LiDAR-frame (x, y), metres
-    zr: jax.Array  # complex64 (z, range r), metres; r = 0 for no point
-    slot: jax.Array  # int32 flat window cell row * window_cols + col; L window_cols for none / outside
-    key: jax.Array  # int32 range bits; INT32_MAX for no point
-    edge: jax.Array  # bool: a point within `margin` columns of the window's edges (or outside it)
-
-
-def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_cols: int, margin: int):
-    """Per listed pixel: back-projected LiDAR-frame point, range-image window cell and scatter key.
-
-    Args:
-      pix: (P,) int32 flat pixel indices into ``depth`` (``H W`` or a pixel
-        without depth: no point).
-      depth: (H, W) float32 camera depth; only finite positive values are depth.
-      col0: int32 first range-image column of the window (0 for the whole image).
-      margin: static number of columns a point must keep from the window's edges.
-
-    Returns a :class:`_PixelPoints`. The float32 expressions are those of
-    :func:`_range_image` applied to ``unproject_depth`` + ``transform_points``.
-    Two stages: the back-projection and the two ``atan2`` run in one stage
-    with three complex outputs (each output is a fusion that redoes what it
-    needs, so fewer outputs is less work), the cheap binning in a second.
-    """
-    h, w = depth.shape
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_win = n_rows * window_cols
-
-    def per_point(pix, depth, K, T):
-        listed = pix < h * w
-        safe = jnp.where(listed, pix, 0)
-        g = depth.reshape(-1).at[safe].get(mode="promise_in_bounds")
-        d = jnp.where(listed & jnp.isfinite(g) & (g > 0), g, 0.0)
-        v = safe // w
-        u = (safe - v * w).astype(jnp.float32)
-        x, y, z = _pixel_lidar_xyz(d, K, T, v=v.astype(jnp.float32), u=u)
-        r, theta, phi, _ = _angles_xyz(x, y, z, d > 0)
-        return jax.lax.complex(theta, phi), jax.lax.complex(x, y), jax.lax.complex(z, r)
-
-    def binning(thph, zr, col0):
-        theta, phi, r = jnp.real(thph), jnp.imag(thph), jnp.imag(zr)
-        ok = r > 0  # r >= MIN_RANGE_M for a point, exactly 0 otherwise
-        row, col = _row_col(theta, phi, lidar)
-        col = col - col0
-        col = jnp.where(col < 0, col + n_cols, col)
-        inside = ok & (col < window_cols)
-        slot = jnp.where(inside, row * window_cols + col, n_win)
-        key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
-        edge = ok & ((col < margin) | (col >= window_cols - margin))
-        return slot, key, edge
-
-    thph, xy, zr = _stage(per_point, (pix, depth, K, T), token)
-    return _PixelPoints(thph, xy, zr, *_stage(binning, (thph, zr, col0), token))
-
-
-def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpec, window_cols: int,
-                             smoothing: int, fill_max_gap: int, identity: bool):
-    """Camera-frame (3, H, W) normals of the listed pixels (from :func:`_pixel_points`), zeros elsewhere.
-
-    Every point's cell must lie in the window ``col0 .. col0 + window_cols - 1``
-    (mod C) at least ``max(1 + fill_max_gap, smoothing)`` columns from its edges
-    (unless the window is the whole image): then the neighbour search and the
-    smoothing never reach the edges and the result equals that of the whole
-    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter).
-    """
-    slot, key = pts.slot, pts.key
-    ok = key != jnp.iinfo(jnp.int32).max
-    n_pts = slot.shape[0]
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_win = n_rows * window_cols
-    window = None if window_cols == n_cols else (col0, n_cols)
-    # Nearest range wins a cell (scatter-min of the range bits), ties the
-    # smaller point index = the smaller pixel index (points are listed in
-    # pixel order). Slot n_win collects points without a cell.
-    best = jnp.full((n_win + 1,), jnp.iinfo(jnp.int32).max, jnp.int32).at[slot].min(key, mode="promise_in_bounds")
-    win = ok & (key == best.at[slot].get(mode="promise_in_bounds"))
-    ids = jnp.arange(n_pts, dtype=jnp.int32)
-    idx = jnp.full((n_win + 1,), n_pts, jnp.int32).at[jnp.where(win, slot, n_win)].min(
-        ids, mode="promise_in_bounds")[:n_win]
-
-    def per_cell(idx, thph, zr, col0):
-        has = idx < n_pts
-        safe = jnp.where(has, idx, 0)
-        theta_c, phi_c = _cell_centres(lidar)
-        theta_c = jax.lax.dynamic_slice(jnp.concatenate([theta_c, theta_c[:, :window_cols]], axis=1),
-                                        (0, col0), (1, window_cols))
-        img_shape = (n_rows, window_cols)
-        tp = thph.at[safe].get(mode="promise_in_bounds")
-        r = jnp.imag(zr).at[safe].get(mode="promise_in_bounds")
-        th = jnp.where(has, jnp.real(tp), jnp.broadcast_to(theta_c, img_shape).reshape(-1))
-        ph = jnp.where(has, jnp.imag(tp), jnp.broadcast_to(phi_c, img_shape).reshape(-1))
-        return (jnp.where(has, r, 0.0).reshape(img_shape), th.reshape(img_shape), ph.reshape(img_shape),
-                jnp.where(has, idx, -1).reshape(img_shape))
-
-    r_img, th_img, ph_img, index = _stage(per_cell, (idx, pts.thph, pts.zr, col0), token)
-    ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
-    # Points only sit in measured cells, so the filling of empty cells is skipped.
-    nxy, nz = _cell_normals(ri, smoothing, fill_max_gap, window)
-    # Gathers in their own stage read buffers (fused into the output, XLA
-    # would gather once per output element); two gathers per point.
-    gxy, gz = _stage(lambda nxy, nz, idx: tuple(c.reshape(-1).at[idx].get(mode="promise_in_bounds")
-                                                   for c in (nxy, nz)),
-                     (nxy, nz, jnp.where(ok, slot, 0)), token)
-    px, py, pz = jnp.real(gxy), jnp.imag(gxy), gz
-    x, y, z = jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr)
-    sign = jnp.where(ok, jnp.where(px * x + py * y + pz * z > 0, -1.0, 1.0), 0.0)
-    n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
-    h, w = shape
-    if identity:
-        return n_cam.reshape(3, h, w)
-    out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
-    return out.reshape(3, h, w)
-
-
-def default_window_columns(lidar: LidarSpec) -> int:
-    """Static width of the range-image window used for camera images: 100 degrees
-    of azimuth (a multiple of 8 columns), or all columns for a coarse LiDAR."""
-    cols = -(-lidar.columns * 100 // 360)
-    cols = -(-cols // 8) * 8
-    return min(cols, lidar.columns)
-
-
-def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: int):
-    """Range-image column at which a window centred on the image's central ray starts."""
-    ray = jnp.stack([((width - 1) / 2 - K[0, 2] - K[0, 1] * ((height - 1) / 2 - K[1, 2]) / K[1, 1]) / K[0, 0],
-                     ((height - 1) / 2 - K[1, 2]) / K[1, 1], jnp.float32(1.0)])
-    d = T[:3, :3].T @ ray
-    theta = jnp.arctan2(d[1], d[0])
-    n_cols = lidar.columns
-    centre = jnp.floor((_PI - theta) * (n_cols / (2 * _PI))).astype(jnp.int32)
-    return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
-
-
-@functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns", "max_points"))
-def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
-                  smoothing: int = 1, fill_max_gap: int = 2, window_columns: int | None = None,
-                  max_points: int | None = None) -> jax.Array:
-    """Camera-frame unit normal of every pixel of a sparse depth image (Step 1 on image input).
-
-    Each pixel with depth is back-projected through ``K`` (pixel centre) and
-    carried into the LiDAR frame with ``T_cam_lidar``; these points are binned
-    into the spherical range image and read their cell's normal, exactly as
-
-        R @ point_normals(transform_points(invert_rigid(T), unproject_depth(d, K).reshape(-1, 3)),
-                          (d > 0).reshape(-1), ...).T
-
-    reshaped to (3, H, W) (``R = T_cam_lidar[:3, :3]``), up to float32 rounding.
-
-    Fast path (a LiDAR image has depth at a few % of its pixels): the pixels
-    with depth are listed first in pixel order (:func:`_compact_pixels`, no
-    per-pixel scatter or gather), and only those points are back-projected,
-    binned (scatter-min; ties go to the smaller pixel index as in the
-    composition), given their cell's normal and scattered into the output.
-    The normals are computed on a window of ``window_columns`` range-image
-    columns around the camera's central ray when every point lies inside it
-    (with the margin of the neighbour search and smoothing), which gives the
-    whole image's normals exactly. Otherwise (more than ``max_points`` pixels
-    with depth, or points outside the window) a dense path takes every pixel
-    as a point slot and uses the whole range image: same result, slower.
-
-    Args:
-      sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
-        is not a finite positive number) marks an empty pixel.
-      K: (3, 3) float32 intrinsics of that image.
-      T_cam_lidar: (4, 4) float32 LiDAR -> camera transform.
-      lidar: static :class:`~jaxdepth.LidarSpec` of the range image.
-      smoothing, fill_max_gap: static, see :func:`range_image_normals`.
-      window_columns: static width of the range-image window (default
-        :func:`default_window_columns`: 100 degrees of azimuth).
-      max_points: static capacity of the listed path (default ``ceil(H W / 16)``,
-        6.25 % of the pixels); frames with more pixels with depth take the
-        dense path. Only speed depends on it.
-
-    Returns:
-      (3, H, W) float32 camera-frame normals (x, y, z): unit length and facing
-      the LiDAR (``n . (p_cam - t) <= 0``) at pixels with depth, zeros elsewhere.
-    """
-    _check_lidar(lidar)
-    _check_options(smoothing, fill_max_gap)
-    sparse_depth = jnp.asarray(sparse_depth)
-    if sparse_depth.ndim != 2:
-        raise ValueError(f"pixel_normals: field 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
-    K = jnp.asarray(K, jnp.float32)
-    if K.shape != (3, 3):
-        raise ValueError(f"pixel_normals: field 'K' expected shape (3, 3), got {K.shape}")
-    T = jnp.asarray(T_cam_lidar, jnp.float32)
-    if T.shape != (4, 4):
-        raise ValueError(f"pixel_normals: field 'T_cam_lidar' expected shape (4, 4), got {T.shape}")
-    # Not sanitised here (a pass over every pixel): the mask below tests
-    # finite and positive, and the listed points read their depth through
-    # the same test.
-    depth = sparse_depth.astype(jnp.float32)
-    h, w = depth.shape
-    n_pix = h * w
-    n_cols = lidar.columns
-    token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
-    R = T[:3, :3]
-    options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
-    margin = max(1 + fill_max_gap, smoothing)
-
-    def dense(depth, K, T):
-        # Every pixel is a point slot and the whole range image is used (as
-        # fast as the listed path only when most pixels have depth).
-        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)  # (a branch may not close over tracers)
-        pix = jnp.arange(n_pix, dtype=jnp.int32)
-        pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=n_cols, margin=0)
-        return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=n_cols,
-                                        identity=True, **options)
-
-    capacity = -(-n_pix // 16) if max_points is None else int(max_points)
-    capacity = min(max(capacity, 1), n_pix)
-    if capacity == n_pix:
-        return dense(depth, K, T)
-    pix, total = _compact_pixels((jnp.isfinite(depth) & (depth > 0)).reshape(-1), capacity, token)
-    wc = default_window_columns(lidar) if window_columns is None else int(window_columns)
-    if wc + 2 * margin > n_cols:  # a window would not save work
-        wc = n_cols
-        col0 = jnp.int32(0)
-        fits = total <= capacity
-    else:
-        col0 = _window_start(K, T, h, w, lidar, wc)
-    pts = _pixel_points(pix, depth, K, T, col0, token, lidar=lidar, window_cols=wc, margin=margin)
-    if wc < n_cols:
-        # Every point must lie at least `margin` columns inside the window:
-        # then the neighbour search and the smoothing never reach its edges
-        # and the window gives exactly the whole image's normals.
-        fits = (total <= capacity) & ~jnp.any(pts.edge)
-
-    def listed(pix, col0, R, depth, K, T, *pts):
-        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
-        return _pixel_normals_of_points(pix, _PixelPoints(*pts), col0, R, (h, w), token, window_cols=wc,
-                                        identity=False, **options)
-
-    def fallback(pix, col0, R, depth, K, T, *pts):
-        return dense(depth, K, T)
-
-    return cond_all(fits, listed, fallback, pix, col0, R, depth, K, T, *pts)

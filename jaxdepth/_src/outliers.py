@@ -42,18 +42,18 @@ Condition 1, two forms (static option ``test``):
 Implementation: an exact prefilter, then the full test at the candidates it
 leaves.
 
-1. Prefilter (dense). Both forms need condition 2: a pixel more than epsilon
+1. Prefilter (dense, :func:`_prefilter`). Both forms need condition 2: a pixel more than epsilon
    nearer in the window (separable window minimum of depth, doubling passes).
    The footprint form also needs ``|rb|^2 < |m|^2 + 1/4``; the parallax move
    ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
    ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
    on a smooth surface need only look for a nearer pixel in a small box
    (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass.
-2. Compaction. The candidate mask is packed into 32-bit words; a prefix sum of
-   their popcounts gives every candidate a slot, found back from the slot by
-   a binary search over the words and one within the word (no scatter, no
-   ``nonzero``).
-3. Exact test, per chunk of candidate slots: gather the window's depths (and
+2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
+   prefix sum of their popcounts gives every candidate a slot, found back from the
+   slot by a binary search over the words and one within the word (no scatter, no
+   ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals).
+3. Exact test (:func:`_exact_test`), per chunk of candidate slots: gather the window's depths (and
    points), recompute the LiDAR view, and evaluate conditions 1 and 2 in
    float32 for every offset; removed candidates are cleared in the mask. The
    ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
@@ -71,66 +71,58 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.compaction import pack_bits, word_locator
+from jaxdepth._src.fastmath import pseudo_angle
+from jaxdepth._src.geometry import backproject
 from jaxdepth._src.staging import stage, switch_widest
 
 
-def _pseudo_angle(a: jax.Array, b: jax.Array) -> jax.Array:
-    """A cheap strictly increasing function of ``atan2(a, b)`` on (-pi, pi].
+def _camera_points(depth: jax.Array, K: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Camera-frame (x, y, z) of points, metres, three arrays of ``depth``'s shape.
 
-    ``s = a / (|a| + |b|)`` runs over [-1, 1] for ``b >= 0`` (angles in
-    [-pi/2, pi/2]); the back half continues to (1, 2] and [-2, -1).
-    ``a = b = 0`` gives 0, as ``atan2(0, 0)`` does. Only the order of the
-    result is meaningful.
+    ``points_cam`` None: each pixel's point back-projected from its centre
+    ``(u, v)`` (float32 columns and rows broadcastable to ``depth``) at
+    ``depth`` (:func:`~jaxdepth._src.geometry.backproject`); otherwise the given
+    camera-frame points, a (3, ...) array or three arrays of ``depth``'s shape.
     """
-    den = jnp.abs(a) + jnp.abs(b)
-    ok = den > 0
-    s = jnp.where(ok, a / jnp.where(ok, den, 1.0), 0.0)
-    return jnp.where(b >= 0, s, jnp.where(a >= 0, 2.0, -2.0) - s)
+    if points_cam is None:
+        return backproject(depth, K, v, u)
+    return points_cam[0], points_cam[1], points_cam[2]
 
 
 def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
-    """Order keys (h, g) of points seen from the LiDAR origin ``t`` (camera axes).
+    """Order keys (h, g) of points seen from the LiDAR origin ``t`` (camera axes), "paper" form.
 
-    ``depth`` (metres, 0 where empty) at pixel rows ``v`` and columns ``u``
-    (float32, broadcastable to ``depth``); ``points_cam`` None (back-project
-    the pixel) or camera-frame points: a (3, ...) array or three arrays, each of
-    the shape of ``depth``.
+    ``h`` orders ``atan2(q_x, q_z)`` and ``g`` orders ``atan2(q_y, q_z)`` for
+    ``q = p_cam - t`` (:func:`~jaxdepth._src.fastmath.pseudo_angle`, float32 of
+    ``depth``'s shape). Arguments as :func:`_camera_points`; ``t``: (3,) float32
+    LiDAR origin in the camera frame, metres.
     """
-    if points_cam is None:
-        y_n = (v - K[1, 2]) / K[1, 1]
-        x_n = (u - K[0, 2] - K[0, 1] * y_n) / K[0, 0]
-        qx = depth * x_n - t[0]
-        qy = depth * y_n - t[1]
-        qz = depth - t[2]
-    else:
-        qx = points_cam[0] - t[0]
-        qy = points_cam[1] - t[1]
-        qz = points_cam[2] - t[2]
-    return _pseudo_angle(qx, qz), _pseudo_angle(qy, qz)
+    px, py, pz = _camera_points(depth, K, points_cam, v, u)
+    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
+    return pseudo_angle(qx, qz), pseudo_angle(qy, qz)
 
 
 def _lidar_view(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
-    """Where each point is seen from the LiDAR origin and from the camera, pixels.
+    """Where each point is seen from the LiDAR origin and from the camera, pixels ("footprint" form).
 
     ``(a_u, a_v)``: the pixel of a camera with the same orientation and
     intrinsics placed at the LiDAR origin ``t``; ``(b_u, b_v)``: the point's own
     camera pixel, exact (sub-pixel) for given ``points_cam``, the pixel centre
     (u, v) for back-projected pixels. ``ok`` is False where the point is not in
     front of the LiDAR's virtual camera (q_z <= 1 mm). Arguments as
-    :func:`_lidar_angles`.
+    :func:`_lidar_angles`; every output is float32 (``ok`` bool) of ``depth``'s shape.
     """
+    px, py, pz = _camera_points(depth, K, points_cam, v, u)
     if points_cam is None:
-        y_n = (v - K[1, 2]) / K[1, 1]
-        x_n = (u - K[0, 2] - K[0, 1] * y_n) / K[0, 0]
-        px, py, pz = depth * x_n, depth * y_n, depth
         b_u, b_v = u, v
     else:
-        px, py, pz = points_cam[0], points_cam[1], points_cam[2]
         inv_p = 1.0 / jnp.where(pz > 0, pz, 1.0)
         b_u, b_v = K[0, 0] * px * inv_p + K[0, 1] * py * inv_p + K[0, 2], K[1, 1] * py * inv_p + K[1, 2]
     qx, qy, qz = px - t[0], py - t[1], pz - t[2]
@@ -265,7 +257,6 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, mo
     points take that small box. ``rows`` holds the column minima of
     :func:`_prefilter_rows`.
     """
-    words_per_row = -(-width // 32)
     cols = lambda a, half: a[:, hw - half:hw + half + width]
     centre = lambda a: a[hh:hh + height, hw:hw + width]
     key = centre(z_key_c).astype(jnp.int32)
@@ -298,47 +289,23 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, mo
         reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v + 1e-3) ** 2 + 0.25
         small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
         cand = cand & (~small | nearer_in(rows[1], hu))
-    if width % 32:
-        cand = jnp.pad(cand, ((0, 0), (0, 32 * words_per_row - width)))
-    bits = cand.reshape(height, words_per_row, 32).astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32)
-    return jnp.sum(bits, axis=-1, dtype=jnp.uint32)
+    return pack_bits(cand)
 
 
-def _compact(words, width):
-    """Prefix sums of the packed candidate words and ``locate(slot) -> (row, column)``.
+def _compact(words: jax.Array):
+    """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words.
 
-    Every candidate gets a slot 0 .. count - 1 in raster order; ``locate`` finds
-    its word by binary search over the inclusive prefix sums and its bit by a
-    search over the word's popcounts (no scatter, no ``nonzero``).
+    Returns ``(count, locate)``: the int32 number of candidates, and
+    ``locate(slot) -> (row, column)`` (int32 pixel coordinates) of the slot-th
+    candidate in raster order, for int32 slots in ``[0, count)`` of any shape
+    (:func:`~jaxdepth._src.compaction.word_locator`: no scatter, no ``nonzero``).
     """
-    words_per_row = words.shape[1]
-    popc = jax.lax.population_count(words).astype(jnp.int32)
-    row_incl = jnp.cumsum(popc, axis=1)
-    row_end = jnp.cumsum(row_incl[:, -1])
-    word_end = (row_incl + (row_end - row_incl[:, -1])[:, None]).reshape(-1)   # inclusive prefix
-    words, popc = words.reshape(-1), popc.reshape(-1)
-    n_words = word_end.shape[0]
-    count = row_end[-1]
+    row_bits = words.shape[1] * 32
+    count, locate_bit = word_locator(words)
 
     def locate(slot):
-        get = lambda a, i: a.at[i].get(mode="promise_in_bounds")
-        pos = jnp.zeros_like(slot)           # number of words ending at or before slot
-        step = 1 << (n_words.bit_length() - 1)
-        while step:
-            nxt = pos + step
-            ok = (nxt <= n_words) & (get(word_end, jnp.minimum(nxt, n_words) - 1) <= slot)
-            pos = jnp.where(ok, nxt, pos)
-            step >>= 1
-        w = jnp.minimum(pos, n_words - 1)
-        word = get(words, w)
-        rank = (slot - get(word_end, w) + get(popc, w)).astype(jnp.uint32)   # wanted set bit, 0-based
-        bit = jnp.zeros_like(word)
-        for b in (16, 8, 4, 2, 1):
-            c = jax.lax.population_count((word >> bit) & jnp.uint32((1 << b) - 1))
-            take = rank >= c
-            rank = jnp.where(take, rank - c, rank)
-            bit = jnp.where(take, bit + b, bit)
-        return w // words_per_row, (w % words_per_row) * 32 + bit.astype(jnp.int32)
+        flat = locate_bit(slot)
+        return flat // row_bits, flat % row_bits
 
     return count, locate
 
@@ -371,103 +338,196 @@ def _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
     return ok_p & ok_q & moved & passes & through_cell
 
 
-@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
-def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height,
-               test="footprint"):
-    """Algorithm 1 in three phases: prefilter (condition 2), compaction, exact test (see module docstring)."""
-    height, width = sparse_depth.shape
-    hh, hw = half_height, half_width
-    depth = sparse_depth.astype(jnp.float32)
-    points = None if points_cam is None else points_cam.astype(jnp.float32)
-    K = K.astype(jnp.float32)
-    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
-    eps = jnp.asarray(epsilon_m, jnp.float32)
-    inf = jnp.float32(jnp.inf)
+class _Bounds(NamedTuple):
+    """The paper's neighbourhood S(i) of one image, known at run time (traced scalars)."""
 
-    valid = (depth > 0) & jnp.isfinite(depth)
+    n_points: jax.Array  # int32 N, pixels with depth
+    k_max: jax.Array     # int32 largest |du| in S(i): (W L - 1) // N, capped at the static half width
+    cell_u: jax.Array    # float32 W L / N, pixels (the horizontal point spacing)
+    cell_v: jax.Array    # float32 H / L, pixels (the vertical point spacing)
+
+
+class _Canvas(NamedTuple):
+    """The image padded by the window (``hh`` rows, ``hw`` columns each side), one pad per channel."""
+
+    depth: jax.Array          # (H + 2 hh, W + 2 hw) float32 metres, 0 where empty or outside
+    points: tuple | None      # three such float32 camera-frame x, y, z canvases, or None
+
+
+def _bounds(valid: jax.Array, *, beams: int, half_width: int) -> _Bounds:
+    """N and the window bounds W L / N, H / L of an (H, W) bool mask of pixels with depth."""
+    height, width = valid.shape
     # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
     n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
         jnp.sum(valid, dtype=jnp.int32)
     wl = width * beams
     # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
-    k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), hw), 0)
-    cell_u = jnp.float32(wl) / jnp.maximum(n_points, 1).astype(jnp.float32)   # W L / N, pixels
-    cell_v = jnp.float32(height / beams)                                       # H / L, pixels
+    k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), half_width), 0)
+    cell_u = jnp.float32(wl) / jnp.maximum(n_points, 1).astype(jnp.float32)
+    return _Bounds(n_points, k_max, cell_u, jnp.float32(height / beams))
 
-    # --- 1. prefilter -------------------------------------------------------
-    # Canvases padded by the window (hh rows, hw columns each side), one pad
-    # per channel (a pad of the (3, H, W) stack runs ~2x slower).
+
+def _pad_canvas(depth: jax.Array, points, token, *, hh: int, hw: int) -> _Canvas:
+    """(H, W) depth (and (3, H, W) points) padded by the window, as one fenced stage.
+
+    Empty (non-finite or non-positive) depths become 0. One pad per channel: a
+    pad of the (3, H, W) stack runs ~2x slower.
+    """
     def pad_depth(depth, *pts):
         pad = ((hh, hh), (hw, hw))
         ok = (depth > 0) & jnp.isfinite(depth)
         return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p[i], pad) for p in pts for i in range(3))
 
-    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), n_points)
-    depth_c, points_c = canvas[0], (canvas[1:] if len(canvas) > 1 else None)
-    footprint = test == "footprint"
+    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), token)
+    return _Canvas(canvas[0], canvas[1:] if len(canvas) > 1 else None)
+
+
+def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool):
+    """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
+
+    Args:
+      canvas: :class:`_Canvas` of the image. K: (3, 3) float32. t: (3,) float32
+        LiDAR origin in the camera frame, metres. eps: float32 condition-2
+        margin, metres. bounds: :class:`_Bounds`.
+      beams, hh, hw: static L and window half sizes (rows, columns).
+      footprint: static; True for the "footprint" form of condition 1.
+
+    Returns:
+      (H, ceil(W / 32)) uint32 words: bit i of word m in row v is the pixel
+      ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Dense
+      passes over the canvas, each a fenced stage; the horizontal pass is
+      compiled for each small run-time half window k (see
+      :func:`_prefilter_words`) and picked by ``switch_widest``.
+    """
+    height = canvas.depth.shape[0] - 2 * hh
+    width = canvas.depth.shape[1] - 2 * hw
+    points_c = canvas.points
     _, hv = _small_box(0, True, height / beams, hh)
     keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
-                 (depth_c, t) + (() if points_c is None else tuple(points_c)), n_points)
+                 (canvas.depth, t) + (() if points_c is None else tuple(points_c)), bounds.n_points)
     rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), keys,
-                 n_points)
+                 bounds.n_points)
     # Parallax-move coefficients (c_u, c_v, t_z); see _prefilter_words.
     move_coef = jnp.stack([K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]])
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
     branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
                                   cell_v=height / beams, footprint=footprint) for k in widths]
-    big_z_c = depth_c if points_c is None else points_c[2]
-    words = switch_widest(jnp.minimum(k_max, len(widths) - 1), branches, rows, keys[0], depth_c, big_z_c, eps,
-                          cell_u, move_coef)
+    big_z_c = canvas.depth if points_c is None else points_c[2]
+    return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0], canvas.depth,
+                         big_z_c, eps, bounds.cell_u, move_coef)
 
-    # --- 2. compaction ------------------------------------------------------
-    count, locate = _compact(words, width)
 
-    # --- 3. exact test ------------------------------------------------------
-    # Window blocks of B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices of
-    # the padded canvases. Block b starts at du = -k + b B, clipped so that it
-    # stays on the canvas (a clipped block overlaps the previous one: harmless).
+class _ExactTest(NamedTuple):
+    """Everything phase 3 reads (traced arrays) and its static options."""
+
+    canvas: _Canvas
+    K: jax.Array
+    t: jax.Array
+    eps: jax.Array
+    bounds: _Bounds
+    count: jax.Array          # int32 number of candidates
+    locate: object            # slot -> (row, column) of a candidate (see _compact)
+    hh: int
+    hw: int
+    test: str
+
+
+def _view_at(ex: _ExactTest, row, col, window_of):
+    """LiDAR view (``_lidar_angles`` or ``_lidar_view``) of the pixels ``window_of`` picks from the
+    padded canvases at canvas rows ``row`` and columns ``col`` (int32), and their z (inf where empty)."""
+    canvas = ex.canvas
+    d = window_of(canvas.depth)
+    v = (row - ex.hh).astype(jnp.float32)
+    u = (col - ex.hw).astype(jnp.float32)
+    p = None if canvas.points is None else jnp.stack([window_of(canvas.points[i]) for i in range(3)])
+    view_fn = _lidar_angles if ex.test == "paper" else _lidar_view
+    return view_fn(d, ex.K, ex.t, p, v, u), jnp.where(d > 0, d, jnp.float32(jnp.inf))
+
+
+def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p):
+    """Conditions 1 and 2 of a chunk of candidates against one block of window columns.
+
+    Window blocks have B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices
+    of the padded canvases. Block b starts at du = -k + b B, clipped so that it
+    stays on the canvas (a clipped block overlaps the previous one: harmless).
+    ``removed``: (_CHUNK,) bool, updated with the candidates some window pixel removes.
+    """
+    hh, hw = ex.hh, ex.hw
     group = max(min(hw, _GROUP), 0)
     block = 2 * group + 1
-    n_blocks = jnp.maximum((2 * k_max + block) // block, 1)       # ceil((2 k + 1) / B)
     dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, :, None]
-    offsets = jnp.arange(block, dtype=jnp.int32)[None, None, :]
+    du_in_block = jnp.arange(block, dtype=jnp.int32)[None, None, :]
     slices = jax.lax.GatherDimensionNumbers(offset_dims=(1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
-    view_fn = _lidar_angles if test == "paper" else _lidar_view
+    start = jnp.clip(b * block - ex.bounds.k_max, -hw, hw - 2 * group)
+    col0 = col + hw + start
+    du = start + du_in_block
+    r_p, c_p = (row + hh)[:, None, None], (col + hw)[:, None, None]
 
-    def window(canvas_, row, col0):
+    def window(canvas_):
         starts = jnp.stack([row, col0], axis=-1)
         return jax.lax.gather(canvas_, starts, slices, (2 * hh + 1, block), mode="promise_in_bounds")
 
-    def view_at(row, col, window_of):
-        """LiDAR view of the pixels ``window_of`` picks from the padded canvases, and their z."""
-        d = window_of(depth_c)
-        v = (row - hh).astype(jnp.float32)
-        u = (col - hw).astype(jnp.float32)
-        p = None if points_c is None else jnp.stack([window_of(points_c[i]) for i in range(3)])
-        return view_fn(d, K, t, p, v, u), jnp.where(d > 0, d, inf)
+    view_q, z_q = _view_at(ex, r_p + dv, c_p + du, window)
+    flip = _condition_1(ex.test, view_p, view_q, du, dv, ex.bounds.cell_u, ex.bounds.cell_v)
+    hit = flip & (z_p > z_q + ex.eps) & (jnp.abs(du) <= ex.bounds.k_max)
+    return removed | jnp.any(hit, axis=(1, 2))
 
-    def test_chunk(c, keep):
-        slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
-        row, col = locate(jnp.minimum(slot, jnp.maximum(count - 1, 0)))
-        r_p, c_p = (row + hh)[:, None, None], (col + hw)[:, None, None]
-        view_p, z_p = view_at(r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
 
-        def column_block(b, removed):
-            start = jnp.clip(b * block - k_max, -hw, hw - 2 * group)
-            col0 = col + hw + start
-            du = start + offsets
-            view_q, z_q = view_at(r_p + dv, c_p + du, lambda a: window(a, row, col0))
-            flip = _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v)
-            hit = flip & (z_p > z_q + eps) & (jnp.abs(du) <= k_max)
-            return removed | jnp.any(hit, axis=(1, 2))
+def _test_chunk(c, keep, *, ex: _ExactTest):
+    """Exact test of the candidate slots ``c _CHUNK ...`` (int32 chunk index ``c``); clears the removed
+    ones in ``keep``, the (H W,) bool mask."""
+    height = ex.canvas.depth.shape[0] - 2 * ex.hh
+    width = ex.canvas.depth.shape[1] - 2 * ex.hw
+    slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
+    row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
+    r_p, c_p = (row + ex.hh)[:, None, None], (col + ex.hw)[:, None, None]
+    view_p, z_p = _view_at(ex, r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
+    block = 2 * max(min(ex.hw, _GROUP), 0) + 1
+    n_blocks = jnp.maximum((2 * ex.bounds.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
+    removed = jax.lax.fori_loop(0, n_blocks, functools.partial(_column_block, ex=ex, row=row, col=col,
+                                                                view_p=view_p, z_p=z_p),
+                                jnp.zeros((_CHUNK,), bool))
+    flat = jnp.where(slot < ex.count, row * width + col, height * width)
+    return keep.at[flat].set(~removed, mode="drop")
 
-        removed = jax.lax.fori_loop(0, n_blocks, column_block, jnp.zeros((_CHUNK,), bool))
-        flat = jnp.where(slot < count, row * width + col, height * width)
-        return keep.at[flat].set(~removed, mode="drop")
 
-    n_chunks = (count + _CHUNK - 1) // _CHUNK
-    keep = jax.lax.fori_loop(0, n_chunks, test_chunk, valid.reshape(-1))
+def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
+    """Phase 3: the paper's conditions at every candidate, per chunk of ``_CHUNK`` slots.
+
+    Gathers each candidate's window of depths (and points) from the padded
+    canvases, recomputes the LiDAR view, and evaluates conditions 1 and 2 in
+    float32 for every offset with ``|du| <= k_max``. Returns the (H, W) bool
+    keep mask: ``valid`` with the removed candidates cleared.
+    """
+    height, width = valid.shape
+    n_chunks = (ex.count + _CHUNK - 1) // _CHUNK
+    keep = jax.lax.fori_loop(0, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
     return keep.reshape(height, width)
+
+
+@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
+def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height,
+               test="footprint"):
+    """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
+
+    Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
+    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam or None, traced float32
+    epsilon_m (metres); static beams, half window sizes (pixels) and test form.
+    Returns the (H, W) bool keep mask.
+    """
+    depth = sparse_depth.astype(jnp.float32)
+    points = None if points_cam is None else points_cam.astype(jnp.float32)
+    K = K.astype(jnp.float32)
+    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
+    eps = jnp.asarray(epsilon_m, jnp.float32)
+    valid = (depth > 0) & jnp.isfinite(depth)
+    bounds = _bounds(valid, beams=beams, half_width=half_width)
+    canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
+    words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
+                       footprint=test == "footprint")
+    count, locate = _compact(words)
+    ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test)
+    return _exact_test(valid, ex)
 
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,

@@ -28,7 +28,8 @@ from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geometry import project_to_image, transform_points
-from jaxdepth._src.normals import pixel_normals, point_normals
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur

@@ -310,8 +310,7 @@ def camera_rays(camera: Camera):
     K = jnp.asarray(camera.K, jnp.float32)
     T = jnp.asarray(camera.T_cam_lidar, jnp.float32)
     v, u = geometry.pixel_grid(camera.height, camera.width)
-    y = (v - K[1, 2]) / K[1, 1]
-    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    x, y = geometry.pixel_rays(K, v, u)
     d_cam = jnp.stack([x, y, jnp.ones_like(x)], axis=-1).reshape(-1, 3)
     R, t = T[:3, :3], T[:3, 3]
     return -(R.T @ t), d_cam @ R

@@ -1,0 +1,93 @@
+"""Shared kernels of the stages: geometry's z-buffer and back-projection, bit-packed compaction,
+and the order-only pseudo-angle, each against a brute-force NumPy oracle (plus jit == eager)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdepth._src import compaction, fastmath, geometry
+
+
+def _brute_argmin(slot, key, size):
+    best = np.full(size, np.inf)
+    idx = np.full(size, len(slot), np.int64)
+    for i, (s, k) in enumerate(zip(slot, key)):
+        if s < size and (k < best[s] or (k == best[s] and i < idx[s])):
+            best[s], idx[s] = k, i
+    return best, idx
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int32])
+def test_scatter_argmin_equals_brute_force_with_lowest_index_on_ties(dtype):
+    rng = np.random.default_rng(0)
+    n, size = 500, 40
+    slot = rng.integers(0, size + 1, n).astype(np.int32)   # size = the dump slot
+    key = rng.integers(0, 12, n).astype(dtype)             # many equal keys: ties
+    fill = np.inf if dtype == np.float32 else np.iinfo(np.int32).max
+    f = lambda s, k: geometry.scatter_argmin(s, k, size, fill=fill)
+    best, idx = jax.jit(f)(jnp.asarray(slot), jnp.asarray(key))
+    want_best, want_idx = _brute_argmin(slot, key.astype(np.float64), size)
+    empty = want_idx == n
+    np.testing.assert_array_equal(np.asarray(idx), want_idx)
+    np.testing.assert_array_equal(np.asarray(best)[~empty], want_best[~empty].astype(dtype))
+    assert np.all(np.asarray(best)[empty] == fill)
+    eager_best, eager_idx = f(jnp.asarray(slot), jnp.asarray(key))
+    np.testing.assert_array_equal(np.asarray(eager_idx), np.asarray(idx))
+
+
+def test_backproject_equals_inverse_intrinsics():
+    rng = np.random.default_rng(1)
+    K = np.array([[500.0, 3.0, 160.5], [0.0, 480.0, 90.25], [0.0, 0.0, 1.0]], np.float32)
+    depth = rng.uniform(1.0, 50.0, (6, 9)).astype(np.float32)
+    x, y, z = (np.asarray(c) for c in geometry.backproject(jnp.asarray(depth), jnp.asarray(K)))
+    v, u = np.mgrid[0:6, 0:9]
+    rays = np.linalg.inv(K.astype(np.float64)) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    want = rays * depth.ravel()
+    eps = np.finfo(np.float32).eps
+    for got, w in zip((x, y, z), want):
+        np.testing.assert_allclose(got.ravel(), w, rtol=16 * eps, atol=16 * eps * 50)
+    np.testing.assert_array_equal(np.asarray(geometry.unproject_depth(depth, K)), np.stack([x, y, z], -1))
+
+
+@pytest.mark.parametrize("shape, p", [((37,), 0.3), ((5, 70), 0.1), ((3, 64), 1.0), ((4, 33), 0.0)])
+def test_pack_bits_and_word_locator_list_true_entries_in_raster_order(shape, p):
+    rng = np.random.default_rng(2)
+    mask = rng.random(shape) < p
+    words = np.asarray(jax.jit(compaction.pack_bits)(jnp.asarray(mask)))
+    n_words = -(-shape[-1] // 32)
+    assert words.shape == shape[:-1] + (n_words,) and words.dtype == np.uint32
+    padded = np.zeros(shape[:-1] + (32 * n_words,), bool)
+    padded[..., :shape[-1]] = mask
+    bits = (words[..., None] >> np.arange(32, dtype=np.uint32)) & 1
+    np.testing.assert_array_equal(bits.reshape(padded.shape).astype(bool), padded)
+
+    def listed(words):
+        count, locate = compaction.word_locator(words)
+        return count, locate(jnp.minimum(jnp.arange(max(mask.sum(), 1), dtype=jnp.int32), jnp.maximum(count - 1, 0)))
+
+    count, flat = jax.jit(listed)(jnp.asarray(words))
+    assert int(count) == mask.sum()
+    want = np.flatnonzero(padded)
+    np.testing.assert_array_equal(np.asarray(flat)[:len(want)], want)
+
+
+def test_nth_set_bit_equals_brute_force():
+    rng = np.random.default_rng(3)
+    words = rng.integers(1, 2 ** 32, 300, dtype=np.uint64).astype(np.uint32)
+    ranks = np.array([rng.integers(0, bin(int(w)).count("1")) for w in words], np.int32)
+    got = np.asarray(jax.jit(compaction.nth_set_bit)(jnp.asarray(words), jnp.asarray(ranks)))
+    want = [np.flatnonzero((int(w) >> np.arange(32)) & 1)[r] for w, r in zip(words, ranks)]
+    np.testing.assert_array_equal(got, want)
+
+
+def test_pseudo_angle_orders_like_atan2():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=(2, 4000)).astype(np.float32)
+    got = np.asarray(fastmath.pseudo_angle(jnp.asarray(a), jnp.asarray(b)))
+    want = np.arctan2(a.astype(np.float64), b.astype(np.float64))
+    order = np.argsort(want)
+    assert np.all(np.diff(got[order]) >= 0)
+    assert float(fastmath.pseudo_angle(jnp.float32(0.0), jnp.float32(0.0))) == 0.0
