@@ -9,7 +9,7 @@ Two entry points share one tail:
   the sweep's true range image and outlier removal uses the exact point angles.
 
 Speed: the image path bins pixels straight into the range image
-(:func:`~jaxdepth._src.normals.pixel_normals`, equal to ``point_normals`` of the
+(:func:`~jaxdepth._src.pixel_normals.pixel_normals`, equal to ``point_normals`` of the
 back-projected pixels up to float32 rounding), and stage fences
 (:mod:`~jaxdepth._src.staging`) keep XLA from re-running producers inside their
 consumers. tests/test_speed_equivalence.py checks the result against the plain
