@@ -102,3 +102,7 @@ class SGMConfig:
 
     def replace(self, **changes) -> "SGMConfig":
         return dataclasses.replace(self, **changes)
+
+
+#: The configuration every stage and entry point defaults to (the paper's values where it gives one).
+DEFAULT_CONFIG = SGMConfig()

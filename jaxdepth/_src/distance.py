@@ -67,7 +67,7 @@ import jax
 import jax.numpy as jnp
 from jax import custom_batching, lax
 
-from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.config import DEFAULT_CONFIG
 
 _METRICS = ("l1", "l2")
 _INT32_MAX = 2**31 - 1
@@ -457,7 +457,7 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
 
 
 @functools.partial(jax.jit, static_argnames="metric")
-def nearest_seed(seed_mask: jax.Array, *, metric: str = SGMConfig().distance_metric) -> NearestSeed:
+def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_metric) -> NearestSeed:
     """Nearest seed and its distance for every pixel (exact distance transform).
 
     Args:

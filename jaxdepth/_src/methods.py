@@ -16,7 +16,8 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.ip_basic import ip_basic
 from jaxdepth._src.outliers import keep_mask_for_config
-from jaxdepth._src.pipeline import DEFAULT_CONFIG, complete_stages
+from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.pipeline import complete_stages
 from jaxdepth._src.types import LidarSpec
 
 

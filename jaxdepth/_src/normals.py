@@ -114,6 +114,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
 from jaxdepth._src.staging import stage
@@ -557,7 +558,8 @@ def normals_at_points(nxy, nz, slot, ok, xyz, token):
 
 
 @functools.partial(jax.jit, static_argnames=("smoothing", "fill_max_gap"))
-def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int = 2) -> jax.Array:
+def range_image_normals(ri: RangeImage, *, smoothing: int = DEFAULT_CONFIG.normal_smoothing,
+                        fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap) -> jax.Array:
     """Unit surface normals on the range image (Badino's spherical gradient, sign-corrected).
 
     Args:
@@ -595,8 +597,9 @@ def range_image_normals(ri: RangeImage, *, smoothing: int = 1, fill_max_gap: int
 
 
 @functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap"))
-def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec, smoothing: int = 1,
-                  fill_max_gap: int = 2) -> jax.Array:
+def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
+                  smoothing: int = DEFAULT_CONFIG.normal_smoothing,
+                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap) -> jax.Array:
     """Unit surface normal of every valid LiDAR point (Step 1 of the paper).
 
     Args:

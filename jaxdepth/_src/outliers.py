@@ -78,6 +78,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src.compaction import pack_bits, word_locator
+from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import pseudo_angle
 from jaxdepth._src.geometry import backproject
 from jaxdepth._src.staging import stage, switch_widest
@@ -531,8 +532,10 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
 
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
-                      epsilon_m: float = 1.0, max_half_width_px: int = 12, max_half_height_px: int = 24,
-                      points_cam: jax.Array | None = None, test: str = "footprint") -> jax.Array:
+                      epsilon_m: float = DEFAULT_CONFIG.epsilon_m,
+                      max_half_width_px: int = DEFAULT_CONFIG.outlier_max_half_width_px,
+                      max_half_height_px: int = DEFAULT_CONFIG.outlier_max_half_height_px,
+                      points_cam: jax.Array | None = None, test: str = DEFAULT_CONFIG.outlier_test) -> jax.Array:
     """Occlusion outlier mask of a sparse LiDAR depth image (the paper's Algorithm 1).
 
     Args:

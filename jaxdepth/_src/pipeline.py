@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src import presets
-from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.normals import point_normals
@@ -35,9 +35,6 @@ from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
 from jaxdepth._src.staging import fence
 from jaxdepth._src.types import Camera, LidarSpec, Stages
-
-DEFAULT_CONFIG = SGMConfig()
-
 
 def _check_image_inputs(sparse_depth, K):
     if sparse_depth.ndim != 2:

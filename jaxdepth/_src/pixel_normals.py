@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdepth._src.compaction import compact_indices
+from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
 from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
@@ -184,7 +185,8 @@ def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: 
 
 @functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns", "max_points"))
 def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
-                  smoothing: int = 1, fill_max_gap: int = 2, window_columns: int | None = None,
+                  smoothing: int = DEFAULT_CONFIG.normal_smoothing,
+                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap, window_columns: int | None = None,
                   max_points: int | None = None) -> jax.Array:
     """Camera-frame unit normal of every pixel of a sparse depth image (Step 1 on image input).
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.geometry import pixel_grid
 
-_DEFAULTS = SGMConfig()
+_DEFAULTS = DEFAULT_CONFIG
 
 
 def plane_residual(seed_depth: jax.Array, seed_normal: jax.Array, du: jax.Array, dv: jax.Array,

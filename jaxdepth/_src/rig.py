@@ -19,7 +19,8 @@ import numpy as np
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.normals import point_normals
-from jaxdepth._src.pipeline import DEFAULT_CONFIG, camera_stages_from_points
+from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.pipeline import camera_stages_from_points
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
 

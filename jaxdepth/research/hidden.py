@@ -28,7 +28,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.geometry import project_to_image
 from jaxdepth._src.ip_basic import ip_basic
 from jaxdepth._src.metrics import depth_metrics
-from jaxdepth._src.pipeline import DEFAULT_CONFIG
+from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.rig import RigCameras, _complete_rig_stages
 from jaxdepth._src.types import LidarSpec
 
