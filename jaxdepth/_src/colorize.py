@@ -236,7 +236,7 @@ def depth_preview(depth, *, vmin: float | None = None, vmax: float | None = None
     span = hi - lo
     font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1
     y_text = int(bar_height_px) - 3
-    right_edge = -1
+    right_edge = -10**9  # right end of the last label drawn
     for tick in nice_ticks(lo, hi, max_ticks=max(2, min(7, w // 60))):
         x = 0 if span <= 0 else int(round((tick - lo) / span * (w - 1)))
         cv2.line(bar, (x, 1 + ramp_h), (x, ramp_h + 4), (255, 255, 255), 1)
