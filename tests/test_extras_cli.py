@@ -23,6 +23,7 @@ from jaxdepth.io import encode_depth_uint16, read_depth_png
 from helpers import small_frames, write_kitti_folder
 
 ALL = ["--preview", "--validity", "--seed-distance"]
+B2 = ["--batch-size", "2"]  # one batch bucket (2 frames) for every run here: compiled once per process
 
 
 @pytest.fixture(scope="module")
@@ -94,20 +95,20 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
 def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
     root, _ = src
     out = tmp_path / "out"
-    assert cli.main(["complete", str(root), str(out), "-q", "--preview"]) == 0
+    assert cli.main(["complete", str(root), str(out), *B2, "-q", "--preview"]) == 0
     first = _stamps(out)
-    assert cli.main(["complete", str(root), str(out), "--preview"]) == 0
+    assert cli.main(["complete", str(root), str(out), *B2, "--preview"]) == 0
     assert "0 completed, 3 skipped" in capsys.readouterr().err
     assert _stamps(out) == first
     # a new flag: the frames run again, only the missing files are written
-    assert cli.main(["complete", str(root), str(out), "--preview", "--seed-distance"]) == 0
+    assert cli.main(["complete", str(root), str(out), *B2, "--preview", "--seed-distance"]) == 0
     assert "3 completed, 0 skipped" in capsys.readouterr().err
     after = _stamps(out)
     assert {k: v for k, v in after.items() if k in first} == first
     assert sorted(set(after) - set(first)) == [f"frame_00{i}_seed_distance.png" for i in range(3)]
     # a file removed by hand is filled in; --overwrite rewrites everything
     os.unlink(out / "frame_001_preview.png")
-    assert cli.main(["complete", str(root), str(out), "--preview", "--seed-distance"]) == 0
+    assert cli.main(["complete", str(root), str(out), *B2, "--preview", "--seed-distance"]) == 0
     assert "1 completed, 2 skipped" in capsys.readouterr().err
     assert (out / "frame_001_preview.png").exists() and _stamps(out)["frame_001.png"] == first["frame_001.png"]
     assert all(p.suffix == ".png" for p in out.iterdir())  # no temp files left
