@@ -209,3 +209,41 @@ def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
     assert sorted(again.skipped) == ["s1", "s2"] and not again.done
     more = run_nuscenes(root, dst, version=VERSION, extras=extras.ExtraOutputs(preview=True, validity=True))
     assert sorted(more.done) == ["s1", "s2"] and (folder / "CAM_FRONT_s2_preview.png").exists()
+
+
+def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
+    """One raw drive (the shared frame's sweep), camera 2, benchmark crop: the sweep path's masks are
+    the library's complete_points_stages + validity_and_distance with that camera."""
+    import shutil
+
+    import jaxdepth
+    from jaxdepth.io import pad_points, read_points, rig_from_kitti_raw
+    from tests.conftest import require_shared
+
+    frame = require_shared("kitti", "drive_0001_frame05")
+    date, drive = "2011_09_26", "2011_09_26_drive_0001_sync"
+    data = tmp_path / "raw" / date / drive / "velodyne_points" / "data"
+    data.mkdir(parents=True)
+    os.symlink(frame / "lidar_data.bin", data / "0000000005.bin")
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        shutil.copyfile(frame / name, tmp_path / "raw" / date / name)
+    dst = tmp_path / "out"
+    args = ["complete", str(tmp_path / "raw" / date / drive), str(dst), "--camera", "2", "--crop", "-q"]
+    assert cli.main(args + ["--validity", "--seed-distance", "--zero-invalid"]) == 0
+    folder = dst / drive / "proj_depth" / "sgm" / "image_02"
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "0000000005.png", "0000000005_seed_distance.png", "0000000005_validity.png"]
+    camera = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt",
+                                crop=True).cameras[0].as_camera()
+    points, _ = read_points(frame / "lidar_data.bin", columns=4)
+    stages = jaxdepth.complete_points_stages(*pad_points(points), camera)
+    valid, dist = (np.asarray(a) for a in jaxdepth.validity_and_distance(
+        stages, camera.K, camera.T_cam_lidar, lidar=presets.KITTI_HDL64, max_seed_distance_px=16.0))
+    np.testing.assert_array_equal(_u16(folder / "0000000005_validity.png") == 255, valid)
+    np.testing.assert_array_equal(_u16(folder / "0000000005_seed_distance.png"), extras.encode_seed_distance(dist))
+    np.testing.assert_array_equal(_u16(folder / "0000000005.png"),
+                                  np.where(valid, encode_depth_uint16(np.asarray(stages.depth)), 0))
+    assert 0.3 < valid.mean() < 0.95  # the crop still has rows above the top beam
+    stamps = _stamps(folder)
+    assert cli.main(args + ["--validity", "--seed-distance", "--zero-invalid"]) == 0  # resume: nothing to do
+    assert _stamps(folder) == stamps

@@ -29,9 +29,11 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.types import LidarSpec, Stages
 
 _METRICS = ("l1", "l2")
+_DEFAULT_METRIC = SGMConfig().distance_metric
 DEFAULT_MAX_SEED_DISTANCE_PX = 16.0
 
 
@@ -72,7 +74,7 @@ def fov_mask(K: jax.Array, T_cam_lidar: jax.Array, *, height: int, width: int, l
 
 
 @functools.partial(jax.jit, static_argnames="metric")
-def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric: str = "l1") -> jax.Array:
+def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric: str = _DEFAULT_METRIC) -> jax.Array:
     """(H, W) float32 pixel distance from every pixel to its nearest seed.
 
     Args:
@@ -97,7 +99,7 @@ def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric
 
 @functools.partial(jax.jit, static_argnames=("lidar", "metric", "max_seed_distance_px"))
 def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
-                          metric: str = "l1",
+                          metric: str = _DEFAULT_METRIC,
                           max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX) -> tuple[jax.Array, jax.Array]:
     """Validity mask and seed distance of one completed camera image.
 
@@ -119,7 +121,7 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
     return inside & (distance <= jnp.float32(max_seed_distance_px)), distance
 
 
-def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec, metric: str = "l1",
+def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec, metric: str = _DEFAULT_METRIC,
                   max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX) -> jax.Array:
     """(H, W) bool of the pixels the sensor supports; see :func:`validity_and_distance`."""
     return validity_and_distance(stages, K, T_cam_lidar, lidar=lidar, metric=metric,
