@@ -235,7 +235,8 @@ def cmd_complete(args) -> int:
         from jaxdepth import scale
         summary = scale.run_jobs_ray(jobs, method=args.method, config=_config_from(args),
                                      batch_size=args.batch_size, overwrite=args.overwrite,
-                                     address=args.ray_address, on_progress=progress.update)
+                                     address=args.ray_address, on_progress=progress.update,
+                                     extras=_extras_from(args))
     else:
         summary = runner.run_jobs(jobs, method=args.method, config=_config_from(args), batch_size=args.batch_size,
                                   overwrite=args.overwrite, png_compression=args.png_compression,
@@ -259,9 +260,6 @@ def _extras_usage(args) -> str | None:
         return str(err)
     if extras.needs_seeds and getattr(args, "method", "sgm") != "sgm":
         return "--validity, --seed-distance and --zero-invalid need --method sgm (they use its seeds)"
-    if extras.kinds or extras.needs_seeds:
-        if getattr(args, "engine", "local") != "local":
-            return "--preview, --validity, --seed-distance and --zero-invalid run on the local engine only"
     return None
 
 

@@ -116,7 +116,6 @@ def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
 
 @pytest.mark.parametrize("extra,pattern", [
     (["--method", "nearest", "--validity"], "need --method sgm"),
-    (["--engine", "ray", "--preview"], "local engine only"),
     (["--zero-invalid", "--max-seed-distance-px", "-3"], "max_seed_distance_px"),
 ])
 def test_extras_usage_errors_before_any_work(tmp_path, src, capsys, extra, pattern):
@@ -247,3 +246,30 @@ def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
     stamps = _stamps(folder)
     assert cli.main(args + ["--validity", "--seed-distance", "--zero-invalid"]) == 0  # resume: nothing to do
     assert _stamps(folder) == stamps
+
+
+def test_ray_actor_writes_the_local_runners_extras(tmp_path, src):
+    """The Ray engine's actor (called directly, no cluster) writes the local runner's files, extras included."""
+    from jaxdepth import scale
+
+    root, _ = src
+    wanted = extras.ExtraOutputs(preview=True, validity=True, seed_distance=True, zero_invalid=True)
+
+    def jobs(dst):
+        dst.mkdir()
+        return [runner.FrameJob(name=f"frame_00{i}", sparse_path=root / "velodyne_raw" / f"frame_00{i}.png",
+                                out_path=dst / f"frame_00{i}.png",
+                                intrinsics_path=root / "intrinsics" / f"frame_00{i}.txt") for i in range(3)]
+
+    local = runner.run_jobs(jobs(tmp_path / "local"), batch_size=2, extras=wanted)
+    assert local.ok and len(local.done) == 3
+    records = [scale._record(job) for job in jobs(tmp_path / "ray")]
+    batch = {key: np.array([r[key] for r in records], dtype=object) for key in records[0]}
+    actor = scale._CompleteFrames(method="sgm", config=runner.SGMConfig(), lidar=presets.KITTI_HDL64,
+                                  T_cam_lidar=presets.KITTI_T_CAM2_LIDAR, batch_size=2, extras=wanted)
+    rows = actor(batch)
+    assert list(rows["status"]) == ["done"] * 3, rows["message"]
+    names = sorted(p.name for p in (tmp_path / "local").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "ray").iterdir()) and len(names) == 12
+    for name in names:
+        np.testing.assert_array_equal(_u16(tmp_path / "ray" / name), _u16(tmp_path / "local" / name), err_msg=name)
