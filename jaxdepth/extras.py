@@ -4,21 +4,17 @@ Every extra of a depth PNG ``<dir>/<stem>.png`` is written beside it as
 ``<dir>/<stem>_<kind>.png`` (one rule for every layout: image folders, KITTI
 trees, nuScenes, complete-rig's ``<camera>.png``):
 
-=================  ===========================  ==================================================
-flag               file                         content
-=================  ===========================  ==================================================
-``--preview``      ``<stem>_preview.png``       8-bit RGB colour image of the written depth
-                                                (:func:`jaxdepth.colorize_depth`, turbo, per-frame
-                                                range unless ``--preview-range``) with a scale bar
-                                                in metres below it (:func:`depth_preview`)
-``--validity``     ``<stem>_validity.png``      uint8, 255 = supported (inside the LiDAR's
-                                                vertical field of view and within
-                                                ``--max-seed-distance-px`` of a seed), 0 = not
-``--seed-distance``  ``<stem>_seed_distance.png`` uint16, ``round(16 * distance_px)`` to the
-                                                nearest seed in the run's ``--distance`` metric;
-                                                65535 = no seed (or >= 4095.9 px)
-``--zero-invalid`` (the depth PNG itself)       0 outside the validity mask
-=================  ===========================  ==================================================
+* ``--preview``: ``<stem>_preview.png``, 8-bit RGB colour image of the written depth
+  (:func:`jaxdepth.colorize_depth`, turbo, each frame's own range unless
+  ``--preview-range``) with a scale bar in metres below it
+  (:func:`jaxdepth.depth_preview`).
+* ``--validity``: ``<stem>_validity.png``, uint8, 255 = supported (inside the LiDAR's
+  vertical field of view and within ``--max-seed-distance-px`` of a seed,
+  :func:`jaxdepth.validity_and_distance`), 0 = not.
+* ``--seed-distance``: ``<stem>_seed_distance.png``, uint16 ``round(16 * distance_px)``
+  to the nearest seed in the run's ``--distance`` metric; 65535 = no seed (or
+  >= 4095.97 px).
+* ``--zero-invalid``: the depth PNG itself holds 0 outside the validity mask.
 
 ``jaxdepth eval`` skips files named like extras. Writes are atomic. Resume: a
 frame is skipped when its depth PNG and every requested extra exist; otherwise
@@ -175,7 +171,8 @@ def add_cli_options(parser) -> None:
     group = parser.add_argument_group(
         "extra outputs", "written beside each depth PNG <stem>.png as <stem>_<kind>.png (atomic; resumed like the "
                          "depth: a re-run with the same flags skips finished frames, a re-run with a new flag "
-                         "writes only the missing files; other changed settings need --overwrite)")
+                         "writes only the missing files; other changed settings need --overwrite); --validity, "
+                         "--seed-distance and --zero-invalid need --method sgm")
     group.add_argument("--preview", action="store_true",
                        help="<stem>_preview.png: colour image of the depth (turbo, black = empty) with a scale bar "
                             "in metres")

@@ -121,7 +121,8 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
     return inside & (distance <= jnp.float32(max_seed_distance_px)), distance
 
 
-def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec, metric: str = _DEFAULT_METRIC,
+def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
+                  metric: str = _DEFAULT_METRIC,
                   max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX) -> jax.Array:
     """(H, W) bool of the pixels the sensor supports; see :func:`validity_and_distance`."""
     return validity_and_distance(stages, K, T_cam_lidar, lidar=lidar, metric=metric,
