@@ -36,7 +36,11 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
                                        mean_metrics as mean_metrics, pair_errors as pair_errors)
     from jaxdepth.research.hidden import hidden_point_mask as hidden_point_mask, hidden_point_scores as hidden_point_scores
     from jaxdepth._src.colorize import (colorize_depth as colorize_depth, colorize_normals as colorize_normals,
-                                       overlay_depth as overlay_depth, overlay_mask as overlay_mask)
+                                       overlay_depth as overlay_depth, overlay_mask as overlay_mask,
+                                       depth_preview as depth_preview)
+    from jaxdepth._src.validity import (ray_elevation as ray_elevation, fov_mask as fov_mask,
+                                       seed_distance as seed_distance, validity_mask as validity_mask,
+                                       validity_and_distance as validity_and_distance)
     from jaxdepth._src.synthetic import make_street_scene as make_street_scene, SyntheticFrame as SyntheticFrame
 
 # module -> public names it provides (loaded by __getattr__ on first access)
@@ -58,7 +62,8 @@ _LAZY = {
     'jaxdepth._src.ip_basic': ('ip_basic',),
     'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),
     'jaxdepth.research.hidden': ('hidden_point_mask', 'hidden_point_scores'),
-    'jaxdepth._src.colorize': ('colorize_depth', 'colorize_normals', 'overlay_depth', 'overlay_mask'),
+    'jaxdepth._src.colorize': ('colorize_depth', 'colorize_normals', 'overlay_depth', 'overlay_mask', 'depth_preview'),
+    'jaxdepth._src.validity': ('ray_elevation', 'fov_mask', 'seed_distance', 'validity_mask', 'validity_and_distance'),
     'jaxdepth._src.synthetic': ('make_street_scene', 'SyntheticFrame'),
 }
 _MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
@@ -87,4 +92,5 @@ __all__ = [
     "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background", "mean_metrics",
     "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
     "make_street_scene", "SyntheticFrame", "gaussian_blur_traced", "overlay_depth", "overlay_mask",
+    "depth_preview", "ray_elevation", "fov_mask", "seed_distance", "validity_mask", "validity_and_distance",
 ]

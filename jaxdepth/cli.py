@@ -185,6 +185,10 @@ def cmd_complete(args) -> int:
     from jaxdepth.io.calib import read_extrinsic_txt
     from jaxdepth.io.kitti_layout import KittiExtrinsics
 
+    usage = _extras_usage(args)
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
     if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
         from jaxdepth import nuscenes_job
         return nuscenes_job.run_cli(args)
@@ -231,14 +235,32 @@ def cmd_complete(args) -> int:
         from jaxdepth import scale
         summary = scale.run_jobs_ray(jobs, method=args.method, config=_config_from(args),
                                      batch_size=args.batch_size, overwrite=args.overwrite,
-                                     address=args.ray_address, on_progress=progress.update)
+                                     address=args.ray_address, on_progress=progress.update,
+                                     extras=_extras_from(args))
     else:
         summary = runner.run_jobs(jobs, method=args.method, config=_config_from(args), batch_size=args.batch_size,
                                   overwrite=args.overwrite, png_compression=args.png_compression,
-                                  io_threads=_io_threads(), on_progress=progress.update)
+                                  io_threads=_io_threads(), on_progress=progress.update,
+                                  extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _extras_from(args):
+    from jaxdepth import extras
+    return extras.from_args(args)
+
+
+def _extras_usage(args) -> str | None:
+    """Why the extra-output flags cannot be used as given (None: they can)."""
+    try:
+        extras = _extras_from(args)
+    except ValueError as err:
+        return str(err)
+    if extras.needs_seeds and getattr(args, "method", "sgm") != "sgm":
+        return "--validity, --seed-distance and --zero-invalid need --method sgm (they use its seeds)"
+    return None
 
 
 def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
@@ -321,6 +343,13 @@ def cmd_complete_rig(args) -> int:
     from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json, write_depth_png
     from jaxdepth.io.points import ring_column
 
+    from jaxdepth import extras as extra_outputs
+
+    usage = _extras_usage(args)
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    extras = _extras_from(args)
     rig = read_rig_json(args.rig)
     columns = infer_point_columns(args.points, args.point_columns)
     points, extra = read_points(args.points, columns=columns)
@@ -338,6 +367,14 @@ def cmd_complete_rig(args) -> int:
     cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
     stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar)
     depth = np.asarray(stages.depth)
+    valid = distance = None
+    if extras.needs_seeds:
+        import functools
+        import jax
+        from jaxdepth._src.validity import validity_and_distance
+        per_camera = functools.partial(validity_and_distance, lidar=rig.lidar, metric=config.distance_metric,
+                                       max_seed_distance_px=extras.max_seed_distance_px)
+        valid, distance = (np.asarray(a) for a in jax.vmap(per_camera)(stages, cameras.K, cameras.T_cam_lidar))
     seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
     failed = 0
     for i, camera in enumerate(rig.cameras):
@@ -348,10 +385,17 @@ def cmd_complete_rig(args) -> int:
             log.warning("%s", message)
             print(f"warning: {message}", file=sys.stderr)
         target = out_dir / f"{camera.name}.png"
-        if target.exists() and not args.overwrite:
+        if extra_outputs.is_done(target, extras) and not args.overwrite:
             print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
             continue
-        write_depth_png(target, depth[i, :camera.height, :camera.width])
+        window = (i, slice(0, camera.height), slice(0, camera.width))
+        if extras == extra_outputs.NONE:
+            write_depth_png(target, depth[window])
+        else:
+            extra_outputs.write_outputs(target, depth[window], extras=extras,
+                                        valid=None if valid is None else valid[window],
+                                        distance=None if distance is None else distance[window],
+                                        overwrite=args.overwrite)
         if not args.quiet:
             valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
             print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
@@ -433,6 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    from jaxdepth import extras as extras_cli
+    extras_cli.add_cli_options(p)
     from jaxdepth import nuscenes_job
     nuscenes_job.add_cli_options(p)
     p.set_defaults(func=cmd_complete)
@@ -449,6 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p, methods=("sgm",))
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("-q", "--quiet", action="store_true")
+    extras_cli.add_cli_options(p)
     p.set_defaults(func=cmd_complete_rig)
 
     p = sub.add_parser(

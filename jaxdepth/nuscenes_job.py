@@ -79,12 +79,37 @@ def _depth_fn(config, lidar):
     return jax.jit(depth)
 
 
-def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify) -> list:
+@functools.lru_cache(maxsize=8)
+def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
+    """jit: as :func:`_depth_fn`, returning ((C, H, W) depth, valid, seed distance) for the extra outputs
+    (:func:`jaxdepth._src.validity.validity_and_distance` per camera)."""
+    import jax
+
+    from jaxdepth._src.rig import complete_rig_stages
+    from jaxdepth._src.validity import validity_and_distance
+
+    def depth(points, valid, cameras):
+        key = (points.shape[0], cameras.count, cameras.height, cameras.width, config, lidar, "extras",
+               max_seed_distance_px)
+        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
+        stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
+        per_camera = functools.partial(validity_and_distance, lidar=lidar, metric=config.distance_metric,
+                                       max_seed_distance_px=max_seed_distance_px)
+        return (stages.depth,) + jax.vmap(per_camera)(stages, cameras.K, cameras.T_cam_lidar)
+
+    return jax.jit(depth)
+
+
+def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=None) -> list:
     """The samples still to complete: every camera output of a sample exists -> skipped (unless
-    ``overwrite``); a sample whose key frames cannot be found -> failed."""
+    ``overwrite``); a sample whose key frames cannot be found -> failed. With ``extras``
+    (:class:`jaxdepth.extras.ExtraOutputs`) a camera's output exists when its depth PNG and
+    every requested extra do."""
+    from jaxdepth.extras import NONE, is_done
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.errors import JaxdepthError
 
+    extras = NONE if extras is None else extras
     todo = []
     for token in tables.samples():
         try:
@@ -94,7 +119,7 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify) -> list
             summary.failed.append((token, str(err)))
             notify(token, f"failed: {err}")
             continue
-        missing = [(c, p) for c, p in paths if overwrite or not p.exists()]
+        missing = [(c, p) for c, p in paths if overwrite or not is_done(p, extras)]
         if not missing:
             summary.skipped.append(token)
             notify(token, "skipped")
@@ -129,7 +154,8 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool):
 
 def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True, config=None,
                  overwrite: bool = False, png_compression: int | None = None, devices: int = 1,
-                 io_threads: int = 2, on_progress: Callable[[str, str], None] | None = None, tables=None):
+                 io_threads: int = 2, on_progress: Callable[[str, str], None] | None = None, tables=None,
+                 extras=None):
     """Completes every sample of ``<dataroot>/<version>`` into ``<dst>/<version>/<CHANNEL>/<token>.png``.
 
     Args:
@@ -149,6 +175,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).
+      extras: :class:`jaxdepth.extras.ExtraOutputs` (default none): preview, validity,
+        seed distance, zero-invalid beside each PNG as ``<token>_<kind>.png``; validity
+        uses the nuScenes HDL-32E field of view.
 
     Returns:
       :class:`jaxdepth.runner.RunSummary` over sample tokens (never raises for a bad sample).
@@ -163,7 +192,10 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, write_depth_png
     from jaxdepth.io.errors import JaxdepthError, OutputError
+    from jaxdepth import extras as extra_outputs
     from jaxdepth.runner import RunSummary
+
+    extras = extra_outputs.NONE if extras is None else extras
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
         raise ValueError(f"run_nuscenes: 'sweeps' expected an integer >= 1, got {sweeps!r}")
@@ -173,7 +205,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
     tables = nusc.load_tables(dataroot, version) if tables is None else tables
-    todo = plan(tables, dst, overwrite=overwrite, summary=summary, notify=notify)
+    todo = plan(tables, dst, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
     if not todo:
         return summary
     for folder in sorted({p.parent for job in todo for p in job.out_paths}):
@@ -191,12 +223,19 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
             summary.failed.append((token, message))
         notify(token, f"failed: {message}")
 
-    def write(job, rig, depth):
+    def write(job, rig, depth, valid=None, distance=None):
         by_name = {c.name: (i, c) for i, c in enumerate(rig.cameras)}
         try:
             for channel, path in zip(job.channels, job.out_paths):
                 i, cam = by_name[channel]
-                write_depth_png(path, depth[i, :cam.height, :cam.width], compression=png_compression)
+                window = (i, slice(0, cam.height), slice(0, cam.width))
+                if extras == extra_outputs.NONE:
+                    write_depth_png(path, depth[window], compression=png_compression)
+                else:
+                    extra_outputs.write_outputs(path, depth[window], extras=extras, overwrite=overwrite,
+                                                valid=None if valid is None else valid[window],
+                                                distance=None if distance is None else distance[window],
+                                                compression=png_compression)
         except JaxdepthError as err:
             fail(job.token, str(err))
             return
@@ -217,11 +256,11 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         def collect():
             job, rig, out = in_flight.popleft()
             try:
-                depth = np.asarray(out)
+                arrays = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
             except Exception as err:  # a compute failure costs this sample, not the run
                 fail(job.token, f"completion failed: {err}")
                 return
-            written.append(writers.submit(write, job, rig, depth))
+            written.append(writers.submit(write, job, rig, *arrays))
 
         loads = collections.deque()
         jobs = iter(todo)
@@ -247,7 +286,8 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
             device = targets[count % len(targets)]
             count += 1
             try:
-                fn = _depth_fn(config, rig.lidar)
+                fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
+                      else _depth_fn(config, rig.lidar))
                 out = fn(*jax.device_put((padded, valid, cameras), device))
             except Exception as err:
                 fail(job.token, f"completion failed: {err}")
@@ -310,7 +350,7 @@ def run_cli(args) -> int:
     summary = run_nuscenes(args.src, dst, version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                            config=cli._config_from(args), overwrite=args.overwrite,
                            png_compression=args.png_compression, io_threads=cli._io_threads(),
-                           on_progress=progress.update, tables=tables)
+                           on_progress=progress.update, tables=tables, extras=cli._extras_from(args))
     progress.close()
     return cli._report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 

@@ -97,19 +97,35 @@ TRACE_COUNTS: dict = {}
 
 @functools.lru_cache(maxsize=32)
 def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
-                       lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
+                       lidar: LidarSpec, strategy: str, devices: int = 1,
+                       max_seed_distance_px: float | None = None) -> Callable:
     """(B, H, W), (B, 3, 3), (B, 4, 4) -> (B, H, W) completion for one bucket (one compiled function).
 
     Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
+
+    With ``max_seed_distance_px`` (extra outputs, method "sgm" only) the function returns
+    ``(depth, valid, seed_distance)``, each (B, H, W), from
+    :func:`jaxdepth._src.validity.validity_and_distance` of the frame's Stages (another
+    compiled function; without it nothing changes).
 
     ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     key = (batch_size, height, width, method, config, lidar, strategy, devices)
+    if max_seed_distance_px is not None:
+        if method != "sgm":
+            raise ValueError(f"batched_completion: extra outputs (validity, seed distance) need method 'sgm', "
+                             f"got {method!r}")
+        key += ("extras", max_seed_distance_px)
 
     def one(depth, K, T):
-        return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
+        if max_seed_distance_px is None:
+            return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
+        from jaxdepth._src.pipeline import complete_stages
+        stages = complete_stages(depth, K, T, config=config, lidar=lidar)
+        return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
+                                           max_seed_distance_px=max_seed_distance_px)
 
     if strategy == "loop":
         def traced_one(depth, K, T):
@@ -126,7 +142,7 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
             # Dispatch every frame first (asynchronous), then collect.
             outs = [single(*jax.device_put((depths[i], Ks[i], Ts[i]), targets[i % len(targets)]))
                     for i in range(batch_size)]
-            return np.stack([np.asarray(out) for out in outs])
+            return _stack_outputs(outs)
 
         return run
 
@@ -140,32 +156,57 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
             fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 3,
-                               out_specs=PartitionSpec("batch"), check_vma=False)
+                               out_specs=_out_specs(max_seed_distance_px), check_vma=False)
             return fn(depths, Ks, Ts)
         return per_device(depths, Ks, Ts)
 
     return jax.jit(traced)
 
 
+def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px: float):
+    from jaxdepth._src.validity import validity_and_distance
+    return validity_and_distance(stages, K, T, lidar=lidar, metric=config.distance_metric,
+                                 max_seed_distance_px=max_seed_distance_px)
+
+
+def _stack_outputs(outs: list):
+    """Per-frame results (arrays or tuples of arrays) -> one stacked array or tuple."""
+    if isinstance(outs[0], tuple):
+        return tuple(np.stack([np.asarray(out[j]) for out in outs]) for j in range(len(outs[0])))
+    return np.stack([np.asarray(out) for out in outs])
+
+
+def _out_specs(max_seed_distance_px):
+    return PartitionSpec("batch") if max_seed_distance_px is None else (PartitionSpec("batch"),) * 3
+
+
 @functools.lru_cache(maxsize=32)
 def batched_sweep_completion(batch_size: int, points: int, height: int, width: int, *, config: SGMConfig,
-                             lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
+                             lidar: LidarSpec, strategy: str, devices: int = 1,
+                             max_seed_distance_px: float | None = None) -> Callable:
     """(B, P, 3), (B, P), (B, 3, 3), (B, 4, 4) -> (B, H, W) SGM completion of padded sweeps (one bucket).
 
     Frame i is :func:`jaxdepth.complete_points` of ``points[i]``, ``valid[i]`` for the
     camera (``K[i]``, ``T[i]``, ``height`` x ``width``); K and T are traced. Strategies
-    and devices as in :func:`batched_completion`. ``TRACE_COUNTS`` counts its traces too.
+    and devices as in :func:`batched_completion`, and so is ``max_seed_distance_px``
+    (then ``(depth, valid, seed_distance)``). ``TRACE_COUNTS`` counts its traces too.
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_sweep_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
-    from jaxdepth._src.pipeline import complete_points
+    from jaxdepth._src.pipeline import complete_points, complete_points_stages
     from jaxdepth._src.types import Camera
 
     key = ("sweep", batch_size, points, height, width, config, lidar, strategy, devices)
+    if max_seed_distance_px is not None:
+        key += ("extras", max_seed_distance_px)
 
     def one(pts, valid, K, T):
-        return complete_points(pts, valid, Camera(K=K, T_cam_lidar=T, height=height, width=width),
-                               config=config, lidar=lidar)
+        camera = Camera(K=K, T_cam_lidar=T, height=height, width=width)
+        if max_seed_distance_px is None:
+            return complete_points(pts, valid, camera, config=config, lidar=lidar)
+        stages = complete_points_stages(pts, valid, camera, config=config, lidar=lidar)
+        return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
+                                           max_seed_distance_px=max_seed_distance_px)
 
     def counted(fn):
         def traced(*args):
@@ -180,7 +221,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         def run(*args):
             outs = [single(*jax.device_put(tuple(a[i] for a in args), targets[i % len(targets)]))
                     for i in range(batch_size)]
-            return np.stack([np.asarray(out) for out in outs])
+            return _stack_outputs(outs)
 
         return run
 
@@ -193,7 +234,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
             fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 4,
-                               out_specs=PartitionSpec("batch"), check_vma=False)
+                               out_specs=_out_specs(max_seed_distance_px), check_vma=False)
             return fn(*args)
         return per_device(*args)
 
@@ -275,15 +316,18 @@ def _group_key(job: FrameJob, data) -> tuple:
 
 
 def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config: SGMConfig, lidar: LidarSpec,
-                strategy: str, devices: int):
+                strategy: str, devices: int, max_seed_distance_px: float | None = None):
     """(compiled function, padded argument arrays, real frame count) of one group's batch.
 
     ``items``: up to ``batch_size`` tuples (job, data, K, T) of one :func:`_group_key`.
     """
+    # The extras keyword only when set: lru_cache keys on the keywords passed, and a run
+    # without extras must reuse the very function (and compilation) it always did.
+    more = {} if max_seed_distance_px is None else {"max_seed_distance_px": max_seed_distance_px}
     if key[0] != "sweep":
         h, w = key
         fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
-                                strategy=strategy, devices=devices)
+                                strategy=strategy, devices=devices, **more)
         d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
                                 np.stack([it[3] for it in items]), batch_size)
         return fn, (d, k, t), n
@@ -291,7 +335,7 @@ def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config
         raise ValueError(f"sweeps complete with method 'sgm' only, got {method!r}")
     _, points, h, w = key
     fn = batched_sweep_completion(batch_size, points, h, w, config=config, lidar=lidar, strategy=strategy,
-                                  devices=devices)
+                                  devices=devices, **more)
     pts = np.stack([it[1][0] for it in items])
     valid = np.stack([it[1][1] for it in items])
     d, k, t, n = _pad_batch(pts, np.stack([it[2] for it in items]), np.stack([it[3] for it in items]), batch_size)
@@ -320,11 +364,17 @@ def _load(job: FrameJob):
 
 
 def pending_jobs(jobs: Iterable[FrameJob], *, overwrite: bool, summary: RunSummary,
-                 notify: Callable[[str, str], None]) -> list:
-    """The jobs still to run: a finished output is recorded as skipped (resume) unless ``overwrite``."""
+                 notify: Callable[[str, str], None], extras=None) -> list:
+    """The jobs still to run: a finished output is recorded as skipped (resume) unless ``overwrite``.
+
+    With ``extras`` (:class:`jaxdepth.extras.ExtraOutputs`) an output is finished when the
+    depth PNG and every requested extra file exist.
+    """
+    from jaxdepth.extras import NONE, is_done
+    extras = NONE if extras is None else extras
     todo = []
     for job in jobs:
-        if job.out_path.exists() and not overwrite:
+        if not overwrite and is_done(job.out_path, extras):
             summary.skipped.append(job.name)
             notify(job.name, "skipped")
         else:
@@ -337,7 +387,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
              batch_size: int = 4, overwrite: bool = False, strategy: str | None = None,
              devices: int | None = None, io_threads: int = 2,
              png_compression: int = DEFAULT_PNG_COMPRESSION,
-             on_progress: Callable[[str, str], None] | None = None) -> RunSummary:
+             on_progress: Callable[[str, str], None] | None = None, extras=None) -> RunSummary:
     """Completes every job; never raises for a bad frame (it is recorded in ``failed``).
 
     ``on_progress(name, status)`` is called once per frame with status "done",
@@ -352,14 +402,26 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     Sweep jobs (``FrameJob.image_size`` set) are batched per (power-of-two point
     bucket, image size): one compiled function each, like depth images per size.
 
+    ``extras`` (:class:`jaxdepth.extras.ExtraOutputs`, default none): preview, validity
+    mask, seed distance, zero outside the valid region, written beside each output
+    (:mod:`jaxdepth.extras`). Validity, seed distance and zero-invalid need method "sgm"
+    and use their own compiled functions; with none of them the run compiles and
+    writes exactly what it does without ``extras``.
+
     Raises:
-      ValueError: sweep jobs with a ``method`` other than "sgm".
+      ValueError: sweep jobs, or validity / seed-distance / zero-invalid extras, with a
+        ``method`` other than "sgm".
     """
+    from jaxdepth import extras as extra_outputs
+    extras = extra_outputs.NONE if extras is None else extras
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
+    if method != "sgm" and extras.needs_seeds:
+        raise ValueError(f"run_jobs: --validity, --seed-distance and --zero-invalid need method 'sgm', got {method!r}")
+    max_seed_px = extras.max_seed_distance_px if extras.needs_seeds else None
     summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
-    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
+    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
     if not todo:
         return summary
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
@@ -375,9 +437,13 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
             summary.failed.append((name, message))
         notify(name, f"failed: {message}")
 
-    def write(job, depth):
+    def write(job, depth, valid=None, distance=None):
         try:
-            write_depth_png(job.out_path, depth, compression=png_compression)
+            if extras == extra_outputs.NONE:
+                write_depth_png(job.out_path, depth, compression=png_compression)
+            else:
+                extra_outputs.write_outputs(job.out_path, depth, extras=extras, valid=valid, distance=distance,
+                                            overwrite=overwrite, compression=png_compression)
         except io_errors.JaxdepthError as err:
             record_failure(job.name, str(err))
             return
@@ -398,17 +464,18 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
         def collect():
             items, out = in_flight.pop()
             try:
-                result = np.asarray(out)
+                result = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
             except Exception as err:  # a compute failure costs this batch, not the run
                 for job, *_ in items:
                     record_failure(job.name, f"completion failed: {err}")
                 return
             for i, (job, *_) in enumerate(items):
-                write_futures.append(writers.submit(write, job, result[i]))
+                write_futures.append(writers.submit(write, job, *(r[i] for r in result)))
 
         def flush(key, items):
             fn, args, n = _group_call(key, items, batch_size=batch_size, method=method, config=config,
-                                      lidar=lidar, strategy=strategy, devices=devices)
+                                      lidar=lidar, strategy=strategy, devices=devices,
+                                      max_seed_distance_px=max_seed_px)
             try:
                 out = fn(*args)  # dispatched; runs while the previous batch is collected
             except Exception as err:

@@ -120,10 +120,18 @@ class _CompleteFrames:
     """
 
     def __init__(self, *, method: str, config: SGMConfig, lidar: LidarSpec, T_cam_lidar: np.ndarray,
-                 batch_size: int, io_threads: int = 2):
+                 batch_size: int, io_threads: int = 2, extras=None, overwrite: bool = False):
         import jax
 
+        from jaxdepth import extras as extra_outputs
         from jaxdepth import runner
+
+        # Extra outputs (jaxdepth.extras): files beside each PNG; existing ones are kept unless
+        # ``overwrite``, so a retried task skips what an earlier attempt finished.
+        self.extras = extra_outputs.NONE if extras is None else extras
+        self.overwrite = bool(overwrite)
+        self._more = ({"max_seed_distance_px": self.extras.max_seed_distance_px} if self.extras.needs_seeds
+                      else {})
 
         self._runner = runner
         self.method, self.config, self.lidar = method, config, lidar
@@ -144,13 +152,17 @@ class _CompleteFrames:
         except OSError as err:
             return None, f"{job.sparse_path}: {err}"
 
-    @staticmethod
-    def _write(job, depth) -> str | None:
+    def _write(self, job, depth, valid=None, distance=None) -> str | None:
+        from jaxdepth import extras as extra_outputs
         from jaxdepth.io import errors as io_errors
         from jaxdepth.io.depth_png import write_depth_png
 
         try:
-            write_depth_png(job.out_path, depth)
+            if self.extras == extra_outputs.NONE:
+                write_depth_png(job.out_path, depth)
+            else:
+                extra_outputs.write_outputs(job.out_path, depth, extras=self.extras, valid=valid,
+                                            distance=distance, overwrite=self.overwrite)
         except io_errors.JaxdepthError as err:
             return str(err)
         except OSError as err:
@@ -176,13 +188,15 @@ class _CompleteFrames:
                         # The runner's compiled functions (cached per process, so per actor) and padding.
                         fn, args, _ = self._runner._group_call(
                             key, chunk, batch_size=self.batch_size, method=self.method, config=self.config,
-                            lidar=self.lidar, strategy=self.strategy, devices=self.devices)
-                        result = np.asarray(fn(*args))
+                            lidar=self.lidar, strategy=self.strategy, devices=self.devices, **self._more)
+                        out = fn(*args)
+                        result = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
                     except Exception as err:  # a compute failure costs this chunk, not the dataset
                         for job, *_ in chunk:
                             failure[job.name] = f"completion failed: {err}"
                         continue
-                    writes += [(job, pool.submit(self._write, job, result[i])) for i, (job, *_) in enumerate(chunk)]
+                    writes += [(job, pool.submit(self._write, job, *(r[i] for r in result)))
+                               for i, (job, *_) in enumerate(chunk)]
             for job, future in writes:
                 message = future.result()
                 if message is not None:
@@ -296,7 +310,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
                  batch_size: int = 4, overwrite: bool = False, address: str | None = None,
                  num_actors: int | None = None, cpus_per_actor: float = 1.0, gpus_per_actor: float = 0.0,
                  max_restarts: int = 3, max_task_retries: int = 3, runtime_env: dict | None = None,
-                 on_progress: Callable[[str, str], None] | None = None):
+                 on_progress: Callable[[str, str], None] | None = None, extras=None):
     """Completes every job on a Ray cluster; never raises for a bad frame.
 
     Same contract as :func:`jaxdepth.runner.run_jobs` (and the same output
@@ -329,6 +343,8 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         when the cluster does not have jaxdepth installed).
       on_progress: ``on_progress(name, status)`` once per frame on the driver,
         status "done", "skipped" or "failed: <message>", as rows arrive.
+      extras: :class:`jaxdepth.extras.ExtraOutputs` (default none), as in
+        :func:`jaxdepth.runner.run_jobs`.
 
     Returns:
       :class:`jaxdepth.runner.RunSummary` with ``done``, ``skipped`` (output
@@ -353,12 +369,15 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         raise ValueError(f"run_jobs_ray: field 'jobs' expected distinct output paths, got {dup!r} twice")
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs_ray: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
+    if method != "sgm" and extras is not None and extras.needs_seeds:
+        raise ValueError(f"run_jobs_ray: validity / seed-distance / zero-invalid extras need method 'sgm', "
+                         f"got {method!r}")
     ray, ray_data = _import_ray()
 
     summary = RunSummary()
     notify = on_progress or (lambda name, status: None)
     from jaxdepth.runner import pending_jobs
-    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify)
+    todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
     if not todo:
         return summary
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
@@ -392,7 +411,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
                     batch_format="numpy",
                     compute=ray_data.ActorPoolStrategy(size=actors),
                     fn_constructor_kwargs=dict(method=method, config=config, lidar=lidar, T_cam_lidar=T,
-                                               batch_size=batch_size),
+                                               batch_size=batch_size, extras=extras, overwrite=overwrite),
                     num_cpus=cpus_per_actor,
                     num_gpus=gpus_per_actor,
                     max_restarts=max_restarts,

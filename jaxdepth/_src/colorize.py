@@ -173,3 +173,78 @@ def overlay_mask(image, mask, *, color=(255, 0, 0), dot_radius_px: int = 1) -> n
                            borderValue=0)
     out[grown > 0] = rgb.astype(np.uint8)
     return out
+
+
+def nice_ticks(lo: float, hi: float, *, max_ticks: int = 7) -> np.ndarray:
+    """Round tick values (1, 2 or 5 times a power of ten apart) inside [lo, hi]; at most ``max_ticks``."""
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:
+        raise ValueError(f"nice_ticks: expected finite lo <= hi, got {lo!r}, {hi!r}")
+    if hi == lo:
+        return np.array([lo], np.float64)
+    raw = (hi - lo) / max(1, max_ticks - 1)
+    power = 10.0 ** np.floor(np.log10(raw))
+    for mult in (1.0, 2.0, 5.0, 10.0):
+        step = mult * power
+        if (hi - lo) / step <= max_ticks - 1:
+            break
+    first = np.ceil(lo / step - 1e-9) * step
+    ticks = first + step * np.arange(int(np.floor((hi - first) / step + 1e-9)) + 1)
+    return np.round(ticks, 10)
+
+
+def _tick_label(value: float) -> str:
+    text = f"{value:.2f}".rstrip("0").rstrip(".")
+    return f"{'0' if text == '-0' else text} m"
+
+
+def depth_preview(depth, *, vmin: float | None = None, vmax: float | None = None, cmap: str = "turbo",
+                  invert: bool = False, bar_height_px: int = 36) -> np.ndarray:
+    """:func:`colorize_depth` with a depth scale bar underneath (tick labels in metres, OpenCV text).
+
+    Args:
+      depth: (H, W) depth, metres; ``<= 0`` or non-finite = empty (black).
+      vmin, vmax, cmap, invert: as :func:`colorize_depth`; the default range is the
+        minimum / maximum valid depth (0 to 1 m for an image with no valid pixel).
+      bar_height_px: height of the strip added below the image: a colour ramp of
+        the range (left = ``vmin``) in its upper third, ticks at round depths
+        (:func:`nice_ticks`) and their labels (``cv2.putText``) below it.
+
+    Returns:
+      (H + bar_height_px, W, 3) uint8 RGB: rows ``[:H]`` equal ``colorize_depth``
+      with the same range; the bar's column ``x`` shows the colour of depth
+      ``vmin + (vmax - vmin) * x / (W - 1)``.
+    """
+    d = np.asarray(depth, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"depth_preview: field 'depth' expected shape (H, W), got {d.shape}")
+    if isinstance(bar_height_px, bool) or int(bar_height_px) != bar_height_px or bar_height_px < 12:
+        raise ValueError(f"depth_preview: field 'bar_height_px' expected an integer >= 12, got {bar_height_px!r}")
+    valid = np.isfinite(d) & (d > 0)
+    lo = (float(d[valid].min()) if valid.any() else 0.0) if vmin is None else float(vmin)
+    hi = (float(d[valid].max()) if valid.any() else 1.0) if vmax is None else float(vmax)
+    if not hi >= lo:
+        raise ValueError(f"depth_preview: field 'vmax' expected >= vmin ({lo}), got {hi}")
+    h, w = d.shape
+    image = colorize_depth(d, vmin=lo, vmax=hi, cmap=cmap, invert=invert)
+    bar = np.zeros((int(bar_height_px), w, 3), np.uint8)
+    ramp_h = max(4, int(bar_height_px) // 3)
+    t = np.arange(w, dtype=np.float64) / max(1, w - 1)
+    idx = np.rint(t * 255.0).astype(np.int64)
+    if invert:
+        idx = 255 - idx
+    bar[1:1 + ramp_h] = colormap_lut(cmap)[idx][None]
+    span = hi - lo
+    font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1
+    y_text = int(bar_height_px) - 3
+    right_edge = -10**9  # right end of the last label drawn
+    for tick in nice_ticks(lo, hi, max_ticks=max(2, min(7, w // 60))):
+        x = 0 if span <= 0 else int(round((tick - lo) / span * (w - 1)))
+        cv2.line(bar, (x, 1 + ramp_h), (x, ramp_h + 4), (255, 255, 255), 1)
+        label = _tick_label(float(tick))
+        (tw, _), _ = cv2.getTextSize(label, font, scale, thick)
+        left = min(max(0, x - tw // 2), max(0, w - tw))
+        if left <= right_edge + 4:  # would overlap the previous label
+            continue
+        cv2.putText(bar, label, (left, y_text), font, scale, (255, 255, 255), thick, cv2.LINE_AA)
+        right_edge = left + tw
+    return np.concatenate([image, bar], axis=0)

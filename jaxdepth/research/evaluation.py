@@ -44,6 +44,8 @@ CSV_COLUMNS = ("frame", "rmse_mm", "mae_mm", "irmse_per_km", "imae_per_km", "pre
 # Kinds (the <name> of a layout, see frame_identity) that mark a file's role.
 GROUND_TRUTH_KINDS = frozenset({"groundtruth", "groundtruth_depth"})
 CAMERA_IMAGE_KINDS = frozenset({"image"})  # RGB images of a selection folder: never depth
+# jaxdepth complete's extra outputs <stem>_<kind>.png (jaxdepth.extras): never depth predictions
+_EXTRA_OUTPUT = re.compile(r"_(preview|validity|seed_distance)\.png$")
 _SELECTION_SUBFOLDERS = frozenset({"velodyne_raw", "groundtruth_depth", "image"})
 
 _KITTI_DRIVE = r"\d{4}_\d{2}_\d{2}_drive_\d{4}_sync"
@@ -137,7 +139,8 @@ def collect_frames(root, *, side: str) -> tuple[dict, list]:
     Args:
       root: folder, walked recursively.
       side: ``"prediction"`` or ``"ground truth"``. Camera images (kind ``image``)
-        are skipped on both sides. On the ground-truth side, when any file is
+        and ``jaxdepth complete``'s extra outputs (``*_preview.png``,
+        ``*_validity.png``, ``*_seed_distance.png``) are skipped on both sides. On the ground-truth side, when any file is
         marked as ground truth (kind ``groundtruth`` / ``groundtruth_depth``), only
         those are read (a merged KITTI tree or a whole selection folder holds the
         LiDAR input beside them); on the prediction side such files are skipped
@@ -153,7 +156,7 @@ def collect_frames(root, *, side: str) -> tuple[dict, list]:
     if not root.is_dir():
         raise InputError(f"{root}: folder not found (expected a folder of {side} depth PNGs)")
     entries = [_Entry(*frame_identity(rel), rel) for rel in _walk_pngs(root)]
-    kept = [e for e in entries if e.kind not in CAMERA_IMAGE_KINDS]
+    kept = [e for e in entries if e.kind not in CAMERA_IMAGE_KINDS and not _EXTRA_OUTPUT.search(e.rel)]
     marked = [e for e in kept if e.kind in GROUND_TRUTH_KINDS]
     if side == "ground truth":
         kept = marked or kept
