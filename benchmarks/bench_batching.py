@@ -44,7 +44,8 @@ def timed(call, repeats):
 
 def frames_section(batch_sizes, strategies, devices, repeats):
     from bench_end_to_end import load_frame
-    from jaxdepth import SGMConfig, runner
+    from jaxdepth import SGMConfig
+    from jaxdepth.batch import runner
     from jaxdepth._src import presets
     sparse, K, T, label = load_frame()
     out = {"frame": label}

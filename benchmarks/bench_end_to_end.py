@@ -34,7 +34,7 @@ from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_dep
 from jaxdepth._src.methods import complete_with
 from jaxdepth._src.pipeline import complete_stages
 from jaxdepth.research.baselines import ip_basic_opencv
-from jaxdepth import runner
+from jaxdepth.batch import runner
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 FRAME = ROOT.parent / "shared" / "data" / "kitti" / "drive_0001_frame05"

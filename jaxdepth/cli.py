@@ -9,13 +9,13 @@ import argparse
 import json
 import logging
 import pathlib
-import stat
 import sys
 import time
 
 import numpy as np
 
 from jaxdepth import __version__
+from jaxdepth.batch import devices
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 
@@ -79,105 +79,11 @@ def cmd_demo(args) -> int:
     return 0
 
 
-_DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
 _PNG_COMPRESSION_DEFAULT = DEFAULT_PNG_COMPRESSION
 
 
-def split_cpu_into_devices(count: int | None = None) -> int:
-    """Asks XLA for one host (CPU) device per core, so the runner shards a batch over
-    the cores: each core completes its own frames (measured ~1.4x the frames/s of one
-    device using both cores on each frame; same bytes out).
-
-    Only possible before JAX starts its backends; does nothing (returns 0) if they
-    already run or ``XLA_FLAGS`` already sets a device count. Returns the count set.
-    Accelerators are unaffected (the runner uses the default backend's devices).
-    """
-    import os
-    count = (os.cpu_count() or 1) if count is None else int(count)
-    flags = os.environ.get("XLA_FLAGS", "")
-    if count < 2 or _DEVICE_COUNT_FLAG in flags:
-        return 0
-    try:
-        from jax._src import xla_bridge
-        if xla_bridge.backends_are_initialized():
-            return 0
-    except (ImportError, AttributeError):  # a JAX without this check: leave XLA as it is
-        return 0
-    os.environ["XLA_FLAGS"] = f"{flags} {_DEVICE_COUNT_FLAG}={count}".strip()
-    return count
-
-
-_COMPILE_CACHE_MAX_BYTES = 1 << 30
-
-
-def _trim_compile_cache(folder: pathlib.Path, max_bytes: int) -> int:
-    """Deletes the files of ``folder`` written longest ago until at most ``max_bytes`` remain.
-
-    JAX's own size cap (``jax_compilation_cache_max_size``) needs the optional
-    ``filelock`` package, which a plain ``pip install jaxdepth`` does not bring,
-    and without it JAX refuses every cache read and write; so the cap is kept
-    here, once per run, by modification time (ties: file name). Files that
-    vanish or cannot be deleted meanwhile are skipped. Returns the bytes left.
-    """
-    entries = []
-    for path in folder.iterdir():
-        try:
-            info = path.stat()
-        except OSError:
-            continue
-        if stat.S_ISREG(info.st_mode):
-            entries.append((info.st_mtime_ns, path.name, info.st_size, path))
-    total = sum(entry[2] for entry in entries)
-    for _, _, size, path in sorted(entries):
-        if total <= max_bytes:
-            break
-        try:
-            path.unlink()
-        except OSError:
-            continue
-        total -= size
-    return total
-
-
-def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
-    """Keeps compiled XLA executables on disk (JAX's persistent compilation cache), so a
-    later run for the same image size, config and JAX version skips compilation
-    (measured here: a new process's first KITTI-sized ``complete`` 9.8 s -> 3.1 s, the rest
-    being imports and tracing). Outputs are the same bytes with or without it.
-
-    The folder is ``$XDG_CACHE_HOME/jaxdepth/xla`` (default ``~/.cache/jaxdepth/xla``),
-    capped at 1 GiB (at the start of each run the entries written longest ago are
-    deleted beyond that, see :func:`_trim_compile_cache`). Left off when
-    ``enabled`` is False (``--no-compile-cache``), when ``JAXDEPTH_COMPILE_CACHE=0``, when
-    JAX already has a cache folder (``JAX_COMPILATION_CACHE_DIR``), or when the folder
-    cannot be created or written. Returns the folder in use, or None.
-    """
-    import os
-    if not enabled or os.environ.get("JAXDEPTH_COMPILE_CACHE", "1") == "0":
-        return None
-    import jax
-    if jax.config.jax_compilation_cache_dir:
-        return None
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    folder = pathlib.Path(base) / "jaxdepth" / "xla"
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        log.info("compile cache off: cannot create %s (%s)", folder, err.strerror or err)
-        return None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        log.info("compile cache off: %s is not writable", folder)
-        return None
-    try:
-        _trim_compile_cache(folder, _COMPILE_CACHE_MAX_BYTES)
-    except OSError as err:  # e.g. a folder that cannot be listed: the cache still works
-        log.info("compile cache not trimmed: %s (%s)", folder, err.strerror or err)
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    return folder
-
-
 def cmd_complete(args) -> int:
-    from jaxdepth import runner
+    from jaxdepth.batch import runner
     from jaxdepth.io.calib import read_intrinsics_txt
     from jaxdepth.io.errors import InputError
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
@@ -190,8 +96,7 @@ def cmd_complete(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
-        from jaxdepth import nuscenes_job
-        return nuscenes_job.run_cli(args)
+        return _cmd_complete_nuscenes(args)
     src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
     scan = _discover_dataset(src, dst, args)
     pre_failed = [] if scan is None else scan.failed
@@ -224,7 +129,7 @@ def cmd_complete(args) -> int:
                 for name, png, k_path in list_depth_completion_folder(src)]
         _ensure_writable_dir(dst)
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
-        split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
+        devices.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
         print("jaxdepth: error: --png-compression is only supported with --engine local", file=sys.stderr)
         return 2
@@ -232,7 +137,7 @@ def cmd_complete(args) -> int:
     for name, message in pre_failed:
         progress.update(name, f"failed: {message}")
     if args.engine == "ray":
-        from jaxdepth import scale
+        from jaxdepth.batch import scale
         summary = scale.run_jobs_ray(jobs, method=args.method, config=_config_from(args),
                                      batch_size=args.batch_size, overwrite=args.overwrite,
                                      address=args.ray_address, on_progress=progress.update,
@@ -240,7 +145,7 @@ def cmd_complete(args) -> int:
     else:
         summary = runner.run_jobs(jobs, method=args.method, config=_config_from(args), batch_size=args.batch_size,
                                   overwrite=args.overwrite, png_compression=args.png_compression,
-                                  io_threads=_io_threads(), on_progress=progress.update,
+                                  io_threads=devices.io_threads(), on_progress=progress.update,
                                   extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
@@ -248,7 +153,7 @@ def cmd_complete(args) -> int:
 
 
 def _extras_from(args):
-    from jaxdepth import extras
+    from jaxdepth.batch import extras
     return extras.from_args(args)
 
 
@@ -292,12 +197,6 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     return scan
 
 
-def _io_threads() -> int:
-    """Decode / encode threads of the local runner: one per core, at least 2."""
-    import os
-    return max(2, os.cpu_count() or 1)
-
-
 def _ensure_writable_dir(path: pathlib.Path):
     from jaxdepth.io.errors import OutputError
     try:
@@ -338,12 +237,60 @@ def _timing_line(summary, t_start: float, t_end: float) -> str:
     return "time: " + ", ".join(parts)
 
 
+def _add_nuscenes_options(parser) -> None:
+    """The nuScenes options of ``jaxdepth complete`` (no JAX import)."""
+    group = parser.add_argument_group(
+        "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
+                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm, local engine; "
+                    "--batch-size and --cpu-devices have no effect: one sample's cameras are one batch)")
+    group.add_argument("--nusc-version", default=None, metavar="VERSION",
+                       help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
+    group.add_argument("--sweeps", type=int, default=1, metavar="N",
+                       help="LiDAR sweeps per sample (default 1: the key frame; N > 1: the key frame and N-1 earlier "
+                            "sweeps moved into its frame by their ego poses, as the devkit's from_file_multisweep)")
+    group.add_argument("--no-ego-motion", dest="ego_motion", action="store_false",
+                       help="do not compensate the vehicle's motion between the LiDAR and each camera's timestamp "
+                            "(default: compensate, LiDAR -> ego(t_lidar) -> global -> ego(t_cam) -> camera)")
+
+
+def _cmd_complete_nuscenes(args) -> int:
+    """``jaxdepth complete DATAROOT DST --nusc-version V``: exit 0 ok, 1 data error or failed samples, 2 usage."""
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+
+    usage = None
+    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
+                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic))
+             if value is not None]
+    if given:
+        usage = f"{', '.join(given)} cannot be used with --nusc-version (the tables give K and the extrinsics)"
+    elif args.method != "sgm":
+        usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
+    elif args.engine != "local":
+        usage = "--nusc-version runs on the local engine only (--engine local)"
+    elif args.sweeps < 1:
+        usage = f"--sweeps expected an integer >= 1, got {args.sweeps}"
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    dst = pathlib.Path(args.dst)
+    _ensure_writable_dir(dst)
+    from jaxdepth.io import nuscenes as nusc
+    tables = nusc.load_tables(args.src, args.nusc_version)
+    progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
+    summary = run_nuscenes(args.src, dst, version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
+                           config=_config_from(args), overwrite=args.overwrite,
+                           png_compression=args.png_compression, io_threads=devices.io_threads(),
+                           on_progress=progress.update, tables=tables, extras=_extras_from(args))
+    progress.close()
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
 def cmd_complete_rig(args) -> int:
     import jaxdepth
     from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json, write_depth_png
     from jaxdepth.io.points import ring_column
 
-    from jaxdepth import extras as extra_outputs
+    from jaxdepth.batch import extras as extra_outputs
 
     usage = _extras_usage(args)
     if usage:
@@ -424,13 +371,24 @@ def build_parser() -> argparse.ArgumentParser:
                         help="do not keep compiled functions in ~/.cache/jaxdepth/xla for later runs "
                              "(same outputs either way; also JAXDEPTH_COMPILE_CACHE=0)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_demo_command(sub)
+    _add_complete_command(sub)
+    _add_complete_rig_command(sub)
+    _add_eval_command(sub)
+    from jaxdepth.research import cli as research_cli
+    research_cli.register(sub)
+    return parser
 
+
+def _add_demo_command(sub) -> None:
     p = sub.add_parser("demo", help="complete a built-in synthetic street scene and score it (no data needed)")
     p.add_argument("--out", default="jaxdepth_demo", help="output folder (default: ./jaxdepth_demo)")
     p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
     _add_method_options(p)
     p.set_defaults(func=cmd_demo)
 
+
+def _add_complete_command(sub) -> None:
     p = sub.add_parser(
         "complete", help="complete a KITTI dataset root (raw, depth-completion train/val, object), a selection "
                          "folder or one PNG",
@@ -477,12 +435,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    from jaxdepth import extras as extras_cli
+    from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
-    from jaxdepth import nuscenes_job
-    nuscenes_job.add_cli_options(p)
+    _add_nuscenes_options(p)
     p.set_defaults(func=cmd_complete)
 
+
+def _add_complete_rig_command(sub) -> None:
     p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
     p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
     p.add_argument("rig", help="rig JSON (see README: lidar beams, cameras with K and T_cam_lidar)")
@@ -495,9 +454,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_method_options(p, methods=("sgm",))
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("-q", "--quiet", action="store_true")
+    from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
     p.set_defaults(func=cmd_complete_rig)
 
+
+def _add_eval_command(sub) -> None:
     p = sub.add_parser(
         "eval", help="KITTI devkit metrics of predictions against ground truth PNGs, paired by frame",
         description="Scores every prediction PNG under PRED_ROOT against the ground-truth PNG of the same frame "
@@ -520,47 +482,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "imae_per_km, prediction, ground_truth (the paired files)")
     p.set_defaults(func=cmd_eval)
 
-    from jaxdepth.research import cli as research_cli
-    research_cli.register(sub)
-    return parser
-
-
-def _accelerator_plugin_installed() -> bool:
-    """Whether a JAX accelerator plugin could be installed (checked without importing JAX):
-    an entry point of group ``jax_plugins`` (jax-cuda12-plugin, ...), a ``jax_plugins``
-    namespace package, or ``libtpu``."""
-    import importlib.metadata
-    import importlib.util
-    try:
-        if importlib.metadata.entry_points(group="jax_plugins"):
-            return True
-    except Exception:  # a broken distribution's metadata: assume a plugin may be there
-        return True
-    return any(importlib.util.find_spec(name) is not None for name in ("jax_plugins", "libtpu"))
-
-
-class _HideBackendProbes(logging.Filter):
-    """Drops JAX's "Unable to initialize backend 'tpu'" notes (JAX probes every platform it knows)."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith("Unable to initialize backend")
-
-
-def _quiet_jax_start():
-    """The CLI's JAX start-up, set before JAX is imported (never in library code).
-
-    With ``JAX_PLATFORMS`` unset and no accelerator plugin installed, JAX would only
-    find the CPU anyway: say so (``JAX_PLATFORMS=cpu``), which skips the probes of
-    other platforms and their "Unable to initialize backend" messages. A user's own
-    ``JAX_PLATFORMS`` (even empty) is kept. The probe messages are filtered as well.
-    """
-    import os
-    logging.getLogger("jax._src.xla_bridge").addFilter(_HideBackendProbes())
-    if "jax" in sys.modules or "JAX_PLATFORMS" in os.environ:
-        return
-    if not _accelerator_plugin_installed():
-        os.environ["JAX_PLATFORMS"] = "cpu"
-
 
 def main(argv=None) -> int:
     t_start = time.perf_counter()
@@ -573,9 +494,9 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    _quiet_jax_start()
+    devices.quiet_jax_start()
     args.t_start = t_start
-    use_compile_cache(args.compile_cache)
+    devices.use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)
     except JaxdepthError as err:

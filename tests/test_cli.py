@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from jaxdepth import cli, runner
+from jaxdepth import cli
+from jaxdepth.batch import runner
 from jaxdepth.io import read_depth_png
 
 from helpers import small_frames, write_kitti_folder
@@ -204,7 +205,7 @@ def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, f
 
 
 def test_compile_cache_trim_deletes_the_oldest_files_beyond_the_cap(tmp_path):
-    from jaxdepth.cli import _trim_compile_cache
+    from jaxdepth.batch.devices import trim_compile_cache
 
     sizes = {"a-cache": 300, "b-cache": 200, "c-cache": 400, "d-cache": 100, "e-cache": 250}
     written = {"a-cache": 5, "b-cache": 1, "c-cache": 3, "d-cache": 3, "e-cache": 9}  # c, d: same time
@@ -219,32 +220,32 @@ def test_compile_cache_trim_deletes_the_oldest_files_beyond_the_cap(tmp_path):
         return sorted(p.name for p in tmp_path.iterdir() if p.is_file())
 
     # Oldest first: b (t=1), then c before d (t=3, by name), then a (t=5), e (t=9).
-    assert _trim_compile_cache(tmp_path, 1250) == 1250
+    assert trim_compile_cache(tmp_path, 1250) == 1250
     assert files() == sorted(sizes)
-    assert _trim_compile_cache(tmp_path, 1000) == 1250 - 200 - 400
+    assert trim_compile_cache(tmp_path, 1000) == 1250 - 200 - 400
     assert files() == ["a-cache", "d-cache", "e-cache"]
-    assert _trim_compile_cache(tmp_path, 400) == 250
+    assert trim_compile_cache(tmp_path, 400) == 250
     assert files() == ["e-cache"]
     assert (tmp_path / "sub" / "big").exists()
-    assert _trim_compile_cache(tmp_path, 0) == 0
+    assert trim_compile_cache(tmp_path, 0) == 0
     assert not any(p.is_file() for p in tmp_path.iterdir())
 
 
 def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monkeypatch):
     import jax
 
-    from jaxdepth import cli
+    from jaxdepth.batch import devices
 
     def refuse(folder, max_bytes):
         raise PermissionError(13, "Permission denied", str(folder))
 
-    monkeypatch.setattr(cli, "_trim_compile_cache", refuse)
+    monkeypatch.setattr(devices, "trim_compile_cache", refuse)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     monkeypatch.delenv("JAXDEPTH_COMPILE_CACHE", raising=False)
     before = jax.config.jax_compilation_cache_dir
     assert before is None  # the suite itself never uses a compile cache
     try:
-        assert cli.use_compile_cache(True) == tmp_path / "jaxdepth" / "xla"
+        assert devices.use_compile_cache(True) == tmp_path / "jaxdepth" / "xla"
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jaxdepth" / "xla")
     finally:
         jax.config.update("jax_compilation_cache_dir", before)

@@ -16,7 +16,9 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxdepth import cli, evaluation, extras, runner
+from jaxdepth import cli
+from jaxdepth.batch import extras, runner
+from jaxdepth.research import evaluation
 from jaxdepth._src import presets
 from jaxdepth.io import encode_depth_uint16, read_depth_png
 
@@ -171,7 +173,7 @@ def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
     """One camera (CAM_FRONT) of the fake v1.0-mini dataroot of tests/test_nuscenes_job.py."""
     from tests.conftest import require_shared
     from tests.test_nuscenes_job import LIDAR_FILE, SCALE, VERSION, build_dataroot
-    from jaxdepth.nuscenes_job import run_nuscenes
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
 
     sample_dir = require_shared("nuscenes", "sample")
     calib = json.loads((sample_dir / "calibration.json").read_text())
@@ -250,7 +252,7 @@ def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
 
 def test_ray_actor_writes_the_local_runners_extras(tmp_path, src):
     """The Ray engine's actor (called directly, no cluster) writes the local runner's files, extras included."""
-    from jaxdepth import scale
+    from jaxdepth.batch import scale
 
     root, _ = src
     wanted = extras.ExtraOutputs(preview=True, validity=True, seed_distance=True, zero_invalid=True)

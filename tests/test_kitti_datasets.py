@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth import cli, runner
+from jaxdepth import cli
+from jaxdepth.batch import runner
 from jaxdepth.io import (encode_depth_uint16, pad_points, read_depth_png, read_kitti_raw_calib, read_points,
                          rig_from_kitti_object, rig_from_kitti_raw)
 from jaxdepth.io import kitti_datasets
@@ -270,7 +271,7 @@ def test_rig_from_kitti_object_matches_the_calibration_projection(object_split):
 
 def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path):
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""
-    from jaxdepth import scale
+    from jaxdepth.batch import scale
     scan = kitti_datasets.kitti_raw_jobs(raw_tree / DATE_A, tmp_path / "ray", crop=True)
     records = [scale._record(job) for job in scan.jobs]
     assert [j.image_size for j in scale._jobs_from_batch({k: [r[k] for r in records] for k in records[0]})] == \

@@ -1,4 +1,4 @@
-"""nuScenes dataroot -> depth PNG per camera (jaxdepth.io.nuscenes, jaxdepth.nuscenes_job, `complete --nusc-version`).
+"""nuScenes dataroot -> depth PNG per camera (jaxdepth.io.nuscenes, jaxdepth.batch.nuscenes_job, `complete --nusc-version`).
 
 The dataroot is a fake v1.0-mini table set built in tmp_path around the shared
 sample's real sweep and calibration (copied into tmp_path by the test only).
@@ -141,7 +141,7 @@ def dataroot(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def first_run(dataroot, tmp_path_factory):
-    from jaxdepth.nuscenes_job import run_nuscenes
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
     root, _, _ = dataroot
     dst = tmp_path_factory.mktemp("out")
     seen = []
@@ -282,7 +282,7 @@ def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_pat
 
 
 def test_output_tree_resume_and_bad_sample(dataroot, first_run):
-    from jaxdepth.nuscenes_job import run_nuscenes
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
     root, tables, _ = dataroot
     dst, summary, seen = first_run
     channels = sorted(r["channel"] for r in tables["sensor"] if r["modality"] == "camera")
@@ -292,7 +292,7 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run):
     [(name, message)] = summary.failed
     assert name == "s3" and "s3.pcd.bin" in message and "not found" in message
     assert sorted(seen) == [("s1", "done"), ("s2", "done"), ("s3", f"failed: {message}")]
-    from jaxdepth.nuscenes_job import TRACE_COUNTS
+    from jaxdepth.batch.nuscenes_job import TRACE_COUNTS
     assert set(TRACE_COUNTS.values()) == {1}  # s1 and s2 share the point bucket and the canvas: one trace
     stamps = {f: (dst / f).stat().st_mtime_ns for f in files}
     again = run_nuscenes(root, dst, version=VERSION)
@@ -350,8 +350,9 @@ def test_bad_tables_name_the_file(tmp_path):
 
 
 def test_command_line_options_reach_the_job(dataroot, tmp_path, monkeypatch):
-    from jaxdepth import cli, nuscenes_job
-    from jaxdepth.runner import RunSummary
+    from jaxdepth import cli
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.runner import RunSummary
     root, _, _ = dataroot
     calls = []
     monkeypatch.setattr(nuscenes_job, "run_nuscenes", lambda *a, **k: calls.append((a, k)) or RunSummary())

@@ -1,6 +1,6 @@
-"""Ray engine (jaxdepth.scale) against the single-process runner, on a local loopback Ray.
+"""Ray engine (jaxdepth.batch.scale) against the single-process runner, on a local loopback Ray.
 
-Oracle: :func:`jaxdepth.runner.run_jobs` on the same folder must write the same
+Oracle: :func:`jaxdepth.batch.runner.run_jobs` on the same folder must write the same
 bytes. The folder holds the two real KITTI sparse frames (benchmark crop) when
 ../shared/data is there, else synthetic sparse images, plus one corrupt PNG.
 Only needs Ray (``pip install 'jaxdepth[ray]'``), never the shared data.
@@ -19,7 +19,7 @@ import pytest
 ray = pytest.importorskip("ray")
 pytest.importorskip("ray.data")
 
-from jaxdepth import runner, scale  # noqa: E402
+from jaxdepth.batch import runner, scale  # noqa: E402
 from jaxdepth._src import presets  # noqa: E402
 from jaxdepth.io.depth_png import read_depth_png, write_depth_png  # noqa: E402
 
@@ -215,7 +215,7 @@ def test_bad_arguments_are_rejected_before_ray(tmp_path):
 
 
 def test_ray_is_imported_only_when_the_ray_engine_runs():
-    code = ("import sys, jaxdepth, jaxdepth.runner, jaxdepth.scale, jaxdepth.cli\n"
+    code = ("import sys, jaxdepth, jaxdepth.batch.runner, jaxdepth.batch.scale, jaxdepth.cli\n"
             "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if m.startswith('ray'))\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                             cwd=pathlib.Path(__file__).resolve().parents[1])

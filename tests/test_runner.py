@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from jaxdepth import SGMConfig, runner
+from jaxdepth import SGMConfig
+from jaxdepth.batch import runner
 from jaxdepth._src.methods import complete_with
 from jaxdepth.io import read_depth_png, write_depth_png
 
@@ -103,7 +104,7 @@ SHARDED = r"""
 import numpy as np, jax, sys
 sys.path.insert(0, {tests!r})
 from helpers import small_frames
-from jaxdepth import runner
+from jaxdepth.batch import runner
 assert len(jax.local_devices()) == 2, jax.local_devices()
 items, T = small_frames(3)
 depths = np.stack([d for d, _ in items]); Ks = np.stack([k for _, k in items])
@@ -138,7 +139,7 @@ def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames):
 
 SPLIT = r"""
 import os, sys
-from jaxdepth.cli import split_cpu_into_devices
+from jaxdepth.batch.devices import split_cpu_into_devices
 first = split_cpu_into_devices(2)
 again = split_cpu_into_devices(3)   # XLA_FLAGS now sets a count: left alone
 import jax

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdepth import extras
+from jaxdepth.batch import extras
 from jaxdepth._src import colorize as cz
 from jaxdepth._src import validity as vd
 from jaxdepth._src.distance import gather_at_seed, nearest_seed

@@ -1,7 +1,7 @@
 """KITTI dataset roots -> completion jobs: one discovery function per layout.
 
 Each function lists the frames of one KITTI layout and returns a
-:class:`DatasetScan` whose ``jobs`` are :class:`jaxdepth.runner.FrameJob`
+:class:`DatasetScan` whose ``jobs`` are :class:`jaxdepth.batch.runner.FrameJob`
 records, so every layout runs through the same batched, resumable, atomic
 runner (and the Ray engine). Every job carries its own ``K`` and
 ``T_cam_lidar`` from the layout's own calibration. The runner writes into
@@ -63,7 +63,7 @@ class DatasetScan:
 
     Attributes:
       layout: "kitti-raw", "kitti-depth-tree" or "kitti-object".
-      jobs: list of :class:`jaxdepth.runner.FrameJob`, sorted, distinct output paths.
+      jobs: list of :class:`jaxdepth.batch.runner.FrameJob`, sorted, distinct output paths.
       failed: ``(name, message)`` of frames that cannot become jobs (e.g. an unreadable
         calibration file of one object frame); the run reports them as failed.
       summary: one line saying what was found (frames, cameras, dates).
@@ -133,7 +133,7 @@ def png_image_size(path: PathLike) -> tuple[int, int]:
 
 
 def _sweep_job(name: str, sweep: pathlib.Path, out: pathlib.Path, camera) -> object:
-    from jaxdepth.runner import FrameJob
+    from jaxdepth.batch.runner import FrameJob
     return FrameJob(name=name, sparse_path=sweep, out_path=out, K=np.asarray(camera.K, np.float32),
                     T_cam_lidar=np.asarray(camera.T_cam_lidar, np.float32),
                     image_size=(int(camera.height), int(camera.width)), point_columns=KITTI_POINT_COLUMNS)
@@ -275,7 +275,7 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
         date, missing or bad calibration files.
     """
     from jaxdepth.io.calib import read_kitti_raw_calib
-    from jaxdepth.runner import FrameJob
+    from jaxdepth.batch.runner import FrameJob
 
     src, dst = pathlib.Path(src), pathlib.Path(dst)
     name = _check_name(name)

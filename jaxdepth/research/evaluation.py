@@ -44,7 +44,7 @@ CSV_COLUMNS = ("frame", "rmse_mm", "mae_mm", "irmse_per_km", "imae_per_km", "pre
 # Kinds (the <name> of a layout, see frame_identity) that mark a file's role.
 GROUND_TRUTH_KINDS = frozenset({"groundtruth", "groundtruth_depth"})
 CAMERA_IMAGE_KINDS = frozenset({"image"})  # RGB images of a selection folder: never depth
-# jaxdepth complete's extra outputs <stem>_<kind>.png (jaxdepth.extras): never depth predictions
+# jaxdepth complete's extra outputs <stem>_<kind>.png (jaxdepth.batch.extras): never depth predictions
 _EXTRA_OUTPUT = re.compile(r"_(preview|validity|seed_distance)\.png$")
 _SELECTION_SUBFOLDERS = frozenset({"velodyne_raw", "groundtruth_depth", "image"})
 

@@ -11,7 +11,7 @@ cores on one frame; on a 352x1216 KITTI frame lax.map and a Python loop of
 single-frame calls both measured 0.5-1.1x the single-frame rate on a noisy VM,
 ``vmap`` slower, with its batched gathers and scatters); on GPU/TPU it runs as
 ``vmap``. With several local devices (e.g. one host device per core,
-``jaxdepth.cli.split_cpu_into_devices``, measured 1.3-1.7x the single-frame
+``jaxdepth.batch.devices.split_cpu_into_devices``, measured 1.3-1.7x the single-frame
 rate) the batch is sharded over them with ``shard_map``. Strategy "loop"
 (single-frame calls dispatched asynchronously, frame i on device i mod n) gives
 exactly the bytes of single-frame calls; "map" and "vmap" may differ from them
@@ -367,10 +367,10 @@ def pending_jobs(jobs: Iterable[FrameJob], *, overwrite: bool, summary: RunSumma
                  notify: Callable[[str, str], None], extras=None) -> list:
     """The jobs still to run: a finished output is recorded as skipped (resume) unless ``overwrite``.
 
-    With ``extras`` (:class:`jaxdepth.extras.ExtraOutputs`) an output is finished when the
+    With ``extras`` (:class:`jaxdepth.batch.extras.ExtraOutputs`) an output is finished when the
     depth PNG and every requested extra file exist.
     """
-    from jaxdepth.extras import NONE, is_done
+    from jaxdepth.batch.extras import NONE, is_done
     extras = NONE if extras is None else extras
     todo = []
     for job in jobs:
@@ -402,9 +402,9 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     Sweep jobs (``FrameJob.image_size`` set) are batched per (power-of-two point
     bucket, image size): one compiled function each, like depth images per size.
 
-    ``extras`` (:class:`jaxdepth.extras.ExtraOutputs`, default none): preview, validity
+    ``extras`` (:class:`jaxdepth.batch.extras.ExtraOutputs`, default none): preview, validity
     mask, seed distance, zero outside the valid region, written beside each output
-    (:mod:`jaxdepth.extras`). Validity, seed distance and zero-invalid need method "sgm"
+    (:mod:`jaxdepth.batch.extras`). Validity, seed distance and zero-invalid need method "sgm"
     and use their own compiled functions; with none of them the run compiles and
     writes exactly what it does without ``extras``.
 
@@ -412,7 +412,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
       ValueError: sweep jobs, or validity / seed-distance / zero-invalid extras, with a
         ``method`` other than "sgm".
     """
-    from jaxdepth import extras as extra_outputs
+    from jaxdepth.batch import extras as extra_outputs
     extras = extra_outputs.NONE if extras is None else extras
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")

@@ -103,9 +103,9 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
 def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=None) -> list:
     """The samples still to complete: every camera output of a sample exists -> skipped (unless
     ``overwrite``); a sample whose key frames cannot be found -> failed. With ``extras``
-    (:class:`jaxdepth.extras.ExtraOutputs`) a camera's output exists when its depth PNG and
+    (:class:`jaxdepth.batch.extras.ExtraOutputs`) a camera's output exists when its depth PNG and
     every requested extra do."""
-    from jaxdepth.extras import NONE, is_done
+    from jaxdepth.batch.extras import NONE, is_done
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.errors import JaxdepthError
 
@@ -175,12 +175,12 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).
-      extras: :class:`jaxdepth.extras.ExtraOutputs` (default none): preview, validity,
+      extras: :class:`jaxdepth.batch.extras.ExtraOutputs` (default none): preview, validity,
         seed distance, zero-invalid beside each PNG as ``<token>_<kind>.png``; validity
         uses the nuScenes HDL-32E field of view.
 
     Returns:
-      :class:`jaxdepth.runner.RunSummary` over sample tokens (never raises for a bad sample).
+      :class:`jaxdepth.batch.runner.RunSummary` over sample tokens (never raises for a bad sample).
 
     Raises:
       InputError: the version folder or one of its tables is missing or malformed.
@@ -192,8 +192,8 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, write_depth_png
     from jaxdepth.io.errors import JaxdepthError, OutputError
-    from jaxdepth import extras as extra_outputs
-    from jaxdepth.runner import RunSummary
+    from jaxdepth.batch import extras as extra_outputs
+    from jaxdepth.batch.runner import RunSummary
 
     extras = extra_outputs.NONE if extras is None else extras
 
@@ -302,57 +302,4 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     return summary
 
 
-# ---------------------------------------------------------------- command line glue (jaxdepth.cli)
-
-
-def add_cli_options(parser) -> None:
-    """The nuScenes options of ``jaxdepth complete`` (no JAX import)."""
-    group = parser.add_argument_group(
-        "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
-                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm, local engine; "
-                    "--batch-size and --cpu-devices have no effect: one sample's cameras are one batch)")
-    group.add_argument("--nusc-version", default=None, metavar="VERSION",
-                       help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
-    group.add_argument("--sweeps", type=int, default=1, metavar="N",
-                       help="LiDAR sweeps per sample (default 1: the key frame; N > 1: the key frame and N-1 earlier "
-                            "sweeps moved into its frame by their ego poses, as the devkit's from_file_multisweep)")
-    group.add_argument("--no-ego-motion", dest="ego_motion", action="store_false",
-                       help="do not compensate the vehicle's motion between the LiDAR and each camera's timestamp "
-                            "(default: compensate, LiDAR -> ego(t_lidar) -> global -> ego(t_cam) -> camera)")
-
-
-def run_cli(args) -> int:
-    """``jaxdepth complete DATAROOT DST --nusc-version V``: exit 0 ok, 1 data error or failed samples, 2 usage."""
-    import sys
-
-    from jaxdepth import cli
-
-    usage = None
-    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
-                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic))
-             if value is not None]
-    if given:
-        usage = f"{', '.join(given)} cannot be used with --nusc-version (the tables give K and the extrinsics)"
-    elif args.method != "sgm":
-        usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
-    elif args.engine != "local":
-        usage = "--nusc-version runs on the local engine only (--engine local)"
-    elif args.sweeps < 1:
-        usage = f"--sweeps expected an integer >= 1, got {args.sweeps}"
-    if usage:
-        print(f"jaxdepth: error: {usage}", file=sys.stderr)
-        return 2
-    dst = pathlib.Path(args.dst)
-    cli._ensure_writable_dir(dst)
-    from jaxdepth.io import nuscenes as nusc
-    tables = nusc.load_tables(args.src, args.nusc_version)
-    progress = cli.Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
-    summary = run_nuscenes(args.src, dst, version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
-                           config=cli._config_from(args), overwrite=args.overwrite,
-                           png_compression=args.png_compression, io_threads=cli._io_threads(),
-                           on_progress=progress.update, tables=tables, extras=cli._extras_from(args))
-    progress.close()
-    return cli._report(summary, args.quiet, t_start=getattr(args, "t_start", None))
-
-
-__all__ = ["run_nuscenes", "plan", "add_cli_options", "run_cli"]
+__all__ = ["run_nuscenes", "plan"]

@@ -4,12 +4,12 @@ The work is a Ray Data pipeline over *job records* (frame name, input/output
 paths, K or intrinsics path), never over images: every actor reads its own
 inputs and writes its own outputs, so only small status rows travel back to the
 driver. Each actor of the pool is a :class:`_CompleteFrames` instance that
-keeps its compiled batch functions (:func:`jaxdepth.runner.batched_completion`,
-:func:`jaxdepth.runner.batched_sweep_completion` for sweep jobs, both cached per process)
+keeps its compiled batch functions (:func:`jaxdepth.batch.runner.batched_completion`,
+:func:`jaxdepth.batch.runner.batched_sweep_completion` for sweep jobs, both cached per process)
 for the life of the actor, so a frame size compiles once per actor, not once
 per batch.
 
-Results are the same bytes as :func:`jaxdepth.runner.run_jobs` with the same
+Results are the same bytes as :func:`jaxdepth.batch.runner.run_jobs` with the same
 ``batch_size`` (same compiled function, same padding, same writer).
 
 Paths must be visible under the same name on every node (a shared or network
@@ -84,7 +84,7 @@ def _record(job) -> dict[str, Any]:
 
 def _jobs_from_batch(batch: dict[str, Any]) -> list:
     """A numpy-format batch of records -> FrameJobs (inverse of :func:`_record`)."""
-    from jaxdepth.runner import FrameJob
+    from jaxdepth.batch.runner import FrameJob
 
     jobs = []
     for i in range(len(batch["name"])):
@@ -123,10 +123,10 @@ class _CompleteFrames:
                  batch_size: int, io_threads: int = 2, extras=None, overwrite: bool = False):
         import jax
 
-        from jaxdepth import extras as extra_outputs
-        from jaxdepth import runner
+        from jaxdepth.batch import extras as extra_outputs
+        from jaxdepth.batch import runner
 
-        # Extra outputs (jaxdepth.extras): files beside each PNG; existing ones are kept unless
+        # Extra outputs (jaxdepth.batch.extras): files beside each PNG; existing ones are kept unless
         # ``overwrite``, so a retried task skips what an earlier attempt finished.
         self.extras = extra_outputs.NONE if extras is None else extras
         self.overwrite = bool(overwrite)
@@ -153,7 +153,7 @@ class _CompleteFrames:
             return None, f"{job.sparse_path}: {err}"
 
     def _write(self, job, depth, valid=None, distance=None) -> str | None:
-        from jaxdepth import extras as extra_outputs
+        from jaxdepth.batch import extras as extra_outputs
         from jaxdepth.io import errors as io_errors
         from jaxdepth.io.depth_png import write_depth_png
 
@@ -313,15 +313,15 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
                  on_progress: Callable[[str, str], None] | None = None, extras=None):
     """Completes every job on a Ray cluster; never raises for a bad frame.
 
-    Same contract as :func:`jaxdepth.runner.run_jobs` (and the same output
+    Same contract as :func:`jaxdepth.batch.runner.run_jobs` (and the same output
     bytes for the same ``batch_size``), with the frames spread over a pool of
     Ray actors.
 
     Args:
-      jobs: :class:`jaxdepth.runner.FrameJob` list. Paths must be readable and
+      jobs: :class:`jaxdepth.batch.runner.FrameJob` list. Paths must be readable and
         writable under the same name on every node.
       method, config, lidar, T_cam_lidar, batch_size, overwrite: as in
-        :func:`jaxdepth.runner.run_jobs`. ``batch_size`` frames of one size go
+        :func:`jaxdepth.batch.runner.run_jobs`. ``batch_size`` frames of one size go
         through one compiled call (the last is padded, never recompiled).
       address: Ray cluster address (``"ray://host:10001"``, ``"host:6379"`` or
         ``"auto"``): the driver connects, and disconnects at the end, leaving the
@@ -343,11 +343,11 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         when the cluster does not have jaxdepth installed).
       on_progress: ``on_progress(name, status)`` once per frame on the driver,
         status "done", "skipped" or "failed: <message>", as rows arrive.
-      extras: :class:`jaxdepth.extras.ExtraOutputs` (default none), as in
-        :func:`jaxdepth.runner.run_jobs`.
+      extras: :class:`jaxdepth.batch.extras.ExtraOutputs` (default none), as in
+        :func:`jaxdepth.batch.runner.run_jobs`.
 
     Returns:
-      :class:`jaxdepth.runner.RunSummary` with ``done``, ``skipped`` (output
+      :class:`jaxdepth.batch.runner.RunSummary` with ``done``, ``skipped`` (output
       already there and ``overwrite`` False; checked on the driver before the
       dataset is built, so a re-run resumes) and ``failed`` ``(name, message)``.
 
@@ -357,7 +357,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
       ray.exceptions.RayError: the cluster failed beyond the retries above
         (bad frames never raise).
     """
-    from jaxdepth.runner import RunSummary
+    from jaxdepth.batch.runner import RunSummary
 
     if int(batch_size) < 1:
         raise ValueError(f"run_jobs_ray: field 'batch_size' expected >= 1, got {batch_size}")
@@ -376,7 +376,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
 
     summary = RunSummary()
     notify = on_progress or (lambda name, status: None)
-    from jaxdepth.runner import pending_jobs
+    from jaxdepth.batch.runner import pending_jobs
     todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
     if not todo:
         return summary
@@ -447,7 +447,7 @@ def complete_folder_ray(src, dst, *, method: str = "sgm", config: SGMConfig = SG
       method, config, batch_size, overwrite, address, on_progress: see :func:`run_jobs_ray`.
 
     Returns:
-      :class:`jaxdepth.runner.RunSummary`.
+      :class:`jaxdepth.batch.runner.RunSummary`.
 
     Raises:
       InputError: ``src`` is not a readable depth-completion folder.
@@ -455,7 +455,7 @@ def complete_folder_ray(src, dst, *, method: str = "sgm", config: SGMConfig = SG
     """
     from jaxdepth.io.errors import OutputError
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
-    from jaxdepth.runner import FrameJob
+    from jaxdepth.batch.runner import FrameJob
 
     dst = pathlib.Path(dst)
     frames = list_depth_completion_folder(src)
