@@ -49,6 +49,28 @@ _QUIET_CONTEXT = {"enable_progress_bars": False, "print_on_execution_start": Fal
 _INSTALL_HINT = "the Ray engine needs Ray Data: pip install 'jaxdepth[ray]'"
 
 
+@contextlib.contextmanager
+def _quiet_ray_data(ray_data):
+    """Ray Data without progress bars, execution-start prints and log stats for the block;
+    its logger shows only errors unless jaxdepth logs at INFO. Both are restored after."""
+    ctx = ray_data.DataContext.get_current()
+    saved = {key: getattr(ctx, key) for key in _QUIET_CONTEXT}
+    data_log = logging.getLogger("ray.data")
+    saved_level = data_log.level
+    for key, value in _QUIET_CONTEXT.items():
+        setattr(ctx, key, value)
+    if not log.isEnabledFor(logging.INFO):
+        # Ray Data's own notes ("progress bars disabled", execution plans) are noise here; its
+        # failures still surface as exceptions, and bad frames as rows.
+        data_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            setattr(ctx, key, value)
+        data_log.setLevel(saved_level)
+
+
 def _import_ray():
     """(ray, ray.data), or ImportError with the install command."""
     try:
@@ -389,17 +411,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         actors = int(num_actors) if num_actors is not None else _fitting_nodes(ray, cpus_per_actor, gpus_per_actor)
         records = [_record(job) for job in todo]
         blocks = max(1, min(len(records), -(-len(records) // batch_size)))
-        ctx = ray_data.DataContext.get_current()
-        saved = {key: getattr(ctx, key) for key in _QUIET_CONTEXT}
-        data_log = logging.getLogger("ray.data")
-        saved_level = data_log.level
-        for key, value in _QUIET_CONTEXT.items():
-            setattr(ctx, key, value)
-        if not log.isEnabledFor(logging.INFO):
-            # Ray Data's own notes ("progress bars disabled", execution plans) are noise here; its
-            # failures still surface as exceptions, and bad frames as rows.
-            data_log.setLevel(logging.ERROR)
-        try:
+        with _quiet_ray_data(ray_data):
             ds = ray_data.from_items(records, override_num_blocks=blocks)
             with warnings.catch_warnings():
                 # Ray >= 2.5x deprecates the **ray_remote_args of map_batches in favour of named
@@ -426,10 +438,6 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
                 else:
                     summary.failed.append((name, message))
                     notify(name, f"failed: {message}")
-        finally:
-            for key, value in saved.items():
-                setattr(ctx, key, value)
-            data_log.setLevel(saved_level)
     return summary
 
 
