@@ -218,11 +218,11 @@ def test_property_matches_brute_force(data, metric):
 
 
 def test_validation_errors():
-    with pytest.raises(ValueError, match=r"metric expected one of \('l1', 'l2'\), got 'linf'"):
+    with pytest.raises(ValueError, match=r"field 'metric' expected one of \('l1', 'l2'\), got 'linf'"):
         nearest_seed(jnp.zeros((3, 3), bool), metric="linf")
-    with pytest.raises(ValueError, match=r"seed_mask expected shape \(H, W\), got shape \(3,\)"):
+    with pytest.raises(ValueError, match=r"'seed_mask' expected shape \(H, W\), got shape \(3,\)"):
         nearest_seed(jnp.zeros((3,), bool))
-    with pytest.raises(ValueError, match=r"seed_mask expected dtype bool, got float32"):
+    with pytest.raises(ValueError, match=r"field 'seed_mask' expected dtype bool, got float32"):
         nearest_seed(jnp.zeros((3, 3), jnp.float32))
     with pytest.raises(ValueError, match=r"too large for metric 'l2'"):
         jax.eval_shape(lambda m: nearest_seed(m, metric="l2"),

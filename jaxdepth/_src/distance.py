@@ -101,15 +101,15 @@ def _bits(n: int) -> int:
 
 def _check(seed_mask: jax.Array, metric: str) -> None:
     if metric not in _METRICS:
-        raise ValueError(f"nearest_seed: metric expected one of {_METRICS}, got {metric!r}")
+        raise ValueError(f"nearest_seed: field 'metric' expected one of {_METRICS}, got {metric!r}")
     if seed_mask.ndim != 2:
         raise ValueError(
-            f"nearest_seed: seed_mask expected shape (H, W), got shape {tuple(seed_mask.shape)}")
+            f"nearest_seed: field 'seed_mask' expected shape (H, W), got shape {tuple(seed_mask.shape)}")
     if seed_mask.dtype != jnp.bool_:
-        raise ValueError(f"nearest_seed: seed_mask expected dtype bool, got {seed_mask.dtype}")
+        raise ValueError(f"nearest_seed: field 'seed_mask' expected dtype bool, got {seed_mask.dtype}")
     h, w = seed_mask.shape
     if h < 1 or w < 1:
-        raise ValueError(f"nearest_seed: seed_mask expected H >= 1 and W >= 1, got shape {(h, w)}")
+        raise ValueError(f"nearest_seed: field 'seed_mask' expected H >= 1 and W >= 1, got shape {(h, w)}")
     if metric == "l1":
         cb = _bits(h) + 1
         if (2 * h + w + 1) << cb > _INT32_MAX:

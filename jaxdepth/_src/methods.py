@@ -57,7 +57,7 @@ def complete_with(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array 
       (H, W) float32 metres.
     """
     if method not in METHODS:
-        raise ValueError(f"complete_with: 'method' expected one of {sorted(METHODS)}, got {method!r}")
+        raise ValueError(f"complete_with: field 'method' expected one of {sorted(METHODS)}, got {method!r}")
     if T_cam_lidar is None:
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)

@@ -38,9 +38,9 @@ from jaxdepth._src.types import Camera, LidarSpec, Stages
 
 def _check_image_inputs(sparse_depth, K):
     if sparse_depth.ndim != 2:
-        raise ValueError(f"complete: 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
+        raise ValueError(f"complete: field 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
     if K.shape != (3, 3):
-        raise ValueError(f"complete: 'K' expected shape (3, 3), got {K.shape}")
+        raise ValueError(f"complete: field 'K' expected shape (3, 3), got {K.shape}")
 
 
 def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.Array:

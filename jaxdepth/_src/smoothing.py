@@ -73,7 +73,7 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
     if len(weights) == 1:
         return image
     if min(image.shape[-2:]) < 2:
-        raise ValueError(f"gaussian_blur: image expected at least 2x2, got shape {image.shape}")
+        raise ValueError(f"gaussian_blur: field 'image' expected at least 2x2, got shape {image.shape}")
     # Each pass reads a materialised input (stage fences): XLA would otherwise
     # fuse the producer of ``image`` into every tap, and the vertical pass into
     # every tap of the horizontal one (25 re-runs of the upstream work).
@@ -137,18 +137,18 @@ def gaussian_blur_traced(image: jax.Array, sigma_px: jax.Array, *, radius_px: in
       borderType=cv2.BORDER_REFLECT_101)``.
     """
     if isinstance(radius_px, bool) or int(radius_px) != radius_px or radius_px < 0:
-        raise ValueError(f"gaussian_blur_traced: 'radius_px' expected a non-negative integer, got {radius_px!r}")
+        raise ValueError(f"gaussian_blur_traced: field 'radius_px' expected a non-negative integer, got {radius_px!r}")
     radius_px = int(radius_px)
     image = jnp.asarray(image)
     if image.ndim != 2:
-        raise ValueError(f"gaussian_blur_traced: image expected shape (H, W), got {tuple(image.shape)}")
+        raise ValueError(f"gaussian_blur_traced: field 'image' expected shape (H, W), got {tuple(image.shape)}")
     if jnp.ndim(sigma_px) != 0:
-        raise ValueError(f"gaussian_blur_traced: 'sigma_px' expected a scalar, got shape {jnp.shape(sigma_px)}")
+        raise ValueError(f"gaussian_blur_traced: field 'sigma_px' expected a scalar, got shape {jnp.shape(sigma_px)}")
     image = image.astype(jnp.float32)
     if radius_px == 0:
         return image
     if min(image.shape) < 2:
-        raise ValueError(f"gaussian_blur_traced: image expected at least 2x2, got shape {tuple(image.shape)}")
+        raise ValueError(f"gaussian_blur_traced: field 'image' expected at least 2x2, got shape {tuple(image.shape)}")
     weights = gaussian_kernel_traced(sigma_px, radius_px)
     out = _blur_axis_traced(image, weights, radius_px, axis=0)
     return _blur_axis_traced(out, weights, radius_px, axis=1)

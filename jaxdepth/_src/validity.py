@@ -87,7 +87,7 @@ def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric
       (H, W) float32 pixels; ``+inf`` where ``seed_depth <= 0``.
     """
     if metric not in _METRICS:
-        raise ValueError(f"seed_distance: 'metric' expected one of {_METRICS}, got {metric!r}")
+        raise ValueError(f"seed_distance: field 'metric' expected one of {_METRICS}, got {metric!r}")
     du = jnp.asarray(du, jnp.int32)
     dv = jnp.asarray(dv, jnp.int32)
     if metric == "l1":

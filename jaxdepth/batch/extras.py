@@ -82,7 +82,7 @@ NONE = ExtraOutputs()
 def extra_path(depth_path, kind: str) -> pathlib.Path:
     """``<dir>/<stem>_<kind>.png`` beside the depth PNG ``<dir>/<stem>.png``."""
     if kind not in KINDS:
-        raise ValueError(f"extra_path: 'kind' expected one of {KINDS}, got {kind!r}")
+        raise ValueError(f"extra_path: field 'kind' expected one of {KINDS}, got {kind!r}")
     p = pathlib.Path(depth_path)
     return p.with_name(f"{p.stem}_{kind}.png")
 
@@ -135,7 +135,7 @@ def write_outputs(depth_path, depth: np.ndarray, *, extras: ExtraOutputs, valid:
     from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, write_depth_png
 
     if extras.needs_seeds and valid is None:
-        raise ValueError("write_outputs: 'valid' expected for --validity / --seed-distance / --zero-invalid")
+        raise ValueError("write_outputs: field 'valid' expected for --validity / --seed-distance / --zero-invalid")
     depth = apply_zero_invalid(np.asarray(depth, np.float32), valid, extras)
     depth_path = pathlib.Path(depth_path)
     written = []

@@ -198,7 +198,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     extras = extra_outputs.NONE if extras is None else extras
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
-        raise ValueError(f"run_nuscenes: 'sweeps' expected an integer >= 1, got {sweeps!r}")
+        raise ValueError(f"run_nuscenes: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     dst = pathlib.Path(dst)
@@ -214,7 +214,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         except OSError as err:
             raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
     if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"run_nuscenes: 'devices' expected an integer >= 1, got {devices!r}")
+        raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
     targets = jax.local_devices()[:devices]
     lock = threading.Lock()
 

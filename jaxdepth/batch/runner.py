@@ -111,7 +111,7 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
     """
     if strategy not in STRATEGIES:
-        raise ValueError(f"batched_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
+        raise ValueError(f"batched_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     key = (batch_size, height, width, method, config, lidar, strategy, devices)
     if max_seed_distance_px is not None:
         if method != "sgm":
@@ -192,7 +192,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
     (then ``(depth, valid, seed_distance)``). ``TRACE_COUNTS`` counts its traces too.
     """
     if strategy not in STRATEGIES:
-        raise ValueError(f"batched_sweep_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
+        raise ValueError(f"batched_sweep_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     from jaxdepth._src.pipeline import complete_points, complete_points_stages
     from jaxdepth._src.types import Camera
 
@@ -264,7 +264,7 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
         raise ValueError(f"complete_batch: expected depths (F, H, W) and Ks (F, 3, 3), got {depths.shape}, {Ks.shape}")
     T = np.asarray(presets.KITTI_T_CAM2_LIDAR if T_cam_lidar is None else T_cam_lidar, np.float32)
     if T.shape not in ((4, 4), (depths.shape[0], 4, 4)):
-        raise ValueError(f"complete_batch: 'T_cam_lidar' expected shape (4, 4) or {(depths.shape[0], 4, 4)}, "
+        raise ValueError(f"complete_batch: field 'T_cam_lidar' expected shape (4, 4) or {(depths.shape[0], 4, 4)}, "
                          f"got {T.shape}")
     Ts = np.ascontiguousarray(np.broadcast_to(T, (depths.shape[0], 4, 4)))
     devices = devices or len(jax.local_devices())

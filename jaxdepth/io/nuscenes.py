@@ -299,7 +299,7 @@ def accumulate_sweeps(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
     ring) are carried along unchanged.
     """
     if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
-        raise ValueError(f"accumulate_sweeps: 'sweeps' expected an integer >= 1, got {sweeps!r}")
+        raise ValueError(f"accumulate_sweeps: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
     if sweeps == 1:
         return read_sweep(tables, key_sd)
     key_from_global = invert_pose(sensor_pose(tables, key_sd)) @ invert_pose(ego_pose(tables, key_sd))

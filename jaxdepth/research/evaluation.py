@@ -163,7 +163,7 @@ def collect_frames(root, *, side: str) -> tuple[dict, list]:
     elif side == "prediction":
         kept = [e for e in kept if e.kind not in GROUND_TRUTH_KINDS] or kept
     else:
-        raise ValueError(f"collect_frames: side expected 'prediction' or 'ground truth', got {side!r}")
+        raise ValueError(f"collect_frames: field 'side' expected 'prediction' or 'ground truth', got {side!r}")
     frames = {}
     for e in kept:
         if e.identity in frames:

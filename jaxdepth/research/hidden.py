@@ -36,7 +36,7 @@ from jaxdepth._src.types import LidarSpec
 def hidden_point_mask(valid: np.ndarray, *, fraction: float = 0.1, seed: int = 0) -> np.ndarray:
     """(N,) bool: a seeded random ``fraction`` of the valid points (host-side, deterministic)."""
     if not 0.0 < fraction < 1.0:
-        raise ValueError(f"hidden_point_mask: 'fraction' expected in (0, 1), got {fraction!r}")
+        raise ValueError(f"hidden_point_mask: field 'fraction' expected in (0, 1), got {fraction!r}")
     valid = np.asarray(valid, bool)
     draw = np.random.default_rng(seed).random(valid.shape[0])
     return valid & (draw < fraction)
