@@ -27,6 +27,7 @@ import logging
 import os
 import pathlib
 import collections
+import itertools
 import threading
 import time
 from typing import Callable, Iterable, Sequence
@@ -418,7 +419,6 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
     if method != "sgm" and extras.needs_seeds:
         raise ValueError(f"run_jobs: --validity, --seed-distance and --zero-invalid need method 'sgm', got {method!r}")
-    max_seed_px = extras.max_seed_distance_px if extras.needs_seeds else None
     summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
     todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
@@ -429,94 +429,113 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     # A short run (e.g. one image) is not padded up to a full default batch.
     batch_size = min(max(1, batch_size), len(todo))
     batch_size = -(-batch_size // devices) * devices
-    strategy = strategy or batch_strategy()
-    lock = threading.Lock()
-
-    def record_failure(name, message):
-        with lock:
-            summary.failed.append((name, message))
-        notify(name, f"failed: {message}")
-
-    def write(job, depth, valid=None, distance=None):
-        try:
-            if extras == extra_outputs.NONE:
-                write_depth_png(job.out_path, depth, compression=png_compression)
-            else:
-                extra_outputs.write_outputs(job.out_path, depth, extras=extras, valid=valid, distance=distance,
-                                            overwrite=overwrite, compression=png_compression)
-        except io_errors.JaxdepthError as err:
-            record_failure(job.name, str(err))
-            return
-        except OSError as err:
-            record_failure(job.name, f"{job.out_path}: cannot write ({err.strerror or err})")
-            return
-        with lock:
-            summary.done.append(job.name)
-            if summary.first_output_at is None:
-                summary.first_output_at = time.perf_counter()
-        notify(job.name, "done")
-
+    group_call = functools.partial(
+        _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
+        strategy=strategy or batch_strategy(), devices=devices,
+        max_seed_distance_px=extras.max_seed_distance_px if extras.needs_seeds else None)
     pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        write_futures = []
-        in_flight = []  # at most one dispatched batch whose result is not collected yet
-
-        def collect():
-            items, out = in_flight.pop()
-            try:
-                result = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
-            except Exception as err:  # a compute failure costs this batch, not the run
-                for job, *_ in items:
-                    record_failure(job.name, f"completion failed: {err}")
-                return
-            for i, (job, *_) in enumerate(items):
-                write_futures.append(writers.submit(write, job, *(r[i] for r in result)))
-
-        def flush(key, items):
-            fn, args, n = _group_call(key, items, batch_size=batch_size, method=method, config=config,
-                                      lidar=lidar, strategy=strategy, devices=devices,
-                                      max_seed_distance_px=max_seed_px)
-            try:
-                out = fn(*args)  # dispatched; runs while the previous batch is collected
-            except Exception as err:
-                for job, *_ in items:
-                    record_failure(job.name, f"completion failed: {err}")
-                out = None
-            if in_flight:
-                collect()
-            if out is not None:
-                in_flight.append((items, out))
-
-        # Read ahead at most a few batches so memory stays bounded.
-        window = max(2 * batch_size, 4)
-        futures = collections.deque()
-        jobs_iter = iter(todo)
-        for job in jobs_iter:
-            futures.append((job, readers.submit(_load, job)))
-            if len(futures) >= window:
-                break
-        while futures:
-            job, fut = futures.popleft()
-            nxt = next(jobs_iter, None)
-            if nxt is not None:
-                futures.append((nxt, readers.submit(_load, nxt)))
-            try:
-                depth, K = fut.result()
-            except io_errors.JaxdepthError as err:
-                record_failure(job.name, str(err))
+        run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,
+                        png_compression=png_compression)
+        for job, loaded in _read_ahead(todo, readers, window=max(2 * batch_size, 4)):
+            if isinstance(loaded, str):
+                run.record_failure(job.name, loaded)
                 continue
-            except OSError as err:
-                record_failure(job.name, f"{job.sparse_path}: {err}")
-                continue
+            depth, K = loaded
             key = _group_key(job, depth)
             items = pending.setdefault(key, [])
             items.append((job, depth, K, T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)))
             if len(items) == batch_size:
-                flush(key, pending.pop(key))
+                run.flush(key, pending.pop(key))
         for key, items in list(pending.items()):
-            flush(key, items)
-        if in_flight:
-            collect()
-        for f in write_futures:
-            f.result()
+            run.flush(key, items)
+        run.finish()
     return summary
+
+
+def _read_ahead(todo: Sequence[FrameJob], readers: cf.Executor, *, window: int):
+    """Yields (job, (depth, K)) in job order, or (job, message) for an input that cannot be read;
+    at most ``window`` inputs are decoded ahead, so memory stays bounded."""
+    futures = collections.deque()
+    jobs_iter = iter(todo)
+    for job in itertools.islice(jobs_iter, window):
+        futures.append((job, readers.submit(_load, job)))
+    while futures:
+        job, fut = futures.popleft()
+        nxt = next(jobs_iter, None)
+        if nxt is not None:
+            futures.append((nxt, readers.submit(_load, nxt)))
+        try:
+            yield job, fut.result()
+        except io_errors.JaxdepthError as err:
+            yield job, str(err)
+        except OSError as err:
+            yield job, f"{job.sparse_path}: {err}"
+
+
+class _BatchRun:
+    """The dispatch side of :func:`run_jobs`: batch k+1 is handed to the devices before batch
+    k's result is collected; results are encoded and written on the ``writers`` threads."""
+
+    def __init__(self, summary: RunSummary, notify, writers: cf.Executor, *, group_call, extras, overwrite: bool,
+                 png_compression: int):
+        self.summary, self.notify, self.writers, self.group_call = summary, notify, writers, group_call
+        self.extras, self.overwrite, self.png_compression = extras, overwrite, png_compression
+        self.lock = threading.Lock()
+        self.write_futures = []
+        self.in_flight = []  # at most one dispatched batch whose result is not collected yet
+
+    def record_failure(self, name, message):
+        with self.lock:
+            self.summary.failed.append((name, message))
+        self.notify(name, f"failed: {message}")
+
+    def write(self, job, depth, valid=None, distance=None):
+        from jaxdepth.batch import extras as extra_outputs
+        try:
+            if self.extras == extra_outputs.NONE:
+                write_depth_png(job.out_path, depth, compression=self.png_compression)
+            else:
+                extra_outputs.write_outputs(job.out_path, depth, extras=self.extras, valid=valid, distance=distance,
+                                            overwrite=self.overwrite, compression=self.png_compression)
+        except io_errors.JaxdepthError as err:
+            self.record_failure(job.name, str(err))
+            return
+        except OSError as err:
+            self.record_failure(job.name, f"{job.out_path}: cannot write ({err.strerror or err})")
+            return
+        with self.lock:
+            self.summary.done.append(job.name)
+            if self.summary.first_output_at is None:
+                self.summary.first_output_at = time.perf_counter()
+        self.notify(job.name, "done")
+
+    def collect(self):
+        items, out = self.in_flight.pop()
+        try:
+            result = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
+        except Exception as err:  # a compute failure costs this batch, not the run
+            for job, *_ in items:
+                self.record_failure(job.name, f"completion failed: {err}")
+            return
+        for i, (job, *_) in enumerate(items):
+            self.write_futures.append(self.writers.submit(self.write, job, *(r[i] for r in result)))
+
+    def flush(self, key, items):
+        fn, args, _ = self.group_call(key, items)
+        try:
+            out = fn(*args)  # dispatched; runs while the previous batch is collected
+        except Exception as err:
+            for job, *_ in items:
+                self.record_failure(job.name, f"completion failed: {err}")
+            out = None
+        if self.in_flight:
+            self.collect()
+        if out is not None:
+            self.in_flight.append((items, out))
+
+    def finish(self):
+        if self.in_flight:
+            self.collect()
+        for f in self.write_futures:
+            f.result()
