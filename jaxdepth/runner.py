@@ -92,31 +92,20 @@ def batch_strategy(backend: str | None = None) -> str:
     return "map" if backend == "cpu" else "vmap"
 
 
-TRACE_COUNTS: dict = {}
-
-
 @functools.lru_cache(maxsize=32)
 def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
                        lidar: LidarSpec, strategy: str, devices: int = 1) -> Callable:
     """(B, H, W), (B, 3, 3), (B, 4, 4) -> (B, H, W) completion for one bucket (one compiled function).
 
     Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
-
-    ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
-    key = (batch_size, height, width, method, config, lidar, strategy, devices)
-
     def one(depth, K, T):
         return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
 
     if strategy == "loop":
-        def traced_one(depth, K, T):
-            TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
-            return one(depth, K, T)
-
-        single = jax.jit(traced_one)
+        single = jax.jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(depths, Ks, Ts):
@@ -136,7 +125,6 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         return jax.lax.map(lambda args: one(*args), (depths, Ks, Ts))
 
     def traced(depths, Ks, Ts):
-        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
             fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 3,
@@ -154,27 +142,19 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
 
     Frame i is :func:`jaxdepth.complete_points` of ``points[i]``, ``valid[i]`` for the
     camera (``K[i]``, ``T[i]``, ``height`` x ``width``); K and T are traced. Strategies
-    and devices as in :func:`batched_completion`. ``TRACE_COUNTS`` counts its traces too.
+    and devices as in :func:`batched_completion`.
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_sweep_completion: 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     from jaxdepth._src.pipeline import complete_points
     from jaxdepth._src.types import Camera
 
-    key = ("sweep", batch_size, points, height, width, config, lidar, strategy, devices)
-
     def one(pts, valid, K, T):
         return complete_points(pts, valid, Camera(K=K, T_cam_lidar=T, height=height, width=width),
                                config=config, lidar=lidar)
 
-    def counted(fn):
-        def traced(*args):
-            TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
-            return fn(*args)
-        return traced
-
     if strategy == "loop":
-        single = jax.jit(counted(one))
+        single = jax.jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(*args):
@@ -197,7 +177,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
             return fn(*args)
         return per_device(*args)
 
-    return jax.jit(counted(sharded))
+    return jax.jit(sharded)
 
 
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,

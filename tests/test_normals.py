@@ -31,6 +31,9 @@ from jaxdepth._src import normals as N
 from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import LidarSpec
 
+from _harness import check_stage
+from oracles import normals_58cfbac as reference
+
 LIDAR = KITTI_HDL64  # 64 x 2048, fov [-24.9, 2] degrees
 SMALL = LidarSpec(beams=16, fov_up_deg=10.0, fov_down_deg=-20.0, columns=64)
 
@@ -371,52 +374,30 @@ def test_range_image_normals_fill_every_cell():
 # ----------------------------------------------------------------------------- invariants
 
 
-def test_jit_equals_eager():
-    """Equal up to float32 rounding (FMA contraction differs): ranges within an ulp,
-    normals within 2e-5 (range differences of ~1 % of r amplify an ulp ~100x)."""
-    rng = np.random.default_rng(4)
-    pts, valid = random_cloud(rng, 1024)
-    p, v = jnp.asarray(pts), jnp.asarray(valid)
-    jitted = N.point_normals(p, v, lidar=SMALL)
-    ri_j = N.range_image(p, v, lidar=SMALL)
-    img_j = N.range_image_normals(ri_j)
-    with jax.disable_jit():
-        eager = N.point_normals(p, v, lidar=SMALL)
-        ri_e = N.range_image(p, v, lidar=SMALL)
-        img_e = N.range_image_normals(ri_e)
-    np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), atol=2e-5)
-    for a, b in zip(ri_j, ri_e):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2.5e-7, atol=1e-7)
-    np.testing.assert_allclose(np.asarray(img_j), np.asarray(img_e), atol=2e-5)
+#: jit vs eager, vmap vs loop: the ranges agree within an ulp (FMA contraction differs), and
+#: the fit divides by range differences of ~1 % of r, amplifying an ulp ~100x: 200 eps.
+NORMAL_ULPS = 200
 
 
-def test_vmap_equals_loop():
+def test_harness_analytic_planes_jit_vmap_retrace():
+    """Three ray-cast planes (and a cloud with duplicates, NaN and origin points) on the 16 x 64
+    sensor: point_normals, range_image and range_image_normals jit == eager, vmap == loop, no
+    retrace; the planes' normals equal the analytic ones on interior rays."""
     elev = np.radians(np.linspace(9, -19, 16))
     azim = np.pi - (np.arange(64) + 0.5) * 2 * np.pi / 64
-    sweeps = [cast_plane(*plane, elev, azim, max_range=40) for plane in (wall(10), wall(-100, 5.0), ground(4))]
-    pts = jnp.asarray(np.stack([s[0].reshape(-1, 3) for s in sweeps]))
-    val = jnp.asarray(np.stack([s[1].reshape(-1) for s in sweeps]))
-    batched = jax.vmap(lambda p, v: N.point_normals(p, v, lidar=SMALL))(pts, val)
-    looped = jnp.stack([N.point_normals(p, v, lidar=SMALL) for p, v in zip(pts, val)])
-    np.testing.assert_allclose(np.asarray(batched), np.asarray(looped), atol=1e-6)
-    ri_b = jax.vmap(lambda p, v: N.range_image(p, v, lidar=SMALL))(pts, val)
-    img_b = jax.vmap(N.range_image_normals)(ri_b)
-    for i, (p, v) in enumerate(zip(pts, val)):
-        ri = N.range_image(p, v, lidar=SMALL)
-        for a, b in zip(ri, ri_b):
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b[i]))
-        np.testing.assert_allclose(np.asarray(N.range_image_normals(ri)), np.asarray(img_b[i]), atol=1e-6)
-
-
-def test_no_retrace_for_new_data():
-    rng = np.random.default_rng(6)
-    pts, valid = random_cloud(rng, 1024)
-    N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL)
-    before = N.point_normals._cache_size()
-    for _ in range(2):
-        pts, valid = random_cloud(rng, 1024)
-        N.point_normals(jnp.asarray(pts), jnp.asarray(valid), lidar=SMALL)
-    assert N.point_normals._cache_size() == before
+    planes = (wall(10), wall(-100, 5.0), ground(4))
+    sweeps = [cast_plane(*plane, elev, azim, max_range=40) for plane in planes]
+    inputs = [(pts.reshape(-1, 3), hit.reshape(-1)) for pts, hit in sweeps]
+    inputs.append(random_cloud(np.random.default_rng(4), 1024))
+    normals = check_stage(N.point_normals, inputs, static=dict(lidar=SMALL), ulps=NORMAL_ULPS)
+    for (normal, d), (pts, hit), n in zip(planes, sweeps, normals):
+        want = -np.sign(d) * np.asarray(normal) / np.linalg.norm(normal)
+        inner = interior(hit, 2)
+        assert inner.sum() > 20
+        # a 16 x 64 sensor: ~1.9 x 5.6 degree cells, so the secant error is larger than on KITTI's
+        assert angle_deg(n.reshape(hit.shape + (3,))[inner], want[None]).max() < 3.0
+    images = check_stage(N.range_image, inputs, static=dict(lidar=SMALL), ulps=2)
+    check_stage(N.range_image_normals, [(ri,) for ri in images], ulps=NORMAL_ULPS)
 
 
 def test_gradient_is_finite():
@@ -478,9 +459,8 @@ def test_options_are_keyword_only():
 # ----------------------------------------------------------------------------- real data
 
 
-def test_kitti_sweep_every_point_and_ground(kitti_frame):
-    raw = np.fromfile(kitti_frame / "lidar_data.bin", np.float32)
-    pts = raw.reshape(-1, 4)[:, :3]
+def test_kitti_sweep_every_point_and_ground(kitti):
+    pts = kitti.scan
     p, v = padded(pts, np.ones(len(pts), bool), SIZE)
     n = np.asarray(_point_normals(p, v))[: len(pts)]
     assert np.all(np.isfinite(n))
@@ -587,17 +567,25 @@ def test_pixel_normals_options_and_wide_camera():
         check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
 
 
-def test_pixel_normals_vmap_equals_loop_and_jit_equals_eager():
-    cams = [_pix_camera(), _pix_camera(f=40.0)]  # one fits the window, one does not
-    depths = np.stack([_pix_frame(s, c) for s, c in zip((2, 3), cams)])
-    Ks = jnp.stack([c.K for c in cams])
-    T = cams[0].T_cam_lidar
-    f = lambda d, k: N.pixel_normals(d, k, T, lidar=PIX_LIDAR, max_points=LISTED)  # noqa: E731
-    loop = np.stack([np.asarray(f(d, k)) for d, k in zip(depths, Ks)])
-    np.testing.assert_allclose(np.asarray(jax.vmap(f)(depths, Ks)), loop, atol=1e-6)
-    with jax.disable_jit():
-        eager = np.asarray(f(depths[0][:48, :80], Ks[0]))
-    np.testing.assert_allclose(np.asarray(f(depths[0][:48, :80], Ks[0])), eager, atol=2e-5)
+def test_pixel_normals_harness_analytic_plane_jit_vmap_retrace():
+    """A flat ground seen by two cameras (one inside the default window, one wider), LiDAR-sampled:
+    jit == eager, vmap == loop, no retrace; the normals are the analytic ground normal."""
+    from jaxdepth._src import synthetic
+    from jaxdepth._src.geometry import project_to_image
+    cams = [_pix_camera(h=48, w=80), _pix_camera(f=40.0, h=48, w=80)]
+    scene = synthetic.scene_arrays(planes=np.array([[0.0, 0.0, 1.0, -1.73]], np.float32))
+    points, valid = synthetic.lidar_sweep(scene, lidar=PIX_LIDAR)
+    inputs = [(np.asarray(project_to_image(points, valid, c.K, c.T_cam_lidar, height=48, width=80)[0]),
+               np.asarray(c.K), np.asarray(c.T_cam_lidar)) for c in cams]
+    out = check_stage(N.pixel_normals, inputs, static=dict(lidar=PIX_LIDAR, max_points=LISTED), ulps=NORMAL_ULPS)
+    up = np.asarray(cams[0].T_cam_lidar)[:3, :3] @ np.array([0.0, 0.0, 1.0])  # faces the sensor above it
+    for (depth, _, _), n in zip(inputs, out):
+        seen = depth > 0
+        assert seen.sum() > 100
+        err = angle_deg(np.moveaxis(n, 0, -1)[seen], up[None])
+        # pixel centres move each point by up to half a pixel off its ray: a few degrees at worst
+        assert np.median(err) < 1.0 and np.percentile(err, 95) < 5.0, (np.median(err), err.max())
+        assert np.all(n[:, ~seen] == 0)
 
 
 def test_pixel_normals_bad_inputs_raise():
@@ -611,17 +599,8 @@ def test_pixel_normals_bad_inputs_raise():
         N.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
 
 
-def _kitti_image(kitti_frame):
-    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
-    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
-    depth, K = crop_to_benchmark(read_depth_png(kitti_frame / "velodyne_raw_image_02.png"),
-                                 calib["cameras"][2]["K"])
-    T = calib["cameras"][2]["T_cam_lidar"]
-    return np.asarray(depth, np.float32), np.asarray(K, np.float32), np.asarray(T, np.float32)
-
-
-def test_pixel_normals_kitti_frame(kitti_frame):
-    depth, K, T = _kitti_image(kitti_frame)
+def test_pixel_normals_kitti_frame(kitti):
+    depth, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     got = N.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
     stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
     assert stable[depth > 0].mean() > 0.999
@@ -630,44 +609,16 @@ def test_pixel_normals_kitti_frame(kitti_frame):
     np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
 
 
-#: normals.py before its stages were re-fused for speed (the fit, neighbour search and
-#: smoothing): outputs must stay equal up to float32 rounding.
-REFERENCE_COMMIT = "58cfbac"
-
-
-def _reference_module():
-    """normals.py at REFERENCE_COMMIT (``git show``) as a module, or None without git / the commit."""
-    import importlib.util
-    import pathlib
-    import subprocess
-    import tempfile
-    root = pathlib.Path(__file__).resolve().parents[1]
-    try:
-        src = subprocess.run(["git", "show", f"{REFERENCE_COMMIT}:jaxdepth/_src/normals.py"], cwd=root,
-                             check=True, capture_output=True, text=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    path = pathlib.Path(tempfile.mkdtemp()) / "normals_reference.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("normals_reference", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_kitti_equal_to_reference_version(kitti_frame):
+def test_kitti_equal_to_reference_version(kitti):
     """pixel_normals on the KITTI frame and point_normals on its sweep equal the version
-    before the speed-up (measured: max difference 1.8e-7, a float32 ulp; bins identical)."""
-    ref = _reference_module()
-    if ref is None:
-        pytest.skip(f"git show {REFERENCE_COMMIT} unavailable")
-    depth, K, T = _kitti_image(kitti_frame)
+    before the speed-up (tests/oracles/normals_58cfbac.py; measured: max difference 1.8e-7,
+    a float32 ulp; bins identical)."""
+    depth, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     got = np.asarray(N.pixel_normals(depth, K, T, lidar=KITTI_HDL64))
-    want = np.asarray(jax.jit(lambda d, k, t: ref.pixel_normals(d, k, t, lidar=KITTI_HDL64))(depth, K, T))
+    want = np.asarray(reference.pixel_normals(depth, K, T, lidar=KITTI_HDL64))
     np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
     assert np.array_equal(got == 0, want == 0)
-    raw = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
-    p, v = padded(raw, np.ones(len(raw), bool), SIZE)
+    p, v = padded(kitti.scan, np.ones(len(kitti.scan), bool), SIZE)
     got = np.asarray(_point_normals(p, v))
-    want = np.asarray(jax.jit(lambda p, v: ref.point_normals(p, v, lidar=LIDAR))(p, v))
+    want = np.asarray(reference.point_normals(p, v, lidar=LIDAR))
     np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
