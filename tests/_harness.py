@@ -28,6 +28,7 @@ import functools
 from typing import Any, Callable, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -58,7 +59,7 @@ def assert_close(actual, expected, *, ulps: float, scale=None, err_msg: str = ""
     if scale is None:
         scale = np.maximum(np.abs(np.where(inf, 0.0, e)), 1.0)
     tol = ulps * eps * np.broadcast_to(np.asarray(scale, np.float64), a.shape)
-    diff = np.abs(np.where(inf, 0.0, a - e))
+    diff = np.abs(np.where(inf, 0.0, a) - np.where(inf, 0.0, e))
     bad = diff > tol
     if bad.any():
         i = tuple(np.argwhere(bad)[0])
@@ -121,7 +122,8 @@ def check_stage(fn: Callable, inputs: Sequence[tuple], *, static: dict | None = 
 
     jitted = jax.jit(counted, static_argnames=tuple(static))
     plain = []
-    for n, args in enumerate(inputs):
+    for n, host_args in enumerate(inputs):
+        args = jax.tree.map(jnp.asarray, host_args)  # the oracle gets the host (NumPy) arrays
         out = fn(*args, **static)
         plain.append(jax.tree.map(np.asarray, out))
         # a fresh copy of every static option: equal values must hit the cache
@@ -131,12 +133,13 @@ def check_stage(fn: Callable, inputs: Sequence[tuple], *, static: dict | None = 
         assert_tree_close(fast, eager, ulps=ulps, scale=scale, err_msg=f"input {n}: jit != eager")
         assert_tree_close(out, fast, ulps=ulps, scale=scale, err_msg=f"input {n}: plain call != jit")
         if oracle is not None:
-            assert_tree_close(jax.tree.map(np.asarray, select(out)), oracle(*args, **static),
+            assert_tree_close(jax.tree.map(np.asarray, select(out)), oracle(*host_args, **static),
                               ulps=oracle_ulps, scale=oracle_scale, err_msg=f"input {n}: oracle",
                               check_dtype=False)
     assert len(traces) == 1, f"retraced: {len(traces)} traces for {len(inputs)} inputs of one shape"
     if vmap:
-        batched = jax.vmap(functools.partial(fn, **static), in_axes=in_axes)(*_stack(inputs, in_axes))
+        stacked = jax.tree.map(jnp.asarray, _stack(inputs, in_axes))
+        batched = jax.vmap(functools.partial(fn, **static), in_axes=in_axes)(*stacked)
         for n, out in enumerate(plain):
             assert_tree_close(jax.tree.map(lambda x: np.asarray(x)[n], batched), out, ulps=ulps, scale=scale,
                               err_msg=f"input {n}: vmap != loop")

@@ -568,24 +568,28 @@ def test_pixel_normals_options_and_wide_camera():
 
 
 def test_pixel_normals_harness_analytic_plane_jit_vmap_retrace():
-    """A flat ground seen by two cameras (one inside the default window, one wider), LiDAR-sampled:
-    jit == eager, vmap == loop, no retrace; the normals are the analytic ground normal."""
+    """A flat ground seen by two cameras (one inside the default window, one wider: the fallback),
+    the exact depth at the pixels the LiDAR hits: jit == eager, vmap == loop, no retrace; in the
+    first camera the normals are the analytic ground normal."""
     from jaxdepth._src import synthetic
     from jaxdepth._src.geometry import project_to_image
     cams = [_pix_camera(h=48, w=80), _pix_camera(f=40.0, h=48, w=80)]
     scene = synthetic.scene_arrays(planes=np.array([[0.0, 0.0, 1.0, -1.73]], np.float32))
     points, valid = synthetic.lidar_sweep(scene, lidar=PIX_LIDAR)
-    inputs = [(np.asarray(project_to_image(points, valid, c.K, c.T_cam_lidar, height=48, width=80)[0]),
-               np.asarray(c.K), np.asarray(c.T_cam_lidar)) for c in cams]
+    inputs = []
+    for c in cams:
+        hit = np.asarray(project_to_image(points, valid, c.K, c.T_cam_lidar, height=48, width=80)[0]) > 0
+        exact = np.asarray(synthetic.render_depth(c, scene))  # through the pixel centres: on the plane
+        inputs.append((np.where(hit, exact, 0.0).astype(np.float32), np.asarray(c.K), np.asarray(c.T_cam_lidar)))
     out = check_stage(N.pixel_normals, inputs, static=dict(lidar=PIX_LIDAR, max_points=LISTED), ulps=NORMAL_ULPS)
-    up = np.asarray(cams[0].T_cam_lidar)[:3, :3] @ np.array([0.0, 0.0, 1.0])  # faces the sensor above it
     for (depth, _, _), n in zip(inputs, out):
-        seen = depth > 0
-        assert seen.sum() > 100
-        err = angle_deg(np.moveaxis(n, 0, -1)[seen], up[None])
-        # pixel centres move each point by up to half a pixel off its ray: a few degrees at worst
-        assert np.median(err) < 1.0 and np.percentile(err, 95) < 5.0, (np.median(err), err.max())
-        assert np.all(n[:, ~seen] == 0)
+        assert (depth > 0).sum() > 1000 and np.all(n[:, depth == 0] == 0)
+    # The wide camera's pixels are sparser than the range image's rows: many isolated points get
+    # the documented face-the-sensor fallback, so only the first camera is held to the plane.
+    depth, n = inputs[0][0], out[0]
+    up = np.asarray(cams[0].T_cam_lidar)[:3, :3] @ np.array([0.0, 0.0, 1.0])  # faces the sensor above it
+    err = angle_deg(np.moveaxis(n, 0, -1)[depth > 0], up[None])
+    assert err.max() < 2.0, (np.median(err), err.max())  # the fit's 1-2 degree bound (module docstring)
 
 
 def test_pixel_normals_bad_inputs_raise():
