@@ -16,7 +16,7 @@ Rows:
 - jax_vmap2_per_image: cameras 2 and 3 under one vmap, time per image (under
   vmap the run-time skips become selects, see the docstring);
 - frozen_*: the same three for the frozen pre-rewrite dense sweep
-  (``frozen_keep_mask`` below, the implementation before the prefilter), timed
+  (``frozen_keep_mask`` from tests/oracles/outliers_dense_sweep.py, the implementation before the prefilter), timed
   interleaved with the new rows in one process; its masks must equal the new
   ones bit for bit (also checked by tests/test_outliers.py);
 - numpy_offsets: a vectorised NumPy version (one pass per window offset), also
