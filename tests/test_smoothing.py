@@ -53,7 +53,7 @@ def test_zero_sigma_is_identity_and_constant_preserved():
 def test_harness_opencv_jit_vmap_retrace():
     imgs = np.random.default_rng(2).uniform(0, 80, (3, 20, 30)).astype(np.float32)
     check_stage(gaussian_blur, [(x,) for x in imgs], static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur,
-                oracle_ulps=_blur_ulps(3), oracle_scale=80.0, scale=80.0)
+                oracle_ulps=_blur_ulps(3), oracle_scale=80.0)
 
 
 # ------------------------------------------------------------- traced sigma
@@ -84,8 +84,7 @@ def test_traced_sigma_harness_scipy_jit_vmap_retrace():
     over images and sigmas together, and over sigma alone with a shared image."""
     imgs = np.random.default_rng(6).uniform(0, 10, (4, 20, 30)).astype(np.float32)
     sigmas = np.array([0.0, 0.5, 1.0, 2.5], np.float32)
-    kw = dict(static=dict(radius_px=3), oracle=_scipy_blur, oracle_ulps=_blur_ulps(3), oracle_scale=10.0,
-              scale=10.0)
+    kw = dict(static=dict(radius_px=3), oracle=_scipy_blur, oracle_ulps=_blur_ulps(3), oracle_scale=10.0)
     check_stage(gaussian_blur_traced, list(zip(imgs, sigmas)), **kw)
     check_stage(gaussian_blur_traced, [(imgs[0], s) for s in sigmas], in_axes=(None, 0), **kw)
 
