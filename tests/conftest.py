@@ -5,9 +5,11 @@ When it is missing, tests that need it skip locally and fail when CI is set.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pathlib
 
+import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
@@ -44,6 +46,52 @@ def shared_data() -> pathlib.Path:
 @pytest.fixture(scope="session")
 def kitti_frame(shared_data) -> pathlib.Path:
     return require_shared("kitti", "drive_0001_frame05")
+
+
+@dataclasses.dataclass(frozen=True)
+class KittiFrame:
+    """The shared KITTI frame, decoded once per session (arrays are read-only).
+
+    ``sparse``, ``truth``: camera (2, 3) -> (352, 1216) float32 metres, 0 = empty
+    (benchmark crop of ``velodyne_raw_image_0X.png`` / ``groundtruth_image_0X.png``).
+    ``frame_sparse``, ``frame_truth``: the same, uncropped (375, 1242).
+    ``K``: camera -> (3, 3) float32 intrinsics of the crop; ``T_cam_lidar``: camera ->
+    (4, 4) float32. ``scan``: (N, 3) float32 LiDAR points of ``lidar_data.bin``, metres.
+    """
+
+    path: pathlib.Path
+    sparse: dict
+    truth: dict
+    frame_sparse: dict
+    frame_truth: dict
+    K: dict
+    T_cam_lidar: dict
+    scan: np.ndarray
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+@pytest.fixture(scope="session")
+def kitti(kitti_frame) -> KittiFrame:
+    """The one KITTI loader of the suite (through the library's own readers)."""
+    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
+    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
+    fields = {name: {} for name in ("sparse", "truth", "frame_sparse", "frame_truth", "K", "T_cam_lidar")}
+    for cam in (2, 3):
+        K_full = calib["cameras"][cam]["K"]
+        for kind, name in (("sparse", "velodyne_raw"), ("truth", "groundtruth")):
+            full = np.asarray(read_depth_png(kitti_frame / f"{name}_image_0{cam}.png"), np.float32)
+            crop, K = crop_to_benchmark(full, K_full)
+            fields[kind][cam] = _read_only(np.asarray(crop, np.float32))
+            fields["frame_" + kind][cam] = _read_only(full)
+        fields["K"][cam] = _read_only(np.asarray(K, np.float32))
+        fields["T_cam_lidar"][cam] = _read_only(np.asarray(calib["cameras"][cam]["T_cam_lidar"], np.float32))
+    scan = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    return KittiFrame(path=kitti_frame, scan=_read_only(scan), **fields)
 
 
 @pytest.fixture(scope="session")

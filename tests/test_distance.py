@@ -3,7 +3,8 @@
 Oracles: OpenCV's exact L1 distance transform, SciPy's exact Euclidean one
 (both on ``~mask``, since they measure the distance to zero pixels), a
 brute-force NumPy nearest seed with the documented raster-order tie rule, and
-NumPy fancy indexing for gather_at_seed.  Plus jit == eager and vmap == loop.
+NumPy fancy indexing for gather_at_seed.  jit == eager, vmap == loop and no
+retrace through tests/_harness.py.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from jaxdepth._src.distance import NearestSeed, gather_at_seed, nearest_seed
+
+from _harness import check_stage
 
 METRICS = ("l1", "l2")
 EPS = float(np.finfo(np.float32).eps)
@@ -105,10 +108,9 @@ def test_kitti_sized_lidar_density(metric):
 
 
 @pytest.mark.parametrize("metric", METRICS)
-def test_kitti_velodyne_mask(metric, kitti_frame):
+def test_kitti_velodyne_mask(metric, kitti):
     """The real KITTI sparse input: seeds only in the lower rows, long gaps above."""
-    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
-    mask = png[-352:, 13:1229] > 0
+    mask = kitti.sparse[2] > 0
     _check_result(nearest_seed(jnp.asarray(mask), metric=metric), mask, metric)
 
 
@@ -162,41 +164,24 @@ def test_tie_rule_symmetric_seeds(metric):
     assert (int(res.du[3, 2]), int(res.dv[3, 2])) == (0, -2)
 
 
-@pytest.mark.parametrize("metric", METRICS)
-def test_jit_equals_eager(metric):
-    mask = jnp.asarray(_random_mask((7, 9), 0.1, seed=11))
-    jitted = nearest_seed(mask, metric=metric)
-    with jax.disable_jit():
-        eager = nearest_seed(mask, metric=metric)
-    for a, b in zip(jitted, eager):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+def _oracle_or_inf(mask, *, metric):
+    """The OpenCV / SciPy distance; +inf everywhere without seeds (they return large finite values)."""
+    mask = np.asarray(mask)
+    return _oracle_distance(mask, metric) if mask.any() else np.full(mask.shape, np.inf, np.float32)
 
 
 @pytest.mark.parametrize("metric", METRICS)
-def test_vmap_equals_loop(metric):
-    masks = np.stack([_random_mask((40, 33), d, seed=i)
-                      for i, d in enumerate([0.0, 0.02, 0.1, 0.6, 1.0])])
-    masks[1, :, :] = False
-    masks[1, 39, 32] = True  # a single seed in the last pixel
-    batched = jax.vmap(lambda m: nearest_seed(m, metric=metric))(jnp.asarray(masks))
-    for i, mask in enumerate(masks):
-        single = nearest_seed(jnp.asarray(mask), metric=metric)
-        for name, a, b in zip(NearestSeed._fields, batched, single):
-            np.testing.assert_array_equal(np.asarray(a)[i], np.asarray(b), err_msg=name)
-        _check_result(NearestSeed(*(x[i] for x in batched)), mask, metric)
-
-
-def test_no_retrace_same_shape():
-    traces = []
-
-    @jax.jit
-    def f(m):
-        traces.append(1)
-        return nearest_seed(m, metric="l1").distance
-
-    f(jnp.asarray(_random_mask((7, 9), 0.1, 0)))
-    f(jnp.asarray(_random_mask((7, 9), 0.3, 1)))
-    assert len(traces) == 1
+def test_harness_oracle_jit_vmap_retrace(metric):
+    """Distances against OpenCV (l1) / SciPy (l2), jit == eager, vmap == loop, no retrace."""
+    masks = [_random_mask((16, 21), d, seed=i) for i, d in enumerate([0.0, 0.02, 0.1, 0.6, 1.0])]
+    masks[1][:] = False
+    masks[1][15, 20] = True  # a single seed in the last pixel
+    # l2: SciPy's float64 sqrt rounded once to float32, ours one float32 sqrt: a few eps apart.
+    # jit, eager and vmap run the same integer passes and one sqrt: bit-identical (0 eps).
+    outs = check_stage(nearest_seed, [(m,) for m in masks], static=dict(metric=metric),
+                       oracle=_oracle_or_inf, select=lambda r: r.distance, oracle_ulps=4, ulps=0)
+    for out, mask in zip(outs, masks):
+        _check_result(NearestSeed(*out), mask, metric)
 
 
 # Small shapes, mostly shared with the tests above so that few new programs compile.
@@ -266,10 +251,9 @@ def test_l2_linked_equals_buffer_stack(shape, density):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_l2_linked_equals_buffer_stack_kitti(kitti_frame):
+def test_l2_linked_equals_buffer_stack_kitti(kitti):
     """Bit-identical seed rows, g and right flags on the real KITTI mask (and its transpose)."""
-    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
-    mask = png[-352:, 13:1229] > 0
+    mask = kitti.sparse[2] > 0
     for m in (mask, np.ascontiguousarray(mask[::-1])):
         new, old = _both_column_passes(m)
         for a, b in zip(new, old):
@@ -277,13 +261,12 @@ def test_l2_linked_equals_buffer_stack_kitti(kitti_frame):
 
 
 @pytest.mark.parametrize("metric", METRICS)
-def test_kitti_tie_rule_sampled_brute_force(metric, kitti_frame):
+def test_kitti_tie_rule_sampled_brute_force(metric, kitti):
     """Real KITTI mask: du, dv equal an exhaustive search (raster-order tie rule) on sampled pixels.
 
     The samples cover the seedless top rows, the borders and random pixels.
     """
-    png = cv2.imread(str(kitti_frame / "velodyne_raw_image_02.png"), cv2.IMREAD_UNCHANGED)
-    mask = png[-352:, 13:1229] > 0
+    mask = kitti.sparse[2] > 0
     res = nearest_seed(jnp.asarray(mask), metric=metric)
     h, w = mask.shape
     rng = np.random.default_rng(5)
@@ -376,19 +359,20 @@ def test_gather_with_nearest_seed_keeps_seed_values():
     assert np.all(out > 0)
 
 
-def test_gather_jit_equals_eager_and_vmap_equals_loop():
+@pytest.mark.parametrize("channels", [(), (2,)])
+def test_gather_harness_oracle_jit_vmap_retrace(channels):
+    """NumPy fancy indexing as the oracle; jit == eager, vmap == loop, no retrace (exact: a gather)."""
     rng = np.random.default_rng(4)
-    fields = rng.random((4, 2, 7, 9)).astype(np.float32)
-    offs = [_random_offsets((7, 9), s) for s in range(4)]
-    du = jnp.asarray(np.stack([o[0] for o in offs]))
-    dv = jnp.asarray(np.stack([o[1] for o in offs]))
-    batched = jax.vmap(gather_at_seed)(jnp.asarray(fields), du, dv)
-    for i in range(4):
-        single = gather_at_seed(jnp.asarray(fields[i]), du[i], dv[i])
-        with jax.disable_jit():
-            eager = gather_at_seed(jnp.asarray(fields[i]), du[i], dv[i])
-        np.testing.assert_array_equal(np.asarray(batched[i]), np.asarray(single))
-        np.testing.assert_array_equal(np.asarray(eager), np.asarray(single))
+    inputs = []
+    for s in range(4):
+        du, dv = _random_offsets((7, 9), s)
+        inputs.append((rng.random(channels + (7, 9)).astype(np.float32), du, dv))
+
+    def oracle(field, du, dv):
+        v, u = np.indices(du.shape)
+        return field[..., v + dv, u + du]
+
+    check_stage(gather_at_seed, inputs, oracle=oracle, oracle_ulps=0, ulps=0)
 
 
 def test_gather_validation():

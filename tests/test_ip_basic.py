@@ -100,10 +100,8 @@ def test_ip_basic_equals_opencv_synthetic(extrapolate):
 
 
 @pytest.mark.shared_data
-def test_ip_basic_equals_opencv_on_kitti_and_scores(kitti_frame):
-    read = lambda n: cv2.imread(str(kitti_frame / n), cv2.IMREAD_UNCHANGED).astype(np.float32) / 256.0  # noqa: E731
-    crop = np.s_[23:375, 13:1229]  # KITTI benchmark crop, 352 x 1216
-    sparse, gt = read("velodyne_raw_image_02.png")[crop], read("groundtruth_image_02.png")[crop]
+def test_ip_basic_equals_opencv_on_kitti_and_scores(kitti):
+    sparse, gt = kitti.sparse[2], kitti.truth[2]  # KITTI benchmark crop, 352 x 1216
     got = np.asarray(ipb.ip_basic(sparse, blur_type="gaussian"))
     want = baselines.ip_basic_opencv(sparse, blur_type="gaussian")
     assert got.shape == (352, 1216)

@@ -14,21 +14,12 @@ import numpy as np
 import pytest
 
 from jaxdepth._src import outliers as outliers_module
-from jaxdepth._src import presets
 from jaxdepth._src.geometry import invert_rigid, project_to_image, transform_points
-from jaxdepth._src.outliers import _keep_mask, outlier_keep_mask, window_half_sizes
+from jaxdepth._src.outliers import outlier_keep_mask, window_half_sizes
 
-from conftest import REPO
+from _harness import check_stage
+from oracles.outliers_dense_sweep import frozen_keep_mask
 
-
-def _frozen():
-    """The pre-rewrite dense sweep (the paper's axis-aligned condition 1), kept verbatim in
-    benchmarks/bench_outliers.py: the reference of ``test="paper"``."""
-    import sys
-    if str(REPO / "benchmarks") not in sys.path:
-        sys.path.insert(0, str(REPO / "benchmarks"))
-    from bench_outliers import frozen_keep_mask
-    return frozen_keep_mask
 
 SETTINGS = dict(deadline=None, max_examples=12, derandomize=True,
                 suppress_health_check=[hypothesis.HealthCheck.too_slow])
@@ -178,16 +169,12 @@ def _points_near_pixels(rng, K, depth, spread=0.5):
     return (rays.reshape(3, *shape) * depth).astype(np.float32)
 
 
-def _kitti_crop(kitti_frame, name):
-    raw = cv2.imread(str(kitti_frame / name), cv2.IMREAD_UNCHANGED)
-    return raw[23:375, 13:1229].astype(np.float32) / 256.0
-
-
-def _kitti_K():
-    K = presets.KITTI_K_CAM2.copy()
-    K[0, 2] -= 13.0
-    K[1, 2] -= 23.0
-    return K
+def _kitti_window(kitti, cam, r0, c0):
+    """A 96 x 320 window of the benchmark crop of camera ``cam``'s sparse input, its K, camera 2's T."""
+    K = kitti.K[cam].copy()
+    K[0, 2] -= c0
+    K[1, 2] -= r0
+    return kitti.sparse[cam][r0:r0 + 96, c0:c0 + 320], K, kitti.T_cam_lidar[2].copy()
 
 
 # ----------------------------------------------------------------------------- oracle tests
@@ -220,15 +207,11 @@ def test_matches_paper_double_loop_points_cam(seed):
 
 
 @pytest.mark.parametrize("r0, c0", [(110, 150), (100, 880)])   # 96 x 320 windows with removals
-def test_matches_paper_double_loop_kitti_crop(kitti_frame, r0, c0):
-    sparse = _kitti_crop(kitti_frame, "velodyne_raw_image_02.png")
-    K = _kitti_K()
-    crop = sparse[r0:r0 + 96, c0:c0 + 320]
-    K[0, 2] -= c0
-    K[1, 2] -= r0
+def test_matches_paper_double_loop_kitti_crop(kitti, r0, c0):
+    crop, K, T = _kitti_window(kitti, 2, r0, c0)
     kw = dict(beams=64, epsilon_m=1.0, max_half_width_px=12, max_half_height_px=24)
-    got = np.asarray(outlier_keep_mask(crop, K, presets.KITTI_T_CAM2_LIDAR, test="paper", **kw))
-    want = paper_double_loop(crop, K, presets.KITTI_T_CAM2_LIDAR, **kw)
+    got = np.asarray(outlier_keep_mask(crop, K, T, test="paper", **kw))
+    want = paper_double_loop(crop, K, T, **kw)
     assert (crop > 0).sum() > 1000 and (~want & (crop > 0)).sum() > 5   # a non-trivial case
     np.testing.assert_array_equal(got, want)
 
@@ -279,13 +262,8 @@ def test_footprint_prefilter_edge_depths(seed, far, t_z):
 
 
 @pytest.mark.parametrize("r0, c0", [(110, 150), (100, 880)])
-def test_matches_footprint_double_loop_kitti_crop(kitti_frame, r0, c0):
-    sparse = _kitti_crop(kitti_frame, "velodyne_raw_image_03.png")
-    K = _kitti_K()
-    crop = sparse[r0:r0 + 96, c0:c0 + 320]
-    K[0, 2] -= c0
-    K[1, 2] -= r0
-    T = presets.KITTI_T_CAM2_LIDAR.copy()
+def test_matches_footprint_double_loop_kitti_crop(kitti, r0, c0):
+    crop, K, T = _kitti_window(kitti, 3, r0, c0)
     T[0, 3] -= 0.54          # camera 3 sits 0.54 m right of camera 2: more parallax, more removals
     kw = dict(beams=64, epsilon_m=1.0, max_half_width_px=12, max_half_height_px=24)
     got = np.asarray(outlier_keep_mask(crop, K, T, **kw))
@@ -330,19 +308,18 @@ def test_radial_offset_over_open_ground_removes_nothing(t_lidar):
 
 
 # ----------------------------------------------------------------------------- frozen dense sweep
-def test_equals_frozen_dense_sweep_kitti(kitti_frame):
+def test_equals_frozen_dense_sweep_kitti(kitti):
     """Bit-identical to the previous implementation (the dense sweep over all
     window offsets) on the real frame: official sparse input of both cameras
     (image-only path) and the raw HDL-64E sweep projected with the camera-2
     calibration (image-only and raw-sweep paths)."""
-    frozen = _frozen()
-    K, T = _kitti_K(), presets.KITTI_T_CAM2_LIDAR
-    for name in ("velodyne_raw_image_02.png", "velodyne_raw_image_03.png"):
-        sparse = _kitti_crop(kitti_frame, name)
+    frozen = frozen_keep_mask
+    K, T = kitti.K[2], kitti.T_cam_lidar[2]
+    for name, sparse in (("camera 2", kitti.sparse[2]), ("camera 3", kitti.sparse[3])):
         got = np.asarray(outlier_keep_mask(sparse, K, T, beams=64, test="paper"))
         assert (~got & (sparse > 0)).sum() > 50
         np.testing.assert_array_equal(got, np.asarray(frozen(sparse, K, T, beams=64)), err_msg=name)
-    scan = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
+    scan = kitti.scan
     depth, index = project_to_image(jnp.asarray(scan), jnp.ones(len(scan), bool), K, T, height=352, width=1216)
     depth, index = np.asarray(depth), np.asarray(index)
     p_cam = np.asarray(transform_points(T, jnp.asarray(scan)))
@@ -362,7 +339,7 @@ def test_equals_frozen_dense_sweep_kitti(kitti_frame):
     (4, (60, 90), 16, 0.1, (3, 2)),       # small caps
 ])
 def test_equals_frozen_dense_sweep_configurations(seed, shape, beams, density, caps):
-    frozen = _frozen()
+    frozen = frozen_keep_mask
     rng = np.random.default_rng(seed)
     K, T = _camera(rng, *shape)
     depth = _random_sparse(rng, *shape, density)
@@ -493,12 +470,11 @@ def test_analytic_occlusion_scene(t_lidar, raw, test):
 
 
 # ----------------------------------------------------------------------------- real data
-def test_kitti_removal_lowers_error(kitti_frame):
+def test_kitti_removal_lowers_error(kitti):
     """The paper's Table 1 measurement on one frame: error of the raw sparse input
     against the ground truth, on pixels valid in both, before and after removal."""
-    sparse = _kitti_crop(kitti_frame, "velodyne_raw_image_02.png")
-    truth = _kitti_crop(kitti_frame, "groundtruth_image_02.png")
-    keep = np.asarray(outlier_keep_mask(sparse, _kitti_K(), presets.KITTI_T_CAM2_LIDAR, beams=64))
+    sparse, truth = kitti.sparse[2], kitti.truth[2]
+    keep = np.asarray(outlier_keep_mask(sparse, kitti.K[2], kitti.T_cam_lidar[2], beams=64))
     both = (sparse > 0) & (truth > 0)
     err = sparse - truth
     rmse_before = np.sqrt(np.mean(err[both] ** 2))
@@ -561,34 +537,24 @@ def test_scale_invariance():
     np.testing.assert_array_equal(a, b)
 
 
-def test_jit_equals_eager():
-    rng = np.random.default_rng(7)
-    K, T = _camera(rng, 24, 40)
-    depth = _random_sparse(rng, 24, 40, 0.12)
-    jitted = jax.jit(lambda d, k, t: outlier_keep_mask(d, k, t, beams=6, max_half_width_px=3))(depth, K, T)
-    with jax.disable_jit():
-        eager = outlier_keep_mask(depth, K, T, beams=6, max_half_width_px=3)
-    assert (np.asarray(eager) != (depth > 0)).any()
-    np.testing.assert_array_equal(np.asarray(jitted), np.asarray(eager))
-
-
+@pytest.mark.parametrize("test", ["paper", "footprint"])
 @pytest.mark.parametrize("raw", [False, True])
-def test_vmap_equals_loop(raw):
+def test_harness_oracle_jit_vmap_retrace(raw, test):
+    """Oracle (the paper's double loop, for ``test="paper"``), jit == eager, vmap == loop, no retrace."""
     rng = np.random.default_rng(11)
     shape = (24, 40)
-    cams = [_camera(rng, *shape) for _ in range(3)]
-    depths = np.stack([_random_sparse(rng, *shape, dens) for dens in (0.05, 0.12, 0.3)])
-    Ks = np.stack([c[0] for c in cams])
-    Ts = np.stack([c[1] for c in cams])
-    points = None
-    if raw:
-        points = rng.normal(0, 3, (3, 3, *shape)).astype(np.float32)
-        points[:, 2] = depths
-    fn = lambda d, k, t, p: outlier_keep_mask(d, k, t, beams=6, max_half_width_px=4, points_cam=p)
-    batched = np.asarray(jax.vmap(fn)(depths, Ks, Ts, points))
-    for b in range(3):
-        one = np.asarray(fn(depths[b], Ks[b], Ts[b], None if points is None else points[b]))
-        np.testing.assert_array_equal(batched[b], one)
+    inputs = []
+    for density in (0.05, 0.12, 0.3):
+        K, T = _camera(rng, *shape)
+        depth = _random_sparse(rng, *shape, density)
+        inputs.append((depth, K, T, _points_near_pixels(rng, K, depth) if raw else None))
+    fn = lambda d, k, t, p, **kw: outlier_keep_mask(d, k, t, points_cam=p, **kw)  # noqa: E731
+    oracle = None
+    if test == "paper":
+        oracle = lambda d, k, t, p, test, **kw: paper_double_loop(d, k, t, points_cam=p, **kw)  # noqa: E731
+    keeps = check_stage(fn, inputs, static=dict(beams=6, max_half_width_px=4, max_half_height_px=24, test=test),
+                        oracle=oracle)
+    assert any((keep != (args[0] > 0)).any() for keep, args in zip(keeps, inputs))  # something is removed
 
 
 def test_raw_and_image_paths_agree_on_exact_pixels():
@@ -616,16 +582,6 @@ def test_raw_and_image_paths_agree_on_exact_pixels():
     image = np.asarray(outlier_keep_mask(depth, K, T, beams=12))
     assert (image != (depth > 0)).sum() >= 5
     np.testing.assert_array_equal(raw, image)
-
-
-def test_no_retrace_for_new_data():
-    rng = np.random.default_rng(2)
-    K, T = _camera(rng, 24, 40)
-    outlier_keep_mask(_random_sparse(rng, 24, 40, 0.1), K, T, beams=5)
-    before = _keep_mask._cache_size()
-    K2, T2 = _camera(rng, 24, 40)
-    outlier_keep_mask(_random_sparse(rng, 24, 40, 0.2), K2, T2, beams=5)
-    assert _keep_mask._cache_size() == before
 
 
 @pytest.mark.parametrize("kwargs, message", [

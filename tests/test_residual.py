@@ -1,4 +1,5 @@
-"""Residual (Step 4a): exact on analytic planes, finite values and gradients, jit/vmap."""
+"""Residual (Step 4a): exact on analytic planes, a float64 NumPy oracle, finite values and
+gradients; jit, vmap and retrace via tests/_harness.py."""
 
 import jax
 import jax.numpy as jnp
@@ -6,6 +7,8 @@ import numpy as np
 import pytest
 
 from jaxdepth._src.residual import plane_residual
+
+from _harness import check_stage
 
 K = np.array([[500.0, 0.0, 63.5], [0.0, 480.0, 40.2], [0.0, 0.0, 1.0]], np.float32)
 H, W = 80, 128
@@ -69,22 +72,38 @@ def test_residual_clipped_to_ratio():
     assert float(jnp.abs(dz).max()) <= 2.5 + 1e-6
 
 
-def test_jit_and_vmap():
+def numpy_residual(seed_depth, seed_normal, du, dv, K, *, min_abs_denom, max_residual_ratio):
+    """The paper's Delta z, float64, written from the formula (zero-skew pinhole)."""
+    z, n = np.asarray(seed_depth, np.float64), np.asarray(seed_normal, np.float64)
+    K = np.asarray(K, np.float64)
+    v, u = np.indices(z.shape, dtype=np.float64)
+    numer = z * (du * n[0] / K[0, 0] + dv * n[1] / K[1, 1])
+    denom = (u - K[0, 2]) / K[0, 0] * n[0] + (v - K[1, 2]) / K[1, 1] * n[1] + n[2]
+    ok = (np.abs(denom) > min_abs_denom) & (z > 0)
+    dz = np.where(ok, numer / np.where(ok, denom, 1.0), 0.0)
+    return np.clip(dz, -max_residual_ratio * z, max_residual_ratio * z)
+
+
+def test_harness_numpy_oracle_jit_vmap_retrace():
+    """Random seeds, normals and offsets; every frame its own K. Tolerance: the denominator
+    n . ray carries a few eps of rounding (terms of order 1) and is divided by; with
+    |denominator| > min_abs_denom that is amplified at most 1 / min_abs_denom times."""
     rng = np.random.default_rng(1)
-    B = 3
-    seed_depth = rng.uniform(1, 50, (B, H, W)).astype(np.float32)
-    n = rng.normal(size=(B, 3, H, W)).astype(np.float32)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    du = rng.integers(-3, 4, (B, H, W)).astype(np.int32)
-    dv = rng.integers(-3, 4, (B, H, W)).astype(np.int32)
-    Ks = np.stack([K * np.float32(1 + 0.1 * b) for b in range(B)]).astype(np.float32)
-    Ks[:, 2, 2] = 1
-    loop = np.stack([np.asarray(plane_residual(seed_depth[b], n[b], du[b], dv[b], Ks[b])) for b in range(B)])
-    jitted = np.stack([np.asarray(jax.jit(plane_residual)(seed_depth[b], n[b], du[b], dv[b], Ks[b])) for b in range(B)])
-    vmapped = np.asarray(jax.vmap(plane_residual)(seed_depth, n, du, dv, Ks))
-    # The default guard (SGMConfig().min_abs_denom = 0.01) lets denominators down to 0.01
-    # through: their terms are of order 1, so jit's and eager's float32 rounding of n . ray
-    # (a few eps) is amplified up to 100x in Delta z.
-    tol = 100 * float(np.finfo(np.float32).eps)
-    np.testing.assert_allclose(jitted, loop, rtol=tol, atol=1e-6)
-    np.testing.assert_allclose(vmapped, loop, rtol=tol, atol=1e-6)
+    h, w, min_abs_denom = 40, 64, 0.05
+    inputs = []
+    for b in range(3):
+        seed_depth = rng.uniform(1, 50, (h, w)).astype(np.float32)
+        seed_depth[rng.random((h, w)) < 0.1] = 0.0  # pixels without a seed
+        n = rng.normal(size=(3, h, w)).astype(np.float32)
+        n /= np.linalg.norm(n, axis=0, keepdims=True)
+        Kb = (K * np.float32(1 + 0.1 * b)).astype(np.float32)
+        Kb[2, 2] = 1
+        v, u = np.indices((h, w))
+        denom = (u - Kb[0, 2]) / Kb[0, 0] * n[0] + (v - Kb[1, 2]) / Kb[1, 1] * n[1] + n[2]
+        n[:, np.abs(np.abs(denom) - min_abs_denom) < 1e-3] = ((0,), (0,), (-1,))  # no pixel on the guard's edge
+        du = rng.integers(-3, 4, (h, w)).astype(np.int32)
+        dv = rng.integers(-3, 4, (h, w)).astype(np.int32)
+        inputs.append((seed_depth, n, du, dv, Kb))
+    ulps = 8 / min_abs_denom
+    check_stage(plane_residual, inputs, static=dict(min_abs_denom=min_abs_denom, max_residual_ratio=0.5),
+                oracle=numpy_residual, oracle_ulps=ulps, ulps=ulps)

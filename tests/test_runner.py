@@ -49,7 +49,32 @@ def test_batch_size_changes_rounding_only_and_reruns_are_byte_identical(frames):
     assert again.tobytes() == results[1].tobytes()
 
 
-def test_last_batch_is_padded_not_recompiled(tmp_path, frames):
+def _count_traces(monkeypatch) -> list:
+    """Counts the traces of the runner's compiled batch: ``complete_with`` runs once per trace
+    of its body (a Python wrapper around it, looked up by the runner at trace time)."""
+    traces = []
+
+    def counted(*args, **kwargs):
+        traces.append(args[0].shape)
+        return complete_with(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "complete_with", counted)
+    return traces
+
+
+def _record_buckets(monkeypatch) -> list:
+    """The batch sizes the runner asks :func:`runner.batched_completion` to compile for."""
+    sizes, real = [], runner.batched_completion
+
+    def spy(batch_size, *args, **kwargs):
+        sizes.append(batch_size)
+        return real(batch_size, *args, **kwargs)
+
+    monkeypatch.setattr(runner, "batched_completion", spy)
+    return sizes
+
+
+def test_last_batch_is_padded_not_recompiled(tmp_path, frames, monkeypatch):
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items)
     jobs = [runner.FrameJob(name=p.name, sparse_path=p, out_path=tmp_path / "out" / p.name,
@@ -57,11 +82,12 @@ def test_last_batch_is_padded_not_recompiled(tmp_path, frames):
             for p in sorted((src / "velodyne_raw").glob("*.png"))]
     (tmp_path / "out").mkdir()
     runner.batched_completion.cache_clear()
-    runner.TRACE_COUNTS.clear()
+    traces = _count_traces(monkeypatch)
+    buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, config=CONFIG)
     assert summary.ok and len(summary.done) == 5
-    # 5 frames in batches of 2: three calls (the last padded), one trace
-    assert list(runner.TRACE_COUNTS.values()) == [1]
+    # 5 frames in batches of 2: three calls (the last padded) of one bucket, traced once
+    assert buckets == [2, 2, 2] and len(traces) == 1
     for (depth, K), job in zip(items, jobs):
         expected = np.asarray(complete_with(read_depth_png(job.sparse_path), K, T))
         got = read_depth_png(job.out_path)
@@ -123,18 +149,17 @@ def test_two_simulated_devices_match_one(tmp_path):
     assert "sharded-ok" in result.stdout
 
 
-def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames):
+def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, monkeypatch):
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items[:1])
     png = next((src / "velodyne_raw").glob("*.png"))
     job = runner.FrameJob(name=png.name, sparse_path=png, out_path=tmp_path / "one.png",
                           intrinsics_path=src / "intrinsics" / (png.stem + ".txt"))
     runner.batched_completion.cache_clear()
-    runner.TRACE_COUNTS.clear()
+    buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1)
     assert summary.ok and summary.done == [png.name]
-    (key,) = runner.TRACE_COUNTS
-    assert key[0] == 1  # compiled for a batch of one frame, not four
+    assert buckets == [1]  # compiled for a batch of one frame, not four
 
 
 SPLIT = r"""

@@ -118,13 +118,8 @@ def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
 
 
 @pytest.mark.parametrize("metric", ["l1", "l2"])
-def test_kitti_frame_equals_reference(kitti_frame, metric):
-    from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
-    calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
-    sparse, K = crop_to_benchmark(read_depth_png(kitti_frame / "velodyne_raw_image_02.png"),
-                                  calib["cameras"][2]["K"])
-    T = np.asarray(calib["cameras"][2]["T_cam_lidar"], np.float32)
-    sparse, K = np.asarray(sparse, np.float32), np.asarray(K, np.float32)
+def test_kitti_frame_equals_reference(kitti, metric):
+    sparse, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     config = SGMConfig(distance_metric=metric)
     got = complete_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64)
     check_equal(got, reference_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64))

@@ -158,12 +158,11 @@ def test_prepare_sweep_backs_off_for_a_vehicle_frame(street):
 
 
 @pytest.mark.shared_data
-def test_real_sweeps_are_in_their_sensor_frame(kitti_frame, nuscenes_sample):
+def test_real_sweeps_are_in_their_sensor_frame(kitti, nuscenes_sample):
     import glob
     from jaxdepth.io import read_points
-    kitti = np.fromfile(kitti_frame / "lidar_data.bin", np.float32).reshape(-1, 4)[:, :3]
-    assert estimate_lidar_geometry(kitti).spinning
-    assert not estimate_lidar_geometry(kitti + np.float32([-0.8, 0.3, 1.73])).spinning
+    assert estimate_lidar_geometry(kitti.scan).spinning
+    assert not estimate_lidar_geometry(kitti.scan + np.float32([-0.8, 0.3, 1.73])).spinning
     points, extra = read_points(glob.glob(str(nuscenes_sample / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
     est = estimate_lidar_geometry(points, ring=extra[:, 1])
     assert est.spinning and est.beams == 32

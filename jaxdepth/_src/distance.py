@@ -489,6 +489,17 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
       that is not 2-D bool with H, W >= 1, or a shape too large for the int32
       keys: ``"l1"`` needs ``(2 H + W + 1) * 2**(ceil(log2 H) + 1) < 2**31``
       (e.g. 8192 x 8192 fits), ``"l2"`` needs ``H, W <= 32768``.
+
+    Examples:
+      Two seeds in a row of four pixels; each empty pixel points at the nearer one:
+
+      >>> import jax.numpy as jnp
+      >>> from jaxdepth._src.distance import nearest_seed
+      >>> seeds = nearest_seed(jnp.array([[True, False, False, True]]))
+      >>> seeds.distance
+      Array([[0., 1., 1., 0.]], dtype=float32)
+      >>> seeds.du
+      Array([[ 0, -1,  1,  0]], dtype=int32)
     """
     _check(seed_mask, metric)
     h, w = seed_mask.shape
@@ -529,6 +540,16 @@ def gather_at_seed(field: jax.Array, du: jax.Array, dv: jax.Array) -> jax.Array:
     Returns:
       Array with ``field``'s shape and dtype, equal to NumPy's
       ``field[..., v + dv, u + du]`` with ``v, u`` the pixel grids.
+
+    Examples:
+      Spread two seed depths to their nearest pixels:
+
+      >>> import jax.numpy as jnp
+      >>> from jaxdepth._src.distance import gather_at_seed, nearest_seed
+      >>> depth = jnp.array([[5.0, 0.0, 0.0, 7.0]])
+      >>> seeds = nearest_seed(depth > 0)
+      >>> gather_at_seed(depth, seeds.du, seeds.dv)
+      Array([[5., 5., 7., 7.]], dtype=float32)
     """
     if field.ndim not in (2, 3):
         raise ValueError(

@@ -68,6 +68,19 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
 
     Returns:
       (H, W) float32.
+
+    Examples:
+      A unit impulse in a 3 x 3 image; the mirrored border (reflect-101) folds
+      the kernel's tails back in, so the corners get the most weight:
+
+      >>> import jax.numpy as jnp
+      >>> import numpy as np
+      >>> from jaxdepth._src.smoothing import gaussian_blur
+      >>> impulse = jnp.zeros((3, 3)).at[1, 1].set(1.0)
+      >>> print(np.round(np.asarray(gaussian_blur(impulse, sigma_px=1.0, radius_px=1)), 4))
+      [[0.3005 0.2477 0.3005]
+       [0.2477 0.2042 0.2477]
+       [0.3005 0.2477 0.3005]]
     """
     weights = gaussian_kernel_1d(float(sigma_px), int(radius_px))
     if len(weights) == 1:

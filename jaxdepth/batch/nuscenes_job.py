@@ -61,9 +61,6 @@ class _SampleJob:
     out_paths: tuple  # their outputs
 
 
-TRACE_COUNTS: dict = {}
-
-
 @functools.lru_cache(maxsize=8)
 def _depth_fn(config, lidar):
     """jit: (padded (B, 3), valid (B,), RigCameras) -> (C, H, W) depth; one trace per bucket and canvas."""
@@ -72,8 +69,6 @@ def _depth_fn(config, lidar):
     from jaxdepth._src.rig import complete_rig_stages
 
     def depth(points, valid, cameras):
-        key = (points.shape[0], cameras.count, cameras.height, cameras.width, config, lidar)
-        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
         return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar).depth
 
     return jax.jit(depth)

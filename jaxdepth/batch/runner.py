@@ -93,9 +93,6 @@ def batch_strategy(backend: str | None = None) -> str:
     return "map" if backend == "cpu" else "vmap"
 
 
-TRACE_COUNTS: dict = {}
-
-
 @functools.lru_cache(maxsize=32)
 def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
                        lidar: LidarSpec, strategy: str, devices: int = 1,
@@ -108,18 +105,12 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     ``(depth, valid, seed_distance)``, each (B, H, W), from
     :func:`jaxdepth._src.validity.validity_and_distance` of the frame's Stages (another
     compiled function; without it nothing changes).
-
-    ``TRACE_COUNTS[key]`` counts traces of this bucket (a test checks it stays 1).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
-    key = (batch_size, height, width, method, config, lidar, strategy, devices)
-    if max_seed_distance_px is not None:
-        if method != "sgm":
-            raise ValueError(f"batched_completion: extra outputs (validity, seed distance) need method 'sgm', "
-                             f"got {method!r}")
-        key += ("extras", max_seed_distance_px)
-
+    if max_seed_distance_px is not None and method != "sgm":
+        raise ValueError(f"batched_completion: extra outputs (validity, seed distance) need method 'sgm', "
+                         f"got {method!r}")
     def one(depth, K, T):
         if max_seed_distance_px is None:
             return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
@@ -129,11 +120,7 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
                                            max_seed_distance_px=max_seed_distance_px)
 
     if strategy == "loop":
-        def traced_one(depth, K, T):
-            TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
-            return one(depth, K, T)
-
-        single = jax.jit(traced_one)
+        single = jax.jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(depths, Ks, Ts):
@@ -153,7 +140,6 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         return jax.lax.map(lambda args: one(*args), (depths, Ks, Ts))
 
     def traced(depths, Ks, Ts):
-        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
             fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 3,
@@ -190,16 +176,12 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
     Frame i is :func:`jaxdepth.complete_points` of ``points[i]``, ``valid[i]`` for the
     camera (``K[i]``, ``T[i]``, ``height`` x ``width``); K and T are traced. Strategies
     and devices as in :func:`batched_completion`, and so is ``max_seed_distance_px``
-    (then ``(depth, valid, seed_distance)``). ``TRACE_COUNTS`` counts its traces too.
+    (then ``(depth, valid, seed_distance)``).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_sweep_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     from jaxdepth._src.pipeline import complete_points, complete_points_stages
     from jaxdepth._src.types import Camera
-
-    key = ("sweep", batch_size, points, height, width, config, lidar, strategy, devices)
-    if max_seed_distance_px is not None:
-        key += ("extras", max_seed_distance_px)
 
     def one(pts, valid, K, T):
         camera = Camera(K=K, T_cam_lidar=T, height=height, width=width)
@@ -209,14 +191,8 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
-    def counted(fn):
-        def traced(*args):
-            TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
-            return fn(*args)
-        return traced
-
     if strategy == "loop":
-        single = jax.jit(counted(one))
+        single = jax.jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(*args):
@@ -239,7 +215,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
             return fn(*args)
         return per_device(*args)
 
-    return jax.jit(counted(sharded))
+    return jax.jit(sharded)
 
 
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,
