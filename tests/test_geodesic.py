@@ -204,3 +204,75 @@ def test_bad_input(keep, img, kwargs, match):
         geodesic_seed(keep, img, **options)
     with pytest.raises(ValueError, match=match):
         jax.jit(lambda k, i: geodesic_seed(k, i, **options))(keep, img)
+
+
+# --- the pipeline option (SGMConfig.guidance_weight / guidance_sweeps, image=) ---
+
+def _pipeline_frame():
+    from tests.helpers import small_frames
+    frames, T = small_frames(2, seed=3)
+    rng = np.random.default_rng(7)
+    images = [rng.integers(0, 256, depth.shape + (3,), dtype=np.uint8) for depth, _ in frames]
+    return frames, T, images
+
+
+def test_pipeline_without_guidance_ignores_the_image():
+    from jaxdepth import complete_stages
+    (frames, T, images) = _pipeline_frame()
+    depth, K = frames[0]
+    plain = complete_stages(depth, K, T)
+    with_image = complete_stages(depth, K, T, image=images[0])
+    for a, b in zip(plain, with_image):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_pipeline_guided_seeds_and_vmap():
+    """Guided seeds are geodesic_seed of Step 2's inliers; uint8 == float image; vmap == loop."""
+    from jaxdepth import SGMConfig, complete, complete_stages
+    (frames, T, images) = _pipeline_frame()
+    config = SGMConfig(guidance_weight=8.0, guidance_sweeps=2)
+    loop = []
+    for (depth, K), image in zip(frames, images):
+        stages = complete_stages(depth, K, T, config=config, image=image)
+        want = geodesic_seed(np.asarray(stages.inlier_mask), image.astype(np.float32) / 255.0,
+                             color_weight=8.0, sweeps=2)
+        np.testing.assert_array_equal(stages.du, want.du)
+        np.testing.assert_array_equal(stages.dv, want.dv)
+        v, u = np.indices(depth.shape)
+        kept = np.where(stages.inlier_mask, depth, 0.0)
+        np.testing.assert_array_equal(stages.seed_depth, kept[v + np.asarray(want.dv), u + np.asarray(want.du)])
+        loop.append(np.asarray(stages.depth))
+    as_float = complete_stages(frames[0][0], frames[0][1], T, config=config,
+                               image=images[0].astype(np.float32) / 255.0)
+    np.testing.assert_array_equal(as_float.depth, loop[0])
+    depths = np.stack([d for d, _ in frames])
+    Ks = np.stack([K for _, K in frames])
+    batched = jax.vmap(lambda d, K, im: complete(d, K, T, config=config, image=im))(depths, Ks, np.stack(images))
+    # Same tolerance as test_pipeline's vmap test (batched XLA kernels round differently).
+    np.testing.assert_allclose(batched, np.stack(loop), rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("image,match", [
+    (None, r"'image' expected an \(H, W\) or \(H, W, 3\) camera image because config.guidance_weight > 0, got None"),
+    (np.zeros((10, 20, 3), np.uint8), r"'image' expected shape \(64, 128\) \(grey\) or \(64, 128, 3\).*got \(10, 20, 3\)"),
+    (np.zeros((64, 128, 4), np.uint8), r"'image' expected shape .*got \(64, 128, 4\)"),
+    (np.zeros((64, 128, 3), np.uint16), r"'image' expected dtype uint8 \(0-255\) or float in \[0, 1\], got uint16 "
+                                        r"\(a 16-bit image"),
+])
+def test_pipeline_bad_image(image, match):
+    from jaxdepth import SGMConfig, complete
+    (frames, T, _) = _pipeline_frame()
+    depth, K = frames[0]
+    with pytest.raises(ValueError, match=match):
+        complete(depth, K, T, config=SGMConfig(guidance_weight=1.0), image=image)
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("guidance_weight", -1.0, "field 'guidance_weight' expected >= 0"),
+    ("guidance_sweeps", 0, "field 'guidance_sweeps' expected an integer >= 1"),
+    ("guidance_sweeps", 1.5, "field 'guidance_sweeps' expected an integer >= 1"),
+])
+def test_config_fields(field, value, match):
+    from jaxdepth import SGMConfig
+    with pytest.raises(ValueError, match=match):
+        SGMConfig(**{field: value})

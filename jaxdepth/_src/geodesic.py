@@ -85,6 +85,49 @@ def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
         raise ValueError(f"geodesic_seed: color_weight expected >= 0, got {color_weight!r}")
 
 
+def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
+    """Validates a camera image for the pipeline and scales it to float32 [0, 1].
+
+    Args:
+      image: None, or (H, W) grey / (H, W, 3) colour, uint8 (0-255) or
+        floating (taken as [0, 1]); NumPy or JAX (checked at trace time).
+      shape: (H, W) of the sparse depth it must match.
+      guided: whether the seed search uses the image (``guidance_weight > 0``).
+      where: caller name for the error message.
+
+    Returns:
+      float32 (H, W) or (H, W, 3) image when ``guided``, else None (an image
+      given without guidance is checked, then ignored).
+
+    Raises:
+      ValueError naming the field 'image' with expected vs got: missing while
+      guided, wrong size or channel count, or a dtype other than uint8/float
+      (16-bit PNGs must be converted to 8 bit or scaled to [0, 1] first).
+    """
+    if image is None:
+        if guided:
+            raise ValueError(f"{where}: 'image' expected an (H, W) or (H, W, 3) camera image because "
+                             "config.guidance_weight > 0, got None")
+        return None
+    h, w = shape
+    shp = tuple(image.shape)
+    if not (shp == (h, w) or shp == (h, w, 3)):
+        raise ValueError(f"{where}: 'image' expected shape {(h, w)} (grey) or {(h, w, 3)} (colour), matching "
+                         f"the sparse depth, got {shp}")
+    dtype = jnp.dtype(image.dtype)
+    if dtype == jnp.uint8:
+        scale = 1.0 / 255.0
+    elif jnp.issubdtype(dtype, jnp.floating):
+        scale = None
+    else:
+        raise ValueError(f"{where}: 'image' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
+                         + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
+    if not guided:
+        return None
+    image = jnp.asarray(image, jnp.float32)
+    return image if scale is None else image * scale
+
+
 def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
     """Costs of the 4-connected steps.
 

@@ -27,6 +27,7 @@ import numpy as np
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.geodesic import geodesic_seed, guidance_image
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.normals import pixel_normals, point_normals
 from jaxdepth._src.outliers import keep_mask_for_config
@@ -65,15 +66,22 @@ def _gather_seeds(seed_field, normals, du, dv):
     return jnp.imag(zd), jnp.stack([jnp.real(xy), jnp.imag(xy), jnp.real(zd)])
 
 
+def _seeds(keep, image, config: SGMConfig):
+    """Step 3's seed search: the paper's nearest seed, or the image-guided one (issue 16)."""
+    if config.guidance_weight > 0:
+        return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps)
+    return nearest_seed(keep, metric=config.distance_metric)
+
+
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig) -> Stages:
+                   config: SGMConfig, image=None) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
     keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
     keep, = fence(keep)
-    seeds = nearest_seed(keep, metric=config.distance_metric)
+    seeds = _seeds(keep, image, config)
     du, dv = fence(seeds.du, seeds.dv)
     seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
@@ -90,7 +98,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
 
 
 def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
-                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                    image: jax.Array | None = None) -> Stages:
     """All intermediate products of SGM completion of one sparse depth image.
 
     Args:
@@ -101,19 +110,24 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
         camera 2 (``presets.KITTI_T_CAM2_LIDAR``).
       config: static :class:`SGMConfig`.
       lidar: static :class:`LidarSpec` of the sensor that produced the points.
+      image: optional camera image aligned with ``sparse_depth`` (same crop):
+        (H, W) grey or (H, W, 3) colour, uint8 or float in [0, 1]. Used only
+        when ``config.guidance_weight > 0`` (image-guided seeds), which
+        requires it; otherwise ignored (the paper's LiDAR-only SGM).
 
     Returns:
       :class:`Stages`; ``.depth`` is the (H, W) float32 dense depth in metres.
     """
     # One call form for every caller: jit keys its cache on which keywords were passed.
-    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+    return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_stages(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
     K = jnp.asarray(K, jnp.float32)
     _check_image_inputs(sparse_depth, K)
+    image = guidance_image(image, sparse_depth.shape, guided=config.guidance_weight > 0, where="complete")
     if T_cam_lidar is None:
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
@@ -122,24 +136,26 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: 
     # float32 rounding, without per-point (N, 3) work over all H W pixels.
     normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
                                 fill_max_gap=config.range_fill_max_gap)
-    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config)
+    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
+                          image=image)
 
 
 def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
-             config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+             config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+             image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
 
     ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
     exactly what a Python loop gives.
     """
-    return _complete_depth(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+    return _complete_depth(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_depth(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
+def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
     # Its own jit: only the depth leaves the computation, so XLA drops or fuses
     # away the intermediate stages instead of writing each of them out.
-    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
+    return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar).depth
 
 
 def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
