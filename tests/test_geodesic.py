@@ -276,3 +276,22 @@ def test_config_fields(field, value, match):
     from jaxdepth import SGMConfig
     with pytest.raises(ValueError, match=match):
         SGMConfig(**{field: value})
+
+
+def test_complete_points_guided():
+    from jaxdepth import SGMConfig, complete_points_stages
+    from jaxdepth._src import synthetic
+    from jaxdepth._src.types import Camera
+    from tests.helpers import H, W
+    K = np.array([[90.0, 0, (W - 1) / 2], [0, 90.0, 20.0], [0, 0, 1]], np.float32)
+    T = np.asarray(synthetic.rig_cameras("kitti")[0].T_cam_lidar)
+    camera = Camera(K=K, T_cam_lidar=T, height=H, width=W)
+    frame = synthetic.make_street_scene(5, cameras=[camera])
+    image = np.random.default_rng(1).random((H, W), np.float32)
+    config = SGMConfig(guidance_weight=3.0, guidance_sweeps=1)
+    with pytest.raises(ValueError, match=r"complete_points: 'image' expected .* got None"):
+        complete_points_stages(frame.points, frame.valid, camera, config=config)
+    stages = complete_points_stages(frame.points, frame.valid, camera, config=config, image=image)
+    want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1)
+    np.testing.assert_array_equal(stages.du, want.du)
+    np.testing.assert_array_equal(stages.dv, want.dv)

@@ -69,6 +69,9 @@ def _gather_seeds(seed_field, normals, du, dv):
 def _seeds(keep, image, config: SGMConfig):
     """Step 3's seed search: the paper's nearest seed, or the image-guided one (issue 16)."""
     if config.guidance_weight > 0:
+        if image is None:  # entry points that take no image (complete_rig, ...)
+            raise ValueError("SGMConfig: field 'guidance_weight' > 0 expected a camera image, but this entry "
+                             "point takes none (use complete / complete_points with image=, or guidance_weight=0)")
         return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps)
     return nearest_seed(keep, metric=config.distance_metric)
 
@@ -159,7 +162,8 @@ def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConf
 
 
 def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
-                           config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+                           config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                           image: jax.Array | None = None) -> Stages:
     """All intermediate products of SGM completion from a raw sweep, for one camera.
 
     Args:
@@ -167,30 +171,38 @@ def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, 
       valid: (N,) bool; padding and non-finite points are ignored.
       camera: :class:`Camera` (K, T_cam_lidar traced; height, width static).
       config, lidar: static configuration and sensor description.
+      image: optional (height, width) grey or (height, width, 3) colour camera
+        image, uint8 or float in [0, 1]; required and used only when
+        ``config.guidance_weight > 0`` (see :func:`complete_stages`).
 
     Returns:
       :class:`Stages` for the camera image.
     """
-    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar)
+    return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_points_stages(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+def _complete_points_stages(points, valid, camera: Camera, image=None, *, config: SGMConfig,
+                            lidar: LidarSpec) -> Stages:
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
+    image = guidance_image(image, (camera.height, camera.width), guided=config.guidance_weight > 0,
+                           where="complete_points")
     return camera_stages_from_points(points, valid, normals_lidar, camera.K, camera.T_cam_lidar,
-                                     height=camera.height, width=camera.width, lidar=lidar, config=config)
+                                     height=camera.height, width=camera.width, lidar=lidar, config=config,
+                                     image=image)
 
 
 def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, height: int, width: int,
-                              lidar: LidarSpec, config: SGMConfig, image_size=None) -> Stages:
+                              lidar: LidarSpec, config: SGMConfig, image_size=None, image=None) -> Stages:
     """Steps 1 (projection of points and normals) to 4 for one camera, from prepared sweep normals.
 
     ``image_size`` (traced (2,) height, width) restricts the image to a window of
-    a larger canvas (multi-camera rigs); the output outside it is 0.
+    a larger canvas (multi-camera rigs); the output outside it is 0. ``image``:
+    the float32 guidance image from :func:`guidance_image` (None when unguided).
     """
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_lidar, jnp.float32)
@@ -199,7 +211,8 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     safe = jnp.where(hit, index, 0).reshape(-1)
     points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
     normals_cam = jnp.where(hit[None], _normals_to_camera(normals_lidar[safe], T).reshape(3, height, width), 0.0)
-    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
+                            image=image)
     if image_size is None:
         return stages
     inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
@@ -208,11 +221,13 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
 
 
 def complete_points(points: jax.Array, valid: jax.Array, camera: Camera, *,
-                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                    image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth for ``camera`` from a raw sweep; see :func:`complete_points_stages`."""
-    return _complete_points_depth(points, valid, camera, config=config, lidar=lidar)
+    return _complete_points_depth(points, valid, camera, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_points_depth(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
-    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar).depth
+def _complete_points_depth(points, valid, camera: Camera, image=None, *, config: SGMConfig,
+                           lidar: LidarSpec) -> jax.Array:
+    return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar).depth
