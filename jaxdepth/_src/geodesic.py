@@ -39,8 +39,8 @@ that is geodesically farther than the best one; it never picks an unreachable
 or invalid seed.  Measured on random small images (tests/test_geodesic.py) and
 the KITTI frame (benchmarks/accuracy_guided.py): see those files.
 
-Each pass carries two arrays: the float32 distance and the int32 flat index
-``v * W + u`` of the seed it comes from.  A neighbour's path replaces the
+Each pass carries one complex64 array: the float32 distance and the flat index
+``v * W + u`` of the seed it comes from (as float32, exact for H W <= 2**24).  A neighbour's path replaces the
 current one only when strictly shorter, so the first path found wins ties and
 the result is deterministic.
 
@@ -59,7 +59,7 @@ from jax import lax
 
 from jaxdepth._src.distance import NearestSeed
 
-_INT32_MAX = 2**31 - 1
+_F32_EXACT = 2**24  # float32 holds every integer up to here
 
 
 def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
@@ -70,8 +70,9 @@ def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
     h, w = keep.shape
     if h < 1 or w < 1:
         raise ValueError(f"geodesic_seed: keep expected H >= 1 and W >= 1, got shape {(h, w)}")
-    if h * w > _INT32_MAX:
-        raise ValueError(f"geodesic_seed: keep shape {(h, w)} too large: H * W must fit int32")
+    if h * w > _F32_EXACT:
+        raise ValueError(f"geodesic_seed: keep shape {(h, w)} too large: expected H * W <= 2**24 "
+                         f"(seed indices travel as float32), got {h * w}")
     if image.ndim not in (2, 3) or image.shape[:2] != (h, w) or (image.ndim == 3 and image.shape[2] not in (1, 3)):
         raise ValueError(
             f"geodesic_seed: image expected shape {(h, w)} or {(h, w, 3)} (same H, W as keep), "
@@ -141,55 +142,51 @@ def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
       ``(v + 1, u)``; each ``1 + color_weight * ||I(p) - I(q)||``.
     """
     img = jnp.asarray(image, jnp.float32)
-    if img.ndim == 2:
-        img = img[..., None]
+    # Channel planes, summed one by one: a reduction over a trailing axis of
+    # 3 vectorises badly on CPU (measured ~5x slower).
+    planes = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[-1])]
     weight = jnp.asarray(color_weight, jnp.float32)
-    dh = jnp.sqrt(jnp.sum(jnp.square(img[:, 1:] - img[:, :-1]), axis=-1))
-    dv = jnp.sqrt(jnp.sum(jnp.square(img[1:] - img[:-1]), axis=-1))
+    dh = jnp.sqrt(sum(jnp.square(p[:, 1:] - p[:, :-1]) for p in planes))
+    dv = jnp.sqrt(sum(jnp.square(p[1:] - p[:-1]) for p in planes))
     return 1.0 + weight * dh, 1.0 + weight * dv
 
 
-def _line_pass(dist: jax.Array, src: jax.Array, cost: jax.Array):
+def _line_pass(buf: jax.Array, cost: jax.Array) -> jax.Array:
     """Exact 1-D geodesic pass along the leading axis, forward then backward, in place.
 
     Args:
-      dist: (L, M) float32 distances; src: (L, M) int32 seed indices.
+      buf: (L, M) complex64, real part the float32 distance, imaginary part
+        the seed's flat index ``v * W + u`` as float32 (exact below 2**24).
       cost: (L - 1, M) float32, cost of the step between lines i and i + 1.
 
     Returns:
-      (dist, src) after relaxing every line from its predecessor (forward) and
-      then from its successor (backward); strict improvements only.
+      ``buf`` after relaxing every line from its predecessor (forward) and then
+      from its successor (backward); a line takes its neighbour's path plus the
+      step cost only where that is strictly shorter.
 
-    Both fields travel in one (L, 2, M) int32 buffer (the non-negative float32
-    distance bitcast to int32), so each step reads and writes one line of one
-    buffer.  With two buffers XLA recomputed the comparison from the already
-    updated distance buffer and copied it whole on every step (~100x slower).
+    Both fields travel in one complex64 buffer (as the pipeline's gathers do)
+    and the carry is the previous line itself, so a step is one fused kernel
+    plus an in-place row write, as in :mod:`~jaxdepth._src.distance`.  With two
+    buffers XLA recomputed the comparison from the already updated distance
+    buffer and copied it whole on every step (~100x slower); an (L, 2, M)
+    int32 buffer with a bitcast distance cost ~2.5x this.
     """
-    n = dist.shape[0]
+    n = buf.shape[0]
     if n == 1:
-        return dist, src
-    buf = jnp.stack([lax.bitcast_convert_type(dist, jnp.int32), src], axis=1)
+        return buf
 
     def relax(i, c, state):
-        # Line i takes the carried neighbour line's path plus the step cost c
-        # where strictly shorter; the carry becomes line i.
-        cd, cs, buf = state
+        prev, buf = state
         line = buf[i]
-        di = lax.bitcast_convert_type(line[0], jnp.float32)
-        cand = cd + c
-        take = cand < di
-        cd = jnp.where(take, cand, di)
-        cs = jnp.where(take, cs, line[1])
-        new = jnp.stack([lax.bitcast_convert_type(cd, jnp.int32), cs])
-        return cd, cs, lax.dynamic_update_index_in_dim(buf, new, i, 0)
+        d = jnp.real(line)
+        cand = jnp.real(prev) + c
+        take = cand < d
+        new = lax.complex(jnp.where(take, cand, d), jnp.where(take, jnp.imag(prev), jnp.imag(line)))
+        return new, lax.dynamic_update_index_in_dim(buf, new, i, 0)
 
-    state = (dist[0], src[0], buf)
-    state = lax.fori_loop(1, n, lambda i, st: relax(i, cost[i - 1], st), state)
-    buf = state[2]
-    state = (lax.bitcast_convert_type(buf[n - 1, 0], jnp.float32), buf[n - 1, 1], buf)
-    state = lax.fori_loop(1, n, lambda k, st: relax(n - 1 - k, cost[n - 1 - k], st), state)
-    buf = state[2]
-    return lax.bitcast_convert_type(buf[:, 0], jnp.float32), buf[:, 1]
+    _, buf = lax.fori_loop(1, n, lambda i, st: relax(i, cost[i - 1], st), (buf[0], buf))
+    _, buf = lax.fori_loop(1, n, lambda k, st: relax(n - 1 - k, cost[n - 1 - k], st), (buf[n - 1], buf))
+    return buf
 
 
 def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: int) -> NearestSeed:
@@ -225,15 +222,14 @@ def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: in
 def _geodesic_seed(keep, image, color_weight, *, sweeps: int) -> NearestSeed:
     h, w = keep.shape
     cost_h, cost_v = step_costs(image, color_weight)
-    flat = jnp.arange(h * w, dtype=jnp.int32).reshape(h, w)
-    dist = jnp.where(keep, 0.0, jnp.inf).astype(jnp.float32)
-    src = jnp.where(keep, flat, 0)
+    flat = jnp.arange(h * w, dtype=jnp.float32).reshape(h, w)
+    buf = lax.complex(jnp.where(keep, 0.0, jnp.inf).astype(jnp.float32), jnp.where(keep, flat, 0.0))
     cost_ht = cost_h.T  # (W - 1, H)
-    dist_t, src_t = dist.T, src.T
     for _ in range(sweeps):
-        dist_t, src_t = _line_pass(dist_t, src_t, cost_ht)
-        dist, src = _line_pass(dist_t.T, src_t.T, cost_v)
-        dist_t, src_t = dist.T, src.T
+        buf = _line_pass(buf.T, cost_ht).T
+        buf = _line_pass(buf, cost_v)
+    dist = jnp.real(buf)
+    src = jnp.imag(buf).astype(jnp.int32)
     has_seed = jnp.any(keep)
     v = jnp.arange(h, dtype=jnp.int32)[:, None]
     u = jnp.arange(w, dtype=jnp.int32)[None, :]
