@@ -227,7 +227,7 @@ def test_pipeline_without_guidance_ignores_the_image():
 
 
 def test_pipeline_guided_seeds_and_vmap():
-    """Guided seeds are geodesic_seed of Step 2's inliers; uint8 == float image; vmap == loop."""
+    """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
     from jaxdepth import SGMConfig, complete, complete_stages
     (frames, T, images) = _pipeline_frame()
     config = SGMConfig(guidance_weight=8.0, guidance_sweeps=2)
@@ -242,9 +242,12 @@ def test_pipeline_guided_seeds_and_vmap():
         kept = np.where(stages.inlier_mask, depth, 0.0)
         np.testing.assert_array_equal(stages.seed_depth, kept[v + np.asarray(want.dv), u + np.asarray(want.du)])
         loop.append(np.asarray(stages.depth))
-    as_float = complete_stages(frames[0][0], frames[0][1], T, config=config,
-                               image=images[0].astype(np.float32) / 255.0)
-    np.testing.assert_array_equal(as_float.depth, loop[0])
+    # uint8 is scaled to [0, 1]; a float image is taken as it is.
+    from jaxdepth._src.geodesic import guidance_image
+    np.testing.assert_allclose(guidance_image(images[0], images[0].shape[:2], guided=True, where="t"),
+                               images[0].astype(np.float32) / np.float32(255.0), rtol=1e-6)
+    as_float = images[0].astype(np.float32) / 255.0
+    assert guidance_image(as_float, as_float.shape[:2], guided=False, where="t") is None
     depths = np.stack([d for d, _ in frames])
     Ks = np.stack([K for _, K in frames])
     batched = jax.vmap(lambda d, K, im: complete(d, K, T, config=config, image=im))(depths, Ks, np.stack(images))

@@ -120,7 +120,7 @@ def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
                          f"the sparse depth, got {shp}")
     dtype = jnp.dtype(image.dtype)
     if dtype == jnp.uint8:
-        scale = 1.0 / 255.0
+        scale = 255.0
     elif jnp.issubdtype(dtype, jnp.floating):
         scale = None
     else:
@@ -129,7 +129,7 @@ def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
     if not guided:
         return None
     image = jnp.asarray(image, jnp.float32)
-    return image if scale is None else image * scale
+    return image if scale is None else image / jnp.float32(scale)
 
 
 def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
