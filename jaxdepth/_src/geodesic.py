@@ -61,6 +61,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.distance import NearestSeed
+from jaxdepth._src.staging import stage
 
 _F32_EXACT = 2**24  # float32 holds every integer up to here
 
@@ -224,10 +225,12 @@ def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: in
 @functools.partial(jax.jit, static_argnames="sweeps")
 def _geodesic_seed(keep, image, color_weight, *, sweeps: int) -> NearestSeed:
     h, w = keep.shape
-    cost_h, cost_v = step_costs(image, color_weight)
+    # A stage fence: inside the pipeline XLA would otherwise fuse the cost
+    # computation (uint8 conversion, differences, sqrt) into every loop step.
+    cost_ht, cost_v = stage(lambda img, cw: (lambda c: (c[0].T, c[1]))(step_costs(img, cw)),
+                            (image, jnp.asarray(color_weight, jnp.float32)), keep[0, 0].astype(jnp.int32))
     flat = jnp.arange(h * w, dtype=jnp.float32).reshape(h, w)
     buf = lax.complex(jnp.where(keep, 0.0, jnp.inf).astype(jnp.float32), jnp.where(keep, flat, 0.0))
-    cost_ht = cost_h.T  # (W - 1, H)
     for _ in range(sweeps):
         buf = _line_pass(buf.T, cost_ht).T
         buf = _line_pass(buf, cost_v)
