@@ -298,3 +298,13 @@ def test_complete_points_guided():
     want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1)
     np.testing.assert_array_equal(stages.du, want.du)
     np.testing.assert_array_equal(stages.dv, want.dv)
+
+
+def test_non_finite_colours_still_give_real_seeds():
+    keep, img = _scene(6, h=7, w=8)
+    img[3, :, 0] = np.nan
+    img[:, 4, 1] = np.inf
+    res = geodesic_seed(keep, img, color_weight=2.0, sweeps=1)
+    v, u = np.indices(keep.shape)
+    assert keep[v + np.asarray(res.dv), u + np.asarray(res.du)].all()
+    assert np.all(np.isfinite(res.distance))

@@ -42,10 +42,12 @@ the pixels have another seed at colour_weight 1, 2.5 % at 2, 6.7 % at 10 and
 19 % at 50; after 4 sweeps 0.06 / 0.2 / 2.1 / 8 %.  Larger weights make
 shortest paths wind more and need more sweeps.
 
-Each pass carries one complex64 array: the float32 distance and the flat index
-``v * W + u`` of the seed it comes from (as float32, exact for H W <= 2**24).  A neighbour's path replaces the
-current one only when strictly shorter, so the first path found wins ties and
-the result is deterministic.
+Each pass carries one complex64 array: the float32 distance and the flat
+index ``v * W + u`` of the seed it comes from (as float32, exact for
+H W <= 2**24).  A neighbour's path replaces the current one only when strictly
+shorter, so the first path found wins ties and the result is deterministic.
+One sweep reaches every pixel when any seed exists (a horizontal run to the
+seed's row, then a vertical run), so ``du``, ``dv`` always name a seed.
 
 Oracle: a multi-source Dijkstra (``heapq``) on the same edge costs in NumPy
 (tests/test_geodesic.py); with ``color_weight = 0``, ``cv2.distanceTransform(
@@ -64,6 +66,7 @@ from jaxdepth._src.distance import NearestSeed
 from jaxdepth._src.staging import stage
 
 _F32_EXACT = 2**24  # float32 holds every integer up to here
+_BLOCKED = 1e6  # pixels: the cost of a step next to a non-finite colour
 
 
 def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
@@ -143,7 +146,8 @@ def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
     Returns:
       (horizontal, vertical): float32 (H, W - 1) cost of the step between
       ``(v, u)`` and ``(v, u + 1)``, and (H - 1, W) between ``(v, u)`` and
-      ``(v + 1, u)``; each ``1 + color_weight * ||I(p) - I(q)||``.
+      ``(v + 1, u)``; each ``1 + color_weight * ||I(p) - I(q)||``, or 1e6
+      where that is not finite (NaN or inf colours).
     """
     img = jnp.asarray(image, jnp.float32)
     # Channel planes, summed one by one: a reduction over a trailing axis of
@@ -152,7 +156,9 @@ def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
     weight = jnp.asarray(color_weight, jnp.float32)
     dh = jnp.sqrt(sum(jnp.square(p[:, 1:] - p[:, :-1]) for p in planes))
     dv = jnp.sqrt(sum(jnp.square(p[1:] - p[:-1]) for p in planes))
-    return 1.0 + weight * dh, 1.0 + weight * dv
+    # Non-finite colours (NaN, inf) give a finite, very large step: every pixel
+    # stays reachable, so every pixel gets a real seed.
+    return tuple(jnp.where(jnp.isfinite(c), c, _BLOCKED) for c in (1.0 + weight * dh, 1.0 + weight * dv))
 
 
 def _line_pass(buf: jax.Array, cost: jax.Array) -> jax.Array:
