@@ -57,6 +57,16 @@ class SGMConfig:
       keep_measured_depth: LiDAR pixels kept by Step 2 keep their measured depth
         in the output (after smoothing).
       min_depth_m, max_depth_m: output clip range, metres.
+      guidance_weight: image-guided seeds (beyond the paper, issue 16). 0 (the
+        default) is the paper's LiDAR-only seed search and ignores any image.
+        > 0 needs a camera image: each pixel's seed minimises the geodesic
+        distance where a 4-connected step costs 1 pixel plus this weight times
+        the Euclidean colour difference (colours in [0, 1]), so seeds do not
+        cross image edges (:mod:`~jaxdepth._src.geodesic`). Unit: pixels per
+        unit of colour difference.
+      guidance_sweeps: raster sweeps of the geodesic transform (each a
+        horizontal and a vertical forward/backward pass); s sweeps are exact for
+        paths of up to 2 s alternating straight runs.
     """
 
     outlier_removal: bool = True
@@ -74,6 +84,8 @@ class SGMConfig:
     keep_measured_depth: bool = True
     min_depth_m: float = 0.1
     max_depth_m: float = 150.0
+    guidance_weight: float = 0.0
+    guidance_sweeps: int = 2
 
     def __post_init__(self):
         if self.distance_metric not in _METRICS:
@@ -97,6 +109,13 @@ class SGMConfig:
         if self.smoothing_sigma_px < 0:
             raise ValueError(
                 f"SGMConfig: field 'smoothing_sigma_px' expected >= 0, got {self.smoothing_sigma_px!r}")
+        if not self.guidance_weight >= 0:
+            raise ValueError(
+                f"SGMConfig: field 'guidance_weight' expected >= 0 (0 = off), got {self.guidance_weight!r}")
+        if isinstance(self.guidance_sweeps, bool) or int(self.guidance_sweeps) != self.guidance_sweeps \
+                or self.guidance_sweeps < 1:
+            raise ValueError(
+                f"SGMConfig: field 'guidance_sweeps' expected an integer >= 1, got {self.guidance_sweeps!r}")
         if self.min_abs_denom <= 0:
             raise ValueError(f"SGMConfig: field 'min_abs_denom' expected > 0, got {self.min_abs_denom!r}")
 

@@ -27,6 +27,7 @@ import numpy as np
 from jaxdepth._src import presets
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.geodesic import geodesic_seed, guidance_image
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.pixel_normals import pixel_normals
@@ -63,15 +64,25 @@ def _gather_seeds(seed_field, normals, du, dv):
     return jnp.imag(zd), jnp.stack([jnp.real(xy), jnp.imag(xy), jnp.real(zd)])
 
 
+def _seeds(keep, image, config: SGMConfig):
+    """Step 3's seed search: the paper's nearest seed, or the image-guided one (issue 16)."""
+    if config.guidance_weight > 0:
+        if image is None:  # entry points that take no image (complete_rig, ...)
+            raise ValueError("SGMConfig: field 'guidance_weight' > 0 expected a camera image, but this entry "
+                             "point takes none (use complete / complete_points with image=, or guidance_weight=0)")
+        return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps)
+    return nearest_seed(keep, metric=config.distance_metric)
+
+
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig) -> Stages:
+                   config: SGMConfig, image=None) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
     keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
     keep, = fence(keep)
-    seeds = nearest_seed(keep, metric=config.distance_metric)
+    seeds = _seeds(keep, image, config)
     du, dv = fence(seeds.du, seeds.dv)
     seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
@@ -88,7 +99,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
 
 
 def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
-                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                    image: jax.Array | None = None) -> Stages:
     """All intermediate products of SGM completion of one sparse depth image.
 
     Args:
@@ -99,19 +111,24 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
         camera 2 (``presets.KITTI_T_CAM2_LIDAR``).
       config: static :class:`SGMConfig`.
       lidar: static :class:`LidarSpec` of the sensor that produced the points.
+      image: optional camera image aligned with ``sparse_depth`` (same crop):
+        (H, W) grey or (H, W, 3) colour, uint8 or float in [0, 1]. Used only
+        when ``config.guidance_weight > 0`` (image-guided seeds), which
+        requires it; otherwise ignored (the paper's LiDAR-only SGM).
 
     Returns:
       :class:`Stages`; ``.depth`` is the (H, W) float32 dense depth in metres.
     """
     # One call form for every caller: jit keys its cache on which keywords were passed.
-    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+    return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_stages(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
     K = jnp.asarray(K, jnp.float32)
     _check_image_inputs(sparse_depth, K)
+    image = guidance_image(image, sparse_depth.shape, guided=config.guidance_weight > 0, where="complete")
     if T_cam_lidar is None:
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
@@ -120,11 +137,13 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: 
     # float32 rounding, without per-point (N, 3) work over all H W pixels.
     normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
                                 fill_max_gap=config.range_fill_max_gap)
-    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config)
+    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
+                          image=image)
 
 
 def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
-             config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+             config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+             image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
 
     ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
@@ -146,18 +165,19 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
       >>> bool(np.all(depth > 0))  # every pixel has a nearest seed
       True
     """
-    return _complete_depth(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar)
+    return _complete_depth(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_depth(sparse_depth, K, T_cam_lidar, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
+def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
     # Its own jit: only the depth leaves the computation, so XLA drops or fuses
     # away the intermediate stages instead of writing each of them out.
-    return _complete_stages(sparse_depth, K, T_cam_lidar, config=config, lidar=lidar).depth
+    return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar).depth
 
 
 def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, *,
-                           config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+                           config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                           image: jax.Array | None = None) -> Stages:
     """All intermediate products of SGM completion from a raw sweep, for one camera.
 
     Args:
@@ -165,30 +185,38 @@ def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, 
       valid: (N,) bool; padding and non-finite points are ignored.
       camera: :class:`Camera` (K, T_cam_lidar traced; height, width static).
       config, lidar: static configuration and sensor description.
+      image: optional (height, width) grey or (height, width, 3) colour camera
+        image, uint8 or float in [0, 1]; required and used only when
+        ``config.guidance_weight > 0`` (see :func:`complete_stages`).
 
     Returns:
       :class:`Stages` for the camera image.
     """
-    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar)
+    return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_points_stages(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+def _complete_points_stages(points, valid, camera: Camera, image=None, *, config: SGMConfig,
+                            lidar: LidarSpec) -> Stages:
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
+    image = guidance_image(image, (camera.height, camera.width), guided=config.guidance_weight > 0,
+                           where="complete_points")
     return camera_stages_from_points(points, valid, normals_lidar, camera.K, camera.T_cam_lidar,
-                                     height=camera.height, width=camera.width, lidar=lidar, config=config)
+                                     height=camera.height, width=camera.width, lidar=lidar, config=config,
+                                     image=image)
 
 
 def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, height: int, width: int,
-                              lidar: LidarSpec, config: SGMConfig, image_size=None) -> Stages:
+                              lidar: LidarSpec, config: SGMConfig, image_size=None, image=None) -> Stages:
     """Steps 1 (projection of points and normals) to 4 for one camera, from prepared sweep normals.
 
     ``image_size`` (traced (2,) height, width) restricts the image to a window of
-    a larger canvas (multi-camera rigs); the output outside it is 0.
+    a larger canvas (multi-camera rigs); the output outside it is 0. ``image``:
+    the float32 guidance image from :func:`guidance_image` (None when unguided).
     """
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_lidar, jnp.float32)
@@ -197,7 +225,8 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     safe = jnp.where(hit, index, 0).reshape(-1)
     points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
     normals_cam = jnp.where(hit[None], _normals_to_camera(normals_lidar[safe], T).reshape(3, height, width), 0.0)
-    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
+                            image=image)
     if image_size is None:
         return stages
     inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
@@ -206,11 +235,13 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
 
 
 def complete_points(points: jax.Array, valid: jax.Array, camera: Camera, *,
-                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+                    config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                    image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth for ``camera`` from a raw sweep; see :func:`complete_points_stages`."""
-    return _complete_points_depth(points, valid, camera, config=config, lidar=lidar)
+    return _complete_points_depth(points, valid, camera, image, config=config, lidar=lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_points_depth(points, valid, camera: Camera, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
-    return _complete_points_stages(points, valid, camera, config=config, lidar=lidar).depth
+def _complete_points_depth(points, valid, camera: Camera, image=None, *, config: SGMConfig,
+                           lidar: LidarSpec) -> jax.Array:
+    return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar).depth

@@ -1,0 +1,310 @@
+"""Tests for jaxdepth._src.geodesic (image-guided nearest seed, GeoS raster passes).
+
+Oracles: a multi-source Dijkstra (heapq) in float64 NumPy on the same
+4-connected step costs; per-seed single-source Dijkstra for the chosen seed; a
+Dijkstra on the layered graph (pixel, run index) for the exact meaning of a
+given number of sweeps; OpenCV's exact L1 transform and ``nearest_seed`` for
+``color_weight = 0``.  Plus jit == eager and vmap == loop.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.geodesic import geodesic_seed
+
+RTOL = 2e-6  # float32 sums of up to a few hundred steps vs float64
+
+
+def _edge_cost(img: np.ndarray, weight: float, a, b) -> float:
+    diff = img[a].astype(np.float64) - img[b].astype(np.float64)
+    return 1.0 + weight * float(np.sqrt(np.sum(diff * diff)))
+
+
+def _neighbours(h, w, v, u):
+    for dv, du in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        if 0 <= v + dv < h and 0 <= u + du < w:
+            yield v + dv, u + du, dv == 0
+
+
+def _dijkstra(sources, img, weight, runs=None):
+    """Multi-source Dijkstra on the 4-connected grid.
+
+    With ``runs`` (an int), paths are limited to at most ``runs`` straight runs
+    alternating horizontal / vertical, horizontal first (run 1 may be empty):
+    the state is (pixel, run index r), r odd = horizontal, even = vertical.
+    """
+    h, w = img.shape[:2]
+    img = img.reshape(h, w, -1)
+    r_max = 1 if runs is None else runs
+    dist = np.full((r_max + 1, h, w), np.inf)
+    heap = []
+    for v, u in sources:
+        dist[1, v, u] = 0.0
+        heap.append((0.0, 1, v, u))
+    heapq.heapify(heap)
+    while heap:
+        d, r, v, u = heapq.heappop(heap)
+        if d > dist[r, v, u]:
+            continue
+        for nv, nu, horizontal in _neighbours(h, w, v, u):
+            if runs is None:
+                nr = 1
+            else:
+                nr = r if (r % 2 == 1) == horizontal else r + 1
+                if nr > r_max:
+                    continue
+            nd = d + _edge_cost(img, weight, (v, u), (nv, nu))
+            if nd < dist[nr, nv, nu]:
+                dist[nr, nv, nu] = nd
+                heapq.heappush(heap, (nd, nr, nv, nu))
+    return dist[1:].min(axis=0)
+
+
+def _scene(seed, h=11, w=13, density=0.08, grey=False):
+    rng = np.random.default_rng(seed)
+    keep = rng.random((h, w)) < density
+    keep.flat[rng.integers(h * w)] = True
+    # Piecewise-constant colours plus noise: real edges, as in a photo.
+    labels = (np.add.outer(np.arange(h) // 4, np.arange(w) // 5) + rng.integers(0, 3, (h, w)) // 2) % 3
+    palette = rng.random((3, 3)).astype(np.float32)
+    img = palette[labels] + 0.05 * rng.random((h, w, 3)).astype(np.float32)
+    if grey:
+        img = img.mean(axis=-1)
+    return keep, img.astype(np.float32)
+
+
+def _check_against_dijkstra(res, keep, img, weight):
+    ref = _dijkstra(list(zip(*np.nonzero(keep))), img, weight)
+    np.testing.assert_allclose(np.asarray(res.distance), ref, rtol=RTOL)
+    # The chosen seed is a seed, and its own single-source distance is the minimum.
+    h, w = keep.shape
+    v, u = np.indices((h, w))
+    sv = v + np.asarray(res.dv)
+    su = u + np.asarray(res.du)
+    assert keep[sv, su].all()
+    per_seed = {}
+    for s in set(zip(sv.ravel().tolist(), su.ravel().tolist())):
+        per_seed[s] = _dijkstra([s], img, weight)
+    from_chosen = np.array([[per_seed[(sv[i, j], su[i, j])][i, j] for j in range(w)] for i in range(h)])
+    np.testing.assert_allclose(from_chosen, ref, rtol=RTOL)
+
+
+@pytest.mark.parametrize("seed,weight,grey", [(0, 5.0, False), (1, 20.0, False), (2, 3.0, True), (3, 50.0, False)])
+def test_matches_dijkstra_when_converged(seed, weight, grey):
+    keep, img = _scene(seed, grey=grey)
+    res = geodesic_seed(keep, img, color_weight=weight, sweeps=8)
+    _check_against_dijkstra(res, keep, img, weight)
+
+
+@pytest.mark.parametrize("sweeps", [1, 2, 3])
+def test_sweeps_are_exact_over_alternating_runs(sweeps):
+    """s sweeps = the shortest path with at most 2 s alternating runs (H first)."""
+    keep, img = _scene(4, h=9, w=10, density=0.05)
+    weight = 30.0
+    res = geodesic_seed(keep, img, color_weight=weight, sweeps=sweeps)
+    ref = _dijkstra(list(zip(*np.nonzero(keep))), img, weight, runs=2 * sweeps)
+    np.testing.assert_allclose(np.asarray(res.distance), ref, rtol=RTOL)
+
+
+def test_maze_needs_more_sweeps_and_distances_never_increase():
+    # A seed inside a spiral-ish wall of high contrast: the cheap path winds.
+    h, w = 12, 12
+    img = np.zeros((h, w), np.float32)
+    img[2, 2:10] = img[2:10, 9] = img[9, 2:10] = img[4:10, 2] = 1.0
+    img[4, 2:7] = img[4:8, 7] = 1.0
+    keep = np.zeros((h, w), bool)
+    keep[6, 4] = True
+    weight = 100.0
+    exact = _dijkstra([(6, 4)], img, weight)
+    previous = None
+    converged_at = None
+    for sweeps in range(1, 7):
+        d = np.asarray(geodesic_seed(keep, img, color_weight=weight, sweeps=sweeps).distance)
+        assert np.all(d >= exact * (1 - RTOL))
+        if previous is not None:
+            assert np.all(d <= previous)
+        if converged_at is None and np.allclose(d, exact, rtol=RTOL):
+            converged_at = sweeps
+        previous = d
+    assert converged_at is not None and converged_at > 1
+
+
+@pytest.mark.parametrize("shape,density", [((7, 9), 0.1), ((16, 5), 0.02), ((1, 12), 0.2), ((10, 1), 0.3)])
+def test_zero_weight_is_exact_l1(shape, density):
+    rng = np.random.default_rng(sum(shape))
+    keep = rng.random(shape) < density
+    keep.flat[0] = True
+    img = rng.random(shape + (3,)).astype(np.float32)
+    res = geodesic_seed(keep, img, color_weight=0.0, sweeps=1)
+    ref = cv2.distanceTransform((~keep).astype(np.uint8), cv2.DIST_L1, 3)
+    np.testing.assert_array_equal(np.asarray(res.distance), ref)
+    np.testing.assert_array_equal(res.distance, nearest_seed(keep, metric="l1").distance)
+    # gather_at_seed works unchanged: the seed's own position is read back.
+    v, u = np.indices(shape)
+    got = gather_at_seed(jnp.asarray(v * shape[1] + u), res.du, res.dv)
+    assert keep.reshape(-1)[np.asarray(got)].all()
+    assert np.all(np.abs(res.du) + np.abs(res.dv) == ref)
+
+
+def test_no_seed_and_all_seeds():
+    img = np.random.default_rng(0).random((5, 6)).astype(np.float32)
+    empty = geodesic_seed(np.zeros((5, 6), bool), img, color_weight=2.0, sweeps=2)
+    assert not bool(empty.has_seed) and np.all(np.isinf(empty.distance))
+    assert not np.any(empty.du) and not np.any(empty.dv)
+    full = geodesic_seed(np.ones((5, 6), bool), img, color_weight=2.0, sweeps=2)
+    assert bool(full.has_seed) and not np.any(full.distance) and not np.any(full.du) and not np.any(full.dv)
+
+
+def test_jit_equals_eager_and_traced_weight():
+    keep, img = _scene(5, h=6, w=7)
+    jitted = geodesic_seed(keep, img, color_weight=7.0, sweeps=2)
+    with jax.disable_jit():
+        eager = geodesic_seed(keep, img, color_weight=7.0, sweeps=2)
+    traced = jax.jit(lambda k, i, cw: geodesic_seed(k, i, color_weight=cw, sweeps=2))(keep, img, 7.0)
+    for name in ("du", "dv", "has_seed"):
+        np.testing.assert_array_equal(getattr(jitted, name), getattr(eager, name))
+        np.testing.assert_array_equal(getattr(jitted, name), getattr(traced, name))
+    np.testing.assert_array_equal(jitted.distance, traced.distance)
+    # Op-by-op evaluation rounds the step costs differently (no fusion): 1 ulp.
+    np.testing.assert_allclose(jitted.distance, eager.distance, rtol=RTOL)
+
+
+def test_vmap_equals_loop():
+    scenes = [_scene(s, h=8, w=9) for s in range(3)]
+    scenes[2] = (np.zeros_like(scenes[2][0]), scenes[2][1])  # one frame without seeds
+    keeps = np.stack([k for k, _ in scenes])
+    imgs = np.stack([i for _, i in scenes])
+    weights = np.array([0.0, 4.0, 9.0], np.float32)
+    batched = jax.vmap(lambda k, i, cw: geodesic_seed(k, i, color_weight=cw, sweeps=2))(keeps, imgs, weights)
+    for b in range(3):
+        one = geodesic_seed(keeps[b], imgs[b], color_weight=float(weights[b]), sweeps=2)
+        for got, want in zip(batched, one):
+            np.testing.assert_array_equal(got[b], want)
+
+
+@pytest.mark.parametrize("keep,img,kwargs,match", [
+    (np.zeros((4, 5), bool), np.zeros((4, 6, 3), np.float32), {}, r"image expected shape \(4, 5\)"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5, 4), np.float32), {}, "image expected shape"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.uint16), {}, "image expected a floating dtype"),
+    (np.zeros((4, 5), np.uint8), np.zeros((4, 5), np.float32), {}, "keep expected dtype bool"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"sweeps": 0}, "sweeps expected an integer >= 1"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"color_weight": -1.0}, "color_weight expected >= 0"),
+])
+def test_bad_input(keep, img, kwargs, match):
+    options = {"color_weight": 1.0, "sweeps": 1} | kwargs
+    with pytest.raises(ValueError, match=match):
+        geodesic_seed(keep, img, **options)
+    with pytest.raises(ValueError, match=match):
+        jax.jit(lambda k, i: geodesic_seed(k, i, **options))(keep, img)
+
+
+# --- the pipeline option (SGMConfig.guidance_weight / guidance_sweeps, image=) ---
+
+def _pipeline_frame():
+    from tests.helpers import small_frames
+    frames, T = small_frames(2, seed=3)
+    rng = np.random.default_rng(7)
+    images = [rng.integers(0, 256, depth.shape + (3,), dtype=np.uint8) for depth, _ in frames]
+    return frames, T, images
+
+
+def test_pipeline_without_guidance_ignores_the_image():
+    from jaxdepth import complete_stages
+    (frames, T, images) = _pipeline_frame()
+    depth, K = frames[0]
+    plain = complete_stages(depth, K, T)
+    with_image = complete_stages(depth, K, T, image=images[0])
+    for a, b in zip(plain, with_image):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_pipeline_guided_seeds_and_vmap():
+    """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
+    from jaxdepth import SGMConfig, complete, complete_stages
+    (frames, T, images) = _pipeline_frame()
+    config = SGMConfig(guidance_weight=8.0, guidance_sweeps=2)
+    loop = []
+    for (depth, K), image in zip(frames, images):
+        stages = complete_stages(depth, K, T, config=config, image=image)
+        want = geodesic_seed(np.asarray(stages.inlier_mask), image.astype(np.float32) / 255.0,
+                             color_weight=8.0, sweeps=2)
+        np.testing.assert_array_equal(stages.du, want.du)
+        np.testing.assert_array_equal(stages.dv, want.dv)
+        v, u = np.indices(depth.shape)
+        kept = np.where(stages.inlier_mask, depth, 0.0)
+        np.testing.assert_array_equal(stages.seed_depth, kept[v + np.asarray(want.dv), u + np.asarray(want.du)])
+        loop.append(np.asarray(stages.depth))
+    # uint8 is scaled to [0, 1]; a float image is taken as it is.
+    from jaxdepth._src.geodesic import guidance_image
+    np.testing.assert_allclose(guidance_image(images[0], images[0].shape[:2], guided=True, where="t"),
+                               images[0].astype(np.float32) / np.float32(255.0), rtol=1e-6)
+    as_float = images[0].astype(np.float32) / 255.0
+    assert guidance_image(as_float, as_float.shape[:2], guided=False, where="t") is None
+    depths = np.stack([d for d, _ in frames])
+    Ks = np.stack([K for _, K in frames])
+    batched = jax.vmap(lambda d, K, im: complete(d, K, T, config=config, image=im))(depths, Ks, np.stack(images))
+    # Same tolerance as test_pipeline's vmap test (batched XLA kernels round differently).
+    np.testing.assert_allclose(batched, np.stack(loop), rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("image,match", [
+    (None, r"'image' expected an \(H, W\) or \(H, W, 3\) camera image because config.guidance_weight > 0, got None"),
+    (np.zeros((10, 20, 3), np.uint8), r"'image' expected shape \(64, 128\) \(grey\) or \(64, 128, 3\).*got \(10, 20, 3\)"),
+    (np.zeros((64, 128, 4), np.uint8), r"'image' expected shape .*got \(64, 128, 4\)"),
+    (np.zeros((64, 128, 3), np.uint16), r"'image' expected dtype uint8 \(0-255\) or float in \[0, 1\], got uint16 "
+                                        r"\(a 16-bit image"),
+])
+def test_pipeline_bad_image(image, match):
+    from jaxdepth import SGMConfig, complete
+    (frames, T, _) = _pipeline_frame()
+    depth, K = frames[0]
+    with pytest.raises(ValueError, match=match):
+        complete(depth, K, T, config=SGMConfig(guidance_weight=1.0), image=image)
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("guidance_weight", -1.0, "field 'guidance_weight' expected >= 0"),
+    ("guidance_sweeps", 0, "field 'guidance_sweeps' expected an integer >= 1"),
+    ("guidance_sweeps", 1.5, "field 'guidance_sweeps' expected an integer >= 1"),
+])
+def test_config_fields(field, value, match):
+    from jaxdepth import SGMConfig
+    with pytest.raises(ValueError, match=match):
+        SGMConfig(**{field: value})
+
+
+def test_complete_points_guided():
+    from jaxdepth import SGMConfig, complete_points_stages
+    from jaxdepth._src import synthetic
+    from jaxdepth._src.types import Camera
+    from tests.helpers import H, W
+    K = np.array([[90.0, 0, (W - 1) / 2], [0, 90.0, 20.0], [0, 0, 1]], np.float32)
+    T = np.asarray(synthetic.rig_cameras("kitti")[0].T_cam_lidar)
+    camera = Camera(K=K, T_cam_lidar=T, height=H, width=W)
+    frame = synthetic.make_street_scene(5, cameras=[camera])
+    image = np.random.default_rng(1).random((H, W), np.float32)
+    config = SGMConfig(guidance_weight=3.0, guidance_sweeps=1)
+    with pytest.raises(ValueError, match=r"complete_points: 'image' expected .* got None"):
+        complete_points_stages(frame.points, frame.valid, camera, config=config)
+    stages = complete_points_stages(frame.points, frame.valid, camera, config=config, image=image)
+    want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1)
+    np.testing.assert_array_equal(stages.du, want.du)
+    np.testing.assert_array_equal(stages.dv, want.dv)
+
+
+def test_non_finite_colours_still_give_real_seeds():
+    keep, img = _scene(6, h=7, w=8)
+    img[3, :, 0] = np.nan
+    img[:, 4, 1] = np.inf
+    res = geodesic_seed(keep, img, color_weight=2.0, sweeps=1)
+    v, u = np.indices(keep.shape)
+    assert keep[v + np.asarray(res.dv), u + np.asarray(res.du)].all()
+    assert np.all(np.isfinite(res.distance))
