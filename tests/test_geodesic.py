@@ -191,12 +191,12 @@ def test_vmap_equals_loop():
 
 
 @pytest.mark.parametrize("keep,img,kwargs,match", [
-    (np.zeros((4, 5), bool), np.zeros((4, 6, 3), np.float32), {}, r"image expected shape \(4, 5\)"),
-    (np.zeros((4, 5), bool), np.zeros((4, 5, 4), np.float32), {}, "image expected shape"),
-    (np.zeros((4, 5), bool), np.zeros((4, 5), np.uint16), {}, "image expected a floating dtype"),
-    (np.zeros((4, 5), np.uint8), np.zeros((4, 5), np.float32), {}, "keep expected dtype bool"),
-    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"sweeps": 0}, "sweeps expected an integer >= 1"),
-    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"color_weight": -1.0}, "color_weight expected >= 0"),
+    (np.zeros((4, 5), bool), np.zeros((4, 6, 3), np.float32), {}, r"'image' expected shape \(4, 5\)"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5, 4), np.float32), {}, "'image' expected shape"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.uint16), {}, "'image' expected a floating dtype"),
+    (np.zeros((4, 5), np.uint8), np.zeros((4, 5), np.float32), {}, "'keep' expected dtype bool"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"sweeps": 0}, "'sweeps' expected an integer >= 1"),
+    (np.zeros((4, 5), bool), np.zeros((4, 5), np.float32), {"color_weight": -1.0}, "'color_weight' expected >= 0"),
 ])
 def test_bad_input(keep, img, kwargs, match):
     options = {"color_weight": 1.0, "sweeps": 1} | kwargs
@@ -292,7 +292,7 @@ def test_complete_points_guided():
     frame = synthetic.make_street_scene(5, cameras=[camera])
     image = np.random.default_rng(1).random((H, W), np.float32)
     config = SGMConfig(guidance_weight=3.0, guidance_sweeps=1)
-    with pytest.raises(ValueError, match=r"complete_points: 'image' expected .* got None"):
+    with pytest.raises(ValueError, match=r"complete_points: field 'image' expected .* got None"):
         complete_points_stages(frame.points, frame.valid, camera, config=config)
     stages = complete_points_stages(frame.points, frame.valid, camera, config=config, image=image)
     want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1)

@@ -541,7 +541,7 @@ def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_column
     camera = _pix_camera()
     depth = _pix_frame(0, camera)
     assert (depth > 0).sum() > 500
-    got = PPN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
+    got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
                           max_points=max_points)
     stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
     assert stable[depth > 0].mean() > 0.99
@@ -566,7 +566,7 @@ def test_pixel_normals_options_and_wide_camera():
     camera = _pix_camera(f=40.0)  # ~126 degrees wide: more than the 100-degree window
     depth = _pix_frame(1, camera)
     for options in (dict(smoothing=0, fill_max_gap=0), dict(smoothing=2, fill_max_gap=1)):
-        got = PPN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
+        got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
         check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
 
 
@@ -599,11 +599,11 @@ def test_pixel_normals_bad_inputs_raise():
     camera = _pix_camera()
     depth = jnp.zeros((96, 160))
     with pytest.raises(ValueError, match=r"pixel_normals: field 'sparse_depth' expected shape \(H, W\)"):
-        PPN.pixel_normals(depth[None], camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR)
+        PN.pixel_normals(depth[None], camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR)
     with pytest.raises(ValueError, match=r"pixel_normals: field 'K' expected shape \(3, 3\), got \(3, 4\)"):
-        PPN.pixel_normals(depth, jnp.zeros((3, 4)), camera.T_cam_lidar, lidar=PIX_LIDAR)
+        PN.pixel_normals(depth, jnp.zeros((3, 4)), camera.T_cam_lidar, lidar=PIX_LIDAR)
     with pytest.raises(TypeError):
-        PPN.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
+        PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
 
 
 def test_pixel_normals_kitti_frame(kitti):
@@ -612,7 +612,7 @@ def test_pixel_normals_kitti_frame(kitti):
     stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
     assert stable[depth > 0].mean() > 0.999
     # the dense fallback (every pixel a point slot, whole range image) gives the same normals
-    dense = PPN.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
+    dense = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
     np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
 
 

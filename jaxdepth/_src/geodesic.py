@@ -71,26 +71,26 @@ _BLOCKED = 1e6  # pixels: the cost of a step next to a non-finite colour
 
 def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
     if keep.ndim != 2:
-        raise ValueError(f"geodesic_seed: keep expected shape (H, W), got shape {tuple(keep.shape)}")
+        raise ValueError(f"geodesic_seed: field 'keep' expected shape (H, W), got shape {tuple(keep.shape)}")
     if keep.dtype != jnp.bool_:
-        raise ValueError(f"geodesic_seed: keep expected dtype bool, got {keep.dtype}")
+        raise ValueError(f"geodesic_seed: field 'keep' expected dtype bool, got {keep.dtype}")
     h, w = keep.shape
     if h < 1 or w < 1:
-        raise ValueError(f"geodesic_seed: keep expected H >= 1 and W >= 1, got shape {(h, w)}")
+        raise ValueError(f"geodesic_seed: field 'keep' expected H >= 1 and W >= 1, got shape {(h, w)}")
     if h * w > _F32_EXACT:
         raise ValueError(f"geodesic_seed: keep shape {(h, w)} too large: expected H * W <= 2**24 "
                          f"(seed indices travel as float32), got {h * w}")
     if image.ndim not in (2, 3) or image.shape[:2] != (h, w) or (image.ndim == 3 and image.shape[2] not in (1, 3)):
         raise ValueError(
-            f"geodesic_seed: image expected shape {(h, w)} or {(h, w, 3)} (same H, W as keep), "
+            f"geodesic_seed: field 'image' expected shape {(h, w)} or {(h, w, 3)} (same H, W as keep), "
             f"got {tuple(image.shape)}")
     if not jnp.issubdtype(image.dtype, jnp.floating):
-        raise ValueError(f"geodesic_seed: image expected a floating dtype (e.g. float32 in [0, 1]), "
+        raise ValueError(f"geodesic_seed: field 'image' expected a floating dtype (e.g. float32 in [0, 1]), "
                          f"got {image.dtype}")
     if isinstance(sweeps, bool) or int(sweeps) != sweeps or sweeps < 1:
-        raise ValueError(f"geodesic_seed: sweeps expected an integer >= 1, got {sweeps!r}")
+        raise ValueError(f"geodesic_seed: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
     if isinstance(color_weight, (int, float)) and not color_weight >= 0:
-        raise ValueError(f"geodesic_seed: color_weight expected >= 0, got {color_weight!r}")
+        raise ValueError(f"geodesic_seed: field 'color_weight' expected >= 0, got {color_weight!r}")
 
 
 def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
@@ -114,13 +114,13 @@ def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
     """
     if image is None:
         if guided:
-            raise ValueError(f"{where}: 'image' expected an (H, W) or (H, W, 3) camera image because "
+            raise ValueError(f"{where}: field 'image' expected an (H, W) or (H, W, 3) camera image because "
                              "config.guidance_weight > 0, got None")
         return None
     h, w = shape
     shp = tuple(image.shape)
     if not (shp == (h, w) or shp == (h, w, 3)):
-        raise ValueError(f"{where}: 'image' expected shape {(h, w)} (grey) or {(h, w, 3)} (colour), matching "
+        raise ValueError(f"{where}: field 'image' expected shape {(h, w)} (grey) or {(h, w, 3)} (colour), matching "
                          f"the sparse depth, got {shp}")
     dtype = jnp.dtype(image.dtype)
     if dtype == jnp.uint8:
@@ -128,7 +128,7 @@ def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
     elif jnp.issubdtype(dtype, jnp.floating):
         scale = None
     else:
-        raise ValueError(f"{where}: 'image' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
+        raise ValueError(f"{where}: field 'image' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
                          + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
     if not guided:
         return None

@@ -42,7 +42,6 @@ import dataclasses
 import functools
 import logging
 import pathlib
-import threading
 import time
 from typing import Callable
 
@@ -84,9 +83,6 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
     from jaxdepth._src.validity import validity_and_distance
 
     def depth(points, valid, cameras):
-        key = (points.shape[0], cameras.count, cameras.height, cameras.width, config, lidar, "extras",
-               max_seed_distance_px)
-        TRACE_COUNTS[key] = TRACE_COUNTS.get(key, 0) + 1
         stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
         per_camera = functools.partial(validity_and_distance, lidar=lidar, metric=config.distance_metric,
                                        max_seed_distance_px=max_seed_distance_px)
@@ -185,10 +181,10 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     from jaxdepth._src.config import SGMConfig
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io import nuscenes as nusc
-    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, write_depth_png
-    from jaxdepth.io.errors import JaxdepthError, OutputError
+    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
+    from jaxdepth.io.errors import OutputError
     from jaxdepth.batch import extras as extra_outputs
-    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.batch.runner import RunSummary, read_ahead
 
     extras = extra_outputs.NONE if extras is None else extras
 
@@ -211,90 +207,78 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
         raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
     targets = jax.local_devices()[:devices]
-    lock = threading.Lock()
-
-    def fail(token, message):
-        with lock:
-            summary.failed.append((token, message))
-        notify(token, f"failed: {message}")
-
-    def write(job, rig, depth, valid=None, distance=None):
-        by_name = {c.name: (i, c) for i, c in enumerate(rig.cameras)}
-        try:
-            for channel, path in zip(job.channels, job.out_paths):
-                i, cam = by_name[channel]
-                window = (i, slice(0, cam.height), slice(0, cam.width))
-                if extras == extra_outputs.NONE:
-                    write_depth_png(path, depth[window], compression=png_compression)
-                else:
-                    extra_outputs.write_outputs(path, depth[window], extras=extras, overwrite=overwrite,
-                                                valid=None if valid is None else valid[window],
-                                                distance=None if distance is None else distance[window],
-                                                compression=png_compression)
-        except JaxdepthError as err:
-            fail(job.token, str(err))
-            return
-        except OSError as err:
-            fail(job.token, f"{path}: cannot write ({err.strerror or err})")
-            return
-        with lock:
-            summary.done.append(job.token)
-            if summary.first_output_at is None:
-                summary.first_output_at = time.perf_counter()
-        notify(job.token, "done")
-
-    in_flight = collections.deque()  # (job, rig, device result), dispatched, not collected
-
+    run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
+    load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        written = []
-
-        def collect():
-            job, rig, out = in_flight.popleft()
-            try:
-                arrays = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
-            except Exception as err:  # a compute failure costs this sample, not the run
-                fail(job.token, f"completion failed: {err}")
-                return
-            written.append(writers.submit(write, job, rig, *arrays))
-
-        loads = collections.deque()
-        jobs = iter(todo)
-        for job in jobs:
-            loads.append((job, readers.submit(_load, tables, job, sweeps=sweeps, ego_motion=ego_motion)))
-            if len(loads) >= READ_AHEAD:
-                break
-        count = 0
-        while loads:
-            job, fut = loads.popleft()
-            nxt = next(jobs, None)
-            if nxt is not None:
-                loads.append((nxt, readers.submit(_load, tables, nxt, sweeps=sweeps, ego_motion=ego_motion)))
-            try:
-                padded, valid, rig, _ = fut.result()
-            except JaxdepthError as err:
-                fail(job.token, str(err))
+        loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
+                                    os_error=lambda job, err: f"cannot read: {err}")
+        for count, (job, loaded) in enumerate(loaded_samples):
+            if isinstance(loaded, str):
+                run.fail(job.token, loaded)
                 continue
-            except OSError as err:
-                fail(job.token, f"cannot read: {err}")
-                continue
+            padded, valid, rig, _ = loaded
             cameras = stack_cameras([c.as_camera() for c in rig.cameras])
-            device = targets[count % len(targets)]
-            count += 1
             try:
                 fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
                       else _depth_fn(config, rig.lidar))
-                out = fn(*jax.device_put((padded, valid, cameras), device))
+                out = fn(*jax.device_put((padded, valid, cameras), targets[count % len(targets)]))
             except Exception as err:
-                fail(job.token, f"completion failed: {err}")
+                run.fail(job.token, f"completion failed: {err}")
                 continue
-            in_flight.append((job, rig, out))
-            if len(in_flight) > len(targets):
-                collect()
-        while in_flight:
-            collect()
-        for f in written:
-            f.result()
+            run.in_flight.append((job, rig, out))
+            if len(run.in_flight) > len(targets):
+                run.collect(writers)
+        run.finish(writers)
     return summary
+
+
+class _SampleRun:
+    """The dispatch side of :func:`run_nuscenes`: a sample's result is collected once the next
+    sample is dispatched, and its cameras' PNGs are written on the writer threads."""
+
+    def __init__(self, summary, notify, *, extras, overwrite: bool, png_compression: int):
+        from jaxdepth.batch.runner import Ledger
+        self.ledger = Ledger(summary, notify)
+        self.extras, self.overwrite, self.png_compression = extras, overwrite, png_compression
+        self.in_flight = collections.deque()  # (job, rig, device result), dispatched, not collected
+        self.written = []
+
+    def fail(self, token, message):
+        self.ledger.fail(token, message)
+
+    def write(self, job, rig, depth, valid=None, distance=None):
+        from jaxdepth.batch import extras as extra_outputs
+        from jaxdepth.io.depth_png import write_depth_png
+        by_name = {c.name: (i, c) for i, c in enumerate(rig.cameras)}
+
+        def write_files():
+            for channel, path in zip(job.channels, job.out_paths):
+                i, cam = by_name[channel]
+                window = (i, slice(0, cam.height), slice(0, cam.width))
+                if self.extras == extra_outputs.NONE:
+                    write_depth_png(path, depth[window], compression=self.png_compression)
+                else:
+                    extra_outputs.write_outputs(path, depth[window], extras=self.extras, overwrite=self.overwrite,
+                                                valid=None if valid is None else valid[window],
+                                                distance=None if distance is None else distance[window],
+                                                compression=self.png_compression)
+
+        self.ledger.write(job.token, job.out_paths[0], write_files)
+
+    def collect(self, writers):
+        job, rig, out = self.in_flight.popleft()
+        try:
+            arrays = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
+        except Exception as err:  # a compute failure costs this sample, not the run
+            self.fail(job.token, f"completion failed: {err}")
+            return
+        self.written.append(writers.submit(self.write, job, rig, *arrays))
+
+    def finish(self, writers):
+        while self.in_flight:
+            self.collect(writers)
+        for f in self.written:
+            f.result()
 
 
 __all__ = ["run_nuscenes", "plan"]

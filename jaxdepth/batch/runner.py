@@ -119,35 +119,8 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
-    if strategy == "loop":
-        single = jax.jit(one)
-        targets = jax.local_devices()[:devices]
-
-        def run(depths, Ks, Ts):
-            if depths.shape != (batch_size, height, width):
-                raise ValueError(f"batched completion: depths expected shape {(batch_size, height, width)}, "
-                                 f"got {depths.shape}")
-            # Dispatch every frame first (asynchronous), then collect.
-            outs = [single(*jax.device_put((depths[i], Ks[i], Ts[i]), targets[i % len(targets)]))
-                    for i in range(batch_size)]
-            return _stack_outputs(outs)
-
-        return run
-
-    def per_device(depths, Ks, Ts):
-        if strategy == "vmap":
-            return jax.vmap(one)(depths, Ks, Ts)
-        return jax.lax.map(lambda args: one(*args), (depths, Ks, Ts))
-
-    def traced(depths, Ks, Ts):
-        if devices > 1:
-            mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
-            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 3,
-                               out_specs=_out_specs(max_seed_distance_px), check_vma=False)
-            return fn(depths, Ks, Ts)
-        return per_device(depths, Ks, Ts)
-
-    return jax.jit(traced)
+    return _batched(one, arity=3, batch_size=batch_size, strategy=strategy, devices=devices,
+                    out_specs=_out_specs(max_seed_distance_px), first_shape=(batch_size, height, width))
 
 
 def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px: float):
@@ -191,11 +164,28 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
+    return _batched(one, arity=4, batch_size=batch_size, strategy=strategy, devices=devices,
+                    out_specs=_out_specs(max_seed_distance_px))
+
+
+def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devices: int, out_specs,
+             first_shape: tuple | None = None) -> Callable:
+    """``one`` (a single frame's arrays -> output) over a leading batch axis of every argument.
+
+    "loop": one jitted frame at a time, dispatched round-robin to ``devices`` local devices
+    (the bytes of per-frame calls); "map" / "vmap": ``lax.map`` / ``vmap`` inside one jit, the
+    batch sharded over the devices with ``shard_map`` when ``devices > 1``. ``first_shape``:
+    the shape the loop strategy requires of the first argument (clear error otherwise).
+    """
     if strategy == "loop":
         single = jax.jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(*args):
+            if first_shape is not None and args[0].shape != first_shape:
+                raise ValueError(f"batched completion: field 'depths' expected shape {first_shape}, "
+                                 f"got {args[0].shape}")
+            # Dispatch every frame first (asynchronous), then collect.
             outs = [single(*jax.device_put(tuple(a[i] for a in args), targets[i % len(targets)]))
                     for i in range(batch_size)]
             return _stack_outputs(outs)
@@ -210,8 +200,8 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
     def sharded(*args):
         if devices > 1:
             mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
-            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * 4,
-                               out_specs=_out_specs(max_seed_distance_px), check_vma=False)
+            fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * arity,
+                               out_specs=out_specs, check_vma=False)
             return fn(*args)
         return per_device(*args)
 
@@ -413,7 +403,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,
                         png_compression=png_compression)
-        for job, loaded in _read_ahead(todo, readers, window=max(2 * batch_size, 4)):
+        for job, loaded in read_ahead(todo, readers, window=max(2 * batch_size, 4)):
             if isinstance(loaded, str):
                 run.record_failure(job.name, loaded)
                 continue
@@ -429,24 +419,58 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     return summary
 
 
-def _read_ahead(todo: Sequence[FrameJob], readers: cf.Executor, *, window: int):
-    """Yields (job, (depth, K)) in job order, or (job, message) for an input that cannot be read;
-    at most ``window`` inputs are decoded ahead, so memory stays bounded."""
+def read_ahead(todo: Sequence, readers: cf.Executor, *, window: int, load: Callable = None,
+               os_error: Callable = lambda job, err: f"{job.sparse_path}: {err}"):
+    """Yields (job, load(job)) in job order, or (job, message) for an input that cannot be read
+    (a :class:`~jaxdepth.io.errors.JaxdepthError`, or an ``OSError`` worded by ``os_error``);
+    at most ``window`` inputs are loaded ahead on ``readers``, so memory stays bounded.
+    ``load`` defaults to reading a :class:`FrameJob`'s sparse input (depth, K)."""
+    load = _load if load is None else load
     futures = collections.deque()
     jobs_iter = iter(todo)
     for job in itertools.islice(jobs_iter, window):
-        futures.append((job, readers.submit(_load, job)))
+        futures.append((job, readers.submit(load, job)))
     while futures:
         job, fut = futures.popleft()
         nxt = next(jobs_iter, None)
         if nxt is not None:
-            futures.append((nxt, readers.submit(_load, nxt)))
+            futures.append((nxt, readers.submit(load, nxt)))
         try:
             yield job, fut.result()
         except io_errors.JaxdepthError as err:
             yield job, str(err)
         except OSError as err:
-            yield job, f"{job.sparse_path}: {err}"
+            yield job, os_error(job, err)
+
+
+class Ledger:
+    """Thread-safe record of a run's frames in its :class:`RunSummary`, with the progress callback."""
+
+    def __init__(self, summary: RunSummary, notify: Callable[[str, str], None]):
+        self.summary, self.notify = summary, notify
+        self.lock = threading.Lock()
+
+    def fail(self, name: str, message: str) -> None:
+        with self.lock:
+            self.summary.failed.append((name, message))
+        self.notify(name, f"failed: {message}")
+
+    def write(self, name: str, path, write_files: Callable[[], None]) -> None:
+        """Runs ``write_files()`` and records ``name`` as done, or as failed with the error (an
+        ``OSError`` names the file it hit, else ``path``); the first output's time is kept."""
+        try:
+            write_files()
+        except io_errors.JaxdepthError as err:
+            self.fail(name, str(err))
+            return
+        except OSError as err:
+            self.fail(name, f"{err.filename or path}: cannot write ({err.strerror or err})")
+            return
+        with self.lock:
+            self.summary.done.append(name)
+            if self.summary.first_output_at is None:
+                self.summary.first_output_at = time.perf_counter()
+        self.notify(name, "done")
 
 
 class _BatchRun:
@@ -455,36 +479,25 @@ class _BatchRun:
 
     def __init__(self, summary: RunSummary, notify, writers: cf.Executor, *, group_call, extras, overwrite: bool,
                  png_compression: int):
-        self.summary, self.notify, self.writers, self.group_call = summary, notify, writers, group_call
+        self.ledger, self.writers, self.group_call = Ledger(summary, notify), writers, group_call
         self.extras, self.overwrite, self.png_compression = extras, overwrite, png_compression
-        self.lock = threading.Lock()
         self.write_futures = []
         self.in_flight = []  # at most one dispatched batch whose result is not collected yet
 
     def record_failure(self, name, message):
-        with self.lock:
-            self.summary.failed.append((name, message))
-        self.notify(name, f"failed: {message}")
+        self.ledger.fail(name, message)
 
     def write(self, job, depth, valid=None, distance=None):
         from jaxdepth.batch import extras as extra_outputs
-        try:
+
+        def write_files():
             if self.extras == extra_outputs.NONE:
                 write_depth_png(job.out_path, depth, compression=self.png_compression)
             else:
                 extra_outputs.write_outputs(job.out_path, depth, extras=self.extras, valid=valid, distance=distance,
                                             overwrite=self.overwrite, compression=self.png_compression)
-        except io_errors.JaxdepthError as err:
-            self.record_failure(job.name, str(err))
-            return
-        except OSError as err:
-            self.record_failure(job.name, f"{job.out_path}: cannot write ({err.strerror or err})")
-            return
-        with self.lock:
-            self.summary.done.append(job.name)
-            if self.summary.first_output_at is None:
-                self.summary.first_output_at = time.perf_counter()
-        self.notify(job.name, "done")
+
+        self.ledger.write(job.name, job.out_path, write_files)
 
     def collect(self):
         items, out = self.in_flight.pop()
