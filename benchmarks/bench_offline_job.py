@@ -137,7 +137,7 @@ def main(argv=None) -> int:
         env.pop("JAXDEPTH_COMPILE_CACHE", None)
         jaxdepth_cmd = [sys.executable, "-m", "jaxdepth.cli", "complete"]
         ip_cmd = [sys.executable, "-c", IP_BASIC_LOOP]
-        baselines_py = str(ROOT / "jaxdepth" / "baselines.py")
+        baselines_py = str(ROOT / "jaxdepth" / "research" / "baselines.py")
 
         wall, _ = timed(jaxdepth_cmd + [str(warm_src), str(tmp / "warm_out"), "-q"] + args.jaxdepth_args,
                         env, "warm-up")
