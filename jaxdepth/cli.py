@@ -241,8 +241,9 @@ def _add_nuscenes_options(parser) -> None:
     """The nuScenes options of ``jaxdepth complete`` (no JAX import)."""
     group = parser.add_argument_group(
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
-                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm, local engine; "
-                    "--batch-size and --cpu-devices have no effect: one sample's cameras are one batch)")
+                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm; --engine local "
+                    "or ray, same bytes; --batch-size and --cpu-devices have no effect on the local engine: one "
+                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call)")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
     group.add_argument("--sweeps", type=int, default=1, metavar="N",
@@ -265,8 +266,6 @@ def _cmd_complete_nuscenes(args) -> int:
         usage = f"{', '.join(given)} cannot be used with --nusc-version (the tables give K and the extrinsics)"
     elif args.method != "sgm":
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
-    elif args.engine != "local":
-        usage = "--nusc-version runs on the local engine only (--engine local)"
     elif args.sweeps < 1:
         usage = f"--sweeps expected an integer >= 1, got {args.sweeps}"
     if usage:
@@ -277,10 +276,15 @@ def _cmd_complete_nuscenes(args) -> int:
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
-    summary = run_nuscenes(args.src, dst, version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
-                           config=_config_from(args), overwrite=args.overwrite,
-                           png_compression=args.png_compression, io_threads=devices.io_threads(),
-                           on_progress=progress.update, tables=tables, extras=_extras_from(args))
+    options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
+                   config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
+                   on_progress=progress.update, tables=tables, extras=_extras_from(args))
+    if args.engine == "ray":
+        from jaxdepth.batch import scale
+        summary = scale.run_nuscenes_ray(args.src, dst, batch_size=args.batch_size, address=args.ray_address,
+                                         **options)
+    else:
+        summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), **options)
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 

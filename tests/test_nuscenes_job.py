@@ -402,3 +402,28 @@ def test_bad_records_cost_their_sample_and_name_the_file(dataroot):
         nusc.accumulate_sweeps(t, t.tables["sample_data"]["lidar_s2"], sweeps=2)
     with pytest.raises(ValueError, match="plain file name"):
         nusc.output_path("out", VERSION, "CAM_FRONT", "../escape")
+
+
+def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, monkeypatch):
+    """`--engine ray` sends the job to scale.run_nuscenes_ray with the address, batch size and the same options
+    the local engine gets (Ray itself is tested in tests/test_ray.py)."""
+    from jaxdepth import cli
+    from jaxdepth.batch import nuscenes_job, scale
+    from jaxdepth.batch.runner import RunSummary
+    root, _, _ = dataroot
+    calls = []
+    monkeypatch.setattr(scale, "run_nuscenes_ray", lambda *a, **k: calls.append(("ray", a, k)) or RunSummary())
+    monkeypatch.setattr(nuscenes_job, "run_nuscenes", lambda *a, **k: calls.append(("local", a, k)) or RunSummary())
+    argv = ["complete", str(root), str(tmp_path / "o"), "--nusc-version", VERSION, "-q", "--sweeps", "2",
+            "--no-ego-motion", "--png-compression", "6"]
+    assert cli.main(argv + ["--engine", "ray", "--ray-address", "HEAD:6379", "--batch-size", "3"]) == 0
+    assert cli.main(argv) == 0
+    (engine, args, ray_options), (local_engine, local_args, local_options) = calls
+    assert (engine, local_engine) == ("ray", "local") and args == local_args == (str(root), tmp_path / "o")
+    assert (ray_options.pop("address"), ray_options.pop("batch_size")) == ("HEAD:6379", 3)
+    local_options.pop("io_threads")
+    for options in (ray_options, local_options):
+        options.pop("on_progress")
+        options["tables"] = options["tables"].version
+    assert ray_options == local_options
+    assert (ray_options["sweeps"], ray_options["ego_motion"], ray_options["png_compression"]) == (2, False, 6)

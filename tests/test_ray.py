@@ -220,3 +220,67 @@ def test_ray_is_imported_only_when_the_ray_engine_runs():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                             cwd=pathlib.Path(__file__).resolve().parents[1])
     assert result.returncode == 0, result.stderr
+
+
+# ---------------------------------------------------------------- nuScenes dataroot (run_nuscenes_ray)
+
+
+def _nuscenes_two_cameras(tmp_path: pathlib.Path) -> pathlib.Path:
+    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py (quarter-size cameras), with two of the
+    sample's cameras to keep it fast: s1, s2 complete, s3's LiDAR file is missing."""
+    import json
+
+    from tests.conftest import require_shared
+    from tests.test_nuscenes_job import LIDAR_FILE, build_dataroot
+
+    sample_dir = require_shared("nuscenes", "sample")
+    calib = json.loads((sample_dir / "calibration.json").read_text())
+    calib["cameras"] = {ch: calib["cameras"][ch] for ch in ("CAM_FRONT", "CAM_BACK")}
+    two = tmp_path / "sample_two_cameras"
+    two.mkdir()
+    (two / "calibration.json").write_text(json.dumps(calib))
+    os.symlink(sample_dir / LIDAR_FILE, two / LIDAR_FILE)
+    root = tmp_path / "dataroot"
+    build_dataroot(root, two)
+    return root
+
+
+def _tree(root: pathlib.Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_nuscenes_dataroot_matches_the_local_engine_reports_the_bad_sample_and_resumes(local_ray, tmp_path):
+    """Oracle: nuscenes_job.run_nuscenes on the same dataroot (with validity masks): the same files, the
+    same bytes; the bad sample is a failed row with the local engine's message, in a batch with the good
+    ones; a re-run skips the finished samples before any work."""
+    from jaxdepth.batch import extras, nuscenes_job
+    from tests.test_nuscenes_job import VERSION
+
+    root = _nuscenes_two_cameras(tmp_path)
+    wanted = extras.ExtraOutputs(validity=True)
+    local = nuscenes_job.run_nuscenes(root, tmp_path / "local", version=VERSION, extras=wanted)
+    reference = _tree(tmp_path / "local")
+    assert sorted(reference) == sorted(f"{VERSION}/{ch}/{ch}_{s}{kind}.png" for ch in ("CAM_FRONT", "CAM_BACK")
+                                       for s in ("s1", "s2") for kind in ("", "_validity"))
+    dense = read_depth_png(tmp_path / "local" / VERSION / "CAM_FRONT" / "CAM_FRONT_s1.png")
+    assert np.count_nonzero(dense) > 0.5 * dense.size  # a completion, not an empty image
+
+    calls, on_progress = _recorder()
+    dst = tmp_path / "ray"
+    summary = scale.run_nuscenes_ray(root, dst, version=VERSION, extras=wanted, on_progress=on_progress)
+    assert ray.is_initialized()
+    assert sorted(summary.done) == sorted(local.done) == ["s1", "s2"] and summary.skipped == []
+    [(name, message)] = summary.failed
+    assert summary.failed == local.failed and name == "s3" and "s3.pcd.bin" in message
+    assert sorted(calls) == [("s1", "done"), ("s2", "done"), ("s3", f"failed: {message}")]
+    got = _tree(dst)
+    assert sorted(got) == sorted(reference), "the Ray engine wrote other files (or left temporaries)"
+    for path, data in reference.items():
+        assert got[path] == data, f"{path}: Ray output differs from run_nuscenes"
+
+    stamps = {p: p.stat().st_mtime_ns for p in dst.rglob("*.png")}
+    calls, on_progress = _recorder()
+    again = scale.run_nuscenes_ray(root, dst, version=VERSION, extras=wanted, on_progress=on_progress)
+    assert sorted(again.skipped) == ["s1", "s2"] and again.done == [] and [n for n, _ in again.failed] == ["s3"]
+    assert sorted(c for c in calls if c[1] == "skipped") == [("s1", "skipped"), ("s2", "skipped")]
+    assert {p: p.stat().st_mtime_ns for p in dst.rglob("*.png")} == stamps

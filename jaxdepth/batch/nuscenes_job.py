@@ -32,6 +32,10 @@ each compiling its own copy); the CLI does not split the CPU into host devices
 for this job (``--cpu-devices`` has no effect): XLA already spreads one sample
 over the cores, and splitting the cameras of a sample over two host devices
 measured no faster on 2 cores.
+
+The Ray engine (:func:`jaxdepth.batch.scale.run_nuscenes_ray`) plans the same way
+(:func:`plan`) and runs :func:`complete_samples`, this module's per-sample path,
+inside each actor on its batch of samples: same files, same bytes.
 """
 
 from __future__ import annotations
@@ -179,12 +183,10 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     import jax
 
     from jaxdepth._src.config import SGMConfig
-    from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
-    from jaxdepth.io.errors import OutputError
     from jaxdepth.batch import extras as extra_outputs
-    from jaxdepth.batch.runner import RunSummary, read_ahead
+    from jaxdepth.batch.runner import RunSummary
 
     extras = extra_outputs.NONE if extras is None else extras
 
@@ -199,14 +201,41 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     todo = plan(tables, dst, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
     if not todo:
         return summary
+    make_folders(todo)
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
+    complete_samples(tables, todo, summary, notify, sweeps=sweeps, ego_motion=ego_motion, config=config,
+                     extras=extras, overwrite=overwrite, png_compression=png_compression,
+                     targets=jax.local_devices()[:devices], io_threads=io_threads)
+    return summary
+
+
+def make_folders(todo) -> None:
+    """Creates the output folders of the planned samples (OutputError naming the folder)."""
+    from jaxdepth.io.errors import OutputError
+
     for folder in sorted({p.parent for job in todo for p in job.out_paths}):
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
-    targets = jax.local_devices()[:devices]
+
+
+def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: bool, config, extras,
+                     overwrite: bool, png_compression: int, targets=None, io_threads: int = 2) -> None:
+    """Completes the planned samples ``todo`` (from :func:`plan`; output folders exist) into their
+    PNGs, recording each token in ``summary`` as done or failed (never raises for a bad sample).
+
+    The per-sample path of both engines: :func:`run_nuscenes` calls it on the whole plan, and each
+    actor of :func:`jaxdepth.batch.scale.run_nuscenes_ray` on its batch of samples, so both write the
+    same bytes. ``targets``: devices dealt samples round robin (default: the first local device).
+    """
+    import jax
+
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.batch.runner import read_ahead
+
+    targets = jax.local_devices()[:1] if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
     load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
@@ -229,7 +258,6 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
             if len(run.in_flight) > len(targets):
                 run.collect(writers)
         run.finish(writers)
-    return summary
 
 
 class _SampleRun:
@@ -281,4 +309,4 @@ class _SampleRun:
             f.result()
 
 
-__all__ = ["run_nuscenes", "plan"]
+__all__ = ["run_nuscenes", "plan", "complete_samples"]

@@ -7,7 +7,10 @@ driver. Each actor of the pool is a :class:`_CompleteFrames` instance that
 keeps its compiled batch functions (:func:`jaxdepth.batch.runner.batched_completion`,
 :func:`jaxdepth.batch.runner.batched_sweep_completion` for sweep jobs, both cached per process)
 for the life of the actor, so a frame size compiles once per actor, not once
-per batch.
+per batch. A nuScenes version (:func:`run_nuscenes_ray`) is the same pipeline
+over sample records (token, output paths): each :class:`_CompleteSamples` actor
+reads the version's tables once and completes its samples with the local
+engine's per-sample path (:func:`jaxdepth.batch.nuscenes_job.complete_samples`).
 
 Results are the same bytes as :func:`jaxdepth.batch.runner.run_jobs` with the same
 ``batch_size`` (same compiled function, same padding, same writer).
@@ -25,9 +28,11 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import json
 import logging
 import os
 import pathlib
+import time
 import warnings
 from typing import Any, Callable, Iterator, Sequence
 
@@ -231,6 +236,59 @@ class _CompleteFrames:
         }
 
 
+# --------------------------------------------------------------------------- nuScenes samples
+
+def _sample_record(job) -> dict[str, str]:
+    """A planned nuScenes sample (``nuscenes_job._SampleJob``) -> a flat row: its token, and the
+    channels and output paths still to write as JSON lists (strings only, for Arrow)."""
+    return {"name": job.token, "channels": json.dumps(list(job.channels)),
+            "out_paths": json.dumps([os.fspath(p) for p in job.out_paths])}
+
+
+def _samples_from_batch(batch: dict[str, Any]) -> list:
+    """A numpy-format batch of sample records -> ``_SampleJob``s (inverse of :func:`_sample_record`)."""
+    from jaxdepth.batch.nuscenes_job import _SampleJob
+
+    return [_SampleJob(token=str(batch["name"][i]), channels=tuple(json.loads(str(batch["channels"][i]))),
+                       out_paths=tuple(pathlib.Path(p) for p in json.loads(str(batch["out_paths"][i]))))
+            for i in range(len(batch["name"]))]
+
+
+class _CompleteSamples:
+    """Ray Data class UDF for nuScenes samples: one instance per actor.
+
+    The version's tables are read once per actor; each batch of sample records
+    goes through :func:`jaxdepth.batch.nuscenes_job.complete_samples`, the local
+    engine's own per-sample path (load, compiled rig completion cached per
+    process, atomic writes), so the PNGs are the local engine's bytes. Returns one
+    status row per sample (``name`` = sample token, ``status``, ``message``); a
+    bad sample is a "failed" row, never an exception.
+    """
+
+    def __init__(self, *, dataroot: str, version: str, sweeps: int, ego_motion: bool, config: SGMConfig,
+                 extras, overwrite: bool, png_compression: int, io_threads: int = 2):
+        from jaxdepth.io import nuscenes as nusc
+
+        self.tables = nusc.load_tables(dataroot, version)
+        self.options = dict(sweeps=sweeps, ego_motion=ego_motion, config=config, extras=extras,
+                            overwrite=overwrite, png_compression=png_compression, io_threads=max(1, int(io_threads)))
+
+    def __call__(self, batch: dict[str, Any]) -> dict[str, np.ndarray]:
+        from jaxdepth.batch.nuscenes_job import complete_samples
+        from jaxdepth.batch.runner import RunSummary
+
+        jobs = _samples_from_batch(batch)
+        summary = RunSummary()
+        complete_samples(self.tables, jobs, summary, lambda name, status: None, **self.options)
+        failure = dict(summary.failed)
+        names = [job.token for job in jobs]
+        return {
+            "name": np.array(names, dtype=object),
+            "status": np.array(["failed" if n in failure else "done" for n in names], dtype=object),
+            "message": np.array([failure.get(n, "") for n in names], dtype=object),
+        }
+
+
 # --------------------------------------------------------------------------- cluster
 
 def _restore_env(saved: dict[str, str | None]) -> None:
@@ -325,6 +383,44 @@ def _fitting_nodes(ray, cpus: float, gpus: float) -> int:
     return max(1, fits)
 
 
+def _run_pool(ray, ray_data, records: list, udf, summary, notify, *, batch_size: int, num_actors: int | None,
+              cpus_per_actor: float, gpus_per_actor: float, max_restarts: int, max_task_retries: int,
+              constructor_kwargs: dict) -> None:
+    """Maps ``records`` through a pool of ``udf`` actors (Ray Data ``map_batches``, ``batch_size``
+    records per call) and records each status row (``name``, ``status``, ``message``) in
+    ``summary`` and ``notify`` as it arrives. Needs a connected Ray."""
+    actors = int(num_actors) if num_actors is not None else _fitting_nodes(ray, cpus_per_actor, gpus_per_actor)
+    blocks = max(1, min(len(records), -(-len(records) // batch_size)))
+    with _quiet_ray_data(ray_data):
+        ds = ray_data.from_items(records, override_num_blocks=blocks)
+        with warnings.catch_warnings():
+            # Ray >= 2.5x deprecates the **ray_remote_args of map_batches in favour of named
+            # parameters, but has none yet for max_restarts / max_task_retries / scheduling.
+            warnings.filterwarnings("ignore", message=".*ray_remote_args.*deprecated")
+            ds = ds.map_batches(
+                udf,
+                batch_size=batch_size,
+                batch_format="numpy",
+                compute=ray_data.ActorPoolStrategy(size=actors),
+                fn_constructor_kwargs=constructor_kwargs,
+                num_cpus=cpus_per_actor,
+                num_gpus=gpus_per_actor,
+                max_restarts=max_restarts,
+                max_task_retries=max_task_retries,
+                scheduling_strategy="SPREAD",
+            )
+        for row in ds.iter_rows():
+            name, status, message = str(row["name"]), str(row["status"]), str(row["message"])
+            if status == "done":
+                summary.done.append(name)
+                if summary.first_output_at is None:
+                    summary.first_output_at = time.perf_counter()
+                notify(name, "done")
+            else:
+                summary.failed.append((name, message))
+                notify(name, f"failed: {message}")
+
+
 # --------------------------------------------------------------------------- public API
 
 def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGMConfig(),
@@ -408,36 +504,11 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
     batch_size = int(batch_size)
 
     with _connected(ray, address, runtime_env):
-        actors = int(num_actors) if num_actors is not None else _fitting_nodes(ray, cpus_per_actor, gpus_per_actor)
-        records = [_record(job) for job in todo]
-        blocks = max(1, min(len(records), -(-len(records) // batch_size)))
-        with _quiet_ray_data(ray_data):
-            ds = ray_data.from_items(records, override_num_blocks=blocks)
-            with warnings.catch_warnings():
-                # Ray >= 2.5x deprecates the **ray_remote_args of map_batches in favour of named
-                # parameters, but has none yet for max_restarts / max_task_retries / scheduling.
-                warnings.filterwarnings("ignore", message=".*ray_remote_args.*deprecated")
-                ds = ds.map_batches(
-                    _CompleteFrames,
-                    batch_size=batch_size,
-                    batch_format="numpy",
-                    compute=ray_data.ActorPoolStrategy(size=actors),
-                    fn_constructor_kwargs=dict(method=method, config=config, lidar=lidar, T_cam_lidar=T,
-                                               batch_size=batch_size, extras=extras, overwrite=overwrite),
-                    num_cpus=cpus_per_actor,
-                    num_gpus=gpus_per_actor,
-                    max_restarts=max_restarts,
-                    max_task_retries=max_task_retries,
-                    scheduling_strategy="SPREAD",
-                )
-            for row in ds.iter_rows():
-                name, status, message = str(row["name"]), str(row["status"]), str(row["message"])
-                if status == "done":
-                    summary.done.append(name)
-                    notify(name, "done")
-                else:
-                    summary.failed.append((name, message))
-                    notify(name, f"failed: {message}")
+        _run_pool(ray, ray_data, [_record(job) for job in todo], _CompleteFrames, summary, notify,
+                  batch_size=batch_size, num_actors=num_actors, cpus_per_actor=cpus_per_actor,
+                  gpus_per_actor=gpus_per_actor, max_restarts=max_restarts, max_task_retries=max_task_retries,
+                  constructor_kwargs=dict(method=method, config=config, lidar=lidar, T_cam_lidar=T,
+                                          batch_size=batch_size, extras=extras, overwrite=overwrite))
     return summary
 
 
@@ -480,4 +551,76 @@ def complete_folder_ray(src, dst, *, method: str = "sgm", config: SGMConfig = SG
                         address=address, on_progress=on_progress)
 
 
-__all__ = ["run_jobs_ray", "complete_folder_ray"]
+def run_nuscenes_ray(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True,
+                     config: SGMConfig | None = None, overwrite: bool = False, png_compression: int | None = None,
+                     extras=None, batch_size: int = 4, address: str | None = None, num_actors: int | None = None,
+                     cpus_per_actor: float = 1.0, gpus_per_actor: float = 0.0, max_restarts: int = 3,
+                     max_task_retries: int = 3, runtime_env: dict | None = None,
+                     on_progress: Callable[[str, str], None] | None = None, tables=None):
+    """Completes every sample of a nuScenes version on Ray; never raises for a bad sample.
+
+    Same contract and outputs as :func:`jaxdepth.batch.nuscenes_job.run_nuscenes`
+    (``<dst>/<version>/<CHANNEL>/<sample_data_token>.png``, same bytes, same extras),
+    with the samples spread over a pool of Ray actors. The driver reads the
+    tables, plans the samples (finished ones are skipped, unless ``overwrite``)
+    and creates the output folders; Ray Data carries only sample records (token,
+    channels, output paths). Each actor reads the tables once and completes its
+    samples with the local engine's per-sample path
+    (:func:`jaxdepth.batch.nuscenes_job.complete_samples`), reading the LiDAR files
+    and writing the PNGs itself.
+
+    Args:
+      dataroot, dst, version, sweeps, ego_motion, config, overwrite, png_compression, extras,
+        on_progress, tables: as in :func:`~jaxdepth.batch.nuscenes_job.run_nuscenes` (``tables``
+        is used by the driver only; every actor reads its own from ``dataroot``).
+      batch_size: samples per Ray Data batch (default 4): an actor loads the next samples of
+        its batch while completing one; smaller batches balance the actors more finely.
+      address, num_actors, cpus_per_actor, gpus_per_actor, max_restarts, max_task_retries,
+        runtime_env: as in :func:`run_jobs_ray`. ``dataroot`` and ``dst`` must be visible
+        under the same path on every node.
+
+    Returns:
+      :class:`jaxdepth.batch.runner.RunSummary` over sample tokens.
+
+    Raises:
+      ImportError: Ray Data is not installed (``pip install 'jaxdepth[ray]'``).
+      ValueError: bad ``sweeps``, ``batch_size`` or ``num_actors``.
+      InputError: the version folder or one of its tables is missing or malformed.
+      OutputError: an output folder cannot be created.
+      ray.exceptions.RayError: the cluster failed beyond the retries (bad samples never raise).
+    """
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.extras import NONE
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
+
+    if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
+        raise ValueError(f"run_nuscenes_ray: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
+    if int(batch_size) < 1:
+        raise ValueError(f"run_nuscenes_ray: field 'batch_size' expected >= 1, got {batch_size}")
+    if num_actors is not None and int(num_actors) < 1:
+        raise ValueError(f"run_nuscenes_ray: field 'num_actors' expected >= 1 or None, got {num_actors}")
+    ray, ray_data = _import_ray()
+    extras = NONE if extras is None else extras
+    summary = RunSummary(started_at=time.perf_counter())
+    notify = on_progress or (lambda name, status: None)
+    tables = nusc.load_tables(dataroot, version) if tables is None else tables
+    # absolute on the driver: the actors' working folder is not the driver's
+    dataroot, dst = pathlib.Path(dataroot).absolute(), pathlib.Path(dst).absolute()
+    todo = nuscenes_job.plan(tables, dst, overwrite=overwrite, summary=summary, notify=notify, extras=extras)
+    if not todo:
+        return summary
+    nuscenes_job.make_folders(todo)
+    options = dict(dataroot=os.fspath(dataroot), version=version, sweeps=sweeps, ego_motion=ego_motion,
+                   config=SGMConfig() if config is None else config, extras=extras, overwrite=overwrite,
+                   png_compression=DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression)
+    with _connected(ray, address, runtime_env):
+        _run_pool(ray, ray_data, [_sample_record(job) for job in todo], _CompleteSamples, summary, notify,
+                  batch_size=int(batch_size), num_actors=num_actors, cpus_per_actor=cpus_per_actor,
+                  gpus_per_actor=gpus_per_actor, max_restarts=max_restarts, max_task_retries=max_task_retries,
+                  constructor_kwargs=options)
+    return summary
+
+
+__all__ = ["run_jobs_ray", "complete_folder_ray", "run_nuscenes_ray"]
