@@ -150,7 +150,7 @@ ZOO = {
 def zoo_frame(name, seed, scale):
     """(points, rig cameras, dense depths, stated origin or None) of one zoo entry, points in its frame."""
     from jaxdepth._src import synthetic
-    from jaxdepth.io import Rig, RigCamera
+    from jaxdepth.io import RigCamera
     entry = ZOO[name]
     scene = synthetic.street_scene_arrays(seed)
     rays = jnp.asarray(entry["rays"](), jnp.float32)
@@ -177,19 +177,35 @@ def zoo_frame(name, seed, scale):
     return points.astype(np.float32), rig_cams, depths, origin
 
 
-def zoo_rows(config, seeds, scale):
+def prepared_zoo_frame(name, seed, scale):
+    """(the sweep put through :func:`jaxdepth.io.prepare_sweep` as the CLI does, rig cameras, dense
+    depths) of one zoo entry. The rig states beams only (a spec-sheet number); the sweep check
+    does the rest."""
     from jaxdepth.io import Rig
+    points, cams, depths, origin = zoo_frame(name, seed, scale)
+    rig = Rig(lidar=jaxdepth.io.default_lidar_spec(ZOO[name]["beams"]), cameras=cams, lidar_origin_m=origin,
+              lidar_stated=frozenset({"beams"}))
+    return prepare_sweep(points, rig), cams, depths
+
+
+def write_results(path, doc: dict, config, t0: float) -> None:
+    """``doc`` plus the config, run time and environment, atomically as JSON at ``path``."""
+    from jaxdepth.io.atomic import atomic_write_bytes
+    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test}, **doc,
+           "seconds": time.time() - t0,
+           "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
+    out = pathlib.Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())
+
+
+def zoo_rows(config, seeds, scale):
     rows = {}
     for name, entry in ZOO.items():
         per = {m: [] for m in METHODS}
         notes = None
         for seed in seeds:
-            points, cams, depths, origin = zoo_frame(name, seed, scale)
-            beams = entry["beams"]
-            # The rig states beams only (a spec-sheet number); the sweep check does the rest.
-            rig = Rig(lidar=jaxdepth.io.default_lidar_spec(beams), cameras=cams, lidar_origin_m=origin,
-                      lidar_stated=frozenset({"beams"}))
-            prepared = prepare_sweep(points, rig)
+            prepared, cams, depths = prepared_zoo_frame(name, seed, scale)
             notes = list(prepared.notes)
             cfg = config if prepared.outlier_removal_trusted else config.replace(outlier_removal=False)
             padded, valid = jaxdepth.io.pad_points(prepared.points)
@@ -241,15 +257,7 @@ def main(argv=None) -> int:
               for b in ("nearest", "nearest_l2")]
         print(f"{name[:58]:58s}" + "".join(f"{scores[m]['rmse']:>11.1f} /{scores[m]['mae']:>7.1f}" for m in METHODS)
               + "  " + " / ".join("yes" if o else "NO" for o in ok))
-    out = pathlib.Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test},
-           "rows": {k: {"scores": v[0], **v[1]} for k, v in rows.items()},
-           "seconds": time.time() - t0,
-           "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    os.replace(tmp, out)
+    write_results(args.json, {"rows": {k: {"scores": v[0], **v[1]} for k, v in rows.items()}}, config, t0)
     return 0
 
 

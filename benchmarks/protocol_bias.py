@@ -23,14 +23,10 @@ Nothing here chooses a default.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import pathlib
-import platform
 import sys
 import time
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -39,12 +35,12 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_rigs import ZOO, zoo_frame  # noqa: E402
+from accuracy_rigs import prepared_zoo_frame, write_results  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
 from jaxdepth.research.hidden import hidden_point_mask  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
-from jaxdepth.io import Rig, pad_points, prepare_sweep  # noqa: E402
+from jaxdepth.io import pad_points  # noqa: E402
 
 METHODS = ("sgm", "sgm_no_removal", "nearest", "ip_basic")
 PROTOCOLS = ("held-out target", "exact at held-out pixels", "exact dense")
@@ -55,10 +51,7 @@ def sensor_scores(name, zoo_seeds, hidden_seeds, scale, config):
     acc = {}
     wrong = total = 0
     for zoo_seed in zoo_seeds:
-        points, cams, depths, origin = zoo_frame(name, zoo_seed, scale)
-        rig = Rig(lidar=jaxdepth.io.default_lidar_spec(ZOO[name]["beams"]), cameras=cams, lidar_origin_m=origin,
-                  lidar_stated=frozenset({"beams"}))
-        prepared = prepare_sweep(points, rig)
+        prepared, cams, depths = prepared_zoo_frame(name, zoo_seed, scale)
         cfg = config if prepared.outlier_removal_trusted else config.replace(outlier_removal=False)
         padded, valid = pad_points(prepared.points)
         valid &= np.linalg.norm(padded, axis=1) >= 1.0          # as hidden-eval (min_range_m)
@@ -112,15 +105,8 @@ def main(argv=None) -> int:
             best = min(METHODS, key=lambda m: s[m]["mae"])
             print(f"  {proto:26s}" + "".join(f"  {m} {s[m]['rmse']:7.1f}/{s[m]['mae']:6.1f}" for m in METHODS)
                   + f"   lowest MAE: {best}")
-    out = pathlib.Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test},
-           "fraction_hidden": 0.2, "zoo_seeds": args.zoo_seeds, "hidden_seeds": args.hidden_seeds,
-           "zoo_scale": args.zoo_scale, "rows": rows, "seconds": time.time() - t0,
-           "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    os.replace(tmp, out)
+    write_results(args.json, {"fraction_hidden": 0.2, "zoo_seeds": args.zoo_seeds, "hidden_seeds": args.hidden_seeds,
+                              "zoo_scale": args.zoo_scale, "rows": rows}, config, t0)
     return 0
 
 

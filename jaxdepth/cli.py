@@ -291,7 +291,7 @@ def _cmd_complete_nuscenes(args) -> int:
 
 def cmd_complete_rig(args) -> int:
     import jaxdepth
-    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json, write_depth_png
+    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
     from jaxdepth.io.points import ring_column
 
     from jaxdepth.batch import extras as extra_outputs
@@ -320,14 +320,11 @@ def cmd_complete_rig(args) -> int:
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
-        import functools
-        import jax
-        from jaxdepth._src.validity import validity_and_distance
-        per_camera = functools.partial(validity_and_distance, lidar=rig.lidar, metric=config.distance_metric,
-                                       max_seed_distance_px=extras.max_seed_distance_px)
-        valid, distance = (np.asarray(a) for a in jax.vmap(per_camera)(stages, cameras.K, cameras.T_cam_lidar))
+        from jaxdepth._src.validity import rig_validity_and_distance
+        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
+            stages, cameras, lidar=rig.lidar, metric=config.distance_metric,
+            max_seed_distance_px=extras.max_seed_distance_px))
     seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
-    failed = 0
     for i, camera in enumerate(rig.cameras):
         if seen[i] == 0:
             message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
@@ -340,17 +337,14 @@ def cmd_complete_rig(args) -> int:
             print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
             continue
         window = (i, slice(0, camera.height), slice(0, camera.width))
-        if extras == extra_outputs.NONE:
-            write_depth_png(target, depth[window])
-        else:
-            extra_outputs.write_outputs(target, depth[window], extras=extras,
-                                        valid=None if valid is None else valid[window],
-                                        distance=None if distance is None else distance[window],
-                                        overwrite=args.overwrite)
+        extra_outputs.write_outputs(target, depth[window], extras=extras,
+                                    valid=None if valid is None else valid[window],
+                                    distance=None if distance is None else distance[window],
+                                    overwrite=args.overwrite)
         if not args.quiet:
             valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
             print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
-    return 1 if failed else 0
+    return 0
 
 
 def cmd_eval(args) -> int:

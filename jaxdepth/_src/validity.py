@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.geometry import pixel_rays
 from jaxdepth._src.types import LidarSpec, Stages
 
 _METRICS = ("l1", "l2")
@@ -55,8 +56,7 @@ def ray_elevation(K: jax.Array, T_cam_lidar: jax.Array, *, height: int, width: i
     R = jnp.asarray(T_cam_lidar, jnp.float32)[:3, :3]
     v, u = jnp.meshgrid(jnp.arange(height, dtype=jnp.float32), jnp.arange(width, dtype=jnp.float32),
                         indexing="ij")
-    y = (v - K[1, 2]) / K[1, 1]
-    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    x, y = pixel_rays(K, v, u)
     # d_lidar = R^T d_cam: component i is column i of R dotted with (x, y, 1).
     d = x[None] * R[0][:, None, None] + y[None] * R[1][:, None, None] + R[2][:, None, None]
     return jnp.arctan2(d[2], jnp.hypot(d[0], d[1]))
@@ -119,6 +119,16 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
     distance = seed_distance(stages.du, stages.dv, stages.seed_depth, metric=metric)
     inside = fov_mask(K, T_cam_lidar, height=h, width=w, lidar=lidar)
     return inside & (distance <= jnp.float32(max_seed_distance_px)), distance
+
+
+def rig_validity_and_distance(stages: Stages, cameras, *, lidar: LidarSpec, metric: str = _DEFAULT_METRIC,
+                              max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX):
+    """:func:`validity_and_distance` of every camera of a rig: ``stages`` with (C, H, W) fields
+    (:func:`jaxdepth.complete_rig_stages`) and ``cameras`` a :class:`~jaxdepth.RigCameras`;
+    returns (C, H, W) ``(valid, distance)``."""
+    per_camera = functools.partial(validity_and_distance, lidar=lidar, metric=metric,
+                                   max_seed_distance_px=max_seed_distance_px)
+    return jax.vmap(per_camera)(stages, cameras.K, cameras.T_cam_lidar)
 
 
 def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,

@@ -84,13 +84,12 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
     import jax
 
     from jaxdepth._src.rig import complete_rig_stages
-    from jaxdepth._src.validity import validity_and_distance
+    from jaxdepth._src.validity import rig_validity_and_distance
 
     def depth(points, valid, cameras):
         stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
-        per_camera = functools.partial(validity_and_distance, lidar=lidar, metric=config.distance_metric,
-                                       max_seed_distance_px=max_seed_distance_px)
-        return (stages.depth,) + jax.vmap(per_camera)(stages, cameras.K, cameras.T_cam_lidar)
+        return (stages.depth,) + rig_validity_and_distance(stages, cameras, lidar=lidar, metric=config.distance_metric,
+                                                           max_seed_distance_px=max_seed_distance_px)
 
     return jax.jit(depth)
 
@@ -212,13 +211,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
 
 def make_folders(todo) -> None:
     """Creates the output folders of the planned samples (OutputError naming the folder)."""
-    from jaxdepth.io.errors import OutputError
+    from jaxdepth.io.atomic import make_output_folders
 
-    for folder in sorted({p.parent for job in todo for p in job.out_paths}):
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
+    make_output_folders(p for job in todo for p in job.out_paths)
 
 
 def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: bool, config, extras,
@@ -241,9 +236,9 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")
-        for count, (job, loaded) in enumerate(loaded_samples):
-            if isinstance(loaded, str):
-                run.fail(job.token, loaded)
+        for count, (job, (loaded, message)) in enumerate(loaded_samples):
+            if message is not None:
+                run.fail(job.token, message)
                 continue
             padded, valid, rig, _ = loaded
             cameras = stack_cameras([c.as_camera() for c in rig.cameras])
@@ -276,22 +271,19 @@ class _SampleRun:
 
     def write(self, job, rig, depth, valid=None, distance=None):
         from jaxdepth.batch import extras as extra_outputs
-        from jaxdepth.io.depth_png import write_depth_png
+        from jaxdepth.batch.runner import write_failure
         by_name = {c.name: (i, c) for i, c in enumerate(rig.cameras)}
-
-        def write_files():
-            for channel, path in zip(job.channels, job.out_paths):
-                i, cam = by_name[channel]
-                window = (i, slice(0, cam.height), slice(0, cam.width))
-                if self.extras == extra_outputs.NONE:
-                    write_depth_png(path, depth[window], compression=self.png_compression)
-                else:
-                    extra_outputs.write_outputs(path, depth[window], extras=self.extras, overwrite=self.overwrite,
-                                                valid=None if valid is None else valid[window],
-                                                distance=None if distance is None else distance[window],
-                                                compression=self.png_compression)
-
-        self.ledger.write(job.token, job.out_paths[0], write_files)
+        for channel, path in zip(job.channels, job.out_paths):
+            i, cam = by_name[channel]
+            window = (i, slice(0, cam.height), slice(0, cam.width))
+            message = write_failure(path, lambda: extra_outputs.write_outputs(
+                path, depth[window], extras=self.extras, overwrite=self.overwrite,
+                valid=None if valid is None else valid[window],
+                distance=None if distance is None else distance[window], compression=self.png_compression))
+            if message is not None:
+                self.ledger.fail(job.token, message)
+                return
+        self.ledger.done(job.token)
 
     def collect(self, writers):
         job, rig, out = self.in_flight.popleft()

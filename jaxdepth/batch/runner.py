@@ -24,7 +24,6 @@ import concurrent.futures as cf
 import dataclasses
 import functools
 import logging
-import os
 import pathlib
 import collections
 import itertools
@@ -33,7 +32,6 @@ import time
 from typing import Callable, Iterable, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
@@ -43,7 +41,7 @@ from jaxdepth._src.methods import complete_with
 from jaxdepth._src.types import LidarSpec
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
-from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png, write_depth_png
+from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png
 
 log = logging.getLogger("jaxdepth")
 
@@ -403,9 +401,9 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,
                         png_compression=png_compression)
-        for job, loaded in read_ahead(todo, readers, window=max(2 * batch_size, 4)):
-            if isinstance(loaded, str):
-                run.record_failure(job.name, loaded)
+        for job, (loaded, message) in read_ahead(todo, readers, window=max(2 * batch_size, 4)):
+            if message is not None:
+                run.record_failure(job.name, message)
                 continue
             depth, K = loaded
             key = _group_key(job, depth)
@@ -419,28 +417,48 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     return summary
 
 
-def read_ahead(todo: Sequence, readers: cf.Executor, *, window: int, load: Callable = None,
-               os_error: Callable = lambda job, err: f"{job.sparse_path}: {err}"):
-    """Yields (job, load(job)) in job order, or (job, message) for an input that cannot be read
-    (a :class:`~jaxdepth.io.errors.JaxdepthError`, or an ``OSError`` worded by ``os_error``);
-    at most ``window`` inputs are loaded ahead on ``readers``, so memory stays bounded.
+def _sparse_path_error(job, err: OSError) -> str:
+    return f"{job.sparse_path}: {err}"
+
+
+def try_load(job, load: Callable | None = None, os_error: Callable = _sparse_path_error):
+    """``(load(job), None)``, or ``(None, message)`` for an input that cannot be read (a
+    :class:`~jaxdepth.io.errors.JaxdepthError`, or an ``OSError`` worded by ``os_error``).
     ``load`` defaults to reading a :class:`FrameJob`'s sparse input (depth, K)."""
-    load = _load if load is None else load
+    try:
+        return (_load if load is None else load)(job), None
+    except io_errors.JaxdepthError as err:
+        return None, str(err)
+    except OSError as err:
+        return None, os_error(job, err)
+
+
+def write_failure(path, write: Callable[[], object]) -> str | None:
+    """Runs ``write()``; None when it succeeded, else the failure message (an ``OSError`` says
+    that ``path`` cannot be written)."""
+    try:
+        write()
+    except io_errors.JaxdepthError as err:
+        return str(err)
+    except OSError as err:
+        return f"{path}: cannot write ({err.strerror or err})"
+    return None
+
+
+def read_ahead(todo: Sequence, readers: cf.Executor, *, window: int, load: Callable | None = None,
+               os_error: Callable = _sparse_path_error):
+    """Yields :func:`try_load`'s ``(job, (value, message))`` in job order; at most ``window``
+    inputs are loaded ahead on ``readers``, so memory stays bounded."""
     futures = collections.deque()
     jobs_iter = iter(todo)
     for job in itertools.islice(jobs_iter, window):
-        futures.append((job, readers.submit(load, job)))
+        futures.append((job, readers.submit(try_load, job, load, os_error)))
     while futures:
         job, fut = futures.popleft()
         nxt = next(jobs_iter, None)
         if nxt is not None:
-            futures.append((nxt, readers.submit(load, nxt)))
-        try:
-            yield job, fut.result()
-        except io_errors.JaxdepthError as err:
-            yield job, str(err)
-        except OSError as err:
-            yield job, os_error(job, err)
+            futures.append((nxt, readers.submit(try_load, nxt, load, os_error)))
+        yield job, fut.result()
 
 
 class Ledger:
@@ -455,17 +473,8 @@ class Ledger:
             self.summary.failed.append((name, message))
         self.notify(name, f"failed: {message}")
 
-    def write(self, name: str, path, write_files: Callable[[], None]) -> None:
-        """Runs ``write_files()`` and records ``name`` as done, or as failed with the error (an
-        ``OSError`` names the file it hit, else ``path``); the first output's time is kept."""
-        try:
-            write_files()
-        except io_errors.JaxdepthError as err:
-            self.fail(name, str(err))
-            return
-        except OSError as err:
-            self.fail(name, f"{err.filename or path}: cannot write ({err.strerror or err})")
-            return
+    def done(self, name: str) -> None:
+        """Records ``name`` as done; the first output's time is kept."""
         with self.lock:
             self.summary.done.append(name)
             if self.summary.first_output_at is None:
@@ -489,15 +498,13 @@ class _BatchRun:
 
     def write(self, job, depth, valid=None, distance=None):
         from jaxdepth.batch import extras as extra_outputs
-
-        def write_files():
-            if self.extras == extra_outputs.NONE:
-                write_depth_png(job.out_path, depth, compression=self.png_compression)
-            else:
-                extra_outputs.write_outputs(job.out_path, depth, extras=self.extras, valid=valid, distance=distance,
-                                            overwrite=self.overwrite, compression=self.png_compression)
-
-        self.ledger.write(job.name, job.out_path, write_files)
+        message = write_failure(job.out_path, lambda: extra_outputs.write_outputs(
+            job.out_path, depth, extras=self.extras, valid=valid, distance=distance, overwrite=self.overwrite,
+            compression=self.png_compression))
+        if message is None:
+            self.ledger.done(job.name)
+        else:
+            self.ledger.fail(job.name, message)
 
     def collect(self):
         items, out = self.in_flight.pop()

@@ -141,9 +141,9 @@ class _CompleteFrames:
     row per frame: ``name``, ``status`` ("done" or "failed") and ``message``
     (empty when done). A bad input, a failed computation or a failed write is a
     "failed" row, never an exception, so one bad frame cannot fail the dataset.
-    Outputs are written atomically (:func:`jaxdepth.io.depth_png.write_depth_png`),
-    replacing a file left by an earlier attempt of the same task, so a retried
-    task is idempotent.
+    Outputs are written atomically (:func:`jaxdepth.batch.extras.write_outputs`); a file an
+    earlier attempt of the same task finished is kept (same bytes) unless ``overwrite``, so a
+    retried task is idempotent.
     """
 
     def __init__(self, *, method: str, config: SGMConfig, lidar: LidarSpec, T_cam_lidar: np.ndarray,
@@ -170,31 +170,13 @@ class _CompleteFrames:
         self.io_threads = max(1, int(io_threads))
 
     def _read(self, job):
-        from jaxdepth.io import errors as io_errors
-
-        try:
-            return self._runner._load(job), None
-        except io_errors.JaxdepthError as err:
-            return None, str(err)
-        except OSError as err:
-            return None, f"{job.sparse_path}: {err}"
+        return self._runner.try_load(job)
 
     def _write(self, job, depth, valid=None, distance=None) -> str | None:
         from jaxdepth.batch import extras as extra_outputs
-        from jaxdepth.io import errors as io_errors
-        from jaxdepth.io.depth_png import write_depth_png
 
-        try:
-            if self.extras == extra_outputs.NONE:
-                write_depth_png(job.out_path, depth)
-            else:
-                extra_outputs.write_outputs(job.out_path, depth, extras=self.extras, valid=valid,
-                                            distance=distance, overwrite=self.overwrite)
-        except io_errors.JaxdepthError as err:
-            return str(err)
-        except OSError as err:
-            return f"{job.out_path}: cannot write ({err.strerror or err})"
-        return None
+        return self._runner.write_failure(job.out_path, lambda: extra_outputs.write_outputs(
+            job.out_path, depth, extras=self.extras, valid=valid, distance=distance, overwrite=self.overwrite))
 
     def __call__(self, batch: dict[str, Any]) -> dict[str, np.ndarray]:
         jobs = _jobs_from_batch(batch)

@@ -155,6 +155,24 @@ def atomic_write_bytes(path: PathLike, data: bytes, *, overwrite: bool = True) -
     return path
 
 
+def make_output_folders(paths) -> int:
+    """Creates the parent folder of every output path (writers write into existing folders only).
+
+    Returns:
+      The number of distinct folders.
+
+    Raises:
+      OutputError: a folder cannot be created (named).
+    """
+    folders = sorted({pathlib.Path(p).parent for p in paths})
+    for folder in folders:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
+    return len(folders)
+
+
 def encode_png(array: np.ndarray) -> bytes:
     """Encodes an image as PNG bytes with OpenCV (fixed settings: deterministic bytes).
 

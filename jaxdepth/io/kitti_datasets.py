@@ -429,23 +429,11 @@ def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, c
 
 
 def make_output_folders(jobs) -> int:
-    """Creates the output folder of every job (the runner writes into existing folders only).
+    """Creates the output folder of every job (:func:`jaxdepth.io.atomic.make_output_folders`);
+    returns the number of distinct folders, OutputError naming one that cannot be created."""
+    from jaxdepth.io.atomic import make_output_folders as make_parent_folders
 
-    Returns:
-      The number of distinct folders.
-
-    Raises:
-      OutputError: a folder cannot be created (named).
-    """
-    from jaxdepth.io.errors import OutputError
-
-    folders = sorted({pathlib.Path(job.out_path).parent for job in jobs})
-    for folder in folders:
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
-    return len(folders)
+    return make_parent_folders(job.out_path for job in jobs)
 
 
 def unknown_layout_message(src: PathLike) -> str:
