@@ -59,6 +59,10 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                    help="nearest-seed metric of the distance transform (default: l1, city block as in the paper; "
                         "l2: Euclidean, SGM 1.5-1.8x slower)")
     p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
+    p.add_argument("--hypotheses", choices=("paper", "bracket", "blend"), default="bracket",
+                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
+                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
+                        "scan-line spacing), blend (also average in those pixels' own planes)")
     p.add_argument("--guidance-weight", type=float, default=0.0, metavar="W",
                    help="image-guided seeds (beyond the paper): geodesic seed search on the camera image with this "
                         "colour weight (default 0: off, the paper's LiDAR-only SGM)")
@@ -73,6 +77,9 @@ def _config_from(args):
         changes["outlier_removal"] = args.outlier_removal
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
+    if getattr(args, "hypotheses", None) is not None:
+        changes["column_bracket"] = args.hypotheses != "paper"
+        changes["blend_hypotheses"] = args.hypotheses == "blend"
     if getattr(args, "guidance_weight", None):
         changes["guidance_weight"] = args.guidance_weight
     if getattr(args, "guidance_sweeps", None) is not None:

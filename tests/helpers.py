@@ -36,3 +36,49 @@ def write_kitti_folder(root: pathlib.Path, frames, *, names=None) -> pathlib.Pat
         write_depth_png(root / "velodyne_raw" / f"{name}.png", depth)
         (root / "intrinsics" / f"{name}.txt").write_text(" ".join(f"{x:.6f}" for x in K.reshape(-1)) + "\n")
     return root
+
+
+def numpy_column_hypotheses(depth_raw, kept, window, *, seed_distance=None, normals=None, K=None, blend=False,
+                            min_abs_denom=0.01, max_residual_ratio=0.5):
+    """Column bracket (and blend) of jaxdepth._src.hypotheses in float64 NumPy, vectorised with
+    running max / min of row indices (an algorithm unlike the library's scan); tests/test_hypotheses.py
+    checks it against a per-pixel walk."""
+    depth_raw = np.asarray(depth_raw, np.float64)
+    kept = np.asarray(kept, np.float64)
+    h, w = kept.shape
+    rows = np.arange(h)[:, None]
+    cols = np.arange(w)[None, :]
+    has = kept > 0
+    up = np.maximum.accumulate(np.where(has, rows, -1), axis=0)
+    dn = np.minimum.accumulate(np.where(has, rows, h)[::-1], axis=0)[::-1]
+    gap_up = np.where(up >= 0, rows - up, -1)
+    gap_dn = np.where(dn < h, dn - rows, -1)
+    up_c, dn_c = np.clip(up, 0, h - 1), np.clip(dn, 0, h - 1)
+    z_up = np.where(up >= 0, kept[up_c, cols], 0.0)
+    z_dn = np.where(dn < h, kept[dn_c, cols], 0.0)
+    ok = (gap_up >= 0) & (gap_up <= window) & (gap_dn >= 0) & (gap_dn <= window) & (depth_raw > 0)
+    lo, hi = np.minimum(z_up, z_dn), np.maximum(z_up, z_dn)
+    out = np.where(ok, np.clip(depth_raw, lo, hi), depth_raw)
+    if not blend:
+        return out
+    K = np.asarray(K, np.float64)
+    normals = np.asarray(normals, np.float64)
+    v, u = np.broadcast_to(rows, (h, w)), np.broadcast_to(cols, (h, w))
+    denom_base = lambda n: (u - K[0, 2]) / K[0, 0] * n[0] + (v - K[1, 2]) / K[1, 1] * n[1] + n[2]
+
+    def hypothesis(z, row, dv):
+        n = normals[:, row, cols]
+        denom = denom_base(n)
+        good = (np.abs(denom) > min_abs_denom) & (z > 0)
+        dz = np.where(good, z * dv * n[1] / K[1, 1] / np.where(good, denom, 1.0), 0.0)
+        return z + np.clip(dz, -max_residual_ratio * z, max_residual_ratio * z)
+
+    h_up = hypothesis(z_up, up_c, -gap_up)
+    h_dn = hypothesis(z_dn, dn_c, gap_dn)
+    w_up = np.where(ok & (h_up >= lo) & (h_up <= hi), 1.0 / np.maximum(gap_up, 1), 0.0)
+    w_dn = np.where(ok & (h_dn >= lo) & (h_dn <= hi), 1.0 / np.maximum(gap_dn, 1), 0.0)
+    dist = np.asarray(seed_distance, np.float64)
+    at_seed = dist <= 0
+    w_0 = 1.0 / np.where(at_seed, 1.0, dist)
+    blended = (w_0 * out + w_up * h_up + w_dn * h_dn) / (w_0 + w_up + w_dn)
+    return np.where(at_seed, out, blended)

@@ -34,6 +34,8 @@ from jaxdepth._src.pipeline import complete, complete_stages
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.types import Camera, LidarSpec
 
+from helpers import numpy_column_hypotheses
+
 SMALL_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
 
 
@@ -61,6 +63,13 @@ def reference_stages(sparse, K, T, *, config: SGMConfig, lidar: LidarSpec) -> di
     seed_depth, residual, keep = (np.asarray(a) for a in (seed_depth, residual, keep))
     has_seed = seed_depth > 0
     depth_raw = np.where(has_seed, np.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
+    if config.column_bracket:
+        du, dv = np.asarray(seeds.du, np.float64), np.asarray(seeds.dv, np.float64)
+        distance = np.abs(du) + np.abs(dv) if config.distance_metric == "l1" else np.hypot(du, dv)
+        depth_raw = numpy_column_hypotheses(
+            depth_raw.astype(np.float32), np.where(keep, sparse, 0.0), h / lidar.beams, seed_distance=distance,
+            normals=np.asarray(normals), K=np.asarray(K), blend=config.blend_hypotheses,
+            min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio)
     depth_raw = depth_raw.astype(np.float32)
     r = config.smoothing_radius_px
     depth = cv2.GaussianBlur(depth_raw, (2 * r + 1, 2 * r + 1), config.smoothing_sigma_px,
@@ -94,7 +103,8 @@ def small_frame(seed, f=120.0, h=96, w=160):
     return np.asarray(depth), K, T.astype(np.float32)
 
 
-@pytest.mark.parametrize("config", [SGMConfig(), SGMConfig(outlier_removal=False, distance_metric="l2"),
+@pytest.mark.parametrize("config", [SGMConfig(), SGMConfig(outlier_removal=False, distance_metric="l2",
+                                                           blend_hypotheses=True),
                                     SGMConfig(smoothing_sigma_px=0.0, keep_measured_depth=False)])
 def test_synthetic_frame_equals_reference(config):
     sparse, K, T = small_frame(0)

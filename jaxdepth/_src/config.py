@@ -50,6 +50,16 @@ class SGMConfig:
         a denominator of about 1.65 / distance, so 0.01 keeps the residual up to
         ~165 m; 0.05 would switch it off beyond ~33 m.
       max_residual_ratio: |Delta z| is clipped to this fraction of z'.
+      column_bracket: beyond the paper (issue 13). Each pixel's plane
+        prediction is clipped to the depth range of its nearest kept LiDAR
+        pixels straight above and below, when both lie within the paper's
+        vertical window H / L (one scan-line spacing): on a plane the depth
+        between two of its points along an image column lies between theirs
+        (:mod:`~jaxdepth._src.hypotheses`). False gives the paper's Step 4.
+      blend_hypotheses: beyond the paper (issue 16). Also average in the
+        plane predictions of those two column neighbours, where they fall in
+        the bracket, weighted by 1 / image distance to each seed. Needs
+        ``column_bracket``.
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
         The paper gives no value; the default 1.4 with radius 3 is OpenCV's
         ``GaussianBlur(depth, (7, 7), 0)``.
@@ -79,6 +89,8 @@ class SGMConfig:
     range_fill_max_gap: int = 2
     min_abs_denom: float = 0.01
     max_residual_ratio: float = 0.5
+    column_bracket: bool = True
+    blend_hypotheses: bool = False
     smoothing_sigma_px: float = 1.4
     smoothing_radius_px: int = 3
     keep_measured_depth: bool = True
@@ -116,6 +128,9 @@ class SGMConfig:
                 or self.guidance_sweeps < 1:
             raise ValueError(
                 f"SGMConfig: field 'guidance_sweeps' expected an integer >= 1, got {self.guidance_sweeps!r}")
+        if self.blend_hypotheses and not self.column_bracket:
+            raise ValueError("SGMConfig: field 'blend_hypotheses' expected with column_bracket=True "
+                             "(the blend keeps only hypotheses inside the bracket), got column_bracket=False")
         if self.min_abs_denom <= 0:
             raise ValueError(f"SGMConfig: field 'min_abs_denom' expected > 0, got {self.min_abs_denom!r}")
 

@@ -29,6 +29,7 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed, guidance_image
 from jaxdepth._src.geometry import project_to_image, transform_points
+from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
@@ -74,6 +75,14 @@ def _seeds(keep, image, config: SGMConfig):
     return nearest_seed(keep, metric=config.distance_metric)
 
 
+def _seed_distance(du, dv, metric: str):
+    """Image-plane distance to the seed in pixels, in the seed search's metric."""
+    du, dv = du.astype(jnp.float32), dv.astype(jnp.float32)
+    if metric == "l1":
+        return jnp.abs(du) + jnp.abs(dv)
+    return jnp.sqrt(du * du + dv * dv)
+
+
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
                    config: SGMConfig, image=None) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
@@ -90,6 +99,15 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
                               max_residual_ratio=config.max_residual_ratio)
     has_seed = seed_depth > 0
     depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
+    if config.column_bracket:
+        # Fenced: the bracket reads the kept depths at several row offsets and
+        # the prediction twice; XLA would re-run their producers (gathers) there.
+        depth_raw, kept_depth = fence(depth_raw, jnp.where(keep, sparse_depth, 0.0))
+        normals_read = fence(normals_cam)[0] if config.blend_hypotheses else normals_cam
+        depth_raw = column_hypotheses(
+            depth_raw, kept_depth, _seed_distance(du, dv, config.distance_metric),
+            normals_read, K, window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
+            min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)

@@ -18,7 +18,8 @@ from jaxdepth._src.pipeline import complete_stages
 from jaxdepth._src import presets
 from jaxdepth._src.types import LidarSpec
 
-STEPS = ("original input", "+ outlier removal", "+ distance transform", "+ residual", "+ smooth")
+STEPS = ("original input", "+ outlier removal", "+ distance transform", "+ residual", "+ column bracket",
+         "+ smooth")
 KEYS = ("rmse", "mae", "irmse", "imae")
 
 
@@ -40,12 +41,17 @@ def frame_ablation(sparse: np.ndarray, gt: np.ndarray, K: np.ndarray, T_cam_lida
     without = complete_stages(sparse, K, T_cam_lidar, config=config.replace(outlier_removal=False), lidar=lidar)
     kept = np.where(np.asarray(with_or.inlier_mask), sparse, 0.0)
     size = sparse.size
+    # The paper's Step 4a alone (z' + Delta z, clipped like the pipeline), before the column bracket.
+    seed = np.asarray(with_or.seed_depth)
+    paper_raw = np.where(seed > 0, np.clip(seed + np.asarray(with_or.residual), config.min_depth_m,
+                                           config.max_depth_m), 0.0).astype(np.float32)
     steps = {
         STEPS[0]: _row(pair_errors(sparse, gt), 100.0 * np.count_nonzero(sparse > 0) / size),
         STEPS[1]: _row(pair_errors(kept, gt), 100.0 * np.count_nonzero(kept > 0) / size),
         STEPS[2]: _row(depth_metrics(with_or.seed_depth, gt), 100.0 * np.count_nonzero(np.asarray(with_or.seed_depth) > 0) / size),
-        STEPS[3]: _row(depth_metrics(with_or.depth_raw, gt), 100.0 * np.count_nonzero(np.asarray(with_or.depth_raw) > 0) / size),
-        STEPS[4]: _row(depth_metrics(with_or.depth, gt), 100.0 * np.count_nonzero(np.asarray(with_or.depth) > 0) / size),
+        STEPS[3]: _row(depth_metrics(paper_raw, gt), 100.0 * np.count_nonzero(paper_raw > 0) / size),
+        STEPS[4]: _row(depth_metrics(with_or.depth_raw, gt), 100.0 * np.count_nonzero(np.asarray(with_or.depth_raw) > 0) / size),
+        STEPS[5]: _row(depth_metrics(with_or.depth, gt), 100.0 * np.count_nonzero(np.asarray(with_or.depth) > 0) / size),
     }
     return {
         "steps": steps,

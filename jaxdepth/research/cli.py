@@ -56,6 +56,9 @@ def _config(args):
     changes = {"distance_metric": args.distance}
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
+    if getattr(args, "hypotheses", None) is not None:
+        changes["column_bracket"] = args.hypotheses != "paper"
+        changes["blend_hypotheses"] = args.hypotheses == "blend"
     return SGMConfig(**changes)
 
 
@@ -63,6 +66,10 @@ def _add_config_options(p: argparse.ArgumentParser):
     p.add_argument("--distance", choices=("l1", "l2"), default="l1",
                    help="nearest-seed metric of the distance transform (default: l1, city block; l2: Euclidean)")
     p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
+    p.add_argument("--hypotheses", choices=("paper", "bracket", "blend"), default="bracket",
+                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
+                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
+                        "scan-line spacing), blend (also average in those pixels' own planes)")
 
 
 def _write_json(path, payload):

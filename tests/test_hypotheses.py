@@ -1,0 +1,186 @@
+"""Column bracket and blended hypotheses (Step 4b, beyond the paper): a brute-force NumPy
+oracle, exactness on analytic planes, the bound on a wrong normal, jit / vmap via _harness."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth._src.hypotheses import column_hypotheses, column_neighbours
+from jaxdepth._src.residual import plane_residual
+
+from _harness import check_stage
+from helpers import numpy_column_hypotheses
+
+K = np.array([[300.0, 0.0, 31.5], [0.0, 280.0, 20.2], [0.0, 0.0, 1.0]], np.float32)
+H, W = 40, 64
+
+
+def sparse_rows(h, w, rng, *, every=5, keep=0.6):
+    """A mask of scan-line-like rows (every ``every`` rows, random columns kept)."""
+    mask = np.zeros((h, w), bool)
+    mask[2::every] = rng.random((len(range(2, h, every)), w)) < keep
+    return mask
+
+
+def numpy_neighbour(kept, v, u, step):
+    """(gap, depth) of the nearest kept pixel from (v, u) walking rows by ``step``."""
+    r = v
+    while 0 <= r < kept.shape[0]:
+        if kept[r, u] > 0:
+            return abs(r - v), kept[r, u]
+        r += step
+    return -1, 0.0
+
+
+def numpy_bracket(depth_raw, kept, window):
+    out = depth_raw.astype(np.float64).copy()
+    for v in range(kept.shape[0]):
+        for u in range(kept.shape[1]):
+            gu, zu = numpy_neighbour(kept, v, u, -1)
+            gd, zd = numpy_neighbour(kept, v, u, +1)
+            if 0 <= gu <= window and 0 <= gd <= window and depth_raw[v, u] > 0:
+                out[v, u] = min(max(out[v, u], min(zu, zd)), max(zu, zd))
+    return out
+
+
+def test_column_neighbours_match_a_walk():
+    rng = np.random.default_rng(0)
+    kept = np.where(sparse_rows(H, W, rng), rng.uniform(2, 40, (H, W)), 0.0).astype(np.float32)
+    extra = rng.normal(size=(2, H, W)).astype(np.float32)
+    for above, step in ((True, -1), (False, 1)):
+        gap, depth, fields = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), jnp.asarray(extra),
+                                                                        above=above, max_gap=7))
+        for v in range(H):
+            for u in range(W):
+                g, z = numpy_neighbour(kept, v, u, step)
+                if g > 7:
+                    g, z = -1, 0.0
+                assert gap[v, u] == g and depth[v, u] == np.float32(z)
+                if g >= 0:
+                    r = v + step * g
+                    np.testing.assert_array_equal(fields[:, v, u], extra[:, r, u])
+
+
+def numpy_hypothesis(z, n, gap, v, u, K, sign):
+    """The paper's z' + Delta z from a seed ``gap`` rows above (sign -1) or below (+1), float64."""
+    dv = sign * gap
+    numer = z * dv * n[1] / K[1, 1]
+    denom = (u - K[0, 2]) / K[0, 0] * n[0] + (v - K[1, 2]) / K[1, 1] * n[1] + n[2]
+    dz = numer / denom if abs(denom) > 0.01 else 0.0
+    return z + np.clip(dz, -0.5 * z, 0.5 * z)
+
+
+def numpy_blend(depth_raw, kept, dist, normals, K, window):
+    out = numpy_bracket(depth_raw, kept, window)
+    for v in range(kept.shape[0]):
+        for u in range(kept.shape[1]):
+            gu, zu = numpy_neighbour(kept, v, u, -1)
+            gd, zd = numpy_neighbour(kept, v, u, +1)
+            if not (0 <= gu <= window and 0 <= gd <= window and depth_raw[v, u] > 0) or dist[v, u] <= 0:
+                continue
+            lo, hi = min(zu, zd), max(zu, zd)
+            total, weight = out[v, u] / dist[v, u], 1.0 / dist[v, u]
+            for g, z, sign in ((gu, zu, -1), (gd, zd, 1)):
+                hyp = numpy_hypothesis(z, normals[:, v + sign * g, u].astype(np.float64), g, v, u, K, sign)
+                if lo <= hyp <= hi:
+                    total, weight = total + hyp / max(g, 1), weight + 1.0 / max(g, 1)
+            out[v, u] = total / weight
+    return out
+
+
+@pytest.mark.parametrize("blend", [False, True])
+def test_stage_matches_oracle_jit_and_vmap(blend):
+    inputs = []
+    for seed in (1, 2):
+        rng = np.random.default_rng(seed)
+        kept = np.where(sparse_rows(H, W, rng), rng.uniform(2, 40, (H, W)), 0.0).astype(np.float32)
+        raw = rng.uniform(0.5, 60, (H, W)).astype(np.float32)
+        dist = rng.integers(0, 8, (H, W)).astype(np.float32)
+        normals = rng.normal(size=(3, H, W)).astype(np.float32)
+        normals /= np.linalg.norm(normals, axis=0)
+        inputs.append((raw, kept, dist, normals, K))
+    if blend:
+        oracle = lambda raw, kept, dist, normals, K_, **kw: numpy_blend(raw, kept, dist, normals, K, kw["window_px"])
+    else:
+        oracle = lambda raw, kept, dist, normals, K_, **kw: numpy_bracket(raw, kept, kw["window_px"])
+    outs = check_stage(column_hypotheses, inputs, static=dict(window_px=7.0, blend=blend), oracle=oracle,
+                       oracle_ulps=64, in_axes=(0, 0, 0, 0, None))
+    for (raw, kept, dist, normals, _), out in zip(inputs, outs):   # the vectorised oracle agrees with the walk
+        np.testing.assert_allclose(numpy_column_hypotheses(raw, kept, 7.0, seed_distance=dist, normals=normals, K=K,
+                                                           blend=blend), oracle(raw, kept, dist, normals, K,
+                                                                                window_px=7.0), rtol=1e-6)
+    for (raw, kept, *_), out in zip(inputs, outs):
+        assert (numpy_bracket(raw, kept, 7.0) != raw).mean() > 0.2   # random predictions often leave the bracket
+        assert not np.array_equal(np.asarray(out), raw)
+
+
+def plane_depth(n, d):
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)])
+    return d / np.tensordot(n, rays, axes=1)
+
+
+@pytest.mark.parametrize("blend", [False, True])
+@pytest.mark.parametrize("normal", [(0.0, -0.95, -0.3), (0.3, -0.2, -0.9)])
+def test_plane_stays_exact(normal, blend):
+    """A plane with exact normals: every hypothesis is the plane, the bracket and the blend change nothing."""
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    depth = plane_depth(n, -8.0)
+    rng = np.random.default_rng(3)
+    mask = sparse_rows(H, W, rng, every=4, keep=1.0)
+    kept = np.where(mask, depth, 0.0).astype(np.float32)
+    # the nearest seed of every pixel: the nearest row of the mask in its column (du = 0)
+    rows = np.flatnonzero(mask.any(1))
+    v = np.arange(H)
+    seed_row = rows[np.abs(v[:, None] - rows[None]).argmin(1)]
+    dv = np.broadcast_to((seed_row - v)[:, None], (H, W)).astype(np.int32)
+    seed = depth[seed_row][:, :]
+    normals = np.broadcast_to(n[:, None, None], (3, H, W)).astype(np.float32)
+    raw = seed + np.asarray(plane_residual(jnp.float32(seed), jnp.asarray(normals), jnp.zeros((H, W), jnp.int32),
+                                           jnp.asarray(dv), K, min_abs_denom=1e-6, max_residual_ratio=10.0))
+    out = column_hypotheses(jnp.float32(raw), jnp.asarray(kept), jnp.abs(jnp.float32(dv)), jnp.asarray(normals), K,
+                            window_px=4.0, blend=blend, min_abs_denom=1e-6, max_residual_ratio=10.0)
+    inner = (v >= rows[0]) & (v <= rows[-1])
+    np.testing.assert_allclose(np.asarray(out)[inner], depth[inner], rtol=3e-5)
+
+
+def test_wrong_normal_is_bounded_by_the_scan_lines():
+    """A fronto-parallel wall at 10 m given a badly tilted normal: the paper's extrapolation leaves
+    the wall by metres between scan lines, the bracket puts it back."""
+    depth = np.full((H, W), 10.0)
+    mask = sparse_rows(H, W, np.random.default_rng(4), every=6, keep=1.0)
+    kept = np.where(mask, depth, 0.0).astype(np.float32)
+    rows = np.flatnonzero(mask.any(1))
+    v = np.arange(H)
+    seed_row = rows[np.abs(v[:, None] - rows[None]).argmin(1)]
+    dv = np.broadcast_to((seed_row - v)[:, None], (H, W)).astype(np.int32)
+    wrong = np.broadcast_to((np.array([0.0, -0.97, -0.2431]))[:, None, None], (3, H, W)).astype(np.float32)
+    seed = np.full((H, W), 10.0, np.float32)
+    raw = seed + np.asarray(plane_residual(jnp.asarray(seed), jnp.asarray(wrong), jnp.zeros((H, W), jnp.int32),
+                                           jnp.asarray(dv), K))
+    inner = (v >= rows[0]) & (v <= rows[-1])
+    assert np.abs(raw - depth)[inner].max() > 0.3
+    for blend in (False, True):
+        out = column_hypotheses(jnp.asarray(raw, jnp.float32), jnp.asarray(kept), jnp.abs(jnp.float32(dv)),
+                                jnp.asarray(wrong), K, window_px=6.0, blend=blend)
+        np.testing.assert_allclose(np.asarray(out)[inner], 10.0, rtol=1e-6)
+
+
+def test_window_limits_the_bracket():
+    """Scan lines further apart than the window bound nothing."""
+    rng = np.random.default_rng(5)
+    kept = np.where(sparse_rows(H, W, rng, every=9, keep=1.0), 5.0, 0.0).astype(np.float32)
+    raw = np.full((H, W), 20.0, np.float32)
+    dist = np.ones((H, W), np.float32)
+    normals = np.zeros((3, H, W), np.float32)
+    out = np.asarray(column_hypotheses(jnp.asarray(raw), jnp.asarray(kept), jnp.asarray(dist),
+                                       jnp.asarray(normals), K, window_px=4.0))
+    np.testing.assert_array_equal(out, numpy_bracket(raw, kept, 4.0))
+    assert np.all(out[kept > 0] == 5.0)          # a LiDAR pixel is its own bracket
+    assert np.any(out == 20.0)                   # rows more than 4 from a line on either side keep theirs
+
+
+def test_blend_needs_the_bracket():
+    with pytest.raises(ValueError, match="blend_hypotheses"):
+        jaxdepth.SGMConfig(column_bracket=False, blend_hypotheses=True)
