@@ -30,7 +30,8 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
                                         complete_points as complete_points,
                                         complete_points_stages as complete_points_stages)
     from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
-                                   stack_images as stack_images, complete_rig as complete_rig, complete_rig_stages as complete_rig_stages)
+                                   stack_images as stack_images, complete_rig as complete_rig,
+                                   complete_rig_stages as complete_rig_stages)
     from jaxdepth._src.methods import complete_with as complete_with
     from jaxdepth._src.ip_basic import ip_basic as ip_basic
     from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,

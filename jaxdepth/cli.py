@@ -310,11 +310,16 @@ def cmd_complete_rig(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     extras = _extras_from(args)
+    config = _config_from(args)
+    if args.image_dir is not None and not config.guidance_weight > 0:
+        print("jaxdepth: error: --image-dir gives images for image-guided seeds: use it with --guidance-weight W > 0",
+              file=sys.stderr)
+        return 2
     rig = read_rig_json(args.rig)
+    images = _rig_images(args, rig) if config.guidance_weight > 0 else None
     columns = infer_point_columns(args.points, args.point_columns)
     points, extra = read_points(args.points, columns=columns)
     frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=not args.no_estimate)
-    config = _config_from(args)
     if not frame.outlier_removal_trusted and config.outlier_removal:
         config = config.replace(outlier_removal=False)
     if not args.quiet:
@@ -325,7 +330,7 @@ def cmd_complete_rig(args) -> int:
     out_dir = pathlib.Path(args.out_dir)
     _ensure_writable_dir(out_dir)
     cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar)
+    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
@@ -354,6 +359,14 @@ def cmd_complete_rig(args) -> int:
             valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
             print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
     return 0
+
+
+def _rig_images(args, rig):
+    """complete-rig's (C, H, W[, 3]) uint8 camera images: --image-dir, else the rig JSON's image fields."""
+    from jaxdepth.io.rig_images import read_rig_images, rig_image_paths
+    paths = rig_image_paths(rig.cameras, image_dir=args.image_dir, rig_json=args.rig,
+                            json_images={c.name: c.image for c in rig.cameras if c.image is not None})
+    return read_rig_images(paths, rig.cameras)
 
 
 def cmd_eval(args) -> int:
@@ -459,6 +472,10 @@ def _add_complete_rig_command(sub) -> None:
     p.add_argument("--no-estimate", action="store_true",
                    help="do not check the sweep against its LiDAR (see README, Rig JSON: lidar.origin_m)")
     _add_method_options(p, methods=("sgm",))
+    p.add_argument("--image-dir", default=None, metavar="DIR",
+                   help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
+                        "or colour, each the camera's width x height; all grey or all colour); default: each "
+                        "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli

@@ -138,3 +138,97 @@ def test_bad_images_name_the_field(stereo):
     with pytest.raises(ValueError, match=r"stack_images: field 'images\[1\]' expected dtype uint8 like images\[0\], "
                                          r"got float32"):
         stack_images([imgs[0], imgs[1].astype(np.float32)], cameras)
+
+
+# ---------------------------------------------------------------- jaxdepth complete-rig with images
+
+
+def _write_rig(folder, cams, frame, *, image_field=False):
+    """Points (.npy, x y z intensity), a rig JSON stating the LiDAR (no estimate) and one PNG per camera."""
+    import json
+
+    import cv2
+    points = np.asarray(frame.points)[np.asarray(frame.valid)]
+    np.save(folder / "sweep.npy", np.c_[points, np.zeros(len(points))].astype(np.float32))
+    names = [f"cam{i}" for i in range(len(cams))]
+    (folder / "images").mkdir()
+    imgs = _images(cams)
+    for name, img in zip(names, imgs):
+        cv2.imwrite(str(folder / "images" / f"{name}.png"), img[:, :, ::-1])  # RGB -> OpenCV's BGR
+    doc = {"lidar": {"beams": LIDAR.beams, "fov_up_deg": LIDAR.fov_up_deg, "fov_down_deg": LIDAR.fov_down_deg,
+                     "columns": LIDAR.columns, "origin_m": [0, 0, 0]},
+           "cameras": [dict({"name": name, "width": cam.width, "height": cam.height,
+                             "K": np.asarray(cam.K, float).tolist(), "T_cam_lidar": np.asarray(cam.T_cam_lidar,
+                                                                                              float).tolist()},
+                            **({"image": f"images/{name}.png"} if image_field else {}))
+                       for name, cam in zip(names, cams)]}
+    (folder / "rig.json").write_text(json.dumps(doc))
+    return names, imgs
+
+
+def test_cli_complete_rig_with_images_writes_the_api_result(stereo, tmp_path, capsys):
+    """--image-dir and the rig JSON's image fields give the same PNGs as complete_rig(..., images=) on the
+    library's path (read_rig_json -> prepare_sweep -> pad_points); without images the guided run is an
+    error naming the camera; --image-dir without a weight is a usage error."""
+    import cv2
+
+    from jaxdepth import cli
+    from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, read_rig_json
+    frame, cams = stereo
+    names, imgs = _write_rig(tmp_path, cams, frame, image_field=True)
+    rig = read_rig_json(tmp_path / "rig.json")
+    points, _ = read_points(tmp_path / "sweep.npy")
+    prepared = prepare_sweep(points, rig)
+    padded, valid = pad_points(prepared.points)
+    cameras = stack_cameras([c.as_camera() for c in prepared.rig.cameras])
+    want = np.asarray(complete_rig(padded, valid, cameras, lidar=prepared.rig.lidar, config=GUIDED,
+                                   images=stack_images(imgs, cameras)))
+    base = ["complete-rig", str(tmp_path / "sweep.npy"), str(tmp_path / "rig.json")]
+    guided = ["--guidance-weight", str(GUIDED.guidance_weight), "--guidance-sweeps", str(GUIDED.guidance_sweeps), "-q"]
+    assert cli.main(base + [str(tmp_path / "a"), "--image-dir", str(tmp_path / "images")] + guided) == 0
+    assert cli.main(base + [str(tmp_path / "b")] + guided) == 0  # the JSON's image fields
+    for i, name in enumerate(names):
+        expected = encode_depth_uint16(want[i])
+        for out in ("a", "b"):
+            got = cv2.imread(str(tmp_path / out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(got, expected, err_msg=f"{out}/{name}")
+    assert cli.main(base + [str(tmp_path / "c"), "--image-dir", str(tmp_path / "images"), "-q"]) == 2
+    assert "--image-dir gives images for image-guided seeds" in capsys.readouterr().err
+    (tmp_path / "images" / "cam1.png").unlink()
+    assert cli.main(base + [str(tmp_path / "d"), "--image-dir", str(tmp_path / "images")] + guided) == 1
+    assert "no image for camera cam1: expected one of cam1.png, cam1.jpg, cam1.jpeg" in capsys.readouterr().err
+    assert cli.main(base + [str(tmp_path / "d")] + guided) == 1
+    assert f"{tmp_path / 'images' / 'cam1.png'}: file not found" in capsys.readouterr().err
+
+
+def test_bad_image_files_name_the_file_and_what_was_expected(stereo, tmp_path):
+    import cv2
+
+    from jaxdepth.io import InputError, read_rig_json
+    from jaxdepth.io.rig_images import read_camera_image, read_rig_images, rig_image_paths
+    frame, cams = stereo
+    names, imgs = _write_rig(tmp_path, cams, frame)
+    rig = read_rig_json(tmp_path / "rig.json")
+    folder = tmp_path / "images"
+    h, w = cams[0].height, cams[0].width
+    # decoded RGB equals what was written (PNG is lossless)
+    np.testing.assert_array_equal(read_camera_image(folder / "cam0.png", width=w, height=h), imgs[0])
+    bad = {"grey.png": imgs[1][:, :, 0], "wide.png": np.zeros((h, w + 2, 3), np.uint8),
+           "deep.png": np.zeros((h, w, 3), np.uint16), "rgba.png": np.zeros((h, w, 4), np.uint8)}
+    for name, img in bad.items():
+        cv2.imwrite(str(tmp_path / name), img)
+    (tmp_path / "junk.jpg").write_bytes(b"\xff\xd8 not a jpeg")
+    cases = {"wide.png": rf"wide.png: camera image expected {w}x{h} \(width x height of camera cam1\), "
+                         rf"got {w + 2}x{h}",
+             "deep.png": r"deep.png: camera image expected 8-bit \(uint8\) values, got 16-bit \(uint16\)",
+             "rgba.png": r"rgba.png: camera image expected 1 \(grey\) or 3 \(colour\) channels, got 4 \(an alpha",
+             "grey.png": r"grey.png: camera image expected colour \(3 channels\) for camera cam1 \(like .*cam0.png\), "
+                         r"got grey \(1 channel\)",
+             "junk.jpg": r"junk.jpg: cannot decode as an image"}
+    for name, match in cases.items():
+        with pytest.raises(InputError, match=match):
+            read_rig_images([folder / "cam0.png", tmp_path / name], rig.cameras)
+    with pytest.raises(InputError, match=r"image folder not found"):
+        rig_image_paths(rig.cameras, image_dir=tmp_path / "nowhere")
+    with pytest.raises(InputError, match=r"rig.json: camera cam0 has no image: give --image-dir DIR"):
+        rig_image_paths(rig.cameras, rig_json=tmp_path / "rig.json")
