@@ -252,7 +252,9 @@ def _add_nuscenes_options(parser) -> None:
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
                     "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm; --engine local "
                     "or ray, same bytes; --batch-size and --cpu-devices have no effect on the local engine: one "
-                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call)")
+                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call); with "
+                    "--guidance-weight W > 0 every sample's camera JPEGs (samples/CAM_*/...) are read for "
+                    "image-guided seeds, and a missing or bad image fails its sample")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
     group.add_argument("--sweeps", type=int, default=1, metavar="N",
@@ -273,6 +275,9 @@ def _cmd_complete_nuscenes(args) -> int:
              if value is not None]
     if given:
         usage = f"{', '.join(given)} cannot be used with --nusc-version (the tables give K and the extrinsics)"
+    elif getattr(args, "image_dir", None) is not None:
+        usage = ("--image-dir cannot be used with --nusc-version: with --guidance-weight each camera's image is the "
+                 "JPEG its sample_data row names in the dataroot")
     elif args.method != "sgm":
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
     elif args.sweeps < 1:
