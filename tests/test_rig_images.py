@@ -232,3 +232,21 @@ def test_bad_image_files_name_the_file_and_what_was_expected(stereo, tmp_path):
         rig_image_paths(rig.cameras, image_dir=tmp_path / "nowhere")
     with pytest.raises(InputError, match=r"rig.json: camera cam0 has no image: give --image-dir DIR"):
         rig_image_paths(rig.cameras, rig_json=tmp_path / "rig.json")
+
+
+def test_rig_json_image_field_round_trips_and_is_checked(tmp_path):
+    import json
+
+    from jaxdepth.io import InputError, read_rig_json, write_rig_json
+    cam = {"name": "A", "width": 10, "height": 8, "K": [[5, 0, 5], [0, 5, 4], [0, 0, 1]],
+           "T_cam_lidar": np.eye(4).tolist()}
+    doc = {"lidar": {"beams": 32}, "cameras": [dict(cam, image="imgs/A.jpg"), dict(cam, name="B")]}
+    (tmp_path / "rig.json").write_text(json.dumps(doc))
+    rig = read_rig_json(tmp_path / "rig.json")
+    assert [c.image for c in rig.cameras] == ["imgs/A.jpg", None]
+    write_rig_json(tmp_path / "again.json", rig)
+    assert read_rig_json(tmp_path / "again.json") == rig
+    doc["cameras"][0]["image"] = ""
+    (tmp_path / "rig.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=r"rig.json: field 'cameras\[0\].image' expected a non-empty string"):
+        read_rig_json(tmp_path / "rig.json")
