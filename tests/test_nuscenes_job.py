@@ -451,11 +451,12 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
 
 
 def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, first_run, tmp_path):
-    """--guidance-weight: s1's PNGs equal complete_rig(..., images=) of the calibration rig path with the
+    """--guidance-weight: s1's PNGs equal the guided rig completion of the calibration rig path with the
     JPEGs read by OpenCV (BGR -> RGB); s2 has a CAM_BACK JPEG of the wrong size: it fails naming the file,
     s1 completes; once the image is fixed a re-run completes s2 only."""
     import jaxdepth
     from jaxdepth import SGMConfig
+    from jaxdepth.batch import nuscenes_job
     from jaxdepth.batch.nuscenes_job import run_nuscenes
     from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
     _, tables, sample_dir = dataroot
@@ -487,8 +488,9 @@ def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, firs
     padded, valid = pad_points(frame.points)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
     images = np.stack([cv2.imread(str(root / "samples" / c.name / "s1.jpg"))[:, :, ::-1] for c in frame.rig.cameras])
-    want = np.asarray(jaxdepth.complete_rig(padded, valid, cameras, lidar=frame.rig.lidar, config=config,
-                                            images=images))
+    # complete_rig(..., images=) through the job's own jit of it (a second compile of the same function
+    # would only cost time; tests/test_rig_images.py checks complete_rig itself)
+    want = np.asarray(nuscenes_job._depth_fn(config, frame.rig.lidar)(padded, valid, cameras, images))
     unguided_dst = first_run[0]
     changed = 0
     for i, cam in enumerate(frame.rig.cameras):
