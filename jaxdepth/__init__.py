@@ -30,7 +30,8 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
                                         complete_points as complete_points,
                                         complete_points_stages as complete_points_stages)
     from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
-                                   complete_rig as complete_rig, complete_rig_stages as complete_rig_stages)
+                                   stack_images as stack_images, complete_rig as complete_rig,
+                                   complete_rig_stages as complete_rig_stages)
     from jaxdepth._src.methods import complete_with as complete_with
     from jaxdepth._src.ip_basic import ip_basic as ip_basic
     from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
@@ -59,7 +60,7 @@ _LAZY = {
     'jaxdepth._src.residual': ('plane_residual',),
     'jaxdepth._src.smoothing': ('gaussian_blur', 'gaussian_blur_traced'),
     'jaxdepth._src.pipeline': ('complete', 'complete_stages', 'complete_points', 'complete_points_stages'),
-    'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'complete_rig', 'complete_rig_stages'),
+    'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'stack_images', 'complete_rig', 'complete_rig_stages'),
     'jaxdepth._src.methods': ('complete_with',),
     'jaxdepth._src.ip_basic': ('ip_basic',),
     'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),
@@ -90,9 +91,9 @@ __all__ = [
     "KITTI_T_CAM3_LIDAR",
     "KITTI_K_CAM2", "project_to_image", "unproject_depth", "range_image", "point_normals", "range_image_normals",
     "outlier_keep_mask", "nearest_seed", "gather_at_seed", "geodesic_seed", "plane_residual", "gaussian_blur", "complete",
-    "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "complete_rig",
-    "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background", "mean_metrics",
-    "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
+    "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "stack_images",
+    "complete_rig", "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background",
+    "mean_metrics", "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
     "make_street_scene", "SyntheticFrame", "gaussian_blur_traced", "overlay_depth", "overlay_mask",
     "depth_preview", "ray_elevation", "fov_mask", "seed_distance", "validity_mask", "validity_and_distance",
 ]

@@ -259,7 +259,9 @@ def _add_nuscenes_options(parser) -> None:
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
                     "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm; --engine local "
                     "or ray, same bytes; --batch-size and --cpu-devices have no effect on the local engine: one "
-                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call)")
+                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call); with "
+                    "--guidance-weight W > 0 every sample's camera JPEGs (samples/CAM_*/...) are read for "
+                    "image-guided seeds, and a missing or bad image fails its sample")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
     group.add_argument("--sweeps", type=int, default=1, metavar="N",
@@ -280,6 +282,9 @@ def _cmd_complete_nuscenes(args) -> int:
              if value is not None]
     if given:
         usage = f"{', '.join(given)} cannot be used with --nusc-version (the tables give K and the extrinsics)"
+    elif getattr(args, "image_dir", None) is not None:
+        usage = ("--image-dir cannot be used with --nusc-version: with --guidance-weight each camera's image is the "
+                 "JPEG its sample_data row names in the dataroot")
     elif args.method != "sgm":
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
     elif args.sweeps < 1:
@@ -317,11 +322,16 @@ def cmd_complete_rig(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     extras = _extras_from(args)
+    config = _config_from(args)
+    if args.image_dir is not None and not config.guidance_weight > 0:
+        print("jaxdepth: error: --image-dir gives images for image-guided seeds: use it with --guidance-weight W > 0",
+              file=sys.stderr)
+        return 2
     rig = read_rig_json(args.rig)
+    images = _rig_images(args, rig) if config.guidance_weight > 0 else None
     columns = infer_point_columns(args.points, args.point_columns)
     points, extra = read_points(args.points, columns=columns)
     frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=not args.no_estimate)
-    config = _config_from(args)
     if not frame.outlier_removal_trusted and config.outlier_removal:
         config = config.replace(outlier_removal=False)
     if not args.quiet:
@@ -332,7 +342,7 @@ def cmd_complete_rig(args) -> int:
     out_dir = pathlib.Path(args.out_dir)
     _ensure_writable_dir(out_dir)
     cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar)
+    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
@@ -361,6 +371,14 @@ def cmd_complete_rig(args) -> int:
             valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
             print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
     return 0
+
+
+def _rig_images(args, rig):
+    """complete-rig's (C, H, W[, 3]) uint8 camera images: --image-dir, else the rig JSON's image fields."""
+    from jaxdepth.io.rig_images import read_rig_images, rig_image_paths
+    paths = rig_image_paths(rig.cameras, image_dir=args.image_dir, rig_json=args.rig,
+                            json_images={c.name: c.image for c in rig.cameras if c.image is not None})
+    return read_rig_images(paths, rig.cameras)
 
 
 def cmd_eval(args) -> int:
@@ -466,6 +484,10 @@ def _add_complete_rig_command(sub) -> None:
     p.add_argument("--no-estimate", action="store_true",
                    help="do not check the sweep against its LiDAR (see README, Rig JSON: lidar.origin_m)")
     _add_method_options(p, methods=("sgm",))
+    p.add_argument("--image-dir", default=None, metavar="DIR",
+                   help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
+                        "or colour, each the camera's width x height; all grey or all colour); default: each "
+                        "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli

@@ -72,9 +72,19 @@ def zbuffer(points: np.ndarray, K: np.ndarray, T: np.ndarray, height: int, width
 # ---------------------------------------------------------------- the fake dataroot
 
 
+def camera_jpeg(sample_dir: pathlib.Path, channel: str) -> np.ndarray | None:
+    """The shared sample's image of ``channel`` (BGR, as OpenCV reads it) at the tests' quarter size, or None."""
+    found = sorted(sample_dir.glob(f"*__{channel}__*.jpg"))
+    if not found:
+        return None
+    return cv2.resize(cv2.imread(str(found[0]), cv2.IMREAD_COLOR), (WIDTH, HEIGHT), interpolation=cv2.INTER_AREA)
+
+
 def build_dataroot(root: pathlib.Path, sample_dir: pathlib.Path) -> dict:
     """A v1.0-mini table set: sample s1 (all ego poses equal), s2 (cameras 0.5 m ahead of the
-    LiDAR, one earlier sweep 0.4 m behind), s3 (its LiDAR file is missing). Returns the tables."""
+    LiDAR, one earlier sweep 0.4 m behind), s3 (its LiDAR file is missing). Every camera row's
+    JPEG is the shared sample's image of that camera at quarter size (when ``sample_dir`` has it).
+    Returns the tables."""
     calib = json.loads((sample_dir / "calibration.json").read_text())
     (root / "samples" / "LIDAR_TOP").mkdir(parents=True)
     (root / "sweeps" / "LIDAR_TOP").mkdir(parents=True)
@@ -88,6 +98,11 @@ def build_dataroot(root: pathlib.Path, sample_dir: pathlib.Path) -> dict:
     cs = [{"token": "cs_lidar", "sensor_token": "sensor_lidar", "translation": lidar2ego[:3, 3].tolist(),
            "rotation": wxyz(lidar2ego[:3, :3]), "camera_intrinsic": []}]
     for ch in channels:
+        image = camera_jpeg(sample_dir, ch)
+        if image is not None:
+            (root / "samples" / ch).mkdir(parents=True)
+            for name in ("s1", "s2", "s3"):
+                cv2.imwrite(str(root / "samples" / ch / f"{name}.jpg"), image)
         cam2ego = np.asarray(calib["cameras"][ch]["cam2ego"])
         K = np.diag([SCALE, SCALE, 1.0]) @ np.asarray(calib["cameras"][ch]["cam2img"])
         sensor.append({"token": f"sensor_{ch}", "channel": ch, "modality": "camera"})
@@ -383,6 +398,9 @@ def test_command_line_options_reach_the_job(dataroot, tmp_path, monkeypatch):
         (3, False, True, 6)
     assert (defaults["sweeps"], defaults["ego_motion"], defaults["overwrite"]) == (1, True, False)
     assert cli.main(argv + ["--sweeps", "0"]) == 2
+    assert cli.main(argv + ["--guidance-weight", "2", "--guidance-sweeps", "3"]) == 0  # guided: the config says so
+    guided = calls[-1][1]["config"]
+    assert (guided.guidance_weight, guided.guidance_sweeps, defaults["config"].guidance_weight) == (2.0, 3, 0.0)
 
 
 def test_bad_records_cost_their_sample_and_name_the_file(dataroot):
@@ -427,3 +445,61 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
         options["tables"] = options["tables"].version
     assert ray_options == local_options
     assert (ray_options["sweeps"], ray_options["ego_motion"], ray_options["png_compression"]) == (2, False, 6)
+
+
+# ---------------------------------------------------------------- image-guided seeds
+
+
+def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, first_run, tmp_path):
+    """--guidance-weight: s1's PNGs equal the guided rig completion of the calibration rig path with the
+    JPEGs read by OpenCV (BGR -> RGB); s2 has a CAM_BACK JPEG of the wrong size: it fails naming the file,
+    s1 completes; once the image is fixed a re-run completes s2 only."""
+    import jaxdepth
+    from jaxdepth import SGMConfig
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+    from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
+    _, tables, sample_dir = dataroot
+    root = tmp_path / "root"
+    build_dataroot(root, sample_dir)
+    bad = root / "samples" / "CAM_BACK" / "s2.jpg"
+    good = bad.read_bytes()
+    cv2.imwrite(str(bad), np.zeros((HEIGHT // 2, WIDTH // 2, 3), np.uint8))
+    config = SGMConfig(guidance_weight=2.0)
+    dst = tmp_path / "out"
+    summary = run_nuscenes(root, dst, version=VERSION, config=config)
+    assert summary.done == ["s1"]
+    failed = dict(summary.failed)
+    assert sorted(failed) == ["s2", "s3"] and "s3.pcd.bin" in failed["s3"]
+    assert failed["s2"] == (f"{bad}: camera image expected {WIDTH}x{HEIGHT} (width x height of camera CAM_BACK), "
+                            f"got {WIDTH // 2}x{HEIGHT // 2}")
+    assert not (dst / VERSION / "CAM_FRONT" / "CAM_FRONT_s2.png").exists()  # a failed sample writes nothing
+
+    # the oracle: the calibration-JSON rig path (s1's ego poses are equal) with the JPEGs read by hand
+    cs = by_token(tables["calibrated_sensor"])
+    doc = {"cameras": {}}
+    for ch in json.loads((sample_dir / "calibration.json").read_text())["cameras"]:
+        lidar2cam = np.linalg.inv(oracle_pose(cs[f"cs_{ch}"])) @ oracle_pose(cs["cs_lidar"])
+        doc["cameras"][ch] = {"cam2img": cs[f"cs_{ch}"]["camera_intrinsic"], "lidar2cam": lidar2cam.tolist()}
+    (tmp_path / "calibration.json").write_text(json.dumps(doc))
+    rig = rig_from_nuscenes_calibration(tmp_path / "calibration.json", width=WIDTH, height=HEIGHT)
+    points, extra = read_points(sample_dir / LIDAR_FILE, columns=5)
+    frame = prepare_sweep(points, rig, ring=extra[:, -1])
+    padded, valid = pad_points(frame.points)
+    cameras = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
+    images = np.stack([cv2.imread(str(root / "samples" / c.name / "s1.jpg"))[:, :, ::-1] for c in frame.rig.cameras])
+    # complete_rig(..., images=) through the job's own jit of it (a second compile of the same function
+    # would only cost time; tests/test_rig_images.py checks complete_rig itself)
+    want = np.asarray(nuscenes_job._depth_fn(config, frame.rig.lidar)(padded, valid, cameras, images))
+    unguided_dst = first_run[0]
+    changed = 0
+    for i, cam in enumerate(frame.rig.cameras):
+        got = cv2.imread(str(dst / VERSION / cam.name / f"{cam.name}_s1.png"), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(got, encode_depth_uint16(want[i]), err_msg=cam.name)
+        plain = cv2.imread(str(unguided_dst / VERSION / cam.name / f"{cam.name}_s1.png"), cv2.IMREAD_UNCHANGED)
+        changed += np.count_nonzero(got != plain)
+    assert changed > 0.01 * 6 * WIDTH * HEIGHT  # the images changed the result
+
+    bad.write_bytes(good)
+    again = run_nuscenes(root, dst, version=VERSION, config=config)
+    assert again.done == ["s2"] and again.skipped == ["s1"] and [n for n, _ in again.failed] == ["s3"]

@@ -226,8 +226,8 @@ def test_ray_is_imported_only_when_the_ray_engine_runs():
 
 
 def _nuscenes_two_cameras(tmp_path: pathlib.Path) -> pathlib.Path:
-    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py (quarter-size cameras), with two of the
-    sample's cameras to keep it fast: s1, s2 complete, s3's LiDAR file is missing."""
+    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py (quarter-size cameras and JPEGs), with two
+    of the sample's cameras to keep it fast: s1, s2 complete, s3's LiDAR file is missing."""
     import json
 
     from tests.conftest import require_shared
@@ -240,6 +240,9 @@ def _nuscenes_two_cameras(tmp_path: pathlib.Path) -> pathlib.Path:
     two.mkdir()
     (two / "calibration.json").write_text(json.dumps(calib))
     os.symlink(sample_dir / LIDAR_FILE, two / LIDAR_FILE)
+    for jpeg in sample_dir.glob("*.jpg"):
+        if any(f"__{ch}__" in jpeg.name for ch in calib["cameras"]):
+            os.symlink(jpeg, two / jpeg.name)
     root = tmp_path / "dataroot"
     build_dataroot(root, two)
     return root
@@ -284,3 +287,25 @@ def test_nuscenes_dataroot_matches_the_local_engine_reports_the_bad_sample_and_r
     assert sorted(again.skipped) == ["s1", "s2"] and again.done == [] and [n for n, _ in again.failed] == ["s3"]
     assert sorted(c for c in calls if c[1] == "skipped") == [("s1", "skipped"), ("s2", "skipped")]
     assert {p: p.stat().st_mtime_ns for p in dst.rglob("*.png")} == stamps
+
+
+def test_nuscenes_guided_matches_the_local_engine_and_reports_the_bad_image(local_ray, tmp_path):
+    """Image-guided seeds (guidance_weight > 0) on Ray: each actor reads the samples' JPEGs itself; the PNGs
+    are the local engine's bytes, and a corrupt JPEG fails its sample (s2) with the local engine's message."""
+    from jaxdepth import SGMConfig
+    from jaxdepth.batch import nuscenes_job
+    from tests.test_nuscenes_job import VERSION
+
+    root = _nuscenes_two_cameras(tmp_path)
+    bad = root / "samples" / "CAM_BACK" / "s2.jpg"
+    bad.write_bytes(bad.read_bytes()[:200])  # truncated: OpenCV cannot decode it
+    config = SGMConfig(guidance_weight=2.0)
+    local = nuscenes_job.run_nuscenes(root, tmp_path / "local", version=VERSION, config=config)
+    assert local.done == ["s1"] and [n for n, _ in local.failed] == ["s2", "s3"]
+    assert dict(local.failed)["s2"] == f"{bad}: cannot decode as an image (expected a camera image (8-bit PNG or JPEG))"
+    summary = scale.run_nuscenes_ray(root, tmp_path / "ray", version=VERSION, config=config)
+    assert summary.done == ["s1"] and sorted(summary.failed) == sorted(local.failed)
+    reference, got = _tree(tmp_path / "local"), _tree(tmp_path / "ray")
+    assert sorted(reference) == sorted(got) == [f"{VERSION}/{ch}/{ch}_s1.png" for ch in ("CAM_BACK", "CAM_FRONT")]
+    for path, data in reference.items():
+        assert got[path] == data, f"{path}: Ray output differs from run_nuscenes"

@@ -5,6 +5,17 @@ Cameras of different sizes share one padded (H, W) canvas; each keeps a traced
 outside it is 0. Outlier removal uses the canvas size for the paper's window
 bounds (W L / N, H / L), which equals the camera's own size when all cameras
 have the same size (KITTI stereo, nuScenes).
+
+Image-guided seeds (``SGMConfig.guidance_weight > 0``, issue 16) take one camera
+image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
+colour: each camera's image sits in the top-left corner of the canvas, inside its
+``image_size`` window, and the padding beyond is ignored (:func:`stack_images`
+pads with zeros). The geodesic seed search stays inside the window: colours
+outside it are replaced by NaN, which makes every step into the padding cost
+1e6 px (:func:`~jaxdepth._src.geodesic.step_costs`), so no path uses the padding
+as a shortcut around an image edge as long as paths inside the window cost less
+than 2e6 px (at colour weight 5 a straight path across a 1600 x 900 image costs
+at most 2500 * (1 + 5 sqrt 3) ~ 24000 px).
 """
 
 from __future__ import annotations
@@ -46,6 +57,97 @@ class RigCameras:
         return self.K.shape[0]
 
 
+def stack_images(images, cameras) -> np.ndarray:
+    """Pads one camera image per camera onto the rig's canvas, for ``complete_rig(..., images=)``.
+
+    Args:
+      images: sequence of C NumPy arrays, image ``i`` of shape (h_i, w_i) grey or
+        (h_i, w_i, 3) colour, where (h_i, w_i) is camera ``i``'s
+        ``image_size``; all grey or all colour, all one dtype (uint8 0-255, or
+        float in [0, 1]). Rows are image rows (``v``), columns ``u``, as the
+        camera's K expects; colour channel order as you like (RGB is what the
+        jobs pass), the geodesic cost only uses colour differences.
+      cameras: the :class:`RigCameras` of :func:`stack_cameras`, or the
+        sequence of cameras given to it (anything with ``height`` and
+        ``width``, e.g. :class:`Camera`; the canvas is then the largest size,
+        as in :func:`stack_cameras`), in the same order as ``images``.
+
+    Returns:
+      (C, H, W) or (C, H, W, 3) array of the images' dtype on the (H, W) canvas:
+      image ``i`` in the top-left ``h_i x w_i`` corner (camera ``i``'s window),
+      zeros elsewhere (the padding is never read by the seed search).
+
+    Raises:
+      ValueError naming ``images[i]``: a wrong count, size, channel count or dtype.
+    """
+    if isinstance(cameras, RigCameras):
+        sizes, height, width = np.asarray(cameras.image_size), cameras.height, cameras.width
+    else:
+        sizes = np.array([[int(c.height), int(c.width)] for c in cameras], np.int64).reshape(-1, 2)
+        height, width = (int(x) for x in sizes.max(axis=0)) if len(sizes) else (0, 0)
+    images = list(images)
+    if len(images) != len(sizes) or not images:
+        raise ValueError(f"stack_images: field 'images' expected one image per camera ({len(sizes)}), "
+                         f"got {len(images)}")
+    arrays = [np.asarray(im) for im in images]
+    first = arrays[0]
+    colour = first.ndim == 3
+    for i, (im, (h, w)) in enumerate(zip(arrays, sizes)):
+        want = f"({h}, {w}, 3) colour" if colour else f"({h}, {w}) grey"
+        if im.shape not in ((h, w), (h, w, 3)):
+            raise ValueError(f"stack_images: field 'images[{i}]' expected shape ({h}, {w}) (grey) or "
+                             f"({h}, {w}, 3) (colour), camera {i}'s image size, got {im.shape}")
+        if (im.ndim == 3) != colour:
+            raise ValueError(f"stack_images: field 'images[{i}]' expected {want} like images[0] (all grey or "
+                             f"all colour), got shape {im.shape}")
+        if im.dtype != first.dtype:
+            raise ValueError(f"stack_images: field 'images[{i}]' expected dtype {first.dtype} like images[0], "
+                             f"got {im.dtype}")
+    out = np.zeros((len(sizes), height, width) + first.shape[2:], first.dtype)
+    for i, (im, (h, w)) in enumerate(zip(arrays, sizes)):
+        out[i, :h, :w] = im
+    return out
+
+
+def _rig_images(images, cameras: RigCameras, *, guided: bool, where: str):
+    """Checks ``images`` against the canvas; float32 [0, 1] when ``guided``, else None (ignored).
+
+    Same rules as :func:`~jaxdepth._src.geodesic.guidance_image`, for the stacked
+    (C, H, W[, 3]) array; ValueError naming the field 'images' otherwise.
+    """
+    c, h, w = cameras.count, cameras.height, cameras.width
+    if images is None:
+        if guided:
+            raise ValueError(f"{where}: field 'images' expected ({c}, {h}, {w}) grey or ({c}, {h}, {w}, 3) colour "
+                             "camera images (one per camera on the rig's canvas, see stack_images) because "
+                             "config.guidance_weight > 0, got None")
+        return None
+    if not hasattr(images, "shape") or not hasattr(images, "dtype"):
+        raise ValueError(f"{where}: field 'images' expected one array ({c}, {h}, {w}[, 3]) (see stack_images), "
+                         f"got {type(images).__name__}")
+    shp = tuple(images.shape)
+    if shp not in ((c, h, w), (c, h, w, 3)):
+        raise ValueError(f"{where}: field 'images' expected shape {(c, h, w)} (grey) or {(c, h, w, 3)} (colour): "
+                         f"one image per camera on the rig's {h} x {w} canvas (see stack_images), got {shp}")
+    dtype = jnp.dtype(images.dtype)
+    if dtype != jnp.uint8 and not jnp.issubdtype(dtype, jnp.floating):
+        raise ValueError(f"{where}: field 'images' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
+                         + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
+    if not guided:
+        return None
+    out = jnp.asarray(images, jnp.float32)
+    return out / jnp.float32(255.0) if dtype == jnp.uint8 else out
+
+
+def _window_only(image: jax.Array, size: jax.Array) -> jax.Array:
+    """The camera's ``size`` window of a canvas image, NaN outside (blocked steps in the geodesic passes)."""
+    h, w = image.shape[:2]
+    inside = (jnp.arange(h)[:, None] < size[0]) & (jnp.arange(w)[None, :] < size[1])
+    if image.ndim == 3:
+        inside = inside[..., None]
+    return jnp.where(inside, image, jnp.nan)
+
+
 def stack_cameras(cameras) -> RigCameras:
     """Stacks :class:`Camera` objects (any sizes) into :class:`RigCameras` on the largest canvas."""
     cameras = list(cameras)
@@ -61,34 +163,55 @@ def stack_cameras(cameras) -> RigCameras:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_rig_stages(points, valid, cameras, *, config, lidar):
+def _complete_rig_stages(points, valid, cameras, images=None, *, config, lidar):
+    images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_rig")
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
-    def per_camera(K, T, size):
+    def per_camera(K, T, size, image=None):
+        if image is not None:
+            image = _window_only(image, size)
         return camera_stages_from_points(points, valid, normals_lidar, K, T, height=cameras.height,
-                                         width=cameras.width, lidar=lidar, config=config, image_size=size)
+                                         width=cameras.width, lidar=lidar, config=config, image_size=size,
+                                         image=image)
 
-    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    if images is None:
+        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
-                        config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> Stages:
+                        config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                        images: jax.Array | None = None) -> Stages:
     """SGM completion of one sweep for C cameras; every :class:`Stages` field gains a leading C axis.
 
     Args:
       points: (N, 3) float32 LiDAR-frame points. valid: (N,) bool.
       cameras: :class:`RigCameras` (see :func:`stack_cameras`).
+      config, lidar: static configuration and sensor description.
+      images: optional camera images on the rig's canvas, (C, H, W) grey or
+        (C, H, W, 3) colour, uint8 or float in [0, 1]: camera ``i``'s image in
+        the top-left ``image_size[i]`` corner (:func:`stack_images` pads them),
+        the rest ignored. Required and used only when
+        ``config.guidance_weight > 0`` (image-guided seeds, per camera inside
+        its own window, see the module docstring); otherwise checked, then
+        ignored (the result is the paper's LiDAR-only SGM, bit for bit).
 
     Returns:
       :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals).
+
+    Raises:
+      ValueError (at trace time) naming the field 'images': missing while
+      guided, a shape other than the canvas's, a dtype other than uint8 or float.
     """
-    return _complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
+    # One call form for every caller: jit keys its cache on which keywords were passed.
+    return _complete_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
-                 config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:
+                 config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
+                 images: jax.Array | None = None) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera of the rig; see :func:`complete_rig_stages`."""
-    return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar).depth
+    return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth

@@ -15,6 +15,13 @@ sample_data token, ``<dst>/<version>/<CHANNEL>/<sample_data_token>.png``
 outputs all exist is skipped (resume) unless ``overwrite``; a bad sample is
 reported and the rest completes.
 
+Image-guided seeds (``config.guidance_weight > 0``, issue 16): each sample's
+key-frame camera JPEGs (the camera sample_data rows' ``filename``) are read with
+its sweep (:func:`jaxdepth.io.rig_images.read_rig_images`: 8-bit colour, the
+size the tables give, RGB) and passed to the rig completion; a missing or bad
+image fails its sample with a message naming the file, the rest completes.
+Unguided runs do not open the images.
+
 Where the LiDAR sits: the points are in the key-frame LIDAR_TOP sensor frame by
 the tables' definition, so its origin is stated (``lidar_origin_m = 0``), not
 estimated, and outlier removal follows the run's config. With ``sweeps > 1`` the
@@ -66,13 +73,14 @@ class _SampleJob:
 
 @functools.lru_cache(maxsize=8)
 def _depth_fn(config, lidar):
-    """jit: (padded (B, 3), valid (B,), RigCameras) -> (C, H, W) depth; one trace per bucket and canvas."""
+    """jit: (padded (B, 3), valid (B,), RigCameras[, images (C, H, W, 3) uint8 when guided]) -> (C, H, W)
+    depth; one trace per bucket and canvas."""
     import jax
 
     from jaxdepth._src.rig import complete_rig_stages
 
-    def depth(points, valid, cameras):
-        return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar).depth
+    def depth(points, valid, cameras, images=None):
+        return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth
 
     return jax.jit(depth)
 
@@ -86,8 +94,8 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
     from jaxdepth._src.rig import complete_rig_stages
     from jaxdepth._src.validity import rig_validity_and_distance
 
-    def depth(points, valid, cameras):
-        stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar)
+    def depth(points, valid, cameras, images=None):
+        stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images)
         return (stages.depth,) + rig_validity_and_distance(stages, cameras, lidar=lidar, metric=config.distance_metric,
                                                            max_seed_distance_px=max_seed_distance_px)
 
@@ -123,8 +131,9 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=
     return todo
 
 
-def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool):
-    """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs)."""
+def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False):
+    """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs, images):
+    ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None."""
     from jaxdepth._src.presets import NUSCENES_HDL32
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.errors import field_error
@@ -141,9 +150,14 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool):
             raise field_error(tables.table_path("calibrated_sensor"), f"{cam.channel} of sample {job.token}",
                               "a pinhole K and rigid poses", str(err)) from None
     rig = Rig(lidar=NUSCENES_HDL32, cameras=tuple(cameras), lidar_origin_m=(0.0, 0.0, 0.0))
+    images = None
+    if guided:  # read before the sweep is prepared: a bad image costs no work
+        from jaxdepth.io.rig_images import read_rig_images
+        paths = [nusc.camera_image_path(tables, tables.tables["sample_data"][cam.token]) for cam in inputs.cameras]
+        images = read_rig_images(paths, rig.cameras, colour=True)
     frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False)
     padded, valid = pad_points(frame.points)
-    return padded, valid, frame.rig, inputs
+    return padded, valid, frame.rig, inputs, images
 
 
 def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True, config=None,
@@ -232,7 +246,8 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
 
     targets = jax.local_devices()[:1] if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
-    load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion)
+    load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion,
+                             guided=config.guidance_weight > 0)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")
@@ -240,12 +255,13 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             if message is not None:
                 run.fail(job.token, message)
                 continue
-            padded, valid, rig, _ = loaded
+            padded, valid, rig, _, images = loaded
             cameras = stack_cameras([c.as_camera() for c in rig.cameras])
+            args = (padded, valid, cameras) + (() if images is None else (images,))
             try:
                 fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
                       else _depth_fn(config, rig.lidar))
-                out = fn(*jax.device_put((padded, valid, cameras), targets[count % len(targets)]))
+                out = fn(*jax.device_put(args, targets[count % len(targets)]))
             except Exception as err:
                 run.fail(job.token, f"completion failed: {err}")
                 continue

@@ -281,6 +281,16 @@ def read_sweep(tables: NuScenesTables, sample_data: dict) -> np.ndarray:
     return np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
 
 
+def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:
+    """The image file of a camera sample_data record: ``<dataroot>/<filename>`` (a JPEG in nuScenes;
+    not opened here)."""
+    filename = sample_data.get("filename")
+    if not isinstance(filename, str) or not filename:
+        raise field_error(tables.table_path("sample_data"), f"{sample_data['token']}.filename",
+                          "a file name relative to the dataroot", repr(filename))
+    return tables.dataroot / filename
+
+
 def remove_close(points: np.ndarray, radius_m: float) -> np.ndarray:
     """Rows of ``points`` outside the box ``|x| < radius_m and |y| < radius_m`` (devkit ``remove_close``)."""
     close = (np.abs(points[:, 0]) < radius_m) & (np.abs(points[:, 1]) < radius_m)
@@ -410,6 +420,6 @@ def output_path(dst: PathLike, version: str, channel: str, sample_data_token: st
 
 
 __all__ = ["NuScenesTables", "SampleCamera", "SampleInputs", "load_tables", "sample_inputs", "sample_cameras",
-           "camera_from_lidar", "camera_intrinsics", "accumulate_sweeps", "read_sweep", "remove_close",
+           "camera_from_lidar", "camera_intrinsics", "camera_image_path", "accumulate_sweeps", "read_sweep", "remove_close",
            "quaternion_matrix", "pose_matrix", "invert_pose", "output_path", "TABLES", "LIDAR_CHANNEL",
            "MULTISWEEP_MIN_DISTANCE_M"]

@@ -16,7 +16,9 @@ the sensor sits in the frame the sweep's points are given in (metres). Leave it
 out when the points are in the LiDAR's own frame (KITTI, nuScenes) or when the
 library should estimate it from the sweep (:mod:`jaxdepth.io.sweep_frame`);
 ``T_cam_lidar`` always maps points of the sweep's frame into the camera. Cameras take exactly the five
-fields above. Unknown fields are errors (a misspelt optional field would
+fields above, plus an optional ``image``: the camera's image file for image-guided seeds
+(``complete-rig --guidance-weight``; a path relative to the JSON file's folder, or absolute; see
+:mod:`jaxdepth.io.rig_images`). Unknown fields are errors (a misspelt optional field would
 otherwise be ignored silently).
 """
 
@@ -44,6 +46,7 @@ RIGID_TOL = ROTATION_TOL
 _LIDAR_DEFAULTS = {64: KITTI_HDL64, 32: NUSCENES_HDL32}
 _LIDAR_FIELDS = ("beams", "fov_up_deg", "fov_down_deg", "columns", "units", "origin_m")
 _CAMERA_FIELDS = ("name", "width", "height", "K", "T_cam_lidar")
+_CAMERA_OPTIONAL = ("image",)
 
 
 class _Bad(Exception):
@@ -137,6 +140,12 @@ def _camera_arrays(name: Any, width: Any, height: Any, K: Any, T: Any, where: st
     return name, w, h, _frozen(K), _frozen(T)
 
 
+def _image_field(value: Any, field: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise _Bad(field, "a non-empty string (the camera image's path)", _describe(value))
+    return value
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     out = np.array(a, np.float32)
     out.setflags(write=False)
@@ -157,6 +166,8 @@ class RigCamera:
         lengths, last row (0, 0, 1).
       T_cam_lidar: (4, 4) float32 LiDAR -> camera transform (read-only copy),
         rigid: R^T R = I within 1e-3, det R = +1.
+      image: optional camera image file (the rig JSON's ``image`` field, as
+        written there: relative to the JSON's folder unless absolute), or None.
 
     Raises:
       ValueError: on construction with a field that breaks the rules above.
@@ -167,10 +178,13 @@ class RigCamera:
     height: int
     K: np.ndarray
     T_cam_lidar: np.ndarray
+    image: str | None = None
 
     def __post_init__(self):
         try:
             values = _camera_arrays(self.name, self.width, self.height, self.K, self.T_cam_lidar, "")
+            if self.image is not None:
+                _image_field(self.image, "image")
         except _Bad as bad:
             raise ValueError(f"RigCamera: field '{bad.field}' expected {bad.expected}, got {bad.got}") from None
         for field, value in zip(_CAMERA_FIELDS, values):
@@ -179,7 +193,8 @@ class RigCamera:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, RigCamera):
             return NotImplemented
-        return (self.name, self.width, self.height) == (other.name, other.width, other.height) and \
+        return (self.name, self.width, self.height, self.image) == (other.name, other.width, other.height,
+                                                                    other.image) and \
             np.array_equal(self.K, other.K) and np.array_equal(self.T_cam_lidar, other.T_cam_lidar)
 
     __hash__ = None  # type: ignore[assignment]
@@ -328,16 +343,17 @@ def _parse_rig(doc: Any) -> Rig:
     seen: dict[str, int] = {}
     for i, cam_value in enumerate(cams_value):
         where = f"cameras[{i}]"
-        cam = _object(cam_value, where, _CAMERA_FIELDS)
+        cam = _object(cam_value, where, _CAMERA_FIELDS + _CAMERA_OPTIONAL)
         for key in _CAMERA_FIELDS:
             if key not in cam:
                 raise _Bad(f"{where}.{key}", "a field (required)", "nothing")
         values = _camera_arrays(*(cam[k] for k in _CAMERA_FIELDS), where=f"{where}.")
+        image = _image_field(cam["image"], f"{where}.image") if "image" in cam else None
         if values[0] in seen:
             raise _Bad(f"{where}.name", f"a unique name (cameras[{seen[values[0]]}] is also {values[0]!r})",
                        _describe(values[0]))
         seen[values[0]] = i
-        cameras.append(RigCamera(*values))
+        cameras.append(RigCamera(*values, image=image))
     return Rig(lidar=lidar, cameras=tuple(cameras), lidar_origin_m=origin, lidar_stated=stated)
 
 
@@ -385,8 +401,10 @@ def rig_to_json_text(rig: Rig) -> str:
     cams = []
     for cam in rig.cameras:
         ind = "      "
+        image = "" if cam.image is None else f"{ind}\"image\": {json.dumps(cam.image)},\n"
         cams.append("    {\n"
                     f"{ind}\"name\": {json.dumps(cam.name)},\n"
+                    f"{image}"
                     f"{ind}\"width\": {int(cam.width)},\n"
                     f"{ind}\"height\": {int(cam.height)},\n"
                     f"{ind}\"K\": {_matrix_text(cam.K, ind)},\n"

@@ -72,7 +72,7 @@ def shift_rig(rig: Rig, origin_m, lidar: LidarSpec | None = None) -> Rig:
     shift = np.eye(4)
     shift[:3, 3] = origin
     cameras = tuple(RigCamera(c.name, c.width, c.height, c.K,
-                              (np.asarray(c.T_cam_lidar, np.float64) @ shift).astype(np.float32))
+                              (np.asarray(c.T_cam_lidar, np.float64) @ shift).astype(np.float32), image=c.image)
                     for c in rig.cameras)
     return Rig(lidar=rig.lidar if lidar is None else lidar, cameras=cameras, lidar_origin_m=None,
                lidar_stated=rig.lidar_stated)
