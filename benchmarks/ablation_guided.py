@@ -1,6 +1,8 @@
 """Issue 16's ablation: LiDAR-only SGM, + blending, + image guidance, + both, nearest fill, IP_Basic.
 
-    PYTHONPATH=. python benchmarks/ablation_guided.py [--quick] [--json benchmarks/results/ablation_guided.json]
+    PYTHONPATH=. python benchmarks/ablation_guided.py [--quick] [--json PATH] [--repeats N]
+
+Writes benchmarks/results/ablation_guided.json (``--quick``: ablation_guided_quick.json) atomically.
 
 Every dev set that has camera images, scored with KITTI devkit metrics (RMSE / MAE mm,
 iRMSE / iMAE 1/km, the mean over camera images as the devkit averages):
@@ -357,11 +359,15 @@ def print_table(name, role, result, labels):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "ablation_guided.json"))
+    parser.add_argument("--json", default=None,
+                        help="output (default benchmarks/results/ablation_guided.json, with --quick "
+                             "ablation_guided_quick.json so a smoke run never replaces the full result)")
     parser.add_argument("--quick", action="store_true",
                         help="a small run: one draw, one synthetic seed per role, weights 1 and 5, 3 timing repeats")
     parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 7, --quick 3)")
     args = parser.parse_args(argv)
+    if args.json is None:
+        args.json = str(ROOT / "benchmarks" / "results" / f"ablation_guided{'_quick' if args.quick else ''}.json")
     t0 = time.time()
     repeats = args.repeats or (3 if args.quick else 7)
     weights = QUICK_WEIGHTS if args.quick else WEIGHTS
