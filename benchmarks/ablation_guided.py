@@ -391,7 +391,7 @@ def main(argv=None) -> int:
         results[name] = res
         print_table(name, role, res, labels)
     verdict = {}
-    for key in chosen:
+    for key in (k for k, _, _ in rows if k != "sgm"):
         verdict[key] = {name: r["scores"][key]["rmse"] < r["scores"]["sgm"]["rmse"]
                         for name, r in results.items() if "scores" in r}
     print("\nbetter RMSE than LiDAR-only SGM:", {k: sum(v.values()) for k, v in verdict.items()}, "of",
