@@ -12,12 +12,11 @@ from __future__ import annotations
 import math
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxdepth._src import synthetic
-from jaxdepth._src.types import Camera, LidarSpec
+from jaxdepth._src.types import LidarSpec
 
 SPEC = LidarSpec(beams=16, fov_up_deg=2.0, fov_down_deg=-24.9, columns=256)
 SUN = np.asarray(synthetic.SUN_DIRECTION) / np.linalg.norm(synthetic.SUN_DIRECTION)
