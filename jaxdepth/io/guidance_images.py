@@ -107,6 +107,31 @@ def find_image(folder: PathLike, stem: str) -> pathlib.Path:
     return next((c for c in candidates if c.is_file()), candidates[0])
 
 
+def selection_image_folder(src: PathLike, image_dir: PathLike | None = None) -> pathlib.Path:
+    """The folder holding the camera images of a selection folder, flat folder or single depth PNG.
+
+    ``image_dir`` when given; else ``SRC/image/`` beside ``SRC/velodyne_raw/`` (KITTI's
+    ``val_selection_cropped`` and ``test_*`` folders), or, for one PNG inside a
+    ``velodyne_raw/`` folder, the ``image/`` folder beside that. Each frame's file is then
+    :func:`find_image`.
+
+    Raises:
+      InputError: ``image_dir`` is not a folder, or there is no ``image/`` folder
+        (flat folders and single files need ``image_dir``).
+    """
+    if image_dir is not None:
+        image_dir = pathlib.Path(image_dir)
+        if not image_dir.is_dir():
+            raise file_error(image_dir, "image folder not found (--image-dir expected a folder of camera images)")
+        return image_dir
+    src = pathlib.Path(src)
+    velodyne = src.parent if src.suffix.lower() == ".png" else src / "velodyne_raw"
+    if velodyne.name == "velodyne_raw" and (velodyne.parent / "image").is_dir():
+        return velodyne.parent / "image"
+    raise file_error(src, "no camera images found for image-guided seeds (expected an image/ folder beside "
+                     "velodyne_raw/, as in KITTI's val_selection_cropped); pass --image-dir DIR")
+
+
 def raw_image_path(root: PathLike, date: str, drive: str, camera: int, frame: str) -> pathlib.Path:
     """KITTI raw image of one frame under ``root``: ``root/<date>/<drive>/image_0X/data/<frame>.png``,
     or ``root/<drive>/...`` when ``root/<date>/<drive>`` is not a folder but ``root/<drive>`` is
@@ -118,4 +143,4 @@ def raw_image_path(root: PathLike, date: str, drive: str, camera: int, frame: st
     return drive_dir / f"image_0{int(camera)}" / "data" / f"{frame}.png"
 
 
-__all__ = ["find_image", "image_candidates", "raw_image_path", "read_guidance_image"]
+__all__ = ["find_image", "image_candidates", "raw_image_path", "read_guidance_image", "selection_image_folder"]
