@@ -432,7 +432,9 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         writable under the same name on every node.
       method, config, lidar, T_cam_lidar, batch_size, overwrite: as in
         :func:`jaxdepth.batch.runner.run_jobs`. ``batch_size`` frames of one size go
-        through one compiled call (the last is padded, never recompiled).
+        through one compiled call (the last is padded, never recompiled). A guided
+        ``config`` (``guidance_weight > 0``): each actor reads the jobs' camera images
+        (``FrameJob.image_path``) as the local runner does, same bytes.
       address: Ray cluster address (``"ray://host:10001"``, ``"host:6379"`` or
         ``"auto"``): the driver connects, and disconnects at the end, leaving the
         cluster running. None: the ``RAY_ADDRESS`` environment variable if set,
