@@ -132,7 +132,7 @@ def selection_image_folder(src: PathLike, image_dir: PathLike | None = None) -> 
                      "velodyne_raw/, as in KITTI's val_selection_cropped); pass --image-dir DIR")
 
 
-def raw_image_path(root: PathLike, date: str, drive: str, camera: int, frame: str) -> pathlib.Path:
+def raw_image_path(root: PathLike, *, date: str, drive: str, camera: int, frame: str) -> pathlib.Path:
     """KITTI raw image of one frame under ``root``: ``root/<date>/<drive>/image_0X/data/<frame>.png``,
     or ``root/<drive>/...`` when ``root/<date>/<drive>`` is not a folder but ``root/<drive>`` is
     (``root`` a date folder); the first form when neither exists."""

@@ -220,7 +220,7 @@ def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, c
             crop_from = None if full[date] is None else (int(full[date][i].height), int(full[date][i].width))
             for sweep in bins:
                 out = dst / drive.name / "proj_depth" / name / cam.name / f"{sweep.stem}.png"
-                image = raw_image_path(root, date.name, drive.name, index, sweep.stem)
+                image = raw_image_path(root, date=date.name, drive=drive.name, camera=index, frame=sweep.stem)
                 jobs.append(_sweep_job(f"{drive.name}/{cam.name}/{sweep.stem}", sweep, out, cam, image=image,
                                        crop_from=crop_from))
     if not jobs:
@@ -322,8 +322,8 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
         rel = drive.relative_to(src) if drive != src else pathlib.Path(drive.name)
         for png in _files(folder, ".png"):
             out = dst / rel / "proj_depth" / name / folder.name / png.name
-            image = None if image_dir is None else raw_image_path(image_dir, match.group(1), drive.name, cam,
-                                                                   png.stem)
+            image = None if image_dir is None else raw_image_path(image_dir, date=match.group(1), drive=drive.name,
+                                                                   camera=cam, frame=png.stem)
             jobs.append(FrameJob(name=f"{rel.as_posix()}/{folder.name}/{png.stem}", sparse_path=png, out_path=out,
                                  K=np.asarray(c["K"], np.float32),
                                  T_cam_lidar=np.asarray(c["T_cam_lidar"], np.float32), image_path=image))
