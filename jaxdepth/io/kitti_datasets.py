@@ -28,6 +28,12 @@ Layouts (outputs under ``dst``):
   PNG. Output ``dst/<split>/depth_X/<frame>.png`` (X: camera, 2 by default).
 
 :func:`discover_kitti` picks the layout of a folder (None: not one of these).
+
+Each job also names its camera image (``FrameJob.image_path``, read only by
+image-guided runs): a raw drive's own ``image_0X/data/<frame>.png`` (cut like the
+depth with ``crop``: ``FrameJob.image_crop_from``), an object split's
+``image_X/<frame>.png``, and for depth-completion trees, which hold no images, the
+frame in a KITTI raw root given as ``image_dir`` (:mod:`jaxdepth.io.guidance_images`).
 """
 
 from __future__ import annotations
