@@ -113,8 +113,17 @@ def cmd_complete(args) -> int:
         return 2
     if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
         return _cmd_complete_nuscenes(args)
+    usage = _guidance_usage(args)
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    guided = args.guidance_weight > 0
     src, dst = pathlib.Path(args.src), pathlib.Path(args.dst)
     scan = _discover_dataset(src, dst, args)
+    if scan is not None and guided and scan.layout == "kitti-depth-tree" and args.image_dir is None:
+        raise InputError(f"{src}: a KITTI depth-completion train/val tree holds no camera images; for "
+                         "--guidance-weight pass --image-dir with the KITTI raw root "
+                         "(DIR/<date>/<drive>/image_0X/data/<frame>.png)")
     pre_failed = [] if scan is None else scan.failed
     if scan is None and getattr(args, "crop", False):
         raise InputError(f"{src}: --crop needs a KITTI raw or object folder (LiDAR sweeps)")
@@ -136,13 +145,18 @@ def cmd_complete(args) -> int:
             raise InputError(f"{src}: input file not found")
         if args.intrinsics is None:
             raise InputError(f"{src}: a single image needs --intrinsics K.txt (9 numbers, row-major K)")
+        image_of = _image_finder(src, args)
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
-                                K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src))]
+                                K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src),
+                                image_path=image_of(src))]
     else:
         K_override = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
+        frames = list_depth_completion_folder(src)
+        image_of = _image_finder(src, args)
         jobs = [runner.FrameJob(name=name, sparse_path=png, out_path=dst / png.name,
-                                intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png))
-                for name, png, k_path in list_depth_completion_folder(src)]
+                                intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png),
+                                image_path=image_of(png))
+                for name, png, k_path in frames]
         _ensure_writable_dir(dst)
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
         devices.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
@@ -166,6 +180,26 @@ def cmd_complete(args) -> int:
     progress.close()
     summary.failed[:0] = pre_failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _guidance_usage(args) -> str | None:
+    """Why the image-guidance flags of ``complete`` cannot be used as given (None: they can)."""
+    if args.guidance_weight > 0 and args.method != "sgm":
+        return "--guidance-weight (image-guided seeds) needs --method sgm"
+    if args.image_dir is not None and not args.guidance_weight > 0:
+        return "--image-dir gives the camera images of image-guided seeds: use it with --guidance-weight W > 0"
+    return None
+
+
+def _image_finder(src: pathlib.Path, args):
+    """``png -> camera image path`` (None when unguided) for a selection folder, flat folder or
+    single file (:mod:`jaxdepth.io.guidance_images`: ``--image-dir`` or ``image/`` beside
+    ``velodyne_raw/``; InputError when there is neither)."""
+    from jaxdepth.io import guidance_images
+    if not args.guidance_weight > 0:
+        return lambda png: None
+    folder = guidance_images.selection_image_folder(src, args.image_dir)
+    return lambda png: guidance_images.find_image(folder, png.stem)
 
 
 def _extras_from(args):
@@ -194,7 +228,8 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     if not src.is_dir():
         return None
     scan = kitti_datasets.discover_kitti(src, dst, camera=args.camera, crop=args.crop,
-                                         name=args.name or args.method, calib_dir=args.calib_dir)
+                                         name=args.name or args.method, calib_dir=args.calib_dir,
+                                         image_dir=args.image_dir)
     if scan is None:
         try:
             has_pngs = (src / "velodyne_raw").exists() or any(p.suffix.lower() == ".png" for p in src.iterdir())
@@ -454,6 +489,13 @@ def _add_complete_command(sub) -> None:
     p.add_argument("--extrinsic", default=None, metavar="T.txt",
                    help="LiDAR -> camera extrinsic for every frame: 12 (3x4) or 16 (4x4) numbers, row major")
     _add_method_options(p)
+    p.add_argument("--image-dir", default=None, metavar="DIR",
+                   help="camera images for --guidance-weight: a selection / flat folder or one PNG reads "
+                        "DIR/<name>.png, where <name> is the depth PNG's name with 'velodyne_raw' replaced by "
+                        "'image' (KITTI's naming), else the same name (default: the image/ folder beside "
+                        "velodyne_raw/); a KITTI raw drive or a depth-completion train/val tree reads "
+                        "DIR/<date>/<drive>/image_0X/data/<frame>.png (a raw root; default for raw: the drive's "
+                        "own image_0X/data, train/val trees have none); KITTI object uses its image_X/")
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,

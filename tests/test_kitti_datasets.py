@@ -301,3 +301,65 @@ def test_sweeps_of_different_lengths_group_by_power_of_two_bucket(raw_tree, tmp_
         keys.append(runner._group_key(job, data))
         assert data[0].shape[0] == data[1].shape[0] and data[1].sum() == path.stat().st_size // 16
     assert keys == [("sweep", 131072, 352, 1216), ("sweep", 65536, 352, 1216)]
+
+
+# ---------------------------------------------------------------- camera images (image-guided seeds)
+
+
+def _bgr_to_rgb(path) -> np.ndarray:
+    return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[:, :, ::-1]
+
+
+def test_raw_jobs_find_the_drive_images_and_crop_them_like_the_depth(raw_tree, tmp_path):
+    from jaxdepth.io import crop_to_benchmark
+    for crop in (False, True):
+        scan = kitti_datasets.kitti_raw_jobs(raw_tree, tmp_path, crop=crop)
+        for job in scan.jobs:
+            drive, cam, frame = job.name.split("/")
+            assert job.image_path == raw_tree / drive[:10] / drive / cam / "data" / f"{frame}.png"
+            assert job.image_crop_from == ((375, 1242) if crop else None)  # S_rect_0X of both dates
+            image = runner._load_image(job, job.image_size)
+            full = _bgr_to_rgb(job.image_path)
+            expected = crop_to_benchmark(full, np.eye(3))[0] if crop else full
+            assert image.shape == job.image_size + (3,)
+            np.testing.assert_array_equal(image, expected)
+    # another raw root holds the images: <root>/<date>/<drive>/... (or <root>/<drive>/...)
+    other = tmp_path / "images"
+    shutil.copytree(raw_tree / DATE_A / DRIVE_A / "image_02", other / DRIVE_A / "image_02")
+    (job,) = kitti_datasets.kitti_raw_jobs(raw_tree / DATE_A, tmp_path, camera=2, image_dir=other).jobs
+    assert job.image_path == other / DRIVE_A / "image_02" / "data" / "0000000005.png" and job.image_path.is_file()
+
+
+def test_object_jobs_use_image_x_and_crop_from_its_own_size(object_split, tmp_path):
+    for crop in (False, True):
+        scan = kitti_datasets.kitti_object_jobs(object_split, tmp_path, crop=crop)
+        for job in scan.jobs:
+            frame = job.name.split("/")[1]
+            assert job.image_path == object_split / "image_2" / f"{frame}.png"
+            full = cv2.imread(str(job.image_path)).shape[:2]
+            assert job.image_crop_from == (full if crop else None)
+            assert job.image_size == ((352, 1216) if crop else full)
+            assert runner._load_image(job, job.image_size).shape == job.image_size + (3,)
+    assert {job.image_crop_from for job in kitti_datasets.kitti_object_jobs(object_split, tmp_path, crop=True).jobs} \
+        == {(370, 1224), (375, 1242)}
+    with pytest.raises(jaxdepth.io.InputError, match="--image-dir does not apply"):
+        kitti_datasets.discover_kitti(object_split, tmp_path, image_dir=object_split)
+
+
+def test_depth_tree_images_come_from_a_raw_root_or_a_clear_error(raw_tree, tmp_path, capsys):
+    frame = require_shared("kitti", "drive_0001_frame05")
+    src = tmp_path / "train"
+    folder = src / DRIVE_A / "proj_depth" / "velodyne_raw" / "image_02"
+    folder.mkdir(parents=True)
+    shutil.copyfile(frame / "velodyne_raw_image_02.png", folder / "0000000005.png")
+    calib = raw_tree / DATE_A
+    (job,) = kitti_datasets.kitti_depth_tree_jobs(src, tmp_path / "o", calib_dir=calib, image_dir=raw_tree).jobs
+    assert job.image_path == raw_tree / DATE_A / DRIVE_A / "image_02" / "data" / "0000000005.png"
+    assert job.image_crop_from is None
+    np.testing.assert_array_equal(runner._load_image(job, (375, 1242)), _bgr_to_rgb(job.image_path))
+    assert kitti_datasets.kitti_depth_tree_jobs(src, tmp_path / "o", calib_dir=calib).jobs[0].image_path is None
+    code = cli.main(["complete", str(src), str(tmp_path / "out"), "--calib-dir", str(calib),
+                     "--guidance-weight", "1"])
+    err = capsys.readouterr().err
+    assert code == 1 and "holds no camera images" in err and "--image-dir" in err
+    assert not (tmp_path / "out").exists()

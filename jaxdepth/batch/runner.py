@@ -57,6 +57,12 @@ class FrameJob:
     :func:`jaxdepth.complete_points` (SGM only) into an image of ``image_size`` =
     (height, width) pixels with ``K`` and ``T_cam_lidar``. Sweeps are padded to the
     power-of-two buckets of :func:`jaxdepth.io.points.bucket_size`.
+
+    ``image_path``: the frame's camera image, read only by guided runs
+    (``SGMConfig.guidance_weight > 0``, image-guided seeds) with
+    :func:`jaxdepth.io.guidance_images.read_guidance_image`; it must have the
+    depth's size, or, with ``image_crop_from`` = (H, W), be the full H x W frame
+    whose 352 x 1216 benchmark crop the job completes (cut the same way).
     """
 
     name: str
@@ -67,6 +73,8 @@ class FrameJob:
     T_cam_lidar: np.ndarray | None = None
     image_size: tuple[int, int] | None = None
     point_columns: int | None = None
+    image_path: pathlib.Path | None = None
+    image_crop_from: tuple[int, int] | None = None
 
 
 @dataclasses.dataclass
@@ -103,22 +111,38 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     ``(depth, valid, seed_distance)``, each (B, H, W), from
     :func:`jaxdepth._src.validity.validity_and_distance` of the frame's Stages (another
     compiled function; without it nothing changes).
+
+    Guided (``config.guidance_weight > 0``, method "sgm" only): the function takes a fourth
+    argument, the (B, H, W) grey or (B, H, W, 3) colour uint8 camera images, and frame i is
+    :func:`jaxdepth.complete` of it with ``image=images[i]``. Unguided functions take no image.
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     if max_seed_distance_px is not None and method != "sgm":
         raise ValueError(f"batched_completion: extra outputs (validity, seed distance) need method 'sgm', "
                          f"got {method!r}")
-    def one(depth, K, T):
+    guided = is_guided(config)
+    if guided and method != "sgm":
+        raise ValueError(f"batched_completion: image-guided seeds (config.guidance_weight > 0) need method "
+                         f"'sgm', got {method!r}")
+    from jaxdepth._src import pipeline
+
+    def one(depth, K, T, image=None):
         if max_seed_distance_px is None:
+            if guided:
+                return pipeline.complete(depth, K, T, config=config, lidar=lidar, image=image)
             return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
-        from jaxdepth._src.pipeline import complete_stages
-        stages = complete_stages(depth, K, T, config=config, lidar=lidar)
+        stages = pipeline.complete_stages(depth, K, T, config=config, lidar=lidar, image=image)
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
-    return _batched(one, arity=3, batch_size=batch_size, strategy=strategy, devices=devices,
+    return _batched(one, arity=4 if guided else 3, batch_size=batch_size, strategy=strategy, devices=devices,
                     out_specs=_out_specs(max_seed_distance_px), first_shape=(batch_size, height, width))
+
+
+def is_guided(config: SGMConfig) -> bool:
+    """Whether a run with ``config`` reads camera images (image-guided seeds, ``guidance_weight > 0``)."""
+    return config.guidance_weight > 0
 
 
 def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px: float):
@@ -147,22 +171,26 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
     Frame i is :func:`jaxdepth.complete_points` of ``points[i]``, ``valid[i]`` for the
     camera (``K[i]``, ``T[i]``, ``height`` x ``width``); K and T are traced. Strategies
     and devices as in :func:`batched_completion`, and so is ``max_seed_distance_px``
-    (then ``(depth, valid, seed_distance)``).
+    (then ``(depth, valid, seed_distance)``). Guided (``config.guidance_weight > 0``): a fifth
+    argument, the (B, H, W) or (B, H, W, 3) uint8 camera images (``image=`` of
+    :func:`jaxdepth.complete_points`).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_sweep_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     from jaxdepth._src.pipeline import complete_points, complete_points_stages
     from jaxdepth._src.types import Camera
+    guided = is_guided(config)
 
-    def one(pts, valid, K, T):
+    def one(pts, valid, K, T, image=None):
         camera = Camera(K=K, T_cam_lidar=T, height=height, width=width)
+        more = {"image": image} if guided else {}
         if max_seed_distance_px is None:
-            return complete_points(pts, valid, camera, config=config, lidar=lidar)
-        stages = complete_points_stages(pts, valid, camera, config=config, lidar=lidar)
+            return complete_points(pts, valid, camera, config=config, lidar=lidar, **more)
+        stages = complete_points_stages(pts, valid, camera, config=config, lidar=lidar, **more)
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
-    return _batched(one, arity=4, batch_size=batch_size, strategy=strategy, devices=devices,
+    return _batched(one, arity=5 if guided else 4, batch_size=batch_size, strategy=strategy, devices=devices,
                     out_specs=_out_specs(max_seed_distance_px))
 
 
@@ -209,12 +237,15 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,
                    method: str = "sgm", config: SGMConfig = SGMConfig(),
                    lidar: LidarSpec = presets.KITTI_HDL64, batch_size: int | None = None,
-                   strategy: str | None = None, devices: int | None = None) -> np.ndarray:
+                   strategy: str | None = None, devices: int | None = None,
+                   images: np.ndarray | None = None) -> np.ndarray:
     """Completes a stack of same-size frames in fixed-size (padded) batches.
 
     Args:
       depths: (F, H, W) float32 sparse depths, metres. Ks: (F, 3, 3).
       T_cam_lidar: (4, 4) for every frame or (F, 4, 4) per frame (default: KITTI camera 2's).
+      images: (F, H, W) grey or (F, H, W, 3) colour camera images (uint8, or float in [0, 1]);
+        required when ``config.guidance_weight > 0`` (image-guided seeds), else not allowed.
       batch_size: frames per compiled call (default: F rounded up to the device count).
       strategy: "loop", "map" or "vmap" (default: :func:`batch_strategy`).
       devices: local devices to shard the batch over (default: all).
@@ -232,6 +263,15 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
         raise ValueError(f"complete_batch: field 'T_cam_lidar' expected shape (4, 4) or {(depths.shape[0], 4, 4)}, "
                          f"got {T.shape}")
     Ts = np.ascontiguousarray(np.broadcast_to(T, (depths.shape[0], 4, 4)))
+    if is_guided(config) != (images is not None):
+        raise ValueError("complete_batch: field 'images' expected " + (
+            "(F, H, W) or (F, H, W, 3) camera images because config.guidance_weight > 0, got None"
+            if images is None else "None because config.guidance_weight is 0 (no image guidance), got images"))
+    if images is not None:
+        images = np.asarray(images)
+        if images.shape[:3] != depths.shape or images.ndim not in (3, 4):
+            raise ValueError(f"complete_batch: field 'images' expected shape {depths.shape} or "
+                             f"{depths.shape + (3,)}, got {images.shape}")
     devices = devices or len(jax.local_devices())
     batch_size = batch_size or depths.shape[0]
     batch_size = -(-batch_size // devices) * devices
@@ -241,8 +281,15 @@ def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray |
     for start in range(0, depths.shape[0], batch_size):
         d, k, t, n = _pad_batch(depths[start:start + batch_size], Ks[start:start + batch_size],
                                 Ts[start:start + batch_size], batch_size)
-        out.append(np.asarray(fn(d, k, t))[:n])
+        more = () if images is None else (_pad_zeros(images[start:start + batch_size], batch_size),)
+        out.append(np.asarray(fn(d, k, t, *more))[:n])
     return np.concatenate(out, axis=0)
+
+
+def _pad_zeros(stack: np.ndarray, batch_size: int) -> np.ndarray:
+    """``stack`` (n, ...) padded with zero entries to (batch_size, ...)."""
+    pad = batch_size - stack.shape[0]
+    return stack if pad == 0 else np.concatenate([stack, np.zeros((pad,) + stack.shape[1:], stack.dtype)])
 
 
 def _pad_batch(depths: np.ndarray, Ks: np.ndarray, Ts: np.ndarray, batch_size: int):
@@ -272,43 +319,75 @@ def _load_sweep(job: FrameJob):
     return pad_points(points), K
 
 
-def _group_key(job: FrameJob, data) -> tuple:
+def _group_key(job: FrameJob, data, image: np.ndarray | None = None) -> tuple:
     """Frames with equal keys share one compiled batch: (H, W) for a depth image,
-    ("sweep", P, H, W) for a sweep padded to P points."""
-    if job.image_size is None:
-        return data.shape
-    return ("sweep", data[0].shape[0]) + tuple(int(s) for s in job.image_size)
+    ("sweep", P, H, W) for a sweep padded to P points; a guided frame appends
+    ("image", C) with C = 1 (grey) or 3 (colour) channels of its camera image."""
+    key = data.shape if job.image_size is None else (
+        ("sweep", data[0].shape[0]) + tuple(int(s) for s in job.image_size))
+    if image is None:
+        return key
+    return tuple(key) + ("image", 1 if image.ndim == 2 else int(image.shape[2]))
+
+
+def batch_item(job: FrameJob, loaded: tuple, T_default: np.ndarray) -> tuple:
+    """``(group key, item)`` of a loaded frame (:func:`try_load`'s value): the item is
+    ``(job, data, K, T)``, plus the camera image for a guided frame."""
+    data, K, *image = loaded
+    T = T_default if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)
+    return _group_key(job, data, *image), (job, data, K, T, *image)
 
 
 def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config: SGMConfig, lidar: LidarSpec,
                 strategy: str, devices: int, max_seed_distance_px: float | None = None):
     """(compiled function, padded argument arrays, real frame count) of one group's batch.
 
-    ``items``: up to ``batch_size`` tuples (job, data, K, T) of one :func:`_group_key`.
+    ``items``: up to ``batch_size`` tuples (job, data, K, T[, image]) of one :func:`_group_key`
+    (:func:`batch_item`); guided items carry the camera image, padded with zero images.
     """
     # The extras keyword only when set: lru_cache keys on the keywords passed, and a run
     # without extras must reuse the very function (and compilation) it always did.
     more = {} if max_seed_distance_px is None else {"max_seed_distance_px": max_seed_distance_px}
+    images = () if len(items[0]) < 5 else (_pad_zeros(np.stack([it[4] for it in items]), batch_size),)
     if key[0] != "sweep":
-        h, w = key
+        h, w = key[:2]
         fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
                                 strategy=strategy, devices=devices, **more)
         d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
                                 np.stack([it[3] for it in items]), batch_size)
-        return fn, (d, k, t), n
+        return fn, (d, k, t, *images), n
     if method != "sgm":
         raise ValueError(f"sweeps complete with method 'sgm' only, got {method!r}")
-    _, points, h, w = key
+    _, points, h, w = key[:4]
     fn = batched_sweep_completion(batch_size, points, h, w, config=config, lidar=lidar, strategy=strategy,
                                   devices=devices, **more)
     pts = np.stack([it[1][0] for it in items])
     valid = np.stack([it[1][1] for it in items])
     d, k, t, n = _pad_batch(pts, np.stack([it[2] for it in items]), np.stack([it[3] for it in items]), batch_size)
     valid = np.concatenate([valid, np.zeros((batch_size - n,) + valid.shape[1:], bool)])
-    return fn, (d, valid, k, t), n
+    return fn, (d, valid, k, t, *images), n
 
 
-def _load(job: FrameJob):
+def _load(job: FrameJob, *, guided: bool = False):
+    """(data, K) of a job, plus its camera image (:func:`_load_image`) when ``guided``."""
+    data, K = _load_sparse(job)
+    if not guided:
+        return data, K
+    size = tuple(int(s) for s in job.image_size) if job.image_size is not None else data.shape
+    return data, K, _load_image(job, size)
+
+
+def _load_image(job: FrameJob, size: tuple[int, int]) -> np.ndarray:
+    """The job's camera image, (H, W) or (H, W, 3) uint8 of the depth's ``size`` (InputError naming
+    the file otherwise, or naming the frame when it has no image)."""
+    from jaxdepth.io.guidance_images import read_guidance_image
+    if job.image_path is None:
+        raise io_errors.InputError(f"{job.sparse_path}: no camera image for this frame (image-guided seeds, "
+                                   "--guidance-weight > 0, need one: see --image-dir)")
+    return read_guidance_image(job.image_path, size=size, crop_from=job.image_crop_from)
+
+
+def _load_sparse(job: FrameJob):
     if job.image_size is not None:
         return _load_sweep(job)
     depth = read_depth_png(job.sparse_path)
@@ -373,14 +452,23 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     and use their own compiled functions; with none of them the run compiles and
     writes exactly what it does without ``extras``.
 
+    Guided runs (``config.guidance_weight > 0``, image-guided seeds, method "sgm") read each
+    frame's camera image (``FrameJob.image_path``) on the reader threads with its input and
+    pass it into the compiled batch (frames grouped also by grey / colour); a missing or bad
+    image fails that frame only, with a message naming the image file. Each output equals
+    :func:`jaxdepth.complete` / :func:`jaxdepth.complete_points` with ``image=``. Unguided runs
+    never open the images.
+
     Raises:
-      ValueError: sweep jobs, or validity / seed-distance / zero-invalid extras, with a
-        ``method`` other than "sgm".
+      ValueError: sweep jobs, validity / seed-distance / zero-invalid extras, or a guided
+        config, with a ``method`` other than "sgm".
     """
     from jaxdepth.batch import extras as extra_outputs
     extras = extra_outputs.NONE if extras is None else extras
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
+    if method != "sgm" and is_guided(config):
+        raise ValueError(f"run_jobs: image-guided seeds (guidance_weight > 0) need method 'sgm', got {method!r}")
     if method != "sgm" and extras.needs_seeds:
         raise ValueError(f"run_jobs: --validity, --seed-distance and --zero-invalid need method 'sgm', got {method!r}")
     summary = RunSummary(started_at=time.perf_counter())
@@ -397,24 +485,29 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
         _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
         strategy=strategy or batch_strategy(), devices=devices,
         max_seed_distance_px=extras.max_seed_distance_px if extras.needs_seeds else None)
-    pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T)
+    pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T[, image])
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,
                         png_compression=png_compression)
-        for job, (loaded, message) in read_ahead(todo, readers, window=max(2 * batch_size, 4)):
+        for job, (loaded, message) in read_ahead(todo, readers, window=max(2 * batch_size, 4),
+                                                 load=loader(config)):
             if message is not None:
                 run.record_failure(job.name, message)
                 continue
-            depth, K = loaded
-            key = _group_key(job, depth)
+            key, item = batch_item(job, loaded, T)
             items = pending.setdefault(key, [])
-            items.append((job, depth, K, T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)))
+            items.append(item)
             if len(items) == batch_size:
                 run.flush(key, pending.pop(key))
         for key, items in list(pending.items()):
             run.flush(key, items)
         run.finish()
     return summary
+
+
+def loader(config: SGMConfig) -> Callable:
+    """The job loader of a run with ``config``: (data, K), plus the camera image when guided."""
+    return functools.partial(_load, guided=True) if is_guided(config) else _load
 
 
 def _sparse_path_error(job, err: OSError) -> str:

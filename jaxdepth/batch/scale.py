@@ -106,6 +106,10 @@ def _record(job) -> dict[str, Any]:
         # sweep jobs: (height, width) of the image, values per point (0: none / inferred)
         "image_size": [0, 0] if job.image_size is None else [int(s) for s in job.image_size],
         "point_columns": 0 if job.point_columns is None else int(job.point_columns),
+        # camera image for guided runs ("" none); full frame size it is cropped from ([0, 0]: no crop)
+        "image_path": "" if getattr(job, "image_path", None) is None else os.fspath(job.image_path),
+        "image_crop_from": ([0, 0] if getattr(job, "image_crop_from", None) is None
+                            else [int(s) for s in job.image_crop_from]),
     }
 
 
@@ -125,10 +129,14 @@ def _jobs_from_batch(batch: dict[str, Any]) -> list:
             T = np.asarray(list(batch["T"][i]), np.float64).reshape(4, 4).astype(np.float32)
         size = tuple(int(s) for s in batch["image_size"][i])
         columns = int(batch["point_columns"][i])
+        image = str(batch["image_path"][i]) if "image_path" in batch else ""
+        crop_from = tuple(int(s) for s in batch["image_crop_from"][i]) if "image_crop_from" in batch else (0, 0)
         jobs.append(FrameJob(name=str(batch["name"][i]), sparse_path=pathlib.Path(str(batch["sparse_path"][i])),
                              out_path=pathlib.Path(str(batch["out_path"][i])),
                              intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K, T_cam_lidar=T,
-                             image_size=size if size[0] > 0 else None, point_columns=columns or None))
+                             image_size=size if size[0] > 0 else None, point_columns=columns or None,
+                             image_path=pathlib.Path(image) if image else None,
+                             image_crop_from=crop_from if crop_from[0] > 0 else None))
     return jobs
 
 
@@ -168,9 +176,11 @@ class _CompleteFrames:
         self.batch_size = -(-max(1, int(batch_size)) // self.devices) * self.devices
         self.strategy = runner.batch_strategy()
         self.io_threads = max(1, int(io_threads))
+        # Guided configs (image-guided seeds) also read each frame's camera image, as run_jobs does.
+        self._load = runner.loader(config)
 
     def _read(self, job):
-        return self._runner.try_load(job)
+        return self._runner.try_load(job, self._load)
 
     def _write(self, job, depth, valid=None, distance=None) -> str | None:
         from jaxdepth.batch import extras as extra_outputs
@@ -187,8 +197,8 @@ class _CompleteFrames:
                 if loaded is None:
                     failure[job.name] = message
                 else:
-                    T = self.T if job.T_cam_lidar is None else np.asarray(job.T_cam_lidar, np.float32)
-                    groups.setdefault(self._runner._group_key(job, loaded[0]), []).append((job, *loaded, T))
+                    key, item = self._runner.batch_item(job, loaded, self.T)
+                    groups.setdefault(key, []).append(item)
             writes = []
             for key, items in groups.items():
                 for start in range(0, len(items), self.batch_size):
@@ -422,7 +432,9 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         writable under the same name on every node.
       method, config, lidar, T_cam_lidar, batch_size, overwrite: as in
         :func:`jaxdepth.batch.runner.run_jobs`. ``batch_size`` frames of one size go
-        through one compiled call (the last is padded, never recompiled).
+        through one compiled call (the last is padded, never recompiled). A guided
+        ``config`` (``guidance_weight > 0``): each actor reads the jobs' camera images
+        (``FrameJob.image_path``) as the local runner does, same bytes.
       address: Ray cluster address (``"ray://host:10001"``, ``"host:6379"`` or
         ``"auto"``): the driver connects, and disconnects at the end, leaving the
         cluster running. None: the ``RAY_ADDRESS`` environment variable if set,
@@ -472,6 +484,8 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
     if method != "sgm" and extras is not None and extras.needs_seeds:
         raise ValueError(f"run_jobs_ray: validity / seed-distance / zero-invalid extras need method 'sgm', "
                          f"got {method!r}")
+    if method != "sgm" and config.guidance_weight > 0:
+        raise ValueError(f"run_jobs_ray: image-guided seeds (guidance_weight > 0) need method 'sgm', got {method!r}")
     ray, ray_data = _import_ray()
 
     summary = RunSummary()

@@ -28,6 +28,12 @@ Layouts (outputs under ``dst``):
   PNG. Output ``dst/<split>/depth_X/<frame>.png`` (X: camera, 2 by default).
 
 :func:`discover_kitti` picks the layout of a folder (None: not one of these).
+
+Each job also names its camera image (``FrameJob.image_path``, read only by
+image-guided runs): a raw drive's own ``image_0X/data/<frame>.png`` (cut like the
+depth with ``crop``: ``FrameJob.image_crop_from``), an object split's
+``image_X/<frame>.png``, and for depth-completion trees, which hold no images, the
+frame in a KITTI raw root given as ``image_dir`` (:mod:`jaxdepth.io.guidance_images`).
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from typing import Iterable
 import numpy as np
 
 from jaxdepth.io.errors import InputError, PathLike, file_error
+from jaxdepth.io.guidance_images import raw_image_path
 
 #: Sweep record of KITTI velodyne ``.bin`` files: x, y, z, reflectance (float32).
 KITTI_POINT_COLUMNS = 4
@@ -132,11 +139,13 @@ def png_image_size(path: PathLike) -> tuple[int, int]:
     return height, width
 
 
-def _sweep_job(name: str, sweep: pathlib.Path, out: pathlib.Path, camera) -> object:
+def _sweep_job(name: str, sweep: pathlib.Path, out: pathlib.Path, camera, *, image: pathlib.Path | None = None,
+               crop_from: tuple[int, int] | None = None) -> object:
     from jaxdepth.batch.runner import FrameJob
     return FrameJob(name=name, sparse_path=sweep, out_path=out, K=np.asarray(camera.K, np.float32),
                     T_cam_lidar=np.asarray(camera.T_cam_lidar, np.float32),
-                    image_size=(int(camera.height), int(camera.width)), point_columns=KITTI_POINT_COLUMNS)
+                    image_size=(int(camera.height), int(camera.width)), point_columns=KITTI_POINT_COLUMNS,
+                    image_path=image, image_crop_from=crop_from)
 
 
 # ---------------------------------------------------------------- KITTI raw
@@ -165,7 +174,7 @@ def _raw_drives(src: pathlib.Path) -> list[tuple[pathlib.Path, pathlib.Path]]:
 
 
 def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, crop: bool = False,
-                   name: str = "sgm") -> DatasetScan:
+                   name: str = "sgm", image_dir: PathLike | None = None) -> DatasetScan:
     """Jobs for every sweep x camera of a KITTI raw date folder, drive folder, or folder of dates.
 
     Args:
@@ -176,10 +185,13 @@ def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, c
       camera: one KITTI camera (0-3); None: cameras 2 and 3 (colour).
       crop: complete the 352 x 1216 benchmark crop (:func:`~jaxdepth.io.rig_from_kitti_raw`).
       name: output folder under ``proj_depth`` (e.g. the method name).
+      image_dir: raw root holding the camera images (:func:`~jaxdepth.io.guidance_images.raw_image_path`);
+        None: the drive's own ``image_0X/data/<frame>.png``. Read only by guided runs; with
+        ``crop`` the image is the full ``S_rect_0X`` frame, cut like the depth.
 
     Returns:
       :class:`DatasetScan` of sweep jobs (``FrameJob.image_size`` set; K and
-      ``T_cam_lidar`` of that camera from that date's calibration).
+      ``T_cam_lidar`` of that camera from that date's calibration; ``image_path``).
 
     Raises:
       InputError: no drive found, a date folder without its calibration files, or a
@@ -194,6 +206,7 @@ def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, c
     if not pairs:
         raise file_error(src, "no KITTI raw drive found (expected <date>_drive_XXXX_sync/velodyne_points/data/)")
     rigs: dict = {}
+    full: dict = {}  # date -> full-frame cameras (the image size a cropped job's image must have)
     jobs = []
     sweeps = 0
     for date, drive in pairs:
@@ -204,12 +217,18 @@ def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, c
                     raise file_error(path, f"KITTI raw calibration of drive '{drive.name}' not found (expected "
                                      "calib_cam_to_cam.txt and calib_velo_to_cam.txt in its date folder)")
             rigs[date] = rig_from_kitti_raw(c2c, v2c, cameras=cams, crop=crop)
+            full[date] = rig_from_kitti_raw(c2c, v2c, cameras=cams).cameras if crop else None
         bins = _files(drive / "velodyne_points" / "data", ".bin")
         sweeps += len(bins)
-        for cam in rigs[date].cameras:
+        root = date.parent if image_dir is None else pathlib.Path(image_dir)
+        for i, cam in enumerate(rigs[date].cameras):
+            index = int(_IMAGE_DIR.match(cam.name).group(1))
+            crop_from = None if full[date] is None else (int(full[date][i].height), int(full[date][i].width))
             for sweep in bins:
                 out = dst / drive.name / "proj_depth" / name / cam.name / f"{sweep.stem}.png"
-                jobs.append(_sweep_job(f"{drive.name}/{cam.name}/{sweep.stem}", sweep, out, cam))
+                image = raw_image_path(root, date=date.name, drive=drive.name, camera=index, frame=sweep.stem)
+                jobs.append(_sweep_job(f"{drive.name}/{cam.name}/{sweep.stem}", sweep, out, cam, image=image,
+                                       crop_from=crop_from))
     if not jobs:
         raise file_error(src, "KITTI raw drives found but no sweeps (expected velodyne_points/data/*.bin)")
     dates = sorted({d.name for d in rigs})
@@ -252,7 +271,7 @@ def raw_calib_folder(calib_dir: PathLike, date: str, *, frame: str = "") -> path
 
 
 def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike | None, camera: int | None = None,
-                          name: str = "sgm") -> DatasetScan:
+                          name: str = "sgm", image_dir: PathLike | None = None) -> DatasetScan:
     """Jobs for a KITTI depth-completion ``train`` / ``val`` tree (no intrinsics folder).
 
     Args:
@@ -266,6 +285,9 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
         from the drive name (``<date>_drive_XXXX_sync``). K is ``P_rect_0X``'s 3x3 block.
       camera: only this camera's folder (``image_0X``); None: every camera found.
       name: output folder under ``proj_depth``.
+      image_dir: KITTI raw root with the camera images (the trees hold none):
+        ``image_dir/<date>/<drive>/image_0X/data/<frame>.png`` or ``image_dir/<drive>/...``
+        (:func:`~jaxdepth.io.guidance_images.raw_image_path`). None: jobs without images.
 
     Returns:
       :class:`DatasetScan` of depth-PNG jobs with K and ``T_cam_lidar`` per camera and date.
@@ -306,9 +328,11 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
         rel = drive.relative_to(src) if drive != src else pathlib.Path(drive.name)
         for png in _files(folder, ".png"):
             out = dst / rel / "proj_depth" / name / folder.name / png.name
+            image = None if image_dir is None else raw_image_path(image_dir, date=match.group(1), drive=drive.name,
+                                                                   camera=cam, frame=png.stem)
             jobs.append(FrameJob(name=f"{rel.as_posix()}/{folder.name}/{png.stem}", sparse_path=png, out_path=out,
                                  K=np.asarray(c["K"], np.float32),
-                                 T_cam_lidar=np.asarray(c["T_cam_lidar"], np.float32)))
+                                 T_cam_lidar=np.asarray(c["T_cam_lidar"], np.float32), image_path=image))
         drives.add(drive)
         cams.add(cam)
     if not jobs:
@@ -348,8 +372,9 @@ def kitti_object_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None
 
     Returns:
       :class:`DatasetScan` of sweep jobs with each frame's own calibration
-      (:func:`~jaxdepth.io.rig_from_kitti_object`). A frame whose calibration or
-      image cannot be read is in ``failed``, the others are jobs.
+      (:func:`~jaxdepth.io.rig_from_kitti_object`) and camera image
+      (``image_X/<frame>.png``, cut like the depth with ``crop``). A frame whose
+      calibration or image cannot be read is in ``failed``, the others are jobs.
 
     Raises:
       InputError: no split folder with ``velodyne/`` and ``calib/``.
@@ -366,15 +391,17 @@ def kitti_object_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None
     for split in splits:
         for sweep in _files(split / "velodyne", ".bin"):
             frame = f"{split.name}/{sweep.stem}"
+            image = split / f"image_{cam}" / f"{sweep.stem}.png"
             try:
-                height, width = png_image_size(split / f"image_{cam}" / f"{sweep.stem}.png")
+                height, width = png_image_size(image)
                 rig = rig_from_kitti_object(split / "calib" / f"{sweep.stem}.txt", width=width, height=height,
                                             cameras=(cam,), crop=crop)
             except JaxdepthError as err:
                 failed.append((frame, str(err)))
                 continue
             out = dst / split.name / f"depth_{cam}" / f"{sweep.stem}.png"
-            jobs.append(_sweep_job(frame, sweep, out, rig.cameras[0]))
+            jobs.append(_sweep_job(frame, sweep, out, rig.cameras[0], image=image,
+                                   crop_from=(height, width) if crop else None))
     if not jobs and not failed:
         raise file_error(src, "KITTI object split found but no sweeps (expected velodyne/*.bin)")
     sizes = sorted({job.image_size for job in jobs})
@@ -402,11 +429,14 @@ def detect_kitti_layout(src: PathLike) -> str | None:
 
 
 def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, crop: bool = False,
-                   name: str = "sgm", calib_dir: PathLike | None = None) -> DatasetScan | None:
+                   name: str = "sgm", calib_dir: PathLike | None = None,
+                   image_dir: PathLike | None = None) -> DatasetScan | None:
     """The jobs of a KITTI dataset folder in any layout :func:`detect_kitti_layout` knows, else None.
 
     ``crop`` applies to sweeps (raw, object); ``calib_dir`` to depth-completion trees
-    (a raw tree carries its own calibration). Options that do not apply are refused.
+    (a raw tree carries its own calibration); ``image_dir`` (a KITTI raw root with the
+    camera images) to raw drives and depth-completion trees (an object split reads its
+    own ``image_X``). Options that do not apply are refused.
 
     Raises:
       InputError: an option that does not apply to the layout found, or what the
@@ -418,14 +448,19 @@ def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, c
     if layout != "kitti-depth-tree" and calib_dir is not None:
         raise InputError(f"{src}: --calib-dir is for depth-completion trees; this {layout} folder carries its own "
                          "calibration")
+    if image_dir is not None and not pathlib.Path(image_dir).is_dir():
+        raise file_error(pathlib.Path(image_dir), "image folder not found (--image-dir expected a KITTI raw root)")
     if layout == "kitti-raw":
-        return kitti_raw_jobs(src, dst, camera=camera, crop=crop, name=name)
+        return kitti_raw_jobs(src, dst, camera=camera, crop=crop, name=name, image_dir=image_dir)
     if layout == "kitti-object":
+        if image_dir is not None:
+            raise InputError(f"{src}: --image-dir does not apply to a KITTI object folder (its image_X/ folder "
+                             "is used)")
         return kitti_object_jobs(src, dst, camera=camera, crop=crop)
     if crop:
         raise InputError(f"{src}: --crop applies to LiDAR sweeps (KITTI raw, object); depth-completion PNGs are "
                          "completed at their own size")
-    return kitti_depth_tree_jobs(src, dst, calib_dir=calib_dir, camera=camera, name=name)
+    return kitti_depth_tree_jobs(src, dst, calib_dir=calib_dir, camera=camera, name=name, image_dir=image_dir)
 
 
 def make_output_folders(jobs) -> int:
