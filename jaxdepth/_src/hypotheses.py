@@ -115,7 +115,7 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     gap_dn, z_dn, n_dn = column_neighbours(kept_depth, fields, above=False, max_gap=max_gap)
     if blend:   # materialised: several consumers read each neighbour field
         gap_up, z_up, n_up, gap_dn, z_dn, n_dn = fence(gap_up, z_up, n_up, gap_dn, z_dn, n_dn)
-    bracketed = (gap_up >= 0) & (gap_dn >= 0) & (depth_raw > 0)
+    bracketed = (z_up > 0) & (z_dn > 0) & (depth_raw > 0)   # (not the gaps: unused, XLA drops them)
     lo, hi = jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn)
     depth = jnp.where(bracketed, jnp.clip(depth_raw, lo, hi), depth_raw)
     if not blend:
