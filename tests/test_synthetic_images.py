@@ -15,11 +15,11 @@ import jax
 import numpy as np
 import pytest
 
-from jaxdepth._src import synthetic
+from jaxdepth._src import synthetic, synthetic_images
 from jaxdepth._src.types import LidarSpec
 
 SPEC = LidarSpec(beams=16, fov_up_deg=2.0, fov_down_deg=-24.9, columns=256)
-SUN = np.asarray(synthetic.SUN_DIRECTION) / np.linalg.norm(synthetic.SUN_DIRECTION)
+SUN = np.asarray(synthetic_images.SUN_DIRECTION) / np.linalg.norm(synthetic_images.SUN_DIRECTION)
 AMBIENT = 0.4
 
 
@@ -42,14 +42,14 @@ def small_scene():
                                    boxes=[[10.0, 0.0, 0.0, 1.0, 1.5, 1.5, 0.0],
                                           [12.0, 6.0, 0.0, 1.0, 1.0, 1.5, math.radians(30.0)]],
                                    cylinders=[[8.0, -4.0, 0.5, -1.5, 1.5]])
-    colours = synthetic.scene_colours(scene, planes=[[0.3, 0.3, 0.3]],
+    colours = synthetic_images.scene_colours(scene, planes=[[0.3, 0.3, 0.3]],
                                       boxes=[[0.8, 0.2, 0.1], [0.1, 0.6, 0.2]], cylinders=[[0.2, 0.3, 0.9]],
                                       ground_bands=[[-0.25, 0.25, 0.0, 0.0, 0.9, 0.9, 0.9]])
     return scene, colours
 
 
 def _render(camera, scene, colours, **kw):
-    return np.asarray(synthetic.render_image(camera, scene, colours, texture_amplitude=0.0, **kw))
+    return np.asarray(synthetic_images.render_image(camera, scene, colours, texture_amplitude=0.0, **kw))
 
 
 def test_analytic_colours_of_known_surfaces(small_scene):
@@ -85,14 +85,14 @@ def test_analytic_colours_of_known_surfaces(small_scene):
     v, u = pixel(centre - 1.0 * np.array([math.cos(yaw), math.sin(yaw), 0.0]))
     np.testing.assert_array_equal(img[v, u], _expected([0.1, 0.6, 0.2], [-math.cos(yaw), -math.sin(yaw), 0.0]))
     # Sky above the horizon (nothing hit within range).
-    np.testing.assert_array_equal(img[0, 0], np.round(255 * np.asarray(synthetic._SKY_RGB)).astype(np.uint8))
+    np.testing.assert_array_equal(img[0, 0], np.round(255 * np.asarray(synthetic_images._SKY_RGB)).astype(np.uint8))
 
 
 def test_hits_labels_and_sky_agree_with_depth_and_cast_rays(small_scene):
     scene, colours = small_scene
     cam = _forward_camera()
     origin, d = synthetic.camera_rays(cam)
-    t, label = (np.asarray(x) for x in jax.jit(synthetic.cast_rays_labelled)(origin, d, scene))
+    t, label = (np.asarray(x) for x in jax.jit(synthetic_images.cast_rays_labelled)(origin, d, scene))
     t_ref = np.asarray(jax.jit(synthetic.cast_rays)(origin, d, scene))
     assert t.tobytes() == t_ref.tobytes()
     # Oracle: cast each primitive on its own, argmin in NumPy.
@@ -109,7 +109,7 @@ def test_hits_labels_and_sky_agree_with_depth_and_cast_rays(small_scene):
     # Sky pixels of the image are exactly the pixels without depth.
     img = _render(cam, scene, colours)
     depth = np.asarray(synthetic.render_depth(cam, scene))
-    sky = np.all(img == np.round(255 * np.asarray(synthetic._SKY_RGB)).astype(np.uint8), axis=2)
+    sky = np.all(img == np.round(255 * np.asarray(synthetic_images._SKY_RGB)).astype(np.uint8), axis=2)
     np.testing.assert_array_equal(sky, depth == 0)
 
 
@@ -117,7 +117,7 @@ def test_texture_and_noise_bounds(small_scene):
     scene, colours = small_scene
     cam = _forward_camera()
     flat = _render(cam, scene, colours).astype(float)
-    textured = np.asarray(synthetic.render_image(cam, scene, colours, texture_amplitude=0.1)).astype(float)
+    textured = np.asarray(synthetic_images.render_image(cam, scene, colours, texture_amplitude=0.1)).astype(float)
     hit = np.asarray(synthetic.render_depth(cam, scene)) > 0
     # Texture scales each surface pixel by a factor in [0.9, 1.1] (rounding: +-1 DN) and varies it.
     assert np.all(textured[hit] <= 1.1 * flat[hit] + 1) and np.all(textured[hit] >= 0.9 * flat[hit] - 1)
@@ -148,7 +148,7 @@ def test_street_images_deterministic_and_leave_outputs_unchanged():
 
 def test_street_albedos_distinct_objects_differ_and_honest_cases():
     scene = synthetic.street_scene_arrays(1)
-    colours = synthetic.street_colours(1, scene)
+    colours = synthetic_images.street_colours(1, scene)
     boxes = np.asarray(colours.boxes)
     # Paired facades share a colour (no colour edge at their set-back), a car's body and cabin too.
     for side in (0, 7):
@@ -159,7 +159,7 @@ def test_street_albedos_distinct_objects_differ_and_honest_cases():
     cam = synthetic.rig_cameras("kitti", image_scale=0.25)[0]
     img = _render(cam, scene, colours)
     origin, d = synthetic.camera_rays(cam)
-    _, label = synthetic.cast_rays_labelled(origin, d, scene)
+    _, label = synthetic_images.cast_rays_labelled(origin, d, scene)
     label = np.asarray(label).reshape(cam.height, cam.width)
     table = np.concatenate([np.asarray(c).reshape(-1, 3) for c in colours[:3]])
     seen = [lab for lab in np.unique(label) if lab > 0 and np.sum(label == lab) >= 5]
@@ -187,12 +187,12 @@ def test_street_albedos_distinct_objects_differ_and_honest_cases():
 def test_render_image_jit_equals_eager_and_validation(small_scene):
     scene, colours = small_scene
     cam = _forward_camera(height=12, width=16, f=8.0)
-    jitted = np.asarray(synthetic.render_image(cam, scene, colours))
-    eager = np.asarray(synthetic.render_image.__wrapped__(cam, scene, colours))
+    jitted = np.asarray(synthetic_images.render_image(cam, scene, colours))
+    eager = np.asarray(synthetic_images.render_image.__wrapped__(cam, scene, colours))
     assert np.max(np.abs(jitted.astype(int) - eager.astype(int))) <= 1
     with pytest.raises(ValueError, match="boxes.*\\(2, 3\\)"):
-        synthetic.scene_colours(scene, boxes=np.zeros((3, 3)))
+        synthetic_images.scene_colours(scene, boxes=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="planes.*\\[0, 1\\]"):
-        synthetic.scene_colours(scene, planes=[[2.0, 0.0, 0.0]])
+        synthetic_images.scene_colours(scene, planes=[[2.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="49 boxes"):
-        synthetic.street_colours(0, scene)
+        synthetic_images.street_colours(0, scene)

@@ -40,6 +40,30 @@ def _size(shape) -> str:
     return f"{shape[1]}x{shape[0]}"
 
 
+def decode_camera_image(path: PathLike) -> np.ndarray:
+    """An 8-bit grey (H, W) or colour (H, W, 3) image as OpenCV decodes it (BGR), checked.
+
+    Raises:
+      InputError naming the file: missing or unreadable, not decodable, not 8-bit
+      (16-bit PNGs), 2 or 4 channels (alpha).
+    """
+    import cv2
+
+    path = pathlib.Path(path)
+    data = read_input_bytes(path, expected=_WHAT)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    if image is None:
+        raise file_error(path, f"cannot decode as an image (expected {_WHAT})")
+    if image.dtype != np.uint8:
+        bits = f"{image.dtype.itemsize * 8}-bit ({image.dtype})"
+        raise file_error(path, f"camera image expected 8-bit (uint8) values, got {bits}; convert it to 8 bit")
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if channels not in (1, 3):
+        raise file_error(path, f"camera image expected 1 (grey) or 3 (colour) channels, got {channels}"
+                         + (" (an alpha channel: save it without alpha)" if channels in (2, 4) else ""))
+    return image[:, :, 0] if image.ndim == 3 and channels == 1 else image
+
+
 def read_guidance_image(path: PathLike, *, size: tuple[int, int],
                         crop_from: tuple[int, int] | None = None) -> np.ndarray:
     """The camera image of one frame, checked against the depth it guides.
@@ -58,28 +82,14 @@ def read_guidance_image(path: PathLike, *, size: tuple[int, int],
       InputError naming the file: missing or unreadable, not decodable, not 8-bit
       (16-bit PNGs), 2 or 4 channels (alpha), or a size other than expected.
     """
-    import cv2
-
     path = pathlib.Path(path)
-    data = read_input_bytes(path, expected=_WHAT)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if image is None:
-        raise file_error(path, f"cannot decode as an image (expected {_WHAT})")
-    if image.dtype != np.uint8:
-        bits = f"{image.dtype.itemsize * 8}-bit ({image.dtype})"
-        raise file_error(path, f"camera image expected 8-bit (uint8) values, got {bits}; convert it to 8 bit")
-    channels = 1 if image.ndim == 2 else image.shape[2]
-    if channels not in (1, 3):
-        raise file_error(path, f"camera image expected 1 (grey) or 3 (colour) channels, got {channels}"
-                         + (" (an alpha channel: save it without alpha)" if channels in (2, 4) else ""))
+    image = decode_camera_image(path)
     expected = tuple(int(s) for s in (size if crop_from is None else crop_from))
     if image.shape[:2] != expected:
         why = ("the size of the frame's depth image" if crop_from is None else
                f"the full frame whose {_size(size)} benchmark crop is completed")
         raise file_error(path, f"camera image expected {_size(expected)} (width x height, {why}), "
                          f"got {_size(image.shape)}")
-    if image.ndim == 3 and channels == 1:
-        image = image[:, :, 0]
     if crop_from is not None:
         from jaxdepth.io.kitti_layout import benchmark_crop_offsets
         top, left = benchmark_crop_offsets(image.shape[0], image.shape[1], size=size)

@@ -24,11 +24,11 @@ from typing import Sequence
 
 import numpy as np
 
-from jaxdepth.io.errors import InputError, PathLike, file_error, read_input_bytes
+from jaxdepth.io.errors import InputError, PathLike, file_error
+from jaxdepth.io.guidance_images import decode_camera_image
 
 #: File name endings tried in an image folder, in this order.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-_WHAT = "a camera image (8-bit PNG or JPEG)"
 
 
 def _channels_word(channels: int) -> str:
@@ -54,20 +54,9 @@ def read_camera_image(path: PathLike, *, width: int, height: int, colour: bool |
       8-bit (e.g. a 16-bit PNG), 2 or 4 channels, another size, or grey / colour
       other than ``colour``.
     """
-    import cv2
-
     path = pathlib.Path(path)
-    data = read_input_bytes(path, expected=_WHAT)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-    if image is None:
-        raise file_error(path, f"cannot decode as an image (expected {_WHAT})")
-    if image.dtype != np.uint8:
-        raise file_error(path, f"camera image expected 8-bit (uint8) values, got {image.dtype.itemsize * 8}-bit "
-                               f"({image.dtype}); convert it to 8 bit")
-    channels = 1 if image.ndim == 2 else image.shape[2]
-    if channels not in (1, 3):
-        raise file_error(path, f"camera image expected 1 (grey) or 3 (colour) channels, got {channels}"
-                         + (" (an alpha channel: save it without alpha)" if channels in (2, 4) else ""))
+    image = decode_camera_image(path)
+    channels = 1 if image.ndim == 2 else 3
     if image.shape[:2] != (height, width):
         raise file_error(path, f"camera image expected {width}x{height} (width x height of {camera}), "
                                f"got {image.shape[1]}x{image.shape[0]}")
@@ -75,7 +64,7 @@ def read_camera_image(path: PathLike, *, width: int, height: int, colour: bool |
         raise file_error(path, f"camera image expected {_channels_word(3 if colour else 1)} for {camera}"
                                f"{' (' + like + ')' if like else ''}, got {_channels_word(channels)}")
     if image.ndim == 3:
-        image = image[:, :, 0] if channels == 1 else image[:, :, ::-1]  # OpenCV's BGR -> RGB
+        image = image[:, :, ::-1]  # OpenCV's BGR -> RGB
     return np.ascontiguousarray(image)
 
 
