@@ -103,10 +103,9 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         # Fenced: the bracket reads the kept depths at several row offsets and
         # the prediction twice; XLA would re-run their producers (gathers) there.
         depth_raw, kept_depth = fence(depth_raw, jnp.where(keep, sparse_depth, 0.0))
-        normals_read = fence(normals_cam)[0] if config.blend_hypotheses else normals_cam
         depth_raw = column_hypotheses(
             depth_raw, kept_depth, _seed_distance(du, dv, config.distance_metric),
-            normals_read, K, window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
+            normals_cam, K, window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
     if config.keep_measured_depth:
