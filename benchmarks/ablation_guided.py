@@ -69,7 +69,7 @@ from accuracy_rigs import write_results  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 KEYS = ("rmse", "mae", "irmse", "imae")
-WEIGHTS = (0.5, 1.0, 2.0, 5.0, 10.0)
+WEIGHTS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)   # 20 and 50 added when 10, the edge of the first grid, won
 QUICK_WEIGHTS = (1.0, 5.0)
 CHOSEN = "chosen"   # placeholder for the guidance weight chosen on the choose sets
 #: (key, label, SGMConfig changes); CHOSEN stands for the weight chosen for that row.
