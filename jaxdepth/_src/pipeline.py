@@ -22,7 +22,6 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxdepth._src import presets
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
@@ -100,13 +99,11 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     has_seed = seed_depth > 0
     depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
     if config.column_bracket:
-        # Fenced: the bracket reads the kept depths at several row offsets and
-        # the prediction twice; XLA would re-run their producers (gathers) there.
-        depth_raw, kept_depth = fence(depth_raw, jnp.where(keep, sparse_depth, 0.0))
         depth_raw = column_hypotheses(
-            depth_raw, kept_depth, _seed_distance(du, dv, config.distance_metric),
+            depth_raw, jnp.where(keep, sparse_depth, 0.0), _seed_distance(du, dv, config.distance_metric),
             normals_cam, K, window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
-            min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio)
+            materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
+            max_residual_ratio=config.max_residual_ratio)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
