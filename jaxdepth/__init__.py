@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
     from jaxdepth._src.distance import nearest_seed as nearest_seed, gather_at_seed as gather_at_seed
     from jaxdepth._src.geodesic import geodesic_seed as geodesic_seed
     from jaxdepth._src.residual import plane_residual as plane_residual
+    from jaxdepth._src.hypotheses import column_hypotheses as column_hypotheses
     from jaxdepth._src.smoothing import gaussian_blur as gaussian_blur, gaussian_blur_traced as gaussian_blur_traced
     from jaxdepth._src.pipeline import (complete as complete, complete_stages as complete_stages,
                                         complete_points as complete_points,
@@ -58,6 +59,7 @@ _LAZY = {
     'jaxdepth._src.distance': ('nearest_seed', 'gather_at_seed'),
     'jaxdepth._src.geodesic': ('geodesic_seed',),
     'jaxdepth._src.residual': ('plane_residual',),
+    'jaxdepth._src.hypotheses': ('column_hypotheses',),
     'jaxdepth._src.smoothing': ('gaussian_blur', 'gaussian_blur_traced'),
     'jaxdepth._src.pipeline': ('complete', 'complete_stages', 'complete_points', 'complete_points_stages'),
     'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'stack_images', 'complete_rig', 'complete_rig_stages'),
@@ -90,7 +92,8 @@ __all__ = [
     "SGMConfig", "Camera", "LidarSpec", "Stages", "KITTI_HDL64", "NUSCENES_HDL32", "KITTI_T_CAM2_LIDAR",
     "KITTI_T_CAM3_LIDAR",
     "KITTI_K_CAM2", "project_to_image", "unproject_depth", "range_image", "point_normals", "range_image_normals",
-    "outlier_keep_mask", "nearest_seed", "gather_at_seed", "geodesic_seed", "plane_residual", "gaussian_blur", "complete",
+    "outlier_keep_mask", "nearest_seed", "gather_at_seed", "geodesic_seed", "plane_residual", "column_hypotheses",
+    "gaussian_blur", "complete",
     "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "stack_images",
     "complete_rig", "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background",
     "mean_metrics", "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
