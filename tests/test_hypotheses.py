@@ -176,8 +176,8 @@ def test_window_limits_the_bracket():
     normals = np.zeros((3, H, W), np.float32)
     out = np.asarray(column_hypotheses(jnp.asarray(raw), jnp.asarray(kept), jnp.asarray(dist),
                                        jnp.asarray(normals), K, window_px=4.0))
-    np.testing.assert_array_equal(out, numpy_bracket(raw, kept, 4.0))
-    assert np.all(out[kept > 0] == 5.0)          # a LiDAR pixel is its own bracket
+    np.testing.assert_allclose(out, numpy_bracket(raw, kept, 4.0), rtol=0, atol=1e-5)   # bounds quantised
+    np.testing.assert_allclose(out[kept > 0], 5.0, atol=1e-5)   # a LiDAR pixel is its own bracket
     assert np.any(out == 20.0)                   # rows more than 4 from a line on either side keep theirs
 
 
@@ -197,3 +197,21 @@ def test_fences_do_not_change_the_result(blend):
     outs = [np.asarray(column_hypotheses(raw, kept, dist, normals, K, window_px=7.0, blend=blend, materialise=m))
             for m in (True, False)]
     np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_bracket_bounds_quantisation_is_below_a_fifth_of_a_millimetre():
+    """The packed-key bounds equal the exact neighbour depths to within half a quantisation step."""
+    from jaxdepth._src.hypotheses import column_bracket_bounds
+    rng = np.random.default_rng(8)
+    for h in (40, 352, 900):
+        kept = np.where(rng.random((h, 16)) < 0.2, rng.uniform(0.5, 149.0, (h, 16)), 0.0).astype(np.float32)
+        lo, hi, found = (np.asarray(a) for a in column_bracket_bounds(jnp.asarray(kept), max_gap=6))
+        gap_up, z_up, _ = (np.asarray(a) if a is not None else None
+                           for a in column_neighbours(jnp.asarray(kept), above=True, max_gap=6))
+        gap_dn, z_dn, _ = (np.asarray(a) if a is not None else None
+                           for a in column_neighbours(jnp.asarray(kept), above=False, max_gap=6))
+        np.testing.assert_array_equal(found, (gap_up >= 0) & (gap_dn >= 0))
+        step = 256.0 / 2 ** (31 - int(np.ceil(np.log2(h))))
+        assert step < 2e-4
+        np.testing.assert_allclose(lo[found], np.minimum(z_up, z_dn)[found], rtol=0, atol=step / 2 + 1e-5)
+        np.testing.assert_allclose(hi[found], np.maximum(z_up, z_dn)[found], rtol=0, atol=step / 2 + 1e-5)
