@@ -55,14 +55,7 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                        help="run the paper's outlier removal in front of the method (default for every method)")
     group.add_argument("--no-outlier-removal", dest="outlier_removal", action="store_false",
                        help="skip outlier removal")
-    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
-                   help="nearest-seed metric of the distance transform (default: l1, city block as in the paper; "
-                        "l2: Euclidean, SGM 1.5-1.8x slower)")
-    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
-    p.add_argument("--hypotheses", choices=("paper", "bracket", "blend"), default="bracket",
-                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
-                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
-                        "scan-line spacing), blend (also average in those pixels' own planes)")
+    add_config_options(p)
     p.add_argument("--guidance-weight", type=float, default=0.0, metavar="W",
                    help="image-guided seeds (beyond the paper): geodesic seed search on the camera image with this "
                         "colour weight (default 0: off, the paper's LiDAR-only SGM)")
@@ -70,16 +63,37 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                    help="raster sweeps of the geodesic transform (default 2)")
 
 
-def _config_from(args):
-    from jaxdepth._src.config import SGMConfig
-    changes = {"distance_metric": args.distance}
-    if args.outlier_removal is not None:
-        changes["outlier_removal"] = args.outlier_removal
+#: --hypotheses: the SGMConfig fields each of Step 4's variants sets.
+_HYPOTHESES = {"paper": dict(column_bracket=False, blend_hypotheses=False),
+               "bracket": dict(column_bracket=True, blend_hypotheses=False),
+               "blend": dict(column_bracket=True, blend_hypotheses=True)}
+
+
+def add_config_options(p: argparse.ArgumentParser) -> None:
+    """The SGMConfig options every completing command takes (``jaxdepth`` and the research commands)."""
+    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
+                   help="nearest-seed metric of the distance transform (default: l1, city block as in the paper; "
+                        "l2: Euclidean, SGM 1.5-1.8x slower)")
+    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
+    p.add_argument("--hypotheses", choices=tuple(_HYPOTHESES), default="bracket",
+                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
+                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
+                        "scan-line spacing), blend (also average in those pixels' own planes)")
+
+
+def config_changes(args) -> dict:
+    """SGMConfig fields set by :func:`add_config_options`' arguments."""
+    changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
-    if getattr(args, "hypotheses", None) is not None:
-        changes["column_bracket"] = args.hypotheses != "paper"
-        changes["blend_hypotheses"] = args.hypotheses == "blend"
+    return changes
+
+
+def _config_from(args):
+    from jaxdepth._src.config import SGMConfig
+    changes = config_changes(args)
+    if args.outlier_removal is not None:
+        changes["outlier_removal"] = args.outlier_removal
     if getattr(args, "guidance_weight", None):
         changes["guidance_weight"] = args.guidance_weight
     if getattr(args, "guidance_sweeps", None) is not None:

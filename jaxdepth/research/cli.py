@@ -41,35 +41,19 @@ and exits with 1) and returns its exit code.
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 
 import numpy as np
 
+from jaxdepth.cli import add_config_options, config_changes
 from jaxdepth.io.errors import InputError, JaxdepthError
 
 
 def _config(args):
     from jaxdepth._src.config import SGMConfig
-    changes = {"distance_metric": args.distance}
-    if getattr(args, "epsilon", None) is not None:
-        changes["epsilon_m"] = args.epsilon
-    if getattr(args, "hypotheses", None) is not None:
-        changes["column_bracket"] = args.hypotheses != "paper"
-        changes["blend_hypotheses"] = args.hypotheses == "blend"
-    return SGMConfig(**changes)
-
-
-def _add_config_options(p: argparse.ArgumentParser):
-    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
-                   help="nearest-seed metric of the distance transform (default: l1, city block; l2: Euclidean)")
-    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
-    p.add_argument("--hypotheses", choices=("paper", "bracket", "blend"), default="bracket",
-                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
-                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
-                        "scan-line spacing), blend (also average in those pixels' own planes)")
+    return SGMConfig(**config_changes(args))
 
 
 def _write_json(path, payload):
@@ -346,7 +330,7 @@ _POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
                                           help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
 
 # subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
-# the SGM options of _add_config_options.
+# the SGM options of jaxdepth.cli.add_config_options.
 _SUBCOMMANDS = {
     "ablation": ("the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth", cmd_ablation, (
         ("src", dict(help="folder with velodyne_raw/*.png and intrinsics/*.txt")),
@@ -389,7 +373,7 @@ def register(subparsers) -> None:
         p = subparsers.add_parser(command, help=help_text)
         for name, options in arguments:
             p.add_argument(name, **options)
-        _add_config_options(p)
+        add_config_options(p)
         p.set_defaults(func=handler)
 
 
