@@ -286,12 +286,10 @@ def test_multisweep_accumulation_by_hand(dataroot):
 # ---------------------------------------------------------------- the job
 
 
-def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_path):
-    """s1 (ego poses equal) completes exactly as the existing rig path does from a calibration JSON."""
-    import jaxdepth
-    from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
-    root, tables, sample_dir = dataroot
-    dst, summary, _ = first_run
+def calibration_path_frame(tables, sample_dir, tmp_path):
+    """s1's sweep through the calibration-JSON rig path (the oracle of the job: s1's ego poses are
+    equal), the JSON written from the tables' calibrated_sensor rows."""
+    from jaxdepth.io import prepare_sweep, read_points, rig_from_nuscenes_calibration
     cs = by_token(tables["calibrated_sensor"])
     doc = {"cameras": {}}
     for ch in json.loads((sample_dir / "calibration.json").read_text())["cameras"]:
@@ -300,7 +298,16 @@ def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_pat
     (tmp_path / "calibration.json").write_text(json.dumps(doc))
     rig = rig_from_nuscenes_calibration(tmp_path / "calibration.json", width=WIDTH, height=HEIGHT)
     points, extra = read_points(sample_dir / LIDAR_FILE, columns=5)
-    frame = prepare_sweep(points, rig, ring=extra[:, -1])
+    return prepare_sweep(points, rig, ring=extra[:, -1])
+
+
+def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_path):
+    """s1 (ego poses equal) completes exactly as the existing rig path does from a calibration JSON."""
+    import jaxdepth
+    from jaxdepth.io import encode_depth_uint16, pad_points
+    root, tables, sample_dir = dataroot
+    dst, summary, _ = first_run
+    frame = calibration_path_frame(tables, sample_dir, tmp_path)
     assert frame.outlier_removal_trusted
     padded, valid = pad_points(frame.points)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
@@ -458,7 +465,7 @@ def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, firs
     from jaxdepth import SGMConfig
     from jaxdepth.batch import nuscenes_job
     from jaxdepth.batch.nuscenes_job import run_nuscenes
-    from jaxdepth.io import encode_depth_uint16, pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
+    from jaxdepth.io import encode_depth_uint16, pad_points
     _, tables, sample_dir = dataroot
     root = tmp_path / "root"
     build_dataroot(root, sample_dir)
@@ -476,15 +483,7 @@ def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, firs
     assert not (dst / VERSION / "CAM_FRONT" / "CAM_FRONT_s2.png").exists()  # a failed sample writes nothing
 
     # the oracle: the calibration-JSON rig path (s1's ego poses are equal) with the JPEGs read by hand
-    cs = by_token(tables["calibrated_sensor"])
-    doc = {"cameras": {}}
-    for ch in json.loads((sample_dir / "calibration.json").read_text())["cameras"]:
-        lidar2cam = np.linalg.inv(oracle_pose(cs[f"cs_{ch}"])) @ oracle_pose(cs["cs_lidar"])
-        doc["cameras"][ch] = {"cam2img": cs[f"cs_{ch}"]["camera_intrinsic"], "lidar2cam": lidar2cam.tolist()}
-    (tmp_path / "calibration.json").write_text(json.dumps(doc))
-    rig = rig_from_nuscenes_calibration(tmp_path / "calibration.json", width=WIDTH, height=HEIGHT)
-    points, extra = read_points(sample_dir / LIDAR_FILE, columns=5)
-    frame = prepare_sweep(points, rig, ring=extra[:, -1])
+    frame = calibration_path_frame(tables, sample_dir, tmp_path)
     padded, valid = pad_points(frame.points)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
     images = np.stack([cv2.imread(str(root / "samples" / c.name / "s1.jpg"))[:, :, ::-1] for c in frame.rig.cameras])
