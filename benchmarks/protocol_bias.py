@@ -11,7 +11,11 @@ depth), and every method's same prediction is scored three ways:
 - ``held-out target``: the protocol: the held-out points' z-buffer at their own pixels;
 - ``exact at held-out pixels``: the scene's exact depth at those same pixels (what the
   camera really sees there);
-- ``exact dense``: the scene's exact depth at every pixel.
+- ``exact dense``: the scene's exact depth at every pixel;
+- ``uncovered held-out target``: the protocol without the targets that nearer sweep points
+  cover on both sides (``jaxdepth.research.hidden.covered_targets``, the separately
+  reported score of ``hidden-eval``); ``covered_precision`` / ``covered_recall`` say how
+  many of the targets it drops are wrong, and how many of the wrong ones it drops.
 
 A held-out point that the camera cannot see (the LiDAR looks past an edge that hides it from
 the camera) stays a target under the protocol; a method that copies its equally hidden
@@ -37,19 +41,19 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import jaxdepth  # noqa: E402
 from accuracy_rigs import prepared_zoo_frame, write_results  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
-from jaxdepth.research.hidden import hidden_point_mask  # noqa: E402
+from jaxdepth.research.hidden import covered_targets, hidden_point_mask, scan_line_spacing_px  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth.io import pad_points  # noqa: E402
 
 METHODS = ("sgm", "sgm_no_removal", "nearest", "ip_basic")
-PROTOCOLS = ("held-out target", "exact at held-out pixels", "exact dense")
+PROTOCOLS = ("held-out target", "exact at held-out pixels", "exact dense", "uncovered held-out target")
 SENSORS = ("spin16 sensor frame", "spin32 sensor frame", "spin64 sensor frame", "spin128 sensor frame")
 
 
 def sensor_scores(name, zoo_seeds, hidden_seeds, scale, config):
     acc = {}
-    wrong = total = 0
+    wrong = total = covered_n = covered_wrong = 0
     for zoo_seed in zoo_seeds:
         prepared, cams, depths = prepared_zoo_frame(name, zoo_seed, scale)
         cfg = config if prepared.outlier_removal_trusted else config.replace(outlier_removal=False)
@@ -57,6 +61,8 @@ def sensor_scores(name, zoo_seeds, hidden_seeds, scale, config):
         valid &= np.linalg.norm(padded, axis=1) >= 1.0          # as hidden-eval (min_range_m)
         stacked = jaxdepth.stack_cameras([c.as_camera() for c in prepared.rig.cameras])
         P = jnp.asarray(padded)
+        half_height = max(1, int(np.ceil(max(scan_line_spacing_px(K, prepared.rig.lidar)
+                                             for K in np.asarray(stacked.K)))))
         for hidden_seed in hidden_seeds:
             hidden = hidden_point_mask(valid, fraction=0.2, seed=hidden_seed)
             given = jnp.asarray(valid & ~hidden)
@@ -68,21 +74,30 @@ def sensor_scores(name, zoo_seeds, hidden_seeds, scale, config):
                 target = project_to_image(P, jnp.asarray(hidden), stacked.K[i], stacked.T_cam_lidar[i],
                                           height=stacked.height, width=stacked.width,
                                           valid_size=stacked.image_size[i])[0][:cam.height, :cam.width]
+                full = project_to_image(P, jnp.asarray(valid), stacked.K[i], stacked.T_cam_lidar[i],
+                                        height=stacked.height, width=stacked.width,
+                                        valid_size=stacked.image_size[i])[0][:cam.height, :cam.width]
+                covered = covered_targets(target, full, half_height_px=half_height)
                 exact = jnp.asarray(depths[i])
                 at_targets = jnp.where(target > 0, exact, 0.0)
                 off = (target > 0) & (jnp.abs(target - exact) > jnp.maximum(1.0, 0.05 * exact))
                 wrong += int(off.sum())
                 total += int((target > 0).sum())
+                covered_n += int(covered.sum())
+                covered_wrong += int((covered & off).sum())
+                uncovered = jnp.where(covered, 0.0, target)
                 preds = {"sgm": crop(sgm.depth), "sgm_no_removal": crop(plain.depth), "nearest": crop(plain.seed_depth),
                          "ip_basic": ip_basic(crop(plain.sparse_depth))}
                 for method, pred in preds.items():
-                    for proto, truth in zip(PROTOCOLS, (target, at_targets, exact)):
+                    for proto, truth in zip(PROTOCOLS, (target, at_targets, exact, uncovered)):
                         m = depth_metrics(pred, truth)
                         acc.setdefault(proto, {}).setdefault(method, []).append(
                             dict(m, count=int((truth > 0).sum())))
     scores = {proto: {m: {k: float(v) for k, v in mean_metrics(rows).items() if k != "count"}
                       for m, rows in per.items()} for proto, per in acc.items()}
-    return scores, {"wrong_target_share": wrong / max(total, 1), "targets": total}
+    return scores, {"wrong_target_share": wrong / max(total, 1), "targets": total,
+                    "covered_share": covered_n / max(total, 1), "covered_precision": covered_wrong / max(covered_n, 1),
+                    "covered_recall": covered_wrong / max(wrong, 1), "cover_half_height_px": half_height}
 
 
 def main(argv=None) -> int:
@@ -99,7 +114,9 @@ def main(argv=None) -> int:
     for name in args.sensors:
         scores, meta = sensor_scores(name, args.zoo_seeds, args.hidden_seeds, args.zoo_scale, config)
         rows[name] = {"scores": scores, **meta}
-        print(f"{name}  (targets {meta['targets']}, {100 * meta['wrong_target_share']:.1f} % off the exact depth)")
+        print(f"{name}  (targets {meta['targets']}, {100 * meta['wrong_target_share']:.1f} % off the exact depth; "
+              f"covered {100 * meta['covered_share']:.1f} %, of which wrong {100 * meta['covered_precision']:.0f} %, "
+              f"{100 * meta['covered_recall']:.0f} % of the wrong ones)")
         for proto in PROTOCOLS:
             s = scores[proto]
             best = min(METHODS, key=lambda m: s[m]["mae"])

@@ -228,6 +228,13 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
     # The mean row is the mean over camera images (the devkit's data-set score).
     np.testing.assert_allclose(doc["mean"]["sgm"]["rmse"], np.mean(np.asarray(scores["sgm"]["rmse"])), rtol=1e-5)
     assert doc["targets"].startswith("held-out points' own per-pixel z-buffer")
+    # The separately reported score without the covered targets.
+    assert "uncovered" in out
+    covered = np.asarray(scores["covered_pixels"])
+    assert np.all(covered <= np.asarray(scores["hidden_pixels"]))
+    np.testing.assert_allclose(doc["covered_share"], covered.sum() / np.asarray(scores["hidden_pixels"]).sum())
+    np.testing.assert_allclose(doc["mean_uncovered"]["nearest"]["mae"],
+                               np.mean(np.asarray(scores["uncovered"]["nearest"]["mae"])), rtol=1e-5)
 
 
 def test_hidden_point_targets_are_the_hidden_z_buffer():

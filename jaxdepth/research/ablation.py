@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxdepth._src.config import SGMConfig
-from jaxdepth._src.metrics import depth_metrics, keep_ratio, mean_metrics, pair_errors
+from jaxdepth._src.metrics import depth_metrics, keep_ratio, pair_errors
 from jaxdepth._src.pipeline import complete_stages
 from jaxdepth._src import presets
 from jaxdepth._src.types import LidarSpec
