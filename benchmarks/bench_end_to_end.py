@@ -27,12 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.ndimage
 
-import jaxdepth
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets
 from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_depth
 from jaxdepth._src.methods import complete_with
-from jaxdepth._src.pipeline import complete_stages
 from jaxdepth.research.baselines import ip_basic_opencv
 from jaxdepth.batch import runner
 
@@ -225,7 +223,6 @@ def main(argv=None):
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     results["peak_rss_growth_mb"] = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
 
-    e = results["end_to_end_ms"]
     print(f"{label}; backend {results['backend']}, load average {results['load_average'][0]:.2f}")
     print(f"{'':36s}{'median ms':>10s}")
     print(f"{'SGM (jaxdepth, outlier removal on)':36s}{min(sgm_med, sgm_med2):10.2f}  (compile {results['sgm_compile_s']:.1f} s)")

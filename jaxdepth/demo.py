@@ -6,7 +6,6 @@ import dataclasses
 import pathlib
 import time
 
-import jax
 import numpy as np
 
 from jaxdepth._src.colorize import colorize_depth

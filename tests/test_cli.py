@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from jaxdepth import cli
-from jaxdepth.batch import runner
 from jaxdepth.io import read_depth_png
 
 from helpers import small_frames, write_kitti_folder

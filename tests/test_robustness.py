@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from jaxdepth import Camera, cli, complete_points, stack_cameras, complete_rig
+from jaxdepth import cli, complete_points, stack_cameras, complete_rig
 from jaxdepth._src import synthetic
 from jaxdepth._src.types import LidarSpec
 

@@ -13,7 +13,7 @@ import pytest
 from jaxdepth import SGMConfig
 from jaxdepth.batch import runner
 from jaxdepth._src.methods import complete_with
-from jaxdepth.io import read_depth_png, write_depth_png
+from jaxdepth.io import read_depth_png
 
 from helpers import small_frames, write_kitti_folder
 

@@ -24,7 +24,6 @@ import jaxdepth
 from jaxdepth.research import sparsity
 from jaxdepth.io import read_points
 
-from conftest import require_shared
 
 
 def _synthetic(beams, columns=256, **kw):

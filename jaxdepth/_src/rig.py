@@ -32,7 +32,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.pipeline import camera_stages_from_points
-from jaxdepth._src.types import Camera, LidarSpec, Stages
+from jaxdepth._src.types import LidarSpec, Stages
 
 
 @jax.tree_util.register_dataclass
