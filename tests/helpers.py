@@ -82,3 +82,20 @@ def numpy_column_hypotheses(depth_raw, kept, window, *, seed_distance=None, norm
     w_0 = 1.0 / np.where(at_seed, 1.0, dist)
     blended = (w_0 * out + w_up * h_up + w_dn * h_dn) / (w_0 + w_up + w_dn)
     return np.where(at_seed, out, blended)
+
+
+def square_before_plane(*, seed: int, far_points: int, near_points: int, near_half_m: float):
+    """A near square (z = 4 m, half width ``near_half_m``) in front of a far plane (z = 20 m),
+    seen by one 64 x 48 camera at the points' origin: (stacked cameras, K, T, (N, 3) float32 points,
+    far points first)."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.rig import stack_cameras
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]], np.float32)
+    T = np.eye(4, dtype=np.float32)
+    cams = stack_cameras([Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T), height=48, width=64)])
+    rng = np.random.default_rng(seed)
+    far = np.stack([rng.uniform(-8, 8, far_points), rng.uniform(-6, 6, far_points), np.full(far_points, 20.0)], 1)
+    near = np.stack([rng.uniform(-near_half_m, near_half_m, near_points),
+                     rng.uniform(-near_half_m, near_half_m, near_points), np.full(near_points, 4.0)], 1)
+    return cams, K, T, np.concatenate([far, near]).astype(np.float32)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import jaxdepth
+from helpers import square_before_plane
 from jaxdepth.research.hidden import covered_targets, scan_line_spacing_px
 
 
@@ -102,14 +103,8 @@ def test_hidden_point_scores_uncovered_equal_metrics_at_kept_targets():
     are covered. "uncovered" scores equal depth_metrics at the targets covered_targets keeps,
     and "covered_pixels" counts the targets it drops."""
     from jaxdepth._src.geometry import project_to_image
-    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]], np.float32)
-    T = np.eye(4, dtype=np.float32)
-    cams = jaxdepth.stack_cameras([jaxdepth.Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T),
-                                                   height=48, width=64)])
-    rng = np.random.default_rng(1)
-    far = np.stack([rng.uniform(-8, 8, 1500), rng.uniform(-6, 6, 1500), np.full(1500, 20.0)], 1)
-    near = np.stack([rng.uniform(-1.5, 1.5, 300), rng.uniform(-1.5, 1.5, 300), np.full(300, 4.0)], 1)
-    points = jnp.asarray(np.concatenate([far, near]).astype(np.float32))
+    cams, K, T, points = square_before_plane(seed=1, far_points=1500, near_points=300, near_half_m=1.5)
+    points = jnp.asarray(points)
     valid = np.ones(len(points), bool)
     hidden = np.zeros(len(points), bool)
     hidden[:300] = True

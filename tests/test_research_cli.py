@@ -242,14 +242,8 @@ def test_hidden_point_targets_are_the_hidden_z_buffer():
     hidden far point that a given near point hides from the camera stays a
     target, and the SGM's outlier removal cannot drop it."""
     import jax.numpy as jnp
-    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]], np.float32)
-    T = np.eye(4, dtype=np.float32)
-    cams = jaxdepth.stack_cameras([jaxdepth.Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T),
-                                                   height=48, width=64)])
-    rng = np.random.default_rng(0)
-    far = np.stack([rng.uniform(-8, 8, 400), rng.uniform(-6, 6, 400), np.full(400, 20.0)], 1)
-    near = np.stack([rng.uniform(-1, 1, 100), rng.uniform(-1, 1, 100), np.full(100, 4.0)], 1)
-    points = np.concatenate([far, near]).astype(np.float32)
+    from helpers import square_before_plane
+    cams, K, T, points = square_before_plane(seed=0, far_points=400, near_points=100, near_half_m=1.0)
     valid = np.ones(len(points), bool)
     hidden = np.zeros(len(points), bool)
     hidden[:40] = True
