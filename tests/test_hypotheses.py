@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src.hypotheses import column_hypotheses, column_neighbours
+from jaxdepth._src.hypotheses import column_hypotheses, column_neighbour_rows
 from jaxdepth._src.residual import plane_residual
 
 from _harness import check_stage
@@ -44,22 +44,16 @@ def numpy_bracket(depth_raw, kept, window):
     return out
 
 
-def test_column_neighbours_match_a_walk():
+def test_column_neighbour_rows_match_a_walk():
     rng = np.random.default_rng(0)
-    kept = np.where(sparse_rows(H, W, rng), rng.uniform(2, 40, (H, W)), 0.0).astype(np.float32)
-    extra = rng.normal(size=(2, H, W)).astype(np.float32)
-    for above, step in ((True, -1), (False, 1)):
-        gap, depth, fields = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), jnp.asarray(extra),
-                                                                        above=above, max_gap=7))
-        for v in range(H):
-            for u in range(W):
-                g, z = numpy_neighbour(kept, v, u, step)
-                if g > 7:
-                    g, z = -1, 0.0
-                assert gap[v, u] == g and depth[v, u] == np.float32(z)
-                if g >= 0:
-                    r = v + step * g
-                    np.testing.assert_array_equal(fields[:, v, u], extra[:, r, u])
+    for h in (H, 352):
+        kept = np.where(sparse_rows(h, W, rng), rng.uniform(0.5, 149, (h, W)), 0.0).astype(np.float32)
+        rows = [np.asarray(r) for r in column_neighbour_rows(jnp.asarray(kept), max_gap=7)]
+        for row, step in zip(rows, (-1, 1)):
+            for v in range(h):
+                for u in range(W):
+                    g, _ = numpy_neighbour(kept, v, u, step)
+                    assert row[v, u] == (v + step * g if 0 <= g <= 7 else -1)
 
 
 def numpy_hypothesis(z, n, gap, v, u, K, sign):
@@ -206,10 +200,10 @@ def test_bracket_bounds_quantisation_is_below_a_fifth_of_a_millimetre():
     for h in (40, 352, 900):
         kept = np.where(rng.random((h, 16)) < 0.2, rng.uniform(0.5, 149.0, (h, 16)), 0.0).astype(np.float32)
         lo, hi, found = (np.asarray(a) for a in column_bracket_bounds(jnp.asarray(kept), max_gap=6))
-        gap_up, z_up, _ = (np.asarray(a) if a is not None else None
-                           for a in column_neighbours(jnp.asarray(kept), above=True, max_gap=6))
-        gap_dn, z_dn, _ = (np.asarray(a) if a is not None else None
-                           for a in column_neighbours(jnp.asarray(kept), above=False, max_gap=6))
+        walks = [np.array([[numpy_neighbour(kept, v, u, step) for u in range(16)] for v in range(h)])
+                 for step in (-1, 1)]
+        (gap_up, z_up), (gap_dn, z_dn) = ((np.where(w[..., 0] <= 6, w[..., 0], -1),
+                                           np.where(w[..., 0] <= 6, w[..., 1], 0.0)) for w in walks)
         np.testing.assert_array_equal(found, (gap_up >= 0) & (gap_dn >= 0))
         step = 256.0 / 2 ** (31 - int(np.ceil(np.log2(h))))
         assert step < 2e-4

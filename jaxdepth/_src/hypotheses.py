@@ -42,74 +42,17 @@ from jaxdepth._src.staging import fence
 _DEFAULTS = DEFAULT_CONFIG
 
 
-def column_neighbours(kept_depth: jax.Array, fields: jax.Array | None = None, *, above: bool, max_gap: int,
-                      materialise: bool = True):
-    """The nearest kept LiDAR pixel straight above (or below) every pixel, at most ``max_gap`` rows away.
-
-    Args:
-      kept_depth: (H, W) float32 metres, 0 = no LiDAR pixel (the seeds kept by Step 2).
-      fields: optional (C, H, W) float32 values carried along with the depth
-        (e.g. the seeds' normals).
-      above: search rows above the pixel (smaller v) if True, else below.
-        A LiDAR pixel is its own neighbour (gap 0).
-      max_gap: static search range in rows.
-      materialise: put the results behind stage fences (see :func:`column_hypotheses`).
-
-    Returns:
-      (gap, depth, fields): (H, W) int32 row distance to the neighbour (-1 where
-      there is none within ``max_gap`` on that side), its (H, W) depth (0 where
-      none) and its (C, H, W) fields (0 where none; None if ``fields`` is None).
-
-    ``max_gap + 1`` shifted copies, nearest last, fused by XLA into one pass
-    (a row scan carrying the last hit was 2-3x slower on CPU).
-    """
-    h, w = kept_depth.shape
-
-    def shifted(a, k):                      # out[v, :] = a[v - k, :] (above) or a[v + k, :], 0 outside
-        if k == 0:
-            return a
-        if k >= h:
-            return jnp.zeros_like(a)
-        a = jnp.pad(a, [(k, 0), (0, 0)] if above else [(0, k), (0, 0)])
-        return a[:h] if above else a[k:]
-
-    gap = jnp.full((h, w), -1, jnp.int32)
-    depth = jnp.zeros_like(kept_depth)
-    for k in range(int(max_gap), -1, -1):   # nearest last: it overwrites farther hits
-        candidate = shifted(kept_depth, k)
-        gap = jnp.where(candidate > 0, k, gap)
-        depth = jnp.where(candidate > 0, candidate, depth)
-    # Materialised: every consumer would otherwise re-run the whole chain of
-    # shifts for each value it reads (measured 4x slower on the KITTI crop).
-    if materialise:
-        gap, depth = fence(gap, depth)
-    if fields is None:
-        return gap, depth, None
-
-    def pick(field):                        # one (H, W) channel at a time: stacked channels were 50x slower
-        out = jnp.zeros_like(field)
-        for k in range(int(max_gap) + 1):
-            out = jnp.where(gap == k, shifted(field, k), out)
-        return out
-
-    picked = tuple(pick(f) for f in fields)
-    return gap, depth, jnp.stack(fence(*picked) if materialise else picked)
-
-
 _DEPTH_RANGE_M = 256.0
 
 
-def column_bracket_bounds(kept_depth: jax.Array, *, max_gap: int):
-    """(lo, hi, found) of the bracket: min / max depth of the nearest kept pixels above and below.
-
-    Each direction is one ``lax.reduce_window`` (max over ``max_gap + 1`` rows)
-    of an int32 key that packs the row (high bits: the nearest row wins) over
-    the depth quantised to ``256 m / 2**(31 - ceil(log2 H))`` (low bits; 0.06 mm
-    for H = 352, 0.12 mm for H = 900). The bounds are those quantised depths,
-    so they differ from the exact bracket by at most half a step.
+def _column_keys(kept_depth: jax.Array, *, max_gap: int):
+    """Packed keys of the nearest kept pixel above and below every pixel (see :func:`column_bracket_bounds`).
 
     Returns:
-      lo, hi: (H, W) float32 metres; found: (H, W) bool, both neighbours within ``max_gap`` rows.
+      (up, down, depth_bits, scale): (H, W) int32 keys, -1 where there is no kept
+      pixel within ``max_gap`` rows on that side; ``up >> depth_bits`` is the row
+      above, ``H - 1 - (down >> depth_bits)`` the row below, ``key & (2**depth_bits
+      - 1)`` the depth times ``scale``.
     """
     h, _ = kept_depth.shape
     row_bits = max(1, math.ceil(math.log2(h)))
@@ -125,10 +68,45 @@ def column_bracket_bounds(kept_depth: jax.Array, *, max_gap: int):
 
     up = nearest(rows, (g, 0))                    # above: the largest row wins
     down = nearest(h - 1 - rows, (0, g))          # below: the smallest row wins
+    return up, down, depth_bits, scale
+
+
+def column_bracket_bounds(kept_depth: jax.Array, *, max_gap: int):
+    """(lo, hi, found) of the bracket: min / max depth of the nearest kept pixels above and below.
+
+    Each direction is one ``lax.reduce_window`` (max over ``max_gap + 1`` rows)
+    of an int32 key that packs the row (high bits: the nearest row wins) over
+    the depth quantised to ``256 m / 2**(31 - ceil(log2 H))`` (low bits; 0.06 mm
+    for H = 352, 0.12 mm for H = 900). The bounds are those quantised depths,
+    so they differ from the exact bracket by at most half a step.
+
+    Returns:
+      lo, hi: (H, W) float32 metres; found: (H, W) bool, both neighbours within ``max_gap`` rows.
+    """
+    up, down, depth_bits, scale = _column_keys(kept_depth, max_gap=max_gap)
     mask = 2 ** depth_bits - 1
     z_up = (up & mask).astype(jnp.float32) / scale
     z_dn = (down & mask).astype(jnp.float32) / scale
     return jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn), (up >= 0) & (down >= 0)
+
+
+def column_neighbour_rows(kept_depth: jax.Array, *, max_gap: int):
+    """Rows of the nearest kept LiDAR pixels straight above and below every pixel.
+
+    A LiDAR pixel is its own neighbour (gap 0).
+
+    Args:
+      kept_depth: (H, W) float32 metres, 0 = no LiDAR pixel (the seeds kept by Step 2).
+      max_gap: static search range in rows.
+
+    Returns:
+      (row_up, row_down): (H, W) int32 rows, -1 where there is no kept pixel
+      within ``max_gap`` rows on that side.
+    """
+    h, _ = kept_depth.shape
+    up, down, depth_bits, _ = _column_keys(kept_depth, max_gap=max_gap)
+    return (jnp.where(up >= 0, up >> depth_bits, -1),
+            jnp.where(down >= 0, h - 1 - (down >> depth_bits), -1))
 
 
 def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance: jax.Array,
@@ -147,10 +125,10 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
       K: (3, 3) intrinsics.
       window_px: largest row gap to a column neighbour (the paper's H / L).
       blend: also average in the neighbours' own plane predictions that fall in the bracket.
-      materialise: stage fences around the blend's neighbour search (results are
-        the same either way). On XLA:CPU they make the unguided pipeline faster
-        (consumers otherwise re-run the chain of shifts per read) but the
-        image-guided one slower, so the pipeline turns them off when guided.
+      materialise: a stage fence after the blend's neighbour search (results are
+        the same either way). On XLA:CPU it makes the unguided pipeline's blend
+        faster (2x measured: the gathers otherwise re-run the row search) and the
+        image-guided one no faster, so the pipeline turns it off when guided.
       min_abs_denom, max_residual_ratio: as in :func:`~jaxdepth._src.residual.plane_residual`.
 
     Returns:
@@ -163,14 +141,30 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     if not blend:
         lo, hi, found = column_bracket_bounds(kept_depth, max_gap=max_gap)
         return jnp.where(found & (depth_raw > 0), jnp.clip(depth_raw, lo, hi), depth_raw)
-    fields = normals
-    gap_up, z_up, n_up = column_neighbours(kept_depth, fields, above=True, max_gap=max_gap, materialise=materialise)
-    gap_dn, z_dn, n_dn = column_neighbours(kept_depth, fields, above=False, max_gap=max_gap, materialise=materialise)
-    bracketed = (z_up > 0) & (z_dn > 0) & (depth_raw > 0)   # (not the gaps: unused, XLA drops them)
+    h, w = kept_depth.shape
+    row_up, row_dn = column_neighbour_rows(kept_depth, max_gap=max_gap)
+    if materialise:
+        row_up, row_dn = fence(row_up, row_dn)
+    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
+    cols = jnp.arange(w, dtype=jnp.int32)[None, :]
+    # Each neighbour's normal and exact depth: two complex64 gathers per side
+    # (nx + i ny, nz + i z). The shifted-copy search that carried the normals
+    # down the column cost 2-3x more.
+    # Materialised: XLA would otherwise fuse the packing (and whatever computes
+    # the normals) into each gathered element (the pipeline's blend measured 2x slower).
+    packed = fence(lax.complex(normals[0], normals[1]).ravel(), lax.complex(normals[2], kept_depth).ravel())
+
+    def neighbour(row):
+        index = (jnp.where(row >= 0, row, rows) * w + cols).ravel()
+        a, b = (p.at[index].get(mode="promise_in_bounds").reshape(h, w) for p in packed)
+        z = jnp.where(row >= 0, jnp.imag(b), 0.0)
+        return jnp.abs(row - rows), z, jnp.stack([jnp.real(a), jnp.imag(a), jnp.real(b)])
+
+    gap_up, z_up, n_up = neighbour(row_up)
+    gap_dn, z_dn, n_dn = neighbour(row_dn)
+    bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)
     lo, hi = jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn)
     depth = jnp.where(bracketed, jnp.clip(depth_raw, lo, hi), depth_raw)
-    if not blend:
-        return depth
     zeros = jnp.zeros_like(gap_up)
 
     def hypothesis(z, n, dv):
