@@ -124,3 +124,19 @@ def test_hidden_point_scores_uncovered_equal_metrics_at_kept_targets():
     # the covered targets are far-plane points behind the square
     gt_np = np.asarray(gt)
     assert np.all(np.abs(gt_np[covered] - 20.0) < 0.5)
+
+
+def test_hidden_point_scores_under_jit_needs_a_static_window():
+    cams, K, T, points = square_before_plane(seed=2, far_points=200, near_points=50, near_half_m=1.0)
+    valid = np.ones(len(points), bool)
+    hidden = np.arange(len(points)) % 5 == 0
+    lidar = jaxdepth.LidarSpec(beams=16)
+    with pytest.raises(ValueError, match="cover_half_height_px"):
+        jax.jit(lambda c: jaxdepth.hidden_point_scores(points, valid, hidden, c, lidar=lidar))(cams)
+    h = int(np.ceil(scan_line_spacing_px(K, lidar)))
+    traced = jax.jit(lambda c: jaxdepth.hidden_point_scores(points, valid, hidden, c, lidar=lidar,
+                                                            cover_half_height_px=h))(cams)
+    eager = jaxdepth.hidden_point_scores(points, valid, hidden, cams, lidar=lidar)
+    np.testing.assert_array_equal(np.asarray(traced["covered_pixels"]), np.asarray(eager["covered_pixels"]))
+    np.testing.assert_allclose(np.asarray(traced["uncovered"]["sgm"]["rmse"]),
+                               np.asarray(eager["uncovered"]["sgm"]["rmse"]), rtol=1e-6)

@@ -143,8 +143,12 @@ def hidden_point_scores(points: jax.Array, valid: jax.Array, hidden: jax.Array, 
       "uncovered" the same without the targets of :func:`covered_targets`.
     """
     if cover_half_height_px is None:
-        spacing = max(scan_line_spacing_px(K, lidar) for K in np.asarray(cameras.K))
-        cover_half_height_px = max(1, int(np.ceil(spacing)))
+        try:
+            Ks = np.asarray(cameras.K)
+        except jax.errors.TracerArrayConversionError:
+            raise ValueError("hidden_point_scores: field 'cover_half_height_px' expected an int when cameras.K is "
+                             "traced (under jit / vmap), got None") from None
+        cover_half_height_px = max(1, int(np.ceil(max(scan_line_spacing_px(K, lidar) for K in Ks))))
     return _hidden_point_scores(points, valid, hidden, cameras, config=config, lidar=lidar,
                                 cover=int(cover_half_height_px))
 
