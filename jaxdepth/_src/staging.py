@@ -94,7 +94,10 @@ def fence(*arrays, token=None):
     Returns a tuple of the arrays.
     """
     if token is None:
-        token = jnp.ravel(arrays[0])[0].astype(jnp.int32)  # any int32 value will do
+        first = jnp.ravel(arrays[0])[0]
+        if jnp.iscomplexobj(first):
+            first = jnp.real(first)
+        token = first.astype(jnp.int32)  # any int32 value will do
     return stage(lambda *a: a, arrays, token)
 
 
