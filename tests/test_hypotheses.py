@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src.hypotheses import column_hypotheses, column_neighbour_rows
+from jaxdepth._src.hypotheses import column_hypotheses, column_neighbours
 from jaxdepth._src.residual import plane_residual
 
 from _harness import check_stage
@@ -44,16 +44,20 @@ def numpy_bracket(depth_raw, kept, window):
     return out
 
 
-def test_column_neighbour_rows_match_a_walk():
+def test_column_neighbours_match_a_walk():
+    """Rows exactly; depths to within half the packed keys' quantisation step."""
     rng = np.random.default_rng(0)
     for h in (H, 352):
         kept = np.where(sparse_rows(h, W, rng), rng.uniform(0.5, 149, (h, W)), 0.0).astype(np.float32)
-        rows = [np.asarray(r) for r in column_neighbour_rows(jnp.asarray(kept), max_gap=7)]
-        for row, step in zip(rows, (-1, 1)):
+        row_up, z_up, row_dn, z_dn = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), max_gap=7))
+        step = 256.0 / 2 ** (31 - int(np.ceil(np.log2(h))))
+        for rows, depths, direction in ((row_up, z_up, -1), (row_dn, z_dn, 1)):
             for v in range(h):
                 for u in range(W):
-                    g, _ = numpy_neighbour(kept, v, u, step)
-                    assert row[v, u] == (v + step * g if 0 <= g <= 7 else -1)
+                    g, z = numpy_neighbour(kept, v, u, direction)
+                    found = 0 <= g <= 7
+                    assert rows[v, u] == (v + direction * g if found else -1)
+                    assert abs(depths[v, u] - (z if found else 0.0)) <= step / 2 + 1e-5
 
 
 def numpy_hypothesis(z, n, gap, v, u, K, sign):

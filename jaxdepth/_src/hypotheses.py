@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.residual import plane_residual
+from jaxdepth._src.geometry import pixel_grid
 from jaxdepth._src.staging import fence
 
 _DEFAULTS = DEFAULT_CONFIG
@@ -90,23 +90,27 @@ def column_bracket_bounds(kept_depth: jax.Array, *, max_gap: int):
     return jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn), (up >= 0) & (down >= 0)
 
 
-def column_neighbour_rows(kept_depth: jax.Array, *, max_gap: int):
-    """Rows of the nearest kept LiDAR pixels straight above and below every pixel.
+def column_neighbours(kept_depth: jax.Array, *, max_gap: int):
+    """The nearest kept LiDAR pixels straight above and below every pixel: their rows and depths.
 
-    A LiDAR pixel is its own neighbour (gap 0).
+    A LiDAR pixel is its own neighbour (gap 0). Depths are those of the packed
+    keys of :func:`column_bracket_bounds` (quantised to < 0.2 mm).
 
     Args:
       kept_depth: (H, W) float32 metres, 0 = no LiDAR pixel (the seeds kept by Step 2).
       max_gap: static search range in rows.
 
     Returns:
-      (row_up, row_down): (H, W) int32 rows, -1 where there is no kept pixel
-      within ``max_gap`` rows on that side.
+      (row_up, z_up, row_down, z_down): (H, W) int32 rows, -1 where there is no
+      kept pixel within ``max_gap`` rows on that side, and (H, W) float32 depths,
+      0 there.
     """
     h, _ = kept_depth.shape
-    up, down, depth_bits, _ = _column_keys(kept_depth, max_gap=max_gap)
-    return (jnp.where(up >= 0, up >> depth_bits, -1),
-            jnp.where(down >= 0, h - 1 - (down >> depth_bits), -1))
+    up, down, depth_bits, scale = _column_keys(kept_depth, max_gap=max_gap)
+    mask = 2 ** depth_bits - 1
+    depth = lambda key: jnp.where(key >= 0, (key & mask).astype(jnp.float32) / scale, 0.0)  # noqa: E731
+    return (jnp.where(up >= 0, up >> depth_bits, -1), depth(up),
+            jnp.where(down >= 0, h - 1 - (down >> depth_bits), -1), depth(down))
 
 
 def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance: jax.Array,
@@ -134,45 +138,48 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     Returns:
       (H, W) float32 metres: ``depth_raw`` clipped to the bracket (and blended)
       where both neighbours lie within ``window_px`` rows; ``depth_raw`` elsewhere.
-      Without the blend the bracket comes from :func:`column_bracket_bounds`
-      (depths quantised to < 0.2 mm); the blend uses the exact neighbour depths.
+      The bracket and the blend use the neighbour depths of
+      :func:`column_bracket_bounds` (quantised to < 0.2 mm).
     """
     max_gap = int(math.floor(window_px))
     if not blend:
         lo, hi, found = column_bracket_bounds(kept_depth, max_gap=max_gap)
         return jnp.where(found & (depth_raw > 0), jnp.clip(depth_raw, lo, hi), depth_raw)
     h, w = kept_depth.shape
-    row_up, row_dn = column_neighbour_rows(kept_depth, max_gap=max_gap)
+    row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap)
     if materialise:
-        row_up, row_dn = fence(row_up, row_dn)
-    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    cols = jnp.arange(w, dtype=jnp.int32)[None, :]
-    # Each neighbour's normal and exact depth: two complex64 gathers per side
-    # (nx + i ny, nz + i z). The shifted-copy search that carried the normals
-    # down the column cost 2-3x more.
-    # Materialised: XLA would otherwise fuse the packing (and whatever computes
-    # the normals) into each gathered element (the pipeline's blend measured 2x slower).
-    packed = fence(lax.complex(normals[0], normals[1]).ravel(), lax.complex(normals[2], kept_depth).ravel())
-
-    def neighbour(row):
-        index = (jnp.where(row >= 0, row, rows) * w + cols).ravel()
-        a, b = (p.at[index].get(mode="promise_in_bounds").reshape(h, w) for p in packed)
-        z = jnp.where(row >= 0, jnp.imag(b), 0.0)
-        return jnp.abs(row - rows), z, jnp.stack([jnp.real(a), jnp.imag(a), jnp.real(b)])
-
-    gap_up, z_up, n_up = neighbour(row_up)
-    gap_dn, z_dn, n_dn = neighbour(row_dn)
+        row_up, z_up, row_dn, z_dn = fence(row_up, z_up, row_dn, z_dn)
     bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)
     lo, hi = jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn)
     depth = jnp.where(bracketed, jnp.clip(depth_raw, lo, hi), depth_raw)
-    zeros = jnp.zeros_like(gap_up)
+    # Each neighbour's plane, as two numbers per LiDAR pixel: slope = n_y / fv and
+    # denom = n . r(u, v_seed), r the pixel's ray (x, y, 1). Step 4a's denominator at
+    # the pixel, dv rows from the seed in the same column, is then denom - dv * slope,
+    # and its residual z' dv slope / (denom - dv slope): the formula of
+    # :func:`~jaxdepth._src.residual.plane_residual` with du = 0. One complex64
+    # gather per side; materialised, or XLA fuses the packing into every gathered
+    # element (the pipeline's blend measured 2x slower).
+    K = jnp.asarray(K, jnp.float32)
+    fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    v, u = pixel_grid(h, w)
+    slope = normals[1] / fv
+    plane, = fence(lax.complex(slope, (u - pu) / fu * normals[0] + (v - pv) * slope + normals[2]).ravel())
+    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
+    cols = jnp.arange(w, dtype=jnp.int32)[None, :]
 
-    def hypothesis(z, n, dv):
-        return z + plane_residual(z, n, zeros, dv, K, min_abs_denom=min_abs_denom,
-                                  max_residual_ratio=max_residual_ratio)
+    def hypothesis(row, z):
+        index = (jnp.where(row >= 0, row, rows) * w + cols).ravel()
+        seed_plane = plane.at[index].get(mode="promise_in_bounds").reshape(h, w)
+        dv = (row - rows).astype(jnp.float32)
+        denom = jnp.imag(seed_plane) - dv * jnp.real(seed_plane)
+        ok = (jnp.abs(denom) > min_abs_denom) & (z > 0)
+        residual = jnp.where(ok, z * dv * jnp.real(seed_plane) / jnp.where(ok, denom, 1.0), 0.0)
+        bound = max_residual_ratio * z
+        return z + jnp.clip(residual, -bound, bound)
 
-    h_up = hypothesis(z_up, n_up, -gap_up)
-    h_dn = hypothesis(z_dn, n_dn, gap_dn)
+    h_up = hypothesis(row_up, z_up)
+    h_dn = hypothesis(row_dn, z_dn)
+    gap_up, gap_dn = rows - row_up, row_dn - rows
     inside = lambda hyp: bracketed & (hyp >= lo) & (hyp <= hi)
     w_up = jnp.where(inside(h_up), 1.0 / jnp.maximum(gap_up, 1).astype(jnp.float32), 0.0)
     w_dn = jnp.where(inside(h_dn), 1.0 / jnp.maximum(gap_dn, 1).astype(jnp.float32), 0.0)
