@@ -35,6 +35,7 @@ from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
 from jaxdepth._src.staging import fence
+from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
 def _check_image_inputs(sparse_depth, K):
@@ -74,14 +75,6 @@ def _seeds(keep, image, config: SGMConfig):
     return nearest_seed(keep, metric=config.distance_metric)
 
 
-def _seed_distance(du, dv, metric: str):
-    """Image-plane distance to the seed in pixels, in the seed search's metric."""
-    du, dv = du.astype(jnp.float32), dv.astype(jnp.float32)
-    if metric == "l1":
-        return jnp.abs(du) + jnp.abs(dv)
-    return jnp.sqrt(du * du + dv * dv)
-
-
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
                    config: SGMConfig, image=None) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
@@ -104,9 +97,10 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         # stayed live across its loops and XLA:CPU copied their state (guided
         # path measured 1.5-2x slower, the batched job slower too).
         after_seeds = du[0, 0] > jnp.iinfo(jnp.int32).min
+        distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
         depth_raw = column_hypotheses(
-            depth_raw, jnp.where(keep & after_seeds, sparse_depth, 0.0), _seed_distance(du, dv, config.distance_metric),
-            normals_cam, K, window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
+            depth_raw, jnp.where(keep & after_seeds, sparse_depth, 0.0), distance, normals_cam, K,
+            window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
             max_residual_ratio=config.max_residual_ratio)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
