@@ -199,11 +199,11 @@ def test_fences_do_not_change_the_result(blend):
 
 def test_bracket_bounds_quantisation_is_below_a_fifth_of_a_millimetre():
     """The packed-key bounds equal the exact neighbour depths to within half a quantisation step."""
-    from jaxdepth._src.hypotheses import column_bracket_bounds
     rng = np.random.default_rng(8)
     for h in (40, 352, 900):
         kept = np.where(rng.random((h, 16)) < 0.2, rng.uniform(0.5, 149.0, (h, 16)), 0.0).astype(np.float32)
-        lo, hi, found = (np.asarray(a) for a in column_bracket_bounds(jnp.asarray(kept), max_gap=6))
+        row_up, z_up_q, row_dn, z_dn_q = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), max_gap=6))
+        lo, hi, found = np.minimum(z_up_q, z_dn_q), np.maximum(z_up_q, z_dn_q), (row_up >= 0) & (row_dn >= 0)
         walks = [np.array([[numpy_neighbour(kept, v, u, step) for u in range(16)] for v in range(h)])
                  for step in (-1, 1)]
         (gap_up, z_up), (gap_dn, z_dn) = ((np.where(w[..., 0] <= 6, w[..., 0], -1),

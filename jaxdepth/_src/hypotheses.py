@@ -46,7 +46,7 @@ _DEPTH_RANGE_M = 256.0
 
 
 def _column_keys(kept_depth: jax.Array, *, max_gap: int):
-    """Packed keys of the nearest kept pixel above and below every pixel (see :func:`column_bracket_bounds`).
+    """Packed keys of the nearest kept pixel above and below every pixel (see :func:`column_neighbours`).
 
     Returns:
       (up, down, depth_bits, scale): (H, W) int32 keys, -1 where there is no kept
@@ -71,30 +71,15 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int):
     return up, down, depth_bits, scale
 
 
-def column_bracket_bounds(kept_depth: jax.Array, *, max_gap: int):
-    """(lo, hi, found) of the bracket: min / max depth of the nearest kept pixels above and below.
-
-    Each direction is one ``lax.reduce_window`` (max over ``max_gap + 1`` rows)
-    of an int32 key that packs the row (high bits: the nearest row wins) over
-    the depth quantised to ``256 m / 2**(31 - ceil(log2 H))`` (low bits; 0.06 mm
-    for H = 352, 0.12 mm for H = 900). The bounds are those quantised depths,
-    so they differ from the exact bracket by at most half a step.
-
-    Returns:
-      lo, hi: (H, W) float32 metres; found: (H, W) bool, both neighbours within ``max_gap`` rows.
-    """
-    up, down, depth_bits, scale = _column_keys(kept_depth, max_gap=max_gap)
-    mask = 2 ** depth_bits - 1
-    z_up = (up & mask).astype(jnp.float32) / scale
-    z_dn = (down & mask).astype(jnp.float32) / scale
-    return jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn), (up >= 0) & (down >= 0)
-
-
 def column_neighbours(kept_depth: jax.Array, *, max_gap: int):
     """The nearest kept LiDAR pixels straight above and below every pixel: their rows and depths.
 
-    A LiDAR pixel is its own neighbour (gap 0). Depths are those of the packed
-    keys of :func:`column_bracket_bounds` (quantised to < 0.2 mm).
+    A LiDAR pixel is its own neighbour (gap 0). Each direction is one
+    ``lax.reduce_window`` (max over ``max_gap + 1`` rows) of an int32 key that
+    packs the row (high bits: the nearest row wins) over the depth quantised to
+    ``256 m / 2**(31 - ceil(log2 H))`` (low bits; 0.06 mm for H = 352, 0.12 mm
+    for H = 900). The depths returned are those quantised depths, within half a
+    step of the exact ones.
 
     Args:
       kept_depth: (H, W) float32 metres, 0 = no LiDAR pixel (the seeds kept by Step 2).
@@ -139,19 +124,18 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
       (H, W) float32 metres: ``depth_raw`` clipped to the bracket (and blended)
       where both neighbours lie within ``window_px`` rows; ``depth_raw`` elsewhere.
       The bracket and the blend use the neighbour depths of
-      :func:`column_bracket_bounds` (quantised to < 0.2 mm).
+      :func:`column_neighbours` (quantised to < 0.2 mm).
     """
     max_gap = int(math.floor(window_px))
-    if not blend:
-        lo, hi, found = column_bracket_bounds(kept_depth, max_gap=max_gap)
-        return jnp.where(found & (depth_raw > 0), jnp.clip(depth_raw, lo, hi), depth_raw)
     h, w = kept_depth.shape
     row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap)
-    if materialise:
+    if blend and materialise:
         row_up, z_up, row_dn, z_dn = fence(row_up, z_up, row_dn, z_dn)
     bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)
     lo, hi = jnp.minimum(z_up, z_dn), jnp.maximum(z_up, z_dn)
     depth = jnp.where(bracketed, jnp.clip(depth_raw, lo, hi), depth_raw)
+    if not blend:
+        return depth
     # Each neighbour's plane, as two numbers per LiDAR pixel: slope = n_y / fv and
     # denom = n . r(u, v_seed), r the pixel's ray (x, y, 1). Step 4a's denominator at
     # the pixel, dv rows from the seed in the same column, is then denom - dv * slope,
