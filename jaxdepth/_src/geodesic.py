@@ -122,18 +122,24 @@ def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
     if not (shp == (h, w) or shp == (h, w, 3)):
         raise ValueError(f"{where}: field 'image' expected shape {(h, w)} (grey) or {(h, w, 3)} (colour), matching "
                          f"the sparse depth, got {shp}")
+    return unit_float_image(image, guided=guided, where=where, field="image")
+
+
+def unit_float_image(image, *, guided: bool, where: str, field: str):
+    """The dtype rule of camera images: uint8 (0-255) or float (taken as [0, 1]).
+
+    Returns ``image`` as float32 in [0, 1] when ``guided``, else None (checked,
+    then ignored). Raises ValueError naming ``field`` for any other dtype (a
+    16-bit image is told to convert to 8 bit or scale to [0, 1]).
+    """
     dtype = jnp.dtype(image.dtype)
-    if dtype == jnp.uint8:
-        scale = 255.0
-    elif jnp.issubdtype(dtype, jnp.floating):
-        scale = None
-    else:
-        raise ValueError(f"{where}: field 'image' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
+    if dtype != jnp.uint8 and not jnp.issubdtype(dtype, jnp.floating):
+        raise ValueError(f"{where}: field '{field}' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
                          + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
     if not guided:
         return None
-    image = jnp.asarray(image, jnp.float32)
-    return image if scale is None else image / jnp.float32(scale)
+    out = jnp.asarray(image, jnp.float32)
+    return out / jnp.float32(255.0) if dtype == jnp.uint8 else out
 
 
 def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:

@@ -29,6 +29,7 @@ import numpy as np
 
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.geodesic import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.pipeline import camera_stages_from_points
@@ -112,8 +113,9 @@ def stack_images(images, cameras) -> np.ndarray:
 def _rig_images(images, cameras: RigCameras, *, guided: bool, where: str):
     """Checks ``images`` against the canvas; float32 [0, 1] when ``guided``, else None (ignored).
 
-    Same rules as :func:`~jaxdepth._src.geodesic.guidance_image`, for the stacked
-    (C, H, W[, 3]) array; ValueError naming the field 'images' otherwise.
+    Same rules as :func:`~jaxdepth._src.geodesic.guidance_image` (the dtype rule is its
+    :func:`~jaxdepth._src.geodesic.unit_float_image`), for the stacked (C, H, W[, 3])
+    array; ValueError naming the field 'images' otherwise.
     """
     c, h, w = cameras.count, cameras.height, cameras.width
     if images is None:
@@ -129,14 +131,7 @@ def _rig_images(images, cameras: RigCameras, *, guided: bool, where: str):
     if shp not in ((c, h, w), (c, h, w, 3)):
         raise ValueError(f"{where}: field 'images' expected shape {(c, h, w)} (grey) or {(c, h, w, 3)} (colour): "
                          f"one image per camera on the rig's {h} x {w} canvas (see stack_images), got {shp}")
-    dtype = jnp.dtype(images.dtype)
-    if dtype != jnp.uint8 and not jnp.issubdtype(dtype, jnp.floating):
-        raise ValueError(f"{where}: field 'images' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
-                         + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
-    if not guided:
-        return None
-    out = jnp.asarray(images, jnp.float32)
-    return out / jnp.float32(255.0) if dtype == jnp.uint8 else out
+    return unit_float_image(images, guided=guided, where=where, field="images")
 
 
 def _window_only(image: jax.Array, size: jax.Array) -> jax.Array:
