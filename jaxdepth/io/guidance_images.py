@@ -41,7 +41,7 @@ def _size(shape) -> str:
 
 
 def decode_camera_image(path: PathLike) -> np.ndarray:
-    """An 8-bit grey (H, W) or colour (H, W, 3) image as OpenCV decodes it (BGR), checked.
+    """An 8-bit grey (H, W) or colour (H, W, 3) RGB image (OpenCV decodes BGR; reordered), checked.
 
     Raises:
       InputError naming the file: missing or unreadable, not decodable, not 8-bit
@@ -61,7 +61,9 @@ def decode_camera_image(path: PathLike) -> np.ndarray:
     if channels not in (1, 3):
         raise file_error(path, f"camera image expected 1 (grey) or 3 (colour) channels, got {channels}"
                          + (" (an alpha channel: save it without alpha)" if channels in (2, 4) else ""))
-    return image[:, :, 0] if image.ndim == 3 and channels == 1 else image
+    if image.ndim == 3 and channels == 1:
+        return image[:, :, 0]
+    return image[:, :, ::-1] if image.ndim == 3 else image  # OpenCV's BGR -> RGB
 
 
 def read_guidance_image(path: PathLike, *, size: tuple[int, int],
@@ -94,8 +96,6 @@ def read_guidance_image(path: PathLike, *, size: tuple[int, int],
         from jaxdepth.io.kitti_layout import benchmark_crop_offsets
         top, left = benchmark_crop_offsets(image.shape[0], image.shape[1], size=size)
         image = image[top:top + size[0], left:left + size[1]]
-    if image.ndim == 3:
-        image = image[:, :, ::-1]  # OpenCV's BGR -> RGB
     return np.ascontiguousarray(image)
 
 

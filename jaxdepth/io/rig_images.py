@@ -63,8 +63,6 @@ def read_camera_image(path: PathLike, *, width: int, height: int, colour: bool |
     if colour is not None and (channels == 3) != colour:
         raise file_error(path, f"camera image expected {_channels_word(3 if colour else 1)} for {camera}"
                                f"{' (' + like + ')' if like else ''}, got {_channels_word(channels)}")
-    if image.ndim == 3:
-        image = image[:, :, ::-1]  # OpenCV's BGR -> RGB
     return np.ascontiguousarray(image)
 
 
