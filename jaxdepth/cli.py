@@ -366,16 +366,12 @@ def cmd_complete_rig(args) -> int:
 
     from jaxdepth.batch import extras as extra_outputs
 
-    usage = _extras_usage(args)
+    usage = _extras_usage(args) or _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     extras = _extras_from(args)
     config = _config_from(args)
-    if args.image_dir is not None and not config.guidance_weight > 0:
-        print("jaxdepth: error: --image-dir gives images for image-guided seeds: use it with --guidance-weight W > 0",
-              file=sys.stderr)
-        return 2
     rig = read_rig_json(args.rig)
     images = _rig_images(args, rig) if config.guidance_weight > 0 else None
     columns = infer_point_columns(args.points, args.point_columns)

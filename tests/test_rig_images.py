@@ -193,7 +193,7 @@ def test_cli_complete_rig_with_images_writes_the_api_result(stereo, tmp_path, ca
             got = cv2.imread(str(tmp_path / out / f"{name}.png"), cv2.IMREAD_UNCHANGED)
             np.testing.assert_array_equal(got, expected, err_msg=f"{out}/{name}")
     assert cli.main(base + [str(tmp_path / "c"), "--image-dir", str(tmp_path / "images"), "-q"]) == 2
-    assert "--image-dir gives images for image-guided seeds" in capsys.readouterr().err
+    assert "--image-dir gives the camera images of image-guided seeds" in capsys.readouterr().err
     (tmp_path / "images" / "cam1.png").unlink()
     assert cli.main(base + [str(tmp_path / "d"), "--image-dir", str(tmp_path / "images")] + guided) == 1
     assert "no image for camera cam1: expected one of cam1.png, cam1.jpg, cam1.jpeg" in capsys.readouterr().err
