@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import jaxdepth  # noqa: E402
 from accuracy_rigs import prepared_zoo_frame, write_results  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
-from jaxdepth.research.hidden import covered_targets, hidden_point_mask, scan_line_spacing_px  # noqa: E402
+from jaxdepth.research.hidden import covered_targets, default_cover_half_height_px, hidden_point_mask  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth.io import pad_points  # noqa: E402
@@ -61,8 +61,7 @@ def sensor_scores(name, zoo_seeds, hidden_seeds, scale, config):
         valid &= np.linalg.norm(padded, axis=1) >= 1.0          # as hidden-eval (min_range_m)
         stacked = jaxdepth.stack_cameras([c.as_camera() for c in prepared.rig.cameras])
         P = jnp.asarray(padded)
-        half_height = max(1, int(np.ceil(max(scan_line_spacing_px(K, prepared.rig.lidar)
-                                             for K in np.asarray(stacked.K)))))
+        half_height = default_cover_half_height_px(stacked.K, prepared.rig.lidar)
         for hidden_seed in hidden_seeds:
             hidden = hidden_point_mask(valid, fraction=0.2, seed=hidden_seed)
             given = jnp.asarray(valid & ~hidden)

@@ -261,23 +261,22 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
                 row[method] = {k: float(scores[method][k][i]) for k in keys}
                 row["uncovered"][method] = {k: float(scores["uncovered"][method][k][i]) for k in keys}
             rows[cam.name].append(row)
-    per_camera = {}
-    for name, draws in rows.items():
-        per_camera[name] = {"hidden_pixels": int(round(np.mean([d["hidden_pixels"] for d in draws]))),
-                            "covered_pixels": int(round(np.mean([d["covered_pixels"] for d in draws]))),
-                            "uncovered": {}}
-        for method in METHODS:
-            per_camera[name][method] = {k: float(np.mean([d[method][k] for d in draws])) for k in keys}
-            per_camera[name]["uncovered"][method] = {
-                k: float(np.mean([d["uncovered"][method][k] for d in draws])) for k in keys}
-    mean, mean_uncovered = {}, {}
     draws = [d for per in rows.values() for d in per]
-    for method in METHODS:
-        m = mean_metrics([dict(d[method], count=d["hidden_pixels"]) for d in draws])
-        mean[method] = {k: float(m[k]) for k in keys}
-        m = mean_metrics([dict(d["uncovered"][method], count=d["hidden_pixels"] - d["covered_pixels"])
-                          for d in draws])
-        mean_uncovered[method] = {k: float(m[k]) for k in keys}
+    plain, uncovered = (lambda d: d), (lambda d: d["uncovered"])
+
+    def draw_mean(per, pick):        # one camera: the mean over its draws
+        return {method: {k: float(np.mean([pick(d)[method][k] for d in per])) for k in keys} for method in METHODS}
+
+    def pooled(pick, count):         # every camera image of every draw (the devkit's data-set score)
+        means = {method: mean_metrics([dict(pick(d)[method], count=count(d)) for d in draws]) for method in METHODS}
+        return {method: {k: float(m[k]) for k in keys} for method, m in means.items()}
+
+    per_camera = {name: {"hidden_pixels": int(round(np.mean([d["hidden_pixels"] for d in per]))),
+                         "covered_pixels": int(round(np.mean([d["covered_pixels"] for d in per]))),
+                         **draw_mean(per, plain), "uncovered": draw_mean(per, uncovered)}
+                  for name, per in rows.items()}
+    mean = pooled(plain, lambda d: d["hidden_pixels"])
+    mean_uncovered = pooled(uncovered, lambda d: d["hidden_pixels"] - d["covered_pixels"])
     return {"cameras": per_camera, "mean": mean, "mean_uncovered": mean_uncovered,
             "covered_share": float(sum(d["covered_pixels"] for d in draws) / max(sum(d["hidden_pixels"]
                                                                                       for d in draws), 1)),

@@ -71,6 +71,12 @@ def scan_line_spacing_px(K, lidar: LidarSpec) -> float:
     return float(np.asarray(K, np.float64)[1, 1]) * spacing_rad
 
 
+def default_cover_half_height_px(Ks, lidar: LidarSpec) -> int:
+    """:func:`covered_targets`' half height for cameras of intrinsics ``Ks`` (C, 3, 3), host-side:
+    the largest camera's :func:`scan_line_spacing_px`, rounded up (at least 1)."""
+    return max(1, int(np.ceil(max(scan_line_spacing_px(K, lidar) for K in np.asarray(Ks)))))
+
+
 def _window_min(depth: jax.Array, rows: tuple[int, int], cols: tuple[int, int]) -> jax.Array:
     """out[y, x] = min of ``depth`` over rows y+rows[0]..y+rows[1], cols x+cols[0]..x+cols[1] (inf outside)."""
     (r0, r1), (c0, c1) = rows, cols
@@ -130,10 +136,8 @@ def hidden_point_scores(points: jax.Array, valid: jax.Array, hidden: jax.Array, 
       cameras: :class:`RigCameras`.
       config: the SGM's configuration ("sgm"); "sgm_no_removal" is the same
         with ``outlier_removal=False``.
-
       cover_half_height_px: static half height of :func:`covered_targets`; default:
-        the largest camera's :func:`scan_line_spacing_px`, rounded up (needs
-        concrete ``cameras.K``).
+        :func:`default_cover_half_height_px` of ``cameras.K`` (needs it concrete).
 
     Returns:
       {method: {metric: (C,)} for each of :data:`METHODS`, "hidden_pixels": (C,) int32,
@@ -144,11 +148,10 @@ def hidden_point_scores(points: jax.Array, valid: jax.Array, hidden: jax.Array, 
     """
     if cover_half_height_px is None:
         try:
-            Ks = np.asarray(cameras.K)
+            cover_half_height_px = default_cover_half_height_px(cameras.K, lidar)
         except jax.errors.TracerArrayConversionError:
             raise ValueError("hidden_point_scores: field 'cover_half_height_px' expected an int when cameras.K is "
                              "traced (under jit / vmap), got None") from None
-        cover_half_height_px = max(1, int(np.ceil(max(scan_line_spacing_px(K, lidar) for K in Ks))))
     return _hidden_point_scores(points, valid, hidden, cameras, config=config, lidar=lidar,
                                 cover=int(cover_half_height_px))
 
@@ -166,18 +169,15 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar, cover
         euclid = _complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
             outlier_removal=False, distance_metric="l2")).seed_depth
 
-    def gt_for(K, T, size):
-        depth, _ = project_to_image(points, hidden, K, T, height=cameras.height, width=cameras.width,
-                                    valid_size=size)
-        return depth
+    def z_buffer(mask):
+        """(C, H, W) per-pixel nearest depth of the points in ``mask``, every camera."""
+        def one(K, T, size):
+            return project_to_image(points, mask, K, T, height=cameras.height, width=cameras.width,
+                                    valid_size=size)[0]
+        return jax.vmap(one)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
 
-    def full_for(K, T, size):
-        depth, _ = project_to_image(points, valid, K, T, height=cameras.height, width=cameras.width,
-                                    valid_size=size)
-        return depth
-
-    gt = jax.vmap(gt_for)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
-    full = jax.vmap(full_for)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    gt = z_buffer(hidden)
+    full = z_buffer(valid)
     covered = jax.vmap(functools.partial(covered_targets, half_height_px=cover))(gt, full)
     uncovered_gt = jnp.where(covered, 0.0, gt)
     score = jax.vmap(depth_metrics)
