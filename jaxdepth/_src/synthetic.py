@@ -234,17 +234,36 @@ def cast_rays(origins: jax.Array, directions: jax.Array, scene: SceneArrays) -> 
       unit directions. A ray starting inside a solid returns its exit point.
     """
     o, d = _checked_rays(origins, directions, where="cast_rays")
+    return nearest_hits(o, d, scene, labelled=False)[0]
+
+
+def nearest_hits(o: jax.Array, d: jax.Array, scene: SceneArrays, *, labelled: bool):
+    """(t, label) of :func:`cast_rays` for checked rays (``o`` (1, 3) or (N, 3), ``d`` (N, 3)).
+
+    ``label`` (N,) int32 is the hit primitive's index in the concatenation
+    planes, boxes, cylinders (the first one in that order on an exact tie), -1
+    where nothing is hit; None unless ``labelled`` (static).
+    """
     t = jnp.full(d.shape[:1], jnp.inf, jnp.float32)
+    label = jnp.full(d.shape[:1], -1, jnp.int32) if labelled else None
+    start = 0
     for first_hit, prims in zip((_first_hit_planes, _first_hit_boxes, _first_hit_cylinders), scene):
         prims = jnp.asarray(prims, jnp.float32)
         if prims.shape[0] == 0:
             continue
 
-        def body(t_best, prim, first_hit=first_hit):
-            return jnp.minimum(t_best, first_hit(o, d, prim[None])), None
+        def body(carry, item, first_hit=first_hit):
+            t_best, label_best = carry
+            prim, index = item
+            t_prim = first_hit(o, d, prim[None])
+            if label_best is not None:
+                label_best = jnp.where(t_prim < t_best, index, label_best)
+            return (jnp.minimum(t_best, t_prim), label_best), None
 
-        t, _ = jax.lax.scan(body, t, prims)
-    return t
+        indices = start + jnp.arange(prims.shape[0], dtype=jnp.int32) if labelled else None
+        (t, label), _ = jax.lax.scan(body, (t, label), (prims, indices))
+        start += prims.shape[0]
+    return t, label
 
 
 @functools.partial(jax.jit, static_argnums=0)

@@ -14,8 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.synthetic import (SceneArrays, _checked_rays, _first_hit_boxes, _first_hit_cylinders,
-                                     _first_hit_planes, camera_rays, street_scene_arrays)
+from jaxdepth._src.synthetic import SceneArrays, _checked_rays, camera_rays, nearest_hits, street_scene_arrays
 from jaxdepth._src.types import Camera
 
 # --------------------------------------------------------------------------- camera images (issue 16)
@@ -91,25 +90,7 @@ def cast_rays_labelled(origins: jax.Array, directions: jax.Array, scene: SceneAr
       first one in that order on an exact tie), -1 where nothing is hit.
     """
     o, d = _checked_rays(origins, directions, where="cast_rays_labelled")
-    t = jnp.full(d.shape[:1], jnp.inf, jnp.float32)
-    label = jnp.full(d.shape[:1], -1, jnp.int32)
-    start = 0
-    for first_hit, prims in zip((_first_hit_planes, _first_hit_boxes, _first_hit_cylinders), scene):
-        prims = jnp.asarray(prims, jnp.float32)
-        if prims.shape[0] == 0:
-            continue
-
-        def body(carry, item, first_hit=first_hit):
-            t_best, label_best = carry
-            prim, index = item
-            t_prim = first_hit(o, d, prim[None])
-            closer = t_prim < t_best
-            return (jnp.minimum(t_best, t_prim), jnp.where(closer, index, label_best)), None
-
-        indices = start + jnp.arange(prims.shape[0], dtype=jnp.int32)
-        (t, label), _ = jax.lax.scan(body, (t, label), (prims, indices))
-        start += prims.shape[0]
-    return t, label
+    return nearest_hits(o, d, scene, labelled=True)
 
 
 def _hit_normals(p, d, label, scene: SceneArrays):
