@@ -242,12 +242,12 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     import jax
 
     from jaxdepth._src.rig import stack_cameras
-    from jaxdepth.batch.runner import read_ahead
+    from jaxdepth.batch.runner import is_guided, read_ahead
 
     targets = jax.local_devices()[:1] if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
     load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion,
-                             guided=config.guidance_weight > 0)
+                             guided=is_guided(config))
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")

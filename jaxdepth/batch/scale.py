@@ -469,7 +469,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
       ray.exceptions.RayError: the cluster failed beyond the retries above
         (bad frames never raise).
     """
-    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.batch.runner import RunSummary, is_guided
 
     if int(batch_size) < 1:
         raise ValueError(f"run_jobs_ray: field 'batch_size' expected >= 1, got {batch_size}")
@@ -484,7 +484,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
     if method != "sgm" and extras is not None and extras.needs_seeds:
         raise ValueError(f"run_jobs_ray: validity / seed-distance / zero-invalid extras need method 'sgm', "
                          f"got {method!r}")
-    if method != "sgm" and config.guidance_weight > 0:
+    if method != "sgm" and is_guided(config):
         raise ValueError(f"run_jobs_ray: image-guided seeds (guidance_weight > 0) need method 'sgm', got {method!r}")
     ray, ray_data = _import_ray()
 
