@@ -49,7 +49,6 @@ import pathlib
 import sys
 import time
 
-import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -63,6 +62,7 @@ from jaxdepth import SGMConfig  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth._src.types import Camera, LidarSpec  # noqa: E402
+from jaxdepth.io.guidance_images import decode_camera_image  # noqa: E402
 from jaxdepth.research.hidden import hidden_point_mask  # noqa: E402
 
 from accuracy_rigs import write_results  # noqa: E402
@@ -113,19 +113,12 @@ class Item:
     camera: Camera | None = None
 
 
-def read_rgb(path) -> np.ndarray:
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ValueError(f"{path}: expected an 8-bit colour image, could not decode it")
-    return np.ascontiguousarray(bgr[:, :, ::-1])
-
-
 def kitti_gt_frames():
     from accuracy_kitti import FRAME, load_frames
     from jaxdepth.io import crop_to_benchmark
     frames = []
     for name, (sparse, gt, K, T) in load_frames().items():
-        image, _ = crop_to_benchmark(read_rgb(FRAME / f"{name}.png"), np.eye(3))
+        image, _ = crop_to_benchmark(decode_camera_image(FRAME / f"{name}.png"), np.eye(3))
         frames.append([Item(name, jnp.asarray(gt), jnp.asarray(image), jnp.asarray(K, jnp.float32),
                             jnp.asarray(T, jnp.float32), _hdl64(), True,
                             sparse=jnp.asarray(sparse, jnp.float32))])
@@ -166,7 +159,7 @@ def kitti_raw_frames(scene, draws):
     d = DATA / "kitti" / scene
     rig = rig_from_kitti_raw(d / "calib_cam_to_cam.txt", d / "calib_velo_to_cam.txt")
     points, _ = read_points(d / "lidar_data.bin")
-    images = {f"image_0{i}": read_rgb(d / f"image_0{i}.png") for i in (2, 3)}
+    images = {f"image_0{i}": decode_camera_image(d / f"image_0{i}.png") for i in (2, 3)}
     return hidden_frames(points, rig, images, draws)
 
 
@@ -175,7 +168,7 @@ def kitti_object_frames(draws):
     d = DATA / "kitti" / "object"
     frames, notes = [], []
     for stem in ("000000", "000001", "000002"):
-        image = read_rgb(d / "image_2" / f"{stem}.png")
+        image = decode_camera_image(d / "image_2" / f"{stem}.png")
         rig = rig_from_kitti_object(d / "calib" / f"{stem}.txt", width=image.shape[1], height=image.shape[0])
         points, _ = read_points(d / "velodyne" / f"{stem}.bin")
         f, n = hidden_frames(points, rig, {"image_02": image}, draws)
@@ -198,7 +191,7 @@ def nuscenes_frames(draws):
     images = {}
     for cam in rig.cameras:
         (path,) = glob.glob(str(d / f"*__{cam.name}__*.jpg"))
-        images[cam.name] = read_rgb(path)
+        images[cam.name] = decode_camera_image(path)
     return hidden_frames(points, rig, images, draws, ring=ring_column(extra, 5))
 
 

@@ -28,13 +28,13 @@ import pathlib
 import sys
 import time
 
-import cv2
 import jax
 import numpy as np
 
 from jaxdepth import SGMConfig, complete, complete_with, depth_metrics, hidden_point_mask, project_to_image
 from jaxdepth._src import presets
 from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib, read_points
+from jaxdepth.io.guidance_images import decode_camera_image
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "kitti"
@@ -44,13 +44,6 @@ WEIGHTS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0)
 SWEEPS = 2
 
 
-def read_rgb(path: pathlib.Path) -> np.ndarray:
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise ValueError(f"{path}: expected an 8-bit colour image, could not decode it")
-    return np.ascontiguousarray(bgr[:, :, ::-1])
-
-
 def gt_frames():
     calib = read_kitti_raw_calib(FRAME / "calib_cam_to_cam.txt", FRAME / "calib_velo_to_cam.txt")
     out = {}
@@ -58,7 +51,7 @@ def gt_frames():
         K = calib["cameras"][cam]["K"]
         sparse, K_c = crop_to_benchmark(read_depth_png(FRAME / f"velodyne_raw_image_0{cam}.png"), K)
         gt, _ = crop_to_benchmark(read_depth_png(FRAME / f"groundtruth_image_0{cam}.png"), K)
-        image, _ = crop_to_benchmark(read_rgb(FRAME / f"image_0{cam}.png"), K)
+        image, _ = crop_to_benchmark(decode_camera_image(FRAME / f"image_0{cam}.png"), K)
         out[f"image_0{cam}"] = (sparse, gt, K_c, calib["cameras"][cam]["T_cam_lidar"], image)
     return out
 
@@ -71,7 +64,7 @@ def hidden_frames(scene: pathlib.Path):
     hidden = hidden_point_mask(valid, fraction=0.1, seed=0)
     out = {}
     for cam in (2, 3):
-        image = read_rgb(scene / f"image_0{cam}.png")
+        image = decode_camera_image(scene / f"image_0{cam}.png")
         K = calib["cameras"][cam]["K"]
         T = calib["cameras"][cam]["T_cam_lidar"]
         h, w = image.shape[:2]

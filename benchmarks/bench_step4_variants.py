@@ -17,7 +17,6 @@ import pathlib
 import sys
 import time
 
-import cv2
 import jax
 import numpy as np
 
@@ -27,7 +26,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import jaxdepth  # noqa: E402
 from accuracy_kitti import FRAME, load_frames  # noqa: E402
 from accuracy_rigs import write_results  # noqa: E402
-from jaxdepth.io.kitti_layout import benchmark_crop_offsets  # noqa: E402
+from jaxdepth.io import crop_to_benchmark  # noqa: E402
+from jaxdepth.io.guidance_images import decode_camera_image  # noqa: E402
 from jaxdepth.research.baselines import ip_basic_opencv  # noqa: E402
 
 VARIANTS = {
@@ -50,9 +50,7 @@ def main(argv=None) -> int:
         print(f"shared data not found: {FRAME}", file=sys.stderr)
         return 1
     sparse, _, K, T = load_frames()["image_02"]
-    image = cv2.imread(str(FRAME / "image_02.png"))[:, :, ::-1]
-    top, left = benchmark_crop_offsets(image.shape[0], image.shape[1], size=sparse.shape)
-    image = np.ascontiguousarray(image[top:top + sparse.shape[0], left:left + sparse.shape[1]])
+    image, _ = crop_to_benchmark(decode_camera_image(FRAME / "image_02.png"), np.eye(3), size=sparse.shape)
     d, k, t, im = (jax.device_put(a) for a in (sparse, K, T, image))
     calls = {}
     compile_s = {}
