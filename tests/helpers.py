@@ -99,3 +99,15 @@ def square_before_plane(*, seed: int, far_points: int, near_points: int, near_ha
     near = np.stack([rng.uniform(-near_half_m, near_half_m, near_points),
                      rng.uniform(-near_half_m, near_half_m, near_points), np.full(near_points, 4.0)], 1)
     return cams, K, T, np.concatenate([far, near]).astype(np.float32)
+
+
+def block_images(sizes, *, seed: int, block_px: int = 8, noise_dn: int = 8) -> list[np.ndarray]:
+    """One uint8 (h, w, 3) image per (h, w) in ``sizes``: blocks of ``block_px`` pixels in random colours
+    (real edges for the geodesic cost) plus uniform noise of +-``noise_dn``."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for h, w in sizes:
+        blocks = rng.integers(0, 256, size=(h // block_px + 1, w // block_px + 1, 3))
+        image = np.repeat(np.repeat(blocks, block_px, axis=0), block_px, axis=1)[:h, :w]
+        out.append(np.clip(image + rng.integers(-noise_dn, noise_dn + 1, size=image.shape), 0, 255).astype(np.uint8))
+    return out

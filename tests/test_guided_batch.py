@@ -18,7 +18,7 @@ from jaxdepth.batch import runner
 from jaxdepth.io import crop_to_benchmark, encode_depth_uint16, read_depth_png
 from jaxdepth.io import guidance_images
 
-from helpers import H, W, small_frames, write_kitti_folder
+from helpers import H, W, block_images, small_frames, write_kitti_folder
 
 GUIDED = jaxdepth.SGMConfig(guidance_weight=2.0)
 
@@ -29,14 +29,8 @@ def frames():
 
 
 def _images(count: int, *, seed: int = 1) -> list[np.ndarray]:
-    """Colour images with real edges: blocks of distinct colours plus noise (uint8, BGR as OpenCV writes)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(count):
-        blocks = rng.integers(0, 256, (4, 8, 3), np.uint8)
-        image = cv2.resize(blocks, (W, H), interpolation=cv2.INTER_NEAREST)
-        out.append(np.clip(image.astype(int) + rng.integers(-8, 9, image.shape), 0, 255).astype(np.uint8))
-    return out
+    """Colour images with real edges (:func:`helpers.block_images`), written as OpenCV's BGR."""
+    return block_images([(H, W)] * count, seed=seed)
 
 
 def _selection(root: pathlib.Path, frames, *, grey=()) -> tuple[pathlib.Path, list]:

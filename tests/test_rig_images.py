@@ -16,6 +16,7 @@ from jaxdepth import (Camera, SGMConfig, complete_points_stages, complete_rig, c
 from jaxdepth._src import synthetic
 from jaxdepth._src.geodesic import geodesic_seed
 from jaxdepth._src.types import LidarSpec
+from helpers import block_images
 
 LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
 GUIDED = SGMConfig(guidance_weight=5.0, guidance_sweeps=2)
@@ -30,15 +31,7 @@ def stereo():
 
 def _images(cams, *, seed=0):
     """Piecewise-constant colour blocks plus noise: real edges for the geodesic cost."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for cam in cams:
-        h, w = cam.height, cam.width
-        blocks = rng.integers(0, 256, size=(h // 8 + 1, w // 8 + 1, 3))
-        img = np.repeat(np.repeat(blocks, 8, axis=0), 8, axis=1)[:h, :w]
-        img = np.clip(img + rng.integers(-10, 11, size=img.shape), 0, 255)
-        out.append(img.astype(np.uint8))
-    return out
+    return block_images([(cam.height, cam.width) for cam in cams], seed=seed, noise_dn=10)
 
 
 def test_guided_rig_equals_loop_over_cameras(stereo):
