@@ -61,6 +61,9 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                         "colour weight (default 0: off, the paper's LiDAR-only SGM)")
     p.add_argument("--guidance-sweeps", type=int, default=None, metavar="S",
                    help="raster sweeps of the geodesic transform (default 2)")
+    p.add_argument("--guidance-noise-floor", type=float, default=None, metavar="F",
+                   help="colour differences up to F times the image's median step difference cost nothing "
+                        "(default 1; 0: GeoS's plain cost)")
 
 
 #: --hypotheses: the SGMConfig fields each of Step 4's variants sets.
@@ -98,6 +101,8 @@ def _config_from(args):
         changes["guidance_weight"] = args.guidance_weight
     if getattr(args, "guidance_sweeps", None) is not None:
         changes["guidance_sweeps"] = args.guidance_sweeps
+    if getattr(args, "guidance_noise_floor", None) is not None:
+        changes["guidance_noise_floor"] = args.guidance_noise_floor
     return SGMConfig(**changes)
 
 

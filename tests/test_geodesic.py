@@ -18,14 +18,14 @@ import numpy as np
 import pytest
 
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geodesic import geodesic_seed
+from jaxdepth._src.geodesic import geodesic_seed, median_step_difference, step_costs
 
 RTOL = 2e-6  # float32 sums of up to a few hundred steps vs float64
 
 
-def _edge_cost(img: np.ndarray, weight: float, a, b) -> float:
+def _edge_cost(img: np.ndarray, weight: float, a, b, floor: float = 0.0) -> float:
     diff = img[a].astype(np.float64) - img[b].astype(np.float64)
-    return 1.0 + weight * float(np.sqrt(np.sum(diff * diff)))
+    return 1.0 + weight * max(float(np.sqrt(np.sum(diff * diff))) - floor, 0.0)
 
 
 def _neighbours(h, w, v, u):
@@ -34,7 +34,7 @@ def _neighbours(h, w, v, u):
             yield v + dv, u + du, dv == 0
 
 
-def _dijkstra(sources, img, weight, runs=None):
+def _dijkstra(sources, img, weight, runs=None, floor=0.0):
     """Multi-source Dijkstra on the 4-connected grid.
 
     With ``runs`` (an int), paths are limited to at most ``runs`` straight runs
@@ -61,7 +61,7 @@ def _dijkstra(sources, img, weight, runs=None):
                 nr = r if (r % 2 == 1) == horizontal else r + 1
                 if nr > r_max:
                     continue
-            nd = d + _edge_cost(img, weight, (v, u), (nv, nu))
+            nd = d + _edge_cost(img, weight, (v, u), (nv, nu), floor)
             if nd < dist[nr, nv, nu]:
                 dist[nr, nv, nu] = nd
                 heapq.heappush(heap, (nd, nr, nv, nu))
@@ -112,6 +112,80 @@ def test_sweeps_are_exact_over_alternating_runs(sweeps):
     res = geodesic_seed(keep, img, color_weight=weight, sweeps=sweeps)
     ref = _dijkstra(list(zip(*np.nonzero(keep))), img, weight, runs=2 * sweeps)
     np.testing.assert_allclose(np.asarray(res.distance), ref, rtol=RTOL)
+
+
+# --- the noise floor (SGMConfig.guidance_noise_floor) ---
+
+def _sampled_steps(img, stride=4):
+    """NumPy: the colour differences of every stride-th row and column of the steps, finite only."""
+    img = img.reshape(img.shape[0], img.shape[1], -1).astype(np.float64)
+    dh = np.sqrt(np.sum(np.square(img[:, 1:] - img[:, :-1]), axis=-1))
+    dv = np.sqrt(np.sum(np.square(img[1:] - img[:-1]), axis=-1))
+    sample = np.concatenate([dh[::stride, ::stride].ravel(), dv[::stride, ::stride].ravel()])
+    return dh, dv, sample[np.isfinite(sample)]
+
+
+@pytest.mark.parametrize("shape,nan_rows", [((40, 57), ()), ((9, 30), (0, 4)), ((3, 3), ()), ((64, 33), (8, 9, 10))])
+def test_median_step_difference_is_the_sampled_median(shape, nan_rows):
+    img = np.random.default_rng(shape[0]).random(shape + (3,)).astype(np.float32)
+    img[list(nan_rows)] = np.nan   # a rig canvas' padding: left out, not counted
+    dh, dv, sample = _sampled_steps(img)
+    got = float(median_step_difference(*(jnp.asarray(d, jnp.float32) for d in (dh, dv))))
+    lower_median = np.sort(sample)[(len(sample) - 1) // 2]
+    assert abs(got - lower_median) <= sample.max() / 2**12 + 1e-6
+
+
+def test_median_step_difference_without_finite_steps_is_zero():
+    nan = jnp.full((4, 5), jnp.nan)
+    assert float(median_step_difference(nan, nan)) == 0.0
+
+
+def test_step_costs_with_noise_floor_match_numpy():
+    keep, img = _scene(8, h=20, w=23)
+    dh, dv, sample = _sampled_steps(img)
+    floor = 1.5 * np.sort(sample)[(len(sample) - 1) // 2]
+    got_h, got_v = step_costs(img, 7.0, noise_floor=1.5)
+    tol = 7.0 * 1.5 * sample.max() / 2**12 + 1e-5   # the bisected median's resolution, times weight and floor
+    np.testing.assert_allclose(got_h, 1.0 + 7.0 * np.maximum(dh - floor, 0.0), atol=tol)
+    np.testing.assert_allclose(got_v, 1.0 + 7.0 * np.maximum(dv - floor, 0.0), atol=tol)
+    assert float(np.min(got_h)) == 1.0 and float(np.min(got_v)) == 1.0  # half of the steps at least cost 1
+
+
+@pytest.mark.parametrize("seed,weight,grey", [(0, 20.0, False), (2, 10.0, True), (3, 50.0, False)])
+def test_noise_floor_matches_dijkstra_when_converged(seed, weight, grey):
+    keep, img = _scene(seed, h=14, w=15, grey=grey)
+    _, _, sample = _sampled_steps(img)
+    floor = np.sort(sample)[(len(sample) - 1) // 2]
+    res = geodesic_seed(keep, img, color_weight=weight, sweeps=8, noise_floor=1.0)
+    ref = _dijkstra(list(zip(*np.nonzero(keep))), img, weight, floor=floor)
+    # The floor is bisected to max / 2**12: each step's cost may differ by weight times that.
+    steps = np.abs(np.asarray(res.du)) + np.abs(np.asarray(res.dv))
+    atol = weight * sample.max() / 2**12 * (4 * steps + 4) + 1e-4
+    np.testing.assert_array_less(np.abs(np.asarray(res.distance) - ref), atol)
+    v, u = np.indices(keep.shape)
+    assert keep[v + np.asarray(res.dv), u + np.asarray(res.du)].all()
+    # The floor changes the answer here: the plain cost picks other seeds or distances.
+    plain = geodesic_seed(keep, img, color_weight=weight, sweeps=8)
+    assert np.any(np.asarray(plain.distance) > np.asarray(res.distance) + 1e-3)
+
+
+def test_noise_floor_zero_is_the_plain_cost():
+    keep, img = _scene(5)
+    a = geodesic_seed(keep, img, color_weight=9.0, sweeps=2)
+    b = geodesic_seed(keep, img, color_weight=9.0, sweeps=2, noise_floor=0.0)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_noise_floor_makes_a_uniform_texture_free():
+    """A checkerboard: every step has the same colour difference, the median; with the floor all cost 1 (= L1)."""
+    keep, _ = _scene(7, h=16, w=16)
+    board = np.where(np.add.outer(np.arange(16), np.arange(16)) % 2 == 0, 0.3, 0.7).astype(np.float32)
+    l1 = nearest_seed(keep, metric="l1")
+    res = geodesic_seed(keep, board, color_weight=50.0, sweeps=2, noise_floor=1.0)
+    np.testing.assert_allclose(res.distance, l1.distance, atol=50.0 * 0.4 / 2**12 * 32)
+    plain = geodesic_seed(keep, board, color_weight=50.0, sweeps=2)
+    np.testing.assert_allclose(plain.distance, 21.0 * np.asarray(l1.distance), rtol=1e-5)  # each step 1 + 50 x 0.4
 
 
 def test_maze_needs_more_sweeps_and_distances_never_increase():
@@ -235,7 +309,7 @@ def test_pipeline_guided_seeds_and_vmap():
     for (depth, K), image in zip(frames, images):
         stages = complete_stages(depth, K, T, config=config, image=image)
         want = geodesic_seed(np.asarray(stages.inlier_mask), image.astype(np.float32) / 255.0,
-                             color_weight=8.0, sweeps=2)
+                             color_weight=8.0, sweeps=2, noise_floor=config.guidance_noise_floor)
         np.testing.assert_array_equal(stages.du, want.du)
         np.testing.assert_array_equal(stages.dv, want.dv)
         v, u = np.indices(depth.shape)
@@ -274,6 +348,7 @@ def test_pipeline_bad_image(image, match):
     ("guidance_weight", -1.0, "field 'guidance_weight' expected >= 0"),
     ("guidance_sweeps", 0, "field 'guidance_sweeps' expected an integer >= 1"),
     ("guidance_sweeps", 1.5, "field 'guidance_sweeps' expected an integer >= 1"),
+    ("guidance_noise_floor", -0.5, "field 'guidance_noise_floor' expected >= 0"),
 ])
 def test_config_fields(field, value, match):
     from jaxdepth import SGMConfig
@@ -295,7 +370,8 @@ def test_complete_points_guided():
     with pytest.raises(ValueError, match=r"complete_points: field 'image' expected .* got None"):
         complete_points_stages(frame.points, frame.valid, camera, config=config)
     stages = complete_points_stages(frame.points, frame.valid, camera, config=config, image=image)
-    want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1)
+    want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1,
+                         noise_floor=config.guidance_noise_floor)
     np.testing.assert_array_equal(stages.du, want.du)
     np.testing.assert_array_equal(stages.dv, want.dv)
 

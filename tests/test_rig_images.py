@@ -92,7 +92,7 @@ def test_smaller_camera_seeds_stay_in_its_window(stereo):
     out = results[0]
     keep = np.asarray(out.inlier_mask[1])[:h, :w]
     want = geodesic_seed(keep, imgs[1].astype(np.float32) / 255.0, color_weight=GUIDED.guidance_weight,
-                         sweeps=GUIDED.guidance_sweeps)
+                         sweeps=GUIDED.guidance_sweeps, noise_floor=GUIDED.guidance_noise_floor)
     np.testing.assert_array_equal(np.asarray(out.du[1])[:h, :w], np.asarray(want.du))
     np.testing.assert_array_equal(np.asarray(out.dv[1])[:h, :w], np.asarray(want.dv))
     for other in results[1:]:

@@ -13,6 +13,21 @@ therefore spread along a surface of even colour and stop at image edges
 With ``color_weight = 0`` every step costs 1 and the distance is the exact
 city-block (L1) distance of :func:`~jaxdepth._src.distance.nearest_seed`.
 
+Noise floor (beyond GeoS; ``noise_floor``, the pipeline's
+``SGMConfig.guidance_noise_floor``, 1 there).  Each colour difference is first
+reduced by ``noise_floor`` times the image's median step difference (its
+sensor noise, JPEG blocks and fine texture; :func:`median_step_difference`,
+from every 4th row and column) and floored at 0:
+
+    1 + color_weight * max(||I(p) - I(q)|| - noise_floor * median, 0)
+
+so a textured or noisy surface costs what a flat one does and only real
+edges are charged, whatever the image's exposure and compression.  With the
+plain cost a long path over fine texture could cost more than a short one
+across an edge (measured: on the nuScenes sample's JPEGs the plain cost made
+the guided seeds worse than LiDAR-only; README "Image-guided seeds").  The
+costs stay positive and symmetric, so everything below holds unchanged.
+
 Passes.  GeoS's forward and backward raster scans read the left and upper
 neighbours (resp. right and lower) in one pass, which is sequential along each
 row.  Here each sweep is split into directional 1-D passes, each a
@@ -142,18 +157,59 @@ def unit_float_image(image, *, guided: bool, where: str, field: str):
     return out / jnp.float32(255.0) if dtype == jnp.uint8 else out
 
 
-def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
+def median_step_difference(dh: jax.Array, dv: jax.Array, *, stride: int = 4, iterations: int = 12) -> jax.Array:
+    """Median colour difference of an image's 4-connected steps, from a fixed subsample.
+
+    Args:
+      dh, dv: (H, W - 1) and (H - 1, W) float32 colour differences of the
+        horizontal and vertical steps (non-finite entries, e.g. the NaN padding
+        of a rig's canvas, are left out).
+      stride: every ``stride``-th row and column of both arrays is sampled
+        (static; 4 samples 1/16 of the steps).
+      iterations: bisection steps on ``[0, max]`` of the sample (static); the
+        result is within ``max / 2**iterations`` of the sample's median.
+
+    Returns:
+      () float32, the median of the sample's finite values (0 if it has none).
+
+    A sort-based ``jnp.median`` of every step costs ~280 ms on the KITTI crop
+    on this CPU; counting below a bisected threshold costs well under 1 ms.
+    """
+    sample = jnp.concatenate([dh[::stride, ::stride].ravel(), dv[::stride, ::stride].ravel()])
+    finite = jnp.isfinite(sample)
+    count = jnp.sum(finite)
+    sample = jnp.where(finite, sample, 0.0)
+    hi = jnp.max(sample)
+
+    def halve(_, bounds):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        # The lower half holds at least half of the finite values: the median is <= mid.
+        below = 2 * jnp.sum(finite & (sample <= mid)) >= count
+        return jnp.where(below, lo, mid), jnp.where(below, mid, hi)
+
+    lo, hi = lax.fori_loop(0, iterations, halve, (jnp.float32(0.0), hi))
+    return jnp.where(count > 0, 0.5 * (lo + hi), 0.0)
+
+
+def step_costs(image: jax.Array, color_weight, *, noise_floor: float = 0.0) -> tuple[jax.Array, jax.Array]:
     """Costs of the 4-connected steps.
 
     Args:
       image: (H, W) or (H, W, C) float guidance image.
       color_weight: pixels per unit of Euclidean colour difference (>= 0).
+      noise_floor: static float >= 0. A step's colour difference is reduced by
+        ``noise_floor`` times the image's median step difference
+        (:func:`median_step_difference`) and floored at 0, so differences at the
+        image's own noise and texture level cost nothing and only the excess
+        is charged. 0 gives GeoS's plain cost.
 
     Returns:
       (horizontal, vertical): float32 (H, W - 1) cost of the step between
       ``(v, u)`` and ``(v, u + 1)``, and (H - 1, W) between ``(v, u)`` and
-      ``(v + 1, u)``; each ``1 + color_weight * ||I(p) - I(q)||``, or 1e6
-      where that is not finite (NaN or inf colours).
+      ``(v + 1, u)``; each ``1 + color_weight * max(||I(p) - I(q)|| - floor, 0)``
+      (floor = ``noise_floor`` x median), or 1e6 where that is not finite (NaN
+      or inf colours).
     """
     img = jnp.asarray(image, jnp.float32)
     # Channel planes, summed one by one: a reduction over a trailing axis of
@@ -162,6 +218,10 @@ def step_costs(image: jax.Array, color_weight) -> tuple[jax.Array, jax.Array]:
     weight = jnp.asarray(color_weight, jnp.float32)
     dh = jnp.sqrt(sum(jnp.square(p[:, 1:] - p[:, :-1]) for p in planes))
     dv = jnp.sqrt(sum(jnp.square(p[1:] - p[:-1]) for p in planes))
+    if noise_floor:
+        floor = jnp.float32(noise_floor) * median_step_difference(dh, dv)
+        # max() would turn NaN into the floor: keep non-finite steps blocked.
+        dh, dv = (jnp.where(d > floor, d - floor, jnp.where(jnp.isfinite(d), 0.0, d)) for d in (dh, dv))
     # Non-finite colours (NaN, inf) give a finite, very large step: every pixel
     # stays reachable, so every pixel gets a real seed.
     return tuple(jnp.where(jnp.isfinite(c), c, _BLOCKED) for c in (1.0 + weight * dh, 1.0 + weight * dv))
@@ -205,7 +265,8 @@ def _line_pass(buf: jax.Array, cost: jax.Array) -> jax.Array:
     return buf
 
 
-def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: int) -> NearestSeed:
+def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: int,
+                  noise_floor: float = 0.0) -> NearestSeed:
     """Seed of least geodesic distance for every pixel (GeoS raster passes).
 
     Args:
@@ -218,6 +279,10 @@ def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: in
         L1 distance of ``nearest_seed(keep, metric="l1")``.
       sweeps: static int >= 1, number of (horizontal, vertical) sweep pairs;
         see the module docstring for what fewer sweeps approximate.
+      noise_floor: static float >= 0; colour differences up to this many
+        times the image's median step difference cost nothing (see
+        :func:`step_costs`). 0 (the default here) is GeoS's plain cost; the
+        pipeline passes ``SGMConfig.guidance_noise_floor``.
 
     Returns:
       :class:`~jaxdepth._src.distance.NearestSeed` with the same contract as
@@ -231,15 +296,17 @@ def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: in
       Python-number ``color_weight`` (a traced weight is not checked).
     """
     _check(keep, image, color_weight, sweeps)
-    return _geodesic_seed(keep, image, color_weight, sweeps=sweeps)
+    if not float(noise_floor) >= 0:
+        raise ValueError(f"geodesic_seed: field 'noise_floor' expected >= 0, got {noise_floor!r}")
+    return _geodesic_seed(keep, image, color_weight, sweeps=sweeps, noise_floor=float(noise_floor))
 
 
-@functools.partial(jax.jit, static_argnames="sweeps")
-def _geodesic_seed(keep, image, color_weight, *, sweeps: int) -> NearestSeed:
+@functools.partial(jax.jit, static_argnames=("sweeps", "noise_floor"))
+def _geodesic_seed(keep, image, color_weight, *, sweeps: int, noise_floor: float) -> NearestSeed:
     h, w = keep.shape
     # A stage fence: inside the pipeline XLA would otherwise fuse the cost
     # computation (uint8 conversion, differences, sqrt) into every loop step.
-    cost_ht, cost_v = stage(lambda img, cw: (lambda c: (c[0].T, c[1]))(step_costs(img, cw)),
+    cost_ht, cost_v = stage(lambda img, cw: (lambda c: (c[0].T, c[1]))(step_costs(img, cw, noise_floor=noise_floor)),
                             (image, jnp.asarray(color_weight, jnp.float32)), keep[0, 0].astype(jnp.int32))
     flat = jnp.arange(h * w, dtype=jnp.float32).reshape(h, w)
     buf = lax.complex(jnp.where(keep, 0.0, jnp.inf).astype(jnp.float32), jnp.where(keep, flat, 0.0))

@@ -71,7 +71,8 @@ def _seeds(keep, image, config: SGMConfig):
         if image is None:  # entry points that take no image (complete_rig, ...)
             raise ValueError("SGMConfig: field 'guidance_weight' > 0 expected a camera image, but this entry "
                              "point takes none (use complete / complete_points with image=, or guidance_weight=0)")
-        return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps)
+        return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps,
+                             noise_floor=config.guidance_noise_floor)
     return nearest_seed(keep, metric=config.distance_metric)
 
 
