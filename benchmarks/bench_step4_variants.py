@@ -2,7 +2,7 @@
 
 KITTI drive_0001 frame 5, camera 2, 352x1216 benchmark crop, through ``jaxdepth.complete``:
 the paper's Step 4 (``column_bracket=False``), the default (column bracket), the blend, image
-guidance (weight 1 and 50, 2 sweeps) with and without the bracket, without the noise floor, guidance with the blend,
+guidance (weight 1 and 50, 2 sweeps) with and without the bracket, with the noise floor, guidance with the blend,
 and IP_Basic's OpenCV fast mode
 (Gaussian). Every variant is compiled first (compile time apart), then all are called in turn
 ``--rounds`` times (``block_until_ready`` before every clock read), so each sees the same machine
@@ -38,7 +38,7 @@ VARIANTS = {
     "guided, weight 1, without the bracket": dict(guidance_weight=1.0, column_bracket=False),
     "guided, weight 1": dict(guidance_weight=1.0),
     "guided, weight 50": dict(guidance_weight=50.0),
-    "guided, weight 50, without the noise floor": dict(guidance_weight=50.0, guidance_noise_floor=0.0),
+    "guided, weight 50, noise floor 1": dict(guidance_weight=50.0, guidance_noise_floor=1.0),
     "guided, weight 50, blend": dict(guidance_weight=50.0, blend_hypotheses=True),
 }
 

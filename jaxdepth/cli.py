@@ -63,7 +63,7 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                    help="raster sweeps of the geodesic transform (default 2)")
     p.add_argument("--guidance-noise-floor", type=float, default=None, metavar="F",
                    help="colour differences up to F times the image's median step difference cost nothing "
-                        "(default 1; 0: GeoS's plain cost)")
+                        "(default 0: GeoS's plain cost)")
 
 
 #: --hypotheses: the SGMConfig fields each of Step 4's variants sets.

@@ -13,8 +13,8 @@ therefore spread along a surface of even colour and stop at image edges
 With ``color_weight = 0`` every step costs 1 and the distance is the exact
 city-block (L1) distance of :func:`~jaxdepth._src.distance.nearest_seed`.
 
-Noise floor (beyond GeoS; ``noise_floor``, the pipeline's
-``SGMConfig.guidance_noise_floor``, 1 there).  Each colour difference is first
+Noise floor (beyond GeoS, optional; ``noise_floor``, the pipeline's
+``SGMConfig.guidance_noise_floor``, 0 = off by default).  Each colour difference is first
 reduced by ``noise_floor`` times the image's median step difference (its
 sensor noise, JPEG blocks and fine texture; :func:`median_step_difference`,
 from every 4th row and column) and floored at 0:
@@ -22,11 +22,10 @@ from every 4th row and column) and floored at 0:
     1 + color_weight * max(||I(p) - I(q)|| - noise_floor * median, 0)
 
 so a textured or noisy surface costs what a flat one does and only real
-edges are charged, whatever the image's exposure and compression.  With the
-plain cost a long path over fine texture could cost more than a short one
-across an edge (measured: on the nuScenes sample's JPEGs the plain cost made
-the guided seeds worse than LiDAR-only; README "Image-guided seeds").  The
-costs stay positive and symmetric, so everything below holds unchanged.
+edges are charged, whatever the image's exposure and compression.  Measured
+(README "Image-guided seeds"): it helps on the synthetic renders and not on
+the real KITTI and nuScenes photographs, hence off by default.  The costs stay
+positive and symmetric, so everything below holds unchanged.
 
 Passes.  GeoS's forward and backward raster scans read the left and upper
 neighbours (resp. right and lower) in one pass, which is sequential along each
@@ -281,7 +280,7 @@ def geodesic_seed(keep: jax.Array, image: jax.Array, *, color_weight, sweeps: in
         see the module docstring for what fewer sweeps approximate.
       noise_floor: static float >= 0; colour differences up to this many
         times the image's median step difference cost nothing (see
-        :func:`step_costs`). 0 (the default here) is GeoS's plain cost; the
+        :func:`step_costs`). 0 (the default) is GeoS's plain cost; the
         pipeline passes ``SGMConfig.guidance_noise_floor``.
 
     Returns:
