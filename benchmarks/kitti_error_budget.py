@@ -6,8 +6,10 @@ for the LiDAR-only default and the guided SGM (weight 50, the ablation's choice)
 
 * **budget**: the share of the squared error in the ground-truth pixels above the topmost
   kept LiDAR pixel of their column (every method extrapolates there; the ground truth
-  accumulates neighbouring scans), and in the pixels wrong by more than 3 m, split into
-  predicted too far (background spread over an object) and too near;
+  accumulates neighbouring scans), in the pixels whose true depth no kept LiDAR pixel within
+  a 21 x 21 window has to 0.5 m ("unreachable": no seed choice nearby is right), and in the
+  pixels wrong by more than 3 m, split into predicted too far (background spread over an
+  object) and too near;
 * **smoothing**: Step 4's Gaussian replaced by wider ones, or a 5 x 5 median in front of it,
   on the same unsmoothed prediction (OpenCV; measured depths kept as the pipeline does);
 * **oracle**: at every ground-truth pixel, the best of three plane predictions: the
@@ -48,6 +50,7 @@ CONFIGS = {"LiDAR only (default)": SGMConfig(), "guided, weight 50": SGMConfig(g
 SMOOTHING = {"Gaussian sigma 1.4, 7 x 7 (Step 4)": (1.4, 7, False), "Gaussian sigma 2, 9 x 9": (2.0, 9, False),
              "Gaussian sigma 3, 13 x 13": (3.0, 13, False), "median 5 x 5, then Step 4's Gaussian": (1.4, 7, True)}
 BIG_M = 3.0
+REACH_PX = 10
 
 
 def rmse_mae(pred, gt):
@@ -100,9 +103,22 @@ def frame_budget(sparse, gt, K, T, image, config):
     top = np.where(keep.any(0), np.argmax(keep, 0), h)
     above_top = np.arange(h)[:, None] < top[None, :]
     big = m & (np.abs(err) > BIG_M)
+    # Pixels whose true depth no kept LiDAR pixel within REACH_PX (a 21 x 21 window) has, to 0.5 m:
+    # no choice of seed around them can be right.
+    nearest_match = np.full(gt.shape, np.inf)
+    kv, ku = np.nonzero(keep)
+    for dv in range(-REACH_PX, REACH_PX + 1):
+        for du in range(-REACH_PX, REACH_PX + 1):
+            tv, tu = kv - dv, ku - du
+            ok = (tv >= 0) & (tv < gt.shape[0]) & (tu >= 0) & (tu < gt.shape[1])
+            np.minimum.at(nearest_match, (tv[ok], tu[ok]), np.abs(sparse[kv[ok], ku[ok]] - gt[tv[ok], tu[ok]]))
+    unreachable = m & (nearest_match > 0.5)
     out = {"sgm": rmse_mae(st.depth, gt),
            "above_top": {"pixel_share": float((m & above_top).sum() / m.sum()),
-                         "squared_error_share": float(sq[above_top].sum() / sq.sum())},
+                         "squared_error_share": float(sq[above_top].sum() / sq.sum()),
+                         "unreachable_squared_error_share": float(sq[above_top & unreachable].sum() / sq.sum())},
+           "unreachable": {"pixel_share": float(unreachable.sum() / m.sum()),
+                           "squared_error_share": float(sq[unreachable].sum() / sq.sum())},
            f"error_over_{BIG_M:g}m": {"pixel_share": float(big.sum() / m.sum()),
                                       "squared_error_share": float(sq[big].sum() / sq.sum()),
                                       "too_far_share": float(sq[big & (err > 0)].sum() / sq.sum()),
@@ -151,6 +167,10 @@ def main(argv=None) -> int:
         a, b = mean["above_top"], mean[f"error_over_{BIG_M:g}m"]
         print(f"  above the topmost kept LiDAR pixel of the column: {100 * a['pixel_share']:.1f} % of the pixels, "
               f"{100 * a['squared_error_share']:.1f} % of the squared error")
+        u = mean["unreachable"]
+        print(f"  no kept LiDAR depth within 0.5 m of the truth in {2 * REACH_PX + 1} x {2 * REACH_PX + 1} px: "
+              f"{100 * u['pixel_share']:.1f} % of the pixels, {100 * u['squared_error_share']:.1f} % of the squared "
+              f"error ({100 * a['unreachable_squared_error_share']:.1f} % above the topmost kept pixel)")
         print(f"  errors over {BIG_M:g} m: {100 * b['pixel_share']:.2f} % of the pixels, "
               f"{100 * b['squared_error_share']:.1f} % of the squared error (too far {100 * b['too_far_share']:.1f} %, "
               f"too near {100 * b['too_near_share']:.1f} %)")
