@@ -120,11 +120,11 @@ class Item:
 
 
 def kitti_gt_frames():
-    from accuracy_kitti import FRAME, load_frames
-    from jaxdepth.io import crop_to_benchmark
+    from accuracy_kitti import load_frames, load_images
+    images = load_images()
     frames = []
     for name, (sparse, gt, K, T) in load_frames().items():
-        image, _ = crop_to_benchmark(decode_camera_image(FRAME / f"{name}.png"), np.eye(3))
+        image = images[name]
         frames.append([Item(name, jnp.asarray(gt), jnp.asarray(image), jnp.asarray(K, jnp.float32),
                             jnp.asarray(T, jnp.float32), _hdl64(), True,
                             sparse=jnp.asarray(sparse, jnp.float32))])

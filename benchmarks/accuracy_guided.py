@@ -36,6 +36,8 @@ from jaxdepth._src import presets
 from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib, read_points
 from jaxdepth.io.guidance_images import decode_camera_image
 
+from accuracy_kitti import load_images
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "kitti"
 FRAME = DATA / "drive_0001_frame05"
@@ -46,13 +48,13 @@ SWEEPS = 2
 
 def gt_frames():
     calib = read_kitti_raw_calib(FRAME / "calib_cam_to_cam.txt", FRAME / "calib_velo_to_cam.txt")
+    images = load_images()
     out = {}
     for cam in (2, 3):
         K = calib["cameras"][cam]["K"]
         sparse, K_c = crop_to_benchmark(read_depth_png(FRAME / f"velodyne_raw_image_0{cam}.png"), K)
         gt, _ = crop_to_benchmark(read_depth_png(FRAME / f"groundtruth_image_0{cam}.png"), K)
-        image, _ = crop_to_benchmark(decode_camera_image(FRAME / f"image_0{cam}.png"), K)
-        out[f"image_0{cam}"] = (sparse, gt, K_c, calib["cameras"][cam]["T_cam_lidar"], image)
+        out[f"image_0{cam}"] = (sparse, gt, K_c, calib["cameras"][cam]["T_cam_lidar"], images[f"image_0{cam}"])
     return out
 
 

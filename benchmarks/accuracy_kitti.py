@@ -14,6 +14,7 @@ import json
 import pathlib
 import sys
 
+import numpy as np
 
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets
@@ -35,6 +36,13 @@ def load_frames(frame_dir: pathlib.Path = FRAME):
         gt_c, _ = crop_to_benchmark(gt, K)
         frames[f"image_0{cam}"] = (sparse_c, gt_c, K_c, calib["cameras"][cam]["T_cam_lidar"])
     return frames
+
+
+def load_images(frame_dir: pathlib.Path = FRAME) -> dict:
+    """The frame's camera images (RGB uint8), cropped to the benchmark window like ``load_frames``' depths."""
+    from jaxdepth.io.guidance_images import decode_camera_image
+    return {f"image_0{cam}": crop_to_benchmark(decode_camera_image(frame_dir / f"image_0{cam}.png"), np.eye(3))[0]
+            for cam in (2, 3)}
 
 
 def main(argv=None):

@@ -25,10 +25,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_kitti import FRAME, load_frames  # noqa: E402
+from accuracy_kitti import FRAME, load_frames, load_images  # noqa: E402
 from accuracy_rigs import write_results  # noqa: E402
-from jaxdepth.io import crop_to_benchmark  # noqa: E402
-from jaxdepth.io.guidance_images import decode_camera_image  # noqa: E402
 from jaxdepth.research.baselines import ip_basic_opencv  # noqa: E402
 
 VARIANTS = {
@@ -52,7 +50,7 @@ def main(argv=None) -> int:
         print(f"shared data not found: {FRAME}", file=sys.stderr)
         return 1
     sparse, _, K, T = load_frames()["image_02"]
-    image, _ = crop_to_benchmark(decode_camera_image(FRAME / "image_02.png"), np.eye(3), size=sparse.shape)
+    image = load_images()["image_02"]
     d, k, t, im = (jax.device_put(a) for a in (sparse, K, T, image))
     calls = {}
     compile_s = {}

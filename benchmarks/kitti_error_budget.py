@@ -39,12 +39,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_kitti import FRAME, load_frames  # noqa: E402
+from accuracy_kitti import FRAME, load_frames, load_images  # noqa: E402
 from accuracy_rigs import write_results  # noqa: E402
 from jaxdepth import SGMConfig  # noqa: E402
 from jaxdepth._src.presets import KITTI_HDL64  # noqa: E402
-from jaxdepth.io import crop_to_benchmark  # noqa: E402
-from jaxdepth.io.guidance_images import decode_camera_image  # noqa: E402
 
 CONFIGS = {"LiDAR only (default)": SGMConfig(), "guided, weight 50": SGMConfig(guidance_weight=50.0)}
 SMOOTHING = {"Gaussian sigma 1.4, 7 x 7 (Step 4)": (1.4, 7, False), "Gaussian sigma 2, 9 x 9": (2.0, 9, False),
@@ -156,7 +154,7 @@ def main(argv=None) -> int:
         return 1
     t0 = time.time()
     frames = load_frames()
-    images = {name: crop_to_benchmark(decode_camera_image(FRAME / f"{name}.png"), np.eye(3))[0] for name in frames}
+    images = load_images()
     doc = {"target_rmse_mm": 858.0, "configs": {}}
     for label, config in CONFIGS.items():
         per = {name: frame_budget(np.asarray(s, np.float32), np.asarray(g, np.float64), np.asarray(K, np.float32),
