@@ -356,6 +356,20 @@ def test_config_fields(field, value, match):
         SGMConfig(**{field: value})
 
 
+def test_pipeline_passes_the_noise_floor():
+    from jaxdepth import SGMConfig, complete_stages
+    (frames, T, images) = _pipeline_frame()
+    depth, K = frames[0]
+    stages = complete_stages(depth, K, T, config=SGMConfig(guidance_weight=30.0, guidance_noise_floor=1.0),
+                             image=images[0])
+    keep, image = np.asarray(stages.inlier_mask), images[0].astype(np.float32) / 255.0
+    want = geodesic_seed(keep, image, color_weight=30.0, sweeps=2, noise_floor=1.0)
+    np.testing.assert_array_equal(stages.du, want.du)
+    np.testing.assert_array_equal(stages.dv, want.dv)
+    plain = geodesic_seed(keep, image, color_weight=30.0, sweeps=2)
+    assert np.any(np.asarray(plain.du) != np.asarray(want.du))  # the floor changed some seeds
+
+
 def test_complete_points_guided():
     from jaxdepth import SGMConfig, complete_points_stages
     from jaxdepth._src import synthetic

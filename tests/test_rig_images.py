@@ -68,9 +68,12 @@ def test_weight_zero_ignores_images_bit_for_bit(stereo):
                      images=stack_images(_images(cams), cameras).astype(np.uint16))
 
 
-def test_smaller_camera_seeds_stay_in_its_window(stereo):
+@pytest.mark.parametrize("noise_floor", [0.0, 1.0])
+def test_smaller_camera_seeds_stay_in_its_window(stereo, noise_floor):
     """Camera 1 is 16 x 40 px smaller than the canvas. Its seeds equal geodesic_seed on its own window
-    (cropped keep mask and image), whatever the padding holds: no path runs through the padding."""
+    (cropped keep mask and image), whatever the padding holds: no path runs through the padding, and
+    the noise floor's median is the window's own."""
+    GUIDED = SGMConfig(guidance_weight=5.0, guidance_sweeps=2, guidance_noise_floor=noise_floor)
     frame, cams = stereo
     big = cams[0]
     small = Camera(K=cams[1].K, T_cam_lidar=cams[1].T_cam_lidar, height=big.height - 16, width=big.width - 40)
