@@ -405,9 +405,10 @@ def test_command_line_options_reach_the_job(dataroot, tmp_path, monkeypatch):
         (3, False, True, 6)
     assert (defaults["sweeps"], defaults["ego_motion"], defaults["overwrite"]) == (1, True, False)
     assert cli.main(argv + ["--sweeps", "0"]) == 2
-    assert cli.main(argv + ["--guidance-weight", "2", "--guidance-sweeps", "3"]) == 0  # guided: the config says so
-    guided = calls[-1][1]["config"]
-    assert (guided.guidance_weight, guided.guidance_sweeps, defaults["config"].guidance_weight) == (2.0, 3, 0.0)
+    assert cli.main(argv + ["--guidance-weight", "2", "--guidance-sweeps", "3", "--guidance-noise-floor", "1.5"]) == 0
+    guided = calls[-1][1]["config"]  # guided: the config says so
+    assert (guided.guidance_weight, guided.guidance_sweeps, guided.guidance_noise_floor) == (2.0, 3, 1.5)
+    assert (defaults["config"].guidance_weight, defaults["config"].guidance_noise_floor) == (0.0, 0.0)
 
 
 def test_bad_records_cost_their_sample_and_name_the_file(dataroot):
