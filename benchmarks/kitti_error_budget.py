@@ -41,7 +41,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import jaxdepth  # noqa: E402
 from accuracy_kitti import FRAME, load_frames, load_images  # noqa: E402
 from accuracy_rigs import write_results  # noqa: E402
-from jaxdepth import SGMConfig  # noqa: E402
+from jaxdepth import SGMConfig, depth_metrics  # noqa: E402
+from jaxdepth._src.residual import plane_residual  # noqa: E402
 from jaxdepth._src.presets import KITTI_HDL64  # noqa: E402
 
 CONFIGS = {"LiDAR only (default)": SGMConfig(), "guided, weight 50": SGMConfig(guidance_weight=50.0)}
@@ -52,9 +53,9 @@ REACH_PX = 10
 
 
 def rmse_mae(pred, gt):
-    m = gt > 0
-    e = (pred[m].astype(np.float64) - gt[m]) * 1000.0
-    return float(np.sqrt(np.mean(e * e))), float(np.mean(np.abs(e)))
+    """The KITTI devkit RMSE / MAE (mm) of one prediction (:func:`jaxdepth.depth_metrics`)."""
+    m = depth_metrics(np.asarray(pred, np.float32), np.asarray(gt, np.float32))
+    return float(m["rmse"]), float(m["mae"])
 
 
 def smooth(raw, keep, sparse, sigma, size, median):
@@ -73,21 +74,19 @@ def column_neighbours(keep, window):
     return above, below
 
 
-def plane_at(rows_src, sparse, normals, K, max_ratio=0.5, min_denom=0.01):
-    """Depth at every pixel of the plane of the kept LiDAR pixel (rows_src, same column); NaN where none."""
-    h, w = sparse.shape
-    v, u = np.indices((h, w))
+def plane_at(rows_src, sparse, normals, K):
+    """Depth at every pixel of the plane of the kept LiDAR pixel (rows_src, same column); NaN where none.
+
+    The pipeline's own Step-4a prediction (:func:`~jaxdepth._src.residual.plane_residual`, default
+    guard and clip) with that pixel as the seed: du = 0, dv = rows_src - row.
+    """
     ok = rows_src >= 0
     sv = np.where(ok, rows_src, 0)
-    z0 = sparse[sv, u].astype(np.float64)
-    n = normals[:, sv, u].astype(np.float64)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    # n . (X - X0) = 0 along the pixel's ray X = z r, r = ((u - cx) / fx, (v - cy) / fy, 1).
-    denom = n[0] * (u - cx) / fx + n[1] * (v - cy) / fy + n[2]
-    num = n[0] * (u - cx) / fx * z0 + n[1] * (sv - cy) / fy * z0 + n[2] * z0
-    z = np.where(np.abs(denom) >= min_denom, num / np.where(np.abs(denom) >= min_denom, denom, 1.0), z0)
-    z = np.clip(z, (1 - max_ratio) * z0, (1 + max_ratio) * z0)
-    return np.where(ok, z, np.nan)
+    u = np.arange(sparse.shape[1])[None, :]
+    z0 = sparse[sv, u]
+    dv = (sv - np.arange(sparse.shape[0])[:, None]).astype(np.int32)
+    dz = plane_residual(z0, normals[:, sv, u], np.zeros_like(dv), dv, K)
+    return np.where(ok, z0 + np.asarray(dz), np.nan)
 
 
 def frame_budget(sparse, gt, K, T, image, config):
