@@ -8,6 +8,9 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
+import shutil
+import sys
+import tempfile
 
 import numpy as np
 import pytest
@@ -18,6 +21,31 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 # subprocesses it starts) must not write there. test_cli's compile-cache test turns it
 # on for its own subprocesses, with a temporary XDG_CACHE_HOME.
 os.environ["JAXDEPTH_COMPILE_CACHE"] = "0"
+
+# Instead, one persistent compilation cache per test session, in a temporary folder
+# removed at the end: a program compiled once (by this process, by a CLI / notebook /
+# Ray subprocess, or by another xdist worker) is read back instead of compiled again.
+# Set through the environment before JAX is imported, so subprocesses inherit it; every
+# program is stored (no minimum compile time or size). Outputs are the same bytes with
+# or without it (test_cli checks this for the CLI). An inherited folder (the xdist
+# controller's) is shared; JAXDEPTH_TEST_COMPILE_CACHE=0 turns it off.
+_SESSION_CACHE_OWNER = False
+if os.environ.get("JAXDEPTH_TEST_COMPILE_CACHE", "1") != "0":
+    if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxdepth-test-xla-")
+        _SESSION_CACHE_OWNER = True
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+    os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "-1"
+    if "jax" in sys.modules:  # imported before this file (a plugin): set the options directly too
+        import jax
+        jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _SESSION_CACHE_OWNER and not hasattr(session.config, "workerinput"):
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
 def _shared_data_dir() -> pathlib.Path:

@@ -26,6 +26,7 @@ def run_cli(*args):
                           timeout=900)
 
 
+@pytest.mark.slow  # subprocess
 def test_help_and_version():
     result = run_cli("--help")
     assert result.returncode == 0 and "complete" in result.stdout and "demo" in result.stdout
@@ -35,6 +36,7 @@ def test_help_and_version():
     assert run_cli("complete").returncode == 2  # argparse usage error
 
 
+@pytest.mark.slow  # subprocess
 def test_help_version_and_usage_errors_do_not_import_jax():
     """Issue 14: the answers that need no computation come without JAX's ~0.6 s import."""
     script = ("import sys\n"
@@ -52,6 +54,7 @@ def test_help_version_and_usage_errors_do_not_import_jax():
     assert result.stdout.strip().splitlines()[-1] == "[0, 0, 2, 2, 2, 0, 0] False False", result.stdout[-2000:]
 
 
+@pytest.mark.slow  # subprocess
 def test_verbose_run_does_not_show_jax_backend_probes(tmp_path, frames):
     """Issue 14: JAX's "Unable to initialize backend 'tpu'" note never reaches the user, even with -v."""
     items, _ = frames
@@ -158,6 +161,7 @@ def test_interrupt_leaves_no_partial_png_and_rerun_completes(tmp_path, frames, m
     assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png"]
 
 
+@pytest.mark.slow  # subprocess
 def test_demo_writes_outputs_and_scores(tmp_path):
     result = run_cli("demo", "--out", tmp_path / "demo")
     assert result.returncode == 0, result.stderr[-2000:]
@@ -172,11 +176,15 @@ def _cache_files(folder: pathlib.Path) -> dict:
     return {p.name: p.stat().st_mtime_ns for p in folder.rglob("*-cache")} if folder.exists() else {}
 
 
+@pytest.mark.slow  # subprocess
 def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, frames):
     items, _ = frames
     src = write_kitti_folder(tmp_path / "src", items[:1])
     png, K = src / "velodyne_raw" / "frame_000.png", src / "intrinsics" / "frame_000.txt"
-    env = {k: v for k, v in os.environ.items() if k not in ("JAXDEPTH_COMPILE_CACHE", "JAX_COMPILATION_CACHE_DIR")}
+    # as a user runs it: without the suite's own session cache (conftest) or its options
+    env = {k: v for k, v in os.environ.items() if k not in ("JAXDEPTH_COMPILE_CACHE", "JAX_COMPILATION_CACHE_DIR",
+                                                             "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+                                                             "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES")}
 
     # As after a plain `pip install jaxdepth`: without the optional `filelock`
     # package, which JAX needs for its own size cap.
@@ -241,8 +249,8 @@ def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monk
     monkeypatch.setattr(devices, "trim_compile_cache", refuse)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     monkeypatch.delenv("JAXDEPTH_COMPILE_CACHE", raising=False)
-    before = jax.config.jax_compilation_cache_dir
-    assert before is None  # the suite itself never uses a compile cache
+    before = jax.config.jax_compilation_cache_dir  # the suite's session cache (conftest), or None
+    jax.config.update("jax_compilation_cache_dir", None)  # as in a process without JAX_COMPILATION_CACHE_DIR
     try:
         assert devices.use_compile_cache(True) == tmp_path / "jaxdepth" / "xla"
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jaxdepth" / "xla")

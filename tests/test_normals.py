@@ -616,6 +616,7 @@ def test_pixel_normals_kitti_frame(kitti):
     np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
 
 
+@pytest.mark.slow  # frozen oracle
 def test_kitti_equal_to_reference_version(kitti):
     """pixel_normals on the KITTI frame and point_normals on its sweep equal the version
     before the speed-up (tests/oracles/normals_58cfbac.py; measured: max difference 1.8e-7,

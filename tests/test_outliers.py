@@ -308,6 +308,7 @@ def test_radial_offset_over_open_ground_removes_nothing(t_lidar):
 
 
 # ----------------------------------------------------------------------------- frozen dense sweep
+@pytest.mark.slow  # frozen oracle
 def test_equals_frozen_dense_sweep_kitti(kitti):
     """Bit-identical to the previous implementation (the dense sweep over all
     window offsets) on the real frame: official sparse input of both cameras
@@ -338,6 +339,7 @@ def test_equals_frozen_dense_sweep_kitti(kitti):
     (3, (96, 320), 64, 0.3, (12, 24)),    # > _CHUNK removals: several chunks of candidates
     (4, (60, 90), 16, 0.1, (3, 2)),       # small caps
 ])
+@pytest.mark.slow  # frozen oracle
 def test_equals_frozen_dense_sweep_configurations(seed, shape, beams, density, caps):
     frozen = frozen_keep_mask
     rng = np.random.default_rng(seed)

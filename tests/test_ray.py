@@ -25,7 +25,9 @@ from jaxdepth.io.depth_png import read_depth_png, write_depth_png  # noqa: E402
 
 # Ray starts its processes with fork+exec after JAX is up (harmless), and Ray Data reads its own
 # deprecated settings when it copies its context.
-pytestmark = [pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning"),
+pytestmark = [pytest.mark.slow,  # Ray clusters and subprocesses
+              pytest.mark.xdist_group("ray"),  # one local cluster at a time, on one worker
+              pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning"),
               pytest.mark.filterwarnings("ignore::DeprecationWarning:ray.data.context")]
 
 METHOD = "nearest"  # the fastest method: the engines, not the algorithm, are under test

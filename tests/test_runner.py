@@ -141,6 +141,7 @@ print("sharded-ok", float(np.abs(two - one).max()))
 """
 
 
+@pytest.mark.slow  # subprocess
 def test_two_simulated_devices_match_one(tmp_path):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     script = SHARDED.format(tests=str(pathlib.Path(__file__).parent))
@@ -174,6 +175,7 @@ print("split", first, again, n, late, os.environ["XLA_FLAGS"].count("device_coun
 """
 
 
+@pytest.mark.slow  # subprocess
 def test_cli_splits_the_cpu_into_one_device_per_core_before_jax_starts():
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
