@@ -127,15 +127,27 @@ def nuscenes_sample(shared_data) -> pathlib.Path:
     return require_shared("nuscenes", "sample")
 
 
+#: Compiled programs a test process may keep alive across modules (see below).
+MAX_LIVE_EXECUTABLES = int(os.environ.get("JAXDEPTH_TEST_MAX_LIVE_EXECUTABLES", "500"))
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
-    """Drop JAX's compiled programs after each test module.
+    """Drop JAX's compiled programs after a module once more than ``MAX_LIVE_EXECUTABLES`` are alive.
 
-    The suite compiles a few hundred programs; kept for the whole session they
-    once ended a full run with a crash inside XLA:CPU (SIGSEGV while unwinding,
-    not reproducible module by module). Modules do not share compilations
-    that matter for time, so each starts clean.
+    The suite compiles a few thousand programs (with the small ones that eager, op-by-op runs
+    compile); kept for the whole session they once ended a full run with a crash inside
+    XLA:CPU (SIGSEGV while unwinding, not reproducible module by module). Below the cap, the
+    next module reuses what the previous ones compiled (the shared scenes of ``scenes.py``);
+    above it every cache is cleared and programs still needed come back from the session's
+    persistent compilation cache (read from disk, not compiled again).
+    ``JAXDEPTH_TEST_MAX_LIVE_EXECUTABLES=0`` clears after every module.
     """
     yield
     import jax
-    jax.clear_caches()
+    from jax.extend.backend import get_backend
+    live = len(get_backend().live_executables())
+    if os.environ.get("JAXDEPTH_TEST_REPORT_LIVE"):
+        print(f"\n[live executables after module: {live}]", file=sys.stderr)
+    if live > MAX_LIVE_EXECUTABLES:
+        jax.clear_caches()

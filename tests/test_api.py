@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import re
 
 import jaxdepth
 
@@ -48,13 +49,31 @@ def test_options_are_keyword_only():
     assert not offenders, offenders
 
 
+SHAPE = r"\((?:[A-Z]|\d+)[\w ,]*\)"  # "(H, W)", "(N,)", "(3, 3)", "(C, 3, H, W)"
+
+
+def _states_shape(doc: str, name: str) -> bool:
+    """Whether ``doc`` documents argument ``name`` as ``name: (shape) ...`` or ``name: :class:`...```
+    (also in a list: ``du, dv: (H, W) ...``)."""
+    return re.search(rf"(?<![\w.]){name}(?:, \w+)*: (?:{SHAPE}|:class:)", doc) is not None
+
+
 def test_array_functions_state_shapes():
-    """Docstrings of the array functions name the shapes they take and give."""
+    """Docstrings of the array functions give the shape of every positional (array) argument, in
+    their own Args or in the function they refer to with "see :func:`...`", and of what they return
+    (a Returns section, else the summary line)."""
     for name in ("complete", "complete_stages", "complete_points_stages", "complete_rig_stages", "nearest_seed",
                  "outlier_keep_mask", "point_normals", "plane_residual", "gaussian_blur", "project_to_image",
                  "depth_metrics", "ip_basic"):
-        doc = getattr(jaxdepth, name).__doc__
-        assert "(H, W)" in doc or "(N, 3)" in doc or "(N," in doc, name
+        doc = inspect.getdoc(getattr(jaxdepth, name))
+        docs = [doc] + [inspect.getdoc(getattr(jaxdepth, ref)) for ref in re.findall(r"see :func:`(\w+)`", doc)]
+        arrays = [p.name for p in inspect.signature(getattr(jaxdepth, name)).parameters.values()
+                  if p.kind in (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+        assert arrays, name
+        missing = [a for a in arrays if not any(_states_shape(d, a) for d in docs)]
+        assert not missing, f"{name}: no shape stated for {missing}"
+        returns = doc.split("Returns:", 1)[1].strip().split("\n\n")[0] if "Returns:" in doc else doc.splitlines()[0]
+        assert re.search(SHAPE + "|:class:|dict of", returns), f"{name}: return shape not stated in {returns!r}"
 
 
 # Stage options that are SGMConfig fields under another name (issue 14: the stages' own

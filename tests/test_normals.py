@@ -36,6 +36,7 @@ from jaxdepth._src.types import LidarSpec
 
 from _harness import check_stage
 from oracles import normals_58cfbac as reference
+from scenes import SMALL_LIDAR, small_camera
 
 LIDAR = KITTI_HDL64  # 64 x 2048, fov [-24.9, 2] degrees
 SMALL = LidarSpec(beams=16, fov_up_deg=10.0, fov_down_deg=-20.0, columns=64)
@@ -478,17 +479,11 @@ def test_kitti_sweep_every_point_and_ground(kitti):
 
 # ----------------------------------------------------------------------------- image input (pixel_normals)
 
-PIX_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+PIX_LIDAR = SMALL_LIDAR
 
 
 def _pix_camera(f=120.0, h=96, w=160):
-    from jaxdepth._src.types import Camera
-    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
-    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)  # forward camera
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = R @ np.array([-0.3, 0.0, 0.3])
-    return Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T, jnp.float32), height=h, width=w)
+    return small_camera(f=f, h=h, w=w)
 
 
 def _pix_frame(seed, camera):

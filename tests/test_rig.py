@@ -9,17 +9,15 @@ import pytest
 
 import jaxdepth
 from jaxdepth import Camera, complete_points_stages, complete_rig_stages, stack_cameras
-from jaxdepth._src import synthetic
-from jaxdepth._src.types import LidarSpec
 
-LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+from scenes import SMALL_LIDAR, stereo_street
+
+LIDAR = SMALL_LIDAR
 
 
 @pytest.fixture(scope="module")
 def stereo():
-    cams = synthetic.rig_cameras("stereo", image_scale=0.25)
-    frame = synthetic.make_street_scene(1, lidar=LIDAR, cameras=cams)
-    return frame, cams
+    return stereo_street()
 
 
 def test_rig_equals_loop_over_cameras(stereo):

@@ -13,20 +13,17 @@ import pytest
 
 from jaxdepth import (Camera, SGMConfig, complete_points_stages, complete_rig, complete_rig_stages, stack_cameras,
                       stack_images)
-from jaxdepth._src import synthetic
 from jaxdepth._src.geodesic import geodesic_seed
-from jaxdepth._src.types import LidarSpec
 from helpers import block_images
+from scenes import SMALL_LIDAR, stereo_street
 
-LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+LIDAR = SMALL_LIDAR
 GUIDED = SGMConfig(guidance_weight=5.0, guidance_sweeps=2)
 
 
 @pytest.fixture(scope="module")
 def stereo():
-    cams = synthetic.rig_cameras("stereo", image_scale=0.25)
-    frame = synthetic.make_street_scene(1, lidar=LIDAR, cameras=cams)
-    return frame, cams
+    return stereo_street()
 
 
 def _images(cams, *, seed=0):

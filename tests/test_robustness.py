@@ -10,19 +10,16 @@ import numpy as np
 import pytest
 
 from jaxdepth import cli, complete_points, stack_cameras, complete_rig
-from jaxdepth._src import synthetic
-from jaxdepth._src.types import LidarSpec
 
 from helpers import small_frames, write_kitti_folder
+from scenes import SMALL_LIDAR, kitti_street
 
-LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+LIDAR = SMALL_LIDAR
 
 
 @pytest.fixture(scope="module")
 def scene():
-    cams = synthetic.rig_cameras("kitti", image_scale=0.25)
-    frame = synthetic.make_street_scene(0, lidar=LIDAR, cameras=cams)
-    return frame, cams[0]
+    return kitti_street()
 
 
 def test_nan_and_inf_points_are_ignored(scene):

@@ -38,15 +38,13 @@ def test_batched_equals_single_frame_calls(frames, strategy):
     np.testing.assert_allclose(batched, single, rtol=1e-6, atol=1e-5)
 
 
-def test_batch_size_changes_rounding_only_and_reruns_are_byte_identical(frames):
+def test_batch_size_changes_rounding_only(frames):
     items, T = frames
     depths = np.stack([d for d, _ in items])
     Ks = np.stack([k for _, k in items])
     results = [runner.complete_batch(depths, Ks, T, batch_size=b, strategy="map") for b in (1, 2, 5)]
     np.testing.assert_allclose(results[0], results[1], rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(results[0], results[2], rtol=1e-6, atol=1e-5)
-    again = runner.complete_batch(depths, Ks, T, batch_size=2, strategy="map")
-    assert again.tobytes() == results[1].tobytes()
 
 
 def _count_traces(monkeypatch) -> list:

@@ -32,11 +32,11 @@ from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.pipeline import complete, complete_stages
 from jaxdepth._src.residual import plane_residual
-from jaxdepth._src.types import Camera, LidarSpec
+from jaxdepth._src.types import LidarSpec
 
 from helpers import numpy_column_hypotheses
+from scenes import SMALL_LIDAR, small_camera
 
-SMALL_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
 
 
 def reference_stages(sparse, K, T, *, config: SGMConfig, lidar: LidarSpec) -> dict:
@@ -92,12 +92,8 @@ def check_equal(got, want):
 
 
 def small_frame(seed, f=120.0, h=96, w=160):
-    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
-    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)  # forward camera
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = R @ np.array([-0.3, 0.0, 0.3])
-    camera = Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T, jnp.float32), height=h, width=w)
+    camera = small_camera(f=f, h=h, w=w)
+    K, T = np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
     frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
     depth, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
     return np.asarray(depth), K, T.astype(np.float32)

@@ -1,0 +1,47 @@
+"""Scenes shared by the test modules: one small LiDAR, one small forward camera, two street rigs.
+
+Modules that use the same LiDAR, camera and image size also compile the same programs, which
+the session's persistent compilation cache (``tests/conftest.py``) then reads back instead of
+compiling again; so a new test should take its scene from here when one fits.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdepth._src import synthetic
+from jaxdepth._src.types import Camera, LidarSpec
+
+#: A 32-beam spinning LiDAR with KITTI's HDL-64 vertical field of view and 1024 columns.
+SMALL_LIDAR = LidarSpec(beams=32, fov_up_deg=2.0, fov_down_deg=-24.9, columns=1024)
+
+
+def lidar_to_camera(offset=(-0.3, 0.0, 0.3)) -> np.ndarray:
+    """(4, 4) float32 T_cam_lidar of a forward camera (z = LiDAR x, x = -LiDAR y, y = -LiDAR z)
+    with the LiDAR at ``offset`` from it (LiDAR frame)."""
+    R = np.array([[0, -1, 0], [0, 0, -1], [1, 0, 0]], np.float64)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = R @ np.asarray(offset)
+    return T.astype(np.float32)
+
+
+def small_camera(T_cam_lidar=None, h: int = 96, w: int = 160, f: float = 120.0) -> Camera:
+    """An (h, w) pinhole camera of focal length ``f`` px, principal point 10 rows above the centre
+    (the horizon in the upper half); ``T_cam_lidar`` defaults to :func:`lidar_to_camera`."""
+    T = lidar_to_camera() if T_cam_lidar is None else T_cam_lidar
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2 - 10], [0, 0, 1]], np.float32)
+    return Camera(K=jnp.asarray(K), T_cam_lidar=jnp.asarray(T, jnp.float32), height=h, width=w)
+
+
+def stereo_street(seed: int = 1):
+    """(frame, cameras): the synthetic street seen by :data:`SMALL_LIDAR` and the stereo rig at 1/4 scale."""
+    cams = synthetic.rig_cameras("stereo", image_scale=0.25)
+    return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=cams), cams
+
+
+def kitti_street(seed: int = 0):
+    """(frame, camera): the synthetic street seen by :data:`SMALL_LIDAR` and the KITTI-like camera at 1/4 scale."""
+    cams = synthetic.rig_cameras("kitti", image_scale=0.25)
+    return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=cams), cams[0]
