@@ -135,9 +135,8 @@ MAX_LIVE_EXECUTABLES = int(os.environ.get("JAXDEPTH_TEST_MAX_LIVE_EXECUTABLES", 
 def _release_compiled_programs():
     """Drop JAX's compiled programs after a module once more than ``MAX_LIVE_EXECUTABLES`` are alive.
 
-    The suite compiles a few thousand programs (with the small ones that eager, op-by-op runs
-    compile); kept for the whole session they once ended a full run with a crash inside
-    XLA:CPU (SIGSEGV while unwinding, not reproducible module by module). Below the cap, the
+    Eager, op-by-op runs alone compile hundreds of small programs per module. Kept for the
+    whole session, the suite's programs once ended a full run with a crash inside XLA:CPU (SIGSEGV while unwinding, not reproducible module by module). Below the cap, the
     next module reuses what the previous ones compiled (the shared scenes of ``scenes.py``);
     above it every cache is cleared and programs still needed come back from the session's
     persistent compilation cache (read from disk, not compiled again).
