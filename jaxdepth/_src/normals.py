@@ -599,7 +599,8 @@ def range_image_normals(ri: RangeImage, *, smoothing: int = DEFAULT_CONFIG.norma
 @functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap"))
 def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
                   smoothing: int = DEFAULT_CONFIG.normal_smoothing,
-                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap) -> jax.Array:
+                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap,
+                  rows: jax.Array | None = None) -> jax.Array:
     """Unit surface normal of every valid LiDAR point (Step 1 of the paper).
 
     Args:
@@ -607,6 +608,8 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
       valid: (N,) bool; masked, non-finite and origin points get a zero normal.
       lidar: static :class:`~jaxdepth.LidarSpec` of the range image.
       smoothing, fill_max_gap: static, see :func:`range_image_normals`.
+      rows: optional (N,) int32 range-image row of each point (its laser's rank by
+        elevation, for unevenly spaced beams); -1 or None: the row of its elevation.
 
     Returns:
       (N, 3) float32 LiDAR-frame normals: unit length and ``n . p <= 0`` for
@@ -620,7 +623,8 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
     points = jnp.asarray(points)
     valid = jnp.asarray(valid)
     check_points(points, valid)
-    ri, slot = range_image_and_slots(points, valid, lidar)
+    rows = None if rows is None else jnp.asarray(rows, jnp.int32)
+    ri, slot = range_image_and_slots(points, valid, lidar, rows)
     token = ri.index[0, 0]
     # Points only sit in measured cells, so the filling of empty cells is skipped.
     nxy, nz = cell_normals(ri, smoothing, fill_max_gap)

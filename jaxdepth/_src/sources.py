@@ -63,6 +63,9 @@ class Sources:
         (``p_source = inv(T_ref_source[s]) @ p_ref``).
       lidars: static tuple of S :class:`LidarSpec`, each source's own scan geometry.
       sweep: static tuple of S ints, each source's sweep; 0 is the reference sweep.
+      rows: optional (S, P) int32 range-image row of each point in its own LiDAR's range
+        image: its laser's rank by elevation (0 = highest), for LiDARs whose beams are not
+        evenly spaced (the VLP-32C); -1 or None: the row of the point's elevation.
     """
 
     points: jax.Array
@@ -70,13 +73,14 @@ class Sources:
     T_ref_source: jax.Array
     lidars: tuple = dataclasses.field(metadata=dict(static=True))
     sweep: tuple = dataclasses.field(metadata=dict(static=True))
+    rows: jax.Array | None = None
 
     @property
     def count(self) -> int:
         return len(self.lidars)
 
 
-def make_sources(points, valid, T_ref_source, *, lidars, sweep=None) -> Sources:
+def make_sources(points, valid, T_ref_source, *, lidars, sweep=None, rows=None) -> Sources:
     """Checks shapes and builds :class:`Sources` (``sweep`` defaults to all 0: one sweep, several LiDARs)."""
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool)
@@ -94,7 +98,11 @@ def make_sources(points, valid, T_ref_source, *, lidars, sweep=None) -> Sources:
     sweep = (0,) * s if sweep is None else tuple(int(x) for x in sweep)
     if len(sweep) != s:
         raise ValueError(f"Sources: field 'sweep' expected {s} ints, got {sweep!r}")
-    return Sources(points=points, valid=valid, T_ref_source=T, lidars=lidars, sweep=sweep)
+    if rows is not None:
+        rows = jnp.asarray(rows, jnp.int32)
+        if rows.shape != (s, p):
+            raise ValueError(f"Sources: field 'rows' expected shape {(s, p)}, got {rows.shape}")
+    return Sources(points=points, valid=valid, T_ref_source=T, lidars=lidars, sweep=sweep, rows=rows)
 
 
 def _spec_groups(lidars) -> list[tuple[LidarSpec, np.ndarray]]:
@@ -123,8 +131,11 @@ def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_s
     for spec, idx in _spec_groups(sources.lidars):
         T = sources.T_ref_source[idx]
         local = _to_source_frames(T, sources.points[idx])
-        n = jax.vmap(functools.partial(point_normals, lidar=spec, smoothing=smoothing,
-                                       fill_max_gap=fill_max_gap))(local, sources.valid[idx])
+        normals = functools.partial(point_normals, lidar=spec, smoothing=smoothing, fill_max_gap=fill_max_gap)
+        if sources.rows is None:
+            n = jax.vmap(normals)(local, sources.valid[idx])
+        else:
+            n = jax.vmap(lambda p, v, r: normals(p, v, rows=r))(local, sources.valid[idx], sources.rows[idx])
         out = out.at[idx].set(jnp.einsum("gij,gpj->gpi", T[:, :3, :3], n))
     return out
 

@@ -23,30 +23,43 @@ log = logging.getLogger("jaxdepth")
 POINT_BUCKET = 8192
 
 
-def source_spec(cloud, s: int, fallback: LidarSpec) -> LidarSpec:
-    """Source ``s``'s LidarSpec: the stated one, else estimated from its own points, else ``fallback``.
+def source_spec(cloud, s: int, fallback: LidarSpec):
+    """Source ``s``'s range-image geometry: ``(LidarSpec, rows)``.
 
-    The estimate (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`) runs on the source's
-    points in its own LiDAR frame; beams and vertical field of view come from its ring indices
-    (``cloud.ring``) when it looks like one spinning LiDAR there. Columns are the fallback's.
+    The stated spec when the cloud gives one (``rows`` None: rows from elevation). Otherwise,
+    with ring indices (``cloud.ring``), when the source's points in its own LiDAR frame look like
+    one spinning LiDAR (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): one row per
+    laser, ranked by its median elevation (``rows``: (n_s,) int32, 0 = highest laser; this keeps
+    unevenly spaced beams, e.g. the VLP-32C's, one per row), beams = the number of lasers, the
+    vertical field of view from the outermost lasers' elevations (half a mean spacing beyond them),
+    columns from ``fallback``. Otherwise ``(fallback, None)``.
     """
     spec = cloud.lidars[s]
     if spec is not None:
-        return spec
+        return spec, None
     if cloud.ring is None:
-        return fallback
+        return fallback, None
     from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
     mine = cloud.source == s
     T = np.linalg.inv(cloud.T_ref_source[s])
     local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-    est = estimate_lidar_geometry(local, ring=cloud.ring[mine])
+    ring = cloud.ring[mine]
+    est = estimate_lidar_geometry(local, ring=ring)
     if not est.spinning or est.beams is None:
         log.info("%s: %s; using the rig's LiDAR spec", cloud.names[s], est.describe())
-        return fallback
-    spec = LidarSpec(beams=int(est.beams), fov_up_deg=float(est.fov_up_deg), fov_down_deg=float(est.fov_down_deg),
-                     columns=fallback.columns)
+        return fallback, None
+    el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
+    lasers, inverse = np.unique(ring, return_inverse=True)
+    far = np.linalg.norm(local, axis=1) > 2.0
+    median = np.array([np.median(el[(inverse == i) & far]) if np.any((inverse == i) & far)
+                       else np.median(el[inverse == i]) for i in range(lasers.size)])
+    rank = np.empty(lasers.size, np.int32)
+    rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
+    half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
+    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=float(median.max() + half),
+                     fov_down_deg=float(median.min() - half), columns=fallback.columns)
     log.info("%s: %s", cloud.names[s], est.describe())
-    return spec
+    return spec, rank[inverse]
 
 
 def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
@@ -62,14 +75,19 @@ def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
     points = np.zeros((S, P, 3), np.float32)
     valid = np.zeros((S, P), bool)
     index = np.full((S, P), -1, np.int64)
+    rows = np.full((S, P), -1, np.int32)
+    specs = []
     for s in range(S):
-        rows = np.nonzero(cloud.source == s)[0]
-        points[s, :rows.size] = cloud.points[rows]
-        valid[s, :rows.size] = np.all(np.isfinite(cloud.points[rows]), axis=1)
-        index[s, :rows.size] = rows
-    specs = tuple(source_spec(cloud, s, fallback) for s in range(S))
-    sources = make_sources(points, valid, cloud.T_ref_source.astype(np.float32), lidars=specs,
-                           sweep=tuple(int(x) for x in cloud.sweep))
+        mine = np.nonzero(cloud.source == s)[0]
+        points[s, :mine.size] = cloud.points[mine]
+        valid[s, :mine.size] = np.all(np.isfinite(cloud.points[mine]), axis=1)
+        index[s, :mine.size] = mine
+        spec, rank = source_spec(cloud, s, fallback)
+        specs.append(spec)
+        if rank is not None:
+            rows[s, :mine.size] = rank
+    sources = make_sources(points, valid, cloud.T_ref_source.astype(np.float32), lidars=tuple(specs),
+                           sweep=tuple(int(x) for x in cloud.sweep), rows=rows if np.any(rows >= 0) else None)
     return sources, index
 
 
