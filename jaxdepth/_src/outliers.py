@@ -321,6 +321,8 @@ def _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
     ``view_*`` are what ``_lidar_angles`` ("paper") or :func:`_lidar_view`
     ("footprint") return.
     """
+    if test == "nearer":        # condition 2 alone (points already known to sit in a LiDAR's shadow)
+        return jnp.ones_like(view_q[0], bool)
     if test == "paper":
         (h_p, g_p), (h_q, g_q) = view_p, view_q
         return (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
@@ -441,7 +443,7 @@ def _view_at(ex: _ExactTest, row, col, window_of):
     v = (row - ex.hh).astype(jnp.float32)
     u = (col - ex.hw).astype(jnp.float32)
     p = None if canvas.points is None else jnp.stack([window_of(canvas.points[i]) for i in range(3)])
-    view_fn = _lidar_angles if ex.test == "paper" else _lidar_view
+    view_fn = _lidar_view if ex.test == "footprint" else _lidar_angles
     return view_fn(d, ex.K, ex.t, p, v, u), jnp.where(d > 0, d, jnp.float32(jnp.inf))
 
 

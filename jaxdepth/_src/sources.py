@@ -140,25 +140,27 @@ def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_s
     return out
 
 
-def _min_count_3x3(r: jax.Array):
-    """Minimum measured range (inf where none) and count of measured cells over each 3 x 3 block.
-
-    Rows are padded as empty, columns wrap around (the range image spans 360 degrees).
-    """
+def _min_max_count_3x3(r: jax.Array):
+    """Minimum and maximum measured range (inf / -inf where none) and count of measured cells over
+    each 3 x 3 block. Rows are padded as empty, columns wrap around (the image spans 360 degrees)."""
     has = r > 0
-    rr = jnp.where(has, r, jnp.inf)
-    rr = jnp.pad(rr, ((1, 1), (0, 0)), constant_values=jnp.inf)
-    hh = jnp.pad(has.astype(jnp.int32), ((1, 1), (0, 0)))
-    rr = jnp.concatenate([rr[:, -1:], rr, rr[:, :1]], axis=1)
-    hh = jnp.concatenate([hh[:, -1:], hh, hh[:, :1]], axis=1)
     n_rows, n_cols = r.shape
+
+    def pad(a, fill):
+        a = jnp.pad(a, ((1, 1), (0, 0)), constant_values=fill)
+        return jnp.concatenate([a[:, -1:], a, a[:, :1]], axis=1)
+
+    lo_p, hi_p = pad(jnp.where(has, r, jnp.inf), jnp.inf), pad(jnp.where(has, r, -jnp.inf), -jnp.inf)
+    has_p = pad(has.astype(jnp.int32), 0)
     lo = jnp.full(r.shape, jnp.inf, jnp.float32)
+    hi = jnp.full(r.shape, -jnp.inf, jnp.float32)
     cnt = jnp.zeros(r.shape, jnp.int32)
     for di in range(3):
         for dj in range(3):
-            lo = jnp.minimum(lo, rr[di:di + n_rows, dj:dj + n_cols])
-            cnt = cnt + hh[di:di + n_rows, dj:dj + n_cols]
-    return lo, cnt
+            lo = jnp.minimum(lo, lo_p[di:di + n_rows, dj:dj + n_cols])
+            hi = jnp.maximum(hi, hi_p[di:di + n_rows, dj:dj + n_cols])
+            cnt = cnt + has_p[di:di + n_rows, dj:dj + n_cols]
+    return lo, hi, cnt
 
 
 def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_NOISE_M,
@@ -175,61 +177,85 @@ def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_
     return noise_m + slope * delta * range_m
 
 
-def free_space_keep(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M,
-                    slope: float = FREE_SPACE_SLOPE, min_cells: int = FREE_SPACE_MIN_CELLS) -> jax.Array:
-    """(S, P) bool: False for the points of other sweeps that lie in space the reference sweep saw empty.
+def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
+                   min_cells: int = FREE_SPACE_MIN_CELLS):
+    """Where the reference sweep's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
 
-    The rule. Every LiDAR ``r`` of the reference sweep (``sweep == 0``) bins its own
-    points into its own range image (its LidarSpec, about its own origin and axes). A
-    point ``q`` of another sweep, seen from ``r``'s origin, falls in a cell; around it,
-    ``R`` is the *nearest* range ``r`` measured in the 3 x 3 cells (the rays bracketing
-    ``q``'s ray on both sides). When at least ``min_cells`` of those 9 cells hold a
-    measurement and ``|q - origin_r| < R - margin(R)`` (:func:`free_space_margin`:
-    ``noise_m + slope * R * delta``, ``delta`` the angular cell size), every ray around
-    ``q`` travelled past it and hit nothing there: ``q`` sits in free space and is
-    removed. Taking the nearest bracketing range keeps surfaces between rays (a slanted
-    road, a pole between two scan lines: ``R`` is then the pole's range).
+    Every LiDAR ``r`` of the reference sweep (``sweep == 0``) bins its own points into its
+    own range image (its LidarSpec, about its own origin and axes). A point ``q`` of another
+    sweep, seen from ``r``'s origin, falls in a cell; around it, over the 3 x 3 cells (the
+    rays bracketing ``q``'s ray on both sides), ``R_lo`` and ``R_hi`` are the nearest and
+    farthest ranges ``r`` measured. When at least ``min_cells`` of those 9 cells hold a
+    measurement (else: no evidence, neither flag):
 
-    What it keeps: points of the reference sweep (never tested); points outside ``r``'s
-    vertical field of view or where ``r`` measured too little (no evidence); points
-    *behind* what ``r`` measured (hidden from the reference LiDAR: if the camera sees
-    them, they are kept; if not, Step 2's footprint test judges them).
+    * ``free``: ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled
+      past it and hit nothing there, so ``q`` sits in space the reference sweep saw empty (a
+      moving object's ghost or a registration error). Taking the nearest bracketing range
+      keeps surfaces between rays (a slanted road; a pole between two scan lines, whose range
+      is then ``R_lo``).
+    * ``shadow``: ``|q - origin_r| > R_hi + margin(R_hi)``: every ray around ``q`` stopped
+      in front of it: ``q`` is hidden from the reference LiDAR.
 
-    Returns:
-      (S, P) bool keep mask (``valid`` with the free-space points cleared).
+    ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
+    flag; points outside ``r``'s vertical field of view neither.
     """
     s, p = sources.points.shape[:2]
     flat = sources.points.reshape(-1, 3)
     tested = jnp.asarray(np.repeat(np.asarray(sources.sweep) != 0, p))
     free = jnp.zeros((s * p,), bool)
+    shadow = jnp.zeros((s * p,), bool)
     for spec, idx in _spec_groups(sources.lidars):
         ref = np.asarray([i for i in idx if sources.sweep[i] == 0], np.int32)
         if ref.size == 0:
             continue
         T = sources.T_ref_source[ref]
         local = _to_source_frames(T, sources.points[ref])
+        rows = None if sources.rows is None else sources.rows[ref]
+        delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
 
-        def one_witness(T_r, local_r, valid_r, spec=spec):
-            ri, _ = range_image_and_slots(local_r, valid_r, spec)
-            lo, cnt = _min_count_3x3(ri.r)
+        def one_witness(T_r, local_r, valid_r, *rows_r, spec=spec, delta=delta):
+            ri, _ = range_image_and_slots(local_r, valid_r, spec, *rows_r)
+            lo, hi, cnt = _min_max_count_3x3(ri.r)
             q = transform_points(invert_rigid(T_r), flat)
             rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones((s * p,), bool))
             half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
             inside = ok & (ph <= spec.fov_up_rad + half) & (ph >= spec.fov_down_rad - half)
-            row, col = row_col(th, ph, spec)
-            r_lo = lo[row, col]
-            enough = cnt[row, col] >= min_cells
-            delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
-            margin = noise_m + slope * delta * r_lo
-            return inside & enough & (rq < r_lo - margin)
+            if rows_r:     # rows by laser rank: the query's row is that of the laser nearest in elevation
+                row = _row_of_elevation(ri, ph)
+                _, col = row_col(th, ph, spec)
+            else:
+                row, col = row_col(th, ph, spec)
+            enough = inside & (cnt[row, col] >= min_cells)
+            r_lo, r_hi = lo[row, col], hi[row, col]
+            return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
+                    enough & (rq > r_hi + (noise_m + slope * delta * r_hi)))
 
-        hits = jax.vmap(one_witness)(T, local, sources.valid[ref])
-        free = free | jnp.any(hits, axis=0)
-    return sources.valid & ~(free & tested).reshape(s, p)
+        args = (T, local, sources.valid[ref]) + (() if rows is None else (rows,))
+        f, h = jax.vmap(one_witness)(*args)
+        free = free | jnp.any(f, axis=0)
+        shadow = shadow | jnp.any(h, axis=0)
+    return (free & tested).reshape(s, p), (shadow & tested).reshape(s, p)
+
+
+def _row_of_elevation(ri, phi):
+    """Row of each elevation in a range image whose rows are lasers (ranked by elevation, 0 = highest):
+    the row whose median measured elevation is nearest (empty rows never chosen)."""
+    has = ri.r > 0
+    count = jnp.sum(has, axis=1)
+    mean = jnp.sum(jnp.where(has, ri.phi, 0.0), axis=1) / jnp.maximum(count, 1)
+    mean = jnp.where(count > 0, mean, jnp.inf)
+    return jnp.argmin(jnp.abs(phi[:, None] - mean[None, :]), axis=1).astype(jnp.int32)
+
+
+def free_space_keep(sources: Sources, **options) -> jax.Array:
+    """(S, P) bool: ``valid`` without the points of other sweeps that lie in space the reference
+    sweep saw empty (``free`` of :func:`reference_view`; options as there)."""
+    free, _ = reference_view(sources, **options)
+    return sources.valid & ~free
 
 
 def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
-                     config: SGMConfig = DEFAULT_CONFIG, image_size=None) -> jax.Array:
+                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None) -> jax.Array:
     """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
 
     Args:
@@ -240,6 +266,10 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
         (only the translations, the LiDARs' origins, are used).
       beams: static L of the window bounds (H / L, W L / N): the beams of one sweep of the rig.
       config: static; ``outlier_removal``, ``epsilon_m``, window caps and ``outlier_test`` apply.
+      pixel_shadow: optional (H, W) bool: pixels whose point lies in a reference LiDAR's
+        shadow (:func:`reference_view`); such a point is also removed when a pixel of its
+        window S(i) is nearer by more than epsilon (condition 2 alone: the reference
+        LiDAR saw something in front of it, and so, next to it, does the camera).
 
     Algorithm 1 runs once per source (vmapped): the candidates are that source's pixels,
     the viewpoint compared with the camera's is that source's origin, and every pixel
@@ -260,10 +290,14 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
 
     keeps = jax.vmap(one)(jnp.arange(n_src, dtype=jnp.int32), T_cam_sources)
     mine = pixel_source[None] == jnp.arange(n_src, dtype=jnp.int32)[:, None, None]
-    return valid & jnp.all(keeps | ~mine, axis=0)
+    keep = valid & jnp.all(keeps | ~mine, axis=0)
+    if pixel_shadow is not None:
+        keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, valid & pixel_shadow,
+                                 beams=int(beams), half_width=hw, half_height=hh, test="nearer")
+    return keep
 
 
-def _camera_stages(points, valid, normals, source_id, T_ref_source, K, T_cam_ref, *, height, width, beams,
+def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
                    config, image_size=None, image=None) -> Stages:
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
     K = jnp.asarray(K, jnp.float32)
@@ -275,7 +309,9 @@ def _camera_stages(points, valid, normals, source_id, T_ref_source, K, T_cam_ref
     normals_cam = jnp.where(hit[None], _normals_to_camera(normals[safe], T).reshape(3, height, width), 0.0)
     pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
-    keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config)
+    pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
+    keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
+                            pixel_shadow=pixel_shadow)
     stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
                             keep=keep)
     if image_size is None:
@@ -299,8 +335,11 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     points = jnp.where(valid[..., None], points, 0.0)
     sources = dataclasses.replace(sources, points=points, valid=valid)
     normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
+    shadow = None
     if free_space:
-        valid = free_space_keep(sources)
+        free, shadow = reference_view(sources)
+        valid = valid & ~free
+        shadow = shadow.reshape(-1)
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
@@ -308,7 +347,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     def per_camera(K, T, size, image=None):
         if image is not None:
             image = _window_only(image, size)
-        return _camera_stages(flat_points, flat_valid, flat_normals, source_id, sources.T_ref_source, K, T,
+        return _camera_stages(flat_points, flat_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
                               height=cameras.height, width=cameras.width, beams=beams, config=config,
                               image_size=size, image=image)
 
