@@ -1,7 +1,7 @@
 """Run time of step 3 (nearest_seed) against its previous version, OpenCV and SciPy, in one process.
 
 Mask: the real KITTI sparse input of the end-to-end benchmark
-(``bench_end_to_end.load_frame()``: drive_0001 frame 5, camera 2, cropped to
+(``benchmarks._common.load_frame()``: drive_0001 frame 5, camera 2, cropped to
 352 x 1216), ``sparse > 0``; a random ~4 % mask of that size when the shared
 data is missing.
 

@@ -6,7 +6,7 @@ reflectance), pads it to 131072 points with a validity mask, and times
 reported separately; median of repeated runs after warm-up). Also times the
 dense case: every pixel of the 352x1216-cropped KITTI ground truth back-projected
 to the LiDAR frame (~430k points padded to 524288). Then ``pixel_normals`` on
-the KITTI benchmark frame (``bench_end_to_end.load_frame()``, ~18.9k LiDAR
+the KITTI benchmark frame (``benchmarks._common.load_frame()``, ~18.9k LiDAR
 pixels of 352x1216, SGMConfig defaults smoothing=1, fill_max_gap=2) against the
 frozen pre-speed-up version (``normals.py`` at commit ``REFERENCE_COMMIT``,
 loaded with ``git show``) and the listed-pixels version (``LISTED_COMMIT``),

@@ -1,6 +1,6 @@
 """The offline job as users run it: `jaxdepth complete SRC DST` against IP_Basic's plain loop.
 
-Issue 14, target 2: over a KITTI depth-completion folder of >= 960 frames, with the
+Target: over a KITTI depth-completion folder of >= 960 frames, with the
 compile cache warm and process start-up included, `jaxdepth complete SRC DST` must take
 at most 0.7x the wall time of a plain one-process loop
 
