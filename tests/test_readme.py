@@ -61,6 +61,15 @@ def test_named_result_files_exist(page):
     assert not missing, missing
 
 
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_named_benchmark_scripts_exist(page):
+    text = page.read_text()
+    named = {f"{m}.py" for m in re.findall(r"\bbenchmarks/[\w/]+(?=\.py)", text)}
+    named |= {m.replace(".", "/") + ".py" for m in re.findall(r"python -m (benchmarks(?:\.\w+)+)(?=[\s`\]])", text)}
+    missing = sorted(n for n in named if not (REPO / n).exists())
+    assert not missing, missing
+
+
 def test_readme_accuracy_table_is_the_json():
     """Every row of the README's accuracy table equals its row in accuracy_rigs.json (0.1 mm)."""
     text = README.read_text()
