@@ -154,7 +154,8 @@ def main(argv=None) -> int:
 
     backend = jax.default_backend()
     doc = {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count(),
-           "default_backend": backend, "accelerator": None, "cpu": None}
+           "load_average_at_start": list(os.getloadavg()), "default_backend": backend,
+           "accelerator": None, "cpu": None}
     log(f"jax {jax.__version__}, default backend {backend}, devices {jax.devices()}")
     if backend != "cpu":
         doc["accelerator"] = run_backend(jax.devices()[0], args.size, args.repeats, log)

@@ -34,7 +34,7 @@ def test_tiny_run_on_cpu_writes_the_json(tmp_path, capsys):
     out = tmp_path / "gpu_check.json"
     assert _gpu_check().main(["--size", "tiny", "--repeats", "2", "--cpu-repeats", "2", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert doc["default_backend"] == jax.default_backend()
+    assert doc["default_backend"] == jax.default_backend() and len(doc["load_average_at_start"]) == 3
     cpu = doc["cpu"]
     assert cpu["platform"] == "cpu" and cpu["size"] == "tiny"
     assert set(cpu["complete"]) == {"batch_1", "batch_2"}

@@ -23,7 +23,7 @@ from every 4th row and column) and floored at 0:
 
 so a textured or noisy surface costs what a flat one does and only real
 edges are charged, whatever the image's exposure and compression.  Measured
-(README "Image-guided seeds"): it helps on the synthetic renders and not on
+(docs/method.md, docs/studies.md): it helps on the synthetic renders and not on
 the real KITTI and nuScenes photographs, hence off by default.  The costs stay
 positive and symmetric, so everything below holds unchanged.
 
