@@ -188,6 +188,119 @@ def av2_rows(config, *, fraction=0.2, seed=0, cameras=RING_CAMERAS):
     return out
 
 
+# ---------------------------------------------------------------- synthetic sequences (exact depth)
+
+def _sequence_cloud(sq, n_sweeps):
+    keep = sq.sweep[sq.source] < n_sweeps
+    S = int(np.sum(sq.sweep < n_sweeps))
+    return SourceCloud(points=sq.points[keep], source=sq.source[keep], T_ref_source=sq.T_ref_source[:S],
+                       lidars=sq.lidars[:S], sweep=sq.sweep[:S], names=sq.names[:S])
+
+
+def _seq_score(pred, sq):
+    gt = sq.dense_depth
+    row = _score(pred, gt)
+    scored = gt > 0
+    ghost = sq.ghost_region & scored & (np.abs(pred - gt) > 1.0)
+    row["ghost_pct"] = 100.0 * float(ghost.sum()) / float(scored.sum())
+    return row
+
+
+def sequence_rows(config, *, seeds=(0, 1, 2), sweeps=5, lidars=(2, 3)):
+    """Rows of the synthetic drives: 1 sweep vs 5 sweeps plainly accumulated vs 5 sweeps with the rules."""
+    from jaxdepth._src.synthetic_sequences import make_street_sequence
+    per = {}
+    for n_lidars in lidars:
+        for seed in seeds:
+            sq = make_street_sequence(seed, sweeps=sweeps, lidars=n_lidars)
+            cam = sq.camera
+            rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
+                                                             np.asarray(cam.T_cam_lidar)),))
+            cams = jaxdepth.stack_cameras([cam])
+            one, full = _sequence_cloud(sq, 1), _sequence_cloud(sq, sweeps)
+            preds = {"sgm_sources_1_sweep": complete_cloud(one, rig, config=config)[0],
+                     "sgm_sources_no_free_space": complete_cloud(full, rig, config=config, free_space=False)[0],
+                     "sgm_sources": complete_cloud(full, rig, config=config)[0]}
+            pts, valid = jaxdepth.io.pad_points(full.points)
+            plain = jaxdepth.complete_rig_stages(pts, valid, cams, config=config, lidar=sq.lidars[0])
+            raw = jaxdepth.complete_rig_stages(pts, valid, cams, config=config.replace(outlier_removal=False),
+                                               lidar=sq.lidars[0])
+            l2 = jaxdepth.complete_rig_stages(pts, valid, cams, lidar=sq.lidars[0],
+                                              config=config.replace(outlier_removal=False, distance_metric="l2"))
+            preds["sgm_accumulated_single_origin"] = np.asarray(plain.depth[0])
+            preds["nearest"] = np.asarray(raw.seed_depth[0])
+            preds["nearest_l2"] = np.asarray(l2.seed_depth[0])
+            preds["ip_basic"] = np.asarray(ip_basic(raw.sparse_depth[0]))
+            for name, pred in preds.items():
+                per.setdefault(f"{n_lidars}_lidars", {}).setdefault(name, []).append(_seq_score(np.asarray(pred), sq))
+            print(f"sequence lidars={n_lidars} seed={seed}: " + ", ".join(
+                f"{n} {per[f'{n_lidars}_lidars'][n][-1]['rmse']:.0f}/{per[f'{n_lidars}_lidars'][n][-1]['mae']:.0f}"
+                f" ghost {per[f'{n_lidars}_lidars'][n][-1]['ghost_pct']:.3f} %" for n in preds), flush=True)
+    out = {}
+    for rig_name, rows in per.items():
+        mean = {n: {k: float(np.mean([r[k] for r in rs])) for k in KEYS + ("ghost_pct",)} for n, rs in rows.items()}
+        s5, s1, acc = mean["sgm_sources"], mean["sgm_sources_1_sweep"], mean["sgm_accumulated_single_origin"]
+        out[rig_name] = {"mean": mean, "images": len(rows["sgm_sources"]),
+                         "gain_5_vs_1_sweep_rmse_pct": 100.0 * (1.0 - s5["rmse"] / s1["rmse"]),
+                         "gain_vs_accumulation_pct": {k: 100.0 * (1.0 - s5[k] / acc[k]) for k in ("rmse", "mae")}}
+    return {"rigs": out, "seeds": list(seeds), "sweeps": sweeps,
+            "input": "5 sweeps, ego 1.5 m per sweep, 3 moving cars; reference camera 176 x 608 (KITTI-like, "
+                     "scale 0.5); nearest / nearest_l2 / ip_basic on the plain 5-sweep stack",
+            "targets": {"gain_5_vs_1_sweep_rmse_pct": ">= 20", "gain_vs_accumulation_pct": "> 0 in both",
+                        "ghost_pct": "< 0.1"}}
+
+
+# ---------------------------------------------------------------- speed
+
+def _median_time(fn, repeats=5):
+    fn()                                     # compile
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times))
+
+
+def speed_av2(config):
+    """One Argoverse 2 sweep, ring_front_left: two sources vs the same points as one cloud (both with removal)."""
+    rig, lidar_poses = av2_rig_and_poses()
+    cam = rig.cameras[1]
+    points, laser = av2_sweeps()[0]
+    ok = np.all(np.isfinite(points), axis=1)
+    points, laser = points[ok], laser[ok]
+    cloud = av2_cloud(points, laser, lidar_poses)
+    one_src = Rig(lidar=VLP32C, cameras=(cam,))
+    single = SourceCloud(points=points - lidar_poses["up_lidar"][:3, 3].astype(np.float32),
+                         source=np.zeros(len(points), np.int32), T_ref_source=np.eye(4)[None],
+                         lidars=(LidarSpec(beams=64, fov_up_deg=15.0, fov_down_deg=-25.0, columns=1800),),
+                         sweep=np.zeros(1, np.int32), names=("merged",))
+    shift = np.eye(4)
+    shift[:3, 3] = lidar_poses["up_lidar"][:3, 3]
+    cam_shift = RigCamera(cam.name, cam.width, cam.height, cam.K, (np.asarray(cam.T_cam_lidar, np.float64) @ shift
+                                                                  ).astype(np.float32))
+    one_rig = Rig(lidar=single.lidars[0], cameras=(cam_shift,))
+    t_two = _median_time(lambda: complete_cloud(cloud, one_src, config=config))
+    t_one = _median_time(lambda: complete_cloud(single, one_rig, config=config))
+    return {"camera": cam.name, "points": int(len(points)), "two_sources_s": t_two, "one_cloud_s": t_one,
+            "ratio": t_two / t_one, "target": "ratio <= 1.3"}
+
+
+def speed_sequences(config, *, counts=(1, 2, 3, 5)):
+    from jaxdepth._src.synthetic_sequences import make_street_sequence
+    sq = make_street_sequence(0, sweeps=max(counts), lidars=2)
+    cam = sq.camera
+    rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
+                                                     np.asarray(cam.T_cam_lidar)),))
+    times = {n: _median_time(lambda n=n: complete_cloud(_sequence_cloud(sq, n), rig, config=config), repeats=3)
+             for n in counts}
+    per_sweep = {n: times[n] / n for n in counts}
+    return {"seconds": {str(n): t for n, t in times.items()}, "seconds_per_sweep": {str(n): t for n, t in
+                                                                                   per_sweep.items()},
+            "ratio_vs_1_sweep": {str(n): times[n] / times[1] for n in counts}, "lidars": 2,
+            "target": "cost grows linearly with the number of sweeps"}
+
+
 def _gain(row, base="nearest", method="sgm_sources"):
     return {k: 100.0 * (1.0 - row[method][k] / row[base][k]) for k in ("rmse", "mae")}
 
@@ -203,11 +316,22 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-av2", action="store_true")
     ap.add_argument("--skip-sequences", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--speed-only", action="store_true", help="only add the speed sections to existing results")
     ap.add_argument("--cameras", nargs="*", default=list(RING_CAMERAS))
     ap.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     config = SGMConfig()
     out = pathlib.Path(args.out_dir)
+    if args.speed_only:
+        path = out / "accuracy_av2.json"
+        doc = json.loads(path.read_text()) if path.exists() else {}
+        doc["speed"] = speed_av2(config)
+        write(path, doc)
+        path = out / "accuracy_sequences.json"
+        doc = json.loads(path.read_text()) if path.exists() else {}
+        doc["speed"] = speed_sequences(config)
+        write(path, doc)
+        return 0
     if not args.skip_av2:
         t0 = time.time()
         rows = av2_rows(config, cameras=tuple(args.cameras))

@@ -449,7 +449,8 @@ def _add_complete_command(sub) -> None:
 
 def _add_complete_rig_command(sub) -> None:
     p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
-    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
+    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz; or a "
+                                  "sweeps JSON {\"sweeps\": [{\"file\", \"T_ref_sweep\"}]} (see docs/multi_source.md)")
     p.add_argument("rig", help="rig JSON (see docs/rig_json.md: lidar beams, cameras with K and T_cam_lidar)")
     p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
     p.add_argument("--point-columns", type=int, default=None,

@@ -23,8 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.synthetic import (_box, cast_rays, lidar_rays, render_depth, rig_cameras, scene_arrays,
-                                     street_scene_arrays)
+from jaxdepth._src.scene import _box, cast_rays, scene_arrays, street_scene_arrays
+from jaxdepth._src.synthetic import lidar_rays, render_depth, rig_cameras
 from jaxdepth._src.types import Camera, LidarSpec
 
 #: The rig: (name, position in the reference LiDAR's ego frame (m), roll, pitch (deg), LidarSpec).
@@ -52,7 +52,8 @@ class SyntheticSequence:
       camera: the reference :class:`Camera` (``T_cam_lidar`` maps reference-frame points).
       dense_depth: (H, W) float32 exact depth of the reference camera, 0 = sky.
       ghost_region: (H, W) bool: pixels where a moving car was in an earlier sweep, more than
-        1 m in front of what the camera sees now (where its ghost would show).
+        1 m in front of what the camera sees now, and no moving car is seen now (where its
+        ghost would show).
     """
 
     points: np.ndarray
@@ -164,13 +165,14 @@ def make_street_sequence(seed: int = 0, *, sweeps: int = 5, lidars: int = 3, ste
             specs.append(spec)
             sweep_of.append(k)
             names.append(f"{name}@{k}")
-        if k > 0:
-            car_depths.append(np.asarray(render_depth(camera, cars_only, max_range_m=max_range_m)))
+        car_depths.append(np.asarray(render_depth(camera, cars_only, max_range_m=max_range_m)))
     scene0, _ = sequence_scene(seed, 0)
     gt = np.asarray(render_depth(camera, scene0, max_range_m=max_range_m))
+    car_now = (car_depths[0] > 0) & (np.abs(car_depths[0] - gt) < 0.05)
     ghost = np.zeros(gt.shape, bool)
-    for d in car_depths:
+    for d in car_depths[1:]:
         ghost |= (d > 0) & ((gt == 0) | (d < gt - 1.0))
+    ghost &= ~car_now
     return SyntheticSequence(points=np.concatenate(points), source=np.concatenate(source),
                              T_ref_source=np.stack(poses), lidars=tuple(specs), sweep=np.asarray(sweep_of, np.int32),
                              names=tuple(names), camera=camera, dense_depth=gt, ghost_region=ghost)

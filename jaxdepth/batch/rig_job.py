@@ -56,7 +56,12 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     """Completes the sweep ``points_path`` for every camera of the rig JSON ``rig_path`` into ``out_dir``.
 
     Args:
-      points_path: the sweep (``.bin`` float32 records, ``.npy`` / ``.npz``).
+      points_path: the sweep (``.bin`` float32 records, ``.npy`` / ``.npz``), or a sweeps JSON
+        (:mod:`jaxdepth.io.sweeps`: several sweeps with their poses). A sweeps JSON or a rig JSON
+        with ``lidars`` runs the multi-source path
+        (:func:`jaxdepth.batch.sources_job.complete_cloud`: each LiDAR and sweep seen from its
+        own origin, free space of the reference sweep); ``columns`` in the rig JSON names the
+        point file's columns.
       rig_path: the rig JSON (:func:`jaxdepth.io.read_rig_json`).
       out_dir: output folder (created); ``<camera name>.png`` per camera.
       config: the SGM configuration; guided (``guidance_weight > 0``) reads the camera
@@ -75,21 +80,42 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     from jaxdepth.io.atomic import ensure_output_dir
     from jaxdepth.io.points import ring_column
 
+    from jaxdepth.io.sweeps import is_sweeps_json
+
     rig = read_rig_json(rig_path)
     images = rig_images(rig, rig_path, image_dir) if config.guidance_weight > 0 else None
-    columns = infer_point_columns(points_path, point_columns)
-    points, extra = read_points(points_path, columns=columns)
-    frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=estimate)
-    if not frame.outlier_removal_trusted and config.outlier_removal:
-        config = config.replace(outlier_removal=False)
-    for note in frame.notes:
-        report("note", note)
-    rig = frame.rig
-    padded, valid = pad_points(frame.points)
-    out_dir = pathlib.Path(out_dir)
-    ensure_output_dir(out_dir)
-    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
+    if is_sweeps_json(points_path) or rig.lidars:
+        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
+        from jaxdepth.batch.sources_job import complete_cloud
+        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
+        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+        cloud = read(points_path, rig, point_columns=point_columns)
+        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        out_dir = pathlib.Path(out_dir)
+        ensure_output_dir(out_dir)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = complete_cloud(cloud, rig, config=config, images=images, stages=True)
+    else:
+        if rig.columns is not None:
+            columns = len(rig.columns)
+            points, extra = read_points(points_path, columns=columns)
+            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
+        else:
+            columns = infer_point_columns(points_path, point_columns)
+            points, extra = read_points(points_path, columns=columns)
+            ring = ring_column(extra, columns)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+        if not frame.outlier_removal_trusted and config.outlier_removal:
+            config = config.replace(outlier_removal=False)
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        padded, valid = pad_points(frame.points)
+        out_dir = pathlib.Path(out_dir)
+        ensure_output_dir(out_dir)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
+                                              images=images)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
