@@ -27,7 +27,7 @@ the reference camera of the last sweep. Rows: 1 sweep (all LiDARs of the referen
 5 sweeps accumulated plainly (every point as one cloud from the reference LiDAR's origin, no
 removal beyond the single-origin SGM's), 5 sweeps with the rules (per-source Steps 1 and 2, free
 space). Ghost pixels: depth off by more than 1 m where a moving car was in an earlier sweep but
-is not now.
+is not now, and within 1 m of where that car was (the car's ghost, not an ordinary error).
 
 Speed: median wall time (compile excluded) of one two-LiDAR sweep as two sources against the
 same points as one cloud, and of 1, 2, 3, 5 sweeps.
@@ -201,12 +201,13 @@ def _seq_score(pred, sq):
     gt = sq.dense_depth
     row = _score(pred, gt)
     scored = gt > 0
-    ghost = sq.ghost_region & scored & (np.abs(pred - gt) > 1.0)
+    near_old_car = np.any((sq.ghost_depth > 0) & (np.abs(pred[None] - sq.ghost_depth) < 1.0), axis=0)
+    ghost = sq.ghost_region & scored & (np.abs(pred - gt) > 1.0) & near_old_car
     row["ghost_pct"] = 100.0 * float(ghost.sum()) / float(scored.sum())
     return row
 
 
-def sequence_rows(config, *, seeds=(0, 1, 2), sweeps=5, lidars=(2, 3)):
+def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3)):
     """Rows of the synthetic drives: 1 sweep vs 5 sweeps plainly accumulated vs 5 sweeps with the rules."""
     from jaxdepth._src.synthetic_sequences import make_street_sequence
     per = {}

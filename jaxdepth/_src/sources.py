@@ -184,17 +184,18 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
     Every LiDAR ``r`` of the reference sweep (``sweep == 0``) bins its own points into its
     own range image (its LidarSpec, about its own origin and axes). A point ``q`` of another
     sweep, seen from ``r``'s origin, falls in a cell; around it, over the 3 x 3 cells (the
-    rays bracketing ``q``'s ray on both sides), ``R_lo`` and ``R_hi`` are the nearest and
-    farthest ranges ``r`` measured. When at least ``min_cells`` of those 9 cells hold a
-    measurement (else: no evidence, neither flag):
+    rays bracketing ``q``'s ray on both sides), ``R_lo`` is the nearest range ``r`` measured.
 
-    * ``free``: ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled
+    * ``free`` (needs at least ``min_cells`` of those 9 cells measured, else no evidence):
+      ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled
       past it and hit nothing there, so ``q`` sits in space the reference sweep saw empty (a
       moving object's ghost or a registration error). Taking the nearest bracketing range
       keeps surfaces between rays (a slanted road; a pole between two scan lines, whose range
       is then ``R_lo``).
-    * ``shadow``: ``|q - origin_r| > R_hi + margin(R_hi)``: every ray around ``q`` stopped
-      in front of it: ``q`` is hidden from the reference LiDAR.
+    * ``shadow`` (needs only ``q``'s own cell measured, range ``R``): ``|q - origin_r| > R +
+      margin(R)``: the reference LiDAR's ray through ``q``'s cell stopped in front of it, ``q``
+      is hidden from the reference LiDAR. Step 2 then also removes it when the camera sees a
+      nearer pixel next to it (:func:`source_keep_mask`).
 
     ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
     flag; points outside ``r``'s vertical field of view neither.
@@ -215,7 +216,7 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
 
         def one_witness(T_r, local_r, valid_r, *rows_r, spec=spec, delta=delta):
             ri, _ = range_image_and_slots(local_r, valid_r, spec, *rows_r)
-            lo, hi, cnt = _min_max_count_3x3(ri.r)
+            lo, _, cnt = _min_max_count_3x3(ri.r)
             q = transform_points(invert_rigid(T_r), flat)
             rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones((s * p,), bool))
             half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
@@ -226,9 +227,9 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
             else:
                 row, col = row_col(th, ph, spec)
             enough = inside & (cnt[row, col] >= min_cells)
-            r_lo, r_hi = lo[row, col], hi[row, col]
+            r_lo, r_own = lo[row, col], ri.r[row, col]
             return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
-                    enough & (rq > r_hi + (noise_m + slope * delta * r_hi)))
+                    inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
 
         args = (T, local, sources.valid[ref]) + (() if rows is None else (rows,))
         f, h = jax.vmap(one_witness)(*args)

@@ -54,6 +54,8 @@ class SyntheticSequence:
       ghost_region: (H, W) bool: pixels where a moving car was in an earlier sweep, more than
         1 m in front of what the camera sees now, and no moving car is seen now (where its
         ghost would show).
+      ghost_depth: (K - 1, H, W) float32 depth of the moving cars alone in each earlier sweep
+        (0 where none): a prediction within 1 m of it inside ``ghost_region`` shows a ghost.
     """
 
     points: np.ndarray
@@ -65,6 +67,7 @@ class SyntheticSequence:
     camera: Camera
     dense_depth: np.ndarray
     ghost_region: np.ndarray
+    ghost_depth: np.ndarray
 
 
 def _rotation(roll_deg: float, pitch_deg: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -175,7 +178,9 @@ def make_street_sequence(seed: int = 0, *, sweeps: int = 5, lidars: int = 3, ste
     ghost &= ~car_now
     return SyntheticSequence(points=np.concatenate(points), source=np.concatenate(source),
                              T_ref_source=np.stack(poses), lidars=tuple(specs), sweep=np.asarray(sweep_of, np.int32),
-                             names=tuple(names), camera=camera, dense_depth=gt, ghost_region=ghost)
+                             names=tuple(names), camera=camera, dense_depth=gt, ghost_region=ghost,
+                             ghost_depth=np.stack(car_depths[1:]) if len(car_depths) > 1
+                             else np.zeros((0,) + gt.shape, np.float32))
 
 
 __all__ = ["SyntheticSequence", "make_street_sequence", "sequence_scene", "RIG_LIDARS"]
