@@ -206,3 +206,51 @@ def test_sequence_reference_points_lie_on_the_camera_truth():
     assert np.median(np.abs(depth[m] - sq.dense_depth[m])) < 0.05
     again = make_street_sequence(0, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
     np.testing.assert_array_equal(again.points, sq.points)
+
+
+# ---------------------------------------------------------------- the job: complete-rig with a sweeps JSON
+
+def test_complete_rig_job_with_a_sweeps_json(tmp_path):
+    import json
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth.batch.extras import ExtraOutputs
+    from jaxdepth.batch.rig_job import run_rig_job
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io import read_depth_png, read_rig_json
+    from jaxdepth.io.sweeps import read_sweeps_cloud
+
+    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    cam = sq.camera
+    ego = [sq.T_ref_source[2 * k] for k in range(2)]                   # "top" sits at the ego origin
+    mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
+    entries = []
+    for k in range(2):
+        mine = sq.sweep[sq.source] == k
+        inv = np.linalg.inv(ego[k])
+        local = sq.points[mine] @ inv[:3, :3].T + inv[:3, 3]
+        rows = np.concatenate([local, (sq.source[mine] % 2)[:, None]], axis=1).astype(np.float32)
+        rows.tofile(tmp_path / f"sweep{k}.bin")
+        entries.append({"file": f"sweep{k}.bin", "T_ref_sweep": ego[k].tolist()})
+    (tmp_path / "sweeps.json").write_text(json.dumps({"sweeps": entries[::-1]}))
+    lidars = [{"name": "top", "T_points_lidar": np.eye(4).tolist(), "beams": 32, "fov_up_deg": 10.0,
+               "fov_down_deg": -25.0},
+              {"name": "front_low", "T_points_lidar": mount.tolist(), "beams": 16, "fov_up_deg": 15.0,
+               "fov_down_deg": -15.0}]
+    doc = {"lidar": {"beams": 32, "columns": 1024}, "lidars": lidars, "columns": ["x", "y", "z", "lidar"],
+           "cameras": [{"name": "cam", "width": cam.width, "height": cam.height,
+                        "K": np.asarray(cam.K).tolist(), "T_cam_lidar": np.asarray(cam.T_cam_lidar).tolist()}]}
+    (tmp_path / "rig.json").write_text(json.dumps(doc))
+    rig = read_rig_json(tmp_path / "rig.json")
+    cloud = read_sweeps_cloud(tmp_path / "sweeps.json", rig)
+    np.testing.assert_allclose(cloud.T_ref_source, sq.T_ref_source, atol=1e-5)
+    np.testing.assert_allclose(cloud.points, sq.points, atol=1e-4)
+    summary = run_rig_job(tmp_path / "sweeps.json", tmp_path / "rig.json", tmp_path / "out", config=SGMConfig(),
+                          extras=ExtraOutputs())
+    assert [p.name for p in summary.written] == ["cam.png"]
+    want = complete_cloud(cloud, rig)[0]
+    got = read_depth_png(tmp_path / "out" / "cam.png")
+    np.testing.assert_allclose(got, want, atol=1.0 / 256 + 1e-6)
+    gt = sq.dense_depth
+    m = gt > 0
+    assert np.sqrt(np.mean((got[m] - gt[m]) ** 2)) < 5.0              # a sane depth map of the street
