@@ -165,7 +165,7 @@ class _CompleteFrames:
         # ``overwrite``, so a retried task skips what an earlier attempt finished.
         self.extras = extra_outputs.NONE if extras is None else extras
         self.overwrite = bool(overwrite)
-        self._more = ({"max_seed_distance_px": self.extras.max_seed_distance_px} if self.extras.needs_seeds
+        self._more = ({"max_seed_distance_px": self.extras.seed_limit} if self.extras.needs_seeds
                       else {})
 
         self._runner = runner

@@ -28,7 +28,8 @@ point, float64) and the message lists those that pass (:func:`suggest_layouts`).
 
 Depth PNGs (:func:`check_depth_scale`), on the non-zero pixels, metres = value / 256:
 
-* not every value a multiple of 256 (integer metres, or depth scaled wrong);
+* not every value a multiple of 256 (integer metres, or depth scaled wrong) when there
+  are at least 20 distinct values (a synthetic plane at a whole number of metres is fine);
 * median <= 200 m (beyond every automotive LiDAR);
 * not (5th percentile > 15 m and median > 40 m): millimetres read as metres x 256
   (measured on KITTI's velodyne_raw: 5th percentile 6.3 m and median 14.3 m in metres,
@@ -219,7 +220,7 @@ def depth_scale_problem(depth_m: np.ndarray) -> str | None:
     if d.size < _MIN_PIXELS:
         return None
     raw = np.rint(d * 256.0)
-    if np.all(raw % 256 == 0):
+    if np.all(raw % 256 == 0) and np.unique(raw).size >= 20:
         return ("every value is a multiple of 256 (whole metres): the depth seems scaled to integer metres, "
                 "expected metres x 256")
     p5, median = (float(x) for x in np.percentile(d, [5, 50]))
