@@ -288,8 +288,8 @@ def _claim_output_folder(dst: pathlib.Path, args, *, inputs, **options):
     _ensure_writable_dir(dst)
     settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
     more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
-    run_record.claim_folder(dst, run_record.make_record(settings, inputs=list(inputs) + more),
-                            overwrite=args.overwrite)
+    record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
+    run_record.claim_folder(dst, record, overwrite=args.overwrite)
 
 
 def _ensure_writable_dir(path: pathlib.Path):
@@ -642,6 +642,7 @@ def main(argv=None) -> int:
         return 2
     devices.quiet_jax_start()
     args.t_start = t_start
+    args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     devices.use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)

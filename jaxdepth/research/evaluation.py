@@ -209,28 +209,38 @@ def _looks_like(density: float) -> str:
     return "sparse, like LiDAR input"
 
 
-def side_problem(pred: np.ndarray, gt: np.ndarray) -> str | None:
-    """Why (pred, gt) look like the wrong sides (None: a completion scored against ground truth).
+def side_counts(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(4,) int64 pixel counts of one pair for :func:`side_problem`: ground-truth pixels, those where
+    the prediction is non-zero, non-zero predictions, all pixels."""
+    scored = gt > 0
+    return np.array([np.count_nonzero(scored), np.count_nonzero(pred[scored] > 0), np.count_nonzero(pred > 0),
+                     pred.size], np.int64)
+
+
+def side_problem(counts: np.ndarray) -> str | None:
+    """Why the pairs of summed :func:`side_counts` look like the wrong sides (None: completions
+    scored against ground truth).
 
     A completion is non-zero at nearly every pixel where ground truth is; ground truth
     (~19 % of a KITTI image) or LiDAR input (~4 %) given as the prediction covers a
-    fraction (:data:`MIN_GT_COVERAGE`). The message says what each image looks like.
+    fraction. Over all pairs, under :data:`MIN_GT_COVERAGE` is refused; the message says
+    what each side looks like.
     """
-    scored = gt > 0
-    if not scored.any():
+    scored, covered, pred_nonzero, total = (int(c) for c in counts)
+    if scored == 0:
         return None
-    coverage = float(np.count_nonzero(pred[scored] > 0)) / float(np.count_nonzero(scored))
+    coverage = covered / scored
     if coverage >= MIN_GT_COVERAGE:
         return None
-    dp, dg = float(np.mean(pred > 0)), float(np.mean(gt > 0))
+    dp, dg = pred_nonzero / total, scored / total
     if dg >= 0.9:
-        hint = "the ground-truth side looks like a completion: were the two folders swapped (PRED_ROOT first)?"
+        hint = "the ground-truth side looks like completions: were the two folders swapped (PRED_ROOT first)?"
     elif dp < 0.1:
-        hint = "the prediction looks like LiDAR input (velodyne_raw), not a completion"
+        hint = "the predictions look like LiDAR input (velodyne_raw), not completions"
     else:
-        hint = "expected a completion as the prediction"
-    return (f"the prediction is non-zero at only {100 * coverage:.0f} % of the ground truth's pixels "
-            f"(prediction: {100 * dp:.1f} % of the image, {_looks_like(dp)}; ground truth: {100 * dg:.1f} %, "
+        hint = "expected completions as the predictions"
+    return (f"the predictions are non-zero at only {100 * coverage:.0f} % of the ground-truth pixels "
+            f"(predictions: {100 * dp:.1f} % of the pixels, {_looks_like(dp)}; ground truth: {100 * dg:.1f} %, "
             f"{_looks_like(dg)}); {hint}")
 
 
@@ -243,11 +253,6 @@ def _read_pair(pred_root: pathlib.Path, gt_root: pathlib.Path, identity: str, pa
                          f"of its ground truth {gt_path} (frame '{identity}')")
     check_depth_scale(gt, path=gt_path, role="ground truth", force=force)
     check_depth_scale(pred, path=pred_path, role="prediction", force=force)
-    problem = side_problem(pred, gt)
-    if problem is not None:
-        if not force:
-            raise InputError(f"{pred_path}: {problem}; --force scores it anyway")
-        log.warning("%s: --force: scoring it although %s", pred_path, problem)
     return identity, pred, gt
 
 
@@ -269,8 +274,8 @@ def evaluate_folders(pred_dir, gt_dir, *, force: bool = False) -> dict:
         one side are the same frame, a PNG is unreadable, or a pair differs in shape;
         unless ``force`` (then logged): a PNG not in metres x 256
         (:func:`jaxdepth.io.plausibility.check_depth_scale`), or a prediction that
-        covers under half of its ground truth (:func:`side_problem`: swapped folders,
-        LiDAR input given as the prediction).
+        cover under half of the ground-truth pixels over all pairs (:func:`side_problem`:
+        swapped folders, LiDAR input given as the predictions).
     """
     pred_dir, gt_dir = pathlib.Path(pred_dir), pathlib.Path(gt_dir)
     preds, pred_ignored = collect_frames(pred_dir, side="prediction")
@@ -286,7 +291,20 @@ def evaluate_folders(pred_dir, gt_dir, *, force: bool = False) -> dict:
             f"({len(preds)} predictions, e.g. {_examples(sorted(preds.values()))}; "
             f"{len(gts)} ground truths, e.g. {_examples(sorted(gts.values()))})")
     pairs = {n: {"prediction": preds[n], "ground_truth": gts[n]} for n in names}
-    table = evaluate_pairs(_read_pair(pred_dir, gt_dir, n, pairs[n], force) for n in names)
+    counts = np.zeros(4, np.int64)
+
+    def read_all():
+        for n in names:
+            identity, pred, gt = _read_pair(pred_dir, gt_dir, n, pairs[n], force)
+            counts[:] += side_counts(pred, gt)
+            yield identity, pred, gt
+
+    table = evaluate_pairs(read_all())
+    problem = side_problem(counts)
+    if problem is not None:
+        if not force:
+            raise InputError(f"{pred_dir}: {problem}; --force scores them anyway")
+        log.warning("%s: --force: scoring although %s", pred_dir, problem)
     table.update(
         prediction_root=str(pred_dir), ground_truth_root=str(gt_dir), pairs=pairs,
         missing_predictions=sorted(gts[n] for n in set(gts) - set(preds)),
