@@ -372,10 +372,11 @@ def _cmd_complete_nuscenes(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     dst = pathlib.Path(args.dst)
-    _claim_output_folder(dst, args, inputs=[args.src], version=args.nusc_version, sweeps=args.sweeps,
-                         ego_motion=args.ego_motion)
+    _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
+    # outputs go to DST/<version>/...: the version is an input, not a setting
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion)
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,

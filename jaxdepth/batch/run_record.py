@@ -14,7 +14,8 @@ and the options that change what is written (extra-output settings, crop, camera
 sweeps...). A re-run into the same folder:
 
 * with the same settings resumes (finished outputs are skipped);
-* with other settings is refused (:class:`RunSettingsError`, exit 1), the message
+* with other settings, when the folder holds depth PNGs, is refused
+  (:class:`RunSettingsError`, exit 1), the message
   listing each difference (``distance_metric: l1 -> l2``), unless ``overwrite``: then
   every output is recomputed and the record replaced;
 * into a folder that holds depth PNGs but no record (an older jaxdepth, another tool)
@@ -147,7 +148,7 @@ def claim_folder(folder: PathLike, record: dict, *, overwrite: bool) -> None:
 
     folder = pathlib.Path(folder)
     old = read_record(folder)
-    if not overwrite:
+    if not overwrite and folder.is_dir() and _has_outputs(folder):
         if old is not None:
             diff = differences(old.get("settings", {}), record["settings"])
             if diff:
@@ -158,7 +159,7 @@ def claim_folder(folder: PathLike, record: dict, *, overwrite: bool) -> None:
         elif (folder / RUN_FILE).exists():
             raise RunSettingsError(f"{folder / RUN_FILE}: unreadable run record; its outputs' settings are unknown "
                                    "(--overwrite recomputes them)")
-        elif folder.is_dir() and _has_outputs(folder):
+        else:
             raise RunSettingsError(
                 f"{folder}: holds depth PNGs but no {RUN_FILE} (written by an older jaxdepth or another tool), so "
                 "their settings are unknown and resuming could mix two runs. Re-run with --overwrite to recompute "
@@ -167,7 +168,7 @@ def claim_folder(folder: PathLike, record: dict, *, overwrite: bool) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
-    if old is not None and not overwrite:
+    if old is not None and old.get("settings") == record["settings"]:
         return  # same settings: resume, the first run's record stays
     atomic_write_bytes(folder / RUN_FILE, (json.dumps(record, indent=2, sort_keys=True) + "\n").encode(),
                        overwrite=True)
