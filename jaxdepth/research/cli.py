@@ -47,7 +47,7 @@ import sys
 
 import numpy as np
 
-from jaxdepth.cli import add_config_options, config_changes
+from jaxdepth.options import add_config_options, config_changes
 from jaxdepth.io.errors import InputError, JaxdepthError
 
 
@@ -348,7 +348,7 @@ _POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
                                           help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
 
 # subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
-# the SGM options of jaxdepth.cli.add_config_options.
+# the SGM options of jaxdepth.options.add_config_options.
 _SUBCOMMANDS = {
     "ablation": ("the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth", cmd_ablation, (
         ("src", dict(help="folder with velodyne_raw/*.png and intrinsics/*.txt")),
@@ -374,7 +374,7 @@ _SUBCOMMANDS = {
         _POINT_COLUMNS,
         ("--fraction", dict(type=float, default=0.2, help="share of the points held out (default 0.2)")),
         ("--no-estimate", dict(action="store_true", help="do not estimate the LiDAR's position / field of view "
-                                                         "from the sweep (see README, Rig JSON)")),
+                                                         "from the sweep (see docs/rig_json.md)")),
         ("--seeds", dict(type=int, nargs="+", default=[0, 1, 2, 3, 4],
                          help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")),
         ("--scale", dict(type=float, default=1.0, help="scale of every camera's image size and K (default 1)")),
