@@ -22,8 +22,8 @@ frame is skipped when its depth PNG and every requested extra exist; otherwise
 it is computed again and only the missing files are written (an existing file
 is replaced only with ``--overwrite``). So adding a flag on a re-run fills in
 the new files; changing ``--zero-invalid``, ``--max-seed-distance-px``,
-``--distance`` or ``--preview-range`` does not touch files already written:
-re-run with ``--overwrite``.
+``--distance`` or ``--preview-range`` is refused by the folder's run record
+(:mod:`jaxdepth.batch.run_record`) unless ``--overwrite``, which recomputes every file.
 """
 
 from __future__ import annotations
@@ -183,7 +183,7 @@ def add_cli_options(parser) -> None:
     group = parser.add_argument_group(
         "extra outputs", "written beside each depth PNG <stem>.png as <stem>_<kind>.png (atomic; resumed like the "
                          "depth: a re-run with the same flags skips finished frames, a re-run with a new flag "
-                         "writes only the missing files; other changed settings need --overwrite); --validity, "
+                         "writes only the missing files; other changed settings are refused unless --overwrite); --validity, "
                          "--seed-distance and --zero-invalid need --method sgm")
     group.add_argument("--preview", action="store_true",
                        help="<stem>_preview.png: colour image of the depth (turbo, black = empty) with a scale bar "
