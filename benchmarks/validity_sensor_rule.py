@@ -3,8 +3,9 @@
 (3 scan-line spacings, jaxdepth._src.validity.sensor_max_seed_distance_px), and the share of invalid
 pixels that are within one scan-line spacing of a LiDAR pixel (the rule must leave none).
 
-Run: PYTHONPATH=$PWD python benchmarks/validity_sensor_rule.py [--write-images]
-(writes docs/images/validity_nuscenes.png and validity_kitti.png, the CAM_FRONT / camera 2 masks, 2x downscaled).
+Run: python -m benchmarks.validity_sensor_rule [--write-images]
+Writes benchmarks/results/validity_sensor_rule.json (one row per camera and rule); with --write-images also
+docs/images/validity_nuscenes.png and validity_kitti.png (the CAM_FRONT / camera 2 masks, 2x downscaled).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import sys
 import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROWS: list = []
 DATA = ROOT.parent / "shared" / "data"
 if not DATA.exists():
     DATA = pathlib.Path("/work/shared/data")
@@ -39,6 +41,11 @@ def _rows(name, stages, cameras, lidar, metric, names):
                        f"  invalid within one spacing of a LiDAR pixel: {int(near.sum())} px inside the FOV, "
                        f"{int(near_all.sum())} px in all (rows beyond the top / bottom beam)")
             masks[(label, cam)] = valid[i]
+            ROWS.append({"data": name, "camera": cam, "rule": label, "spacing_px": round(float(spacing[i]), 3),
+                         "invalid_share": round(float(invalid.mean()), 5),
+                         "invalid_share_inside_fov": round(float((invalid & inside).sum() / max(inside.sum(), 1)), 5),
+                         "invalid_within_one_spacing_inside_fov_px": int(near.sum()),
+                         "invalid_within_one_spacing_px": int(near_all.sum())})
     return out, masks
 
 
@@ -74,6 +81,10 @@ def main(argv):
     lines_k, masks_k = kitti()
     for line in lines_n + lines_k:
         print(line)
+    import json
+    out = ROOT / "benchmarks" / "results" / "validity_sensor_rule.json"
+    out.write_text(json.dumps({"factor": 3.0, "metric": "l1", "rows": ROWS}, indent=2) + "\n")
+    print(f"wrote {out}")
     if "--write-images" in argv:
         for path, mask in ((ROOT / "docs/images/validity_nuscenes.png", masks_n[("sensor rule", "CAM_FRONT")]),
                            (ROOT / "docs/images/validity_kitti.png", next(v for (l, _), v in masks_k.items()

@@ -339,3 +339,13 @@ def test_eval_describes_ignored_files_by_what_they_are(tmp_path, capsys, eval_si
     note = next(line for line in out.splitlines() if line.startswith("note:"))
     assert "colour previews (_preview.png)" in note and "validity masks (_validity.png)" in note
     assert "camera images" not in note
+
+
+def test_ray_records_carry_force(tmp_path):
+    from jaxdepth.batch import scale
+    from jaxdepth.batch.runner import FrameJob
+    jobs = [FrameJob(name=f"f{i}", sparse_path=tmp_path / f"f{i}.png", out_path=tmp_path / "o.png", force=bool(i))
+            for i in range(2)]
+    records = [scale._record(job) for job in jobs]
+    batch = {key: np.array([r[key] for r in records], dtype=object) for key in records[0]}
+    assert [job.force for job in scale._jobs_from_batch(batch)] == [False, True]
