@@ -128,7 +128,8 @@ def cmd_complete(args) -> int:
     else:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
-        _claim_output_folder(dst, args, inputs=[src], crop=args.crop, camera=args.camera, name=args.name)
+        _claim_output_folder(dst, args, inputs=[src], out_paths=[job.out_path for job in jobs], crop=args.crop,
+                             camera=args.camera)
         from jaxdepth.io.atomic import make_output_folders
         make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
@@ -253,15 +254,17 @@ def _forced_jobs(jobs, args):
     return [dataclasses.replace(job, force=True) for job in jobs]
 
 
-def _claim_output_folder(dst: pathlib.Path, args, *, inputs, **options):
+def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), **options):
     """Checks the output folder's run record against this run's settings and writes it
-    (:mod:`jaxdepth.batch.run_record`): a re-run with other settings is refused unless --overwrite."""
+    (:mod:`jaxdepth.batch.run_record`; KITTI trees: one per ``proj_depth/<name>``): a re-run with
+    other settings is refused unless --overwrite."""
     from jaxdepth.batch import run_record
     _ensure_writable_dir(dst)
     settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
     more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
     record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
-    run_record.claim_folder(dst, record, overwrite=args.overwrite)
+    for folder in run_record.record_folders(dst, out_paths):
+        run_record.claim_folder(folder, record, overwrite=args.overwrite)
 
 
 def _ensure_writable_dir(path: pathlib.Path):
@@ -389,6 +392,10 @@ def cmd_eval(args) -> int:
     from jaxdepth.batch import run_record
     table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt), force=args.force)
     found = run_record.find_record(args.pred)
+    if found is None:  # a KITTI tree: the records of its proj_depth/<name> folders, when they agree
+        below = run_record.find_records_below(args.pred)
+        if below and all(r["settings"] == below[0][1]["settings"] for _, r in below):
+            found = below[0]
     for line in evaluation.format_table(table):
         print(line)
     if found is None:

@@ -349,3 +349,24 @@ def test_ray_records_carry_force(tmp_path):
     records = [scale._record(job) for job in jobs]
     batch = {key: np.array([r[key] for r in records], dtype=object) for key in records[0]}
     assert [job.force for job in scale._jobs_from_batch(batch)] == [False, True]
+
+
+def test_kitti_tree_keeps_one_record_per_method_so_two_methods_share_an_output_root(tmp_path, capsys):
+    frame = require_shared("kitti", "drive_0001_frame05")
+    src = tmp_path / "kitti_depth" / "train"
+    folder = src / DRIVE / "proj_depth" / "velodyne_raw" / "image_02"
+    folder.mkdir(parents=True)
+    shutil.copyfile(frame / "velodyne_raw_image_02.png", folder / "0000000005.png")
+    calib = tmp_path / "calib" / DATE
+    calib.mkdir(parents=True)
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        shutil.copyfile(frame / name, calib / name)
+    dst = tmp_path / "out"
+    base = ["complete", src, dst, "--calib-dir", tmp_path / "calib", "-q"]
+    assert _run(capsys, *base, "--method", "nearest")[0] == 0
+    assert _run(capsys, *base, "--method", "ip-basic")[0] == 0  # another proj_depth/<name>: its own record
+    for method in ("nearest", "ip-basic"):
+        record = json.loads((dst / DRIVE / "proj_depth" / method / "jaxdepth_run.json").read_text())
+        assert record["settings"]["method"] == method
+    code, _, err = _run(capsys, *base, "--method", "nearest", "--epsilon", "2")
+    assert code == 1 and "epsilon_m: 1.0 -> 2.0" in _one_line_error(err)

@@ -24,6 +24,10 @@ sweeps...). A re-run into the same folder:
 
 Which extra files are requested (``--preview``, ``--validity``...) is not a setting:
 adding one on a re-run fills in the missing files, as before.
+
+KITTI trees keep each run's outputs in ``<drive>/proj_depth/<name>/``: the record lives
+there (:func:`record_folders`), so two methods completed into one output root (``sgm``
+and ``ip-basic`` side by side) each keep their own record.
 """
 
 from __future__ import annotations
@@ -174,6 +178,30 @@ def claim_folder(folder: PathLike, record: dict, *, overwrite: bool) -> None:
                        overwrite=True)
 
 
+def record_folders(dst: PathLike, out_paths) -> list[pathlib.Path]:
+    """The folders whose records cover ``out_paths``: ``<...>/proj_depth/<name>`` for outputs in a
+    KITTI tree (``.../proj_depth/<name>/image_0X/<frame>.png``), else ``dst``; sorted, distinct."""
+    dst = pathlib.Path(dst)
+    folders = set()
+    for path in out_paths:
+        path = pathlib.Path(path)
+        run = path.parent.parent
+        folders.add(run if run.parent.name == "proj_depth" else dst)
+    return sorted(folders) or [dst]
+
+
+def find_records_below(path: PathLike, *, limit: int = 1000) -> list[tuple[pathlib.Path, dict]]:
+    """The records in the tree under ``path`` (at most ``limit`` files looked at)."""
+    found = []
+    for i, file in enumerate(pathlib.Path(path).rglob(RUN_FILE)):
+        if i >= limit:
+            break
+        record = read_record(file.parent)
+        if record is not None:
+            found.append((file, record))
+    return sorted(found, key=lambda item: str(item[0]))
+
+
 def summary_lines(record: dict, *, path: PathLike | None = None) -> list[str]:
     """Human-readable lines of a record for ``jaxdepth eval``."""
     settings = record.get("settings", {})
@@ -189,4 +217,4 @@ def summary_lines(record: dict, *, path: PathLike | None = None) -> list[str]:
 
 
 __all__ = ["RUN_FILE", "RunSettingsError", "settings_of", "make_record", "read_record", "find_record",
-           "differences", "claim_folder", "summary_lines"]
+           "find_records_below", "record_folders", "differences", "claim_folder", "summary_lines"]
