@@ -43,7 +43,8 @@ COLUMNS = ["x", "y", "z", "intensity", "lidar"]
 def _points(n=200, seed=0, lidar=None):
     rng = np.random.default_rng(seed)
     pts = np.zeros((n, 5), np.float32)
-    pts[:, :3] = rng.uniform(-20, 20, (n, 3))
+    rho, az = rng.uniform(5, 30, n), rng.uniform(-np.pi, np.pi, n)     # a plausible sweep: near the horizon
+    pts[:, :3] = np.stack([rho * np.cos(az), rho * np.sin(az), rng.uniform(-1.7, 1.0, n)], axis=1)
     pts[:, 3] = rng.uniform(0, 1, n)
     pts[:, 4] = np.arange(n) % 2 if lidar is None else lidar
     return pts

@@ -145,9 +145,14 @@ def _xyz(points: np.ndarray, extra: np.ndarray, names) -> tuple:
 def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, where: str, json_path):
     """(points_ref, source_local, ring, [(T_ref_source, spec, name)]) of one point file."""
     count, names = _columns_of(file, names, point_columns)
-    points, extra = read_points(file, columns=count)
+    # Named columns: the plausibility check runs here with the named ring / intensity columns (the
+    # reader's own check would take a 5th column for nuScenes' ring).
+    points, extra = read_points(file, columns=count, force=names is not None)
     points, extra = _xyz(points, extra, names)
     ring = _named(extra, names, "ring")
+    if names is not None:
+        from jaxdepth.io.plausibility import check_sweep
+        check_sweep(points, path=file, columns=count, intensity=_named(extra, names, "intensity"), ring=ring)
     ring = None if ring is None else np.where(np.isfinite(ring), ring, -1).astype(np.int32)
     pts = (points.astype(np.float64) @ T_ref_sweep[:3, :3].T + T_ref_sweep[:3, 3]).astype(np.float32)
     if rig.lidars:
