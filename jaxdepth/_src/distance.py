@@ -36,18 +36,17 @@ the leading axis of a row-major array (all other pixels vectorised):
      start row uses a float32 division where that is exact.  Under ``vmap``
      the seeded-row bounds are shared by the batch (:func:`_batch_bounds`),
      so the loop counter stays a scalar and row accesses stay row slices.
-     On the KITTI frame this is ~2x faster than the previous buffer stack
-     (its scatters per push and two-kernel while-loop condition per pop);
-     what remains is ~2 gathers per seeded row in the build and one per row
-     in the walk (~3 ns per gathered element on XLA:CPU).  Shapes whose
+     Unlike a buffer stack, it needs no scatter per push and no two-kernel
+     while-loop condition per pop; what remains is ~2 gathers per seeded row
+     in the build and one per row in the walk.  Shapes whose
      entries do not fit one int32 keep the older variant with an ``(H + 1) *
      W`` buffer and scatters (:func:`_l2_column_pass`); both make the same
      decisions and return the same result.
 
 The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
-place (the backward loop reads the forward result and overwrites it); on CPU
-this measured about 2x faster than ``lax.scan`` with stacked outputs followed
-by a minimum of the two directions, and packing every decision into one int32
+place (the backward loop reads the forward result and overwrites it): on CPU
+faster than ``lax.scan`` with stacked outputs followed by a minimum of the
+two directions (benchmarks/bench_distance.py), and packing every decision into one int32
 key keeps each step to a couple of fused ops.
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
@@ -67,9 +66,8 @@ import jax
 import jax.numpy as jnp
 from jax import custom_batching, lax
 
-from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
 
-_METRICS = ("l1", "l2")
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
 _L2_MAX_SIDE = 2**15  # squared distances (H - 1)**2 + (W - 1)**2 must fit in int32
@@ -100,8 +98,8 @@ def _bits(n: int) -> int:
 
 
 def _check(seed_mask: jax.Array, metric: str) -> None:
-    if metric not in _METRICS:
-        raise ValueError(f"nearest_seed: field 'metric' expected one of {_METRICS}, got {metric!r}")
+    if metric not in DISTANCE_METRICS:
+        raise ValueError(f"nearest_seed: field 'metric' expected one of {DISTANCE_METRICS}, got {metric!r}")
     if seed_mask.ndim != 2:
         raise ValueError(
             f"nearest_seed: field 'seed_mask' expected shape (H, W), got shape {tuple(seed_mask.shape)}")
@@ -334,8 +332,7 @@ def _batch_bounds(first: jax.Array, stop: jax.Array):
     """Loop bounds shared by a batch: ``(first, stop)`` itself, ``(min first, max stop)`` under vmap.
 
     A loop whose bounds are batched gets a batched counter, which turns every
-    row read and row write in its body into gathers and scatters (measured 5x
-    slower for 4 KITTI frames).  Extra rows are harmless where this is used
+    row read and row write in its body into gathers and scatters.  Extra rows are harmless where this is used
     (rows without seeds push nothing).
     """
     return first, stop
@@ -366,7 +363,7 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
 
     The row-pass keys are transposed in their narrow dtype (int16 for
     KITTI-sized images) and widened one row per step, which halves the
-    transpose's memory traffic (measured ~1 ms on KITTI).
+    transpose's memory traffic.
 
     Build: a ``fori_loop`` from the first to the last seeded row (runtime
     bounds; seedless rows push nothing); two pop attempts are unrolled (on

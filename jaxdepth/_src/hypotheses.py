@@ -116,8 +116,8 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
       blend: also average in the neighbours' own plane predictions that fall in the bracket.
       materialise: a stage fence after the blend's neighbour search (results are
         the same either way). On XLA:CPU it makes the unguided pipeline's blend
-        faster (2x measured: the gathers otherwise re-run the row search) and the
-        image-guided one no faster, so the pipeline turns it off when guided.
+        faster (the gathers otherwise re-run the row search) and the image-guided
+        one no faster, so the pipeline turns it off when guided.
       min_abs_denom, max_residual_ratio: as in :func:`~jaxdepth._src.residual.plane_residual`.
 
     Returns:
@@ -142,7 +142,7 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     # and its residual z' dv slope / (denom - dv slope): the formula of
     # :func:`~jaxdepth._src.residual.plane_residual` with du = 0. One complex64
     # gather per side; materialised, or XLA fuses the packing into every gathered
-    # element (the pipeline's blend measured 2x slower).
+    # element.
     K = jnp.asarray(K, jnp.float32)
     fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     v, u = pixel_grid(h, w)

@@ -1,5 +1,10 @@
 """Step 1 of the Surface Geometry Model: surface normals from the spherical range image.
 
+This module holds Step 1 for a LiDAR sweep (:func:`point_normals`, used by
+``complete_points`` and ``complete_rig``) and the cell normals both inputs share;
+for a sparse depth image (``complete``) Step 1 enters through
+:mod:`jaxdepth._src.pixel_normals`, which bins the pixels and calls :func:`cell_normals`.
+
 Following the paper (its "Surface Normal" paragraph, after Badino et al. 2011),
 every LiDAR point ``p = (x, y, z)`` (LiDAR frame, metres) is mapped to spherical
 coordinates
@@ -166,7 +171,7 @@ def _safe_div(num, den, ok):
 #
 # Shifts are slices of a padded copy that is materialised first (an
 # optimization barrier): XLA would otherwise fuse a concatenate into every
-# consumer, which is ~6x slower than reading a buffer at an offset.
+# consumer, which is much slower than reading a buffer at an offset.
 
 
 def _pad(arrays, k: int, fills, token, wrap=None):
