@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 
 #: Bits per word of a packed mask (one uint32), also the group size of :func:`inclusive_prefix`.
 WORD_BITS = 32

@@ -34,7 +34,8 @@ the leading axis of a row-major array (all other pixels vectorised):
      attempts, then a ``while_loop`` for the rare deeper pops); a backward
      loop walks the envelope, stepping at most one entry down per row.  The
      start row uses a float32 division where that is exact.  Under ``vmap``
-     the seeded-row bounds are shared by the batch (:func:`_batch_bounds`),
+     the seeded-row bounds are shared by the batch
+     (:func:`~jaxdepth._src.xla_tuning.shared_loop_bounds`),
      so the loop counter stays a scalar and row accesses stay row slices.
      Unlike a buffer stack, it needs no scatter per push and no two-kernel
      while-loop condition per pop; what remains is ~2 gathers per seeded row
@@ -64,9 +65,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import custom_batching, lax
+from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
+from jaxdepth._src.xla_tuning import shared_loop_bounds
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -327,26 +329,6 @@ def _floor_div_exact_f32(h: int, w: int) -> bool:
     return (h - 1) ** 2 + (w - 1) ** 2 + 2 * h < 2**24
 
 
-@custom_batching.custom_vmap
-def _batch_bounds(first: jax.Array, stop: jax.Array):
-    """Loop bounds shared by a batch: ``(first, stop)`` itself, ``(min first, max stop)`` under vmap.
-
-    A loop whose bounds are batched gets a batched counter, which turns every
-    row read and row write in its body into gathers and scatters.  Extra rows are harmless where this is used
-    (rows without seeds push nothing).
-    """
-    return first, stop
-
-
-@_batch_bounds.def_vmap
-def _batch_bounds_vmap(axis_size, in_batched, first, stop):
-    del axis_size
-    first_batched, stop_batched = in_batched
-    first = jnp.min(first) if first_batched else first
-    stop = jnp.max(stop) if stop_batched else stop
-    return _batch_bounds(first, stop), (False, False)
-
-
 def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
     """Exact 1-D squared-Euclidean transform along every column (Meijster, linked stack).
 
@@ -439,7 +421,8 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
     seeded = row_key_t[0] < (far << 1)
     first = jnp.argmax(seeded).astype(jnp.int32)
     stop = jnp.where(jnp.any(seeded), h - jnp.argmax(seeded[::-1]).astype(jnp.int32), 0)
-    first, stop = _batch_bounds(first, stop)
+    # XLA:CPU: under vmap the batch shares the widest bounds, so row accesses stay row slices.
+    first, stop = shared_loop_bounds(first, stop)
     empty = jnp.full((w,), -1, jnp.int32)
     top, below = lax.fori_loop(first, stop, build, (empty, jnp.zeros((h, w), jnp.int32)))
 

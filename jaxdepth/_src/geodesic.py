@@ -77,7 +77,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.distance import NearestSeed
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 
 _F32_EXACT = 2**24  # float32 holds every integer up to here
 _BLOCKED = 1e6  # pixels: the cost of a step next to a non-finite colour
@@ -195,8 +195,8 @@ def _line_pass(buf: jax.Array, cost: jax.Array) -> jax.Array:
     and the carry is the previous line itself, so a step is one fused kernel
     plus an in-place row write, as in :mod:`~jaxdepth._src.distance`.  With two
     buffers XLA recomputed the comparison from the already updated distance
-    buffer and copied it whole on every step (~100x slower); an (L, 2, M)
-    int32 buffer with a bitcast distance cost ~2.5x this.
+    buffer and copied it whole on every step; an (L, 2, M) int32 buffer with a
+    bitcast distance is slower too.
     """
     n = buf.shape[0]
     if n == 1:

@@ -122,7 +122,7 @@ import numpy as np
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage, take_pair
 from jaxdepth._src.types import LidarSpec
 
 #: Neighbour angle offsets below this (radians) are not used for differences.
@@ -552,10 +552,10 @@ def normals_at_points(nxy, nz, slot, ok, xyz, token):
       own stage (fused into the output, XLA would gather once per output
       element): two gathers per point.
     """
-    gxy, gz = stage(lambda nxy, nz, idx: tuple(c.reshape(-1).at[idx].get(mode="promise_in_bounds")
-                                                   for c in (nxy, nz)),
-                     (nxy, nz, jnp.where(ok, slot, 0)), token)
-    px, py, pz = jnp.real(gxy), jnp.imag(gxy), gz
+    # XLA:CPU: (nx, ny) in one complex64 gather (take_pair).
+    px, py, pz = stage(lambda nxy, nz, idx: (*take_pair(nxy.reshape(-1), idx),
+                                            nz.reshape(-1).at[idx].get(mode="promise_in_bounds")),
+                       (nxy, nz, jnp.where(ok, slot, 0)), token)
     x, y, z = xyz
     facing = px * x + py * y + pz * z
     sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)

@@ -81,7 +81,7 @@ from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import pseudo_angle
 from jaxdepth._src.geometry import backproject
-from jaxdepth._src.staging import stage, switch_widest
+from jaxdepth._src.xla_tuning import stage, switch_widest
 
 
 def _camera_points(depth: jax.Array, K: jax.Array, points_cam, v: jax.Array, u: jax.Array):

@@ -14,7 +14,7 @@ in a different module for each:
 Speed: the image path bins pixels straight into the range image
 (:func:`~jaxdepth._src.pixel_normals.pixel_normals`, equal to ``point_normals`` of the
 back-projected pixels up to float32 rounding), and stage fences
-(:mod:`~jaxdepth._src.staging`) keep XLA from re-running producers inside their
+(:mod:`~jaxdepth._src.xla_tuning`) keep XLA from re-running producers inside their
 consumers. tests/test_speed_equivalence.py checks the result against the plain
 composition of the stage functions.
 """
@@ -38,7 +38,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.staging import fence
+from jaxdepth._src.xla_tuning import after, fence, pack_pair, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -58,14 +58,15 @@ def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.
 def _gather_seeds(seed_field, normals, du, dv):
     """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals.
 
-    The four float32 channels travel as two complex64 (H, W) fields, each
-    gathered on its own: half the gathered elements of four float32 gathers,
-    and, unlike one gather of a stacked (2, H, W) field, XLA fuses both
-    gathers into the residual that consumes them.
+    Returns (seed depth (H, W), seed normals (3, H, W)).
     """
-    xy = gather_at_seed(jax.lax.complex(normals[0], normals[1]), du, dv)
-    zd = gather_at_seed(jax.lax.complex(normals[2], seed_field), du, dv)
-    return jnp.imag(zd), jnp.stack([jnp.real(xy), jnp.imag(xy), jnp.real(zd)])
+    xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
+    if isinstance(xy, tuple):  # plain: one gather of the four stacked channels
+        gathered = gather_at_seed(jnp.stack([*xy, *zd]), du, dv)
+        return gathered[3], gathered[:3]
+    # XLA:CPU: two complex64 gathers, fused into the residual that consumes them.
+    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    return depth, jnp.stack([nx, ny, nz])
 
 
 def _seeds(keep, image, config: SGMConfig):
@@ -96,14 +97,11 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     has_seed = seed_depth > 0
     depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
     if config.column_bracket:
-        # A data dependence on the seed search's result (always true, not provable
-        # at compile time): scheduled before the search, the bracket's buffers
-        # stayed live across its loops and XLA:CPU copied their state (guided
-        # path measured 1.5-2x slower, the batched job slower too).
-        after_seeds = du[0, 0] > jnp.iinfo(jnp.int32).min
+        # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
+        bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
         distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
         depth_raw = column_hypotheses(
-            depth_raw, jnp.where(keep & after_seeds, sparse_depth, 0.0), distance, normals_cam, K,
+            depth_raw, bracket_input, distance, normals_cam, K,
             window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
             max_residual_ratio=config.max_residual_ratio)

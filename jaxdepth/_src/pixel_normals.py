@@ -40,7 +40,7 @@ from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
 from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
 from jaxdepth._src.range_image import RangeImage, angles_xyz, cell_centres, check_lidar, row_col
-from jaxdepth._src.staging import cond_all, stage
+from jaxdepth._src.xla_tuning import cond_all, stage
 from jaxdepth._src.types import LidarSpec
 
 

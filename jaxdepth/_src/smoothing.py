@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 
 
 def gaussian_kernel_1d(sigma_px: float, radius_px: int) -> np.ndarray:
