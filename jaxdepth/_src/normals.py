@@ -86,7 +86,7 @@ their own ray, so every valid point has a unit normal.
 
 Performance notes: XLA:CPU fuses a producer into every consumer, so shifted
 slices and per-point gathers would re-run upstream work; heavy intermediates
-are computed inside ``staging.stage`` conditionals (real buffers). Inside a stage XLA
+are computed inside ``xla_tuning.stage`` conditionals (real buffers). Inside a stage XLA
 gives every output its own fusion (which redoes all the cheap work it needs)
 and materialises any division or square root that several outputs share, so
 stages are cut to have few outputs: pairs of float32 channels travel as one

@@ -81,9 +81,15 @@ def _seeds(keep, image, config: SGMConfig):
 
 
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig, image=None) -> Stages:
-    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
-    keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
+                   config: SGMConfig, image=None, keep=None) -> Stages:
+    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing.
+
+    ``keep``: optional (H, W) bool Step-2 mask computed by the caller (several
+    sources, each with its own viewpoint); None runs Algorithm 1 here.
+    """
+    if keep is None:
+        keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
+                                    points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
@@ -162,8 +168,9 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
              image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
 
-    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
-    exactly what a Python loop gives.
+    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics equals a
+    Python loop of single-frame calls to float32 rounding (XLA may fuse the batched
+    body differently).
 
     Examples:
       Two rows of LiDAR returns at the bottom of an 8 x 12 image:
