@@ -104,7 +104,7 @@ image from the pixels with depth and reuses :func:`cell_normals` and
 :func:`normals_at_points`.
 
 Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
-are ~30x slower than a fused polynomial): ``atan2``, sine and cosine come from
+are much slower than a fused polynomial): ``atan2``, sine and cosine come from
 :mod:`jaxdepth._src.fastmath` (errors < 1e-7). Every division is guarded
 with the safe-``where`` pattern, and the derivative ratios are clipped to
 ``+-1e4`` (a surface within 0.006 degrees of grazing), so no NaN or Inf can
