@@ -20,6 +20,7 @@ same hashes: a refactor that claims "no behaviour change" must leave the JSON un
 
     PYTHONPATH=$PWD python benchmarks/output_fingerprint.py [--json benchmarks/results/output_fingerprint.json]
         [--check benchmarks/results/output_fingerprint.json]   # exit 1 when any hash differs
+        [--data ../shared/data]   # e.g. when run from an exported snapshot of a commit
 """
 
 from __future__ import annotations
@@ -41,6 +42,13 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 FRAME = DATA / "kitti" / "drive_0001_frame05"
 NUSCENES = DATA / "nuscenes" / "sample"
+
+
+def use_data(root: pathlib.Path) -> None:
+    global DATA, FRAME, NUSCENES
+    DATA = root
+    FRAME = DATA / "kitti" / "drive_0001_frame05"
+    NUSCENES = DATA / "nuscenes" / "sample"
 CROP_ROWS, CROP_COLS = slice(23, 375), slice(13, 1229)
 
 
@@ -194,7 +202,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the hashes to this JSON file")
     parser.add_argument("--check", type=pathlib.Path, default=None, help="compare with this JSON; exit 1 on change")
+    parser.add_argument("--data", type=pathlib.Path, default=DATA, help="the shared data folder (default ../shared/data)")
     args = parser.parse_args(argv)
+    use_data(args.data.resolve())
     for path in (FRAME, NUSCENES):
         if not path.exists():
             raise SystemExit(f"{path}: shared data not found")

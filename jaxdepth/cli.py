@@ -154,7 +154,12 @@ def cmd_complete(args) -> int:
         _claim_output_folder(dst, args, inputs=[src], camera=args.camera,
                              intrinsics=None if args.intrinsics is None else str(args.intrinsics),
                              extrinsic=None if args.extrinsic is None else str(args.extrinsic))
-    jobs = _forced_jobs(jobs, args)
+    return _run_frame_jobs(_forced_jobs(jobs, args), pre_failed, args)
+
+
+def _run_frame_jobs(jobs, pre_failed, args) -> int:
+    """Runs ``complete``'s frame jobs on the local or Ray engine with progress; the exit code."""
+    from jaxdepth.batch import runner
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
         devices.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:

@@ -1,17 +1,20 @@
 """The SGM pipeline: ordering of the paper's four steps. No maths of its own.
 
-Two entry points share one tail:
+Two entry points share one tail (Steps 2-4, :func:`_complete_tail`); Step 1 (normals) runs
+in a different module for each:
 
 * :func:`complete_stages` takes a sparse depth image and K (the KITTI benchmark
-  input). Normals come from the pixels back-projected through K and carried into
-  the LiDAR frame with ``T_cam_lidar`` (KITTI camera 2 by default).
-* :func:`complete_points_stages` takes a raw sweep and a camera. Normals come from
-  the sweep's true range image and outlier removal uses the exact point angles.
+  input). Step 1 runs in :func:`~jaxdepth._src.pixel_normals.pixel_normals`: the
+  pixels back-projected through K, carried into the LiDAR frame with
+  ``T_cam_lidar`` (KITTI camera 2 by default) and binned into the range image.
+* :func:`complete_points_stages` takes a raw sweep and a camera. Step 1 runs in
+  :func:`~jaxdepth._src.normals.point_normals` on the sweep's true range image, and
+  outlier removal uses the exact point angles.
 
 Speed: the image path bins pixels straight into the range image
 (:func:`~jaxdepth._src.pixel_normals.pixel_normals`, equal to ``point_normals`` of the
 back-projected pixels up to float32 rounding), and stage fences
-(:mod:`~jaxdepth._src.staging`) keep XLA from re-running producers inside their
+(:mod:`~jaxdepth._src.xla_tuning`) keep XLA from re-running producers inside their
 consumers. tests/test_speed_equivalence.py checks the result against the plain
 composition of the stage functions.
 """
@@ -26,7 +29,8 @@ import jax.numpy as jnp
 from jaxdepth._src import presets
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geodesic import geodesic_seed, guidance_image
+from jaxdepth._src.geodesic import geodesic_seed
+from jaxdepth._src.images import guidance_image
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
@@ -34,7 +38,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.staging import fence
+from jaxdepth._src.xla_tuning import after, fence, pack_pair, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -54,19 +58,19 @@ def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.
 def _gather_seeds(seed_field, normals, du, dv):
     """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals.
 
-    The four float32 channels travel as two complex64 (H, W) fields, each
-    gathered on its own: half the gathered elements of four float32 gathers,
-    and, unlike one gather of a stacked (2, H, W) field, XLA fuses both
-    gathers into the residual that consumes them (measured ~1.7x faster for
-    gather + residual on the KITTI frame).
+    Returns (seed depth (H, W), seed normals (3, H, W)).
     """
-    xy = gather_at_seed(jax.lax.complex(normals[0], normals[1]), du, dv)
-    zd = gather_at_seed(jax.lax.complex(normals[2], seed_field), du, dv)
-    return jnp.imag(zd), jnp.stack([jnp.real(xy), jnp.imag(xy), jnp.real(zd)])
+    xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
+    if isinstance(xy, tuple):  # plain: one gather of the four stacked channels
+        gathered = gather_at_seed(jnp.stack([*xy, *zd]), du, dv)
+        return gathered[3], gathered[:3]
+    # XLA:CPU: two complex64 gathers, fused into the residual that consumes them.
+    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    return depth, jnp.stack([nx, ny, nz])
 
 
 def _seeds(keep, image, config: SGMConfig):
-    """Step 3's seed search: the paper's nearest seed, or the image-guided one (issue 16)."""
+    """Step 3's seed search: the paper's nearest seed, or the image-guided one."""
     if config.guidance_weight > 0:
         if image is None:  # entry points that take no image (complete_rig, ...)
             raise ValueError("SGMConfig: field 'guidance_weight' > 0 expected a camera image, but this entry "
@@ -99,14 +103,11 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     has_seed = seed_depth > 0
     depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
     if config.column_bracket:
-        # A data dependence on the seed search's result (always true, not provable
-        # at compile time): scheduled before the search, the bracket's buffers
-        # stayed live across its loops and XLA:CPU copied their state (guided
-        # path measured 1.5-2x slower, the batched job slower too).
-        after_seeds = du[0, 0] > jnp.iinfo(jnp.int32).min
+        # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
+        bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
         distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
         depth_raw = column_hypotheses(
-            depth_raw, jnp.where(keep & after_seeds, sparse_depth, 0.0), distance, normals_cam, K,
+            depth_raw, bracket_input, distance, normals_cam, K,
             window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
             max_residual_ratio=config.max_residual_ratio)
@@ -153,8 +154,9 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMCon
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
     sparse_depth = jnp.where(jnp.isfinite(sparse_depth) & (sparse_depth > 0), sparse_depth, 0.0)
-    # Equals R @ point_normals(pixels back-projected into the LiDAR frame) up to
-    # float32 rounding, without per-point (N, 3) work over all H W pixels.
+    # Step 1 (normals) for image input, in pixel_normals.py: equals R @ point_normals(pixels
+    # back-projected into the LiDAR frame) up to float32 rounding, without per-point (N, 3)
+    # work over all H W pixels.
     normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
                                 fill_max_gap=config.range_fill_max_gap)
     return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
@@ -222,6 +224,7 @@ def _complete_points_stages(points, valid, camera: Camera, image=None, *, config
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
+    # Step 1 (normals) for a sweep, in normals.py.
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
     image = guidance_image(image, (camera.height, camera.width), guided=config.guidance_weight > 0,

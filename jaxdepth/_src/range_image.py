@@ -38,7 +38,7 @@ import numpy as np
 
 from jaxdepth._src.fastmath import PI, atan2
 from jaxdepth._src.geometry import scatter_argmin
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 from jaxdepth._src.types import LidarSpec
 
 #: Points closer than this to the sensor origin (metres) are treated as invalid.

@@ -1,4 +1,4 @@
-"""Camera images of the synthetic street (issue 16): albedo, Lambertian shading, texture, noise.
+"""Camera images of the synthetic street: albedo, Lambertian shading, texture, noise.
 
 The synthetic scenes of :mod:`jaxdepth._src.synthetic` carry exact depth; this
 module renders the matching RGB camera image, so image-guided seeds can be
@@ -17,7 +17,7 @@ import numpy as np
 from jaxdepth._src.scene import SceneArrays, camera_rays, checked_rays, nearest_hits, street_scene_arrays
 from jaxdepth._src.types import Camera
 
-# --------------------------------------------------------------------------- camera images (issue 16)
+# --------------------------------------------------------------------------- camera images
 #
 # An RGB image to go with the exact depth, so that image-guided methods can be tested on scenes whose
 # colour edges are known. What a pixel shows (documented choices, all deterministic):

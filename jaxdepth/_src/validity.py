@@ -41,11 +41,10 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.config import DISTANCE_METRICS, SGMConfig
 from jaxdepth._src.geometry import pixel_rays
 from jaxdepth._src.types import LidarSpec, Stages
 
-_METRICS = ("l1", "l2")
 _DEFAULT_METRIC = SGMConfig().distance_metric
 DEFAULT_MAX_SEED_DISTANCE_PX = 16.0  # KITTI's 64 beams at fy 721.5 under the sensor rule (16.1 px)
 #: The validity limit is this many scan-line spacings (see module docs).
@@ -122,8 +121,8 @@ def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric
     Returns:
       (H, W) float32 pixels; ``+inf`` where ``seed_depth <= 0``.
     """
-    if metric not in _METRICS:
-        raise ValueError(f"seed_distance: field 'metric' expected one of {_METRICS}, got {metric!r}")
+    if metric not in DISTANCE_METRICS:
+        raise ValueError(f"seed_distance: field 'metric' expected one of {DISTANCE_METRICS}, got {metric!r}")
     du = jnp.asarray(du, jnp.int32)
     dv = jnp.asarray(dv, jnp.int32)
     if metric == "l1":

@@ -38,7 +38,7 @@ and write the PNGs. One device by default (``devices``: round robin over several
 each compiling its own copy); the CLI does not split the CPU into host devices
 for this job (``--cpu-devices`` has no effect): XLA already spreads one sample
 over the cores, and splitting the cameras of a sample over two host devices
-measured no faster on 2 cores.
+is no faster on 2 cores.
 
 The Ray engine (:func:`jaxdepth.batch.scale.run_nuscenes_ray`) plans the same way
 (:func:`plan`) and runs :func:`complete_samples`, this module's per-sample path,
@@ -179,7 +179,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       png_compression: zlib level 0-9 of the PNGs (default: the library's fast level).
       devices: local devices to deal samples out to, round robin (default 1: each device
         compiles its own copy, and on CPU one device already uses every core within a sample;
-        sharding a sample's cameras over 2 host devices measured no faster here).
+        sharding a sample's cameras over 2 host devices is no faster).
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).

@@ -7,12 +7,11 @@ encode/write outputs while the device computes. Finished outputs are skipped
 on a re-run, writes are atomic, a bad frame is reported and skipped.
 
 On CPU a batch runs as ``lax.map`` over the frames (XLA already uses both
-cores on one frame; on a 352x1216 KITTI frame lax.map and a Python loop of
-single-frame calls both measured 0.5-1.1x the single-frame rate on a noisy VM,
-``vmap`` slower, with its batched gathers and scatters); on GPU/TPU it runs as
-``vmap``. With several local devices (e.g. one host device per core,
-``jaxdepth.batch.devices.split_cpu_into_devices``, measured 1.3-1.7x the single-frame
-rate) the batch is sharded over them with ``shard_map``. Strategy "loop"
+cores on one frame; lax.map and a Python loop of single-frame calls both run
+at about the single-frame rate, ``vmap`` slower, with its batched gathers and
+scatters; benchmarks/bench_batching.py); on GPU/TPU it runs as ``vmap``. With
+several local devices (e.g. one host device per core,
+``jaxdepth.batch.devices.split_cpu_into_devices``) the batch is sharded over them with ``shard_map``. Strategy "loop"
 (single-frame calls dispatched asynchronously, frame i on device i mod n) gives
 exactly the bytes of single-frame calls; "map" and "vmap" may differ from them
 by float32 rounding.
