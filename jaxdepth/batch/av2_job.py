@@ -4,8 +4,8 @@ Input: one log folder (``.../sensor/val/<log_id>/``) or a folder of them (a spli
 ``.../sensor/val/``), read by :mod:`jaxdepth.io.av2`. Per sweep (ordered by timestamp): the
 sweep's two LiDARs as two sources (and, with ``sweeps = N``, up to N neighbouring sweeps on
 each side, moved into the sweep's ego frame by the city poses: two more sources each), and
-the chosen cameras at their calibrated sizes, go through :func:`complete_sources`, the one
-completion call of this job.
+the chosen cameras at their calibrated sizes, go through
+:func:`jaxdepth.batch.cloud_runner.complete_sources`.
 
 Outputs: one uint16 KITTI-format depth PNG (metres x 256, 0 = empty) per camera per sweep,
 ``<dst>/<log_id>/<camera>/<lidar timestamp_ns>.png`` (:func:`output_path`), on the camera's
@@ -14,35 +14,19 @@ atomically. A sweep whose outputs all exist is skipped (resume) unless ``overwri
 sweep or log is reported and the rest completes. Camera images are not needed (the job
 writes depth for every camera whether or not the log holds its images).
 
-Scheduling: a reader thread pool loads sweeps ahead (Feather decoding, pose maths); the
-completion runs on the default device; writer threads encode and write the PNGs.
+Scheduling (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`): a reader thread pool loads
+sweeps ahead (Feather decoding, pose maths); the completion runs on the default device; writer
+threads encode and write the PNGs.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import dataclasses
 import functools
-import logging
 import pathlib
 import time
 from typing import Callable
 
-import numpy as np
-
-log = logging.getLogger("jaxdepth")
-
-#: Sweeps loaded ahead of the device.
-READ_AHEAD = 2
-
-
-@dataclasses.dataclass(frozen=True)
-class _SweepJob:
-    name: str  # "<log_id>/<timestamp_ns>"
-    log_folder: pathlib.Path
-    timestamp_ns: int
-    cameras: tuple  # cameras still to write
-    out_paths: tuple  # their outputs
+from jaxdepth.batch.cloud_runner import CloudJob, run_cloud_jobs
 
 
 def find_logs(root) -> list:
@@ -104,52 +88,16 @@ def plan(logs, dst, *, cameras, overwrite: bool, summary, notify) -> tuple[dict,
                 summary.skipped.append(name)
                 notify(name, "skipped")
                 continue
-            todo.append(_SweepJob(name=name, log_folder=folder, timestamp_ns=ts,
-                                  cameras=tuple(c for c, _ in missing), out_paths=tuple(p for _, p in missing)))
+            todo.append(CloudJob(name=name, outputs=tuple(missing), source=(folder, ts)))
     return tables, todo
 
 
-def complete_sources(cloud, rig, *, config):
-    """(C, H, W) float32 depth of every rig camera (on the largest camera's canvas) for a SourceCloud.
-
-    The job's one completion call.
-    """
-    return _single_origin_completion(cloud, rig, config=config)
-
-
-def _single_origin_completion(cloud, rig, *, config):
-    """Interim: every source's points measured from the rig's stated origin (``up_lidar``), with the
-    merged rig's 64 lasers as one range image (what ``complete-rig`` does with ``lidar.origin_m``)."""
-    from jaxdepth._src.rig import stack_cameras
-    from jaxdepth._src.types import LidarSpec
-    from jaxdepth.io.points import pad_points
-    from jaxdepth.io.rig import Rig
-    from jaxdepth.io.sweep_frame import prepare_sweep
-
-    merged = LidarSpec(beams=2 * rig.lidar.beams, fov_up_deg=rig.lidar.fov_up_deg,
-                       fov_down_deg=rig.lidar.fov_down_deg, columns=rig.lidar.columns)
-    frame = prepare_sweep(cloud.points, Rig(lidar=merged, cameras=rig.cameras, lidar_origin_m=rig.lidar_origin_m),
-                          estimate=False)
-    padded, valid = pad_points(frame.points)
-    cameras = stack_cameras([c.as_camera() for c in frame.rig.cameras])
-    return np.asarray(_rig_depth_fn(config, frame.rig.lidar)(padded, valid, cameras))
-
-
-@functools.lru_cache(maxsize=8)
-def _rig_depth_fn(config, lidar):
-    import jax
-
-    from jaxdepth._src.rig import complete_rig_stages
-
-    return jax.jit(lambda points, valid, cameras: complete_rig_stages(points, valid, cameras, config=config,
-                                                                      lidar=lidar).depth)
-
-
-def _load(job: _SweepJob, *, tables: dict, sweeps: int):
+def _load(job, *, tables: dict, sweeps: int):
     from jaxdepth.io import av2
 
-    log_, rig = tables[job.log_folder]
-    return av2.read_cloud(log_, job.timestamp_ns, sweeps=sweeps), rig
+    folder, timestamp_ns = job.source
+    log_, rig = tables[folder]
+    return av2.read_cloud(log_, timestamp_ns, sweeps=sweeps), rig
 
 
 def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite: bool = False,
@@ -175,11 +123,10 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
       InputError: ``root`` holds no log. ValueError: a bad ``sweeps`` or ``cameras``.
     """
     from jaxdepth._src.config import SGMConfig
-    from jaxdepth.batch.runner import Ledger, RunSummary, read_ahead, write_failure
+    from jaxdepth.batch.runner import RunSummary
     from jaxdepth.io import av2
     from jaxdepth.io.atomic import make_output_folders
-    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, write_depth_png
-    from jaxdepth.io.errors import JaxdepthError
+    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 0:
         raise ValueError(f"run_av2: field 'sweeps' expected an integer >= 0, got {sweeps!r}")
@@ -193,38 +140,10 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     tables, todo = plan(find_logs(root), dst, cameras=cameras, overwrite=overwrite, summary=summary, notify=notify)
     if not todo:
         return summary
-    make_output_folders(p for job in todo for p in job.out_paths)
-    ledger = Ledger(summary, notify)
-    load = functools.partial(_load, tables=tables, sweeps=sweeps)
-
-    def write(job, rig, depth):
-        index = {c.name: i for i, c in enumerate(rig.cameras)}
-        for camera, path in zip(job.cameras, job.out_paths):
-            cam = rig.cameras[index[camera]]
-            window = depth[index[camera], :cam.height, :cam.width]
-            message = write_failure(path, lambda: write_depth_png(path, window, compression=png_compression))
-            if message is not None:
-                ledger.fail(job.name, message)
-                return
-        ledger.done(job.name)
-
-    with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        written = []
-        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load,
-                                                 os_error=lambda job, err: f"cannot read: {err}"):
-            if message is not None:
-                ledger.fail(job.name, message)
-                continue
-            cloud, rig = loaded
-            try:
-                depth = complete_sources(cloud, rig, config=config)
-            except (JaxdepthError, ValueError) as err:
-                ledger.fail(job.name, f"completion failed: {err}")
-                continue
-            written.append(writers.submit(write, job, rig, depth))
-        for f in written:
-            f.result()
+    make_output_folders(p for job in todo for _, p in job.outputs)
+    run_cloud_jobs(todo, functools.partial(_load, tables=tables, sweeps=sweeps), summary, notify, config=config,
+                   png_compression=png_compression, io_threads=io_threads)
     return summary
 
 
-__all__ = ["run_av2", "plan", "find_logs", "is_av2_root", "output_path", "complete_sources"]
+__all__ = ["run_av2", "plan", "find_logs", "is_av2_root", "output_path"]
