@@ -283,6 +283,33 @@ def test_multisweep_accumulation_by_hand(dataroot):
         np.testing.assert_array_equal(got[len(kept):, 3:], kept[:, 3:])
 
 
+def test_sweep_cloud_sources(dataroot):
+    """sweep_cloud: the accumulated points, one source per sweep; the earlier sweep's LiDAR sat D_SWEEP_M
+    behind the key frame's (vehicle x), and its points about that origin are its raw file's."""
+    from jaxdepth.io import nuscenes as nusc
+    root, tables, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    key = t.tables["sample_data"]["lidar_s2"]
+    one = nusc.sweep_cloud(t, key, sweeps=1)
+    raw = np.fromfile(root / "samples" / "LIDAR_TOP" / "s2.pcd.bin", np.float32).reshape(-1, 5)
+    np.testing.assert_array_equal(one.points, raw[:, :3])
+    np.testing.assert_array_equal(one.T_ref_source, np.eye(4)[None])
+    np.testing.assert_array_equal(one.ring, raw[:, 4].astype(np.int32))
+    cloud = nusc.sweep_cloud(t, key, sweeps=3)  # the scene holds 2
+    stacked = nusc.accumulate_sweeps(t, key, sweeps=3)
+    np.testing.assert_array_equal(cloud.points, stacked[:, :3])
+    assert cloud.sweep.tolist() == [0, -1] and cloud.names == ("LIDAR_TOP@0", "LIDAR_TOP@-1")
+    R_lidar = oracle_pose(by_token(tables["calibrated_sensor"])["cs_lidar"])[:3, :3]
+    np.testing.assert_allclose(cloud.T_ref_source[1][:3, 3], R_lidar.T @ [-D_SWEEP_M, 0.0, 0.0], atol=1e-9)
+    earlier = cloud.points[cloud.source == 1].astype(np.float64)
+    T = cloud.T_ref_source[1]
+    kept = raw[~((np.abs(raw[:, 0]) < 1.0) & (np.abs(raw[:, 1]) < 1.0))]
+    np.testing.assert_allclose((earlier - T[:3, 3]) @ T[:3, :3], kept[:, :3], atol=1e-5)
+    inputs = nusc.sample_inputs(t, "s2", sweeps=2, sources=True)
+    np.testing.assert_array_equal(inputs.points, stacked)
+    np.testing.assert_array_equal(inputs.cloud.points, cloud.points)
+
+
 # ---------------------------------------------------------------- the job
 
 

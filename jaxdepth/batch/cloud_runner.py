@@ -32,15 +32,16 @@ class CloudJob:
     source: object
 
 
-def complete_sources(cloud, rig, *, config) -> np.ndarray:
+def complete_sources(cloud, rig, *, config, images=None) -> np.ndarray:
     """(C, H, W) float32 depth of every camera of ``rig`` (on the largest camera's canvas) from a SourceCloud.
 
-    The one completion call of the multi-source jobs.
+    The one completion call of the multi-source jobs. ``images``: (C, H, W[, 3]) uint8 camera images
+    on the canvas for image-guided seeds (``config.guidance_weight > 0``), else None.
     """
-    return _single_origin_completion(cloud, rig, config=config)
+    return _single_origin_completion(cloud, rig, config=config, images=images)
 
 
-def _single_origin_completion(cloud, rig, *, config) -> np.ndarray:
+def _single_origin_completion(cloud, rig, *, config, images=None) -> np.ndarray:
     """Interim: every source's points measured from one origin, the rig's ``lidar_origin_m`` (or the
     reference frame's origin), with ``rig.lidar`` times the number of LiDARs per sweep as beams."""
     from jaxdepth._src.rig import stack_cameras
@@ -56,7 +57,7 @@ def _single_origin_completion(cloud, rig, *, config) -> np.ndarray:
                           estimate=False)
     padded, valid = pad_points(frame.points)
     cameras = stack_cameras([c.as_camera() for c in frame.rig.cameras])
-    return np.asarray(_rig_depth_fn(config, frame.rig.lidar)(padded, valid, cameras))
+    return np.asarray(_rig_depth_fn(config, frame.rig.lidar)(padded, valid, cameras, images))
 
 
 @functools.lru_cache(maxsize=8)
@@ -65,8 +66,8 @@ def _rig_depth_fn(config, lidar):
 
     from jaxdepth._src.rig import complete_rig_stages
 
-    return jax.jit(lambda points, valid, cameras: complete_rig_stages(points, valid, cameras, config=config,
-                                                                      lidar=lidar).depth)
+    return jax.jit(lambda points, valid, cameras, images: complete_rig_stages(
+        points, valid, cameras, config=config, lidar=lidar, images=images).depth)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
