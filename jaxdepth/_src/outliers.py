@@ -507,14 +507,16 @@ def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
-def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height,
-               test="footprint"):
+def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
+               half_height, test="footprint"):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
     (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam or None, traced float32
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
-    Returns the (H, W) bool keep mask.
+    ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
+    pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
+    pixel still serves as a neighbour j). Returns the (H, W) bool keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -526,6 +528,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
     words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
                        footprint=test == "footprint")
+    if candidates is not None:
+        words = words & pack_bits(candidates)
     count, locate = _compact(words)
     ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test)
     return _exact_test(valid, ex)

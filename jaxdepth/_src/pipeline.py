@@ -77,9 +77,15 @@ def _seeds(keep, image, config: SGMConfig):
 
 
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig, image=None) -> Stages:
-    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
-    keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
+                   config: SGMConfig, image=None, keep=None) -> Stages:
+    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing.
+
+    ``keep``: optional (H, W) bool Step-2 mask computed by the caller (several
+    sources, each with its own viewpoint); None runs Algorithm 1 here.
+    """
+    if keep is None:
+        keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
+                                    points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
