@@ -374,6 +374,37 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
 
 
+def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
+    """sweeps=2: each sample's sweeps (s1: one, the scene's first; s2: two) go through complete_cloud as one
+    source per sweep; the job's bytes are a direct call's, and s2's differ from the single-sweep job's."""
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io import encode_depth_uint16
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.rig import Rig, RigCamera
+    from jaxdepth._src.presets import NUSCENES_HDL32
+    root, tables, _ = dataroot
+    single, _, _ = first_run
+    dst = tmp_path / "multi"
+    summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
+    assert sorted(summary.done) == ["s1", "s2"]
+    t = nusc.load_tables(root, VERSION)
+    changed = 0
+    for sample, count in (("s1", 1), ("s2", 2)):
+        inputs = nusc.sample_inputs(t, sample, sweeps=2, sources=True)
+        assert inputs.cloud.num_sources == count
+        rig = Rig(lidar=NUSCENES_HDL32, cameras=tuple(RigCamera(c.channel, c.width, c.height, c.K, c.T_cam_lidar)
+                                                      for c in inputs.cameras), lidar_origin_m=(0.0, 0.0, 0.0))
+        want = complete_cloud(inputs.cloud, rig, free_space=True)
+        for i, cam in enumerate(rig.cameras):
+            path = pathlib.Path(VERSION) / cam.name / f"{cam.name}_{sample}.png"
+            got = cv2.imread(str(dst / path), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(got, encode_depth_uint16(want[i, :cam.height, :cam.width]))
+            if sample == "s2":
+                changed += (dst / path).read_bytes() != (single / path).read_bytes()
+    assert changed > 0
+
+
 def test_command_line(dataroot, tmp_path, capsys):
     """`jaxdepth complete DATAROOT DST --nusc-version v1.0-mini`: exit 1 naming the bad sample, then 0 once
     it is fixed (the others are skipped); usage errors exit 2; a missing version lists the ones found."""

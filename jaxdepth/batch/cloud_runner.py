@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
-import functools
 import pathlib
 from typing import Callable
 
@@ -35,39 +34,15 @@ class CloudJob:
 def complete_sources(cloud, rig, *, config, images=None) -> np.ndarray:
     """(C, H, W) float32 depth of every camera of ``rig`` (on the largest camera's canvas) from a SourceCloud.
 
-    The one completion call of the multi-source jobs. ``images``: (C, H, W[, 3]) uint8 camera images
-    on the canvas for image-guided seeds (``config.guidance_weight > 0``), else None.
+    The one completion call of the multi-source jobs:
+    :func:`jaxdepth.batch.sources_job.complete_cloud` with free space on (range image, normals and
+    Algorithm 1's viewpoint per source; other sweeps' points in the reference sweep's free space
+    removed). ``images``: (C, H, W[, 3]) uint8 camera images on the canvas for image-guided seeds
+    (``config.guidance_weight > 0``), else None.
     """
-    return _single_origin_completion(cloud, rig, config=config, images=images)
+    from jaxdepth.batch.sources_job import complete_cloud
 
-
-def _single_origin_completion(cloud, rig, *, config, images=None) -> np.ndarray:
-    """Interim: every source's points measured from one origin, the rig's ``lidar_origin_m`` (or the
-    reference frame's origin), with ``rig.lidar`` times the number of LiDARs per sweep as beams."""
-    from jaxdepth._src.rig import stack_cameras
-    from jaxdepth._src.types import LidarSpec
-    from jaxdepth.io.points import pad_points
-    from jaxdepth.io.rig import Rig
-    from jaxdepth.io.sweep_frame import prepare_sweep
-
-    per_sweep = int(np.sum(cloud.sweep == 0))
-    lidar = LidarSpec(beams=per_sweep * rig.lidar.beams, fov_up_deg=rig.lidar.fov_up_deg,
-                      fov_down_deg=rig.lidar.fov_down_deg, columns=rig.lidar.columns)
-    frame = prepare_sweep(cloud.points, Rig(lidar=lidar, cameras=rig.cameras, lidar_origin_m=rig.lidar_origin_m),
-                          estimate=False)
-    padded, valid = pad_points(frame.points)
-    cameras = stack_cameras([c.as_camera() for c in frame.rig.cameras])
-    return np.asarray(_rig_depth_fn(config, frame.rig.lidar)(padded, valid, cameras, images))
-
-
-@functools.lru_cache(maxsize=8)
-def _rig_depth_fn(config, lidar):
-    import jax
-
-    from jaxdepth._src.rig import complete_rig_stages
-
-    return jax.jit(lambda points, valid, cameras, images: complete_rig_stages(
-        points, valid, cameras, config=config, lidar=lidar, images=images).depth)
+    return complete_cloud(cloud, rig, config=config, free_space=True, images=images)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
