@@ -6,18 +6,16 @@ Exit codes: 0 success, 1 data error (one-line message) or failed frames, 2 usage
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import pathlib
 import sys
 import time
 
-import numpy as np
-
 from jaxdepth import __version__
 from jaxdepth.batch import devices
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
+from jaxdepth.options import add_config_options, config_changes
 
 log = logging.getLogger("jaxdepth")
 
@@ -64,32 +62,6 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
     p.add_argument("--guidance-noise-floor", type=float, default=None, metavar="F",
                    help="colour differences up to F times the image's median step difference cost nothing "
                         "(default 0: GeoS's plain cost)")
-
-
-#: --hypotheses: the SGMConfig fields each of Step 4's variants sets.
-_HYPOTHESES = {"paper": dict(column_bracket=False, blend_hypotheses=False),
-               "bracket": dict(column_bracket=True, blend_hypotheses=False),
-               "blend": dict(column_bracket=True, blend_hypotheses=True)}
-
-
-def add_config_options(p: argparse.ArgumentParser) -> None:
-    """The SGMConfig options every completing command takes (``jaxdepth`` and the research commands)."""
-    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
-                   help="nearest-seed metric of the distance transform (default: l1, city block as in the paper; "
-                        "l2: Euclidean, SGM 1.5-1.8x slower)")
-    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
-    p.add_argument("--hypotheses", choices=tuple(_HYPOTHESES), default="bracket",
-                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
-                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
-                        "scan-line spacing), blend (also average in those pixels' own planes)")
-
-
-def config_changes(args) -> dict:
-    """SGMConfig fields set by :func:`add_config_options`' arguments."""
-    changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
-    if getattr(args, "epsilon", None) is not None:
-        changes["epsilon_m"] = args.epsilon
-    return changes
 
 
 def _config_from(args):
@@ -149,7 +121,7 @@ def cmd_complete(args) -> int:
     if args.extrinsic is not None and (args.camera is not None or args.calib_dir is not None):
         raise InputError("--extrinsic gives the extrinsic itself: use it without --camera / --calib-dir")
     if scan is not None:
-        jobs = scan.jobs
+        jobs = [runner.FrameJob.from_files(frame) for frame in scan.jobs]
     elif args.extrinsic is not None:
         T_fixed = read_extrinsic_txt(args.extrinsic)
         extrinsic_of = lambda path: T_fixed  # noqa: E731
@@ -157,8 +129,8 @@ def cmd_complete(args) -> int:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
         _ensure_writable_dir(dst)
-        from jaxdepth.io.kitti_datasets import make_output_folders
-        make_output_folders(jobs)
+        from jaxdepth.io.atomic import make_output_folders
+        make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
         if not src.exists():
             raise InputError(f"{src}: input file not found")
@@ -268,16 +240,8 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
 
 
 def _ensure_writable_dir(path: pathlib.Path):
-    from jaxdepth.io.errors import OutputError
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputError(f"{path}: cannot create output folder ({err.strerror or err})") from None
-    if not path.is_dir():
-        raise OutputError(f"{path}: output path exists and is not a folder")
-    import os
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: output folder is not writable")
+    from jaxdepth.io.atomic import ensure_output_dir
+    ensure_output_dir(path)
 
 
 def _report(summary, quiet: bool, *, t_start: float | None = None) -> int:
@@ -365,82 +329,35 @@ def _cmd_complete_nuscenes(args) -> int:
 
 
 def cmd_complete_rig(args) -> int:
-    import jaxdepth
-    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
-    from jaxdepth.io.points import ring_column
-
-    from jaxdepth.batch import extras as extra_outputs
+    from jaxdepth.batch.rig_job import run_rig_job
 
     usage = _extras_usage(args) or _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    extras = _extras_from(args)
-    config = _config_from(args)
-    rig = read_rig_json(args.rig)
-    images = _rig_images(args, rig) if config.guidance_weight > 0 else None
-    columns = infer_point_columns(args.points, args.point_columns)
-    points, extra = read_points(args.points, columns=columns)
-    frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=not args.no_estimate)
-    if not frame.outlier_removal_trusted and config.outlier_removal:
-        config = config.replace(outlier_removal=False)
-    if not args.quiet:
-        for note in frame.notes:
-            print(f"sweep: {note}", file=sys.stderr)
-    rig = frame.rig
-    padded, valid = pad_points(frame.points)
-    out_dir = pathlib.Path(args.out_dir)
-    _ensure_writable_dir(out_dir)
-    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
-    depth = np.asarray(stages.depth)
-    valid = distance = None
-    if extras.needs_seeds:
-        from jaxdepth._src.validity import rig_validity_and_distance
-        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
-            stages, cameras, lidar=rig.lidar, metric=config.distance_metric,
-            max_seed_distance_px=extras.max_seed_distance_px))
-    seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
-    for i, camera in enumerate(rig.cameras):
-        if seen[i] == 0:
-            message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
-                       f"(check T_cam_lidar in {args.rig}: it maps the sweep's frame into the camera, which "
-                       "looks along +z, x right, y down)")
-            log.warning("%s", message)
-            print(f"warning: {message}", file=sys.stderr)
-        target = out_dir / f"{camera.name}.png"
-        if extra_outputs.is_done(target, extras) and not args.overwrite:
-            print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
-            continue
-        window = (i, slice(0, camera.height), slice(0, camera.width))
-        extra_outputs.write_outputs(target, depth[window], extras=extras,
-                                    valid=None if valid is None else valid[window],
-                                    distance=None if distance is None else distance[window],
-                                    overwrite=args.overwrite)
-        if not args.quiet:
-            valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
-            print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
-    return 0
 
+    def report(kind: str, text: str) -> None:
+        if kind == "warning":
+            print(f"warning: {text}", file=sys.stderr)
+        elif kind == "skipped":
+            print(text, file=sys.stderr)
+        elif kind == "note" and not args.quiet:
+            print(f"sweep: {text}", file=sys.stderr)
+        elif kind == "written" and not args.quiet:
+            print(text)
 
-def _rig_images(args, rig):
-    """complete-rig's (C, H, W[, 3]) uint8 camera images: --image-dir, else the rig JSON's image fields."""
-    from jaxdepth.io.rig_images import read_rig_images, rig_image_paths
-    paths = rig_image_paths(rig.cameras, image_dir=args.image_dir, rig_json=args.rig,
-                            json_images={c.name: c.image for c in rig.cameras if c.image is not None})
-    return read_rig_images(paths, rig.cameras)
+    summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args), extras=_extras_from(args),
+                          point_columns=args.point_columns, estimate=not args.no_estimate, image_dir=args.image_dir,
+                          overwrite=args.overwrite, report=report)
+    return summary.exit_code
 
 
 def cmd_eval(args) -> int:
     from jaxdepth.research import evaluation
-    from jaxdepth.io.atomic import atomic_write_bytes
     table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
     for line in evaluation.format_table(table):
         print(line)
-    if args.json:
-        atomic_write_bytes(pathlib.Path(args.json), json.dumps(table, indent=2, sort_keys=True).encode())
-    if args.csv:
-        atomic_write_bytes(pathlib.Path(args.csv), evaluation.format_csv(table).encode())
+    evaluation.write_table(table, json_path=args.json, csv_path=args.csv)
     return 0
 
 

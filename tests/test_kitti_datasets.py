@@ -20,6 +20,7 @@ from jaxdepth.batch import runner
 from jaxdepth.io import (encode_depth_uint16, pad_points, read_depth_png, read_kitti_raw_calib, read_points,
                          rig_from_kitti_object, rig_from_kitti_raw)
 from jaxdepth.io import kitti_datasets
+from jaxdepth.io.atomic import make_output_folders
 from jaxdepth.io.calib import read_kitti_object_calib
 
 from conftest import require_shared
@@ -273,11 +274,11 @@ def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""
     from jaxdepth.batch import scale
     scan = kitti_datasets.kitti_raw_jobs(raw_tree / DATE_A, tmp_path / "ray", crop=True)
-    records = [scale._record(job) for job in scan.jobs]
+    records = [scale._record(runner.FrameJob.from_files(frame)) for frame in scan.jobs]
     assert [j.image_size for j in scale._jobs_from_batch({k: [r[k] for r in records] for k in records[0]})] == \
         [(352, 1216)] * 2
     batch = {key: np.array([r[key] for r in records], dtype=object) for key in records[0]}
-    kitti_datasets.make_output_folders(scan.jobs)
+    make_output_folders(job.out_path for job in scan.jobs)
     actor = scale._CompleteFrames(method="sgm", config=jaxdepth.SGMConfig(), lidar=jaxdepth.KITTI_HDL64,
                                   T_cam_lidar=np.eye(4), batch_size=2)
     rows = actor(batch)

@@ -42,14 +42,17 @@ from jaxdepth._src.types import LidarSpec
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png
+from jaxdepth.io.kitti_datasets import FrameFiles
 
 log = logging.getLogger("jaxdepth")
 
 
 @dataclasses.dataclass(frozen=True)
-class FrameJob:
-    """One frame to complete: input PNG, intrinsics (file or matrix), output PNG, and optionally the
-    frame's own LiDAR -> camera extrinsic ``T_cam_lidar`` (4, 4) (None: the run's default).
+class FrameJob(FrameFiles):
+    """One frame to complete: a :class:`~jaxdepth.io.kitti_datasets.FrameFiles` (input PNG or
+    sweep, output PNG, ``K``, the frame's own ``T_cam_lidar`` or None for the run's default,
+    camera image) and, for selection folders, the intrinsics file ``intrinsics_path`` read
+    when ``K`` is None.
 
     A *sweep job* (``image_size`` set) reads a LiDAR sweep from ``sparse_path`` instead
     (``.bin`` float32 records of ``point_columns`` values, x, y, z first, metres; None:
@@ -65,16 +68,12 @@ class FrameJob:
     whose 352 x 1216 benchmark crop the job completes (cut the same way).
     """
 
-    name: str
-    sparse_path: pathlib.Path
-    out_path: pathlib.Path
     intrinsics_path: pathlib.Path | None = None
-    K: np.ndarray | None = None
-    T_cam_lidar: np.ndarray | None = None
-    image_size: tuple[int, int] | None = None
-    point_columns: int | None = None
-    image_path: pathlib.Path | None = None
-    image_crop_from: tuple[int, int] | None = None
+
+    @classmethod
+    def from_files(cls, files: FrameFiles) -> "FrameJob":
+        """The job of one frame a dataset discovery function listed."""
+        return cls(**{field.name: getattr(files, field.name) for field in dataclasses.fields(FrameFiles)})
 
 
 @dataclasses.dataclass

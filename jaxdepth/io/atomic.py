@@ -173,6 +173,24 @@ def make_output_folders(paths) -> int:
     return len(folders)
 
 
+def ensure_output_dir(path) -> pathlib.Path:
+    """Creates the output folder ``path`` (and parents) and checks that it is a writable folder.
+
+    Raises:
+      OutputError: the folder cannot be created, is a file, or is not writable (named).
+    """
+    path = pathlib.Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{path}: cannot create output folder ({err.strerror or err})") from None
+    if not path.is_dir():
+        raise OutputError(f"{path}: output path exists and is not a folder")
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: output folder is not writable")
+    return path
+
+
 def encode_png(array: np.ndarray) -> bytes:
     """Encodes an image as PNG bytes with OpenCV (fixed settings: deterministic bytes).
 

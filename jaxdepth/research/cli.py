@@ -47,7 +47,7 @@ import sys
 
 import numpy as np
 
-from jaxdepth.cli import add_config_options, config_changes
+from jaxdepth.options import add_config_options, config_changes
 from jaxdepth.io.errors import InputError, JaxdepthError
 
 
@@ -347,7 +347,7 @@ _POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
                                           help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
 
 # subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
-# the SGM options of jaxdepth.cli.add_config_options.
+# the SGM options of jaxdepth.options.add_config_options.
 _SUBCOMMANDS = {
     "ablation": ("the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth", cmd_ablation, (
         ("src", dict(help="folder with velodyne_raw/*.png and intrinsics/*.txt")),

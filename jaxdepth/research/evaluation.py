@@ -285,3 +285,15 @@ def format_csv(table: dict) -> str:
         writer.writerow([name] + [repr(float(m[k])) for k in METRIC_KEYS]
                         + [str(pred_root / pair["prediction"]), str(gt_root / pair["ground_truth"])])
     return out.getvalue()
+
+
+def write_table(table: dict, *, json_path=None, csv_path=None) -> None:
+    """Writes :func:`evaluate_folders`' table atomically: the whole table as JSON (sorted keys,
+    indent 2) to ``json_path`` and :func:`format_csv` to ``csv_path`` (None: not written)."""
+    import json
+
+    from jaxdepth.io.atomic import atomic_write_bytes
+    if json_path:
+        atomic_write_bytes(pathlib.Path(json_path), json.dumps(table, indent=2, sort_keys=True).encode())
+    if csv_path:
+        atomic_write_bytes(pathlib.Path(csv_path), format_csv(table).encode())

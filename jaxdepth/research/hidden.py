@@ -41,7 +41,7 @@ from jaxdepth._src.geometry import project_to_image
 from jaxdepth._src.ip_basic import ip_basic
 from jaxdepth._src.metrics import depth_metrics
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.rig import RigCameras, _complete_rig_stages
+from jaxdepth._src.rig import RigCameras, complete_rig_stages
 from jaxdepth._src.types import LidarSpec
 
 
@@ -161,12 +161,12 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar, cover
     valid = jnp.asarray(valid, bool)
     hidden = jnp.asarray(hidden, bool) & valid
     given = valid & ~hidden
-    stages = _complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
-    plain = _complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
+    stages = complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
+    plain = complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
     if config.distance_metric == "l2":
         euclid = plain.seed_depth
     else:
-        euclid = _complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
+        euclid = complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
             outlier_removal=False, distance_metric="l2")).seed_depth
 
     def z_buffer(mask):
