@@ -78,3 +78,21 @@ def test_layout_detection_and_errors(tmp_path):
         av2_job.run_av2(root, tmp_path, sweeps=-1)
     summary = av2_job.run_av2(root, tmp_path, cameras=["no_such_camera"])
     assert summary.failed and "sensor_name" in summary.failed[0][1] and not summary.done
+
+
+def test_command_line_detects_the_log(tmp_path, capsys):
+    """``jaxdepth complete LOG DST`` finds the Argoverse 2 layout; options that do not apply are usage errors."""
+    from jaxdepth import cli
+
+    root = require_shared(*LOG)
+    dst = tmp_path / "cli"
+    assert cli.main(["complete", str(root), str(dst), "--cameras", CAMERA, "-q"]) == 0
+    log = av2.read_log(root)
+    outs = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*.png"))
+    assert outs == [f"{LOG[-1]}/{CAMERA}/{ts}.png" for ts in log.sweeps]
+    assert read_depth_png(dst / outs[0]).shape == (1550, 2048)
+    capsys.readouterr()
+    for extra in (["--camera", "2"], ["--method", "nearest"], ["--sweeps", "-1"], ["--guidance-weight", "2"],
+                  ["--preview"]):
+        assert cli.main(["complete", str(root), str(dst), "-q"] + extra) == 2, extra
+        assert "error" in capsys.readouterr().err

@@ -100,3 +100,25 @@ def test_analytic_wall_depth_helper_is_consistent():
     z = _wall_depth(K, T_cam_lidar, np.eye(4), 100, 100, frame=2)
     assert z[50, 50] == pytest.approx(WALL_X - 2.0, abs=1e-9)
     assert math.isclose(z[0, 50], 0.0) or z[0, 50] > z[50, 50]
+
+
+def test_command_line_sweeps(drive, tmp_path, capsys):
+    """``jaxdepth complete DRIVE DST --sweeps 1`` runs this job (same bytes as the API); --sweeps on a folder
+    that is no KITTI raw drive is a data error; --sweeps 0 is the single-sweep path."""
+    from jaxdepth import cli
+    drive, _ = drive
+    api = tmp_path / "api"
+    scan = kitti_datasets.kitti_raw_jobs(drive, api, camera=2)
+    kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
+    dst = tmp_path / "cli"
+    assert cli.main(["complete", str(drive), str(dst), "--sweeps", "1", "--camera", "2", "-q"]) == 0
+    outs = sorted(p.relative_to(dst) for p in dst.rglob("*.png"))
+    assert len(outs) == 4
+    assert all((dst / p).read_bytes() == (api / p).read_bytes() for p in outs)
+    assert cli.main(["complete", str(drive), str(tmp_path / "x"), "--sweeps", "1", "--guidance-weight", "2", "-q"]) == 2
+    assert cli.main(["complete", str(drive), str(tmp_path / "x"), "--cameras", "image_02", "-q"]) == 2
+    flat = tmp_path / "flat"
+    flat.mkdir()
+    (flat / "a.png").write_bytes(b"")
+    assert cli.main(["complete", str(flat), str(tmp_path / "y"), "--sweeps", "2", "-q"]) == 1
+    assert "--sweeps applies to KITTI raw drives" in capsys.readouterr().err
