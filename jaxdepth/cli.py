@@ -531,13 +531,13 @@ def _add_complete_command(sub) -> None:
 def _add_complete_rig_command(sub) -> None:
     p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
     p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
-    p.add_argument("rig", help="rig JSON (see README: lidar beams, cameras with K and T_cam_lidar)")
+    p.add_argument("rig", help="rig JSON (see docs/rig_json.md: lidar beams, cameras with K and T_cam_lidar)")
     p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
     p.add_argument("--point-columns", type=int, default=None,
                    help="float32 values per .bin record (default: 5 for *.pcd.bin, else the one of 4 or 5 that "
                         "the file size fits; a size that fits both must be given)")
     p.add_argument("--no-estimate", action="store_true",
-                   help="do not check the sweep against its LiDAR (see README, Rig JSON: lidar.origin_m)")
+                   help="do not check the sweep against its LiDAR (see docs/rig_json.md: lidar.origin_m)")
     _add_method_options(p, methods=("sgm",))
     p.add_argument("--image-dir", default=None, metavar="DIR",
                    help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "

@@ -23,7 +23,7 @@ from every 4th row and column) and floored at 0:
 
 so a textured or noisy surface costs what a flat one does and only real
 edges are charged, whatever the image's exposure and compression.  Measured
-(README "Image-guided seeds"): it helps on the synthetic renders and not on
+(docs/method.md, docs/studies.md): it helps on the synthetic renders and not on
 the real KITTI and nuScenes photographs, hence off by default.  The costs stay
 positive and symmetric, so everything below holds unchanged.
 
@@ -51,7 +51,7 @@ pixel whose shortest path must wind around an edge (e.g. enter a U-shaped
 region through its opening) keeps a longer path, so it may pick a seed
 that is geodesically farther than the best one; it never picks an unreachable
 or invalid seed.  Measured on the KITTI frame's inlier mask and colour image
-(benchmarks/geodesic_sweeps.py, against 16 sweeps): after 2 sweeps 0.9 % of
+(benchmarks/studies/geodesic_sweeps.py, against 16 sweeps): after 2 sweeps 0.9 % of
 the pixels have another seed at colour_weight 1, 2.5 % at 2, 6.7 % at 10 and
 19 % at 50; after 4 sweeps 0.06 / 0.2 / 2.1 / 8 %.  Larger weights make
 shortest paths wind more and need more sweeps.

@@ -166,8 +166,9 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
              image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
 
-    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
-    exactly what a Python loop gives.
+    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics equals a
+    Python loop of single-frame calls to float32 rounding (XLA may fuse the batched
+    body differently).
 
     Examples:
       Two rows of LiDAR returns at the bottom of an 8 x 12 image:

@@ -30,7 +30,7 @@ _UP_FILTER = 2  # PNG row filter type "Up": each byte minus the byte above it
 #: zlib level of the depth PNGs jaxdepth writes (0 = stored, 9 = smallest; any level decodes to
 #: the same values, and KITTI's devkit reads them all). Measured on a completed 352x1216 KITTI
 #: frame: level 1 encodes in ~1/3 of the time of OpenCV's level 3 for ~8 % more bytes (340 vs
-#: 315 kB); level 0 takes ~1 ms but writes 857 kB. See README, Command line.
+#: 315 kB); level 0 takes ~1 ms but writes 857 kB. See docs/cli.md.
 DEFAULT_PNG_COMPRESSION = 1
 
 

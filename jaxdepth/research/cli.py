@@ -373,7 +373,7 @@ _SUBCOMMANDS = {
         _POINT_COLUMNS,
         ("--fraction", dict(type=float, default=0.2, help="share of the points held out (default 0.2)")),
         ("--no-estimate", dict(action="store_true", help="do not estimate the LiDAR's position / field of view "
-                                                         "from the sweep (see README, Rig JSON)")),
+                                                         "from the sweep (see docs/rig_json.md)")),
         ("--seeds", dict(type=int, nargs="+", default=[0, 1, 2, 3, 4],
                          help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")),
         ("--scale", dict(type=float, default=1.0, help="scale of every camera's image size and K (default 1)")),

@@ -21,7 +21,7 @@ on both sides of it (above and below within one scan-line spacing, or left and
 right). The test reads only the sweep (every valid point, held out or not) and
 the camera; it is independent of Algorithm 1 and of every method's output, so
 it cannot grade a method with itself. On the synthetic sensors with exact depth
-(``benchmarks/protocol_bias.py``) it drops 0.7-1.8 % of the targets, 63-85 % of
+(``benchmarks/studies/protocol_bias.py``) it drops 0.7-1.8 % of the targets, 63-85 % of
 them wrong by metres, and 83-85 % of the wrong ones on 64 and 128 beams; on 16
 and 32 beams it finds only 35-50 % of them (edges seen from one side), so there
 it removes part of the protocol's bias, not all of it.

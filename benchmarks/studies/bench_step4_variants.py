@@ -8,7 +8,7 @@ and IP_Basic's OpenCV fast mode
 ``--rounds`` times (``block_until_ready`` before every clock read), so each sees the same machine
 state; medians and the ratio to the default are reported.
 
-    PYTHONPATH=. python benchmarks/bench_step4_variants.py [--rounds 100] [--json benchmarks/results/step4_variants.json]
+    PYTHONPATH=. python -m benchmarks.studies.bench_step4_variants [--rounds 100] [--json benchmarks/results/step4_variants.json]
 """
 
 from __future__ import annotations
@@ -21,12 +21,9 @@ import time
 import jax
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_kitti import FRAME, load_frames, load_images  # noqa: E402
-from accuracy_rigs import write_results  # noqa: E402
+from benchmarks._common import FRAME, ROOT, load_frames, load_images, write_results  # noqa: E402
 from jaxdepth.research.baselines import ip_basic_opencv  # noqa: E402
 
 VARIANTS = {

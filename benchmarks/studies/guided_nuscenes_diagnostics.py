@@ -8,7 +8,7 @@ shifted 6 px left or right (a misalignment test: if the image were offset from t
 shift would help); and guided at weight 5. Diagnostic only: this is a report set, so nothing
 here chooses a default or a weight.
 
-    PYTHONPATH=. python benchmarks/guided_nuscenes_diagnostics.py [--json benchmarks/results/guided_nuscenes_diagnostics.json]
+    PYTHONPATH=. python -m benchmarks.studies.guided_nuscenes_diagnostics [--json benchmarks/results/guided_nuscenes_diagnostics.json]
 """
 
 from __future__ import annotations
@@ -22,11 +22,9 @@ import cv2
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import ablation_guided as ag  # noqa: E402
-from accuracy_rigs import write_results  # noqa: E402
+from benchmarks.studies import ablation_guided as ag  # noqa: E402
+from benchmarks._common import ROOT, write_results  # noqa: E402
 from jaxdepth import SGMConfig  # noqa: E402
 
 GUIDED = SGMConfig(guidance_weight=50.0)

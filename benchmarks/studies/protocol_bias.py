@@ -1,6 +1,6 @@
 """Does the hidden-point protocol rank methods as the truth does? Synthetic sweeps with exact depth.
 
-    PYTHONPATH=. python benchmarks/protocol_bias.py [--json benchmarks/results/protocol_bias.json]
+    PYTHONPATH=. python -m benchmarks.studies.protocol_bias [--json benchmarks/results/protocol_bias.json]
         [--zoo-seeds 0 1] [--hidden-seeds 0 1] [--zoo-scale 0.5] [--sensors "spin32 sensor frame" ...]
 
 The real held-out rows of the README (KITTI sweeps, nuScenes) score every method against the
@@ -34,12 +34,10 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_rigs import prepared_zoo_frame, write_results  # noqa: E402
+from benchmarks._common import ROOT, write_results  # noqa: E402
+from benchmarks.accuracy_rigs import prepared_zoo_frame  # noqa: E402
 from jaxdepth._src.geometry import project_to_image  # noqa: E402
 from jaxdepth.research.hidden import covered_targets, default_cover_half_height_px, hidden_point_mask  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402

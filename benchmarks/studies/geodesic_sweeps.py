@@ -6,7 +6,7 @@ mask of the official sparse input, the colour image in [0, 1]) this compares
 sweeps): the share of pixels whose distance is still larger, of pixels whose
 seed differs, and the mean excess distance in pixels.
 
-    python benchmarks/geodesic_sweeps.py [--json benchmarks/results/geodesic_sweeps.json]
+    python -m benchmarks.studies.geodesic_sweeps [--json benchmarks/results/geodesic_sweeps.json]
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ import numpy as np
 from jaxdepth import complete_stages
 from jaxdepth._src.geodesic import geodesic_seed
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from accuracy_guided import FRAME, ROOT, gt_frames  # noqa: E402
+from benchmarks._common import FRAME, ROOT, load_frames, load_images
 
 WEIGHTS = (1.0, 2.0, 10.0, 50.0)
 
@@ -36,7 +35,9 @@ def main(argv=None):
         print(f"shared data not found: {FRAME}", file=sys.stderr)
         return 1
     result = {"reference_sweeps": args.reference, "rows": []}
-    for name, (sparse, _, K, T, image) in gt_frames().items():
+    images = load_images()
+    for name, (sparse, _, K, T) in load_frames().items():
+        image = images[name]
         keep = np.asarray(complete_stages(sparse, K, T).inlier_mask)
         img = image.astype(np.float32) / 255.0
         for w in WEIGHTS:

@@ -11,7 +11,7 @@ XDG_CACHE_HOME, filled by one untimed run of each command):
 - ``--loop`` sweeps of ``jaxdepth complete-rig SWEEP.bin rig.json OUT/`` (the same cameras,
   from ``rig_from_kitti_raw(crop=True)``; it also runs the sweep check of ``prepare_sweep``).
 
-    python benchmarks/bench_kitti_raw.py [--sweeps 16] [--loop 4]
+    python -m benchmarks.studies.bench_kitti_raw [--sweeps 16] [--loop 4]
 
 Prints wall times and per-sweep costs; nothing is written into the repository.
 """
@@ -27,7 +27,7 @@ import sys
 import tempfile
 import time
 
-REPO = pathlib.Path(__file__).resolve().parent.parent
+from benchmarks._common import ROOT as REPO
 SHARED = REPO.parent / "shared" / "data" / "kitti"
 
 
@@ -62,7 +62,6 @@ def main() -> None:
         date = build_tree(tmp / "raw", opts.sweeps)
         env = {**os.environ, "XDG_CACHE_HOME": str(tmp / "cache"), "JAXDEPTH_COMPILE_CACHE": "1",
                "PYTHONPATH": str(REPO)}
-        sys.path.insert(0, str(REPO))
         from jaxdepth.io import rig_from_kitti_raw, write_rig_json
         rig = rig_from_kitti_raw(date / "calib_cam_to_cam.txt", date / "calib_velo_to_cam.txt", crop=True)
         write_rig_json(tmp / "rig.json", rig)

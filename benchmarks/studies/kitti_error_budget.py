@@ -21,7 +21,7 @@ for the LiDAR-only default and the guided SGM (weight 50, the ablation's choice)
 Every figure is the mean over the two images of the KITTI devkit RMSE / MAE (mm). Nothing
 here chooses a default.
 
-    PYTHONPATH=. python benchmarks/kitti_error_budget.py [--json benchmarks/results/kitti_error_budget.json]
+    PYTHONPATH=. python -m benchmarks.studies.kitti_error_budget [--json benchmarks/results/kitti_error_budget.json]
 """
 
 from __future__ import annotations
@@ -35,12 +35,9 @@ import cv2
 import jax
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
-from accuracy_kitti import FRAME, load_frames, load_images  # noqa: E402
-from accuracy_rigs import write_results  # noqa: E402
+from benchmarks._common import FRAME, ROOT, load_frames, load_images, write_results  # noqa: E402
 from jaxdepth import SGMConfig, depth_metrics  # noqa: E402
 from jaxdepth._src.residual import plane_residual  # noqa: E402
 from jaxdepth._src.presets import KITTI_HDL64  # noqa: E402

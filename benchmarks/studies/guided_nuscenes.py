@@ -15,7 +15,7 @@ Time per sample: ``complete_rig`` on the whole sweep (jit-compiled first),
 median of ``--repeats`` interleaved calls with ``block_until_ready``; the
 images go in as uint8 NumPy (their host -> device copy is included).
 
-    python benchmarks/guided_nuscenes.py [--weights 1 5] [--seeds 0 1 2 3 4] [--json OUT]
+    python -m benchmarks.studies.guided_nuscenes [--weights 1 5] [--seeds 0 1 2 3 4] [--json OUT]
 """
 
 from __future__ import annotations
@@ -36,8 +36,9 @@ from jaxdepth._src.rig import _complete_rig_stages, stack_cameras
 from jaxdepth.io import pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
 from jaxdepth.io.rig_images import read_rig_images
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-SAMPLE = ROOT.parent / "shared" / "data" / "nuscenes" / "sample"
+from benchmarks._common import DATA, ROOT
+
+SAMPLE = DATA / "nuscenes" / "sample"
 KEYS = ("rmse", "mae", "irmse", "imae")
 
 

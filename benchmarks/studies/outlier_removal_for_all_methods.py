@@ -1,7 +1,7 @@
 """Does the paper's outlier removal help other methods? Each method with and without it on the real
 KITTI frame (cameras 2 and 3, 352x1216 crop, devkit metrics averaged over both).
 
-    python benchmarks/outlier_removal_for_all_methods.py [--json benchmarks/results/outlier_removal_methods.json]
+    python -m benchmarks.studies.outlier_removal_for_all_methods [--json benchmarks/results/outlier_removal_methods.json]
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ import numpy as np
 
 from jaxdepth import SGMConfig, complete_with, depth_metrics
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from accuracy_kitti import FRAME, ROOT, load_frames  # noqa: E402
+from benchmarks._common import FRAME, ROOT, load_frames
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
 """Issue 16's ablation: LiDAR-only SGM, + blending, + image guidance, + both, nearest fill, IP_Basic.
 
-    PYTHONPATH=. python benchmarks/ablation_guided.py [--quick] [--json PATH] [--repeats N]
+    PYTHONPATH=. python -m benchmarks.studies.ablation_guided [--quick] [--json PATH] [--repeats N]
 
 Writes benchmarks/results/ablation_guided.json (``--quick``: ablation_guided_quick.json) atomically.
 
@@ -59,9 +59,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import jaxdepth  # noqa: E402
 from jaxdepth import SGMConfig  # noqa: E402
@@ -71,9 +68,8 @@ from jaxdepth._src.types import Camera, LidarSpec  # noqa: E402
 from jaxdepth.io.guidance_images import decode_camera_image  # noqa: E402
 from jaxdepth.research.hidden import hidden_point_mask  # noqa: E402
 
-from accuracy_rigs import write_results  # noqa: E402
+from benchmarks._common import DATA, ROOT, load_frames, load_images, write_results  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data"
 KEYS = ("rmse", "mae", "irmse", "imae")
 WEIGHTS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)   # 20 and 50 added when 10, the edge of the first grid, won
 QUICK_WEIGHTS = (1.0, 5.0)
@@ -120,7 +116,6 @@ class Item:
 
 
 def kitti_gt_frames():
-    from accuracy_kitti import load_frames, load_images
     images = load_images()
     frames = []
     for name, (sparse, gt, K, T) in load_frames().items():
