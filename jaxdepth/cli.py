@@ -378,6 +378,8 @@ def _cmd_complete_nuscenes(args) -> int:
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
     elif args.sweeps is not None and args.sweeps < 1:
         usage = f"--sweeps with --nusc-version expected an integer >= 1 (sweeps per sample), got {args.sweeps}"
+    elif (args.sweeps or 1) > 1 and _extras_from(args).needs_seeds:
+        usage = "--validity, --seed-distance and --zero-invalid need --sweeps 1 with --nusc-version"
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2

@@ -561,3 +561,16 @@ def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, firs
     bad.write_bytes(good)
     again = run_nuscenes(root, dst, version=VERSION, config=config)
     assert again.done == ["s2"] and again.skipped == ["s1"] and [n for n, _ in again.failed] == ["s3"]
+
+
+def test_multisweep_refuses_seed_extras(dataroot, tmp_path, capsys):
+    from jaxdepth import cli
+    from jaxdepth.batch import extras as extra_outputs
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+    root, _, _ = dataroot
+    with pytest.raises(ValueError, match="need sweeps = 1"):
+        run_nuscenes(root, tmp_path / "o", version=VERSION, sweeps=2,
+                     extras=extra_outputs.ExtraOutputs(validity=True))
+    assert cli.main(["complete", str(root), str(tmp_path / "o"), "--nusc-version", VERSION, "--sweeps", "2",
+                     "--validity", "-q"]) == 2
+    assert "need --sweeps 1" in capsys.readouterr().err

@@ -248,6 +248,8 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     """
     import jax
 
+    if sweeps > 1 and extras.needs_seeds:
+        raise ValueError("nuScenes job: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.batch.cloud_runner import complete_sources
     from jaxdepth.batch.runner import is_guided, read_ahead
