@@ -52,8 +52,7 @@ LIDARS = (("up_lidar", 0), ("down_lidar", 32))
 LASERS_PER_LIDAR = 32
 
 _POSE_COLUMNS = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
-_INTRINSIC_COLUMNS = ("fx_px", "fy_px", "cx_px", "cy_px", "height_px", "width_px")
-_POINT_COLUMNS = ("x", "y", "z", "laser_number")
+_INTRINSIC_COLUMNS = {"fx_px": "f", "fy_px": "f", "cx_px": "f", "cy_px": "f", "height_px": "i", "width_px": "i"}
 
 
 def _pyarrow_feather():
@@ -191,9 +190,7 @@ def read_log(folder: PathLike) -> Av2Log:
     sensor_poses = {}
     for i, name in enumerate(cal["sensor_name"]):
         sensor_poses[str(name)] = _pose_or_error(cal, i, log_paths["calibration"], str(name))
-    intr = read_feather_columns(log_paths["intrinsics"],
-                                {"sensor_name": "U", **{k: ("i" if k.endswith("_px") and k[0] in "hw" else "f")
-                                                        for k in _INTRINSIC_COLUMNS}},
+    intr = read_feather_columns(log_paths["intrinsics"], {"sensor_name": "U", **_INTRINSIC_COLUMNS},
                                 expected="the camera intrinsics")
     intrinsics = {}
     for i, name in enumerate(intr["sensor_name"]):
@@ -346,16 +343,14 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0)
     offsets = [0]
     for k in range(1, int(sweeps) + 1):
         offsets += [o for o in (-k, k) if 0 <= ref + o < len(log.sweeps)]
-    ref_from_city = None
+    from jaxdepth.io.nuscenes import invert_pose
+
+    ref_from_city = invert_pose(ego_pose(log, log.sweeps[ref])) if len(offsets) > 1 else None
     lidar_poses = [log.sensor_pose(name) for name, _ in LIDARS]
     points, source, ring, T_ref_source, sweep_ids, names = [], [], [], [], [], []
     for offset in offsets:
         t = log.sweeps[ref + offset]
-        city_T_ego = ego_pose(log, t)
-        if ref_from_city is None:
-            from jaxdepth.io.nuscenes import invert_pose
-            ref_from_city = invert_pose(city_T_ego)
-        T_ref_sweep = np.eye(4) if offset == 0 else ref_from_city @ city_T_ego
+        T_ref_sweep = np.eye(4) if offset == 0 else ref_from_city @ ego_pose(log, t)
         xyz, laser = read_sweep(log.sweep_path(t))
         moved = xyz if offset == 0 else (xyz.astype(np.float64) @ T_ref_sweep[:3, :3].T
                                         + T_ref_sweep[:3, 3]).astype(np.float32)
