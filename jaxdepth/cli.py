@@ -102,14 +102,8 @@ def cmd_complete(args) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
-        return _cmd_complete_nuscenes(args)
-    from jaxdepth.batch.av2_job import is_av2_root
-    if is_av2_root(args.src):  # an Argoverse 2 log (or a folder of logs): its own job
-        return _cmd_complete_av2(args)
-    if args.cameras is not None:
-        print("jaxdepth: error: --cameras applies to Argoverse 2 logs", file=sys.stderr)
-        return 2
+    if (code := _complete_own_job(args)) is not None:  # nuScenes, Argoverse 2, KITTI raw --sweeps
+        return code
     usage = _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
@@ -121,11 +115,6 @@ def cmd_complete(args) -> int:
         raise InputError(f"{src}: a KITTI depth-completion train/val tree holds no camera images; for "
                          "--guidance-weight pass --image-dir with the KITTI raw root "
                          "(DIR/<date>/<drive>/image_0X/data/<frame>.png)")
-    if args.sweeps is not None and args.sweeps != 0:
-        if scan is None or scan.layout != "kitti-raw":
-            raise InputError(f"{src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
-                             "(--nusc-version)")
-        return _cmd_complete_kitti_sweeps(args, scan)
     pre_failed = [] if scan is None else scan.failed
     if scan is None and getattr(args, "crop", False):
         raise InputError(f"{src}: --crop needs a KITTI raw or object folder (LiDAR sweeps)")
@@ -184,6 +173,24 @@ def cmd_complete(args) -> int:
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 
 
+def _complete_own_job(args) -> int | None:
+    """Runs ``complete`` on a layout with its own job (a nuScenes dataroot with --nusc-version, an Argoverse 2
+    log or folder of logs, KITTI raw drives with --sweeps N > 0) and returns the exit code; None for the
+    other layouts."""
+    if getattr(args, "nusc_version", None) is not None:
+        return _cmd_complete_nuscenes(args)
+    from jaxdepth.batch.av2_job import is_av2_root
+    if is_av2_root(args.src):
+        return _cmd_complete_av2(args)
+    if args.cameras is not None:
+        print("jaxdepth: error: --cameras applies to Argoverse 2 logs", file=sys.stderr)
+        return 2
+    if args.sweeps:
+        src = pathlib.Path(args.src)
+        return _cmd_complete_kitti_sweeps(args, _discover_dataset(src, pathlib.Path(args.dst), args))
+    return None
+
+
 def _multi_source_usage(args, what: str) -> str | None:
     """Why the options given cannot be used with a multi-source job (None: they can)."""
     if args.method != "sgm":
@@ -228,7 +235,11 @@ def _cmd_complete_av2(args) -> int:
 def _cmd_complete_kitti_sweeps(args, scan) -> int:
     """``jaxdepth complete KITTI_RAW DST --sweeps N`` (N > 0): each sweep with N neighbours on each side."""
     from jaxdepth.batch.kitti_sweeps_job import run_kitti_raw_sweeps
+    from jaxdepth.io.errors import InputError
 
+    if scan is None or scan.layout != "kitti-raw":
+        raise InputError(f"{args.src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
+                         "(--nusc-version)")
     usage = _multi_source_usage(args, "--sweeps")
     if usage is None and args.sweeps < 0:
         usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
