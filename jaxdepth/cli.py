@@ -128,7 +128,8 @@ def cmd_complete(args) -> int:
     else:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
-        _ensure_writable_dir(dst)
+        _claim_output_folder(dst, args, inputs=[src], out_paths=[job.out_path for job in jobs], crop=args.crop,
+                             camera=args.camera)
         from jaxdepth.io.atomic import make_output_folders
         make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
@@ -137,6 +138,8 @@ def cmd_complete(args) -> int:
         if args.intrinsics is None:
             raise InputError(f"{src}: a single image needs --intrinsics K.txt (9 numbers, row-major K)")
         image_of = _image_finder(src, args)
+        from jaxdepth.io.atomic import ensure_output_dir
+        ensure_output_dir(dst.parent)  # before the computation, not at its first write
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
                                 K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src),
                                 image_path=image_of(src))]
@@ -148,7 +151,10 @@ def cmd_complete(args) -> int:
                                 intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png),
                                 image_path=image_of(png))
                 for name, png, k_path in frames]
-        _ensure_writable_dir(dst)
+        _claim_output_folder(dst, args, inputs=[src], camera=args.camera,
+                             intrinsics=None if args.intrinsics is None else str(args.intrinsics),
+                             extrinsic=None if args.extrinsic is None else str(args.extrinsic))
+    jobs = _forced_jobs(jobs, args)
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
         devices.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
@@ -324,6 +330,28 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     return scan
 
 
+def _forced_jobs(jobs, args):
+    """``--force``: every job reads inputs that fail the plausibility checks (logged once here, and per file)."""
+    if not getattr(args, "force", False):
+        return jobs
+    import dataclasses
+    log.warning("--force: inputs that fail the plausibility checks are used anyway (each one is logged)")
+    return [dataclasses.replace(job, force=True) for job in jobs]
+
+
+def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), **options):
+    """Checks the output folder's run record against this run's settings and writes it
+    (:mod:`jaxdepth.batch.run_record`; KITTI trees: one per ``proj_depth/<name>``): a re-run with
+    other settings is refused unless --overwrite."""
+    from jaxdepth.batch import run_record
+    _ensure_writable_dir(dst)
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
+    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
+    record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
+    for folder in run_record.record_folders(dst, out_paths):
+        run_record.claim_folder(folder, record, overwrite=args.overwrite)
+
+
 def _ensure_writable_dir(path: pathlib.Path):
     from jaxdepth.io.atomic import ensure_output_dir
     ensure_output_dir(path)
@@ -399,6 +427,8 @@ def _cmd_complete_nuscenes(args) -> int:
     _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
+    # outputs go to DST/<version>/...: the version is an input, not a setting
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion)
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
@@ -431,17 +461,35 @@ def cmd_complete_rig(args) -> int:
         elif kind == "written" and not args.quiet:
             print(text)
 
+    from jaxdepth.batch import run_record
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args),
+                                      estimate=not args.no_estimate)
+    record = run_record.make_record(settings, inputs=[args.points, args.rig],
+                                    command=getattr(args, "command_line", None))
     summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args), extras=_extras_from(args),
                           point_columns=args.point_columns, estimate=not args.no_estimate, image_dir=args.image_dir,
-                          overwrite=args.overwrite, report=report)
+                          overwrite=args.overwrite, report=report, force=args.force, record=record)
     return summary.exit_code
 
 
 def cmd_eval(args) -> int:
     from jaxdepth.research import evaluation
-    table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
+    from jaxdepth.batch import run_record
+    table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt), force=args.force)
+    found = run_record.find_record(args.pred)
+    if found is None:  # a KITTI tree: the records of its proj_depth/<name> folders, when they agree
+        below = run_record.find_records_below(args.pred)
+        if below and all(r["settings"] == below[0][1]["settings"] for _, r in below):
+            found = below[0]
     for line in evaluation.format_table(table):
         print(line)
+    if found is None:
+        print(f"prediction settings: unknown (no {run_record.RUN_FILE} in {args.pred} or above)")
+        table["prediction_run"] = None
+    else:
+        for line in run_record.summary_lines(found[1], path=found[0]):
+            print(line)
+        table["prediction_run"] = dict(found[1], path=str(found[0]))
     evaluation.write_table(table, json_path=args.json, csv_path=args.csv)
     return 0
 
@@ -523,7 +571,10 @@ def _add_complete_command(sub) -> None:
     p.add_argument("--cameras", default=None, metavar="NAMES",
                    help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
-    p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
+    p.add_argument("--overwrite", action="store_true",
+                   help="recompute outputs that already exist (also needed to re-run into a folder whose "
+                        "jaxdepth_run.json records other settings)")
+    _add_force_option(p)
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,
                    metavar="0-9",
                    help=f"zlib level of the output PNGs (default {_PNG_COMPRESSION_DEFAULT}: fast; 9: smallest, "
@@ -556,11 +607,20 @@ def _add_complete_rig_command(sub) -> None:
                    help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
                         "or colour, each the camera's width x height; all grey or all colour); default: each "
                         "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing outputs (also needed when the folder's jaxdepth_run.json records other "
+                        "settings)")
+    _add_force_option(p)
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
     p.set_defaults(func=cmd_complete_rig)
+
+
+def _add_force_option(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
+                        "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
 
 
 def _add_eval_command(sub) -> None:
@@ -584,6 +644,9 @@ def _add_eval_command(sub) -> None:
     p.add_argument("--csv", metavar="PATH",
                    help="write one row per frame to this CSV file: frame, rmse_mm, mae_mm, irmse_per_km, "
                         "imae_per_km, prediction, ground_truth (the paired files)")
+    p.add_argument("--force", action="store_true",
+                   help="score even when a side fails the checks (a PNG not in metres x 256; a prediction that "
+                        "covers under half of its ground truth: swapped folders or LiDAR input); logged")
     p.set_defaults(func=cmd_eval)
 
 
@@ -600,6 +663,7 @@ def main(argv=None) -> int:
         return 2
     devices.quiet_jax_start()
     args.t_start = t_start
+    args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     devices.use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)

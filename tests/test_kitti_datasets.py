@@ -83,6 +83,9 @@ def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp
         assert err.count("FAILED") == 2 and "0000000001.bin" in err and "Traceback" not in err
         assert "4 completed, 0 skipped (already done), 2 failed" in err
         outs = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*") if p.is_file())
+        records = [o for o in outs if o.endswith("/jaxdepth_run.json")]  # one run record per proj_depth/<name>
+        assert records == [f"{drive}/proj_depth/sgm/jaxdepth_run.json" for drive in (DRIVE_A, DRIVE_B)]
+        outs = [o for o in outs if o not in records]
         assert outs == [f"{drive}/proj_depth/sgm/image_0{cam}/{frame}.png"
                         for drive, frame in ((DRIVE_A, "0000000005"), (DRIVE_B, "0000000000")) for cam in (2, 3)]
         for date, drive, frame in ((DATE_A, DRIVE_A, "0000000005"), (DATE_B, DRIVE_B, "0000000000")):
@@ -106,7 +109,8 @@ def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp
         err = capsys.readouterr().err
         assert code == 1 and "0 completed, 4 skipped (already done), 2 failed" in err
         assert stamps == {p: p.stat().st_mtime_ns for p in dst.rglob("*.png")}
-        assert not [p for p in dst.rglob("*") if p.is_file() and p.suffix != ".png"]  # no temp files left
+        assert not [p for p in dst.rglob("*") if p.is_file() and p.suffix != ".png"
+                    and p.name != "jaxdepth_run.json"]  # no temp files left
     finally:
         bad.unlink()
 

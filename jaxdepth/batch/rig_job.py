@@ -52,7 +52,8 @@ def rig_images(rig, rig_path, image_dir):
 
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                 point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
-                report: Callable[[str, str], None] = _ignore) -> RigJobSummary:
+                report: Callable[[str, str], None] = _ignore, force: bool = False,
+                record: dict | None = None) -> RigJobSummary:
     """Completes the sweep ``points_path`` for every camera of the rig JSON ``rig_path`` into ``out_dir``.
 
     Args:
@@ -66,6 +67,10 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
       estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`).
       overwrite: replace existing outputs (default: skip them).
       report: ``report(kind, text)`` for every message (see the module docstring).
+      force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
+      record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
+        are added to its settings), checked against ``out_dir``'s and written before any
+        computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
 
     Raises:
       JaxdepthError: unreadable or invalid inputs, unwritable outputs.
@@ -78,7 +83,13 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     rig = read_rig_json(rig_path)
     images = rig_images(rig, rig_path, image_dir) if config.guidance_weight > 0 else None
     columns = infer_point_columns(points_path, point_columns)
-    points, extra = read_points(points_path, columns=columns)
+    out_dir = pathlib.Path(out_dir)
+    ensure_output_dir(out_dir)
+    if record is not None:
+        from jaxdepth.batch import run_record
+        record = dict(record, settings=dict(record["settings"], point_columns=columns))
+        run_record.claim_folder(out_dir, record, overwrite=overwrite)
+    points, extra = read_points(points_path, columns=columns, force=force)
     frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=estimate)
     if not frame.outlier_removal_trusted and config.outlier_removal:
         config = config.replace(outlier_removal=False)
@@ -86,8 +97,6 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         report("note", note)
     rig = frame.rig
     padded, valid = pad_points(frame.points)
-    out_dir = pathlib.Path(out_dir)
-    ensure_output_dir(out_dir)
     cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
     stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
     depth = np.asarray(stages.depth)
@@ -118,6 +127,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
                                     distance=None if distance is None else distance[window],
                                     overwrite=overwrite)
         summary.written.append(target)
-        valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
+        written = extra_outputs.apply_zero_invalid(depth[window], None if valid is None else valid[window], extras)
+        valid_px = int(np.count_nonzero(written))  # the pixels written non-zero (zero_invalid included)
         report("written", f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
     return summary

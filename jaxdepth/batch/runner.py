@@ -66,9 +66,13 @@ class FrameJob(FrameFiles):
     :func:`jaxdepth.io.guidance_images.read_guidance_image`; it must have the
     depth's size, or, with ``image_crop_from`` = (H, W), be the full H x W frame
     whose 352 x 1216 benchmark crop the job completes (cut the same way).
+
+    ``force``: use an input that fails the plausibility checks of
+    :mod:`jaxdepth.io.plausibility` (a warning is logged instead).
     """
 
     intrinsics_path: pathlib.Path | None = None
+    force: bool = False
 
     @classmethod
     def from_files(cls, files: FrameFiles) -> "FrameJob":
@@ -106,7 +110,8 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
 
     Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
 
-    With ``max_seed_distance_px`` (extra outputs, method "sgm" only) the function returns
+    With ``max_seed_distance_px`` (extra outputs, method "sgm" only; pixels, or ``"sensor"``: each
+    camera's :func:`jaxdepth._src.validity.sensor_max_seed_distance_px`) the function returns
     ``(depth, valid, seed_distance)``, each (B, H, W), from
     :func:`jaxdepth._src.validity.validity_and_distance` of the frame's Stages (another
     compiled function; without it nothing changes).
@@ -144,10 +149,12 @@ def is_guided(config: SGMConfig) -> bool:
     return config.guidance_weight > 0
 
 
-def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px: float):
+def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px):
+    """Validity and seed distance; ``max_seed_distance_px`` pixels or ``"sensor"`` (the camera's own limit)."""
     from jaxdepth._src.validity import validity_and_distance
+    limit = None if max_seed_distance_px == "sensor" else max_seed_distance_px
     return validity_and_distance(stages, K, T, lidar=lidar, metric=config.distance_metric,
-                                 max_seed_distance_px=max_seed_distance_px)
+                                 max_seed_distance_px=limit)
 
 
 def _stack_outputs(outs: list):
@@ -306,7 +313,8 @@ def _load_sweep(job: FrameJob):
     """A sweep job's input: ((padded (P, 3), valid (P,)), K), K checked against ``image_size``."""
     from jaxdepth.io.points import infer_point_columns, pad_points, read_points
 
-    points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns))
+    points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns),
+                            force=job.force)
     if job.K is None:
         raise io_errors.InputError(f"{job.sparse_path}: no intrinsics given for this sweep (field 'K' of the job)")
     K = np.asarray(job.K, np.float32)
@@ -390,6 +398,8 @@ def _load_sparse(job: FrameJob):
     if job.image_size is not None:
         return _load_sweep(job)
     depth = read_depth_png(job.sparse_path)
+    from jaxdepth.io.plausibility import check_depth_scale
+    check_depth_scale(depth, path=job.sparse_path, role="LiDAR input", force=job.force)
     if job.K is not None:
         K = np.asarray(job.K, np.float32)
     elif job.intrinsics_path is not None:
@@ -483,7 +493,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     group_call = functools.partial(
         _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
         strategy=strategy or batch_strategy(), devices=devices,
-        max_seed_distance_px=extras.max_seed_distance_px if extras.needs_seeds else None)
+        max_seed_distance_px=extras.seed_limit if extras.needs_seeds else None)
     pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T[, image])
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,

@@ -173,22 +173,34 @@ def make_output_folders(paths) -> int:
     return len(folders)
 
 
-def ensure_output_dir(path) -> pathlib.Path:
-    """Creates the output folder ``path`` (and parents) and checks that it is a writable folder.
+def ensure_output_dir(path: PathLike) -> pathlib.Path:
+    """Creates the output folder ``path`` if needed and checks that files can be written into it,
+    before any computation (a run must not fail at its first write).
+
+    Returns:
+      The folder.
 
     Raises:
-      OutputError: the folder cannot be created, is a file, or is not writable (named).
+      OutputError: it cannot be created, is not a folder, or is not writable (a probe file
+        cannot be created in it; root passes permission bits, so the probe is real).
     """
-    path = pathlib.Path(path)
+    folder = pathlib.Path(path)
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise OutputError(f"{path}: cannot create output folder ({err.strerror or err})") from None
-    if not path.is_dir():
-        raise OutputError(f"{path}: output path exists and is not a folder")
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: output folder is not writable")
-    return path
+        raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
+    if not folder.is_dir():
+        raise OutputError(f"{folder}: output path exists and is not a folder")
+    try:
+        fd, tmp = _open_temp(folder, ".jaxdepth_write_probe")
+    except OSError as err:
+        raise OutputError(f"{folder}: output folder is not writable ({_reason(err)})") from None
+    os.close(fd)
+    try:
+        os.unlink(tmp)
+    except OSError:
+        pass
+    return folder
 
 
 def encode_png(array: np.ndarray) -> bytes:

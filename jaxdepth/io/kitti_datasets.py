@@ -496,7 +496,20 @@ def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, c
 def unknown_layout_message(src: PathLike) -> str:
     """The error text for a folder in no layout ``jaxdepth complete`` understands."""
     items = "; ".join(f"({i}) {text}" for i, text in enumerate(LAYOUTS, start=1))
-    return f"{src}: no dataset layout recognised. Understood: {items}; or one depth PNG with --intrinsics"
+    src = pathlib.Path(src)
+    nusc = [p.name for p in _children(src) if p.name.startswith("v1.0-") or p.name in ("samples", "sweeps")]
+    hint = (f" It looks like a nuScenes dataroot ({', '.join(sorted(nusc))}): pass --nusc-version VERSION "
+            "(v1.0-mini, v1.0-trainval, v1.0-test)." if nusc else "")
+    return (f"{src}: no dataset layout recognised.{hint} Understood: {items}; ({len(LAYOUTS) + 1}) a nuScenes "
+            "dataroot (v1.0-*/ tables, samples/, sweeps/) with --nusc-version VERSION; or one depth PNG with "
+            "--intrinsics")
+
+
+def _children(folder: pathlib.Path) -> list:
+    try:
+        return list(folder.iterdir())
+    except OSError:
+        return []
 
 
 __all__ = ["DatasetScan", "FrameFiles", "KITTI_POINT_COLUMNS", "LAYOUTS", "detect_kitti_layout", "discover_kitti",

@@ -266,8 +266,11 @@ def camera_intrinsics(tables: NuScenesTables, cam_sd: dict) -> np.ndarray:
     return K
 
 
-def read_sweep(tables: NuScenesTables, sample_data: dict) -> np.ndarray:
-    """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring)."""
+def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False) -> np.ndarray:
+    """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring).
+
+    The records pass :func:`jaxdepth.io.plausibility.check_sweep` (ring column included)
+    unless ``force`` (then a failure is logged)."""
     filename = sample_data.get("filename")
     if not isinstance(filename, str) or not filename:
         raise field_error(tables.table_path("sample_data"), f"{sample_data['token']}.filename",
@@ -278,7 +281,11 @@ def read_sweep(tables: NuScenesTables, sample_data: dict) -> np.ndarray:
     if len(raw) % record:
         raise file_error(path, f"size {len(raw)} bytes expected a multiple of {record} "
                                f"({POINT_COLUMNS} float32 values per point)")
-    return np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
+    records = np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
+    from jaxdepth.io.plausibility import check_sweep
+    check_sweep(records[:, :3], path=path, columns=POINT_COLUMNS, intensity=records[:, 3], ring=records[:, 4],
+                raw=raw, force=force)
+    return records
 
 
 def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:

@@ -78,8 +78,8 @@ def _gt_path(gt_dir: pathlib.Path, png: pathlib.Path) -> pathlib.Path | None:
 def cmd_ablation(args) -> int:
     from jaxdepth.research.ablation import format_ablation, frame_ablation, mean_ablation
     from jaxdepth.io.calib import read_intrinsics_txt
-    from jaxdepth.io.depth_png import read_depth_png
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
+    from jaxdepth.io.plausibility import read_checked_depth_png
 
     src = pathlib.Path(args.src)
     frames = list_depth_completion_folder(src)
@@ -97,7 +97,8 @@ def cmd_ablation(args) -> int:
             if K_all is None and k_path is None:
                 raise InputError("no intrinsics (expected SRC/intrinsics/<name>.txt or --intrinsics K.txt)")
             K = K_all if K_all is not None else read_intrinsics_txt(k_path)
-            sparse, gt = read_depth_png(png), read_depth_png(gt_path)
+            sparse = read_checked_depth_png(png, role="LiDAR input")
+            gt = read_checked_depth_png(gt_path, role="ground truth")
             if sparse.shape != gt.shape:
                 raise InputError(f"sparse input {sparse.shape} and ground truth {gt.shape} differ in shape")
             per_frame[name] = frame_ablation(sparse, gt, K, config=config)
@@ -156,13 +157,13 @@ def _point_columns(path: pathlib.Path, given):
 
 def cmd_sparsity(args) -> int:
     from jaxdepth.research import sparsity
-    from jaxdepth.io.depth_png import read_depth_png
+    from jaxdepth.io.plausibility import read_checked_depth_png
     from jaxdepth.io.points import read_points
     from jaxdepth.io.rig import default_lidar_spec
 
     sweep = pathlib.Path(args.sweep)
     points, _ = read_points(sweep, columns=_point_columns(sweep, args.point_columns))
-    gt = read_depth_png(args.gt)
+    gt = read_checked_depth_png(args.gt, role="ground truth")
     camera, gt_c = _kitti_camera(pathlib.Path(args.calib_dir), args.camera, gt)
     lidar = default_lidar_spec(args.lidar_beams)
     try:
