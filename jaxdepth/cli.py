@@ -227,13 +227,14 @@ def _cmd_complete_av2(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     dst = pathlib.Path(args.dst)
-    _ensure_writable_dir(dst)
     cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0,
+                         cameras=None if cameras is None else ",".join(cameras))
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
     progress = Progress(total, enabled=not args.quiet, label="sweep ")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
                       overwrite=args.overwrite, png_compression=args.png_compression,
-                      io_threads=devices.io_threads(), on_progress=progress.update)
+                      io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 
@@ -252,13 +253,15 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    _ensure_writable_dir(pathlib.Path(args.dst))
+    _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
+                         out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
+                         sweeps=args.sweeps)
     progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
     for name, message in scan.failed:
         progress.update(name, f"failed: {message}")
     summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
                                    overwrite=args.overwrite, png_compression=args.png_compression,
-                                   io_threads=devices.io_threads(), on_progress=progress.update)
+                                   io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
     progress.close()
     summary.failed[:0] = scan.failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))

@@ -92,17 +92,17 @@ def plan(logs, dst, *, cameras, overwrite: bool, summary, notify) -> tuple[dict,
     return tables, todo
 
 
-def _load(job, *, tables: dict, sweeps: int):
+def _load(job, *, tables: dict, sweeps: int, force: bool):
     from jaxdepth.io import av2
 
     folder, timestamp_ns = job.source
     log_, rig = tables[folder]
-    return av2.read_cloud(log_, timestamp_ns, sweeps=sweeps), rig
+    return av2.read_cloud(log_, timestamp_ns, sweeps=sweeps, force=force), rig
 
 
 def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite: bool = False,
             png_compression: int | None = None, io_threads: int = 2,
-            on_progress: Callable[[str, str], None] | None = None):
+            on_progress: Callable[[str, str], None] | None = None, force: bool = False):
     """Completes every sweep of the Argoverse 2 log(s) at ``root`` into ``<dst>/<log_id>/<camera>/<ts>.png``.
 
     Args:
@@ -115,6 +115,7 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
       png_compression: zlib level 0-9 of the PNGs (default: the library's fast level).
       io_threads: reader and writer threads each.
       on_progress: called once per sweep with ("<log_id>/<ts>", "done" / "skipped" / "failed: ...").
+      force: complete sweeps that fail the plausibility checks (logged) instead of failing them.
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over sweep names (never raises for a bad sweep or log).
@@ -141,7 +142,7 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     if not todo:
         return summary
     make_output_folders(p for job in todo for _, p in job.outputs)
-    run_cloud_jobs(todo, functools.partial(_load, tables=tables, sweeps=sweeps), summary, notify, config=config,
+    run_cloud_jobs(todo, functools.partial(_load, tables=tables, sweeps=sweeps, force=force), summary, notify, config=config,
                    png_compression=png_compression, io_threads=io_threads)
     return summary
 

@@ -44,22 +44,23 @@ def plan(jobs, *, overwrite: bool, summary, notify) -> list:
     return todo
 
 
-def _load(job: CloudJob, *, sweeps: int):
+def _load(job: CloudJob, *, sweeps: int, force: bool):
     from jaxdepth.io.kitti_oxts import read_drive_cloud
 
     drive, frame, rig = job.source
-    return read_drive_cloud(drive, frame, sweeps=sweeps), rig
+    return read_drive_cloud(drive, frame, sweeps=sweeps, force=force), rig
 
 
 def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = False,
                          png_compression: int | None = None, io_threads: int = 2,
-                         on_progress: Callable[[str, str], None] | None = None):
+                         on_progress: Callable[[str, str], None] | None = None, force: bool = False):
     """Completes the KITTI raw sweep ``jobs`` (from :func:`~jaxdepth.io.kitti_datasets.kitti_raw_jobs`) with
     ``sweeps`` neighbours on each side.
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over ``<drive>/<frame>`` names (a sweep whose
       neighbours, OXTS packets or calibration cannot be read is reported failed, the rest completes).
+      ``force``: complete sweeps that fail the plausibility checks (logged) instead of failing them.
     """
     from jaxdepth._src.config import SGMConfig
     from jaxdepth.batch.runner import RunSummary
@@ -75,7 +76,7 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
     todo = plan(jobs, overwrite=overwrite, summary=summary, notify=notify)
     if todo:
         make_output_folders(p for job in todo for _, p in job.outputs)
-        run_cloud_jobs(todo, functools.partial(_load, sweeps=sweeps), summary, notify, config=config,
+        run_cloud_jobs(todo, functools.partial(_load, sweeps=sweeps, force=force), summary, notify, config=config,
                        png_compression=png_compression, io_threads=io_threads)
     return summary
 

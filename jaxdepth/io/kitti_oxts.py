@@ -156,7 +156,8 @@ def oxts_path(drive: PathLike, frame: str) -> pathlib.Path:
     return pathlib.Path(drive) / "oxts" / "data" / f"{frame}.txt"
 
 
-def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: PathLike | None = None):
+def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: PathLike | None = None,
+                     force: bool = False):
     """The reference sweep ``frame`` of a KITTI raw drive and up to ``sweeps`` neighbours on each side.
 
     Args:
@@ -164,6 +165,8 @@ def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: P
       frame: the reference frame's name (``"0000000005"``).
       sweeps: neighbours on each side (0: the sweep alone; fewer at the ends of the drive).
       imu_to_velo: ``calib_imu_to_velo.txt`` (default: the drive's date folder's).
+      force: use sweeps that fail the plausibility checks of :func:`~jaxdepth.io.points.read_points`
+        (logged) instead of refusing them.
 
     Returns:
       SourceCloud in the reference sweep's Velodyne frame: one source per sweep, reference first,
@@ -208,7 +211,7 @@ def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: P
         T[0] = np.eye(4)
     points, source = [], []
     for s, o in enumerate(offsets):
-        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS)
+        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS, force=force)
         xyz = np.asarray(xyz, np.float32)[:, :3]
         if o:
             xyz = (xyz.astype(np.float64) @ T[s, :3, :3].T + T[s, :3, 3]).astype(np.float32)
