@@ -102,8 +102,8 @@ def cmd_complete(args) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
-        return _cmd_complete_nuscenes(args)
+    if (code := _complete_own_job(args)) is not None:  # nuScenes, Argoverse 2, KITTI raw --sweeps
+        return code
     usage = _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
@@ -181,6 +181,94 @@ def _run_frame_jobs(jobs, pre_failed, args) -> int:
                                   extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _complete_own_job(args) -> int | None:
+    """Runs ``complete`` on a layout with its own job (a nuScenes dataroot with --nusc-version, an Argoverse 2
+    log or folder of logs, KITTI raw drives with --sweeps N > 0) and returns the exit code; None for the
+    other layouts."""
+    if getattr(args, "nusc_version", None) is not None:
+        return _cmd_complete_nuscenes(args)
+    from jaxdepth.batch.av2_job import is_av2_root
+    if is_av2_root(args.src):
+        return _cmd_complete_av2(args)
+    if args.cameras is not None:
+        print("jaxdepth: error: --cameras applies to Argoverse 2 logs", file=sys.stderr)
+        return 2
+    if args.sweeps:
+        src = pathlib.Path(args.src)
+        return _cmd_complete_kitti_sweeps(args, _discover_dataset(src, pathlib.Path(args.dst), args))
+    return None
+
+
+def _multi_source_usage(args, what: str) -> str | None:
+    """Why the options given cannot be used with a multi-source job (None: they can)."""
+    if args.method != "sgm":
+        return f"{what} runs the multi-source SGM path: --method sgm only"
+    if args.guidance_weight > 0:
+        return f"{what}: --guidance-weight is not supported (no camera images are read)"
+    extras = _extras_from(args)
+    if extras.kinds or extras.needs_seeds:
+        return f"{what}: the extra outputs (--preview, --validity, ...) are not supported"
+    if args.engine != "local":
+        return f"{what}: --engine local only"
+    return None
+
+
+def _cmd_complete_av2(args) -> int:
+    """``jaxdepth complete LOG DST``: an Argoverse 2 log or a folder of logs (exit 0 ok, 1 failed, 2 usage)."""
+    from jaxdepth.batch.av2_job import find_logs, run_av2
+
+    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
+                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic),
+                                      ("--image-dir", args.image_dir), ("--crop", args.crop or None))
+             if value is not None]
+    usage = (f"{', '.join(given)} cannot be used with an Argoverse 2 log (its calibration is used)" if given
+             else _multi_source_usage(args, "an Argoverse 2 log"))
+    if usage is None and args.sweeps is not None and args.sweeps < 0:
+        usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    dst = pathlib.Path(args.dst)
+    cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0,
+                         cameras=None if cameras is None else ",".join(cameras))
+    total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
+    progress = Progress(total, enabled=not args.quiet, label="sweep ")
+    summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
+                      overwrite=args.overwrite, png_compression=args.png_compression,
+                      io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+    progress.close()
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _cmd_complete_kitti_sweeps(args, scan) -> int:
+    """``jaxdepth complete KITTI_RAW DST --sweeps N`` (N > 0): each sweep with N neighbours on each side."""
+    from jaxdepth.batch.kitti_sweeps_job import run_kitti_raw_sweeps
+    from jaxdepth.io.errors import InputError
+
+    if scan is None or scan.layout != "kitti-raw":
+        raise InputError(f"{args.src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
+                         "(--nusc-version)")
+    usage = _multi_source_usage(args, "--sweeps")
+    if usage is None and args.sweeps < 0:
+        usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
+                         out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
+                         sweeps=args.sweeps)
+    progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
+    for name, message in scan.failed:
+        progress.update(name, f"failed: {message}")
+    summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
+                                   overwrite=args.overwrite, png_compression=args.png_compression,
+                                   io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+    progress.close()
+    summary.failed[:0] = scan.failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 
 
@@ -315,9 +403,6 @@ def _add_nuscenes_options(parser) -> None:
                     "image-guided seeds, and a missing or bad image fails its sample")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
-    group.add_argument("--sweeps", type=int, default=1, metavar="N",
-                       help="LiDAR sweeps per sample (default 1: the key frame; N > 1: the key frame and N-1 earlier "
-                            "sweeps moved into its frame by their ego poses, as the devkit's from_file_multisweep)")
     group.add_argument("--no-ego-motion", dest="ego_motion", action="store_false",
                        help="do not compensate the vehicle's motion between the LiDAR and each camera's timestamp "
                             "(default: compensate, LiDAR -> ego(t_lidar) -> global -> ego(t_cam) -> camera)")
@@ -338,11 +423,14 @@ def _cmd_complete_nuscenes(args) -> int:
                  "JPEG its sample_data row names in the dataroot")
     elif args.method != "sgm":
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
-    elif args.sweeps < 1:
-        usage = f"--sweeps expected an integer >= 1, got {args.sweeps}"
+    elif args.sweeps is not None and args.sweeps < 1:
+        usage = f"--sweeps with --nusc-version expected an integer >= 1 (sweeps per sample), got {args.sweeps}"
+    elif (args.sweeps or 1) > 1 and _extras_from(args).needs_seeds:
+        usage = "--validity, --seed-distance and --zero-invalid need --sweeps 1 with --nusc-version"
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
+    args.sweeps = 1 if args.sweeps is None else args.sweeps
     dst = pathlib.Path(args.dst)
     _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
@@ -446,7 +534,9 @@ def _add_complete_command(sub) -> None:
                          "folder or one PNG",
         description="Completes every frame of SRC into DST. SRC layouts: KITTI raw (a date folder, one drive, or "
                     "a folder of dates: velodyne_points/data/*.bin, calibration per date) -> "
-                    "DST/<drive>/proj_depth/<name>/image_0X/<frame>.png; KITTI depth-completion train/val "
+                    "DST/<drive>/proj_depth/<name>/image_0X/<frame>.png; an Argoverse 2 sensor log or a folder of "
+                    "logs (<log>/sensors/lidar/*.feather, calibration/) -> DST/<log>/<camera>/<lidar ts>.png, "
+                    "needs pyarrow; KITTI depth-completion train/val "
                     "(<drive>/proj_depth/velodyne_raw/image_0X/*.png, needs --calib-dir) -> the same tree with "
                     "<name> for velodyne_raw; KITTI object training/testing (velodyne/, calib/, image_2/) -> "
                     "DST/<split>/depth_2/<frame>.png; a selection folder (velodyne_raw/ + intrinsics/) or flat "
@@ -481,6 +571,13 @@ def _add_complete_command(sub) -> None:
                         "velodyne_raw/); a KITTI raw drive or a depth-completion train/val tree reads "
                         "DIR/<date>/<drive>/image_0X/data/<frame>.png (a raw root; default for raw: the drive's "
                         "own image_0X/data, train/val trees have none); KITTI object uses its image_X/")
+    p.add_argument("--sweeps", type=int, default=None, metavar="N",
+                   help="accumulate LiDAR sweeps, each completed as its own source (see docs/datasets.md): KITTI raw "
+                        "and Argoverse 2: N neighbouring sweeps on each side of every sweep (default 0), posed by "
+                        "OXTS + calib_imu_to_velo.txt / the city poses; nuScenes: N sweeps per sample, the key "
+                        "frame and N-1 earlier ones (default 1, the devkit's from_file_multisweep)")
+    p.add_argument("--cameras", default=None, metavar="NAMES",
+                   help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     p.add_argument("--overwrite", action="store_true",
                    help="recompute outputs that already exist (also needed to re-run into a folder whose "

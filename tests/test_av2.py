@@ -201,3 +201,18 @@ def test_not_a_log(tmp_path):
     with pytest.raises(InputError, match="not an Argoverse 2 sensor log"):
         av2.read_log(tmp_path)
     assert not av2.is_av2_log(tmp_path)
+
+
+def test_implausible_sweep_is_refused_unless_forced(tmp_path, log):
+    """y and z swapped (a wrong column mapping) puts ~half the points at steep angles: refused, named."""
+    dst = _copy_log(tmp_path, log)
+    path = dst / "sensors" / "lidar" / f"{log.sweeps[0]}.feather"
+    table = feather.read_table(path)
+    y, z = table.column("y"), table.column("z")
+    table = table.set_column(table.column_names.index("y"), "y", z)
+    table = table.set_column(table.column_names.index("z"), "z", y)
+    feather.write_feather(table, path)
+    fresh = av2.read_log(dst)
+    with pytest.raises(InputError, match=rf"{log.sweeps[0]}\.feather: not a plausible LiDAR sweep"):
+        av2.read_cloud(fresh)
+    assert av2.read_cloud(fresh, force=True).points.shape == (99_229, 3)

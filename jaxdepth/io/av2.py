@@ -52,8 +52,7 @@ LIDARS = (("up_lidar", 0), ("down_lidar", 32))
 LASERS_PER_LIDAR = 32
 
 _POSE_COLUMNS = ("qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
-_INTRINSIC_COLUMNS = ("fx_px", "fy_px", "cx_px", "cy_px", "height_px", "width_px")
-_POINT_COLUMNS = ("x", "y", "z", "laser_number")
+_INTRINSIC_COLUMNS = {"fx_px": "f", "fy_px": "f", "cx_px": "f", "cy_px": "f", "height_px": "i", "width_px": "i"}
 
 
 def _pyarrow_feather():
@@ -191,9 +190,7 @@ def read_log(folder: PathLike) -> Av2Log:
     sensor_poses = {}
     for i, name in enumerate(cal["sensor_name"]):
         sensor_poses[str(name)] = _pose_or_error(cal, i, log_paths["calibration"], str(name))
-    intr = read_feather_columns(log_paths["intrinsics"],
-                                {"sensor_name": "U", **{k: ("i" if k.endswith("_px") and k[0] in "hw" else "f")
-                                                        for k in _INTRINSIC_COLUMNS}},
+    intr = read_feather_columns(log_paths["intrinsics"], {"sensor_name": "U", **_INTRINSIC_COLUMNS},
                                 expected="the camera intrinsics")
     intrinsics = {}
     for i, name in enumerate(intr["sensor_name"]):
@@ -291,15 +288,21 @@ def ego_pose(log: Av2Log, timestamp_ns: int) -> np.ndarray:
     return interpolate_pose(log.city_times, log.city_poses, timestamp_ns, path=log.city_path)
 
 
-def read_sweep(path: PathLike) -> tuple[np.ndarray, np.ndarray]:
+def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """``(points (N, 3) float32 metres ego frame, laser_number (N,) int32)`` of one sweep file.
 
+    The points and intensities pass :func:`jaxdepth.io.plausibility.check_sweep` (ranges, share of
+    steep points, intensity) unless ``force`` (then a failure is logged). Its ring test is not run:
+    about the ego frame's origin, 1.5 m below the LiDARs, a laser's points spread over ~5 degrees.
+
     Raises:
-      InputError: a missing column, a wrong type, non-finite coordinates or a laser number
-        outside [0, 64); the message names the file and the column.
+      InputError: a missing column, a wrong type, non-finite coordinates, a laser number
+        outside [0, 64) or an implausible sweep; the message names the file and the column.
     """
+    from jaxdepth.io.plausibility import check_sweep
+
     path = pathlib.Path(path)
-    cols = read_feather_columns(path, {"x": "f", "y": "f", "z": "f", "laser_number": "i"},
+    cols = read_feather_columns(path, {"x": "f", "y": "f", "z": "f", "intensity": "i", "laser_number": "i"},
                                 expected="an Argoverse 2 LiDAR sweep")
     points = np.stack([cols[k].astype(np.float32) for k in "xyz"], axis=1)
     laser = cols["laser_number"].astype(np.int64)
@@ -310,6 +313,7 @@ def read_sweep(path: PathLike) -> tuple[np.ndarray, np.ndarray]:
     finite = np.all(np.isfinite(points), axis=1)
     if not finite.all():
         raise field_error(path, "x/y/z", "finite coordinates", f"{int((~finite).sum())} non-finite rows")
+    check_sweep(points, path=path, intensity=cols["intensity"].astype(np.float32), force=force)
     return points, laser.astype(np.int32)
 
 
@@ -322,7 +326,7 @@ def _reference_index(log: Av2Log, timestamp_ns: int | None) -> int:
         raise file_error(log.sweep_path(timestamp_ns), "no such LiDAR sweep in the log") from None
 
 
-def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0):
+def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0, force: bool = False):
     """The sources of one reference sweep (and its neighbours) as a :class:`~jaxdepth.io.sources.SourceCloud`.
 
     Args:
@@ -330,6 +334,7 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0)
       timestamp_ns: the reference sweep (default: the log's first).
       sweeps: neighbours on each side of the reference sweep to add (default 0; fewer at
         the ends of the log).
+      force: use sweeps that fail the plausibility checks (logged) instead of refusing them.
 
     Returns:
       SourceCloud in the reference sweep's ego frame: one source per (LiDAR, sweep), ordered
@@ -346,17 +351,15 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0)
     offsets = [0]
     for k in range(1, int(sweeps) + 1):
         offsets += [o for o in (-k, k) if 0 <= ref + o < len(log.sweeps)]
-    ref_from_city = None
+    from jaxdepth.io.nuscenes import invert_pose
+
+    ref_from_city = invert_pose(ego_pose(log, log.sweeps[ref])) if len(offsets) > 1 else None
     lidar_poses = [log.sensor_pose(name) for name, _ in LIDARS]
     points, source, ring, T_ref_source, sweep_ids, names = [], [], [], [], [], []
     for offset in offsets:
         t = log.sweeps[ref + offset]
-        city_T_ego = ego_pose(log, t)
-        if ref_from_city is None:
-            from jaxdepth.io.nuscenes import invert_pose
-            ref_from_city = invert_pose(city_T_ego)
-        T_ref_sweep = np.eye(4) if offset == 0 else ref_from_city @ city_T_ego
-        xyz, laser = read_sweep(log.sweep_path(t))
+        T_ref_sweep = np.eye(4) if offset == 0 else ref_from_city @ ego_pose(log, t)
+        xyz, laser = read_sweep(log.sweep_path(t), force=force)
         moved = xyz if offset == 0 else (xyz.astype(np.float64) @ T_ref_sweep[:3, :3].T
                                         + T_ref_sweep[:3, 3]).astype(np.float32)
         lidar_of = laser // LASERS_PER_LIDAR
