@@ -33,6 +33,10 @@ if TYPE_CHECKING:  # the names of _LAZY below, imported eagerly, for type checke
     from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
                                    stack_images as stack_images, complete_rig as complete_rig,
                                    complete_rig_stages as complete_rig_stages)
+    from jaxdepth._src.sources import (Sources as Sources, make_sources as make_sources,
+                                       complete_sources as complete_sources,
+                                       complete_sources_stages as complete_sources_stages,
+                                       free_space_keep as free_space_keep)
     from jaxdepth._src.methods import complete_with as complete_with
     from jaxdepth._src.ip_basic import ip_basic as ip_basic
     from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
@@ -63,6 +67,8 @@ _LAZY = {
     'jaxdepth._src.smoothing': ('gaussian_blur', 'gaussian_blur_traced'),
     'jaxdepth._src.pipeline': ('complete', 'complete_stages', 'complete_points', 'complete_points_stages'),
     'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'stack_images', 'complete_rig', 'complete_rig_stages'),
+    'jaxdepth._src.sources': ('Sources', 'make_sources', 'complete_sources', 'complete_sources_stages',
+                              'free_space_keep'),
     'jaxdepth._src.methods': ('complete_with',),
     'jaxdepth._src.ip_basic': ('ip_basic',),
     'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),

@@ -244,15 +244,38 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     """
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_lidar, jnp.float32)
+    sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, height=height,
+                                                                    width=width, image_size=image_size)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
+                            image=image)
+    return clear_outside_window(stages, image_size)
+
+
+def project_with_normals(points, valid, normals, T, K, *, height: int, width: int, image_size=None):
+    """The camera's z-buffer of a sweep, with each hit pixel's point and normal in the camera frame.
+
+    Args:
+      points: (N, 3) float32 points; valid: (N,) bool; normals: (N, 3) unit normals, same frame.
+      T: (4, 4) float32 points' frame -> camera; K: (3, 3) float32.
+      image_size: optional traced (2,) height, width of a window of the canvas (rigs).
+
+    Returns:
+      sparse_depth (H, W) float32 (0 = empty); index (H, W) int32 of the point seen (-1 = none);
+      points_cam and normals_cam (3, H, W) float32, 0 where no point is seen.
+    """
     sparse_depth, index = project_to_image(points, valid, K, T, height=height, width=width, valid_size=image_size)
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
     points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
-    normals_cam = jnp.where(hit[None], _normals_to_camera(normals_lidar[safe], T).reshape(3, height, width), 0.0)
-    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
-                            image=image)
+    normals_cam = jnp.where(hit[None], _normals_to_camera(normals[safe], T).reshape(3, height, width), 0.0)
+    return sparse_depth, index, points_cam, normals_cam
+
+
+def clear_outside_window(stages: Stages, image_size) -> Stages:
+    """``stages`` with ``depth`` and ``depth_raw`` set to 0 outside the (traced) ``image_size`` window; as is when None."""
     if image_size is None:
         return stages
+    height, width = stages.depth.shape
     inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
     return stages._replace(depth=jnp.where(inside, stages.depth, 0.0),
                            depth_raw=jnp.where(inside, stages.depth_raw, 0.0))

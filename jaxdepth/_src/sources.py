@@ -34,10 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
-from jaxdepth._src.geometry import invert_rigid, project_to_image, transform_points
+from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import _complete_tail, _normals_to_camera
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import RigCameras, _rig_images, _window_only
 from jaxdepth._src.types import LidarSpec, Stages
@@ -303,11 +303,10 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
-    sparse_depth, index = project_to_image(points, valid, K, T, height=height, width=width, valid_size=image_size)
+    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
+                                                                        width=width, image_size=image_size)
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
-    points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
-    normals_cam = jnp.where(hit[None], _normals_to_camera(normals[safe], T).reshape(3, height, width), 0.0)
     pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
@@ -315,11 +314,7 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
                             pixel_shadow=pixel_shadow)
     stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
                             keep=keep)
-    if image_size is None:
-        return stages
-    inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
-    return stages._replace(depth=jnp.where(inside, stages.depth, 0.0),
-                           depth_raw=jnp.where(inside, stages.depth_raw, 0.0))
+    return clear_outside_window(stages, image_size)
 
 
 def default_beams(sources: Sources) -> int:

@@ -376,16 +376,22 @@ def _parse_lidar(value: Any) -> LidarSpec:
     return LidarSpec(beams=beams, fov_up_deg=up, fov_down_deg=down, columns=columns)
 
 
-def _parse_lidars(value: Any, columns: int) -> tuple:
+def _list_items(value: Any, field: str, what: str, required: tuple, optional: tuple):
+    """Yields ``(i, "field[i]", object)`` for a non-empty JSON list of objects, each with its ``required`` keys."""
     if not isinstance(value, list) or not value:
-        raise _Bad("lidars", "a non-empty list of LiDARs", _describe(value))
-    out, seen = [], {}
+        raise _Bad(field, f"a non-empty list of {what}", _describe(value))
     for i, item in enumerate(value):
-        where = f"lidars[{i}]"
-        doc = _object(item, where, _LIDARS_FIELDS + _LIDARS_OPTIONAL)
-        for key in _LIDARS_FIELDS:
+        where = f"{field}[{i}]"
+        doc = _object(item, where, required + optional)
+        for key in required:
             if key not in doc:
                 raise _Bad(f"{where}.{key}", "a field (required)", "nothing")
+        yield i, where, doc
+
+
+def _parse_lidars(value: Any, columns: int) -> tuple:
+    out, seen = [], {}
+    for i, where, doc in _list_items(value, "lidars", "LiDARs", _LIDARS_FIELDS, _LIDARS_OPTIONAL):
         name = doc["name"]
         if not isinstance(name, str) or not name:
             raise _Bad(f"{where}.name", "a non-empty string", _describe(name))
@@ -445,17 +451,9 @@ def _parse_rig(doc: Any) -> Rig:
     if len(lidars) > 1 and (columns is None or "lidar" not in columns):
         raise _Bad("columns", f"a 'lidar' column saying which of the {len(lidars)} lidars measured each point",
                    "nothing" if columns is None else _describe(top["columns"]))
-    cams_value = top["cameras"]
-    if not isinstance(cams_value, list) or not cams_value:
-        raise _Bad("cameras", "a non-empty list of cameras", _describe(cams_value))
     cameras = []
     seen: dict[str, int] = {}
-    for i, cam_value in enumerate(cams_value):
-        where = f"cameras[{i}]"
-        cam = _object(cam_value, where, _CAMERA_FIELDS + _CAMERA_OPTIONAL)
-        for key in _CAMERA_FIELDS:
-            if key not in cam:
-                raise _Bad(f"{where}.{key}", "a field (required)", "nothing")
+    for i, where, cam in _list_items(top["cameras"], "cameras", "cameras", _CAMERA_FIELDS, _CAMERA_OPTIONAL):
         values = _camera_arrays(*(cam[k] for k in _CAMERA_FIELDS), where=f"{where}.")
         image = _image_field(cam["image"], f"{where}.image") if "image" in cam else None
         if values[0] in seen:
