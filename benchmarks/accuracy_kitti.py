@@ -4,7 +4,7 @@ Data: ../shared/data/kitti/drive_0001_frame05, cameras 2 and 3, official sparse
 input and ground truth, cropped to 352x1216 the benchmark way. Figures are the
 mean of the two frames' devkit metrics (mm, 1/km).
 
-    python benchmarks/accuracy_kitti.py [--json benchmarks/results/accuracy_kitti.json] [--distance l1|l2]
+    python -m benchmarks.accuracy_kitti [--json benchmarks/results/accuracy_kitti.json] [--distance l1|l2]
 """
 
 from __future__ import annotations
@@ -19,30 +19,7 @@ import numpy as np
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets
 from jaxdepth.research.ablation import format_ablation, frame_ablation, mean_ablation
-from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-FRAME = ROOT.parent / "shared" / "data" / "kitti" / "drive_0001_frame05"
-
-
-def load_frames(frame_dir: pathlib.Path = FRAME):
-    calib = read_kitti_raw_calib(frame_dir / "calib_cam_to_cam.txt", frame_dir / "calib_velo_to_cam.txt")
-    frames = {}
-    for cam in (2, 3):
-        sparse = read_depth_png(frame_dir / f"velodyne_raw_image_0{cam}.png")
-        gt = read_depth_png(frame_dir / f"groundtruth_image_0{cam}.png")
-        K = calib["cameras"][cam]["K"]
-        sparse_c, K_c = crop_to_benchmark(sparse, K)
-        gt_c, _ = crop_to_benchmark(gt, K)
-        frames[f"image_0{cam}"] = (sparse_c, gt_c, K_c, calib["cameras"][cam]["T_cam_lidar"])
-    return frames
-
-
-def load_images(frame_dir: pathlib.Path = FRAME) -> dict:
-    """The frame's camera images (RGB uint8), cropped to the benchmark window like ``load_frames``' depths."""
-    from jaxdepth.io.guidance_images import decode_camera_image
-    return {f"image_0{cam}": crop_to_benchmark(decode_camera_image(frame_dir / f"image_0{cam}.png"), np.eye(3))[0]
-            for cam in (2, 3)}
+from benchmarks._common import FRAME, ROOT, load_frames
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
 """Accuracy on every rig we have: SGM, SGM without outlier removal, nearest fill and IP_Basic.
 
-    PYTHONPATH=. python benchmarks/accuracy_rigs.py [--json benchmarks/results/accuracy_rigs.json]
+    PYTHONPATH=. python -m benchmarks.accuracy_rigs [--json benchmarks/results/accuracy_rigs.json]
         [--seeds 0 1 2] [--zoo-seeds 0 1] [--zoo-scale 0.5] [--skip-zoo] [--skip-real]
 
 Rows (RMSE / MAE in mm, mean over camera images, KITTI devkit metrics):
@@ -44,10 +44,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import jaxdepth  # noqa: E402
+from benchmarks._common import DATA, ROOT, load_frames, write_results  # noqa: E402
 from jaxdepth._src.ip_basic import ip_basic  # noqa: E402
 from jaxdepth._src.metrics import depth_metrics, mean_metrics  # noqa: E402
 from jaxdepth.io import prepare_sweep, read_points, rig_from_kitti_raw  # noqa: E402
@@ -55,7 +54,6 @@ from jaxdepth.io import rig_from_nuscenes_calibration  # noqa: E402
 from jaxdepth.research.cli import hidden_eval
 from jaxdepth.io.points import ring_column  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data"
 METHODS = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic")
 KEYS = ("rmse", "mae", "irmse", "imae")
 
@@ -66,8 +64,6 @@ def _mean(rows):
 
 
 def kitti_frame(config):
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from accuracy_kitti import load_frames
     per = {m: [] for m in METHODS}
     plain = config.replace(outlier_removal=False)
     for sparse, gt, K, T in load_frames().values():
@@ -189,17 +185,6 @@ def prepared_zoo_frame(name, seed, scale):
     rig = Rig(lidar=jaxdepth.io.default_lidar_spec(ZOO[name]["beams"]), cameras=cams, lidar_origin_m=origin,
               lidar_stated=frozenset({"beams"}))
     return prepare_sweep(points, rig), cams, depths
-
-
-def write_results(path, doc: dict, config, t0: float) -> None:
-    """``doc`` plus the config, run time and environment, atomically as JSON at ``path``."""
-    from jaxdepth.io.atomic import atomic_write_bytes
-    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test}, **doc,
-           "seconds": time.time() - t0,
-           "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
-    out = pathlib.Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())
 
 
 def zoo_rows(config, seeds, scale):

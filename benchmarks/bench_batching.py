@@ -8,7 +8,7 @@
 
 Medians after warm-up, compile time apart, block_until_ready before every clock read.
 
-    python benchmarks/bench_batching.py [--json benchmarks/results/batching.json]
+    python -m benchmarks.bench_batching [--json benchmarks/results/batching.json]
 """
 
 from __future__ import annotations
@@ -26,8 +26,7 @@ import time
 import jax
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks._common import ROOT, load_frame
 
 
 def timed(call, repeats):
@@ -43,7 +42,6 @@ def timed(call, repeats):
 
 
 def frames_section(batch_sizes, strategies, devices, repeats):
-    from bench_end_to_end import load_frame
     from jaxdepth import SGMConfig
     from jaxdepth.batch import runner
     from jaxdepth._src import presets

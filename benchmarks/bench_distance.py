@@ -1,11 +1,11 @@
 """Run time of step 3 (nearest_seed) against its previous version, OpenCV and SciPy, in one process.
 
 Mask: the real KITTI sparse input of the end-to-end benchmark
-(``bench_end_to_end.load_frame()``: drive_0001 frame 5, camera 2, cropped to
+(``benchmarks._common.load_frame()``: drive_0001 frame 5, camera 2, cropped to
 352 x 1216), ``sparse > 0``; a random ~4 % mask of that size when the shared
 data is missing.
 
-    PYTHONPATH=. python benchmarks/bench_distance.py [--runs 40] [--json benchmarks/results/distance.json]
+    PYTHONPATH=. python -m benchmarks.bench_distance [--runs 40] [--json benchmarks/results/distance.json]
 
 Compared (all return distances and the nearest seed):
 - jaxdepth nearest_seed, metric "l1" and "l2" (distance, du, dv);
@@ -46,8 +46,7 @@ REFERENCE_COMMIT = "070cbc9"  # nearest_seed before the l2 speed work (Meijster 
 
 
 def load_mask() -> tuple[np.ndarray, str]:
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_end_to_end import load_frame
+    from benchmarks._common import load_frame
 
     sparse, _, _, source = load_frame()
     return np.asarray(sparse) > 0, source + ", sparse > 0"

@@ -6,7 +6,7 @@ warm-up (compile time separately), ratios against the OpenCV baselines timed in
 the same run, per-stage times (each stage jitted on its own), batched
 throughput for lax.map and vmap batching, and peak resident memory.
 
-    python benchmarks/bench_end_to_end.py [--repeats 50] [--json benchmarks/results/end_to_end.json]
+    python -m benchmarks.bench_end_to_end [--repeats 50] [--json benchmarks/results/end_to_end.json]
         [--profile DIR]   # also write a jax.profiler trace of 10 frames (TensorBoard / Perfetto)
 """
 
@@ -34,22 +34,7 @@ from jaxdepth._src.methods import complete_with
 from jaxdepth.research.baselines import ip_basic_opencv
 from jaxdepth.batch import runner
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-FRAME = ROOT.parent / "shared" / "data" / "kitti" / "drive_0001_frame05"
-
-
-def load_frame():
-    if FRAME.exists():
-        from jaxdepth.io import crop_to_benchmark, read_depth_png, read_kitti_raw_calib
-        calib = read_kitti_raw_calib(FRAME / "calib_cam_to_cam.txt", FRAME / "calib_velo_to_cam.txt")
-        sparse, K = crop_to_benchmark(read_depth_png(FRAME / "velodyne_raw_image_02.png"), calib["cameras"][2]["K"])
-        return sparse, K, calib["cameras"][2]["T_cam_lidar"], "KITTI drive_0001 frame 5, camera 2, 352x1216"
-    rng = np.random.default_rng(0)
-    sparse = np.where(rng.random((352, 1216)) < 0.04, rng.uniform(2, 80, (352, 1216)), 0).astype(np.float32)
-    K = presets.KITTI_K_CAM2.copy()
-    K[0, 2] -= 13
-    K[1, 2] -= 23
-    return sparse, K, presets.KITTI_T_CAM2_LIDAR, "random 4 % sparse 352x1216 (shared data missing)"
+from benchmarks._common import ROOT, load_frame
 
 
 def timeit(fn, repeats):

@@ -6,7 +6,7 @@ reflectance), pads it to 131072 points with a validity mask, and times
 reported separately; median of repeated runs after warm-up). Also times the
 dense case: every pixel of the 352x1216-cropped KITTI ground truth back-projected
 to the LiDAR frame (~430k points padded to 524288). Then ``pixel_normals`` on
-the KITTI benchmark frame (``bench_end_to_end.load_frame()``, ~18.9k LiDAR
+the KITTI benchmark frame (``benchmarks._common.load_frame()``, ~18.9k LiDAR
 pixels of 352x1216, SGMConfig defaults smoothing=1, fill_max_gap=2) against the
 frozen pre-speed-up version (``normals.py`` at commit ``REFERENCE_COMMIT``,
 loaded with ``git show``) and the listed-pixels version (``LISTED_COMMIT``),
@@ -14,7 +14,7 @@ timed interleaved in the same process, with the largest output differences.
 ``point_normals`` on the sweep cases is timed interleaved against
 ``LISTED_COMMIT`` too. Prints a table and writes benchmarks/results/normals.json.
 
-Usage: python benchmarks/bench_normals.py [--repeats 50]
+Usage: python -m benchmarks.bench_normals [--repeats 50]
 """
 
 from __future__ import annotations
@@ -84,8 +84,7 @@ def _interleaved(fns: dict, repeats: int):
 
 def pixel_case(repeats: int):
     """pixel_normals on the KITTI benchmark frame: new vs the reference version, same process."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_end_to_end import load_frame
+    from benchmarks._common import load_frame
 
     from jaxdepth._src.pixel_normals import pixel_normals
 

@@ -1,6 +1,6 @@
 """The offline job as users run it: `jaxdepth complete SRC DST` against IP_Basic's plain loop.
 
-Issue 14, target 2: over a KITTI depth-completion folder of >= 960 frames, with the
+Target: over a KITTI depth-completion folder of >= 960 frames, with the
 compile cache warm and process start-up included, `jaxdepth complete SRC DST` must take
 at most 0.7x the wall time of a plain one-process loop
 
@@ -22,7 +22,7 @@ compile cache (a temporary XDG_CACHE_HOME), as a user's earlier run would have. 
 checks that every jaxdepth run wrote the same bytes, prints the ratios and writes
 benchmarks/results/offline_job.json.
 
-    python benchmarks/bench_offline_job.py [--frames 960] [--repeats 3] [-- extra jaxdepth complete options]
+    python -m benchmarks.bench_offline_job [--frames 960] [--repeats 3] [-- extra jaxdepth complete options]
 """
 
 from __future__ import annotations
@@ -68,7 +68,6 @@ print(f"ip_basic loop: {n} frames in {time.perf_counter() - t0:.2f} s", file=sys
 
 def build_folder(root: pathlib.Path, frames: int) -> pathlib.Path:
     """KITTI depth-completion layout with ``frames`` frames (cameras 2 and 3 alternating)."""
-    sys.path.insert(0, str(ROOT))
     from jaxdepth.io.calib import read_kitti_raw_calib  # numpy-only modules of the package's io
     calib = read_kitti_raw_calib(FRAME / "calib_cam_to_cam.txt", FRAME / "calib_velo_to_cam.txt")
     sources = []

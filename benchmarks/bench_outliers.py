@@ -5,7 +5,7 @@ Input: the official sparse depth ``velodyne_raw_image_02.png`` of
 columns 13..1228, K shifted by (13, 23)), KITTI camera-2 calibration from
 jaxdepth presets, 64 beams, epsilon 1 m, default caps (12, 24) px.
 
-    PYTHONPATH=. python benchmarks/bench_outliers.py [--runs 50] [--json benchmarks/results/outliers.json]
+    PYTHONPATH=. python -m benchmarks.bench_outliers [--runs 50] [--json benchmarks/results/outliers.json]
 
 Rows:
 - jax_*: the paper's axis-aligned condition 1 (``test="paper"``);
@@ -53,8 +53,7 @@ from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.outliers import outlier_keep_mask, window_half_sizes
 
 # The frozen dense sweep (the pre-rewrite implementation) lives in tests/oracles/.
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-from oracles.outliers_dense_sweep import frozen_keep_mask  # noqa: E402
+from tests.oracles.outliers_dense_sweep import frozen_keep_mask
 
 
 # ----------------------------------------------------------------------------- benchmark

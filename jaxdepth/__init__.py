@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDEs
+if TYPE_CHECKING:  # the names of _LAZY below, imported eagerly, for type checkers and IDEs
     from jaxdepth._src.config import SGMConfig as SGMConfig
     from jaxdepth._src.types import Camera as Camera, LidarSpec as LidarSpec, Stages as Stages
     from jaxdepth._src.presets import (KITTI_HDL64 as KITTI_HDL64, NUSCENES_HDL32 as NUSCENES_HDL32,
@@ -33,6 +33,10 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
     from jaxdepth._src.rig import (RigCameras as RigCameras, stack_cameras as stack_cameras,
                                    stack_images as stack_images, complete_rig as complete_rig,
                                    complete_rig_stages as complete_rig_stages)
+    from jaxdepth._src.sources import (Sources as Sources, make_sources as make_sources,
+                                       complete_sources as complete_sources,
+                                       complete_sources_stages as complete_sources_stages,
+                                       free_space_keep as free_space_keep)
     from jaxdepth._src.methods import complete_with as complete_with
     from jaxdepth._src.ip_basic import ip_basic as ip_basic
     from jaxdepth._src.metrics import (depth_metrics as depth_metrics, interpolate_background as interpolate_background,
@@ -63,6 +67,8 @@ _LAZY = {
     'jaxdepth._src.smoothing': ('gaussian_blur', 'gaussian_blur_traced'),
     'jaxdepth._src.pipeline': ('complete', 'complete_stages', 'complete_points', 'complete_points_stages'),
     'jaxdepth._src.rig': ('RigCameras', 'stack_cameras', 'stack_images', 'complete_rig', 'complete_rig_stages'),
+    'jaxdepth._src.sources': ('Sources', 'make_sources', 'complete_sources', 'complete_sources_stages',
+                              'free_space_keep'),
     'jaxdepth._src.methods': ('complete_with',),
     'jaxdepth._src.ip_basic': ('ip_basic',),
     'jaxdepth._src.metrics': ('depth_metrics', 'interpolate_background', 'mean_metrics', 'pair_errors'),
@@ -88,15 +94,6 @@ def __dir__():
     return sorted(set(globals()) | set(_MODULE_OF))
 
 
-__all__ = [
-    "SGMConfig", "Camera", "LidarSpec", "Stages", "KITTI_HDL64", "NUSCENES_HDL32", "KITTI_T_CAM2_LIDAR",
-    "KITTI_T_CAM3_LIDAR",
-    "KITTI_K_CAM2", "project_to_image", "unproject_depth", "range_image", "point_normals", "range_image_normals",
-    "outlier_keep_mask", "nearest_seed", "gather_at_seed", "geodesic_seed", "plane_residual", "column_hypotheses",
-    "gaussian_blur", "complete",
-    "complete_stages", "complete_points", "complete_points_stages", "RigCameras", "stack_cameras", "stack_images",
-    "complete_rig", "complete_rig_stages", "complete_with", "ip_basic", "depth_metrics", "interpolate_background",
-    "mean_metrics", "pair_errors", "hidden_point_mask", "hidden_point_scores", "colorize_depth", "colorize_normals",
-    "make_street_scene", "SyntheticFrame", "gaussian_blur_traced", "overlay_depth", "overlay_mask",
-    "depth_preview", "ray_elevation", "fov_mask", "seed_distance", "validity_mask", "validity_and_distance",
-]
+#: The public names: exactly the names of ``_LAZY`` (the TYPE_CHECKING block above lists the same
+#: imports for type checkers; tests/test_layers.py checks the two agree).
+__all__ = [name for names in _LAZY.values() for name in names]

@@ -6,18 +6,16 @@ Exit codes: 0 success, 1 data error (one-line message) or failed frames, 2 usage
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import pathlib
 import sys
 import time
 
-import numpy as np
-
 from jaxdepth import __version__
 from jaxdepth.batch import devices
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
+from jaxdepth.options import add_config_options, config_changes
 
 log = logging.getLogger("jaxdepth")
 
@@ -66,32 +64,6 @@ def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest"
                         "(default 0: GeoS's plain cost)")
 
 
-#: --hypotheses: the SGMConfig fields each of Step 4's variants sets.
-_HYPOTHESES = {"paper": dict(column_bracket=False, blend_hypotheses=False),
-               "bracket": dict(column_bracket=True, blend_hypotheses=False),
-               "blend": dict(column_bracket=True, blend_hypotheses=True)}
-
-
-def add_config_options(p: argparse.ArgumentParser) -> None:
-    """The SGMConfig options every completing command takes (``jaxdepth`` and the research commands)."""
-    p.add_argument("--distance", choices=("l1", "l2"), default="l1",
-                   help="nearest-seed metric of the distance transform (default: l1, city block as in the paper; "
-                        "l2: Euclidean, SGM 1.5-1.8x slower)")
-    p.add_argument("--epsilon", type=float, default=None, help="outlier depth margin in metres (default 1.0)")
-    p.add_argument("--hypotheses", choices=tuple(_HYPOTHESES), default="bracket",
-                   help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
-                        "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
-                        "scan-line spacing), blend (also average in those pixels' own planes)")
-
-
-def config_changes(args) -> dict:
-    """SGMConfig fields set by :func:`add_config_options`' arguments."""
-    changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
-    if getattr(args, "epsilon", None) is not None:
-        changes["epsilon_m"] = args.epsilon
-    return changes
-
-
 def _config_from(args):
     from jaxdepth._src.config import SGMConfig
     changes = config_changes(args)
@@ -130,8 +102,8 @@ def cmd_complete(args) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    if getattr(args, "nusc_version", None) is not None:  # a nuScenes dataroot: its own job
-        return _cmd_complete_nuscenes(args)
+    if (code := _complete_own_job(args)) is not None:  # nuScenes, Argoverse 2, KITTI raw --sweeps
+        return code
     usage = _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
@@ -149,22 +121,25 @@ def cmd_complete(args) -> int:
     if args.extrinsic is not None and (args.camera is not None or args.calib_dir is not None):
         raise InputError("--extrinsic gives the extrinsic itself: use it without --camera / --calib-dir")
     if scan is not None:
-        jobs = scan.jobs
+        jobs = [runner.FrameJob.from_files(frame) for frame in scan.jobs]
     elif args.extrinsic is not None:
         T_fixed = read_extrinsic_txt(args.extrinsic)
         extrinsic_of = lambda path: T_fixed  # noqa: E731
     else:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
-        _ensure_writable_dir(dst)
-        from jaxdepth.io.kitti_datasets import make_output_folders
-        make_output_folders(jobs)
+        _claim_output_folder(dst, args, inputs=[src], out_paths=[job.out_path for job in jobs], crop=args.crop,
+                             camera=args.camera)
+        from jaxdepth.io.atomic import make_output_folders
+        make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
         if not src.exists():
             raise InputError(f"{src}: input file not found")
         if args.intrinsics is None:
             raise InputError(f"{src}: a single image needs --intrinsics K.txt (9 numbers, row-major K)")
         image_of = _image_finder(src, args)
+        from jaxdepth.io.atomic import ensure_output_dir
+        ensure_output_dir(dst.parent)  # before the computation, not at its first write
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
                                 K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src),
                                 image_path=image_of(src))]
@@ -176,7 +151,15 @@ def cmd_complete(args) -> int:
                                 intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png),
                                 image_path=image_of(png))
                 for name, png, k_path in frames]
-        _ensure_writable_dir(dst)
+        _claim_output_folder(dst, args, inputs=[src], camera=args.camera,
+                             intrinsics=None if args.intrinsics is None else str(args.intrinsics),
+                             extrinsic=None if args.extrinsic is None else str(args.extrinsic))
+    return _run_frame_jobs(_forced_jobs(jobs, args), pre_failed, args)
+
+
+def _run_frame_jobs(jobs, pre_failed, args) -> int:
+    """Runs ``complete``'s frame jobs on the local or Ray engine with progress; the exit code."""
+    from jaxdepth.batch import runner
     if args.engine == "local" and len(jobs) > 1 and args.cpu_devices != 1:
         devices.split_cpu_into_devices(None if args.cpu_devices == 0 else args.cpu_devices)
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
@@ -198,6 +181,94 @@ def cmd_complete(args) -> int:
                                   extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _complete_own_job(args) -> int | None:
+    """Runs ``complete`` on a layout with its own job (a nuScenes dataroot with --nusc-version, an Argoverse 2
+    log or folder of logs, KITTI raw drives with --sweeps N > 0) and returns the exit code; None for the
+    other layouts."""
+    if getattr(args, "nusc_version", None) is not None:
+        return _cmd_complete_nuscenes(args)
+    from jaxdepth.batch.av2_job import is_av2_root
+    if is_av2_root(args.src):
+        return _cmd_complete_av2(args)
+    if args.cameras is not None:
+        print("jaxdepth: error: --cameras applies to Argoverse 2 logs", file=sys.stderr)
+        return 2
+    if args.sweeps:
+        src = pathlib.Path(args.src)
+        return _cmd_complete_kitti_sweeps(args, _discover_dataset(src, pathlib.Path(args.dst), args))
+    return None
+
+
+def _multi_source_usage(args, what: str) -> str | None:
+    """Why the options given cannot be used with a multi-source job (None: they can)."""
+    if args.method != "sgm":
+        return f"{what} runs the multi-source SGM path: --method sgm only"
+    if args.guidance_weight > 0:
+        return f"{what}: --guidance-weight is not supported (no camera images are read)"
+    extras = _extras_from(args)
+    if extras.kinds or extras.needs_seeds:
+        return f"{what}: the extra outputs (--preview, --validity, ...) are not supported"
+    if args.engine != "local":
+        return f"{what}: --engine local only"
+    return None
+
+
+def _cmd_complete_av2(args) -> int:
+    """``jaxdepth complete LOG DST``: an Argoverse 2 log or a folder of logs (exit 0 ok, 1 failed, 2 usage)."""
+    from jaxdepth.batch.av2_job import find_logs, run_av2
+
+    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
+                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic),
+                                      ("--image-dir", args.image_dir), ("--crop", args.crop or None))
+             if value is not None]
+    usage = (f"{', '.join(given)} cannot be used with an Argoverse 2 log (its calibration is used)" if given
+             else _multi_source_usage(args, "an Argoverse 2 log"))
+    if usage is None and args.sweeps is not None and args.sweeps < 0:
+        usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    dst = pathlib.Path(args.dst)
+    cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0,
+                         cameras=None if cameras is None else ",".join(cameras))
+    total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
+    progress = Progress(total, enabled=not args.quiet, label="sweep ")
+    summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
+                      overwrite=args.overwrite, png_compression=args.png_compression,
+                      io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+    progress.close()
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+
+
+def _cmd_complete_kitti_sweeps(args, scan) -> int:
+    """``jaxdepth complete KITTI_RAW DST --sweeps N`` (N > 0): each sweep with N neighbours on each side."""
+    from jaxdepth.batch.kitti_sweeps_job import run_kitti_raw_sweeps
+    from jaxdepth.io.errors import InputError
+
+    if scan is None or scan.layout != "kitti-raw":
+        raise InputError(f"{args.src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
+                         "(--nusc-version)")
+    usage = _multi_source_usage(args, "--sweeps")
+    if usage is None and args.sweeps < 0:
+        usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    if usage:
+        print(f"jaxdepth: error: {usage}", file=sys.stderr)
+        return 2
+    _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
+                         out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
+                         sweeps=args.sweeps)
+    progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
+    for name, message in scan.failed:
+        progress.update(name, f"failed: {message}")
+    summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
+                                   overwrite=args.overwrite, png_compression=args.png_compression,
+                                   io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+    progress.close()
+    summary.failed[:0] = scan.failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
 
 
@@ -267,17 +338,31 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     return scan
 
 
+def _forced_jobs(jobs, args):
+    """``--force``: every job reads inputs that fail the plausibility checks (logged once here, and per file)."""
+    if not getattr(args, "force", False):
+        return jobs
+    import dataclasses
+    log.warning("--force: inputs that fail the plausibility checks are used anyway (each one is logged)")
+    return [dataclasses.replace(job, force=True) for job in jobs]
+
+
+def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), **options):
+    """Checks the output folder's run record against this run's settings and writes it
+    (:mod:`jaxdepth.batch.run_record`; KITTI trees: one per ``proj_depth/<name>``): a re-run with
+    other settings is refused unless --overwrite."""
+    from jaxdepth.batch import run_record
+    _ensure_writable_dir(dst)
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
+    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
+    record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
+    for folder in run_record.record_folders(dst, out_paths):
+        run_record.claim_folder(folder, record, overwrite=args.overwrite)
+
+
 def _ensure_writable_dir(path: pathlib.Path):
-    from jaxdepth.io.errors import OutputError
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputError(f"{path}: cannot create output folder ({err.strerror or err})") from None
-    if not path.is_dir():
-        raise OutputError(f"{path}: output path exists and is not a folder")
-    import os
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{path}: output folder is not writable")
+    from jaxdepth.io.atomic import ensure_output_dir
+    ensure_output_dir(path)
 
 
 def _report(summary, quiet: bool, *, t_start: float | None = None) -> int:
@@ -318,9 +403,6 @@ def _add_nuscenes_options(parser) -> None:
                     "image-guided seeds, and a missing or bad image fails its sample")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
                        help="complete every sample of DATAROOT/VERSION (v1.0-mini, v1.0-trainval, v1.0-test)")
-    group.add_argument("--sweeps", type=int, default=1, metavar="N",
-                       help="LiDAR sweeps per sample (default 1: the key frame; N > 1: the key frame and N-1 earlier "
-                            "sweeps moved into its frame by their ego poses, as the devkit's from_file_multisweep)")
     group.add_argument("--no-ego-motion", dest="ego_motion", action="store_false",
                        help="do not compensate the vehicle's motion between the LiDAR and each camera's timestamp "
                             "(default: compensate, LiDAR -> ego(t_lidar) -> global -> ego(t_cam) -> camera)")
@@ -341,15 +423,20 @@ def _cmd_complete_nuscenes(args) -> int:
                  "JPEG its sample_data row names in the dataroot")
     elif args.method != "sgm":
         usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
-    elif args.sweeps < 1:
-        usage = f"--sweeps expected an integer >= 1, got {args.sweeps}"
+    elif args.sweeps is not None and args.sweeps < 1:
+        usage = f"--sweeps with --nusc-version expected an integer >= 1 (sweeps per sample), got {args.sweeps}"
+    elif (args.sweeps or 1) > 1 and _extras_from(args).needs_seeds:
+        usage = "--validity, --seed-distance and --zero-invalid need --sweeps 1 with --nusc-version"
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
+    args.sweeps = 1 if args.sweeps is None else args.sweeps
     dst = pathlib.Path(args.dst)
     _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
+    # outputs go to DST/<version>/...: the version is an input, not a setting
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion)
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
@@ -365,82 +452,53 @@ def _cmd_complete_nuscenes(args) -> int:
 
 
 def cmd_complete_rig(args) -> int:
-    import jaxdepth
-    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
-    from jaxdepth.io.points import ring_column
-
-    from jaxdepth.batch import extras as extra_outputs
+    from jaxdepth.batch.rig_job import run_rig_job
 
     usage = _extras_usage(args) or _guidance_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
-    extras = _extras_from(args)
-    config = _config_from(args)
-    rig = read_rig_json(args.rig)
-    images = _rig_images(args, rig) if config.guidance_weight > 0 else None
-    columns = infer_point_columns(args.points, args.point_columns)
-    points, extra = read_points(args.points, columns=columns)
-    frame = prepare_sweep(points, rig, ring=ring_column(extra, columns), estimate=not args.no_estimate)
-    if not frame.outlier_removal_trusted and config.outlier_removal:
-        config = config.replace(outlier_removal=False)
-    if not args.quiet:
-        for note in frame.notes:
-            print(f"sweep: {note}", file=sys.stderr)
-    rig = frame.rig
-    padded, valid = pad_points(frame.points)
-    out_dir = pathlib.Path(args.out_dir)
-    _ensure_writable_dir(out_dir)
-    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
-    depth = np.asarray(stages.depth)
-    valid = distance = None
-    if extras.needs_seeds:
-        from jaxdepth._src.validity import rig_validity_and_distance
-        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
-            stages, cameras, lidar=rig.lidar, metric=config.distance_metric,
-            max_seed_distance_px=extras.max_seed_distance_px))
-    seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
-    for i, camera in enumerate(rig.cameras):
-        if seen[i] == 0:
-            message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
-                       f"(check T_cam_lidar in {args.rig}: it maps the sweep's frame into the camera, which "
-                       "looks along +z, x right, y down)")
-            log.warning("%s", message)
-            print(f"warning: {message}", file=sys.stderr)
-        target = out_dir / f"{camera.name}.png"
-        if extra_outputs.is_done(target, extras) and not args.overwrite:
-            print(f"{target}: exists, skipped (use --overwrite)", file=sys.stderr)
-            continue
-        window = (i, slice(0, camera.height), slice(0, camera.width))
-        extra_outputs.write_outputs(target, depth[window], extras=extras,
-                                    valid=None if valid is None else valid[window],
-                                    distance=None if distance is None else distance[window],
-                                    overwrite=args.overwrite)
-        if not args.quiet:
-            valid_px = int(np.count_nonzero(depth[i, :camera.height, :camera.width]))
-            print(f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
-    return 0
 
+    def report(kind: str, text: str) -> None:
+        if kind == "warning":
+            print(f"warning: {text}", file=sys.stderr)
+        elif kind == "skipped":
+            print(text, file=sys.stderr)
+        elif kind == "note" and not args.quiet:
+            print(f"sweep: {text}", file=sys.stderr)
+        elif kind == "written" and not args.quiet:
+            print(text)
 
-def _rig_images(args, rig):
-    """complete-rig's (C, H, W[, 3]) uint8 camera images: --image-dir, else the rig JSON's image fields."""
-    from jaxdepth.io.rig_images import read_rig_images, rig_image_paths
-    paths = rig_image_paths(rig.cameras, image_dir=args.image_dir, rig_json=args.rig,
-                            json_images={c.name: c.image for c in rig.cameras if c.image is not None})
-    return read_rig_images(paths, rig.cameras)
+    from jaxdepth.batch import run_record
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args),
+                                      estimate=not args.no_estimate)
+    record = run_record.make_record(settings, inputs=[args.points, args.rig],
+                                    command=getattr(args, "command_line", None))
+    summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args), extras=_extras_from(args),
+                          point_columns=args.point_columns, estimate=not args.no_estimate, image_dir=args.image_dir,
+                          overwrite=args.overwrite, report=report, force=args.force, record=record)
+    return summary.exit_code
 
 
 def cmd_eval(args) -> int:
     from jaxdepth.research import evaluation
-    from jaxdepth.io.atomic import atomic_write_bytes
-    table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt))
+    from jaxdepth.batch import run_record
+    table = evaluation.evaluate_folders(pathlib.Path(args.pred), pathlib.Path(args.gt), force=args.force)
+    found = run_record.find_record(args.pred)
+    if found is None:  # a KITTI tree: the records of its proj_depth/<name> folders, when they agree
+        below = run_record.find_records_below(args.pred)
+        if below and all(r["settings"] == below[0][1]["settings"] for _, r in below):
+            found = below[0]
     for line in evaluation.format_table(table):
         print(line)
-    if args.json:
-        atomic_write_bytes(pathlib.Path(args.json), json.dumps(table, indent=2, sort_keys=True).encode())
-    if args.csv:
-        atomic_write_bytes(pathlib.Path(args.csv), evaluation.format_csv(table).encode())
+    if found is None:
+        print(f"prediction settings: unknown (no {run_record.RUN_FILE} in {args.pred} or above)")
+        table["prediction_run"] = None
+    else:
+        for line in run_record.summary_lines(found[1], path=found[0]):
+            print(line)
+        table["prediction_run"] = dict(found[1], path=str(found[0]))
+    evaluation.write_table(table, json_path=args.json, csv_path=args.csv)
     return 0
 
 
@@ -476,7 +534,9 @@ def _add_complete_command(sub) -> None:
                          "folder or one PNG",
         description="Completes every frame of SRC into DST. SRC layouts: KITTI raw (a date folder, one drive, or "
                     "a folder of dates: velodyne_points/data/*.bin, calibration per date) -> "
-                    "DST/<drive>/proj_depth/<name>/image_0X/<frame>.png; KITTI depth-completion train/val "
+                    "DST/<drive>/proj_depth/<name>/image_0X/<frame>.png; an Argoverse 2 sensor log or a folder of "
+                    "logs (<log>/sensors/lidar/*.feather, calibration/) -> DST/<log>/<camera>/<lidar ts>.png, "
+                    "needs pyarrow; KITTI depth-completion train/val "
                     "(<drive>/proj_depth/velodyne_raw/image_0X/*.png, needs --calib-dir) -> the same tree with "
                     "<name> for velodyne_raw; KITTI object training/testing (velodyne/, calib/, image_2/) -> "
                     "DST/<split>/depth_2/<frame>.png; a selection folder (velodyne_raw/ + intrinsics/) or flat "
@@ -511,8 +571,18 @@ def _add_complete_command(sub) -> None:
                         "velodyne_raw/); a KITTI raw drive or a depth-completion train/val tree reads "
                         "DIR/<date>/<drive>/image_0X/data/<frame>.png (a raw root; default for raw: the drive's "
                         "own image_0X/data, train/val trees have none); KITTI object uses its image_X/")
+    p.add_argument("--sweeps", type=int, default=None, metavar="N",
+                   help="accumulate LiDAR sweeps, each completed as its own source (see docs/datasets.md): KITTI raw "
+                        "and Argoverse 2: N neighbouring sweeps on each side of every sweep (default 0), posed by "
+                        "OXTS + calib_imu_to_velo.txt / the city poses; nuScenes: N sweeps per sample, the key "
+                        "frame and N-1 earlier ones (default 1, the devkit's from_file_multisweep)")
+    p.add_argument("--cameras", default=None, metavar="NAMES",
+                   help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
-    p.add_argument("--overwrite", action="store_true", help="recompute outputs that already exist")
+    p.add_argument("--overwrite", action="store_true",
+                   help="recompute outputs that already exist (also needed to re-run into a folder whose "
+                        "jaxdepth_run.json records other settings)")
+    _add_force_option(p)
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,
                    metavar="0-9",
                    help=f"zlib level of the output PNGs (default {_PNG_COMPRESSION_DEFAULT}: fast; 9: smallest, "
@@ -532,24 +602,34 @@ def _add_complete_command(sub) -> None:
 
 def _add_complete_rig_command(sub) -> None:
     p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
-    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz")
-    p.add_argument("rig", help="rig JSON (see README: lidar beams, cameras with K and T_cam_lidar)")
+    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz; or a "
+                                  "sweeps JSON {\"sweeps\": [{\"file\", \"T_ref_sweep\"}]} (see docs/multi_source.md)")
+    p.add_argument("rig", help="rig JSON (see docs/rig_json.md: lidar beams, cameras with K and T_cam_lidar)")
     p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
     p.add_argument("--point-columns", type=int, default=None,
                    help="float32 values per .bin record (default: 5 for *.pcd.bin, else the one of 4 or 5 that "
                         "the file size fits; a size that fits both must be given)")
     p.add_argument("--no-estimate", action="store_true",
-                   help="do not check the sweep against its LiDAR (see README, Rig JSON: lidar.origin_m)")
+                   help="do not check the sweep against its LiDAR (see docs/rig_json.md: lidar.origin_m)")
     _add_method_options(p, methods=("sgm",))
     p.add_argument("--image-dir", default=None, metavar="DIR",
                    help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
                         "or colour, each the camera's width x height; all grey or all colour); default: each "
                         "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing outputs (also needed when the folder's jaxdepth_run.json records other "
+                        "settings)")
+    _add_force_option(p)
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
     p.set_defaults(func=cmd_complete_rig)
+
+
+def _add_force_option(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
+                        "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
 
 
 def _add_eval_command(sub) -> None:
@@ -573,6 +653,9 @@ def _add_eval_command(sub) -> None:
     p.add_argument("--csv", metavar="PATH",
                    help="write one row per frame to this CSV file: frame, rmse_mm, mae_mm, irmse_per_km, "
                         "imae_per_km, prediction, ground_truth (the paired files)")
+    p.add_argument("--force", action="store_true",
+                   help="score even when a side fails the checks (a PNG not in metres x 256; a prediction that "
+                        "covers under half of its ground truth: swapped folders or LiDAR input); logged")
     p.set_defaults(func=cmd_eval)
 
 
@@ -589,6 +672,7 @@ def main(argv=None) -> int:
         return 2
     devices.quiet_jax_start()
     args.t_start = t_start
+    args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     devices.use_compile_cache(args.compile_cache)
     try:
         return int(args.func(args) or 0)

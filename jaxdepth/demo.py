@@ -62,7 +62,12 @@ def lidar_visible_ground_truth(dense: np.ndarray, camera, lidar) -> np.ndarray:
 
 def run_demo(out_dir: pathlib.Path, *, seed: int = 0, method: str = "sgm",
              config: SGMConfig = SGMConfig()) -> DemoResult:
-    """Renders the scene, completes camera 0 from the raw sweep and writes the outputs."""
+    """Renders the scene, completes camera 0 from the raw sweep and writes the outputs.
+
+    The output folder is created and checked first (:class:`~jaxdepth.io.errors.OutputError`
+    before any computation when it cannot be written)."""
+    from jaxdepth.io.atomic import ensure_output_dir
+    ensure_output_dir(out_dir)
     start = time.perf_counter()
     frame = make_street_scene(seed)
     camera = frame.cameras[0]

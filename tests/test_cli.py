@@ -79,14 +79,15 @@ def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
     err = capsys.readouterr().err
     assert code == 1
     assert "FAILED frame_bad:" in err and "frame_bad.png" in err and "Traceback" not in err
-    assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png"]
+    assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png",
+                                                     "jaxdepth_run.json"]  # the outputs and the run record
     stamps = {p.name: p.stat().st_mtime_ns for p in dst.iterdir()}
     code = cli.main(["complete", str(src), str(dst), "--batch-size", "2", "--method", "nearest"])
     err = capsys.readouterr().err
     assert code == 1 and "0 completed, 3 skipped" in err
     assert stamps == {p.name: p.stat().st_mtime_ns for p in dst.iterdir()}
-    # nothing but finished PNGs in the output folder (no temp files)
-    assert all(p.suffix == ".png" for p in dst.iterdir())
+    # nothing but finished PNGs and the run record in the output folder (no temp files)
+    assert all(p.suffix == ".png" or p.name == "jaxdepth_run.json" for p in dst.iterdir())
 
 
 def test_complete_single_image_matches_library(tmp_path, frames):
@@ -152,13 +153,13 @@ def test_interrupt_leaves_no_partial_png_and_rerun_completes(tmp_path, frames, m
     code = cli.main(["complete", str(src), str(dst), "--batch-size", "1", "--method", "nearest", "-q"])
     monkeypatch.undo()
     assert code == 130
-    names = sorted(p.name for p in dst.iterdir())
+    names = sorted(p.name for p in dst.iterdir() if p.name != "jaxdepth_run.json")
     assert all(n.endswith(".png") and n.startswith("frame_") for n in names), names  # no temp file left
-    for p in dst.iterdir():
+    for p in dst.glob("*.png"):
         read_depth_png(p)  # every file present is a complete PNG
     code = cli.main(["complete", str(src), str(dst), "--batch-size", "1", "--method", "nearest", "-q"])
     assert code == 0
-    assert sorted(p.name for p in dst.iterdir()) == ["frame_000.png", "frame_001.png", "frame_002.png"]
+    assert sorted(p.name for p in dst.glob("*.png")) == ["frame_000.png", "frame_001.png", "frame_002.png"]
 
 
 @pytest.mark.slow  # subprocess
@@ -271,7 +272,7 @@ def test_png_compression_option_changes_size_not_values_and_summary_has_timings(
         err = capsys.readouterr().err
         assert code == 0, err
         assert "2 completed" in err and "start-up" in err and "first frame written at" in err
-        outs[level] = {p.name: p for p in sorted(dst.iterdir())}
+        outs[level] = {p.name: p for p in sorted(dst.glob("*.png"))}
     for name in outs["0"]:
         np.testing.assert_array_equal(read_depth_png(outs["0"][name]), read_depth_png(outs["9"][name]))
         np.testing.assert_array_equal(read_depth_png(outs["0"][name]), read_depth_png(outs[None][name]))

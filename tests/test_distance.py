@@ -229,20 +229,23 @@ def test_l2_wide_stack_layout():
 
 
 def _both_column_passes(mask: np.ndarray):
-    """l2 column pass results of the linked-stack pass and of the buffer-stack pass."""
-    from jaxdepth._src.distance import _l2_column_pass, _l2_column_pass_linked, _row_pass
+    """l2 column pass results of the linked-stack pass and of the frozen buffer-stack pass."""
+    from jaxdepth._src.distance import _l2_column_pass, _row_pass
+    from oracles.distance_buffer_stack import _l2_column_pass as _buffer_stack_pass
 
     h, w = mask.shape
     row_key_t = _row_pass(jnp.asarray(mask))
-    new = jax.jit(_l2_column_pass_linked, static_argnums=1)(row_key_t, h + w)
-    old = jax.jit(_l2_column_pass, static_argnums=1)(row_key_t, h + w)
+    new = jax.jit(_l2_column_pass, static_argnums=1)(row_key_t, h + w)
+    old = jax.jit(_buffer_stack_pass, static_argnums=1)(row_key_t, h + w)
     return new, old
 
 
 @pytest.mark.parametrize("shape,density", [((1, 1), 1.0), ((1, 40), 0.1), ((40, 1), 0.1), ((7, 9), 0.0),
-                                           ((7, 9), 1.0), ((131, 67), 0.01), ((64, 64), 0.2)])
+                                           ((7, 9), 1.0), ((131, 67), 0.01), ((64, 64), 0.2),
+                                           ((8193, 5), 0.01)])
 def test_l2_linked_equals_buffer_stack(shape, density):
-    """The linked stack (default) makes the same decisions as the (H + 1) * W buffer stack."""
+    """The linked stack makes the same decisions as the (H + 1) * W buffer stack (8193 rows: the
+    two-int32 entry layout)."""
     mask = _random_mask(shape, density, seed=shape[0] * 1000 + shape[1])
     new, old = _both_column_passes(mask)
     assert bool(new[3]) == bool(old[3]) == bool(mask.any())
@@ -287,12 +290,17 @@ def test_l2_vmap_keeps_row_loops_unbatched():
     """Under vmap the l2 build loop shares its bounds across the batch (a batched loop
     counter would turn every row read and write into gathers and scatters, ~5x slower),
     and nested vmap == loop."""
-    from jaxdepth._src.distance import _batch_bounds
+    from jaxdepth._src.xla_tuning import forced, shared_loop_bounds
 
-    first, stop = jax.vmap(_batch_bounds)(jnp.array([3, 1, 5]), jnp.array([7, 9, 2]))
-    np.testing.assert_array_equal(np.asarray(first), [1, 1, 1])
-    np.testing.assert_array_equal(np.asarray(stop), [9, 9, 9])
-    assert _batch_bounds(jnp.int32(3), jnp.int32(7)) == (3, 7)
+    with forced("cpu"):
+        first, stop = jax.vmap(shared_loop_bounds)(jnp.array([3, 1, 5]), jnp.array([7, 9, 2]))
+        np.testing.assert_array_equal(np.asarray(first), [1, 1, 1])
+        np.testing.assert_array_equal(np.asarray(stop), [9, 9, 9])
+        assert shared_loop_bounds(jnp.int32(3), jnp.int32(7)) == (3, 7)
+    with forced("plain"):  # the plain path keeps each member's own bounds
+        first, stop = jax.vmap(shared_loop_bounds)(jnp.array([3, 1, 5]), jnp.array([7, 9, 2]))
+        np.testing.assert_array_equal(np.asarray(first), [3, 1, 5])
+        np.testing.assert_array_equal(np.asarray(stop), [7, 9, 2])
     masks = np.stack([_random_mask((40, 33), d, seed=20 + i) for i, d in enumerate([0.0, 0.02, 0.1, 0.3])])
     masks[1, :10] = False  # different first seeded rows per member
     masks[2, 30:] = False

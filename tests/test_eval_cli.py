@@ -76,12 +76,13 @@ def test_eval_json_schema_and_numbers(capsys, folders, tmp_path):
     mean = jaxdepth.mean_metrics(rows)
     for key in KEYS:
         np.testing.assert_allclose(doc["mean"][key], mean[key], rtol=1e-6)
-    # Printed table: one line per frame, the mean, the missing-prediction warning.
+    # Printed table: one line per frame, the mean, the missing-prediction warning, the prediction's settings.
     lines = out.splitlines()
-    assert lines[0].split()[0] == "frame" and len(lines) == 1 + len(names) + 2
-    assert lines[-2].startswith("mean (3 frames)")
-    assert float(lines[-2].split()[3]) == pytest.approx(doc["mean"]["rmse"], abs=0.051)
-    assert "1 ground-truth frames have no prediction" in lines[-1]
+    assert lines[0].split()[0] == "frame" and len(lines) == 1 + len(names) + 3
+    assert lines[-3].startswith("mean (3 frames)")
+    assert float(lines[-3].split()[3]) == pytest.approx(doc["mean"]["rmse"], abs=0.051)
+    assert "1 ground-truth frames have no prediction" in lines[-2]
+    assert lines[-1].startswith("prediction settings: unknown (no jaxdepth_run.json")
 
 
 def test_eval_without_json_prints_only(capsys, folders, tmp_path):

@@ -68,9 +68,9 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
     assert cli.main(["complete", str(root), str(zeroed), "--batch-size", "2", "-q", "--validity",
                      "--zero-invalid"]) == 0
     assert len(extra_traces) == 1  # one compile for 3 frames (2 batches) and 2 runs
-    assert sorted(p.name for p in full.iterdir()) == sorted(
+    assert sorted(p.name for p in full.glob("*.png")) == sorted(
         f"frame_00{i}{s}.png" for i in range(3) for s in ("", "_preview", "_validity", "_seed_distance"))
-    assert sorted(p.name for p in plain.iterdir()) == [f"frame_00{i}.png" for i in range(3)]
+    assert sorted(p.name for p in plain.glob("*.png")) == [f"frame_00{i}.png" for i in range(3)]
 
     import jaxdepth
     from jaxdepth._src.validity import validity_and_distance
@@ -81,7 +81,7 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
         assert (full / f"{name}.png").read_bytes() == (plain / f"{name}.png").read_bytes()
         stages = jaxdepth.complete_stages(read_depth_png(root / "velodyne_raw" / f"{name}.png"), K, T)
         valid, dist = (np.asarray(a) for a in validity_and_distance(stages, K, T, lidar=presets.KITTI_HDL64,
-                                                                    metric="l1", max_seed_distance_px=16.0))
+                                                                    metric="l1"))  # the sensor's limit
         mask = _u16(full / f"{name}_validity.png")
         assert mask.dtype == np.uint8 and set(np.unique(mask)) <= {0, 255}
         np.testing.assert_array_equal(mask == 255, valid)
@@ -117,7 +117,7 @@ def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
     assert cli.main(["complete", str(root), str(out), *B2, "--preview", "--seed-distance"]) == 0
     assert "1 completed, 2 skipped" in capsys.readouterr().err
     assert (out / "frame_001_preview.png").exists() and _stamps(out)["frame_001.png"] == first["frame_001.png"]
-    assert all(p.suffix == ".png" for p in out.iterdir())  # no temp files left
+    assert all(p.suffix == ".png" or p.name == "jaxdepth_run.json" for p in out.iterdir())  # no temp files left
 
 
 @pytest.mark.parametrize("extra,pattern", [
@@ -207,7 +207,9 @@ def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
                       np.abs(elev - math.radians(lidar.fov_up_deg))) < 1e-5
     mask = _u16(folder / "CAM_FRONT_s1_validity.png") == 255
     dist = extras.decode_seed_distance(_u16(folder / "CAM_FRONT_s1_seed_distance.png"))
-    np.testing.assert_array_equal(mask[~edge], (inside & (dist <= 16))[~edge])
+    # the sensor's limit: 3 scan-line spacings of this camera, 3 * fy * beam step
+    limit = 3 * K[1, 1] * math.radians(lidar.fov_up_deg - lidar.fov_down_deg) / (lidar.beams - 1)
+    np.testing.assert_array_equal(mask[~edge], (inside & (dist <= limit))[~edge])
     assert mask.any() and not mask.all()
     # resume: the same extras skip every finished sample; a new one (preview) runs them again
     again = run_nuscenes(root, dst, version=VERSION, extras=wanted)

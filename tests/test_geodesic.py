@@ -317,7 +317,7 @@ def test_pipeline_guided_seeds_and_vmap():
         np.testing.assert_array_equal(stages.seed_depth, kept[v + np.asarray(want.dv), u + np.asarray(want.du)])
         loop.append(np.asarray(stages.depth))
     # uint8 is scaled to [0, 1]; a float image is taken as it is.
-    from jaxdepth._src.geodesic import guidance_image
+    from jaxdepth._src.images import guidance_image
     np.testing.assert_allclose(guidance_image(images[0], images[0].shape[:2], guided=True, where="t"),
                                images[0].astype(np.float32) / np.float32(255.0), rtol=1e-6)
     as_float = images[0].astype(np.float32) / 255.0

@@ -20,6 +20,7 @@ from jaxdepth.batch import runner
 from jaxdepth.io import (encode_depth_uint16, pad_points, read_depth_png, read_kitti_raw_calib, read_points,
                          rig_from_kitti_object, rig_from_kitti_raw)
 from jaxdepth.io import kitti_datasets
+from jaxdepth.io.atomic import make_output_folders
 from jaxdepth.io.calib import read_kitti_object_calib
 
 from conftest import require_shared
@@ -82,6 +83,9 @@ def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp
         assert err.count("FAILED") == 2 and "0000000001.bin" in err and "Traceback" not in err
         assert "4 completed, 0 skipped (already done), 2 failed" in err
         outs = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*") if p.is_file())
+        records = [o for o in outs if o.endswith("/jaxdepth_run.json")]  # one run record per proj_depth/<name>
+        assert records == [f"{drive}/proj_depth/sgm/jaxdepth_run.json" for drive in (DRIVE_A, DRIVE_B)]
+        outs = [o for o in outs if o not in records]
         assert outs == [f"{drive}/proj_depth/sgm/image_0{cam}/{frame}.png"
                         for drive, frame in ((DRIVE_A, "0000000005"), (DRIVE_B, "0000000000")) for cam in (2, 3)]
         for date, drive, frame in ((DATE_A, DRIVE_A, "0000000005"), (DATE_B, DRIVE_B, "0000000000")):
@@ -105,7 +109,8 @@ def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp
         err = capsys.readouterr().err
         assert code == 1 and "0 completed, 4 skipped (already done), 2 failed" in err
         assert stamps == {p: p.stat().st_mtime_ns for p in dst.rglob("*.png")}
-        assert not [p for p in dst.rglob("*") if p.is_file() and p.suffix != ".png"]  # no temp files left
+        assert not [p for p in dst.rglob("*") if p.is_file() and p.suffix != ".png"
+                    and p.name != "jaxdepth_run.json"]  # no temp files left
     finally:
         bad.unlink()
 
@@ -273,11 +278,11 @@ def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""
     from jaxdepth.batch import scale
     scan = kitti_datasets.kitti_raw_jobs(raw_tree / DATE_A, tmp_path / "ray", crop=True)
-    records = [scale._record(job) for job in scan.jobs]
+    records = [scale._record(runner.FrameJob.from_files(frame)) for frame in scan.jobs]
     assert [j.image_size for j in scale._jobs_from_batch({k: [r[k] for r in records] for k in records[0]})] == \
         [(352, 1216)] * 2
     batch = {key: np.array([r[key] for r in records], dtype=object) for key in records[0]}
-    kitti_datasets.make_output_folders(scan.jobs)
+    make_output_folders(job.out_path for job in scan.jobs)
     actor = scale._CompleteFrames(method="sgm", config=jaxdepth.SGMConfig(), lidar=jaxdepth.KITTI_HDL64,
                                   T_cam_lidar=np.eye(4), batch_size=2)
     rows = actor(batch)

@@ -1,6 +1,6 @@
-"""The package layout the README documents is the one on disk, and stays readable.
+"""The package layout docs/layout.md documents is the one on disk, and stays readable.
 
-README's Development section lists every module of ``jaxdepth/`` with one line each; a module
+docs/layout.md lists every module of ``jaxdepth/`` with one line each; a module
 added, moved or removed without its row fails here. Files stay under 700 lines and functions
 under 80 lines of code (docstrings, comments and blank lines aside).
 """
@@ -20,12 +20,12 @@ def _modules() -> set[str]:
             if p.name != "__init__.py" or p.parent == PACKAGE}
 
 
-def test_readme_layout_table_lists_every_module():
-    text = (REPO / "README.md").read_text()
+def test_layout_table_lists_every_module():
+    text = (REPO / "docs" / "layout.md").read_text()
     listed = set(re.findall(r"^\| `(jaxdepth/[\w/]+\.py)` \|", text, flags=re.M))
-    assert listed, "README has no layout table"
-    assert listed == _modules(), {"not in README": sorted(_modules() - listed),
-                                  "in README, not on disk": sorted(listed - _modules())}
+    assert listed, "docs/layout.md has no layout table"
+    assert listed == _modules(), {"not in docs/layout.md": sorted(_modules() - listed),
+                                  "in docs/layout.md, not on disk": sorted(listed - _modules())}
 
 
 def _code_lines(source_lines: list[str], node: ast.AST) -> int:

@@ -283,6 +283,33 @@ def test_multisweep_accumulation_by_hand(dataroot):
         np.testing.assert_array_equal(got[len(kept):, 3:], kept[:, 3:])
 
 
+def test_sweep_cloud_sources(dataroot):
+    """sweep_cloud: the accumulated points, one source per sweep; the earlier sweep's LiDAR sat D_SWEEP_M
+    behind the key frame's (vehicle x), and its points about that origin are its raw file's."""
+    from jaxdepth.io import nuscenes as nusc
+    root, tables, _ = dataroot
+    t = nusc.load_tables(root, VERSION)
+    key = t.tables["sample_data"]["lidar_s2"]
+    one = nusc.sweep_cloud(t, key, sweeps=1)
+    raw = np.fromfile(root / "samples" / "LIDAR_TOP" / "s2.pcd.bin", np.float32).reshape(-1, 5)
+    np.testing.assert_array_equal(one.points, raw[:, :3])
+    np.testing.assert_array_equal(one.T_ref_source, np.eye(4)[None])
+    np.testing.assert_array_equal(one.ring, raw[:, 4].astype(np.int32))
+    cloud = nusc.sweep_cloud(t, key, sweeps=3)  # the scene holds 2
+    stacked = nusc.accumulate_sweeps(t, key, sweeps=3)
+    np.testing.assert_array_equal(cloud.points, stacked[:, :3])
+    assert cloud.sweep.tolist() == [0, -1] and cloud.names == ("LIDAR_TOP@0", "LIDAR_TOP@-1")
+    R_lidar = oracle_pose(by_token(tables["calibrated_sensor"])["cs_lidar"])[:3, :3]
+    np.testing.assert_allclose(cloud.T_ref_source[1][:3, 3], R_lidar.T @ [-D_SWEEP_M, 0.0, 0.0], atol=1e-9)
+    earlier = cloud.points[cloud.source == 1].astype(np.float64)
+    T = cloud.T_ref_source[1]
+    kept = raw[~((np.abs(raw[:, 0]) < 1.0) & (np.abs(raw[:, 1]) < 1.0))]
+    np.testing.assert_allclose((earlier - T[:3, 3]) @ T[:3, :3], kept[:, :3], atol=1e-5)
+    inputs = nusc.sample_inputs(t, "s2", sweeps=2, sources=True)
+    np.testing.assert_array_equal(inputs.points, stacked)
+    np.testing.assert_array_equal(inputs.cloud.points, cloud.points)
+
+
 # ---------------------------------------------------------------- the job
 
 
@@ -345,6 +372,37 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     assert third.done == ["s2"] and lost.read_bytes() == before
     assert all((dst / f).stat().st_mtime_ns == stamps[f] for f in files if not f.endswith("CAM_BACK_s2.png"))
     assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
+
+
+def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
+    """sweeps=2: each sample's sweeps (s1: one, the scene's first; s2: two) go through complete_cloud as one
+    source per sweep; the job's bytes are a direct call's, and s2's differ from the single-sweep job's."""
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io import encode_depth_uint16
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.rig import Rig, RigCamera
+    from jaxdepth._src.presets import NUSCENES_HDL32
+    root, tables, _ = dataroot
+    single, _, _ = first_run
+    dst = tmp_path / "multi"
+    summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
+    assert sorted(summary.done) == ["s1", "s2"]
+    t = nusc.load_tables(root, VERSION)
+    changed = 0
+    for sample, count in (("s1", 1), ("s2", 2)):
+        inputs = nusc.sample_inputs(t, sample, sweeps=2, sources=True)
+        assert inputs.cloud.num_sources == count
+        rig = Rig(lidar=NUSCENES_HDL32, cameras=tuple(RigCamera(c.channel, c.width, c.height, c.K, c.T_cam_lidar)
+                                                      for c in inputs.cameras), lidar_origin_m=(0.0, 0.0, 0.0))
+        want = complete_cloud(inputs.cloud, rig, free_space=True)
+        for i, cam in enumerate(rig.cameras):
+            path = pathlib.Path(VERSION) / cam.name / f"{cam.name}_{sample}.png"
+            got = cv2.imread(str(dst / path), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(got, encode_depth_uint16(want[i, :cam.height, :cam.width]))
+            if sample == "s2":
+                changed += (dst / path).read_bytes() != (single / path).read_bytes()
+    assert changed > 0
 
 
 def test_command_line(dataroot, tmp_path, capsys):
@@ -503,3 +561,16 @@ def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, firs
     bad.write_bytes(good)
     again = run_nuscenes(root, dst, version=VERSION, config=config)
     assert again.done == ["s2"] and again.skipped == ["s1"] and [n for n, _ in again.failed] == ["s3"]
+
+
+def test_multisweep_refuses_seed_extras(dataroot, tmp_path, capsys):
+    from jaxdepth import cli
+    from jaxdepth.batch import extras as extra_outputs
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+    root, _, _ = dataroot
+    with pytest.raises(ValueError, match="need sweeps = 1"):
+        run_nuscenes(root, tmp_path / "o", version=VERSION, sweeps=2,
+                     extras=extra_outputs.ExtraOutputs(validity=True))
+    assert cli.main(["complete", str(root), str(tmp_path / "o"), "--nusc-version", VERSION, "--sweeps", "2",
+                     "--validity", "-q"]) == 2
+    assert "need --sweeps 1" in capsys.readouterr().err

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import cond_all, fence, stage, switch_widest
+from jaxdepth._src.xla_tuning import cond_all, fence, stage, switch_widest
 
 
 def test_fence_and_stage_are_identities_under_jit_and_vmap():

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
-_METRICS = ("l1", "l2")
+#: The nearest-seed metrics (``SGMConfig.distance_metric``, ``nearest_seed(metric=)``, ``seed_distance``).
+DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
 
 
@@ -35,10 +36,9 @@ class SGMConfig:
       distance_metric: "l1" (city block, exact; the default) or "l2" (exact
         Euclidean: the nearest LiDAR pixel in the image plane). The paper's
         Appendix measures l1 distances and cites Rosenfeld and Pfaltz's city-block
-        transform, as the authors' code does. On a KITTI frame l1's transform is
-        4-4.5x faster and the whole SGM 1.5-1.8x; on twelve held-out KITTI frames
-        l1 is also the more accurate (issue 14); only the shared frame's two
-        ground-truth images prefer l2 (about 17 mm RMSE).
+        transform, as the authors' code does. l1 is the faster transform and, on
+        held-out KITTI frames, also the more accurate (benchmarks/results:
+        distance.json, accuracy_kitti_l2.json).
       normal_smoothing: half width of the box filter that smooths normals on
         the range image (0 disables). The paper fills and smooths normals so
         every point has one.
@@ -50,13 +50,13 @@ class SGMConfig:
         a denominator of about 1.65 / distance, so 0.01 keeps the residual up to
         ~165 m; 0.05 would switch it off beyond ~33 m.
       max_residual_ratio: |Delta z| is clipped to this fraction of z'.
-      column_bracket: beyond the paper (issue 13). Each pixel's plane
+      column_bracket: beyond the paper. Each pixel's plane
         prediction is clipped to the depth range of its nearest kept LiDAR
         pixels straight above and below, when both lie within the paper's
         vertical window H / L (one scan-line spacing): on a plane the depth
         between two of its points along an image column lies between theirs
         (:mod:`~jaxdepth._src.hypotheses`). False gives the paper's Step 4.
-      blend_hypotheses: beyond the paper (issue 16). Also average in the
+      blend_hypotheses: beyond the paper. Also average in the
         plane predictions of those two column neighbours, where they fall in
         the bracket, weighted by 1 / image distance to each seed. Needs
         ``column_bracket``.
@@ -67,7 +67,7 @@ class SGMConfig:
       keep_measured_depth: LiDAR pixels kept by Step 2 keep their measured depth
         in the output (after smoothing).
       min_depth_m, max_depth_m: output clip range, metres.
-      guidance_weight: image-guided seeds (beyond the paper, issue 16). 0 (the
+      guidance_weight: image-guided seeds (beyond the paper). 0 (the
         default) is the paper's LiDAR-only seed search and ignores any image.
         > 0 needs a camera image: each pixel's seed minimises the geodesic
         distance where a 4-connected step costs 1 pixel plus this weight times
@@ -80,9 +80,9 @@ class SGMConfig:
       guidance_noise_floor: colour differences up to this many times the
         image's median step difference (its noise and texture level) cost
         nothing; a step pays ``guidance_weight`` only for the excess. 0 (the
-        default) is GeoS's plain cost. Measured at 1 (issue 16's ablation,
-        weight 50): 5-10 % lower RMSE on the synthetic renders, 0-0.6 % higher
-        on the real KITTI and nuScenes images, so it stays off.
+        default) is GeoS's plain cost. At 1 it helps the synthetic renders and
+        not the real KITTI and nuScenes images
+        (benchmarks/results/ablation_guided_noise_floor.json), so it stays off.
     """
 
     outlier_removal: bool = True
@@ -107,9 +107,9 @@ class SGMConfig:
     guidance_noise_floor: float = 0.0
 
     def __post_init__(self):
-        if self.distance_metric not in _METRICS:
+        if self.distance_metric not in DISTANCE_METRICS:
             raise ValueError(
-                f"SGMConfig: field 'distance_metric' expected one of {_METRICS}, "
+                f"SGMConfig: field 'distance_metric' expected one of {DISTANCE_METRICS}, "
                 f"got {self.distance_metric!r}")
         if self.outlier_test not in _OUTLIER_TESTS:
             raise ValueError(

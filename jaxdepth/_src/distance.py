@@ -24,30 +24,25 @@ the leading axis of a row-major array (all other pixels vectorised):
      parabolas (Meijster, Roerdink and Hesselink 2000; the same 1-D problem as
      Felzenszwalb and Huttenlocher 2012) in exact int32 arithmetic.  Every
      column keeps a stack of parabolas (start row, seed row, ``right``, ``h``
-     packed in one int32), all columns in lock step.  The stack is a linked
-     list keyed by the parabola's row (:func:`_l2_column_pass_linked`): the
-     top lives in the loop carry and row ``i`` of an ``(H, W)`` buffer holds
-     the entry under parabola ``i``, written in place when ``i`` is pushed, so
-     a push is a contiguous row write, never a scatter, and a pop is one
-     gather of W entries.  A ``fori_loop`` over the seeded rows pushes each
-     row's parabola after popping the ones it hides (two unrolled pop
-     attempts, then a ``while_loop`` for the rare deeper pops); a backward
-     loop walks the envelope, stepping at most one entry down per row.  The
-     start row uses a float32 division where that is exact.  Under ``vmap``
-     the seeded-row bounds are shared by the batch (:func:`_batch_bounds`),
-     so the loop counter stays a scalar and row accesses stay row slices.
-     On the KITTI frame this is ~2x faster than the previous buffer stack
-     (its scatters per push and two-kernel while-loop condition per pop);
-     what remains is ~2 gathers per seeded row in the build and one per row
-     in the walk (~3 ns per gathered element on XLA:CPU).  Shapes whose
-     entries do not fit one int32 keep the older variant with an ``(H + 1) *
-     W`` buffer and scatters (:func:`_l2_column_pass`); both make the same
-     decisions and return the same result.
+     packed in one int32, or two for shapes too large for one), all columns in
+     lock step.  The stack is a linked list keyed by the parabola's row
+     (:func:`_l2_column_pass`): the top lives in the loop carry and row ``i``
+     of an ``(H, W)`` buffer holds the entry under parabola ``i``, written in
+     place when ``i`` is pushed, so a push is a contiguous row write, never a
+     scatter, and a pop is one gather of W entries.  A ``fori_loop`` over the
+     seeded rows pushes each row's parabola after popping the ones it hides
+     (two unrolled pop attempts, then a ``while_loop`` for the rare deeper
+     pops); a backward loop walks the envelope, stepping at most one entry
+     down per row.  The start row uses a float32 division where that is exact.
+     Under ``vmap`` the seeded-row bounds are shared by the batch
+     (:func:`~jaxdepth._src.xla_tuning.shared_loop_bounds`), so the loop
+     counter stays a scalar and row accesses stay row slices.  What remains
+     is ~2 gathers per seeded row in the build and one per row in the walk.
 
 The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
-place (the backward loop reads the forward result and overwrites it); on CPU
-this measured about 2x faster than ``lax.scan`` with stacked outputs followed
-by a minimum of the two directions, and packing every decision into one int32
+place (the backward loop reads the forward result and overwrites it): on CPU
+faster than ``lax.scan`` with stacked outputs followed by a minimum of the
+two directions (benchmarks/bench_distance.py), and packing every decision into one int32
 key keeps each step to a couple of fused ops.
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
@@ -65,11 +60,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import custom_batching, lax
+from jax import lax
 
-from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
+from jaxdepth._src.xla_tuning import shared_loop_bounds
 
-_METRICS = ("l1", "l2")
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
 _L2_MAX_SIDE = 2**15  # squared distances (H - 1)**2 + (W - 1)**2 must fit in int32
@@ -100,8 +95,8 @@ def _bits(n: int) -> int:
 
 
 def _check(seed_mask: jax.Array, metric: str) -> None:
-    if metric not in _METRICS:
-        raise ValueError(f"nearest_seed: field 'metric' expected one of {_METRICS}, got {metric!r}")
+    if metric not in DISTANCE_METRICS:
+        raise ValueError(f"nearest_seed: field 'metric' expected one of {DISTANCE_METRICS}, got {metric!r}")
     if seed_mask.ndim != 2:
         raise ValueError(
             f"nearest_seed: field 'seed_mask' expected shape (H, W), got shape {tuple(seed_mask.shape)}")
@@ -223,17 +218,47 @@ def _stack_layout(h: int, w: int):
     return 2, pack2, unpack2
 
 
-def _l2_column_pass(row_key_t: jax.Array, far: int):
-    """Exact 1-D squared-Euclidean transform along every column (lower envelope).
+def _floor_div_exact_f32(h: int, w: int) -> bool:
+    """float32 ``floor(num / den)`` is exact when ``num + den < 2**24`` for every step.
 
-    Meijster's algorithm on ``f_r(v) = g(r)**2 + (v - r)**2`` for the rows r
-    that have a seed, in exact int32 arithmetic, all columns vectorised: a
-    ``lax.scan`` over the rows; at each row an inner ``lax.while_loop`` pops,
-    in every column at once, stack tops that lose to the new parabola at their
-    start row, then the new parabola is pushed with the first row where it is
-    strictly lower.  The stack top is kept in the carry, the entries below it
-    in a flat ``(H + 1) * W`` buffer (slot row H is a sink for columns that do
-    not push).  A second scan walks each column's envelope segments.
+    ``num <= (H - 1)**2 + (W - 1)**2`` and ``den <= 2 (H - 1)``: both operands
+    are exact in float32 and the correctly rounded quotient of ``k + f``
+    (``1/den <= f < 1``) cannot reach ``k + 1`` because its rounding error is
+    below ``(k + 1) 2**-24 <= (num + den) 2**-24 / den < 1 / den``.
+    """
+    return (h - 1) ** 2 + (w - 1) ** 2 + 2 * h < 2**24
+
+
+def _l2_column_pass(row_key_t: jax.Array, far: int):
+    """Exact 1-D squared-Euclidean transform along every column (Meijster, linked stack).
+
+    Meijster's algorithm on ``f_s(v) = g(s)**2 + (v - s)**2`` for the rows s
+    that have a seed, in exact int32 arithmetic, all columns vectorised. The
+    stack is a linked list keyed by the parabola's row so that no step scatters:
+
+    - ``top``: the packed stack top (start row t, seed row s, right, g) per
+      column, one or two (W,) int32 arrays (:func:`_stack_layout`), the first
+      -1 for an empty stack;
+    - ``below``: (H, W) int32 array(s) alike; row ``i`` holds the entry that was
+      under parabola ``i`` when it was pushed. Step ``i`` writes row ``i`` in
+      place (a contiguous ``dynamic_update_slice``), so pushing costs no
+      scatter; a pop reads ``below[s(top), u]`` (one gather over the W columns).
+
+    The row-pass keys are transposed in their narrow dtype (int16 for
+    KITTI-sized images) and widened one row per step, which halves the
+    transpose's memory traffic.
+
+    Build: a ``fori_loop`` from the first to the last seeded row (runtime
+    bounds; seedless rows push nothing); two pop attempts are unrolled (on
+    KITTI most seeded rows pop twice in some column, and a gather is cheaper
+    than one more ``while_loop`` round) and a ``while_loop`` pops the rest
+    (the top loses when it is not below parabola i at its own start row t;
+    equal values keep the smaller row), then the new parabola is pushed with
+    the first row where it is strictly lower (a float32 division when exact,
+    see :func:`_floor_div_exact_f32`). Walk: a backward ``fori_loop`` from the
+    last row, following ``below`` once whenever the current entry starts after
+    the row (starts strictly increase along the stack, so one step back per row
+    suffices).
 
     Args:
       row_key_t: (W, H) row-pass result ``(g << 1) | right``; rows with
@@ -249,160 +274,17 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     w, h = row_key_t.shape
     rb = max(_bits(h), 1)
     n_arrays, pack, unpack = _stack_layout(h, w)
-    hk = row_key_t.T.astype(jnp.int32)
-    col = jnp.arange(w, dtype=jnp.int32)
-    sink = h * w + col
-
-    def loses(top, i, g):
-        # The top parabola is not below parabola i at the top's start row t:
-        # it can never be lowest again (equal values keep the smaller row).
-        t, s, _, g_s = unpack(top)
-        return (t - s) ** 2 + g_s * g_s > (t - i) ** 2 + g * g
-
-    def row_step(state, xs):
-        n, top, buf = state
-        i, x = xs
-        g = x >> 1
-        valid = g < far
-
-        def pop_body(inner):
-            pop, n, top = inner
-            at = jnp.maximum(n - 2, 0) * w + col
-            below = tuple(b.at[at].get(mode=_PIB) for b in buf)
-            top = tuple(jnp.where(pop, b, c) for b, c in zip(below, top))
-            n = jnp.where(pop, n - 1, n)
-            return pop & (n > 0) & loses(top, i, g), n, top
-
-        pop = valid & (n > 0) & loses(top, i, g)
-        _, n, top = lax.while_loop(lambda inner: jnp.any(inner[0]), pop_body, (pop, n, top))
-        _, s, _, g_s = unpack(top)
-        nonempty = n > 0
-        # First row where parabola i is strictly below the top one; i > s and,
-        # after the pops, the numerator is >= 0, so truncation is floor.
-        num = jnp.maximum(i * i - s * s + g * g - g_s * g_s, 0)
-        start = 1 + lax.div(num, 2 * jnp.maximum(i - s, 1))
-        push = valid & (~nonempty | (start < h))
-        at = jnp.where(push & nonempty, (n - 1) * w + col, sink)
-        buf = tuple(b.at[at].set(c, mode=_PIB, unique_indices=True) for b, c in zip(buf, top))
-        new = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
-        top = tuple(jnp.where(push, a, c) for a, c in zip(new, top))
-        n = jnp.where(push, n + 1, n)
-        return (n, top, buf), None
-
-    zero = jnp.zeros((w,), jnp.int32)
-    buf0 = tuple(jnp.zeros(((h + 1) * w,), jnp.int32) for _ in range(n_arrays))
-    (n, top, buf), _ = lax.scan(row_step, (zero, (zero,) * n_arrays, buf0),
-                                (jnp.arange(h, dtype=jnp.int32), hk))
-
-    def entry(k):
-        at = jnp.minimum(k, h) * w + col
-        is_top = k == n - 1
-        return tuple(jnp.where(is_top, c, b.at[at].get(mode=_PIB)) for c, b in zip(top, buf))
-
-    def walk(carry, v):
-        k, current = carry
-        following = entry(k + 1)
-        advance = (k + 1 < n) & (unpack(following)[0] == v)
-        k = jnp.where(advance, k + 1, k)
-        current = tuple(jnp.where(advance, a, c) for a, c in zip(following, current))
-        _, s, right, g = unpack(current)
-        # Fits in int32: g < W <= 2**15 and s < 2**rb <= 2**15.
-        return (k, current), (g << (rb + 1)) | (s << 1) | right
-
-    _, packed = lax.scan(walk, (zero, entry(zero)), jnp.arange(h, dtype=jnp.int32))
-    return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, n[0] > 0
-
-
-def _fits_linked(h: int, w: int) -> bool:
-    """Whether :func:`_l2_column_pass_linked` applies: one int32 per stack entry."""
-    return _stack_layout(h, w)[0] == 1
-
-
-def _floor_div_exact_f32(h: int, w: int) -> bool:
-    """float32 ``floor(num / den)`` is exact when ``num + den < 2**24`` for every step.
-
-    ``num <= (H - 1)**2 + (W - 1)**2`` and ``den <= 2 (H - 1)``: both operands
-    are exact in float32 and the correctly rounded quotient of ``k + f``
-    (``1/den <= f < 1``) cannot reach ``k + 1`` because its rounding error is
-    below ``(k + 1) 2**-24 <= (num + den) 2**-24 / den < 1 / den``.
-    """
-    return (h - 1) ** 2 + (w - 1) ** 2 + 2 * h < 2**24
-
-
-@custom_batching.custom_vmap
-def _batch_bounds(first: jax.Array, stop: jax.Array):
-    """Loop bounds shared by a batch: ``(first, stop)`` itself, ``(min first, max stop)`` under vmap.
-
-    A loop whose bounds are batched gets a batched counter, which turns every
-    row read and row write in its body into gathers and scatters (measured 5x
-    slower for 4 KITTI frames).  Extra rows are harmless where this is used
-    (rows without seeds push nothing).
-    """
-    return first, stop
-
-
-@_batch_bounds.def_vmap
-def _batch_bounds_vmap(axis_size, in_batched, first, stop):
-    del axis_size
-    first_batched, stop_batched = in_batched
-    first = jnp.min(first) if first_batched else first
-    stop = jnp.max(stop) if stop_batched else stop
-    return _batch_bounds(first, stop), (False, False)
-
-
-def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
-    """Exact 1-D squared-Euclidean transform along every column (Meijster, linked stack).
-
-    The same lower envelope of parabolas ``f_s(v) = g(s)**2 + (v - s)**2`` as
-    :func:`_l2_column_pass`, with the same integer decisions, but the stack is
-    a linked list keyed by the parabola's row so that no step scatters:
-
-    - ``top`` (W,) int32 is the packed stack top (start row t, seed row s,
-      right, g) or -1 for an empty stack;
-    - ``below`` (H, W) int32: row ``i`` holds the entry that was under
-      parabola ``i`` when it was pushed.  Step ``i`` writes row ``i`` in place
-      (a contiguous ``dynamic_update_slice``), so pushing costs no scatter; a
-      pop reads ``below[s(top), u]`` (one gather over the W columns).
-
-    The row-pass keys are transposed in their narrow dtype (int16 for
-    KITTI-sized images) and widened one row per step, which halves the
-    transpose's memory traffic (measured ~1 ms on KITTI).
-
-    Build: a ``fori_loop`` from the first to the last seeded row (runtime
-    bounds; seedless rows push nothing); two pop attempts are unrolled (on
-    KITTI most seeded rows pop twice in some column, and a gather is cheaper
-    than one more ``while_loop`` round) and a ``while_loop`` pops the rest,
-    then the new parabola is pushed with the first row where it is strictly
-    lower (a float32 division when exact, see :func:`_floor_div_exact_f32`).
-    Walk: a backward ``fori_loop`` from the last row, following ``below``
-    once whenever the current entry starts after the row (starts strictly
-    increase along the stack, so one step back per row suffices).
-
-    Args:
-      row_key_t: (W, H) row-pass result ``(g << 1) | right``; rows with
-        ``g >= far`` have no seed and are skipped.
-      far: ``H + W``.
-
-    Returns:
-      (seed_row, g, right, has_seed) like :func:`_l2_column_pass`.
-    """
-    w, h = row_key_t.shape
-    rb = max(_bits(h), 1)
-    gb = max(_bits(w), 1)
-    _, pack, unpack = _stack_layout(h, w)
-    s_mask = (1 << rb) - 1
-    low_mask = (1 << (rb + 1 + gb)) - 1
-    t_shift = rb + 1 + gb
     use_f32 = _floor_div_exact_f32(h, w)
     hk = row_key_t.T  # (H, W) in the row pass's dtype; widened per row
     col = jnp.arange(w, dtype=jnp.int32)
 
-    def seed_row(e):
-        return (e >> (gb + 1)) & s_mask
+    def follow(below, entry):
+        # Entry under ``entry`` (garbage where it is empty; callers select it away).
+        at = unpack(entry)[1] * w + col
+        return tuple(b.reshape(-1).at[at].get(mode=_PIB) for b in below)
 
-    def follow(below, e):
-        # Entry under e (garbage where e is -1; callers select it away).
-        return below.reshape(-1).at[seed_row(e) * w + col].get(mode=_PIB)
+    def select(pred, a, b):
+        return tuple(jnp.where(pred, x, y) for x, y in zip(a, b))
 
     def build(i, state):
         top, below = state
@@ -412,19 +294,17 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
         g2 = g * g
 
         def loses(top):
-            # Same test as _l2_column_pass: the top is not below parabola i at
-            # its own start row t (equal values keep the smaller row).
-            t, s, _, g_s = unpack((top,))
-            return valid & (top >= 0) & ((t - s) ** 2 + g_s * g_s > (t - i) ** 2 + g2)
+            t, s, _, g_s = unpack(top)
+            return valid & (top[0] >= 0) & ((t - s) ** 2 + g_s * g_s > (t - i) ** 2 + g2)
 
         def pop(top):
-            return jnp.where(loses(top), follow(below, top), top)
+            return select(loses(top), follow(below, top), top)
 
         for _ in range(_UNROLLED_POPS):
             top = pop(top)
         top = lax.while_loop(lambda top: jnp.any(loses(top)), pop, top)
-        nonempty = top >= 0
-        _, s, _, g_s = unpack((top,))
+        nonempty = top[0] >= 0
+        _, s, _, g_s = unpack(top)
         num = jnp.maximum(i * i - s * s + g2 - g_s * g_s, 0)
         den = 2 * jnp.maximum(i - s, 1)
         if use_f32:
@@ -433,27 +313,31 @@ def _l2_column_pass_linked(row_key_t: jax.Array, far: int):
             quot = lax.div(num, den)
         start = 1 + quot
         push = valid & (~nonempty | (start < h))
-        below = lax.dynamic_update_index_in_dim(below, top, i, 0)
-        new, = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
-        return jnp.where(push, new, top), below
+        below = tuple(lax.dynamic_update_index_in_dim(b, e, i, 0) for b, e in zip(below, top))
+        new = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
+        return select(push, new, top), below
 
     # Rows without any seed push nothing: the build runs from the first to the
     # last seeded row only (runtime bounds; ``below`` rows outside are never read).
     seeded = row_key_t[0] < (far << 1)
     first = jnp.argmax(seeded).astype(jnp.int32)
     stop = jnp.where(jnp.any(seeded), h - jnp.argmax(seeded[::-1]).astype(jnp.int32), 0)
-    first, stop = _batch_bounds(first, stop)
-    empty = jnp.full((w,), -1, jnp.int32)
-    top, below = lax.fori_loop(first, stop, build, (empty, jnp.zeros((h, w), jnp.int32)))
+    # XLA:CPU: under vmap the batch shares the widest bounds, so row accesses stay row slices.
+    first, stop = shared_loop_bounds(first, stop)
+    empty = (jnp.full((w,), -1, jnp.int32),) + tuple(jnp.zeros((w,), jnp.int32) for _ in range(n_arrays - 1))
+    zeros = tuple(jnp.zeros((h, w), jnp.int32) for _ in range(n_arrays))
+    top, below = lax.fori_loop(first, stop, build, (empty, zeros))
 
     def walk(k, state):
         current, out = state
         v = h - 1 - k
-        current = jnp.where((current >> t_shift) > v, follow(below, current), current)
-        return current, lax.dynamic_update_index_in_dim(out, current & low_mask, v, 0)
+        current = select(unpack(current)[0] > v, follow(below, current), current)
+        _, s, right, g = unpack(current)
+        # Fits in int32: g < W <= 2**15 and s < 2**rb <= 2**15.
+        return current, lax.dynamic_update_index_in_dim(out, (g << (rb + 1)) | (s << 1) | right, v, 0)
 
     _, packed = lax.fori_loop(0, h, walk, (top, jnp.zeros((h, w), jnp.int32)))
-    return seed_row(packed), packed & ((1 << gb) - 1), (packed >> gb) & 1, top[0] >= 0
+    return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, top[0][0] >= 0
 
 
 @functools.partial(jax.jit, static_argnames="metric")
@@ -515,8 +399,7 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
         du = jnp.where((key & 1) == 1, abs_du, -abs_du)
         distance = dist.astype(jnp.float32)
     else:
-        column_pass = _l2_column_pass_linked if _fits_linked(h, w) else _l2_column_pass
-        seed_row, g, right, has_seed = column_pass(row_key_t, far)
+        seed_row, g, right, has_seed = _l2_column_pass(row_key_t, far)
         dv = seed_row - v
         du = jnp.where(right == 1, g, -g)
         distance = jnp.sqrt((du * du + dv * dv).astype(jnp.float32))

@@ -1,6 +1,6 @@
 """Float32 angle functions written as fused polynomials (no transcendental library calls).
 
-XLA's CPU ``atan2``, ``asin``, ``sin`` and ``cos`` are ~30x slower than a fused
+XLA's CPU ``atan2``, ``asin``, ``sin`` and ``cos`` are much slower than a fused
 polynomial, so the range image (:mod:`~jaxdepth._src.normals`) and the outlier
 test (:mod:`~jaxdepth._src.outliers`) use these instead:
 

@@ -23,7 +23,7 @@ from every 4th row and column) and floored at 0:
 
 so a textured or noisy surface costs what a flat one does and only real
 edges are charged, whatever the image's exposure and compression.  Measured
-(README "Image-guided seeds"): it helps on the synthetic renders and not on
+(docs/method.md, docs/studies.md): it helps on the synthetic renders and not on
 the real KITTI and nuScenes photographs, hence off by default.  The costs stay
 positive and symmetric, so everything below holds unchanged.
 
@@ -51,7 +51,7 @@ pixel whose shortest path must wind around an edge (e.g. enter a U-shaped
 region through its opening) keeps a longer path, so it may pick a seed
 that is geodesically farther than the best one; it never picks an unreachable
 or invalid seed.  Measured on the KITTI frame's inlier mask and colour image
-(benchmarks/geodesic_sweeps.py, against 16 sweeps): after 2 sweeps 0.9 % of
+(benchmarks/studies/geodesic_sweeps.py, against 16 sweeps): after 2 sweeps 0.9 % of
 the pixels have another seed at colour_weight 1, 2.5 % at 2, 6.7 % at 10 and
 19 % at 50; after 4 sweeps 0.06 / 0.2 / 2.1 / 8 %.  Larger weights make
 shortest paths wind more and need more sweeps.
@@ -77,7 +77,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.distance import NearestSeed
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 
 _F32_EXACT = 2**24  # float32 holds every integer up to here
 _BLOCKED = 1e6  # pixels: the cost of a step next to a non-finite colour
@@ -107,55 +107,6 @@ def _check(keep: jax.Array, image: jax.Array, color_weight, sweeps) -> None:
         raise ValueError(f"geodesic_seed: field 'color_weight' expected >= 0, got {color_weight!r}")
 
 
-def guidance_image(image, shape: tuple[int, int], *, guided: bool, where: str):
-    """Validates a camera image for the pipeline and scales it to float32 [0, 1].
-
-    Args:
-      image: None, or (H, W) grey / (H, W, 3) colour, uint8 (0-255) or
-        floating (taken as [0, 1]); NumPy or JAX (checked at trace time).
-      shape: (H, W) of the sparse depth it must match.
-      guided: whether the seed search uses the image (``guidance_weight > 0``).
-      where: caller name for the error message.
-
-    Returns:
-      float32 (H, W) or (H, W, 3) image when ``guided``, else None (an image
-      given without guidance is checked, then ignored).
-
-    Raises:
-      ValueError naming the field 'image' with expected vs got: missing while
-      guided, wrong size or channel count, or a dtype other than uint8/float
-      (16-bit PNGs must be converted to 8 bit or scaled to [0, 1] first).
-    """
-    if image is None:
-        if guided:
-            raise ValueError(f"{where}: field 'image' expected an (H, W) or (H, W, 3) camera image because "
-                             "config.guidance_weight > 0, got None")
-        return None
-    h, w = shape
-    shp = tuple(image.shape)
-    if not (shp == (h, w) or shp == (h, w, 3)):
-        raise ValueError(f"{where}: field 'image' expected shape {(h, w)} (grey) or {(h, w, 3)} (colour), matching "
-                         f"the sparse depth, got {shp}")
-    return unit_float_image(image, guided=guided, where=where, field="image")
-
-
-def unit_float_image(image, *, guided: bool, where: str, field: str):
-    """The dtype rule of camera images: uint8 (0-255) or float (taken as [0, 1]).
-
-    Returns ``image`` as float32 in [0, 1] when ``guided``, else None (checked,
-    then ignored). Raises ValueError naming ``field`` for any other dtype (a
-    16-bit image is told to convert to 8 bit or scale to [0, 1]).
-    """
-    dtype = jnp.dtype(image.dtype)
-    if dtype != jnp.uint8 and not jnp.issubdtype(dtype, jnp.floating):
-        raise ValueError(f"{where}: field '{field}' expected dtype uint8 (0-255) or float in [0, 1], got {dtype}"
-                         + (" (a 16-bit image: convert to 8 bit or scale to [0, 1])" if dtype.itemsize == 2 else ""))
-    if not guided:
-        return None
-    out = jnp.asarray(image, jnp.float32)
-    return out / jnp.float32(255.0) if dtype == jnp.uint8 else out
-
-
 def median_step_difference(dh: jax.Array, dv: jax.Array, *, stride: int = 4, iterations: int = 12) -> jax.Array:
     """Median colour difference of an image's 4-connected steps, from a fixed subsample.
 
@@ -171,8 +122,9 @@ def median_step_difference(dh: jax.Array, dv: jax.Array, *, stride: int = 4, ite
     Returns:
       () float32, the median of the sample's finite values (0 if it has none).
 
-    A sort-based ``jnp.median`` of every step costs ~280 ms on the KITTI crop
-    on this CPU; counting below a bisected threshold costs well under 1 ms.
+    Counting below a bisected threshold instead of a sort-based ``jnp.median``
+    of every step: the sort dominates the seed search on CPU
+    (benchmarks/geodesic_sweeps.py).
     """
     sample = jnp.concatenate([dh[::stride, ::stride].ravel(), dv[::stride, ::stride].ravel()])
     finite = jnp.isfinite(sample)
@@ -212,7 +164,7 @@ def step_costs(image: jax.Array, color_weight, *, noise_floor: float = 0.0) -> t
     """
     img = jnp.asarray(image, jnp.float32)
     # Channel planes, summed one by one: a reduction over a trailing axis of
-    # 3 vectorises badly on CPU (measured ~5x slower).
+    # 3 vectorises badly on CPU.
     planes = [img] if img.ndim == 2 else [img[..., c] for c in range(img.shape[-1])]
     weight = jnp.asarray(color_weight, jnp.float32)
     dh = jnp.sqrt(sum(jnp.square(p[:, 1:] - p[:, :-1]) for p in planes))
@@ -243,8 +195,8 @@ def _line_pass(buf: jax.Array, cost: jax.Array) -> jax.Array:
     and the carry is the previous line itself, so a step is one fused kernel
     plus an in-place row write, as in :mod:`~jaxdepth._src.distance`.  With two
     buffers XLA recomputed the comparison from the already updated distance
-    buffer and copied it whole on every step (~100x slower); an (L, 2, M)
-    int32 buffer with a bitcast distance cost ~2.5x this.
+    buffer and copied it whole on every step; an (L, 2, M) int32 buffer with a
+    bitcast distance is slower too.
     """
     n = buf.shape[0]
     if n == 1:

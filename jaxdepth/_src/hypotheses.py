@@ -37,7 +37,7 @@ from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.geometry import pixel_grid
-from jaxdepth._src.staging import fence
+from jaxdepth._src.xla_tuning import fence, pack_pair, take_pair
 
 _DEFAULTS = DEFAULT_CONFIG
 
@@ -116,8 +116,8 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
       blend: also average in the neighbours' own plane predictions that fall in the bracket.
       materialise: a stage fence after the blend's neighbour search (results are
         the same either way). On XLA:CPU it makes the unguided pipeline's blend
-        faster (2x measured: the gathers otherwise re-run the row search) and the
-        image-guided one no faster, so the pipeline turns it off when guided.
+        faster (the gathers otherwise re-run the row search) and the image-guided
+        one no faster, so the pipeline turns it off when guided.
       min_abs_denom, max_residual_ratio: as in :func:`~jaxdepth._src.residual.plane_residual`.
 
     Returns:
@@ -140,24 +140,23 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     # denom = n . r(u, v_seed), r the pixel's ray (x, y, 1). Step 4a's denominator at
     # the pixel, dv rows from the seed in the same column, is then denom - dv * slope,
     # and its residual z' dv slope / (denom - dv slope): the formula of
-    # :func:`~jaxdepth._src.residual.plane_residual` with du = 0. One complex64
-    # gather per side; materialised, or XLA fuses the packing into every gathered
-    # element (the pipeline's blend measured 2x slower).
+    # :func:`~jaxdepth._src.residual.plane_residual` with du = 0.
     K = jnp.asarray(K, jnp.float32)
     fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     v, u = pixel_grid(h, w)
     slope = normals[1] / fv
-    plane, = fence(lax.complex(slope, (u - pu) / fu * normals[0] + (v - pv) * slope + normals[2]).ravel())
+    # XLA:CPU: both numbers in one complex64 gather per side, materialised (else the packing re-runs per element).
+    plane, = fence(pack_pair(slope.ravel(), ((u - pu) / fu * normals[0] + (v - pv) * slope + normals[2]).ravel()))
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
     cols = jnp.arange(w, dtype=jnp.int32)[None, :]
 
     def hypothesis(row, z):
         index = (jnp.where(row >= 0, row, rows) * w + cols).ravel()
-        seed_plane = plane.at[index].get(mode="promise_in_bounds").reshape(h, w)
+        seed_slope, seed_denom = (a.reshape(h, w) for a in take_pair(plane, index))
         dv = (row - rows).astype(jnp.float32)
-        denom = jnp.imag(seed_plane) - dv * jnp.real(seed_plane)
+        denom = seed_denom - dv * seed_slope
         ok = (jnp.abs(denom) > min_abs_denom) & (z > 0)
-        residual = jnp.where(ok, z * dv * jnp.real(seed_plane) / jnp.where(ok, denom, 1.0), 0.0)
+        residual = jnp.where(ok, z * dv * seed_slope / jnp.where(ok, denom, 1.0), 0.0)
         bound = max_residual_ratio * z
         return z + jnp.clip(residual, -bound, bound)
 

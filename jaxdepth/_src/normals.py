@@ -1,5 +1,10 @@
 """Step 1 of the Surface Geometry Model: surface normals from the spherical range image.
 
+This module holds Step 1 for a LiDAR sweep (:func:`point_normals`, used by
+``complete_points`` and ``complete_rig``) and the cell normals both inputs share;
+for a sparse depth image (``complete``) Step 1 enters through
+:mod:`jaxdepth._src.pixel_normals`, which bins the pixels and calls :func:`cell_normals`.
+
 Following the paper (its "Surface Normal" paragraph, after Badino et al. 2011),
 every LiDAR point ``p = (x, y, z)`` (LiDAR frame, metres) is mapped to spherical
 coordinates
@@ -81,7 +86,7 @@ their own ray, so every valid point has a unit normal.
 
 Performance notes: XLA:CPU fuses a producer into every consumer, so shifted
 slices and per-point gathers would re-run upstream work; heavy intermediates
-are computed inside ``staging.stage`` conditionals (real buffers). Inside a stage XLA
+are computed inside ``xla_tuning.stage`` conditionals (real buffers). Inside a stage XLA
 gives every output its own fusion (which redoes all the cheap work it needs)
 and materialises any division or square root that several outputs share, so
 stages are cut to have few outputs: pairs of float32 channels travel as one
@@ -99,7 +104,7 @@ image from the pixels with depth and reuses :func:`cell_normals` and
 :func:`normals_at_points`.
 
 Numerics: no transcendental library calls (XLA's CPU ``atan2``/``asin``/``sin``
-are ~30x slower than a fused polynomial): ``atan2``, sine and cosine come from
+are much slower than a fused polynomial): ``atan2``, sine and cosine come from
 :mod:`jaxdepth._src.fastmath` (errors < 1e-7). Every division is guarded
 with the safe-``where`` pattern, and the derivative ratios are clipped to
 ``+-1e4`` (a surface within 0.006 degrees of grazing), so no NaN or Inf can
@@ -117,7 +122,7 @@ import numpy as np
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage, take_pair
 from jaxdepth._src.types import LidarSpec
 
 #: Neighbour angle offsets below this (radians) are not used for differences.
@@ -166,25 +171,21 @@ def _safe_div(num, den, ok):
 #
 # Shifts are slices of a padded copy that is materialised first (an
 # optimization barrier): XLA would otherwise fuse a concatenate into every
-# consumer, which is ~6x slower than reading a buffer at an offset.
+# consumer, which is much slower than reading a buffer at an offset.
 
 
-def _pad(arrays, k: int, fills, token, wrap=None):
-    """Pads (L, C) arrays by k (materialised): columns wrap around 360 degrees
-    (unless ``wrap[i]`` is False: the array is already column-padded), rows take ``fill``."""
+def _wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
+    """(L, C) -> (L + 2k, C + 2k): columns wrap around 360 degrees, rows take ``fill``.
 
-    def pad(*arrays):
-        out = []
-        for i, (a, fill) in enumerate(zip(arrays, fills)):
-            if k and (wrap is None or wrap[i]):
-                a = jnp.concatenate([a[:, a.shape[1] - k:], a, a[:, :k]], axis=1)
-            if k:
-                rows = jnp.full((k, a.shape[1]), fill, a.dtype)
-                a = jnp.concatenate([rows, a, rows], axis=0)
-            out.append(a)
-        return tuple(out)
-
-    return stage(pad, arrays, token)
+    ``seam``: added to the left pad and subtracted from the right one (``2 pi``
+    unwraps azimuths across the seam). The one padding of this module.
+    """
+    left, right = a[:, a.shape[1] - k:], a[:, :k]
+    if seam is not None:
+        left, right = left + seam, right - seam
+    a = jnp.concatenate([left, a, right], axis=1)
+    rows = jnp.full((k, a.shape[1]), fill, a.dtype)
+    return jnp.concatenate([rows, a, rows], axis=0)
 
 
 def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
@@ -198,7 +199,7 @@ def _box_sums(arrays, half: int, token):
     """(2 half + 1)^2 box sums; columns wrap, rows outside the image count as 0."""
     if half == 0:
         return tuple(arrays)
-    padded = _pad(arrays, half, [0.0] * len(arrays), token)
+    padded = stage(lambda *a: tuple(_wrap_pad(x, half, 0.0) for x in a), arrays, token)
     horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
     return _column_box_sums(horiz, half)
 
@@ -386,19 +387,12 @@ def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
     r, th, ph = ri.r, ri.theta, ri.phi
     k = 1 + fill_max_gap
     token = ri.index[0, 0]
-    cols = th.shape[1]
 
     def pad(meas, r, th, ph):
         # Columns wrap; azimuths in the pads are unwrapped (left of column 0
         # lie azimuths just above +pi, right of the last column just below -pi).
-        th = jnp.concatenate([th[:, cols - k:] + 2 * PI, th, th[:, :k] - 2 * PI], axis=1)
-        out = []
-        for a, fill in ((meas, False), (r, 0.0), (th, 0.0), (ph, 0.0)):
-            if a is not th:
-                a = jnp.concatenate([a[:, cols - k:], a, a[:, :k]], axis=1)
-            rows = jnp.full((k, a.shape[1]), fill, a.dtype)
-            out.append(jnp.concatenate([rows, a, rows], axis=0))
-        return tuple(out)
+        return (_wrap_pad(meas, k, False), _wrap_pad(r, k, 0.0), _wrap_pad(th, k, 0.0, seam=2 * PI),
+                _wrap_pad(ph, k, 0.0))
 
     padded = stage(pad, (meas, r, th, ph), token)
     # Complex numbers carry two float32 channels through one fusion (XLA:CPU
@@ -436,17 +430,6 @@ def _normal_of_slopes(meas, e_th, e_ph, ab):
     return nx, ny, nz
 
 
-def _raw_normals(ri: RangeImage, fill_max_gap: int, window=None):
-    """Sensor-facing unit normals of measured cells, zeros at empty cells.
-
-    Returns (meas, weight, nx, ny, nz); ``weight`` in [_PARTIAL_WEIGHT, 1] is 1
-    where the neighbours constrain both derivatives and small where they are
-    (nearly) collinear (the unseen derivative is then ~0).
-    """
-    meas, e_th, e_ph, ab, full = _slopes(ri, fill_max_gap, window)
-    return (meas, full) + _normal_of_slopes(meas, e_th, e_ph, ab)
-
-
 def _normalise(nx, ny, nz, ok):
     n2 = nx * nx + ny * ny + nz * nz
     good = ok & (n2 > 1e-12)
@@ -454,33 +437,25 @@ def _normalise(nx, ny, nz, ok):
     return good, nx * inv, ny * inv, nz * inv
 
 
-def _smoothed_normals(raw, radius: int, token):
-    """Weighted box mean of the measured cells' raw normals within ``radius`` cells.
+def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
+    """Smoothed normals of the cells packed for per-point gathers: (complex(nx, ny), nz), (L, C),
+    materialised (:func:`_smoothed_cells` of :func:`_slopes`; ``smoothing`` 0: the raw normals)."""
+    return _smoothed_cells(_slopes(ri, fill_max_gap, window), smoothing, ri.index[0, 0])
+
+
+def _smoothed_cells(slopes, smoothing: int, token):
+    """The one normal smoothing: the weighted box mean of the measured cells' raw normals.
 
     Normals with both derivatives weigh 1, those with a missing derivative
     (taken as 0) weigh ``_PARTIAL_WEIGHT``, so they only matter where no full
-    estimate is in the window. Returns (has, nx, ny, nz): ``has`` marks cells
-    with a measured cell in the window (their normal is unit), others are zero.
+    estimate is in the window; the mean is renormalised. Returns
+    (complex(nx, ny), nz), (L, C): unit where a measured cell lies within
+    ``smoothing`` cells (columns wrap, rows are cut), zero elsewhere; with
+    ``smoothing`` 0 the raw normals (zero at empty cells). The weighted normals
+    are formed and padded in one stage, the row sums of the box in a second,
+    and the column sums with the renormalisation in a third; (x, y) travel as
+    one complex channel, so each stage has two outputs.
     """
-    meas, w, nx, ny, nz = raw
-    if radius == 0:
-        return meas, nx, ny, nz
-    sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), radius, token)
-    return _normalise(sx, sy, sz, jnp.ones_like(meas))
-
-
-def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
-    """Smoothed normals of the cells (as :func:`_smoothed_normals` of :func:`_raw_normals`)
-    packed for per-point gathers: (complex(nx, ny), nz), (L, C), materialised.
-
-    Only valid at measured cells (and cells with a measured cell within
-    ``smoothing``); others are zero. The weighted normals are formed and
-    padded in one stage, the row sums of the box in a second, and the column
-    sums with the renormalisation in a third; (x, y) travel as one complex
-    channel, so each stage has two outputs.
-    """
-    token = ri.index[0, 0]
-    slopes = _slopes(ri, fill_max_gap, window)
     if smoothing == 0:
         def raw(meas, e_th, e_ph, ab):
             nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
@@ -490,12 +465,7 @@ def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None)
 
     def weighted_padded(meas, e_th, e_ph, ab, full):
         nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
-        out = []
-        for a in (jax.lax.complex(nx * full, ny * full), nz * full):
-            a = jnp.concatenate([a[:, a.shape[1] - half:], a, a[:, :half]], axis=1)
-            rows = jnp.zeros((half, a.shape[1]), a.dtype)
-            out.append(jnp.concatenate([rows, a, rows], axis=0))
-        return tuple(out)
+        return tuple(_wrap_pad(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
 
     def vertical(*horiz):
         sxy, sz = _column_box_sums(horiz, half)
@@ -510,11 +480,14 @@ def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None)
 def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
     """Every cell's sensor-facing unit normal (three (L, C) channels)."""
     token = ri.index[0, 0]
-    raw = _raw_normals(ri, fill_max_gap)
-    has, nx, ny, nz = _smoothed_normals(raw, max(1, smoothing), token)
+    slopes = _slopes(ri, fill_max_gap)
+    nxy, nz = _smoothed_cells(slopes, max(1, smoothing), token)
+    nx, ny = jnp.real(nxy), jnp.imag(nxy)
+    has = (nx != 0) | (ny != 0) | (nz != 0)  # the smoothed normal is unit or zero
     if smoothing == 0:  # measured cells keep their own normal, empty ones the 3x3 mean
-        meas, _, rx, ry, rz = raw
-        nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((rx, nx), (ry, ny), (rz, nz)))
+        meas = slopes[0]
+        rxy, rz = _smoothed_cells(slopes, 0, token)
+        nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((jnp.real(rxy), nx), (jnp.imag(rxy), ny), (rz, nz)))
         has = has | meas
     for _ in range(fill_max_gap):
         nx, ny, nz, has = stage(lambda *a: a, (nx, ny, nz, has), ri.index[0, 0])
@@ -547,10 +520,10 @@ def normals_at_points(nxy, nz, slot, ok, xyz, token):
       own stage (fused into the output, XLA would gather once per output
       element): two gathers per point.
     """
-    gxy, gz = stage(lambda nxy, nz, idx: tuple(c.reshape(-1).at[idx].get(mode="promise_in_bounds")
-                                                   for c in (nxy, nz)),
-                     (nxy, nz, jnp.where(ok, slot, 0)), token)
-    px, py, pz = jnp.real(gxy), jnp.imag(gxy), gz
+    # XLA:CPU: (nx, ny) in one complex64 gather (take_pair).
+    px, py, pz = stage(lambda nxy, nz, idx: (*take_pair(nxy.reshape(-1), idx),
+                                            nz.reshape(-1).at[idx].get(mode="promise_in_bounds")),
+                       (nxy, nz, jnp.where(ok, slot, 0)), token)
     x, y, z = xyz
     facing = px * x + py * y + pz * z
     sign = jnp.where(ok, jnp.where(facing > 0, -1.0, 1.0), 0.0)
@@ -599,7 +572,8 @@ def range_image_normals(ri: RangeImage, *, smoothing: int = DEFAULT_CONFIG.norma
 @functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap"))
 def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
                   smoothing: int = DEFAULT_CONFIG.normal_smoothing,
-                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap) -> jax.Array:
+                  fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap,
+                  rows: jax.Array | None = None) -> jax.Array:
     """Unit surface normal of every valid LiDAR point (Step 1 of the paper).
 
     Args:
@@ -607,6 +581,8 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
       valid: (N,) bool; masked, non-finite and origin points get a zero normal.
       lidar: static :class:`~jaxdepth.LidarSpec` of the range image.
       smoothing, fill_max_gap: static, see :func:`range_image_normals`.
+      rows: optional (N,) int32 range-image row of each point (its laser's rank by
+        elevation, for unevenly spaced beams); -1 or None: the row of its elevation.
 
     Returns:
       (N, 3) float32 LiDAR-frame normals: unit length and ``n . p <= 0`` for
@@ -620,7 +596,8 @@ def point_normals(points: jax.Array, valid: jax.Array, *, lidar: LidarSpec,
     points = jnp.asarray(points)
     valid = jnp.asarray(valid)
     check_points(points, valid)
-    ri, slot = range_image_and_slots(points, valid, lidar)
+    rows = None if rows is None else jnp.asarray(rows, jnp.int32)
+    ri, slot = range_image_and_slots(points, valid, lidar, rows)
     token = ri.index[0, 0]
     # Points only sit in measured cells, so the filling of empty cells is skipped.
     nxy, nz = cell_normals(ri, smoothing, fill_max_gap)

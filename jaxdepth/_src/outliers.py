@@ -81,7 +81,7 @@ from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import pseudo_angle
 from jaxdepth._src.geometry import backproject
-from jaxdepth._src.staging import stage, switch_widest
+from jaxdepth._src.xla_tuning import stage, switch_widest
 
 
 def _camera_points(depth: jax.Array, K: jax.Array, points_cam, v: jax.Array, u: jax.Array):
@@ -321,6 +321,8 @@ def _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
     ``view_*`` are what ``_lidar_angles`` ("paper") or :func:`_lidar_view`
     ("footprint") return.
     """
+    if test == "nearer":        # condition 2 alone (points already known to sit in a LiDAR's shadow)
+        return jnp.ones_like(view_q[0], bool)
     if test == "paper":
         (h_p, g_p), (h_q, g_q) = view_p, view_q
         return (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
@@ -372,7 +374,7 @@ def _pad_canvas(depth: jax.Array, points, token, *, hh: int, hw: int) -> _Canvas
     """(H, W) depth (and (3, H, W) points) padded by the window, as one fenced stage.
 
     Empty (non-finite or non-positive) depths become 0. One pad per channel: a
-    pad of the (3, H, W) stack runs ~2x slower.
+    pad of the (3, H, W) stack runs slower on XLA:CPU.
     """
     def pad_depth(depth, *pts):
         pad = ((hh, hh), (hw, hw))
@@ -441,7 +443,7 @@ def _view_at(ex: _ExactTest, row, col, window_of):
     v = (row - ex.hh).astype(jnp.float32)
     u = (col - ex.hw).astype(jnp.float32)
     p = None if canvas.points is None else jnp.stack([window_of(canvas.points[i]) for i in range(3)])
-    view_fn = _lidar_angles if ex.test == "paper" else _lidar_view
+    view_fn = _lidar_view if ex.test == "footprint" else _lidar_angles
     return view_fn(d, ex.K, ex.t, p, v, u), jnp.where(d > 0, d, jnp.float32(jnp.inf))
 
 
@@ -507,14 +509,16 @@ def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
-def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, half_width, half_height,
-               test="footprint"):
+def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
+               half_height, test="footprint"):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
     (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam or None, traced float32
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
-    Returns the (H, W) bool keep mask.
+    ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
+    pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
+    pixel still serves as a neighbour j). Returns the (H, W) bool keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -526,6 +530,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, *, beams, ha
     canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
     words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
                        footprint=test == "footprint")
+    if candidates is not None:
+        words = words & pack_bits(candidates)
     count, locate = _compact(words)
     ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test)
     return _exact_test(valid, ex)

@@ -1,17 +1,20 @@
 """The SGM pipeline: ordering of the paper's four steps. No maths of its own.
 
-Two entry points share one tail:
+Two entry points share one tail (Steps 2-4, :func:`_complete_tail`); Step 1 (normals) runs
+in a different module for each:
 
 * :func:`complete_stages` takes a sparse depth image and K (the KITTI benchmark
-  input). Normals come from the pixels back-projected through K and carried into
-  the LiDAR frame with ``T_cam_lidar`` (KITTI camera 2 by default).
-* :func:`complete_points_stages` takes a raw sweep and a camera. Normals come from
-  the sweep's true range image and outlier removal uses the exact point angles.
+  input). Step 1 runs in :func:`~jaxdepth._src.pixel_normals.pixel_normals`: the
+  pixels back-projected through K, carried into the LiDAR frame with
+  ``T_cam_lidar`` (KITTI camera 2 by default) and binned into the range image.
+* :func:`complete_points_stages` takes a raw sweep and a camera. Step 1 runs in
+  :func:`~jaxdepth._src.normals.point_normals` on the sweep's true range image, and
+  outlier removal uses the exact point angles.
 
 Speed: the image path bins pixels straight into the range image
 (:func:`~jaxdepth._src.pixel_normals.pixel_normals`, equal to ``point_normals`` of the
 back-projected pixels up to float32 rounding), and stage fences
-(:mod:`~jaxdepth._src.staging`) keep XLA from re-running producers inside their
+(:mod:`~jaxdepth._src.xla_tuning`) keep XLA from re-running producers inside their
 consumers. tests/test_speed_equivalence.py checks the result against the plain
 composition of the stage functions.
 """
@@ -26,7 +29,8 @@ import jax.numpy as jnp
 from jaxdepth._src import presets
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geodesic import geodesic_seed, guidance_image
+from jaxdepth._src.geodesic import geodesic_seed
+from jaxdepth._src.images import guidance_image
 from jaxdepth._src.geometry import project_to_image, transform_points
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
@@ -34,7 +38,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.staging import fence
+from jaxdepth._src.xla_tuning import after, fence, pack_pair, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -54,19 +58,19 @@ def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.
 def _gather_seeds(seed_field, normals, du, dv):
     """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals.
 
-    The four float32 channels travel as two complex64 (H, W) fields, each
-    gathered on its own: half the gathered elements of four float32 gathers,
-    and, unlike one gather of a stacked (2, H, W) field, XLA fuses both
-    gathers into the residual that consumes them (measured ~1.7x faster for
-    gather + residual on the KITTI frame).
+    Returns (seed depth (H, W), seed normals (3, H, W)).
     """
-    xy = gather_at_seed(jax.lax.complex(normals[0], normals[1]), du, dv)
-    zd = gather_at_seed(jax.lax.complex(normals[2], seed_field), du, dv)
-    return jnp.imag(zd), jnp.stack([jnp.real(xy), jnp.imag(xy), jnp.real(zd)])
+    xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
+    if isinstance(xy, tuple):  # plain: one gather of the four stacked channels
+        gathered = gather_at_seed(jnp.stack([*xy, *zd]), du, dv)
+        return gathered[3], gathered[:3]
+    # XLA:CPU: two complex64 gathers, fused into the residual that consumes them.
+    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    return depth, jnp.stack([nx, ny, nz])
 
 
 def _seeds(keep, image, config: SGMConfig):
-    """Step 3's seed search: the paper's nearest seed, or the image-guided one (issue 16)."""
+    """Step 3's seed search: the paper's nearest seed, or the image-guided one."""
     if config.guidance_weight > 0:
         if image is None:  # entry points that take no image (complete_rig, ...)
             raise ValueError("SGMConfig: field 'guidance_weight' > 0 expected a camera image, but this entry "
@@ -77,9 +81,15 @@ def _seeds(keep, image, config: SGMConfig):
 
 
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig, image=None) -> Stages:
-    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing."""
-    keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config, points_cam=points_cam)
+                   config: SGMConfig, image=None, keep=None) -> Stages:
+    """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing.
+
+    ``keep``: optional (H, W) bool Step-2 mask computed by the caller (several
+    sources, each with its own viewpoint); None runs Algorithm 1 here.
+    """
+    if keep is None:
+        keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
+                                    points_cam=points_cam)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
@@ -93,14 +103,11 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     has_seed = seed_depth > 0
     depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
     if config.column_bracket:
-        # A data dependence on the seed search's result (always true, not provable
-        # at compile time): scheduled before the search, the bracket's buffers
-        # stayed live across its loops and XLA:CPU copied their state (guided
-        # path measured 1.5-2x slower, the batched job slower too).
-        after_seeds = du[0, 0] > jnp.iinfo(jnp.int32).min
+        # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
+        bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
         distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
         depth_raw = column_hypotheses(
-            depth_raw, jnp.where(keep & after_seeds, sparse_depth, 0.0), distance, normals_cam, K,
+            depth_raw, bracket_input, distance, normals_cam, K,
             window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
             max_residual_ratio=config.max_residual_ratio)
@@ -147,8 +154,9 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMCon
         T_cam_lidar = presets.KITTI_T_CAM2_LIDAR
     T_cam_lidar = jnp.asarray(T_cam_lidar, jnp.float32)
     sparse_depth = jnp.where(jnp.isfinite(sparse_depth) & (sparse_depth > 0), sparse_depth, 0.0)
-    # Equals R @ point_normals(pixels back-projected into the LiDAR frame) up to
-    # float32 rounding, without per-point (N, 3) work over all H W pixels.
+    # Step 1 (normals) for image input, in pixel_normals.py: equals R @ point_normals(pixels
+    # back-projected into the LiDAR frame) up to float32 rounding, without per-point (N, 3)
+    # work over all H W pixels.
     normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
                                 fill_max_gap=config.range_fill_max_gap)
     return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
@@ -160,8 +168,9 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
              image: jax.Array | None = None) -> jax.Array:
     """Dense (H, W) float32 depth in metres from a sparse depth image; see :func:`complete_stages`.
 
-    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics gives
-    exactly what a Python loop gives.
+    ``jax.vmap(complete)`` over (B, H, W) depths and (B, 3, 3) intrinsics equals a
+    Python loop of single-frame calls to float32 rounding (XLA may fuse the batched
+    body differently).
 
     Examples:
       Two rows of LiDAR returns at the bottom of an 8 x 12 image:
@@ -215,6 +224,7 @@ def _complete_points_stages(points, valid, camera: Camera, image=None, *, config
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
+    # Step 1 (normals) for a sweep, in normals.py.
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
     image = guidance_image(image, (camera.height, camera.width), guided=config.guidance_weight > 0,
@@ -234,15 +244,38 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     """
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_lidar, jnp.float32)
+    sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, height=height,
+                                                                    width=width, image_size=image_size)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
+                            image=image)
+    return clear_outside_window(stages, image_size)
+
+
+def project_with_normals(points, valid, normals, T, K, *, height: int, width: int, image_size=None):
+    """The camera's z-buffer of a sweep, with each hit pixel's point and normal in the camera frame.
+
+    Args:
+      points: (N, 3) float32 points; valid: (N,) bool; normals: (N, 3) unit normals, same frame.
+      T: (4, 4) float32 points' frame -> camera; K: (3, 3) float32.
+      image_size: optional traced (2,) height, width of a window of the canvas (rigs).
+
+    Returns:
+      sparse_depth (H, W) float32 (0 = empty); index (H, W) int32 of the point seen (-1 = none);
+      points_cam and normals_cam (3, H, W) float32, 0 where no point is seen.
+    """
     sparse_depth, index = project_to_image(points, valid, K, T, height=height, width=width, valid_size=image_size)
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
     points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
-    normals_cam = jnp.where(hit[None], _normals_to_camera(normals_lidar[safe], T).reshape(3, height, width), 0.0)
-    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
-                            image=image)
+    normals_cam = jnp.where(hit[None], _normals_to_camera(normals[safe], T).reshape(3, height, width), 0.0)
+    return sparse_depth, index, points_cam, normals_cam
+
+
+def clear_outside_window(stages: Stages, image_size) -> Stages:
+    """``stages`` with ``depth`` and ``depth_raw`` set to 0 outside the (traced) ``image_size`` window; as is when None."""
     if image_size is None:
         return stages
+    height, width = stages.depth.shape
     inside = (jnp.arange(height)[:, None] < image_size[0]) & (jnp.arange(width)[None, :] < image_size[1])
     return stages._replace(depth=jnp.where(inside, stages.depth, 0.0),
                            depth_raw=jnp.where(inside, stages.depth_raw, 0.0))

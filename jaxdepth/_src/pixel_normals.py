@@ -1,5 +1,10 @@
 """Step 1 on image input: normals of the pixels of a sparse depth image.
 
+This is where :func:`jaxdepth.complete` (``pipeline.complete_stages``) runs Step 1;
+sweep input (``complete_points``, ``complete_rig``) runs it in
+:func:`jaxdepth._src.normals.point_normals`. Both read the cell normals of
+:func:`jaxdepth._src.normals.cell_normals`.
+
 :func:`pixel_normals` takes what the KITTI benchmark gives (a sparse depth
 image, ``K`` and the LiDAR-camera transform) instead of a sweep. Each pixel
 with depth is back-projected through ``K``
@@ -9,8 +14,8 @@ reads its cell's normal (:mod:`jaxdepth._src.normals`); the normal is rotated
 back into the camera frame. It equals ``point_normals`` of the back-projected
 pixels up to float32 rounding (tests/test_normals.py).
 
-Performance notes: gathers and scatters cost ~2-5 ns per element on XLA:CPU,
-elementwise work far less, so the few % of pixels with depth are listed first
+Performance notes: gathers and scatters cost far more per element than
+elementwise work on XLA:CPU, so the few % of pixels with depth are listed first
 (:func:`~jaxdepth._src.compaction.compact_indices`: elementwise passes, small
 triangular matrix products and a scatter over the 32-pixel words of the mask
 only); back-projection, ``atan2`` binning, the scatter-mins and the gathers
@@ -35,7 +40,7 @@ from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
 from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
 from jaxdepth._src.range_image import RangeImage, angles_xyz, cell_centres, check_lidar, row_col
-from jaxdepth._src.staging import cond_all, stage
+from jaxdepth._src.xla_tuning import cond_all, stage
 from jaxdepth._src.types import LidarSpec
 
 

@@ -16,6 +16,11 @@ KITTI_HDL64 = LidarSpec(beams=64, fov_up_deg=2.0, fov_down_deg=-24.9, columns=20
 #: Velodyne HDL-32E as recorded in nuScenes (about 1,080 points per beam per turn).
 NUSCENES_HDL32 = LidarSpec(beams=32, fov_up_deg=10.67, fov_down_deg=-30.67, columns=1088)
 
+#: Velodyne VLP-32C as recorded in Argoverse 2 (two of them: ``up_lidar``, ``down_lidar``): lasers from
+#: -25 to +15 degrees (non-uniform spacing, densest near the horizon), 10 Hz, about 1,800 points per
+#: laser per turn (0.2 degree azimuth steps).
+AV2_VLP32C = LidarSpec(beams=32, fov_up_deg=15.0, fov_down_deg=-25.0, columns=1800)
+
 # KITTI raw 2011_09_26 calibration: velodyne -> rectified camera 2 (left colour)
 # T = [I | t_02] @ R_rect_00 @ Tr_velo_to_cam, with t_02 = P_rect_02[:, 3] / f.
 _R_VELO_TO_CAM = np.array(

@@ -38,7 +38,7 @@ import numpy as np
 
 from jaxdepth._src.fastmath import PI, atan2
 from jaxdepth._src.geometry import scatter_argmin
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 from jaxdepth._src.types import LidarSpec
 
 #: Points closer than this to the sensor origin (metres) are treated as invalid.
@@ -146,15 +146,23 @@ def _slot_and_key(r, cell, ok, n_cells: int):
     return slot, key
 
 
-def range_image_and_slots(points: jax.Array, valid: jax.Array, lidar: LidarSpec):
-    """The range image and each point's materialised flat cell (``L * C`` for invalid points)."""
+def range_image_and_slots(points: jax.Array, valid: jax.Array, lidar: LidarSpec, rows: jax.Array | None = None):
+    """The range image and each point's materialised flat cell (``L * C`` for invalid points).
+
+    ``rows``: optional (N,) int32 row of each point (its laser's rank by elevation, for sensors
+    whose beams are not evenly spaced); -1 (or None) takes the row from the elevation.
+    """
     n_cells = lidar.beams * lidar.columns
 
-    def per_point(points, valid):
+    def per_point(points, valid, *rows):
         r, theta, phi, cell, ok = _spherical(points, valid, lidar)
+        if rows:
+            given = jnp.clip(rows[0], 0, lidar.beams - 1) * lidar.columns + cell % lidar.columns
+            cell = jnp.where(ok & (rows[0] >= 0), given, cell)
         return _slot_and_key(r, cell, ok, n_cells) + (r, theta, phi)
 
-    slot, key, r, theta, phi = stage(per_point, (points, valid), valid[0].astype(jnp.int32))
+    slot, key, r, theta, phi = stage(per_point, (points, valid) + (() if rows is None else (rows,)),
+                                     valid[0].astype(jnp.int32))
     return _bin(slot, key, r, theta, phi, lidar), slot
 
 

@@ -6,7 +6,7 @@ outside it is 0. Outlier removal uses the canvas size for the paper's window
 bounds (W L / N, H / L), which equals the camera's own size when all cameras
 have the same size (KITTI stereo, nuScenes).
 
-Image-guided seeds (``SGMConfig.guidance_weight > 0``, issue 16) take one camera
+Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
 colour: each camera's image sits in the top-left corner of the canvas, inside its
 ``image_size`` window, and the padding beyond is ignored (:func:`stack_images`
@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
-from jaxdepth._src.geodesic import unit_float_image
+from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.pipeline import camera_stages_from_points
@@ -113,8 +113,8 @@ def stack_images(images, cameras) -> np.ndarray:
 def _rig_images(images, cameras: RigCameras, *, guided: bool, where: str):
     """Checks ``images`` against the canvas; float32 [0, 1] when ``guided``, else None (ignored).
 
-    Same rules as :func:`~jaxdepth._src.geodesic.guidance_image` (the dtype rule is its
-    :func:`~jaxdepth._src.geodesic.unit_float_image`), for the stacked (C, H, W[, 3])
+    Same rules as :func:`~jaxdepth._src.images.guidance_image` (the dtype rule is its
+    :func:`~jaxdepth._src.images.unit_float_image`), for the stacked (C, H, W[, 3])
     array; ValueError naming the field 'images' otherwise.
     """
     c, h, w = cameras.count, cameras.height, cameras.width

@@ -10,13 +10,11 @@ single-channel convolution on CPU.
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.staging import stage
+from jaxdepth._src.xla_tuning import stage
 
 
 def gaussian_kernel_1d(sigma_px: float, radius_px: int) -> np.ndarray:
@@ -51,11 +49,6 @@ def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
         part = jax.lax.slice_in_dim(padded, k, k + n, axis=axis) * jnp.float32(weight)
         out = part if out is None else out + part
     return out
-
-
-def _blur_axis(image: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
-    radius = (len(weights) - 1) // 2
-    return _taps(_reflect101_pad(image, radius, axis), weights, axis)
 
 
 def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.Array:
@@ -97,11 +90,6 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
     padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
     vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]
     return _taps(vertical, weights, cols)
-
-
-def default_radius(sigma_px: float) -> int:
-    """OpenCV's automatic kernel size for 8-bit images: radius = round(3 sigma)."""
-    return max(1, int(math.ceil(3.0 * sigma_px)))
 
 
 def gaussian_kernel_traced(sigma_px: jax.Array, radius_px: int) -> jax.Array:

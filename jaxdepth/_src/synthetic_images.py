@@ -1,4 +1,4 @@
-"""Camera images of the synthetic street (issue 16): albedo, Lambertian shading, texture, noise.
+"""Camera images of the synthetic street: albedo, Lambertian shading, texture, noise.
 
 The synthetic scenes of :mod:`jaxdepth._src.synthetic` carry exact depth; this
 module renders the matching RGB camera image, so image-guided seeds can be
@@ -14,10 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.synthetic import SceneArrays, _checked_rays, camera_rays, nearest_hits, street_scene_arrays
+from jaxdepth._src.scene import SceneArrays, camera_rays, checked_rays, nearest_hits, street_scene_arrays
 from jaxdepth._src.types import Camera
 
-# --------------------------------------------------------------------------- camera images (issue 16)
+# --------------------------------------------------------------------------- camera images
 #
 # An RGB image to go with the exact depth, so that image-guided methods can be tested on scenes whose
 # colour edges are known. What a pixel shows (documented choices, all deterministic):
@@ -89,7 +89,7 @@ def cast_rays_labelled(origins: jax.Array, directions: jax.Array, scene: SceneAr
       primitive's index in the concatenation planes, boxes, cylinders (the
       first one in that order on an exact tie), -1 where nothing is hit.
     """
-    o, d = _checked_rays(origins, directions, where="cast_rays_labelled")
+    o, d = checked_rays(origins, directions, where="cast_rays_labelled")
     return nearest_hits(o, d, scene, labelled=True)
 
 

@@ -16,6 +16,18 @@ frames. Inputs are :class:`~jaxdepth._src.types.Stages` fields (``du``, ``dv``,
   the metric of the nearest-seed step (:func:`~jaxdepth._src.distance.nearest_seed`),
   in pixels; ``+inf`` where the image has no seed (``seed_depth == 0``).
 * Validity: inside the field of view and ``seed distance <= max_seed_distance_px``.
+* The default limit follows from the sensor (:func:`sensor_max_seed_distance_px`):
+  ``SCAN_LINE_FACTOR`` times the camera's scan-line spacing, ``fy`` times the LiDAR's
+  vertical beam spacing ``(fov_up - fov_down) / (beams - 1)`` in radians. KITTI's
+  HDL-64E (26.9 deg over 64 beams) with fy = 721.5 gives 5.38 px and a limit of 16.1 px;
+  nuScenes' HDL-32E (41.3 deg over 32 beams) with fy = 1266 gives 29.5 px and 88.4 px.
+  Why 3: in the L1 metric of the seed search a pixel between two scan lines is at most
+  half a spacing from one of them vertically; one scan line missing its returns there
+  (dark or specular surfaces, points removed as occluded) doubles the gap, so the pixel
+  is up to one spacing away vertically, and the nearest return on that line may be up
+  to one more spacing away sideways (gaps along the line of the same kind), 2 spacings
+  in all; the last spacing is slack for the scan lines' tilt and curvature in the image
+  (a camera rolled or pitched against the LiDAR, lines bending away from the centre).
 
 Oracle: a NumPy loop over pixels (tests/test_validity.py); analytic case: a
 camera looking along the LiDAR's x axis with no rotation between them crosses
@@ -29,13 +41,36 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from jaxdepth._src.config import SGMConfig
+from jaxdepth._src.config import DISTANCE_METRICS, SGMConfig
 from jaxdepth._src.geometry import pixel_rays
 from jaxdepth._src.types import LidarSpec, Stages
 
-_METRICS = ("l1", "l2")
 _DEFAULT_METRIC = SGMConfig().distance_metric
-DEFAULT_MAX_SEED_DISTANCE_PX = 16.0
+DEFAULT_MAX_SEED_DISTANCE_PX = 16.0  # KITTI's 64 beams at fy 721.5 under the sensor rule (16.1 px)
+#: The validity limit is this many scan-line spacings (see module docs).
+SCAN_LINE_FACTOR = 3.0
+
+
+def scan_line_spacing_px(K: jax.Array, lidar: LidarSpec) -> jax.Array:
+    """Vertical distance between neighbouring scan lines in the image, pixels.
+
+    ``fy * (fov_up_rad - fov_down_rad) / (beams - 1)``: the beams' mean elevation step
+    seen by a camera of focal length ``fy = K[1, 1]`` (near its principal row). A
+    single-beam LiDAR has no spacing; its field of view is used.
+
+    Args:
+      K: (3, 3) intrinsics (traced). lidar: static :class:`LidarSpec`.
+
+    Returns:
+      () float32 pixels.
+    """
+    step = (lidar.fov_up_rad - lidar.fov_down_rad) / max(int(lidar.beams) - 1, 1)
+    return jnp.asarray(K, jnp.float32)[1, 1] * jnp.float32(step)
+
+
+def sensor_max_seed_distance_px(K: jax.Array, lidar: LidarSpec) -> jax.Array:
+    """The default validity limit: ``SCAN_LINE_FACTOR * scan_line_spacing_px(K, lidar)``, () float32 pixels."""
+    return jnp.float32(SCAN_LINE_FACTOR) * scan_line_spacing_px(K, lidar)
 
 
 @functools.partial(jax.jit, static_argnames=("height", "width"))
@@ -86,8 +121,8 @@ def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric
     Returns:
       (H, W) float32 pixels; ``+inf`` where ``seed_depth <= 0``.
     """
-    if metric not in _METRICS:
-        raise ValueError(f"seed_distance: field 'metric' expected one of {_METRICS}, got {metric!r}")
+    if metric not in DISTANCE_METRICS:
+        raise ValueError(f"seed_distance: field 'metric' expected one of {DISTANCE_METRICS}, got {metric!r}")
     du = jnp.asarray(du, jnp.int32)
     dv = jnp.asarray(dv, jnp.int32)
     if metric == "l1":
@@ -100,7 +135,7 @@ def seed_distance(du: jax.Array, dv: jax.Array, seed_depth: jax.Array, *, metric
 @functools.partial(jax.jit, static_argnames=("lidar", "metric", "max_seed_distance_px"))
 def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
                           metric: str = _DEFAULT_METRIC,
-                          max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX) -> tuple[jax.Array, jax.Array]:
+                          max_seed_distance_px: float | None = None) -> tuple[jax.Array, jax.Array]:
     """Validity mask and seed distance of one completed camera image.
 
     Args:
@@ -109,7 +144,8 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
       K: (3, 3) float32. T_cam_lidar: (4, 4) float32 (traced).
       lidar: static :class:`LidarSpec` (``fov_up_deg``, ``fov_down_deg``).
       metric: static, the seeds' ``SGMConfig.distance_metric``.
-      max_seed_distance_px: static, pixels; farther pixels are not supported.
+      max_seed_distance_px: static, pixels; farther pixels are not supported. None
+        (default): :func:`sensor_max_seed_distance_px` of this camera and LiDAR.
 
     Returns:
       ``(valid, distance)``: (H, W) bool, :func:`fov_mask` and
@@ -118,11 +154,13 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
     h, w = stages.du.shape
     distance = seed_distance(stages.du, stages.dv, stages.seed_depth, metric=metric)
     inside = fov_mask(K, T_cam_lidar, height=h, width=w, lidar=lidar)
-    return inside & (distance <= jnp.float32(max_seed_distance_px)), distance
+    limit = (sensor_max_seed_distance_px(K, lidar) if max_seed_distance_px is None
+             else jnp.float32(max_seed_distance_px))
+    return inside & (distance <= limit), distance
 
 
 def rig_validity_and_distance(stages: Stages, cameras, *, lidar: LidarSpec, metric: str = _DEFAULT_METRIC,
-                              max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX):
+                              max_seed_distance_px: float | None = None):
     """:func:`validity_and_distance` of every camera of a rig: ``stages`` with (C, H, W) fields
     (:func:`jaxdepth.complete_rig_stages`) and ``cameras`` a :class:`~jaxdepth.RigCameras`;
     returns (C, H, W) ``(valid, distance)``."""
@@ -133,7 +171,7 @@ def rig_validity_and_distance(stages: Stages, cameras, *, lidar: LidarSpec, metr
 
 def validity_mask(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, *, lidar: LidarSpec,
                   metric: str = _DEFAULT_METRIC,
-                  max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX) -> jax.Array:
+                  max_seed_distance_px: float | None = None) -> jax.Array:
     """(H, W) bool of the pixels the sensor supports; see :func:`validity_and_distance`."""
     return validity_and_distance(stages, K, T_cam_lidar, lidar=lidar, metric=metric,
                                  max_seed_distance_px=max_seed_distance_px)[0]

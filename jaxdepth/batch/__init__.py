@@ -5,6 +5,7 @@
   bad frames reported and skipped, finished outputs skipped on a re-run.
 * :mod:`~jaxdepth.batch.scale`: the same jobs on a Ray cluster (optional extra ``ray``).
 * :mod:`~jaxdepth.batch.nuscenes_job`: every sample of a nuScenes dataroot, all cameras at once.
+* :mod:`~jaxdepth.batch.rig_job`: one sweep for every camera of a rig JSON (``jaxdepth complete-rig``).
 * :mod:`~jaxdepth.batch.extras`: the optional outputs beside each depth PNG (preview, validity,
   seed distance).
 * :mod:`~jaxdepth.batch.devices`: host devices, the persistent compile cache, JAX's start.

@@ -18,8 +18,8 @@ _DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
 
 def split_cpu_into_devices(count: int | None = None) -> int:
     """Asks XLA for one host (CPU) device per core, so the runner shards a batch over
-    the cores: each core completes its own frames (measured ~1.4x the frames/s of one
-    device using both cores on each frame; same bytes out).
+    the cores: each core completes its own frames (more frames/s than one device using
+    both cores on each frame, benchmarks/results/batching.json; same bytes out).
 
     Only possible before JAX starts its backends; does nothing (returns 0) if they
     already run or ``XLA_FLAGS`` already sets a device count. Returns the count set.

@@ -9,7 +9,8 @@ trees, nuScenes, complete-rig's ``<camera>.png``):
   ``--preview-range``) with a scale bar in metres below it
   (:func:`jaxdepth.depth_preview`).
 * ``--validity``: ``<stem>_validity.png``, uint8, 255 = supported (inside the LiDAR's
-  vertical field of view and within ``--max-seed-distance-px`` of a seed,
+  vertical field of view and within ``--max-seed-distance-px`` of a seed, by default 3
+  scan-line spacings of the camera (docs/validity.md),
   :func:`jaxdepth.validity_and_distance`), 0 = not.
 * ``--seed-distance``: ``<stem>_seed_distance.png``, uint16 ``round(16 * distance_px)``
   to the nearest seed in the run's ``--distance`` metric; 65535 = no seed (or
@@ -21,8 +22,8 @@ frame is skipped when its depth PNG and every requested extra exist; otherwise
 it is computed again and only the missing files are written (an existing file
 is replaced only with ``--overwrite``). So adding a flag on a re-run fills in
 the new files; changing ``--zero-invalid``, ``--max-seed-distance-px``,
-``--distance`` or ``--preview-range`` does not touch files already written:
-re-run with ``--overwrite``.
+``--distance`` or ``--preview-range`` is refused by the folder's run record
+(:mod:`jaxdepth.batch.run_record`) unless ``--overwrite``, which recomputes every file.
 """
 
 from __future__ import annotations
@@ -39,25 +40,31 @@ SEED_DISTANCE_NONE = 65535  # no seed, or too far to store
 # Same value as jaxdepth._src.validity.DEFAULT_MAX_SEED_DISTANCE_PX (a test checks it); a literal here so that
 # `jaxdepth --help` does not import JAX.
 DEFAULT_MAX_SEED_DISTANCE_PX = 16.0
+#: ``ExtraOutputs.seed_limit`` when the limit follows from the sensor (the runner's static key).
+SENSOR_LIMIT = "sensor"
 
 
 @dataclasses.dataclass(frozen=True)
 class ExtraOutputs:
-    """Which extras to write (hashable). ``max_seed_distance_px`` in pixels; ``preview_range`` (vmin, vmax)
-    metres or None for each frame's own range."""
+    """Which extras to write (hashable). ``max_seed_distance_px`` in pixels, None (default): from the
+    sensor, 3 scan-line spacings of each camera (:func:`jaxdepth._src.validity.sensor_max_seed_distance_px`);
+    ``preview_range`` (vmin, vmax) metres or None for each frame's own range."""
 
     preview: bool = False
     validity: bool = False
     seed_distance: bool = False
     zero_invalid: bool = False
-    max_seed_distance_px: float = DEFAULT_MAX_SEED_DISTANCE_PX
+    max_seed_distance_px: float | None = None
     preview_range: tuple | None = None
 
     def __post_init__(self):
         m = self.max_seed_distance_px
-        if isinstance(m, bool) or not np.isfinite(float(m)) or float(m) < 0:
+        if m is None:
+            pass
+        elif isinstance(m, bool) or not np.isfinite(float(m)) or float(m) < 0:
             raise ValueError(f"ExtraOutputs: field 'max_seed_distance_px' expected a finite number >= 0, got {m!r}")
-        object.__setattr__(self, "max_seed_distance_px", float(m))
+        else:
+            object.__setattr__(self, "max_seed_distance_px", float(m))
         if self.preview_range is not None:
             lo, hi = (float(x) for x in self.preview_range)
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
@@ -69,6 +76,11 @@ class ExtraOutputs:
     def needs_seeds(self) -> bool:
         """The device must also return the validity mask and the seed distance."""
         return self.validity or self.seed_distance or self.zero_invalid
+
+    @property
+    def seed_limit(self):
+        """The validity limit as a static key: pixels, or :data:`SENSOR_LIMIT`."""
+        return SENSOR_LIMIT if self.max_seed_distance_px is None else self.max_seed_distance_px
 
     @property
     def kinds(self) -> tuple:
@@ -171,7 +183,7 @@ def add_cli_options(parser) -> None:
     group = parser.add_argument_group(
         "extra outputs", "written beside each depth PNG <stem>.png as <stem>_<kind>.png (atomic; resumed like the "
                          "depth: a re-run with the same flags skips finished frames, a re-run with a new flag "
-                         "writes only the missing files; other changed settings need --overwrite); --validity, "
+                         "writes only the missing files; other changed settings are refused unless --overwrite); --validity, "
                          "--seed-distance and --zero-invalid need --method sgm")
     group.add_argument("--preview", action="store_true",
                        help="<stem>_preview.png: colour image of the depth (turbo, black = empty) with a scale bar "
@@ -186,9 +198,10 @@ def add_cli_options(parser) -> None:
                             "value = round(16 * pixels), 65535 = no seed")
     group.add_argument("--zero-invalid", action="store_true",
                        help="write depth 0 outside the validity mask (e.g. the sky above the top beam)")
-    group.add_argument("--max-seed-distance-px", type=float, default=DEFAULT_MAX_SEED_DISTANCE_PX, metavar="PX",
-                       help=f"validity: farthest supported pixel from a seed, pixels in the --distance metric "
-                            f"(default {DEFAULT_MAX_SEED_DISTANCE_PX:g})")
+    group.add_argument("--max-seed-distance-px", type=float, default=None, metavar="PX",
+                       help="validity: farthest supported pixel from a seed, pixels in the --distance metric "
+                            "(default: from the sensor, 3 times the camera's scan-line spacing fy * (fov_up - "
+                            "fov_down) / (beams - 1): 16.1 px on KITTI, 88 px on nuScenes; see docs/validity.md)")
 
 
 def from_args(args) -> ExtraOutputs:
@@ -196,7 +209,7 @@ def from_args(args) -> ExtraOutputs:
     return ExtraOutputs(preview=bool(getattr(args, "preview", False)), validity=bool(getattr(args, "validity", False)),
                         seed_distance=bool(getattr(args, "seed_distance", False)),
                         zero_invalid=bool(getattr(args, "zero_invalid", False)),
-                        max_seed_distance_px=getattr(args, "max_seed_distance_px", DEFAULT_MAX_SEED_DISTANCE_PX),
+                        max_seed_distance_px=getattr(args, "max_seed_distance_px", None),
                         preview_range=None if getattr(args, "preview_range", None) is None
                         else tuple(args.preview_range))
 

@@ -24,13 +24,14 @@ Unguided runs do not open the images.
 
 Where the LiDAR sits: the points are in the key-frame LIDAR_TOP sensor frame by
 the tables' definition, so its origin is stated (``lidar_origin_m = 0``), not
-estimated, and outlier removal follows the run's config. With ``sweeps > 1`` the
-cloud is still measured from that one origin: the range image, the normals and
-Algorithm 1's LiDAR view are the key-frame sensor's. Points of earlier sweeps that
-the key-frame LiDAR could not have seen (seen from where the vehicle was before,
-hidden from where it is now) are not all caught by Algorithm 1, and moving objects
-leave trails (as in the devkit's multi-sweep clouds); outlier removal stays on by
-default because without it even more hidden points would become seeds.
+estimated, and outlier removal follows the run's config. With ``sweeps > 1`` every
+sweep is its own source (:func:`jaxdepth.io.nuscenes.sweep_cloud`: its points and
+where its LiDAR sat, from the ego poses) and the sample goes through
+:func:`jaxdepth.batch.cloud_runner.complete_sources`: range image, normals and
+Algorithm 1's LiDAR view per sweep, and points of earlier sweeps that lie in the key
+frame's free space (moving objects' trails, registration errors) removed. ``sweeps = 1``
+is the single-sweep path, unchanged. The seed-based extra outputs (validity, seed
+distance, zero-invalid) need ``sweeps = 1``.
 
 Scheduling: a reader thread pool loads samples ahead; each sample is dispatched
 (asynchronously) before the previous result is collected; writer threads encode
@@ -38,7 +39,7 @@ and write the PNGs. One device by default (``devices``: round robin over several
 each compiling its own copy); the CLI does not split the CPU into host devices
 for this job (``--cpu-devices`` has no effect): XLA already spreads one sample
 over the cores, and splitting the cameras of a sample over two host devices
-measured no faster on 2 cores.
+is no faster on 2 cores.
 
 The Ray engine (:func:`jaxdepth.batch.scale.run_nuscenes_ray`) plans the same way
 (:func:`plan`) and runs :func:`complete_samples`, this module's per-sample path,
@@ -133,7 +134,8 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=
 
 def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False):
     """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs, images):
-    ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None."""
+    ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None. With ``sweeps > 1``
+    the padded points and valid are None and ``inputs.cloud`` holds the sweeps as sources."""
     from jaxdepth._src.presets import NUSCENES_HDL32
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.errors import field_error
@@ -141,7 +143,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
     from jaxdepth.io.rig import Rig, RigCamera
     from jaxdepth.io.sweep_frame import prepare_sweep
 
-    inputs = nusc.sample_inputs(tables, job.token, sweeps=sweeps, ego_motion=ego_motion)
+    inputs = nusc.sample_inputs(tables, job.token, sweeps=sweeps, ego_motion=ego_motion, sources=sweeps > 1)
     cameras = []
     for cam in inputs.cameras:
         try:
@@ -155,6 +157,8 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
         from jaxdepth.io.rig_images import read_rig_images
         paths = [nusc.camera_image_path(tables, tables.tables["sample_data"][cam.token]) for cam in inputs.cameras]
         images = read_rig_images(paths, rig.cameras, colour=True)
+    if inputs.cloud is not None:
+        return None, None, rig, inputs, images
     frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False)
     padded, valid = pad_points(frame.points)
     return padded, valid, frame.rig, inputs, images
@@ -170,8 +174,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       dataroot: nuScenes dataroot (holds ``<version>/`` and the ``samples/``, ``sweeps/`` files).
       dst: output root.
       version: ``"v1.0-mini"``, ``"v1.0-trainval"``, ``"v1.0-test"``, ...
-      sweeps: LiDAR sweeps per sample (default 1: the key frame; the devkit's
-        ``from_file_multisweep`` for more, see :mod:`jaxdepth.io.nuscenes`).
+      sweeps: LiDAR sweeps per sample (default 1: the key frame; more: the key frame and earlier
+        sweeps as the devkit's ``from_file_multisweep`` picks them, see :mod:`jaxdepth.io.nuscenes`,
+        each one source of :func:`jaxdepth.batch.cloud_runner.complete_sources`).
       ego_motion: compensate the vehicle's motion between the LiDAR and each
         camera's timestamp (default True).
       config: :class:`~jaxdepth.SGMConfig` (default: the library's).
@@ -179,7 +184,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       png_compression: zlib level 0-9 of the PNGs (default: the library's fast level).
       devices: local devices to deal samples out to, round robin (default 1: each device
         compiles its own copy, and on CPU one device already uses every core within a sample;
-        sharding a sample's cameras over 2 host devices measured no faster here).
+        sharding a sample's cameras over 2 host devices is no faster).
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).
@@ -205,6 +210,8 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
         raise ValueError(f"run_nuscenes: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
+    if sweeps > 1 and extras.needs_seeds:
+        raise ValueError("run_nuscenes: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     dst = pathlib.Path(dst)
@@ -241,8 +248,12 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     """
     import jax
 
+    if sweeps > 1 and extras.needs_seeds:
+        raise ValueError("nuScenes job: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
     from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.batch.cloud_runner import complete_sources
     from jaxdepth.batch.runner import is_guided, read_ahead
+    from jaxdepth.io.errors import JaxdepthError
 
     targets = jax.local_devices()[:1] if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
@@ -255,7 +266,16 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             if message is not None:
                 run.fail(job.token, message)
                 continue
-            padded, valid, rig, _, images = loaded
+            padded, valid, rig, inputs, images = loaded
+            if inputs.cloud is not None:  # several sweeps: one source each
+                try:
+                    out = complete_sources(inputs.cloud, rig, config=config, images=images)
+                except (JaxdepthError, ValueError) as err:
+                    run.fail(job.token, f"completion failed: {err}")
+                    continue
+                run.in_flight.append((job, rig, out))
+                run.collect(writers)
+                continue
             cameras = stack_cameras([c.as_camera() for c in rig.cameras])
             args = (padded, valid, cameras) + (() if images is None else (images,))
             try:

@@ -7,12 +7,11 @@ encode/write outputs while the device computes. Finished outputs are skipped
 on a re-run, writes are atomic, a bad frame is reported and skipped.
 
 On CPU a batch runs as ``lax.map`` over the frames (XLA already uses both
-cores on one frame; on a 352x1216 KITTI frame lax.map and a Python loop of
-single-frame calls both measured 0.5-1.1x the single-frame rate on a noisy VM,
-``vmap`` slower, with its batched gathers and scatters); on GPU/TPU it runs as
-``vmap``. With several local devices (e.g. one host device per core,
-``jaxdepth.batch.devices.split_cpu_into_devices``, measured 1.3-1.7x the single-frame
-rate) the batch is sharded over them with ``shard_map``. Strategy "loop"
+cores on one frame; lax.map and a Python loop of single-frame calls both run
+at about the single-frame rate, ``vmap`` slower, with its batched gathers and
+scatters; benchmarks/bench_batching.py); on GPU/TPU it runs as ``vmap``. With
+several local devices (e.g. one host device per core,
+``jaxdepth.batch.devices.split_cpu_into_devices``) the batch is sharded over them with ``shard_map``. Strategy "loop"
 (single-frame calls dispatched asynchronously, frame i on device i mod n) gives
 exactly the bytes of single-frame calls; "map" and "vmap" may differ from them
 by float32 rounding.
@@ -42,14 +41,17 @@ from jaxdepth._src.types import LidarSpec
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png
+from jaxdepth.io.kitti_datasets import FrameFiles
 
 log = logging.getLogger("jaxdepth")
 
 
 @dataclasses.dataclass(frozen=True)
-class FrameJob:
-    """One frame to complete: input PNG, intrinsics (file or matrix), output PNG, and optionally the
-    frame's own LiDAR -> camera extrinsic ``T_cam_lidar`` (4, 4) (None: the run's default).
+class FrameJob(FrameFiles):
+    """One frame to complete: a :class:`~jaxdepth.io.kitti_datasets.FrameFiles` (input PNG or
+    sweep, output PNG, ``K``, the frame's own ``T_cam_lidar`` or None for the run's default,
+    camera image) and, for selection folders, the intrinsics file ``intrinsics_path`` read
+    when ``K`` is None.
 
     A *sweep job* (``image_size`` set) reads a LiDAR sweep from ``sparse_path`` instead
     (``.bin`` float32 records of ``point_columns`` values, x, y, z first, metres; None:
@@ -63,18 +65,18 @@ class FrameJob:
     :func:`jaxdepth.io.guidance_images.read_guidance_image`; it must have the
     depth's size, or, with ``image_crop_from`` = (H, W), be the full H x W frame
     whose 352 x 1216 benchmark crop the job completes (cut the same way).
+
+    ``force``: use an input that fails the plausibility checks of
+    :mod:`jaxdepth.io.plausibility` (a warning is logged instead).
     """
 
-    name: str
-    sparse_path: pathlib.Path
-    out_path: pathlib.Path
     intrinsics_path: pathlib.Path | None = None
-    K: np.ndarray | None = None
-    T_cam_lidar: np.ndarray | None = None
-    image_size: tuple[int, int] | None = None
-    point_columns: int | None = None
-    image_path: pathlib.Path | None = None
-    image_crop_from: tuple[int, int] | None = None
+    force: bool = False
+
+    @classmethod
+    def from_files(cls, files: FrameFiles) -> "FrameJob":
+        """The job of one frame a dataset discovery function listed."""
+        return cls(**{field.name: getattr(files, field.name) for field in dataclasses.fields(FrameFiles)})
 
 
 @dataclasses.dataclass
@@ -107,7 +109,8 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
 
     Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
 
-    With ``max_seed_distance_px`` (extra outputs, method "sgm" only) the function returns
+    With ``max_seed_distance_px`` (extra outputs, method "sgm" only; pixels, or ``"sensor"``: each
+    camera's :func:`jaxdepth._src.validity.sensor_max_seed_distance_px`) the function returns
     ``(depth, valid, seed_distance)``, each (B, H, W), from
     :func:`jaxdepth._src.validity.validity_and_distance` of the frame's Stages (another
     compiled function; without it nothing changes).
@@ -145,10 +148,12 @@ def is_guided(config: SGMConfig) -> bool:
     return config.guidance_weight > 0
 
 
-def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px: float):
+def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px):
+    """Validity and seed distance; ``max_seed_distance_px`` pixels or ``"sensor"`` (the camera's own limit)."""
     from jaxdepth._src.validity import validity_and_distance
+    limit = None if max_seed_distance_px == "sensor" else max_seed_distance_px
     return validity_and_distance(stages, K, T, lidar=lidar, metric=config.distance_metric,
-                                 max_seed_distance_px=max_seed_distance_px)
+                                 max_seed_distance_px=limit)
 
 
 def _stack_outputs(outs: list):
@@ -307,7 +312,8 @@ def _load_sweep(job: FrameJob):
     """A sweep job's input: ((padded (P, 3), valid (P,)), K), K checked against ``image_size``."""
     from jaxdepth.io.points import infer_point_columns, pad_points, read_points
 
-    points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns))
+    points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns),
+                            force=job.force)
     if job.K is None:
         raise io_errors.InputError(f"{job.sparse_path}: no intrinsics given for this sweep (field 'K' of the job)")
     K = np.asarray(job.K, np.float32)
@@ -391,6 +397,8 @@ def _load_sparse(job: FrameJob):
     if job.image_size is not None:
         return _load_sweep(job)
     depth = read_depth_png(job.sparse_path)
+    from jaxdepth.io.plausibility import check_depth_scale
+    check_depth_scale(depth, path=job.sparse_path, role="LiDAR input", force=job.force)
     if job.K is not None:
         K = np.asarray(job.K, np.float32)
     elif job.intrinsics_path is not None:
@@ -484,7 +492,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     group_call = functools.partial(
         _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
         strategy=strategy or batch_strategy(), devices=devices,
-        max_seed_distance_px=extras.max_seed_distance_px if extras.needs_seeds else None)
+        max_seed_distance_px=extras.seed_limit if extras.needs_seeds else None)
     pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T[, image])
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         run = _BatchRun(summary, notify, writers, group_call=group_call, extras=extras, overwrite=overwrite,

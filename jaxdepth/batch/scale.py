@@ -110,6 +110,8 @@ def _record(job) -> dict[str, Any]:
         "image_path": "" if getattr(job, "image_path", None) is None else os.fspath(job.image_path),
         "image_crop_from": ([0, 0] if getattr(job, "image_crop_from", None) is None
                             else [int(s) for s in job.image_crop_from]),
+        # --force: inputs that fail the plausibility checks are used (logged on the worker)
+        "force": bool(getattr(job, "force", False)),
     }
 
 
@@ -136,7 +138,8 @@ def _jobs_from_batch(batch: dict[str, Any]) -> list:
                              intrinsics_path=pathlib.Path(intrinsics) if intrinsics else None, K=K, T_cam_lidar=T,
                              image_size=size if size[0] > 0 else None, point_columns=columns or None,
                              image_path=pathlib.Path(image) if image else None,
-                             image_crop_from=crop_from if crop_from[0] > 0 else None))
+                             image_crop_from=crop_from if crop_from[0] > 0 else None,
+                             force=bool(batch["force"][i]) if "force" in batch else False))
     return jobs
 
 
@@ -165,7 +168,7 @@ class _CompleteFrames:
         # ``overwrite``, so a retried task skips what an earlier attempt finished.
         self.extras = extra_outputs.NONE if extras is None else extras
         self.overwrite = bool(overwrite)
-        self._more = ({"max_seed_distance_px": self.extras.max_seed_distance_px} if self.extras.needs_seeds
+        self._more = ({"max_seed_distance_px": self.extras.seed_limit} if self.extras.needs_seeds
                       else {})
 
         self._runner = runner

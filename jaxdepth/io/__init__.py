@@ -22,6 +22,8 @@ from jaxdepth.io.depth_png import write_depth_png as write_depth_png
 from jaxdepth.io.errors import InputError as InputError
 from jaxdepth.io.errors import JaxdepthError as JaxdepthError
 from jaxdepth.io.errors import OutputError as OutputError
+from jaxdepth.io.kitti_frame import KittiFrame as KittiFrame
+from jaxdepth.io.kitti_frame import load_kitti_frame as load_kitti_frame
 from jaxdepth.io.kitti_layout import BENCHMARK_SIZE as BENCHMARK_SIZE
 from jaxdepth.io.kitti_layout import benchmark_crop_offsets as benchmark_crop_offsets
 from jaxdepth.io.kitti_layout import crop_to_benchmark as crop_to_benchmark
@@ -66,6 +68,7 @@ __all__ = [
     "BENCHMARK_SIZE",
     "InputError",
     "JaxdepthError",
+    "KittiFrame",
     "MIN_BUCKET",
     "OutputError",
     "Rig",
@@ -82,6 +85,7 @@ __all__ = [
     "encode_png",
     "infer_point_columns",
     "list_depth_completion_folder",
+    "load_kitti_frame",
     "pad_points",
     "read_depth_png",
     "read_intrinsics_txt",

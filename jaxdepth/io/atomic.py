@@ -173,6 +173,36 @@ def make_output_folders(paths) -> int:
     return len(folders)
 
 
+def ensure_output_dir(path: PathLike) -> pathlib.Path:
+    """Creates the output folder ``path`` if needed and checks that files can be written into it,
+    before any computation (a run must not fail at its first write).
+
+    Returns:
+      The folder.
+
+    Raises:
+      OutputError: it cannot be created, is not a folder, or is not writable (a probe file
+        cannot be created in it; root passes permission bits, so the probe is real).
+    """
+    folder = pathlib.Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
+    if not folder.is_dir():
+        raise OutputError(f"{folder}: output path exists and is not a folder")
+    try:
+        fd, tmp = _open_temp(folder, ".jaxdepth_write_probe")
+    except OSError as err:
+        raise OutputError(f"{folder}: output folder is not writable ({_reason(err)})") from None
+    os.close(fd)
+    try:
+        os.unlink(tmp)
+    except OSError:
+        pass
+    return folder
+
+
 def encode_png(array: np.ndarray) -> bytes:
     """Encodes an image as PNG bytes with OpenCV (fixed settings: deterministic bytes).
 

@@ -35,10 +35,20 @@ def _read_text(path: pathlib.Path) -> str:
         raise file_error(path, f"expected a UTF-8 text file, got undecodable bytes at offset {exc.start}") from None
 
 
+def _require_line_end(path: pathlib.Path, text: str) -> str:
+    """``text``, refused when its last line has no line end: a file cut inside its last number
+    (``-2.717806e-01`` -> ``-2.7``) would otherwise read as a different, valid value."""
+    if text.strip() and not text.endswith(("\n", "\r")):
+        raise file_error(path, "the last line has no line end: the file seems cut short (a truncated copy?); "
+                               "add a line end if it is complete")
+    return text
+
+
 def _parse_kv(path: pathlib.Path) -> dict[str, str]:
-    """``key: value ...`` lines -> {key: value text}; blank lines are skipped."""
+    """``key: value ...`` lines -> {key: value text}; blank lines are skipped; the last line must end
+    with a line end (:func:`_require_line_end`)."""
     fields: dict[str, str] = {}
-    for lineno, line in enumerate(_read_text(path).splitlines(), start=1):
+    for lineno, line in enumerate(_require_line_end(path, _read_text(path)).splitlines(), start=1):
         if not line.strip():
             continue
         key, sep, value = line.partition(":")
@@ -150,6 +160,9 @@ def read_extrinsic_txt(path: PathLike) -> np.ndarray:
     Returns:
       (4, 4) float32 rigid transform.
 
+    A 3 x 4 file must end with a line end (a file cut inside its last number, t_z,
+    would read as another valid value).
+
     Raises:
       InputError: missing file, not 12 or 16 numbers, non-finite values, a
         rotation part that is not a rotation, or a 4 x 4 whose last row is not
@@ -158,6 +171,8 @@ def read_extrinsic_txt(path: PathLike) -> np.ndarray:
     path = pathlib.Path(path)
     text = _read_text(path)
     count = len(text.replace(",", " ").split())
+    if count == 12:  # the last number is t_z: a cut inside it would read as another value
+        _require_line_end(path, text)
     if count not in (12, 16):
         raise field_error(path, "T_cam_lidar", "12 (3x4) or 16 (4x4) numbers, row major", f"{count} numbers")
     values = _parse_floats(path, "T_cam_lidar", text, count)

@@ -28,9 +28,8 @@ _MAX_PIXELS = 1 << 28  # refuse absurd headers before allocating
 _UP_FILTER = 2  # PNG row filter type "Up": each byte minus the byte above it
 
 #: zlib level of the depth PNGs jaxdepth writes (0 = stored, 9 = smallest; any level decodes to
-#: the same values, and KITTI's devkit reads them all). Measured on a completed 352x1216 KITTI
-#: frame: level 1 encodes in ~1/3 of the time of OpenCV's level 3 for ~8 % more bytes (340 vs
-#: 315 kB); level 0 takes ~1 ms but writes 857 kB. See README, Command line.
+#: the same values, and KITTI's devkit reads them all). Level 1 encodes much faster than OpenCV's
+#: level 3 for a few per cent more bytes; level 0 is fastest and ~2.5x the bytes. See docs/cli.md.
 DEFAULT_PNG_COMPRESSION = 1
 
 
@@ -149,7 +148,7 @@ def encode_depth_png(depth_u16: np.ndarray, *, compression: int = DEFAULT_PNG_CO
       (the difference to the row above, which suits depth maps), then one zlib
       stream at ``compression``: the same array and level always give the same bytes.
       NumPy filters and zlib compresses (releasing the GIL), so threads encode in
-      parallel; OpenCV's encoder tries five filters per row and is ~2-3x slower here.
+      parallel; OpenCV's encoder tries five filters per row and is slower.
 
     Raises:
       ValueError: not a non-empty 2-D uint16 array, or a level outside 0-9.

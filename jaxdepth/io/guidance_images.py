@@ -1,4 +1,4 @@
-"""Camera images for image-guided seeds (issue 16): reading, checking, cropping, and where KITTI keeps them.
+"""Camera images for image-guided seeds: reading, checking, cropping, and where KITTI keeps them.
 
 The batch runner reads a frame's camera image only when the run is guided
 (``SGMConfig.guidance_weight > 0``). :func:`read_guidance_image` returns what

@@ -1,11 +1,14 @@
-"""KITTI dataset roots -> completion jobs: one discovery function per layout.
+"""KITTI dataset roots -> frame descriptions: one discovery function per layout.
 
 Each function lists the frames of one KITTI layout and returns a
-:class:`DatasetScan` whose ``jobs`` are :class:`jaxdepth.batch.runner.FrameJob`
-records, so every layout runs through the same batched, resumable, atomic
-runner (and the Ray engine). Every job carries its own ``K`` and
-``T_cam_lidar`` from the layout's own calibration. The runner writes into
-existing folders: create them first with :func:`make_output_folders`.
+:class:`DatasetScan` whose ``jobs`` are :class:`FrameFiles`: plain records of a
+frame's input file, output path, calibration and camera image. Nothing here
+completes or writes: the batch runner turns each record into a job
+(:meth:`jaxdepth.batch.runner.FrameJob.from_files`), so every layout runs through
+the same batched, resumable, atomic runner (and the Ray engine). Every frame carries
+its own ``K`` and ``T_cam_lidar`` from the layout's own calibration. The runner
+writes into existing folders: create them first
+(:func:`jaxdepth.io.atomic.make_output_folders` of the ``out_path`` s).
 
 Layouts (outputs under ``dst``):
 
@@ -13,7 +16,7 @@ Layouts (outputs under ``dst``):
   ``<date>/calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``,
   ``<date>_drive_XXXX_sync/velodyne_points/data/*.bin``; a single drive folder
   (calibration in its parent, the date folder); or a folder of date folders.
-  Sweep jobs (the ``.bin`` completed by :func:`jaxdepth.complete_points`), one per
+  Sweep frames (the ``.bin`` completed by :func:`jaxdepth.complete_points`), one per
   sweep and camera; image size from ``S_rect_0X``. Output
   ``dst/<drive>/proj_depth/<name>/image_0X/<frame>.png``.
 - **KITTI depth-completion trees** (:func:`kitti_depth_tree_jobs`): ``train`` /
@@ -24,14 +27,14 @@ Layouts (outputs under ``dst``):
   ``dst/<drive>/proj_depth/<name>/image_0X/<frame>.png``.
 - **KITTI object** (:func:`kitti_object_jobs`): ``training`` / ``testing`` (or
   their parent) with ``velodyne/*.bin``, ``calib/*.txt``, ``image_2/*.png``.
-  Sweep jobs with the frame's own calibration, image size from the frame's
+  Sweep frames with the frame's own calibration, image size from the frame's
   PNG. Output ``dst/<split>/depth_X/<frame>.png`` (X: camera, 2 by default).
 
 :func:`discover_kitti` picks the layout of a folder (None: not one of these).
 
-Each job also names its camera image (``FrameJob.image_path``, read only by
+Each frame also names its camera image (``FrameFiles.image_path``, read only by
 image-guided runs): a raw drive's own ``image_0X/data/<frame>.png`` (cut like the
-depth with ``crop``: ``FrameJob.image_crop_from``), an object split's
+depth with ``crop``: ``FrameFiles.image_crop_from``), an object split's
 ``image_X/<frame>.png``, and for depth-completion trees, which hold no images, the
 frame in a KITTI raw root given as ``image_dir`` (:mod:`jaxdepth.io.guidance_images`).
 """
@@ -65,13 +68,42 @@ LAYOUTS = (
 
 
 @dataclasses.dataclass(frozen=True)
+class FrameFiles:
+    """One frame of a dataset: where its input is, where its output goes, its calibration.
+
+    Attributes:
+      name: the frame's name in progress lines and reports (``<drive>/image_0X/<frame>``).
+      sparse_path: the input, a sparse depth PNG or (``image_size`` set) a LiDAR sweep
+        ``.bin`` of ``point_columns`` float32 values per point (x, y, z first, metres).
+      out_path: the output depth PNG.
+      K: (3, 3) float32 intrinsics of the output image.
+      T_cam_lidar: (4, 4) float32 LiDAR -> camera extrinsic (None: the run's default).
+      image_size: (height, width) of the output image for a sweep; None for a depth PNG.
+      point_columns: values per sweep record (None: inferred from the file).
+      image_path: the frame's camera image (read only by image-guided runs), or None.
+      image_crop_from: (H, W) of the full frame whose 352 x 1216 benchmark crop is
+        completed (the image is cut the same way); None: no crop.
+    """
+
+    name: str
+    sparse_path: pathlib.Path
+    out_path: pathlib.Path
+    K: np.ndarray | None = None
+    T_cam_lidar: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
+    point_columns: int | None = None
+    image_path: pathlib.Path | None = None
+    image_crop_from: tuple[int, int] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class DatasetScan:
     """What a discovery function found.
 
     Attributes:
       layout: "kitti-raw", "kitti-depth-tree" or "kitti-object".
-      jobs: list of :class:`jaxdepth.batch.runner.FrameJob`, sorted, distinct output paths.
-      failed: ``(name, message)`` of frames that cannot become jobs (e.g. an unreadable
+      jobs: list of :class:`FrameFiles`, sorted, distinct output paths.
+      failed: ``(name, message)`` of frames that cannot be listed (e.g. an unreadable
         calibration file of one object frame); the run reports them as failed.
       summary: one line saying what was found (frames, cameras, dates).
     """
@@ -140,12 +172,11 @@ def png_image_size(path: PathLike) -> tuple[int, int]:
 
 
 def _sweep_job(name: str, sweep: pathlib.Path, out: pathlib.Path, camera, *, image: pathlib.Path | None = None,
-               crop_from: tuple[int, int] | None = None) -> object:
-    from jaxdepth.batch.runner import FrameJob
-    return FrameJob(name=name, sparse_path=sweep, out_path=out, K=np.asarray(camera.K, np.float32),
-                    T_cam_lidar=np.asarray(camera.T_cam_lidar, np.float32),
-                    image_size=(int(camera.height), int(camera.width)), point_columns=KITTI_POINT_COLUMNS,
-                    image_path=image, image_crop_from=crop_from)
+               crop_from: tuple[int, int] | None = None) -> FrameFiles:
+    return FrameFiles(name=name, sparse_path=sweep, out_path=out, K=np.asarray(camera.K, np.float32),
+                      T_cam_lidar=np.asarray(camera.T_cam_lidar, np.float32),
+                      image_size=(int(camera.height), int(camera.width)), point_columns=KITTI_POINT_COLUMNS,
+                      image_path=image, image_crop_from=crop_from)
 
 
 # ---------------------------------------------------------------- KITTI raw
@@ -190,7 +221,7 @@ def kitti_raw_jobs(src: PathLike, dst: PathLike, *, camera: int | None = None, c
         ``crop`` the image is the full ``S_rect_0X`` frame, cut like the depth.
 
     Returns:
-      :class:`DatasetScan` of sweep jobs (``FrameJob.image_size`` set; K and
+      :class:`DatasetScan` of sweep frames (``FrameFiles.image_size`` set; K and
       ``T_cam_lidar`` of that camera from that date's calibration; ``image_path``).
 
     Raises:
@@ -297,7 +328,6 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
         date, missing or bad calibration files.
     """
     from jaxdepth.io.calib import read_kitti_raw_calib
-    from jaxdepth.batch.runner import FrameJob
 
     src, dst = pathlib.Path(src), pathlib.Path(dst)
     name = _check_name(name)
@@ -330,9 +360,9 @@ def kitti_depth_tree_jobs(src: PathLike, dst: PathLike, *, calib_dir: PathLike |
             out = dst / rel / "proj_depth" / name / folder.name / png.name
             image = None if image_dir is None else raw_image_path(image_dir, date=match.group(1), drive=drive.name,
                                                                    camera=cam, frame=png.stem)
-            jobs.append(FrameJob(name=f"{rel.as_posix()}/{folder.name}/{png.stem}", sparse_path=png, out_path=out,
-                                 K=np.asarray(c["K"], np.float32),
-                                 T_cam_lidar=np.asarray(c["T_cam_lidar"], np.float32), image_path=image))
+            jobs.append(FrameFiles(name=f"{rel.as_posix()}/{folder.name}/{png.stem}", sparse_path=png, out_path=out,
+                                   K=np.asarray(c["K"], np.float32),
+                                   T_cam_lidar=np.asarray(c["T_cam_lidar"], np.float32), image_path=image))
         drives.add(drive)
         cams.add(cam)
     if not jobs:
@@ -431,7 +461,7 @@ def detect_kitti_layout(src: PathLike) -> str | None:
 def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, crop: bool = False,
                    name: str = "sgm", calib_dir: PathLike | None = None,
                    image_dir: PathLike | None = None) -> DatasetScan | None:
-    """The jobs of a KITTI dataset folder in any layout :func:`detect_kitti_layout` knows, else None.
+    """The frames of a KITTI dataset folder in any layout :func:`detect_kitti_layout` knows, else None.
 
     ``crop`` applies to sweeps (raw, object); ``calib_dir`` to depth-completion trees
     (a raw tree carries its own calibration); ``image_dir`` (a KITTI raw root with the
@@ -463,20 +493,25 @@ def discover_kitti(src: PathLike, dst: PathLike, *, camera: int | None = None, c
     return kitti_depth_tree_jobs(src, dst, calib_dir=calib_dir, camera=camera, name=name, image_dir=image_dir)
 
 
-def make_output_folders(jobs) -> int:
-    """Creates the output folder of every job (:func:`jaxdepth.io.atomic.make_output_folders`);
-    returns the number of distinct folders, OutputError naming one that cannot be created."""
-    from jaxdepth.io.atomic import make_output_folders as make_parent_folders
-
-    return make_parent_folders(job.out_path for job in jobs)
-
-
 def unknown_layout_message(src: PathLike) -> str:
     """The error text for a folder in no layout ``jaxdepth complete`` understands."""
     items = "; ".join(f"({i}) {text}" for i, text in enumerate(LAYOUTS, start=1))
-    return f"{src}: no dataset layout recognised. Understood: {items}; or one depth PNG with --intrinsics"
+    src = pathlib.Path(src)
+    nusc = [p.name for p in _children(src) if p.name.startswith("v1.0-") or p.name in ("samples", "sweeps")]
+    hint = (f" It looks like a nuScenes dataroot ({', '.join(sorted(nusc))}): pass --nusc-version VERSION "
+            "(v1.0-mini, v1.0-trainval, v1.0-test)." if nusc else "")
+    return (f"{src}: no dataset layout recognised.{hint} Understood: {items}; ({len(LAYOUTS) + 1}) a nuScenes "
+            "dataroot (v1.0-*/ tables, samples/, sweeps/) with --nusc-version VERSION; or one depth PNG with "
+            "--intrinsics")
 
 
-__all__ = ["DatasetScan", "KITTI_POINT_COLUMNS", "LAYOUTS", "detect_kitti_layout", "discover_kitti",
-           "kitti_depth_tree_jobs", "kitti_object_jobs", "kitti_raw_jobs", "make_output_folders", "png_image_size", "raw_calib_folder",
+def _children(folder: pathlib.Path) -> list:
+    try:
+        return list(folder.iterdir())
+    except OSError:
+        return []
+
+
+__all__ = ["DatasetScan", "FrameFiles", "KITTI_POINT_COLUMNS", "LAYOUTS", "detect_kitti_layout", "discover_kitti",
+           "kitti_depth_tree_jobs", "kitti_object_jobs", "kitti_raw_jobs", "png_image_size", "raw_calib_folder",
            "unknown_layout_message"]

@@ -266,8 +266,11 @@ def camera_intrinsics(tables: NuScenesTables, cam_sd: dict) -> np.ndarray:
     return K
 
 
-def read_sweep(tables: NuScenesTables, sample_data: dict) -> np.ndarray:
-    """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring)."""
+def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False) -> np.ndarray:
+    """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring).
+
+    The records pass :func:`jaxdepth.io.plausibility.check_sweep` (ring column included)
+    unless ``force`` (then a failure is logged)."""
     filename = sample_data.get("filename")
     if not isinstance(filename, str) or not filename:
         raise field_error(tables.table_path("sample_data"), f"{sample_data['token']}.filename",
@@ -278,7 +281,11 @@ def read_sweep(tables: NuScenesTables, sample_data: dict) -> np.ndarray:
     if len(raw) % record:
         raise file_error(path, f"size {len(raw)} bytes expected a multiple of {record} "
                                f"({POINT_COLUMNS} float32 values per point)")
-    return np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
+    records = np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
+    from jaxdepth.io.plausibility import check_sweep
+    check_sweep(records[:, :3], path=path, columns=POINT_COLUMNS, intensity=records[:, 3], ring=records[:, 4],
+                raw=raw, force=force)
+    return records
 
 
 def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:
@@ -297,6 +304,30 @@ def remove_close(points: np.ndarray, radius_m: float) -> np.ndarray:
     return points[~close]
 
 
+def _sweep_parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float) -> list:
+    """``[(points (n, 5) float32 in the key frame's LiDAR frame, T_key_sweep (4, 4))]``: the key frame and
+    up to ``sweeps - 1`` earlier sweeps along ``prev``, each with :func:`remove_close` in its own frame."""
+    key_from_global = invert_pose(sensor_pose(tables, key_sd)) @ invert_pose(ego_pose(tables, key_sd))
+    parts = []
+    sd = key_sd
+    for _ in range(sweeps):
+        points = remove_close(read_sweep(tables, sd), min_distance_m)
+        T = key_from_global @ ego_pose(tables, sd) @ sensor_pose(tables, sd)
+        moved = points.copy()
+        moved[:, :3] = (points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+        parts.append((moved, T))
+        prev = sd.get("prev")
+        if not prev:
+            break
+        sd = tables.record("sample_data", prev, referrer=f"sample_data {sd['token']!r} prev")
+    return parts
+
+
+def _check_sweeps(sweeps, where: str) -> None:
+    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
+        raise ValueError(f"{where}: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
+
+
 def accumulate_sweeps(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
                       min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M) -> np.ndarray:
     """(N, 5) float32: ``sweeps`` LiDAR sweeps ending at ``key_sd``, in ``key_sd``'s LiDAR frame.
@@ -308,24 +339,47 @@ def accumulate_sweeps(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
     ``inv(C_key) @ inv(E_key) @ E_sweep @ C_sweep``. Columns 3 and 4 (intensity,
     ring) are carried along unchanged.
     """
-    if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 1:
-        raise ValueError(f"accumulate_sweeps: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
+    _check_sweeps(sweeps, "accumulate_sweeps")
     if sweeps == 1:
         return read_sweep(tables, key_sd)
-    key_from_global = invert_pose(sensor_pose(tables, key_sd)) @ invert_pose(ego_pose(tables, key_sd))
-    parts = []
-    sd = key_sd
-    for _ in range(sweeps):
-        points = remove_close(read_sweep(tables, sd), min_distance_m)
-        T = key_from_global @ ego_pose(tables, sd) @ sensor_pose(tables, sd)
-        moved = points.copy()
-        moved[:, :3] = (points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
-        parts.append(moved)
-        prev = sd.get("prev")
-        if not prev:
-            break
-        sd = tables.record("sample_data", prev, referrer=f"sample_data {sd['token']!r} prev")
-    return np.concatenate(parts, axis=0)
+    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m)
+    return np.concatenate([points for points, _ in parts], axis=0)
+
+
+def sweep_cloud(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
+                min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M):
+    """The sweeps of :func:`accumulate_sweeps` as a :class:`~jaxdepth.io.sources.SourceCloud`: one source per
+    sweep (same points, same order), its LiDAR pose ``T_ref_source = inv(C_key) @ inv(E_key) @ E_sweep @
+    C_sweep`` in the key frame's LiDAR frame, ``sweep`` 0, -1, -2, ... (earlier sweeps), the HDL-32E
+    preset, ``ring`` the files' 5th column; names ``"LIDAR_TOP@<offset>"``.
+
+    ``sweeps == 1`` is the key frame as recorded (nothing removed), one source at the origin.
+    """
+    _check_sweeps(sweeps, "sweep_cloud")
+    return _cloud(tables, key_sd, _parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m))[0]
+
+
+def _parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float) -> list:
+    if sweeps == 1:
+        return [(read_sweep(tables, key_sd), np.eye(4))]
+    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m)
+    parts[0] = (parts[0][0], np.eye(4))  # the key frame's own pose, exactly
+    return parts
+
+
+def _cloud(tables: NuScenesTables, key_sd: dict, parts: list):
+    """(SourceCloud, (N, 5) float32 stacked records) of :func:`_parts`."""
+    from jaxdepth._src.presets import NUSCENES_HDL32
+    from jaxdepth.io.sources import SourceCloud
+
+    points = np.concatenate([p for p, _ in parts], axis=0)
+    ring = np.rint(points[:, 4]).astype(np.int32) if np.all(np.isfinite(points[:, 4])) else None
+    return SourceCloud(points=points[:, :3], source=np.concatenate([np.full(len(p), k, np.int32)
+                                                                   for k, (p, _) in enumerate(parts)]),
+                       T_ref_source=np.stack([T for _, T in parts]), lidars=(NUSCENES_HDL32,) * len(parts),
+                       sweep=-np.arange(len(parts), dtype=np.int32),
+                       names=tuple(f"{LIDAR_CHANNEL}@{-k}" for k in range(len(parts))),
+                       ring=ring, path=str(tables.dataroot / str(key_sd.get("filename")))), points
 
 
 @dataclasses.dataclass(frozen=True)
@@ -348,12 +402,15 @@ class SampleInputs:
       token: the sample token. lidar_token: its key-frame LiDAR sample_data token.
       points: (N, 5) float32 sweep(s) in the key-frame LiDAR frame (sensor at the origin).
       cameras: one :class:`SampleCamera` per camera channel, ordered by channel name.
+      cloud: the same sweeps as a :class:`~jaxdepth.io.sources.SourceCloud` (:func:`sweep_cloud`),
+        when asked for (``sample_inputs(..., sources=True)``), else None.
     """
 
     token: str
     lidar_token: str
     points: np.ndarray
     cameras: tuple
+    cloud: object = None
 
 
 def sample_cameras(tables: NuScenesTables, sample_token: str) -> tuple:
@@ -385,8 +442,11 @@ def camera_size(tables: NuScenesTables, sd: dict) -> tuple[int, int]:
 
 
 def sample_inputs(tables: NuScenesTables, sample_token: str, *, sweeps: int = 1,
-                  ego_motion: bool = True) -> SampleInputs:
+                  ego_motion: bool = True, sources: bool = False) -> SampleInputs:
     """The points and cameras of one sample (see the module docstring for the geometry).
+
+    ``sources``: also return the sweeps as a SourceCloud (``SampleInputs.cloud``), each sweep one
+    source with its own LiDAR pose.
 
     Raises:
       InputError: a missing key frame, a broken token reference, a bad pose or
@@ -399,8 +459,14 @@ def sample_inputs(tables: NuScenesTables, sample_token: str, *, sweeps: int = 1,
         cameras.append(SampleCamera(channel=channel, token=sd["token"], width=width, height=height,
                                     K=camera_intrinsics(tables, sd),
                                     T_cam_lidar=camera_from_lidar(tables, sd, lidar_sd, ego_motion=ego_motion)))
-    points = accumulate_sweeps(tables, lidar_sd, sweeps=sweeps)
-    return SampleInputs(token=sample_token, lidar_token=lidar_sd["token"], points=points, cameras=tuple(cameras))
+    if sources:
+        _check_sweeps(sweeps, "sample_inputs")
+        cloud, points = _cloud(tables, lidar_sd, _parts(tables, lidar_sd, sweeps=sweeps,
+                                                        min_distance_m=MULTISWEEP_MIN_DISTANCE_M))
+    else:
+        cloud, points = None, accumulate_sweeps(tables, lidar_sd, sweeps=sweeps)
+    return SampleInputs(token=sample_token, lidar_token=lidar_sd["token"], points=points, cameras=tuple(cameras),
+                        cloud=cloud)
 
 
 _SAFE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
@@ -420,6 +486,7 @@ def output_path(dst: PathLike, version: str, channel: str, sample_data_token: st
 
 
 __all__ = ["NuScenesTables", "SampleCamera", "SampleInputs", "load_tables", "sample_inputs", "sample_cameras",
-           "camera_from_lidar", "camera_intrinsics", "camera_image_path", "accumulate_sweeps", "read_sweep", "remove_close",
+           "camera_from_lidar", "camera_intrinsics", "camera_image_path", "accumulate_sweeps", "sweep_cloud",
+           "read_sweep", "remove_close",
            "quaternion_matrix", "pose_matrix", "invert_pose", "output_path", "TABLES", "LIDAR_CHANNEL",
            "MULTISWEEP_MIN_DISTANCE_M"]

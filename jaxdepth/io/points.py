@@ -10,7 +10,9 @@ File formats (metres, LiDAR frame):
 
 Non-finite coordinates (NaN, inf) are *not* an error when reading: some drivers
 write them for missing returns. :func:`pad_points` marks them invalid, so they
-never reach a projection.
+never reach a projection. Values no LiDAR produces are: :func:`read_points` runs the
+checks of :mod:`jaxdepth.io.plausibility` on every sweep it reads (a wrong column count
+or dtype decodes without error into garbage points) unless ``force=True``.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ def _split(path: pathlib.Path, array: np.ndarray, columns: int, what: str) -> tu
     return np.ascontiguousarray(data[:, :3]), np.ascontiguousarray(data[:, 3:])
 
 
-def _read_bin(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+def _read_bin(path: pathlib.Path, columns: int, force: bool) -> tuple[np.ndarray, np.ndarray]:
     record = 4 * columns
     raw = read_input_bytes(path, expected="a point file")
     if len(raw) == 0:
@@ -58,7 +60,16 @@ def _read_bin(path: pathlib.Path, columns: int) -> tuple[np.ndarray, np.ndarray]
                          f"({record} bytes each; {len(raw) // record} records + {len(raw) % record} bytes); "
                          "check 'columns' (KITTI 4, nuScenes 5)")
     array = np.frombuffer(raw, dtype="<f4").reshape(-1, columns)
-    return _split(path, array, columns, "file")
+    points, extra = _split(path, array, columns, "file")
+    _check(path, points, extra, columns, raw=raw, force=force)
+    return points, extra
+
+
+def _check(path, points, extra, columns, *, raw=None, force=False):
+    """The plausibility checks of :mod:`jaxdepth.io.plausibility` on a sweep as read."""
+    from jaxdepth.io.plausibility import check_sweep
+    check_sweep(points, path=path, columns=columns, intensity=extra[:, 0] if extra.shape[1] >= 1 else None,
+                ring=extra[:, 1] if columns == 5 else None, raw=raw, force=force)
 
 
 # Everything a corrupt .npy / .npz can raise while being parsed.
@@ -155,13 +166,15 @@ def infer_point_columns(path: PathLike, given: int | None = None) -> int:
     return fits[0] if fits else 4
 
 
-def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def read_points(path: PathLike, *, columns: int = 4, force: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Reads a LiDAR sweep.
 
     Args:
       path: ``.bin`` (float32 records), ``.npy`` or ``.npz`` file (see module docs).
       columns: values per point, >= 3 (KITTI 4, nuScenes 5). For ``.npy`` /
         ``.npz`` the array must have exactly this many columns.
+      force: read a sweep that fails the plausibility checks
+        (:func:`jaxdepth.io.plausibility.check_sweep`), logging a warning.
 
     Returns:
       (points, extra): points (N, 3) float32 x, y, z in metres (non-finite
@@ -171,7 +184,8 @@ def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.nda
     Raises:
       InputError: missing file, unknown suffix, empty file, a ``.bin`` size that
         is not a whole number of records, wrong array shape or dtype, corrupt
-        ``.npy`` / ``.npz``.
+        ``.npy`` / ``.npz``; values no LiDAR produces (a wrong column count or
+        dtype: the message lists the layouts the bytes fit), unless ``force``.
       ValueError: ``columns`` is not an integer >= 3.
     """
     columns = _check_columns(columns)
@@ -179,11 +193,11 @@ def read_points(path: PathLike, *, columns: int = 4) -> tuple[np.ndarray, np.nda
     check_input_file(path, expected="a point file")
     suffix = path.suffix.lower()
     if suffix == ".bin":
-        return _read_bin(path, columns)
-    if suffix == ".npy":
-        return _read_npy(path, columns)
-    if suffix == ".npz":
-        return _read_npz(path, columns)
+        return _read_bin(path, columns, force)
+    if suffix in (".npy", ".npz"):
+        points, extra = (_read_npy if suffix == ".npy" else _read_npz)(path, columns)
+        _check(path, points, extra, columns, force=force)
+        return points, extra
     raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
 
 

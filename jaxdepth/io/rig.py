@@ -20,6 +20,15 @@ fields above, plus an optional ``image``: the camera's image file for image-guid
 (``complete-rig --guidance-weight``; a path relative to the JSON file's folder, or absolute; see
 :mod:`jaxdepth.io.rig_images`). Unknown fields are errors (a misspelt optional field would
 otherwise be ignored silently).
+
+Several LiDARs (see ``docs/multi_source.md``): ``lidars`` lists each LiDAR whose points the
+point file holds, ``{"name", "T_points_lidar"}`` (4x4, the LiDAR's pose in the points' frame)
+plus optional ``beams``, ``fov_up_deg``, ``fov_down_deg`` (left out: estimated from that LiDAR's
+own points); ``columns`` names each float32 column of the point file (``x``, ``y``, ``z`` required;
+``lidar``: the index into ``lidars`` of each point's LiDAR; ``ring``, ``time``, ``intensity`` other
+known names; any other name is carried along and ignored). With ``lidars`` the ``lidar`` object may
+be left out (it then only gives defaults: the range-image columns). A ``lidar`` column needs
+``lidars``; ``lidars`` with more than one entry needs a ``lidar`` column.
 """
 
 from __future__ import annotations
@@ -47,6 +56,10 @@ _LIDAR_DEFAULTS = {64: KITTI_HDL64, 32: NUSCENES_HDL32}
 _LIDAR_FIELDS = ("beams", "fov_up_deg", "fov_down_deg", "columns", "units", "origin_m")
 _CAMERA_FIELDS = ("name", "width", "height", "K", "T_cam_lidar")
 _CAMERA_OPTIONAL = ("image",)
+_LIDARS_FIELDS = ("name", "T_points_lidar")
+_LIDARS_OPTIONAL = ("beams", "fov_up_deg", "fov_down_deg")
+#: Column names with a meaning (``columns`` may hold other names too: carried along, unused).
+KNOWN_COLUMNS = ("x", "y", "z", "intensity", "lidar", "ring", "time")
 
 
 class _Bad(Exception):
@@ -208,6 +221,29 @@ class RigCamera:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class RigLidar:
+    """One LiDAR of a rig whose point file holds several LiDARs' points.
+
+    Attributes:
+      name: non-empty string.
+      T_points_lidar: (4, 4) float32 rigid pose of the LiDAR in the points' frame.
+      spec: its :class:`LidarSpec`, or None to estimate it from its own points.
+    """
+
+    name: str
+    T_points_lidar: np.ndarray
+    spec: LidarSpec | None = None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, RigLidar):
+            return NotImplemented
+        return (self.name == other.name and self.spec == other.spec
+                and np.array_equal(self.T_points_lidar, other.T_points_lidar))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class Rig:
     """A LiDAR and its cameras.
 
@@ -219,12 +255,17 @@ class Rig:
         estimate from the sweep, see :func:`jaxdepth.io.prepare_sweep`).
       lidar_stated: names of the ``lidar`` fields the source stated (the rest
         are defaults that an estimate from the sweep may replace).
+      lidars: the rig JSON's ``lidars``: a tuple of :class:`RigLidar` (empty: one LiDAR, ``lidar``).
+      columns: the rig JSON's ``columns``: the name of each float32 column of the point
+        files, or None (x, y, z, then ``--point-columns``).
     """
 
     lidar: LidarSpec
     cameras: tuple[RigCamera, ...]
     lidar_origin_m: tuple[float, float, float] | None = None
     lidar_stated: frozenset = frozenset(("beams", "fov_up_deg", "fov_down_deg", "columns"))
+    lidars: tuple = ()
+    columns: tuple | None = None
 
     def __post_init__(self):
         if not isinstance(self.lidar, LidarSpec):
@@ -244,12 +285,20 @@ class Rig:
                 raise ValueError(f"Rig: field 'lidar_origin_m' expected 3 finite floats, got {self.lidar_origin_m!r}")
             object.__setattr__(self, "lidar_origin_m", origin)
         object.__setattr__(self, "lidar_stated", frozenset(self.lidar_stated))
+        lidars = tuple(self.lidars)
+        if not all(isinstance(x, RigLidar) for x in lidars):
+            raise ValueError("Rig: field 'lidars' expected a sequence of RigLidar, "
+                             f"got {[type(x).__name__ for x in lidars]}")
+        object.__setattr__(self, "lidars", lidars)
+        if self.columns is not None:
+            object.__setattr__(self, "columns", tuple(str(c) for c in self.columns))
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Rig):
             return NotImplemented
         return (self.lidar == other.lidar and self.cameras == other.cameras
-                and self.lidar_origin_m == other.lidar_origin_m)
+                and self.lidar_origin_m == other.lidar_origin_m and self.lidars == other.lidars
+                and self.columns == other.columns)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -327,26 +376,84 @@ def _parse_lidar(value: Any) -> LidarSpec:
     return LidarSpec(beams=beams, fov_up_deg=up, fov_down_deg=down, columns=columns)
 
 
+def _list_items(value: Any, field: str, what: str, required: tuple, optional: tuple):
+    """Yields ``(i, "field[i]", object)`` for a non-empty JSON list of objects, each with its ``required`` keys."""
+    if not isinstance(value, list) or not value:
+        raise _Bad(field, f"a non-empty list of {what}", _describe(value))
+    for i, item in enumerate(value):
+        where = f"{field}[{i}]"
+        doc = _object(item, where, required + optional)
+        for key in required:
+            if key not in doc:
+                raise _Bad(f"{where}.{key}", "a field (required)", "nothing")
+        yield i, where, doc
+
+
+def _parse_lidars(value: Any, columns: int) -> tuple:
+    out, seen = [], {}
+    for i, where, doc in _list_items(value, "lidars", "LiDARs", _LIDARS_FIELDS, _LIDARS_OPTIONAL):
+        name = doc["name"]
+        if not isinstance(name, str) or not name:
+            raise _Bad(f"{where}.name", "a non-empty string", _describe(name))
+        if name in seen:
+            raise _Bad(f"{where}.name", f"a unique name (lidars[{seen[name]}] is also {name!r})", _describe(name))
+        seen[name] = i
+        T = _matrix(doc["T_points_lidar"], (4, 4), f"{where}.T_points_lidar")
+        _check_T(T, f"{where}.T_points_lidar")
+        spec = None
+        if "beams" in doc:
+            beams = _positive_int(doc["beams"], f"{where}.beams")
+            default = default_lidar_spec(beams)
+            up = _number(doc["fov_up_deg"], f"{where}.fov_up_deg") if "fov_up_deg" in doc else default.fov_up_deg
+            down = (_number(doc["fov_down_deg"], f"{where}.fov_down_deg") if "fov_down_deg" in doc
+                    else default.fov_down_deg)
+            if not -90.0 <= down < up <= 90.0:
+                raise _Bad(f"{where}.fov_up_deg", "-90 <= fov_down_deg < fov_up_deg <= 90", f"up={up:g}, down={down:g}")
+            spec = LidarSpec(beams=beams, fov_up_deg=up, fov_down_deg=down, columns=columns)
+        elif "fov_up_deg" in doc or "fov_down_deg" in doc:
+            raise _Bad(f"{where}.beams", "a positive integer (required with fov_up_deg / fov_down_deg)", "nothing")
+        out.append(RigLidar(name=name, T_points_lidar=_frozen(T), spec=spec))
+    return tuple(out)
+
+
+def _parse_columns(value: Any) -> tuple:
+    if not isinstance(value, list) or len(value) < 3:
+        raise _Bad("columns", "a list of at least 3 column names (x, y, z, ...)", _describe(value))
+    names = []
+    for i, name in enumerate(value):
+        if not isinstance(name, str) or not name:
+            raise _Bad(f"columns[{i}]", "a non-empty string", _describe(name))
+        if name in names:
+            raise _Bad(f"columns[{i}]", "a name that appears once", _describe(name))
+        names.append(name)
+    for axis in ("x", "y", "z"):
+        if axis not in names:
+            raise _Bad("columns", f"names including {axis!r} (x, y and z are required)", _describe(value))
+    return tuple(names)
+
+
 def _parse_rig(doc: Any) -> Rig:
-    top = _object(doc, "", ("lidar", "cameras"))
-    for key in ("lidar", "cameras"):
-        if key not in top:
-            raise _Bad(key, "a field (required)", "nothing")
-    lidar = _parse_lidar(top["lidar"])
-    lidar_doc = top["lidar"]
+    top = _object(doc, "", ("lidar", "cameras", "lidars", "columns"))
+    if "cameras" not in top:
+        raise _Bad("cameras", "a field (required)", "nothing")
+    if "lidar" not in top and "lidars" not in top:
+        raise _Bad("lidar", "a field (required unless 'lidars' is given)", "nothing")
+    lidar_doc = top.get("lidar", {"beams": 32})
+    lidar = _parse_lidar(lidar_doc)
     origin = _parse_origin(lidar_doc["origin_m"]) if "origin_m" in lidar_doc else None
-    stated = frozenset(k for k in ("beams", "fov_up_deg", "fov_down_deg", "columns") if k in lidar_doc)
-    cams_value = top["cameras"]
-    if not isinstance(cams_value, list) or not cams_value:
-        raise _Bad("cameras", "a non-empty list of cameras", _describe(cams_value))
+    stated = frozenset(k for k in ("beams", "fov_up_deg", "fov_down_deg", "columns") if k in lidar_doc) \
+        if "lidar" in top else frozenset()
+    lidars = _parse_lidars(top["lidars"], lidar.columns) if "lidars" in top else ()
+    columns = _parse_columns(top["columns"]) if "columns" in top else None
+    if columns is not None and "lidar" in columns and not lidars:
+        raise _Bad("columns", "no 'lidar' column unless 'lidars' lists the LiDARs it indexes",
+                   _describe(top["columns"]))
+    if len(lidars) > 1 and (columns is None or "lidar" not in columns):
+        raise _Bad("columns", f"a 'lidar' column saying which of the {len(lidars)} lidars measured each point",
+                   "nothing" if columns is None else _describe(top["columns"]))
     cameras = []
     seen: dict[str, int] = {}
-    for i, cam_value in enumerate(cams_value):
-        where = f"cameras[{i}]"
-        cam = _object(cam_value, where, _CAMERA_FIELDS + _CAMERA_OPTIONAL)
-        for key in _CAMERA_FIELDS:
-            if key not in cam:
-                raise _Bad(f"{where}.{key}", "a field (required)", "nothing")
+    for i, where, cam in _list_items(top["cameras"], "cameras", "cameras", _CAMERA_FIELDS, _CAMERA_OPTIONAL):
         values = _camera_arrays(*(cam[k] for k in _CAMERA_FIELDS), where=f"{where}.")
         image = _image_field(cam["image"], f"{where}.image") if "image" in cam else None
         if values[0] in seen:
@@ -354,7 +461,8 @@ def _parse_rig(doc: Any) -> Rig:
                        _describe(values[0]))
         seen[values[0]] = i
         cameras.append(RigCamera(*values, image=image))
-    return Rig(lidar=lidar, cameras=tuple(cameras), lidar_origin_m=origin, lidar_stated=stated)
+    return Rig(lidar=lidar, cameras=tuple(cameras), lidar_origin_m=origin, lidar_stated=stated, lidars=lidars,
+               columns=columns)
 
 
 def read_rig_json(path: PathLike) -> Rig:
@@ -410,7 +518,20 @@ def rig_to_json_text(rig: Rig) -> str:
                     f"{ind}\"K\": {_matrix_text(cam.K, ind)},\n"
                     f"{ind}\"T_cam_lidar\": {_matrix_text(cam.T_cam_lidar, ind)}\n"
                     "    }")
-    return "{\n  \"lidar\": " + lidar + ",\n  \"cameras\": [\n" + ",\n".join(cams) + "\n  ]\n}\n"
+    extra = ""
+    if rig.lidars:
+        items = []
+        for lid in rig.lidars:
+            spec = "" if lid.spec is None else (f", \"beams\": {int(lid.spec.beams)}, \"fov_up_deg\": "
+                                                f"{float(lid.spec.fov_up_deg)}, \"fov_down_deg\": "
+                                                f"{float(lid.spec.fov_down_deg)}")
+            items.append(f"    {{\"name\": {json.dumps(lid.name)}{spec},\n      \"T_points_lidar\": "
+                         f"{_matrix_text(np.asarray(lid.T_points_lidar, np.float64), '      ')}}}")
+        extra += ",\n  \"lidars\": [\n" + ",\n".join(items) + "\n  ]"
+    if rig.columns is not None:
+        extra += ",\n  \"columns\": " + json.dumps(list(rig.columns))
+    return ("{\n  \"lidar\": " + lidar + ",\n  \"cameras\": [\n" + ",\n".join(cams) + "\n  ]" + extra
+            + "\n}\n")
 
 
 def write_rig_json(path: PathLike, rig: Rig, *, overwrite: bool = True) -> pathlib.Path:
@@ -550,5 +671,5 @@ def rig_from_nuscenes_calibration(path: PathLike, *, width: int = 1600, height: 
     return Rig(lidar=NUSCENES_HDL32, cameras=tuple(out))
 
 
-__all__ = ["Rig", "RigCamera", "read_rig_json", "write_rig_json", "rig_to_json_text", "rig_from_kitti_raw",
+__all__ = ["Rig", "RigCamera", "RigLidar", "KNOWN_COLUMNS", "read_rig_json", "write_rig_json", "rig_to_json_text", "rig_from_kitti_raw",
            "rig_from_kitti_object", "rig_from_nuscenes_calibration", "default_lidar_spec", "RIGID_TOL"]

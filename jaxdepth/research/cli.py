@@ -47,7 +47,7 @@ import sys
 
 import numpy as np
 
-from jaxdepth.cli import add_config_options, config_changes
+from jaxdepth.options import add_config_options, config_changes
 from jaxdepth.io.errors import InputError, JaxdepthError
 
 
@@ -78,8 +78,8 @@ def _gt_path(gt_dir: pathlib.Path, png: pathlib.Path) -> pathlib.Path | None:
 def cmd_ablation(args) -> int:
     from jaxdepth.research.ablation import format_ablation, frame_ablation, mean_ablation
     from jaxdepth.io.calib import read_intrinsics_txt
-    from jaxdepth.io.depth_png import read_depth_png
     from jaxdepth.io.kitti_layout import list_depth_completion_folder
+    from jaxdepth.io.plausibility import read_checked_depth_png
 
     src = pathlib.Path(args.src)
     frames = list_depth_completion_folder(src)
@@ -97,7 +97,8 @@ def cmd_ablation(args) -> int:
             if K_all is None and k_path is None:
                 raise InputError("no intrinsics (expected SRC/intrinsics/<name>.txt or --intrinsics K.txt)")
             K = K_all if K_all is not None else read_intrinsics_txt(k_path)
-            sparse, gt = read_depth_png(png), read_depth_png(gt_path)
+            sparse = read_checked_depth_png(png, role="LiDAR input")
+            gt = read_checked_depth_png(gt_path, role="ground truth")
             if sparse.shape != gt.shape:
                 raise InputError(f"sparse input {sparse.shape} and ground truth {gt.shape} differ in shape")
             per_frame[name] = frame_ablation(sparse, gt, K, config=config)
@@ -156,13 +157,13 @@ def _point_columns(path: pathlib.Path, given):
 
 def cmd_sparsity(args) -> int:
     from jaxdepth.research import sparsity
-    from jaxdepth.io.depth_png import read_depth_png
+    from jaxdepth.io.plausibility import read_checked_depth_png
     from jaxdepth.io.points import read_points
     from jaxdepth.io.rig import default_lidar_spec
 
     sweep = pathlib.Path(args.sweep)
     points, _ = read_points(sweep, columns=_point_columns(sweep, args.point_columns))
-    gt = read_depth_png(args.gt)
+    gt = read_checked_depth_png(args.gt, role="ground truth")
     camera, gt_c = _kitti_camera(pathlib.Path(args.calib_dir), args.camera, gt)
     lidar = default_lidar_spec(args.lidar_beams)
     try:
@@ -347,7 +348,7 @@ _POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
                                           help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
 
 # subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
-# the SGM options of jaxdepth.cli.add_config_options.
+# the SGM options of jaxdepth.options.add_config_options.
 _SUBCOMMANDS = {
     "ablation": ("the paper's Tables 1, 5, 6 on a KITTI-layout folder with ground truth", cmd_ablation, (
         ("src", dict(help="folder with velodyne_raw/*.png and intrinsics/*.txt")),
@@ -373,7 +374,7 @@ _SUBCOMMANDS = {
         _POINT_COLUMNS,
         ("--fraction", dict(type=float, default=0.2, help="share of the points held out (default 0.2)")),
         ("--no-estimate", dict(action="store_true", help="do not estimate the LiDAR's position / field of view "
-                                                         "from the sweep (see README, Rig JSON)")),
+                                                         "from the sweep (see docs/rig_json.md)")),
         ("--seeds", dict(type=int, nargs="+", default=[0, 1, 2, 3, 4],
                          help="one held-out draw per seed, scores averaged (default 0 1 2 3 4)")),
         ("--scale", dict(type=float, default=1.0, help="scale of every camera's image size and K (default 1)")),

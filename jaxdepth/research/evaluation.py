@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import os
 import pathlib
 import re
@@ -37,6 +38,8 @@ import numpy as np
 from jaxdepth._src.metrics import depth_metrics, mean_metrics
 from jaxdepth.io.depth_png import read_depth_png
 from jaxdepth.io.errors import InputError
+
+log = logging.getLogger("jaxdepth")
 
 METRIC_KEYS = ("rmse", "mae", "irmse", "imae")
 CSV_COLUMNS = ("frame", "rmse_mm", "mae_mm", "irmse_per_km", "imae_per_km", "prediction", "ground_truth")
@@ -193,16 +196,67 @@ def _examples(names) -> str:
     return shown + (", ..." if len(names) > _SHOW else "")
 
 
-def _read_pair(pred_root: pathlib.Path, gt_root: pathlib.Path, identity: str, pair: dict):
+#: A completion covers nearly every ground-truth pixel; below this share the sides look swapped
+#: (measured on the shared KITTI frame: a completion 100 %, velodyne_raw 21 %, a swapped ground truth 19 %).
+MIN_GT_COVERAGE = 0.5
+
+
+def _looks_like(density: float) -> str:
+    if density >= 0.9:
+        return "dense, like a completion"
+    if density >= 0.1:
+        return "semi-dense, like KITTI ground truth"
+    return "sparse, like LiDAR input"
+
+
+def side_counts(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(4,) int64 pixel counts of one pair for :func:`side_problem`: ground-truth pixels, those where
+    the prediction is non-zero, non-zero predictions, all pixels."""
+    scored = gt > 0
+    return np.array([np.count_nonzero(scored), np.count_nonzero(pred[scored] > 0), np.count_nonzero(pred > 0),
+                     pred.size], np.int64)
+
+
+def side_problem(counts: np.ndarray) -> str | None:
+    """Why the pairs of summed :func:`side_counts` look like the wrong sides (None: completions
+    scored against ground truth).
+
+    A completion is non-zero at nearly every pixel where ground truth is; ground truth
+    (~19 % of a KITTI image) or LiDAR input (~4 %) given as the prediction covers a
+    fraction. Over all pairs, under :data:`MIN_GT_COVERAGE` is refused; the message says
+    what each side looks like.
+    """
+    scored, covered, pred_nonzero, total = (int(c) for c in counts)
+    if scored == 0:
+        return None
+    coverage = covered / scored
+    if coverage >= MIN_GT_COVERAGE:
+        return None
+    dp, dg = pred_nonzero / total, scored / total
+    if dg >= 0.9:
+        hint = "the ground-truth side looks like completions: were the two folders swapped (PRED_ROOT first)?"
+    elif dp < 0.1:
+        hint = "the predictions look like LiDAR input (velodyne_raw), not completions"
+    else:
+        hint = "expected completions as the predictions"
+    return (f"the predictions are non-zero at only {100 * coverage:.0f} % of the ground-truth pixels "
+            f"(predictions: {100 * dp:.1f} % of the pixels, {_looks_like(dp)}; ground truth: {100 * dg:.1f} %, "
+            f"{_looks_like(dg)}); {hint}")
+
+
+def _read_pair(pred_root: pathlib.Path, gt_root: pathlib.Path, identity: str, pair: dict, force: bool = False):
+    from jaxdepth.io.plausibility import check_depth_scale
     pred_path, gt_path = pred_root / pair["prediction"], gt_root / pair["ground_truth"]
     pred, gt = read_depth_png(pred_path), read_depth_png(gt_path)
     if pred.shape != gt.shape:
         raise InputError(f"{pred_path}: prediction shape {pred.shape} expected to equal the shape {gt.shape} "
                          f"of its ground truth {gt_path} (frame '{identity}')")
+    check_depth_scale(gt, path=gt_path, role="ground truth", force=force)
+    check_depth_scale(pred, path=pred_path, role="prediction", force=force)
     return identity, pred, gt
 
 
-def evaluate_folders(pred_dir, gt_dir) -> dict:
+def evaluate_folders(pred_dir, gt_dir, *, force: bool = False) -> dict:
     """KITTI devkit metrics of every prediction PNG under ``pred_dir`` paired with a
     ground-truth PNG under ``gt_dir`` by :func:`frame_identity`.
 
@@ -217,7 +271,11 @@ def evaluate_folders(pred_dir, gt_dir) -> dict:
 
     Raises:
       InputError: a folder is missing or holds no PNG, no frame pairs, two files of
-        one side are the same frame, a PNG is unreadable, or a pair differs in shape.
+        one side are the same frame, a PNG is unreadable, or a pair differs in shape;
+        unless ``force`` (then logged): a PNG not in metres x 256
+        (:func:`jaxdepth.io.plausibility.check_depth_scale`), or a prediction that
+        cover under half of the ground-truth pixels over all pairs (:func:`side_problem`:
+        swapped folders, LiDAR input given as the predictions).
     """
     pred_dir, gt_dir = pathlib.Path(pred_dir), pathlib.Path(gt_dir)
     preds, pred_ignored = collect_frames(pred_dir, side="prediction")
@@ -233,13 +291,46 @@ def evaluate_folders(pred_dir, gt_dir) -> dict:
             f"({len(preds)} predictions, e.g. {_examples(sorted(preds.values()))}; "
             f"{len(gts)} ground truths, e.g. {_examples(sorted(gts.values()))})")
     pairs = {n: {"prediction": preds[n], "ground_truth": gts[n]} for n in names}
-    table = evaluate_pairs(_read_pair(pred_dir, gt_dir, n, pairs[n]) for n in names)
+    counts = np.zeros(4, np.int64)
+
+    def read_all():
+        for n in names:
+            identity, pred, gt = _read_pair(pred_dir, gt_dir, n, pairs[n], force)
+            counts[:] += side_counts(pred, gt)
+            yield identity, pred, gt
+
+    table = evaluate_pairs(read_all())
+    problem = side_problem(counts)
+    if problem is not None:
+        if not force:
+            raise InputError(f"{pred_dir}: {problem}; --force scores them anyway")
+        log.warning("%s: --force: scoring although %s", pred_dir, problem)
     table.update(
         prediction_root=str(pred_dir), ground_truth_root=str(gt_dir), pairs=pairs,
         missing_predictions=sorted(gts[n] for n in set(gts) - set(preds)),
         unmatched_predictions=sorted(preds[n] for n in set(preds) - set(gts)),
         ignored={"prediction": pred_ignored, "ground_truth": gt_ignored})
     return table
+
+
+def _describe_ignored(files) -> str:
+    """What ignored files are, by kind (relative paths): colour previews, validity masks, camera images..."""
+    kinds = []
+    texts = {"preview": "colour previews (_preview.png)", "validity": "validity masks (_validity.png)",
+             "seed_distance": "seed-distance images (_seed_distance.png)"}
+    for kind, text in texts.items():
+        if any(str(f).endswith(f"_{kind}.png") for f in files):
+            kinds.append(text)
+    found = {frame_identity(f)[1] for f in files if not _EXTRA_OUTPUT.search(str(f))}
+    if found & CAMERA_IMAGE_KINDS:
+        kinds.append("camera images")
+    if "velodyne_raw" in found:
+        kinds.append("LiDAR input (velodyne_raw)")
+    if found & GROUND_TRUTH_KINDS:
+        kinds.append("ground truth")
+    if found - CAMERA_IMAGE_KINDS - GROUND_TRUTH_KINDS - {"velodyne_raw"}:
+        kinds.append("other depth PNGs")
+    return ", ".join(kinds)
 
 
 def format_table(table: dict) -> list:
@@ -259,9 +350,9 @@ def format_table(table: dict) -> list:
         lines.append(f"warning: {len(unmatched)} predictions have no ground truth (not scored): {_examples(unmatched)}")
     for side, files in sorted((table.get("ignored") or {}).items()):
         if files:
+            what = _describe_ignored(files)
             files = [str(roots[side] / f) for f in files]
-            lines.append(f"note: {len(files)} {side.replace('_', ' ')} files ignored (camera images, or LiDAR input "
-                         f"beside ground truth): {_examples(files)}")
+            lines.append(f"note: {len(files)} {side.replace('_', ' ')} files ignored ({what}): {_examples(files)}")
     missing = [str(roots["ground_truth"] / f) for f in table.get("missing_predictions") or []]
     if missing:
         lines.append(f"warning: {len(missing)} ground-truth frames have no prediction (not scored, not in the "
@@ -285,3 +376,15 @@ def format_csv(table: dict) -> str:
         writer.writerow([name] + [repr(float(m[k])) for k in METRIC_KEYS]
                         + [str(pred_root / pair["prediction"]), str(gt_root / pair["ground_truth"])])
     return out.getvalue()
+
+
+def write_table(table: dict, *, json_path=None, csv_path=None) -> None:
+    """Writes :func:`evaluate_folders`' table atomically: the whole table as JSON (sorted keys,
+    indent 2) to ``json_path`` and :func:`format_csv` to ``csv_path`` (None: not written)."""
+    import json
+
+    from jaxdepth.io.atomic import atomic_write_bytes
+    if json_path:
+        atomic_write_bytes(pathlib.Path(json_path), json.dumps(table, indent=2, sort_keys=True).encode())
+    if csv_path:
+        atomic_write_bytes(pathlib.Path(csv_path), format_csv(table).encode())

@@ -21,7 +21,7 @@ on both sides of it (above and below within one scan-line spacing, or left and
 right). The test reads only the sweep (every valid point, held out or not) and
 the camera; it is independent of Algorithm 1 and of every method's output, so
 it cannot grade a method with itself. On the synthetic sensors with exact depth
-(``benchmarks/protocol_bias.py``) it drops 0.7-1.8 % of the targets, 63-85 % of
+(``benchmarks/studies/protocol_bias.py``) it drops 0.7-1.8 % of the targets, 63-85 % of
 them wrong by metres, and 83-85 % of the wrong ones on 64 and 128 beams; on 16
 and 32 beams it finds only 35-50 % of them (edges seen from one side), so there
 it removes part of the protocol's bias, not all of it.
@@ -41,7 +41,7 @@ from jaxdepth._src.geometry import project_to_image
 from jaxdepth._src.ip_basic import ip_basic
 from jaxdepth._src.metrics import depth_metrics
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.rig import RigCameras, _complete_rig_stages
+from jaxdepth._src.rig import RigCameras, complete_rig_stages
 from jaxdepth._src.types import LidarSpec
 
 
@@ -161,12 +161,12 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar, cover
     valid = jnp.asarray(valid, bool)
     hidden = jnp.asarray(hidden, bool) & valid
     given = valid & ~hidden
-    stages = _complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
-    plain = _complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
+    stages = complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
+    plain = complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
     if config.distance_metric == "l2":
         euclid = plain.seed_depth
     else:
-        euclid = _complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
+        euclid = complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
             outlier_removal=False, distance_metric="l2")).seed_depth
 
     def z_buffer(mask):

@@ -1,0 +1,67 @@
+"""What several benchmark tools share: paths, the shared KITTI frame, JSON results.
+
+Import as ``from benchmarks._common import ...`` (run tools from the repository root with
+``python -m benchmarks.<tool>``). The KITTI frame comes from :func:`jaxdepth.io.load_kitti_frame`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import platform
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+FRAME = DATA / "kitti" / "drive_0001_frame05"
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def load_frames(frame_dir: pathlib.Path = FRAME) -> dict:
+    """``{"image_02": (sparse, truth, K, T_cam_lidar), "image_03": ...}``: cameras 2 and 3 of the
+    frame folder, cropped to 352 x 1216 (float32 metres; K of the crop)."""
+    from jaxdepth.io import load_kitti_frame
+    out = {}
+    for cam in (2, 3):
+        f = load_kitti_frame(frame_dir, camera=cam, image=False)
+        out[f"image_0{cam}"] = (f.sparse, f.truth, f.K, f.T_cam_lidar)
+    return out
+
+
+def load_images(frame_dir: pathlib.Path = FRAME) -> dict:
+    """``{"image_02": (352, 1216, 3) uint8 RGB, "image_03": ...}``, cropped like :func:`load_frames`."""
+    from jaxdepth.io.guidance_images import decode_camera_image
+    from jaxdepth.io import crop_to_benchmark
+    return {f"image_0{cam}": crop_to_benchmark(decode_camera_image(frame_dir / f"image_0{cam}.png"), np.eye(3))[0]
+            for cam in (2, 3)}
+
+
+def load_frame():
+    """(sparse, K, T_cam_lidar, label) of camera 2 of the shared frame (352 x 1216 crop), or, when the
+    shared data is absent, a random 4 % sparse image of the same size with KITTI's calibration."""
+    if FRAME.exists():
+        sparse, _, K, T = load_frames()["image_02"]
+        return sparse, K, T, "KITTI drive_0001 frame 5, camera 2, 352x1216"
+    from jaxdepth._src import presets
+    rng = np.random.default_rng(0)
+    sparse = np.where(rng.random((352, 1216)) < 0.04, rng.uniform(2, 80, (352, 1216)), 0).astype(np.float32)
+    K = presets.KITTI_K_CAM2.copy()
+    K[0, 2] -= 13
+    K[1, 2] -= 23
+    return sparse, K, presets.KITTI_T_CAM2_LIDAR, "random 4 % sparse 352x1216 (shared data missing)"
+
+
+def write_results(path, doc: dict, config, t0: float) -> None:
+    """``doc`` plus the config, run time and environment, atomically as JSON at ``path``."""
+    import jax
+
+    from jaxdepth.io.atomic import atomic_write_bytes
+    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test}, **doc,
+           "seconds": time.time() - t0,
+           "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
+    out = pathlib.Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())

@@ -1,0 +1,383 @@
+"""Points from several origins (LiDARs x sweeps): Steps 1 and 2 per source, free space across sweeps.
+
+A *source* is one LiDAR of a rig in one sweep. :class:`Sources` holds every
+source's points, padded to one point bucket ``P``, in the *reference frame*
+(the points' frame of the reference sweep, the frame every camera's
+``T_cam_lidar`` maps from), and each source's LiDAR pose ``T_ref_source``.
+
+* Step 1 per source (:func:`source_normals`): each source's points go back into
+  its own LiDAR frame (``inv(T_ref_source[s])``), are binned into that LiDAR's own
+  range image (its :class:`~jaxdepth.LidarSpec`) and get their Badino normals
+  there; the normals are rotated back into the reference frame. Sources that
+  share a LidarSpec are vmapped together (one static range-image shape per group).
+* Free space (:func:`free_space_keep`): a point of another sweep that lies where
+  a LiDAR of the reference sweep saw empty space is removed (a moving object's
+  ghost, or a registration error). See the function for the rule and margins.
+* Step 2 per source (:func:`source_keep_mask`): Algorithm 1 on the camera's
+  z-buffer of all sources' points, where each pixel's point is tested with *its
+  own source's* origin as the viewpoint compared with the camera's; every
+  pixel, whatever its source, is a neighbour ``j``. Vmapped over sources.
+* Steps 3 and 4 are the single-source ones on the merged, filtered image.
+
+With one source at the points' origin, :func:`complete_sources` equals
+:func:`~jaxdepth.complete_rig` (tests/test_sources.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
+from jaxdepth._src.geometry import invert_rigid, transform_points
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.outliers import _keep_mask, window_half_sizes
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
+from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
+from jaxdepth._src.rig import RigCameras, _rig_images, _window_only
+from jaxdepth._src.types import LidarSpec, Stages
+
+#: Range noise and registration error allowed for before a point counts as being in free space, metres.
+FREE_SPACE_NOISE_M = 0.3
+#: Surface slope allowance of the free-space margin: a surface at 45 degrees to the ray changes range
+#: by ``r * delta`` across an angular step ``delta``; the margin allows ``FREE_SPACE_SLOPE`` such steps.
+FREE_SPACE_SLOPE = 2.0
+#: Measured cells (of the 3 x 3 around a point's cell) needed before the reference LiDAR's view there counts.
+FREE_SPACE_MIN_CELLS = 6
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Sources:
+    """S sources' points in one reference frame, padded to P points each (a pytree).
+
+    Attributes:
+      points: (S, P, 3) float32 metres, reference frame.
+      valid: (S, P) bool; padding rows are False.
+      T_ref_source: (S, 4, 4) float32 pose of each source's LiDAR in the reference frame
+        (``p_source = inv(T_ref_source[s]) @ p_ref``).
+      lidars: static tuple of S :class:`LidarSpec`, each source's own scan geometry.
+      sweep: static tuple of S ints, each source's sweep; 0 is the reference sweep.
+      rows: optional (S, P) int32 range-image row of each point in its own LiDAR's range
+        image: its laser's rank by elevation (0 = highest), for LiDARs whose beams are not
+        evenly spaced (the VLP-32C); -1 or None: the row of the point's elevation.
+    """
+
+    points: jax.Array
+    valid: jax.Array
+    T_ref_source: jax.Array
+    lidars: tuple = dataclasses.field(metadata=dict(static=True))
+    sweep: tuple = dataclasses.field(metadata=dict(static=True))
+    rows: jax.Array | None = None
+
+    @property
+    def count(self) -> int:
+        return len(self.lidars)
+
+
+def make_sources(points, valid, T_ref_source, *, lidars, sweep=None, rows=None) -> Sources:
+    """Checks shapes and builds :class:`Sources` (``sweep`` defaults to all 0: one sweep, several LiDARs)."""
+    points = jnp.asarray(points, jnp.float32)
+    valid = jnp.asarray(valid, bool)
+    T = jnp.asarray(T_ref_source, jnp.float32)
+    lidars = tuple(lidars)
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise ValueError(f"Sources: field 'points' expected shape (S, P, 3), got {points.shape}")
+    s, p = points.shape[:2]
+    if valid.shape != (s, p):
+        raise ValueError(f"Sources: field 'valid' expected shape {(s, p)}, got {valid.shape}")
+    if T.shape != (s, 4, 4):
+        raise ValueError(f"Sources: field 'T_ref_source' expected shape {(s, 4, 4)}, got {T.shape}")
+    if len(lidars) != s or not all(isinstance(x, LidarSpec) for x in lidars):
+        raise ValueError(f"Sources: field 'lidars' expected {s} LidarSpec, got {lidars!r}")
+    sweep = (0,) * s if sweep is None else tuple(int(x) for x in sweep)
+    if len(sweep) != s:
+        raise ValueError(f"Sources: field 'sweep' expected {s} ints, got {sweep!r}")
+    if rows is not None:
+        rows = jnp.asarray(rows, jnp.int32)
+        if rows.shape != (s, p):
+            raise ValueError(f"Sources: field 'rows' expected shape {(s, p)}, got {rows.shape}")
+    return Sources(points=points, valid=valid, T_ref_source=T, lidars=lidars, sweep=sweep, rows=rows)
+
+
+def _spec_groups(lidars) -> list[tuple[LidarSpec, np.ndarray]]:
+    """Static groups of source indices sharing one LidarSpec, in order of first appearance."""
+    groups: dict = {}
+    for i, spec in enumerate(lidars):
+        groups.setdefault(spec, []).append(i)
+    return [(spec, np.asarray(idx, np.int32)) for spec, idx in groups.items()]
+
+
+def _to_source_frames(T_ref_source, points):
+    """(G, P, 3) reference-frame points -> each source's own LiDAR frame."""
+    return jax.vmap(lambda T, p: transform_points(invert_rigid(T), p))(T_ref_source, points)
+
+
+def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_smoothing,
+                   fill_max_gap: int = DEFAULT_CONFIG.range_fill_max_gap) -> jax.Array:
+    """Step 1 per source: (S, P, 3) float32 unit normals, reference frame (zeros for invalid points).
+
+    Each source's normals come from its own range image about its own origin and
+    axes (:func:`~jaxdepth.point_normals` of its points in its LiDAR frame, with
+    its LidarSpec), rotated back into the reference frame; they face that
+    source's LiDAR (``n . (p - origin_s) <= 0``).
+    """
+    out = jnp.zeros(sources.points.shape, jnp.float32)
+    for spec, idx in _spec_groups(sources.lidars):
+        T = sources.T_ref_source[idx]
+        local = _to_source_frames(T, sources.points[idx])
+        normals = functools.partial(point_normals, lidar=spec, smoothing=smoothing, fill_max_gap=fill_max_gap)
+        if sources.rows is None:
+            n = jax.vmap(normals)(local, sources.valid[idx])
+        else:
+            n = jax.vmap(lambda p, v, r: normals(p, v, rows=r))(local, sources.valid[idx], sources.rows[idx])
+        out = out.at[idx].set(jnp.einsum("gij,gpj->gpi", T[:, :3, :3], n))
+    return out
+
+
+def _min_max_count_3x3(r: jax.Array):
+    """Minimum and maximum measured range (inf / -inf where none) and count of measured cells over
+    each 3 x 3 block. Rows are padded as empty, columns wrap around (the image spans 360 degrees)."""
+    has = r > 0
+    n_rows, n_cols = r.shape
+
+    def pad(a, fill):
+        a = jnp.pad(a, ((1, 1), (0, 0)), constant_values=fill)
+        return jnp.concatenate([a[:, -1:], a, a[:, :1]], axis=1)
+
+    lo_p, hi_p = pad(jnp.where(has, r, jnp.inf), jnp.inf), pad(jnp.where(has, r, -jnp.inf), -jnp.inf)
+    has_p = pad(has.astype(jnp.int32), 0)
+    lo = jnp.full(r.shape, jnp.inf, jnp.float32)
+    hi = jnp.full(r.shape, -jnp.inf, jnp.float32)
+    cnt = jnp.zeros(r.shape, jnp.int32)
+    for di in range(3):
+        for dj in range(3):
+            lo = jnp.minimum(lo, lo_p[di:di + n_rows, dj:dj + n_cols])
+            hi = jnp.maximum(hi, hi_p[di:di + n_rows, dj:dj + n_cols])
+            cnt = cnt + has_p[di:di + n_rows, dj:dj + n_cols]
+    return lo, hi, cnt
+
+
+def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_NOISE_M,
+                      slope: float = FREE_SPACE_SLOPE):
+    """The free-space margin at ``range_m`` metres for a LiDAR of range-image geometry ``lidar``.
+
+    ``noise_m + slope * range_m * delta`` with ``delta`` the larger angular side of a
+    range-image cell (radians): vertical ``(fov_up - fov_down) / beams``, horizontal
+    ``2 pi / columns``. A beam of a spinning LiDAR covers about one cell; a surface at 45
+    degrees to the ray changes range by ``range * delta`` across it; ``noise_m`` covers range
+    noise and pose (registration) error.
+    """
+    delta = max(math.radians(lidar.fov_up_deg - lidar.fov_down_deg) / lidar.beams, 2 * math.pi / lidar.columns)
+    return noise_m + slope * delta * range_m
+
+
+def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
+                   min_cells: int = FREE_SPACE_MIN_CELLS):
+    """Where the reference sweep's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
+
+    Every LiDAR ``r`` of the reference sweep (``sweep == 0``) bins its own points into its
+    own range image (its LidarSpec, about its own origin and axes). A point ``q`` of another
+    sweep, seen from ``r``'s origin, falls in a cell; around it, over the 3 x 3 cells (the
+    rays bracketing ``q``'s ray on both sides), ``R_lo`` is the nearest range ``r`` measured.
+
+    * ``free`` (needs at least ``min_cells`` of those 9 cells measured, else no evidence):
+      ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled
+      past it and hit nothing there, so ``q`` sits in space the reference sweep saw empty (a
+      moving object's ghost or a registration error). Taking the nearest bracketing range
+      keeps surfaces between rays (a slanted road; a pole between two scan lines, whose range
+      is then ``R_lo``).
+    * ``shadow`` (needs only ``q``'s own cell measured, range ``R``): ``|q - origin_r| > R +
+      margin(R)``: the reference LiDAR's ray through ``q``'s cell stopped in front of it, ``q``
+      is hidden from the reference LiDAR. Step 2 then also removes it when the camera sees a
+      nearer pixel next to it (:func:`source_keep_mask`).
+
+    ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
+    flag; points outside ``r``'s vertical field of view neither.
+    """
+    s, p = sources.points.shape[:2]
+    flat = sources.points.reshape(-1, 3)
+    tested = jnp.asarray(np.repeat(np.asarray(sources.sweep) != 0, p))
+    free = jnp.zeros((s * p,), bool)
+    shadow = jnp.zeros((s * p,), bool)
+    for spec, idx in _spec_groups(sources.lidars):
+        ref = np.asarray([i for i in idx if sources.sweep[i] == 0], np.int32)
+        if ref.size == 0:
+            continue
+        T = sources.T_ref_source[ref]
+        local = _to_source_frames(T, sources.points[ref])
+        rows = None if sources.rows is None else sources.rows[ref]
+        delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
+
+        def one_witness(T_r, local_r, valid_r, *rows_r, spec=spec, delta=delta):
+            ri, _ = range_image_and_slots(local_r, valid_r, spec, *rows_r)
+            lo, _, cnt = _min_max_count_3x3(ri.r)
+            q = transform_points(invert_rigid(T_r), flat)
+            rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones((s * p,), bool))
+            half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
+            inside = ok & (ph <= spec.fov_up_rad + half) & (ph >= spec.fov_down_rad - half)
+            if rows_r:     # rows by laser rank: the query's row is that of the laser nearest in elevation
+                row = _row_of_elevation(ri, ph)
+                _, col = row_col(th, ph, spec)
+            else:
+                row, col = row_col(th, ph, spec)
+            enough = inside & (cnt[row, col] >= min_cells)
+            r_lo, r_own = lo[row, col], ri.r[row, col]
+            return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
+                    inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
+
+        args = (T, local, sources.valid[ref]) + (() if rows is None else (rows,))
+        f, h = jax.vmap(one_witness)(*args)
+        free = free | jnp.any(f, axis=0)
+        shadow = shadow | jnp.any(h, axis=0)
+    return (free & tested).reshape(s, p), (shadow & tested).reshape(s, p)
+
+
+def _row_of_elevation(ri, phi):
+    """Row of each elevation in a range image whose rows are lasers (ranked by elevation, 0 = highest):
+    the row whose median measured elevation is nearest (empty rows never chosen)."""
+    has = ri.r > 0
+    count = jnp.sum(has, axis=1)
+    mean = jnp.sum(jnp.where(has, ri.phi, 0.0), axis=1) / jnp.maximum(count, 1)
+    mean = jnp.where(count > 0, mean, jnp.inf)
+    return jnp.argmin(jnp.abs(phi[:, None] - mean[None, :]), axis=1).astype(jnp.int32)
+
+
+def free_space_keep(sources: Sources, **options) -> jax.Array:
+    """(S, P) bool: ``valid`` without the points of other sweeps that lie in space the reference
+    sweep saw empty (``free`` of :func:`reference_view`; options as there)."""
+    free, _ = reference_view(sources, **options)
+    return sources.valid & ~free
+
+
+def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
+                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None) -> jax.Array:
+    """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
+
+    Args:
+      sparse_depth: (H, W) float32 z-buffer of all sources' points (0 = empty).
+      pixel_source: (H, W) int32 source of each pixel's point (any value where empty).
+      points_cam: (3, H, W) float32 camera-frame coordinates of each pixel's point.
+      K: (3, 3). T_cam_sources: (S, 4, 4) pose of each source's LiDAR in the camera frame
+        (only the translations, the LiDARs' origins, are used).
+      beams: static L of the window bounds (H / L, W L / N): the beams of one sweep of the rig.
+      config: static; ``outlier_removal``, ``epsilon_m``, window caps and ``outlier_test`` apply.
+      pixel_shadow: optional (H, W) bool: pixels whose point lies in a reference LiDAR's
+        shadow (:func:`reference_view`); such a point is also removed when a pixel of its
+        window S(i) is nearer by more than epsilon (condition 2 alone: the reference
+        LiDAR saw something in front of it, and so, next to it, does the camera).
+
+    Algorithm 1 runs once per source (vmapped): the candidates are that source's pixels,
+    the viewpoint compared with the camera's is that source's origin, and every pixel
+    of the image is a possible occluder ``j``.
+    """
+    valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
+    if not config.outlier_removal:
+        return valid
+    height, width = sparse_depth.shape
+    hw, hh = window_half_sizes(height, width, beams=int(beams), max_half_width_px=config.outlier_max_half_width_px,
+                               max_half_height_px=config.outlier_max_half_height_px)
+    eps = jnp.asarray(config.epsilon_m, jnp.float32)
+    n_src = T_cam_sources.shape[0]
+
+    def one(s, T):
+        return _keep_mask(sparse_depth, K, T, points_cam, eps, valid & (pixel_source == s), beams=int(beams),
+                          half_width=hw, half_height=hh, test=config.outlier_test)
+
+    keeps = jax.vmap(one)(jnp.arange(n_src, dtype=jnp.int32), T_cam_sources)
+    mine = pixel_source[None] == jnp.arange(n_src, dtype=jnp.int32)[:, None, None]
+    keep = valid & jnp.all(keeps | ~mine, axis=0)
+    if pixel_shadow is not None:
+        keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, valid & pixel_shadow,
+                                 beams=int(beams), half_width=hw, half_height=hh, test="nearer")
+    return keep
+
+
+def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
+                   config, image_size=None, image=None) -> Stages:
+    """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
+    K = jnp.asarray(K, jnp.float32)
+    T = jnp.asarray(T_cam_ref, jnp.float32)
+    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
+                                                                        width=width, image_size=image_size)
+    hit = index >= 0
+    safe = jnp.where(hit, index, 0).reshape(-1)
+    pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
+    T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
+    pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
+    keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
+                            pixel_shadow=pixel_shadow)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
+                            keep=keep)
+    return clear_outside_window(stages, image_size)
+
+
+def default_beams(sources: Sources) -> int:
+    """L of Step 2's window bounds: the beams of the reference sweep's LiDARs together."""
+    return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
+
+
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams"))
+def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams):
+    images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_sources")
+    s, p = sources.points.shape[:2]
+    points = jnp.asarray(sources.points, jnp.float32)
+    valid = jnp.asarray(sources.valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
+    points = jnp.where(valid[..., None], points, 0.0)
+    sources = dataclasses.replace(sources, points=points, valid=valid)
+    normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
+    shadow = None
+    if free_space:
+        free, shadow = reference_view(sources)
+        valid = valid & ~free
+        shadow = shadow.reshape(-1)
+    flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
+    flat_normals = normals.reshape(-1, 3)
+    source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
+
+    def per_camera(K, T, size, image=None):
+        if image is not None:
+            image = _window_only(image, size)
+        return _camera_stages(flat_points, flat_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
+                              height=cameras.height, width=cameras.width, beams=beams, config=config,
+                              image_size=size, image=image)
+
+    if images is None:
+        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
+
+
+def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
+                            free_space: bool = True, beams: int | None = None,
+                            images: jax.Array | None = None) -> Stages:
+    """SGM completion of several sources for C cameras; every :class:`Stages` field gains a leading C axis.
+
+    Args:
+      sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs).
+      cameras: :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
+      config: static :class:`SGMConfig`.
+      free_space: static; remove other sweeps' points in the reference sweep's free space
+        (:func:`free_space_keep`).
+      beams: static L of Step 2's window bounds; default :func:`default_beams`.
+      images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.
+
+    Returns:
+      :class:`Stages` with (C, H, W) fields. ``inlier_mask`` is the Step-2 mask of the merged
+      image (free-space points never reach the image).
+    """
+    beams = default_beams(sources) if beams is None else int(beams)
+    return _complete_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space),
+                                    beams=beams)
+
+
+def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
+                     free_space: bool = True, beams: int | None = None,
+                     images: jax.Array | None = None) -> jax.Array:
+    """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
+    return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                                   images=images).depth

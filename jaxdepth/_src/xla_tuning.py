@@ -1,0 +1,271 @@
+"""Every XLA:CPU tuning trick of jaxdepth, with its reason, and the switch that turns them off.
+
+The stages of the pipeline are written plainly and call the helpers here where XLA:CPU needs
+steering; each call site says in one line why. On other backends (and with
+``JAXDEPTH_XLA_TUNING=plain``) the helpers reduce to the plain computation. The choice is made
+at trace time: :func:`enabled` is True when the mode is ``"cpu"``, or ``"auto"`` (the default)
+and ``jax.default_backend() == "cpu"``. The mode comes from :func:`set_mode` if called, else the
+environment variable ``JAXDEPTH_XLA_TUNING`` (``auto`` / ``cpu`` / ``plain``).
+
+Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/results):
+
+* **Stage fences** (:func:`stage`, :func:`fence`). XLA fuses a producer into every consumer.
+  When a heavy elementwise chain feeds shifted slices, gathers or several outputs, each
+  consumer re-runs the whole chain per element it reads, far slower than reading a buffer.
+  ``lax.optimization_barrier`` is removed before fusion on CPU, so :func:`stage` runs the
+  producer inside a ``lax.cond`` whose predicate always holds but is not provable at compile
+  time (an int32 from the data compared with INT32_MIN): a conditional's operands and results
+  are real buffers. The producer runs inside the branch, so nothing is copied. Under ``vmap``
+  the predicate is reduced to a scalar (``custom_vmap``), so the conditional is not turned
+  into a select that would run both branches; a ``custom_jvp`` differentiates ``fn``
+  directly, so gradients flow as if the fence were not there. Plain: ``fn(*args)``.
+* **Channel packing** (:func:`pack_pair`, :func:`take_pair`). Two float32 channels gathered
+  at the same indices travel as one complex64 array: half the gathered elements of two
+  float32 gathers, and XLA fuses a complex gather into its consumer where it would not fuse a
+  gather of a stacked (2, ...) array. Plain: the channels stay separate arrays. (Inside the
+  normal fits, the pixel binning and the geodesic passes complex64 is the data layout of the
+  stage itself and stays in both modes.)
+* **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
+  always the same but not provably so at compile time is scheduled after that result: the
+  column bracket's inputs would otherwise be scheduled before the seed search, stay live
+  across its loops, and XLA:CPU copies loop state that aliases live buffers. Plain: the value.
+* **Shared loop bounds** (:func:`shared_loop_bounds`). A loop whose bounds are batched
+  (``vmap``) gets a batched counter, which turns every row read and row write in its body into
+  gathers and scatters; a ``custom_vmap`` gives the batch the widest bounds instead (callers
+  make extra rows harmless). Plain: the bounds themselves.
+
+:func:`cond_all` and :func:`switch_widest` are not backend tuning: they choose a cheaper branch
+that gives the same result, and keep that choice a conditional under ``vmap`` on every
+backend (a batched ``lax.cond`` runs both branches). They are here because they share the
+``custom_vmap`` steering of :func:`stage`.
+
+Both modes give the same results: bit for bit where only materialisation, scheduling or
+gather layout differ (tests/test_xla_tuning.py runs ``complete``, ``complete_points`` and
+``complete_rig`` both ways).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+import jax
+import jax.numpy as jnp
+from jax import custom_batching
+
+MODES = ("auto", "cpu", "plain")
+_ENV = "JAXDEPTH_XLA_TUNING"
+_forced: str | None = None
+_INT32_MIN = jnp.iinfo(jnp.int32).min
+_PIB = "promise_in_bounds"
+
+
+def mode() -> str:
+    """The tuning mode in force: :func:`set_mode`'s, else ``$JAXDEPTH_XLA_TUNING``, else ``"auto"``."""
+    value = _forced if _forced is not None else os.environ.get(_ENV, "auto").strip().lower() or "auto"
+    if value not in MODES:
+        raise ValueError(f"{_ENV}: expected one of {MODES}, got {value!r}")
+    return value
+
+
+def enabled() -> bool:
+    """Whether the XLA:CPU tricks apply to what is traced now (see the module docstring)."""
+    chosen = mode()
+    return chosen == "cpu" or (chosen == "auto" and jax.default_backend() == "cpu")
+
+
+def set_mode(value: str | None) -> None:
+    """Forces ``"cpu"`` (tricks on), ``"plain"`` (off) or ``"auto"``; None returns to the environment.
+
+    Clears JAX's caches when the choice changes, so jitted functions are traced again.
+    """
+    global _forced
+    if value is not None and value not in MODES:
+        raise ValueError(f"set_mode: field 'value' expected one of {MODES} or None, got {value!r}")
+    before = enabled()
+    _forced = value
+    if enabled() != before:
+        jax.clear_caches()
+
+
+@contextlib.contextmanager
+def forced(value: str):
+    """``with forced("plain"): ...`` traces the block in that mode, then restores the previous one."""
+    previous = _forced
+    set_mode(value)
+    try:
+        yield
+    finally:
+        set_mode(previous)
+
+
+def _steered(scalar, operands, *, single, batched, reduce, tangent_fn=None):
+    """``single(scalar, operands)`` as a ``custom_vmap`` whose batch rule keeps one scalar.
+
+    Under ``vmap`` a batched ``scalar`` is reduced with ``reduce`` (so a
+    conditional stays a conditional instead of a select of both branches),
+    unbatched operands are broadcast leaf by leaf, and ``batched(scalar,
+    operands)`` computes the whole batch. With ``tangent_fn``, JVPs are
+    ``jax.jvp(tangent_fn(scalar), (operands,), (operand_tangents,))``.
+    """
+
+    @custom_batching.custom_vmap
+    def run(scalar, operands):
+        return single(scalar, operands)
+
+    @run.def_vmap
+    def run_vmap(axis_size, in_batched, scalar, operands):
+        scalar_batched, ops_batched = in_batched
+        if scalar_batched:
+            scalar = reduce(scalar)
+        operands = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
+                                tuple(operands), tuple(ops_batched))
+        out = batched(scalar, operands)
+        return out, jax.tree.map(lambda _: True, out)
+
+    if tangent_fn is None:
+        return run(scalar, operands)
+
+    @jax.custom_jvp
+    def differentiable(scalar, operands):
+        return run(scalar, operands)
+
+    @differentiable.defjvp
+    def differentiable_jvp(primals, tangents):
+        scalar, operands = primals
+        return jax.jvp(tangent_fn(scalar), (operands,), (tangents[1],))
+
+    return differentiable(scalar, operands)
+
+
+def stage(fn, args, token):
+    """``fn(*args)`` computed in its own conditional: its outputs are real buffers
+    that consumers read instead of re-running ``fn``.
+
+    Args:
+      fn: function of arrays returning a tuple (or any pytree) of arrays.
+      args: tuple of arrays (the conditional's operands).
+      token: int32 scalar derived from the data; ``token >= INT32_MIN`` always
+        holds, so ``fn`` always runs. Any data-dependent scalar works (e.g.
+        ``mask[0, 0].astype(jnp.int32)``).
+
+    Returns:
+      ``fn(*args)``, bit-identical to calling it directly (which is what it does when the
+      tricks are off).
+    """
+    if not enabled():
+        return fn(*args)
+
+    def single(tok, operands):
+        shapes = jax.eval_shape(fn, *operands)
+        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, lambda ops: fn(*ops),
+                            lambda ops: jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes), operands)
+
+    # The batched token is reduced to one predicate for the batch, which keeps the conditional.
+    return _steered(jnp.asarray(token, jnp.int32), tuple(args), single=single, reduce=jnp.min,
+                    batched=lambda tok, ops: stage(jax.vmap(fn), ops, tok),
+                    tangent_fn=lambda _: (lambda ops: fn(*ops)))
+
+
+def fence(*arrays, token=None):
+    """Materialises ``arrays`` (identity): consumers read buffers, producers run once.
+
+    ``token`` defaults to the first element of the first array (as int32).
+    Returns a tuple of the arrays (the arrays themselves when the tricks are off).
+    """
+    if not enabled():
+        return tuple(arrays)
+    if token is None:
+        first = jnp.ravel(arrays[0])[0]
+        if jnp.iscomplexobj(first):
+            first = jnp.real(first)
+        token = first.astype(jnp.int32)  # any int32 value will do
+    return stage(lambda *a: a, arrays, token)
+
+
+def cond_all(pred, true_fn, false_fn, *operands):
+    """``lax.cond(pred, true_fn, false_fn, *operands)`` that stays a conditional under ``vmap``.
+
+    ``lax.cond`` with a batched predicate becomes a select that runs both
+    branches. Here a batched predicate is reduced with ``all``: the batch
+    takes ``true_fn`` only when every member would, else ``false_fn``. Use it
+    only where both branches compute the same result (``true_fn`` being a fast
+    path valid under ``pred``), so the choice never changes the output.
+    Differentiable (the JVP follows ``lax.cond`` per member).
+    """
+    return _steered(jnp.asarray(pred, bool), tuple(operands), reduce=jnp.all,
+                    single=lambda p, ops: jax.lax.cond(p, true_fn, false_fn, *ops),
+                    batched=lambda p, ops: cond_all(p, jax.vmap(true_fn), jax.vmap(false_fn), *ops),
+                    tangent_fn=lambda p: (lambda ops: jax.lax.cond(p, true_fn, false_fn, *ops)))
+
+
+def switch_widest(index, branches, *operands):
+    """``lax.switch(index, branches, *operands)`` that stays a switch under ``vmap``.
+
+    A batched ``index`` is reduced with ``max``: the whole batch takes the
+    branch of its largest index. Use it only for branches that are valid for
+    any index at least the true one (e.g. wider windows that give the same
+    result with more work), so the choice never changes the output.
+    Operands may be pytrees (tuples of arrays).
+    """
+    return _steered(index, tuple(operands), reduce=jnp.max,
+                    single=lambda i, ops: jax.lax.switch(i, branches, *ops),
+                    batched=lambda i, ops: switch_widest(i, [jax.vmap(fn) for fn in branches], *ops))
+
+
+def pack_pair(a: jax.Array, b: jax.Array):
+    """Two float32 channels of one shape, to be gathered together: complex64 ``a + i b`` (tricks
+    on) or the pair ``(a, b)``. Read back with :func:`take_pair` or :func:`unpack_pair`."""
+    return jax.lax.complex(a, b) if enabled() else (a, b)
+
+
+def unpack_pair(packed) -> tuple[jax.Array, jax.Array]:
+    """The two float32 channels of :func:`pack_pair` (or of any complex64 array)."""
+    if isinstance(packed, tuple):
+        return packed
+    return jnp.real(packed), jnp.imag(packed)
+
+
+def take_pair(packed, index: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Both channels of a flat (N,) :func:`pack_pair` (or complex64 array) at ``index`` (in bounds).
+
+    Tricks on: one complex64 gather. Off: one float32 gather per channel (same values).
+    """
+    if enabled() and not isinstance(packed, tuple):
+        return unpack_pair(packed.at[index].get(mode=_PIB))
+    return tuple(channel.at[index].get(mode=_PIB) for channel in unpack_pair(packed))
+
+
+def after(value: jax.Array, result: jax.Array) -> jax.Array:
+    """``value``, scheduled after ``result`` (an int32 array) is computed (tricks on); else ``value``.
+
+    The dependence is ``where(result[0, ...] > INT32_MIN, value, 0)``: always ``value``, but
+    XLA cannot prove it.
+    """
+    if not enabled():
+        return value
+    return jnp.where(jnp.ravel(result)[0] > _INT32_MIN, value, jnp.zeros((), value.dtype))
+
+
+@custom_batching.custom_vmap
+def _widest_bounds(first: jax.Array, stop: jax.Array):
+    return first, stop
+
+
+@_widest_bounds.def_vmap
+def _widest_bounds_vmap(axis_size, in_batched, first, stop):
+    del axis_size
+    first_batched, stop_batched = in_batched
+    first = jnp.min(first) if first_batched else first
+    stop = jnp.max(stop) if stop_batched else stop
+    return _widest_bounds(first, stop), (False, False)
+
+
+def shared_loop_bounds(first: jax.Array, stop: jax.Array):
+    """Loop bounds ``(first, stop)``; under ``vmap`` with the tricks on, ``(min first, max stop)``
+    shared by the batch, so the loop counter stays a scalar. Use only for loops where the extra
+    iterations are harmless."""
+    if not enabled():
+        return first, stop
+    return _widest_bounds(first, stop)
+

@@ -1,0 +1,91 @@
+"""Run multi-source completions (one :class:`~jaxdepth.io.sources.SourceCloud` + rig per frame) over many frames.
+
+The shared loop of the dataset jobs that complete several sources at once (Argoverse 2
+logs, KITTI raw drives with ``--sweeps``): a reader thread pool loads frames ahead (each
+job's ``load`` returns the frame's cloud and rig), :func:`complete_sources` completes every
+camera of the rig, and writer threads write one KITTI depth PNG per camera, atomically. A
+frame that cannot be read or completed is reported and the rest carries on; a frame is
+recorded done once all its PNGs are in place.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import pathlib
+from typing import Callable
+
+import numpy as np
+
+#: Frames loaded ahead of the device.
+READ_AHEAD = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class CloudJob:
+    """One frame: its name (progress, failures), ``outputs`` ((camera name, PNG path), ...) still to write,
+    and ``source``: whatever the job's loader needs to read the frame."""
+
+    name: str
+    outputs: tuple
+    source: object
+
+
+def complete_sources(cloud, rig, *, config, images=None) -> np.ndarray:
+    """(C, H, W) float32 depth of every camera of ``rig`` (on the largest camera's canvas) from a SourceCloud.
+
+    The one completion call of the multi-source jobs:
+    :func:`jaxdepth.batch.sources_job.complete_cloud` with free space on (range image, normals and
+    Algorithm 1's viewpoint per source; other sweeps' points in the reference sweep's free space
+    removed). ``images``: (C, H, W[, 3]) uint8 camera images on the canvas for image-guided seeds
+    (``config.guidance_weight > 0``), else None.
+    """
+    from jaxdepth.batch.sources_job import complete_cloud
+
+    return complete_cloud(cloud, rig, config=config, free_space=True, images=images)
+
+
+def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
+                   io_threads: int = 2) -> None:
+    """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
+
+    ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
+    Records each job in ``summary`` as done or failed (never raises for a bad frame).
+    """
+    from jaxdepth.batch.runner import Ledger, read_ahead, write_failure
+    from jaxdepth.io.depth_png import write_depth_png
+    from jaxdepth.io.errors import JaxdepthError
+
+    ledger = Ledger(summary, notify)
+
+    def write(job, rig, depth):
+        index = {c.name: i for i, c in enumerate(rig.cameras)}
+        for camera, path in job.outputs:
+            cam = rig.cameras[index[camera]]
+            window = depth[index[camera], :cam.height, :cam.width]
+            message = write_failure(path, lambda: write_depth_png(pathlib.Path(path), window,
+                                                                  compression=png_compression))
+            if message is not None:
+                ledger.fail(job.name, message)
+                return
+        ledger.done(job.name)
+
+    with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
+        written = []
+        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load,
+                                                 os_error=lambda job, err: f"cannot read: {err}"):
+            if message is not None:
+                ledger.fail(job.name, message)
+                continue
+            cloud, rig = loaded
+            try:
+                depth = complete_sources(cloud, rig, config=config)
+            except (JaxdepthError, ValueError) as err:
+                ledger.fail(job.name, f"completion failed: {err}")
+                continue
+            written.append(writers.submit(write, job, rig, depth))
+        for f in written:
+            f.result()
+
+
+__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs"]

@@ -1,0 +1,159 @@
+"""One LiDAR sweep completed for every camera of a rig JSON: the job behind ``jaxdepth complete-rig``.
+
+Reads the sweep and the rig (and, when guided, the camera images), checks the sweep
+against its LiDAR (:func:`jaxdepth.io.prepare_sweep`) and applies its trust policy
+(outlier removal off when the sweep's beam angles cannot be trusted), completes
+every camera in one call (:func:`jaxdepth.complete_rig_stages`) and writes
+``<out_dir>/<camera name>.png`` per camera (plus the extra outputs asked for),
+atomically, skipping finished outputs unless ``overwrite``.
+
+Messages go to ``report(kind, text)``: ``"note"`` (what the sweep check found),
+``"warning"`` (a camera no point projects into), ``"skipped"`` (an output that
+exists) and ``"written"`` (one line per camera written). The command line decides
+which to show.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import pathlib
+from typing import Callable
+
+import numpy as np
+
+from jaxdepth._src.config import SGMConfig
+from jaxdepth.batch import extras as extra_outputs
+
+log = logging.getLogger("jaxdepth")
+
+
+@dataclasses.dataclass
+class RigJobSummary:
+    """What :func:`run_rig_job` did: outputs written and skipped (paths), cameras that saw no point."""
+
+    written: list = dataclasses.field(default_factory=list)
+    skipped: list = dataclasses.field(default_factory=list)
+    empty_cameras: list = dataclasses.field(default_factory=list)
+    exit_code: int = 0
+
+
+def _ignore(kind: str, text: str) -> None:
+    return None
+
+
+def rig_images(rig, rig_path, image_dir):
+    """The rig's (C, H, W[, 3]) uint8 camera images: ``image_dir``, else the rig JSON's image fields."""
+    from jaxdepth.io.rig_images import read_rig_images, rig_image_paths
+    paths = rig_image_paths(rig.cameras, image_dir=image_dir, rig_json=rig_path,
+                            json_images={c.name: c.image for c in rig.cameras if c.image is not None})
+    return read_rig_images(paths, rig.cameras)
+
+
+def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
+                point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
+                report: Callable[[str, str], None] = _ignore, force: bool = False,
+                record: dict | None = None) -> RigJobSummary:
+    """Completes the sweep ``points_path`` for every camera of the rig JSON ``rig_path`` into ``out_dir``.
+
+    Args:
+      points_path: the sweep (``.bin`` float32 records, ``.npy`` / ``.npz``), or a sweeps JSON
+        (:mod:`jaxdepth.io.sweeps`: several sweeps with their poses). A sweeps JSON or a rig JSON
+        with ``lidars`` runs the multi-source path
+        (:func:`jaxdepth.batch.sources_job.complete_cloud`: each LiDAR and sweep seen from its
+        own origin, free space of the reference sweep); ``columns`` in the rig JSON names the
+        point file's columns.
+      rig_path: the rig JSON (:func:`jaxdepth.io.read_rig_json`).
+      out_dir: output folder (created); ``<camera name>.png`` per camera.
+      config: the SGM configuration; guided (``guidance_weight > 0``) reads the camera
+        images from ``image_dir`` or the rig JSON's ``image`` fields.
+      extras: the extra outputs (:mod:`jaxdepth.batch.extras`).
+      point_columns: float32 values per ``.bin`` record (None: inferred).
+      estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`).
+      overwrite: replace existing outputs (default: skip them).
+      report: ``report(kind, text)`` for every message (see the module docstring).
+      force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
+      record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
+        are added to its settings), checked against ``out_dir``'s and written before any
+        computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
+
+    Raises:
+      JaxdepthError: unreadable or invalid inputs, unwritable outputs.
+    """
+    import jaxdepth
+    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
+    from jaxdepth.io.atomic import ensure_output_dir
+    from jaxdepth.io.points import ring_column
+
+    from jaxdepth.io.sweeps import is_sweeps_json
+
+    rig = read_rig_json(rig_path)
+    images = rig_images(rig, rig_path, image_dir) if config.guidance_weight > 0 else None
+    multi = is_sweeps_json(points_path) or bool(rig.lidars)
+    if multi or rig.columns is not None:
+        columns = len(rig.columns) if rig.columns is not None else point_columns
+    else:
+        columns = infer_point_columns(points_path, point_columns)
+    out_dir = pathlib.Path(out_dir)
+    ensure_output_dir(out_dir)
+    if record is not None:
+        from jaxdepth.batch import run_record
+        record = dict(record, settings=dict(record["settings"], point_columns=columns))
+        run_record.claim_folder(out_dir, record, overwrite=overwrite)
+    if multi:
+        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
+        from jaxdepth.batch.sources_job import complete_cloud
+        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
+        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+        cloud = read(points_path, rig, point_columns=point_columns)
+        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = complete_cloud(cloud, rig, config=config, images=images, stages=True)
+    else:
+        points, extra = read_points(points_path, columns=columns, force=force)
+        if rig.columns is not None:
+            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
+        else:
+            ring = ring_column(extra, columns)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+        if not frame.outlier_removal_trusted and config.outlier_removal:
+            config = config.replace(outlier_removal=False)
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        padded, valid = pad_points(frame.points)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
+                                              images=images)
+    depth = np.asarray(stages.depth)
+    valid = distance = None
+    if extras.needs_seeds:
+        from jaxdepth._src.validity import rig_validity_and_distance
+        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
+            stages, cameras, lidar=rig.lidar, metric=config.distance_metric,
+            max_seed_distance_px=extras.max_seed_distance_px))
+    seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
+    summary = RigJobSummary()
+    for i, camera in enumerate(rig.cameras):
+        if seen[i] == 0:
+            message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
+                       f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
+                       "looks along +z, x right, y down)")
+            log.warning("%s", message)
+            report("warning", message)
+            summary.empty_cameras.append(camera.name)
+        target = out_dir / f"{camera.name}.png"
+        if extra_outputs.is_done(target, extras) and not overwrite:
+            report("skipped", f"{target}: exists, skipped (use --overwrite)")
+            summary.skipped.append(target)
+            continue
+        window = (i, slice(0, camera.height), slice(0, camera.width))
+        extra_outputs.write_outputs(target, depth[window], extras=extras,
+                                    valid=None if valid is None else valid[window],
+                                    distance=None if distance is None else distance[window],
+                                    overwrite=overwrite)
+        summary.written.append(target)
+        written = extra_outputs.apply_zero_invalid(depth[window], None if valid is None else valid[window], extras)
+        valid_px = int(np.count_nonzero(written))  # the pixels written non-zero (zero_invalid included)
+        report("written", f"{camera.name}: {camera.width}x{camera.height}, {valid_px} completed pixels -> {target}")
+    return summary

@@ -1,0 +1,135 @@
+"""Complete a :class:`~jaxdepth.io.sources.SourceCloud` (several LiDARs x sweeps) for a rig's cameras.
+
+The entry point the dataset jobs (Argoverse 2, KITTI raw ``--sweeps``, nuScenes sweeps) and
+``complete-rig`` with ``lidars`` / a sweeps JSON call: :func:`complete_cloud`. Host side it
+fills in each source's :class:`~jaxdepth.LidarSpec` (the stated one, else an estimate from the
+source's own points and rings, else the rig's), pads every source to one point bucket and hands
+a :class:`~jaxdepth._src.sources.Sources` pytree to the core
+(:func:`~jaxdepth._src.sources.complete_sources`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
+from jaxdepth._src.types import LidarSpec
+
+log = logging.getLogger("jaxdepth")
+
+#: Every source is padded to a multiple of this many points (one compilation per bucket).
+POINT_BUCKET = 8192
+
+
+def source_spec(cloud, s: int, fallback: LidarSpec):
+    """Source ``s``'s range-image geometry: ``(LidarSpec, rows)``.
+
+    The stated spec when the cloud gives one (``rows`` None: rows from elevation). Otherwise,
+    with ring indices (``cloud.ring``), when the source's points in its own LiDAR frame look like
+    one spinning LiDAR (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): one row per
+    laser, ranked by its median elevation (``rows``: (n_s,) int32, 0 = highest laser; this keeps
+    unevenly spaced beams, e.g. the VLP-32C's, one per row), beams = the number of lasers, the
+    vertical field of view from the outermost lasers' elevations (half a mean spacing beyond them),
+    columns from ``fallback``. Otherwise ``(fallback, None)``.
+    """
+    spec = cloud.lidars[s]
+    if spec is not None:
+        return spec, None
+    if cloud.ring is None:
+        return fallback, None
+    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
+    mine = cloud.source == s
+    T = np.linalg.inv(cloud.T_ref_source[s])
+    local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    ring = cloud.ring[mine]
+    est = estimate_lidar_geometry(local, ring=ring)
+    if not est.spinning or est.beams is None:
+        log.info("%s: %s; using the rig's LiDAR spec", cloud.names[s], est.describe())
+        return fallback, None
+    el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
+    lasers, inverse = np.unique(ring, return_inverse=True)
+    far = np.linalg.norm(local, axis=1) > 2.0
+    median = np.array([np.median(el[(inverse == i) & far]) if np.any((inverse == i) & far)
+                       else np.median(el[inverse == i]) for i in range(lasers.size)])
+    rank = np.empty(lasers.size, np.int32)
+    rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
+    half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
+    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=float(median.max() + half),
+                     fov_down_deg=float(median.min() - half), columns=fallback.columns)
+    log.info("%s: %s", cloud.names[s], est.describe())
+    return spec, rank[inverse]
+
+
+def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
+    """The :class:`~jaxdepth._src.sources.Sources` pytree of a SourceCloud: each source padded to one bucket.
+
+    Returns:
+      (sources, index): ``index`` (S, P) int64, the cloud row of each padded slot (-1 for padding).
+    """
+    from jaxdepth._src.sources import make_sources
+    S = cloud.num_sources
+    counts = np.bincount(cloud.source, minlength=S)
+    P = max(int(bucket), int(-(-max(int(counts.max()), 1) // bucket) * bucket))
+    points = np.zeros((S, P, 3), np.float32)
+    valid = np.zeros((S, P), bool)
+    index = np.full((S, P), -1, np.int64)
+    rows = np.full((S, P), -1, np.int32)
+    specs = []
+    for s in range(S):
+        mine = np.nonzero(cloud.source == s)[0]
+        points[s, :mine.size] = cloud.points[mine]
+        valid[s, :mine.size] = np.all(np.isfinite(cloud.points[mine]), axis=1)
+        index[s, :mine.size] = mine
+        spec, rank = source_spec(cloud, s, fallback)
+        specs.append(spec)
+        if rank is not None:
+            rows[s, :mine.size] = rank
+    sources = make_sources(points, valid, cloud.T_ref_source.astype(np.float32), lidars=tuple(specs),
+                           sweep=tuple(int(x) for x in cloud.sweep), rows=rows if np.any(rows >= 0) else None)
+    return sources, index
+
+
+def _single_origin(cloud) -> bool:
+    return cloud.num_sources == 1 and np.allclose(cloud.T_ref_source[0], np.eye(4), atol=1e-9)
+
+
+def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
+                   beams: int | None = None, stages: bool = False):
+    """Dense depth for every camera of ``rig`` from every point of ``cloud``.
+
+    Args:
+      cloud: :class:`~jaxdepth.io.sources.SourceCloud`, points in the reference frame.
+      rig: :class:`~jaxdepth.io.rig.Rig`; ``rig.cameras[i].T_cam_lidar`` maps reference-frame
+        points into camera ``i``; ``rig.lidar`` is the fallback spec of sources whose spec is
+        neither given nor estimable (and gives the range-image columns of estimated ones).
+      config: :class:`SGMConfig`.
+      free_space: remove other sweeps' points that lie in the reference sweep's free space.
+      images: optional (C, H_max, W_max[, 3]) camera images on the rig's canvas
+        (:func:`~jaxdepth.stack_images`), used only when ``config.guidance_weight > 0``.
+      beams: L of Step 2's window bounds; default: the reference sweep's LiDARs' beams together.
+      stages: return the :class:`~jaxdepth.Stages` (C leading axis) instead of the depth.
+
+    Returns:
+      (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
+      top-left ``rig.cameras[i].height x width`` corner of the canvas, zeros beyond (one array,
+      as :func:`~jaxdepth.complete_rig`). A cloud of one source at the reference origin gives
+      exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
+    """
+    import jaxdepth
+    from jaxdepth._src.sources import complete_sources_stages
+    cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
+    if _single_origin(cloud):
+        from jaxdepth.io import pad_points
+        padded, valid = pad_points(cloud.points)
+        spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
+        out = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
+    else:
+        sources, _ = cloud_sources(cloud, fallback=rig.lidar)
+        out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                                      images=images)
+    return out if stages else np.asarray(out.depth)
+
+
+__all__ = ["complete_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]

@@ -1,0 +1,487 @@
+"""Fuzz job over every reader: mutated real inputs give a clear error or the correct output.
+
+Each reader gets ``CASES`` inputs made from real shared data (KITTI, nuScenes) by one
+random mutation each (fixed seed): truncations, wrong column counts, float64 records,
+rescaled values, NaN / inf, garbage bytes, wrong tokens, removed fields, and
+value-preserving rewrites (line ends, white space, number formats, key order). The
+reader (and its plausibility checks) runs in-process. A case passes when
+
+* the reader raises a :class:`~jaxdepth.io.errors.JaxdepthError` whose message is one
+  line naming the file, or
+* it returns exactly what an independent decode gives: the unmutated content
+  (NumPy / ``json`` / OpenCV decode of the real file), or, for a mutation that makes a
+  different but legitimate input (a sweep with NaN points for missing returns, a
+  record-aligned shorter sweep), the independent decode of the mutated content.
+
+Value-preserving rewrites must be accepted. Unreadable files (permissions) are one
+case per reader, skipped as root (root ignores chmod). The counts per reader are
+printed and listed in docs/bad_input_checks.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import re
+
+import numpy as np
+import pytest
+
+from jaxdepth.io.errors import JaxdepthError
+from tests.conftest import require_shared
+
+SEED = 20261126
+CASES = 2000
+# A number token between white space (not the digits of a key such as R_rect_00).
+_NUMBER = re.compile(r"(?<![^\s:])-?\d+(?:\.\d*)?(?:e[-+]\d+)?(?=\s|$)")
+
+ERROR = "error"  # the mutation breaks the input: only an error is right
+SAME = "same"  # value-preserving: must be accepted with the original output
+
+
+class Case:
+    """One mutated input: ``data`` (bytes), the name of the mutation, and what is right."""
+
+    def __init__(self, kind: str, data: bytes, expect, **read):
+        self.kind, self.data, self.expect, self.read = kind, data, expect, read
+
+
+def _run(tmp_path, name, suffix, cases, read, reference, equal, *, must_accept_same=True):
+    """Runs every case; returns {kind: count} and asserts the rule of the module docs."""
+    counts: dict = {}
+    wrong, refused = [], []
+    path = tmp_path / f"{name}{suffix}"
+    for i, case in enumerate(cases):
+        path.write_bytes(case.data)
+        counts[case.kind] = counts.get(case.kind, 0) + 1
+        try:
+            out = read(path, **case.read)
+        except JaxdepthError as err:
+            message = str(err)
+            assert "\n" not in message and path.name in message, (case.kind, message)
+            if case.expect is SAME and must_accept_same:
+                refused.append((i, case.kind, message[:200]))
+            continue
+        if case.expect is ERROR:
+            if not equal(out, reference):
+                wrong.append((i, case.kind, "accepted a broken input with a different output"))
+        elif case.expect is SAME:
+            if not equal(out, reference):
+                wrong.append((i, case.kind, "value-preserving rewrite read differently"))
+        elif not equal(out, case.expect):
+            wrong.append((i, case.kind, "output differs from the independent decode of the mutated file"))
+    assert not wrong, f"{name}: {len(wrong)} silent wrong outputs, e.g. {wrong[:5]}"
+    assert not refused, f"{name}: {len(refused)} value-preserving inputs refused, e.g. {refused[:3]}"
+    total = sum(counts.values())
+    print(f"\nfuzz {name}: {total} inputs: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    return total
+
+
+def _permission_case(tmp_path, name, data, read):
+    """One unreadable file: an error, or a skip note as root."""
+    if os.geteuid() == 0:
+        print(f"\nfuzz {name}: permission variant skipped (running as root: chmod does not stop root)")
+        return 0
+    path = tmp_path / f"unreadable_{name}"
+    path.write_bytes(data)
+    path.chmod(0)
+    try:
+        with pytest.raises(JaxdepthError, match="cannot read|permission|Permission"):
+            read(path)
+    finally:
+        path.chmod(0o600)
+    return 1
+
+
+# ------------------------------------------------------------------ LiDAR sweeps
+
+
+def _sweep_cases(rng, records: np.ndarray, *, columns: int, ring: bool):
+    """Mutations of an (N, columns) float32 record array."""
+    n = records.shape[0]
+    raw = records.astype("<f4").tobytes()
+    record = 4 * columns
+    kinds = ["truncate", "columns", "float64", "scale", "nan_some", "nan_all", "inf_some", "garbage", "zeros",
+             "intensity", "axes", "same"] + (["ring_fraction", "ring_shuffle", "ring_huge"] if ring else [])
+    for _ in range(CASES):
+        kind = kinds[rng.integers(len(kinds))]
+        if kind == "truncate":
+            cut = int(rng.integers(0, len(raw)))
+            if rng.random() < 0.3:
+                cut -= cut % record  # record-aligned: a shorter, legitimate sweep
+            expect = ERROR if cut == 0 or cut % record else _decode(raw[:cut], columns)
+            yield Case(kind, raw[:cut], expect, columns=columns)
+        elif kind == "columns":
+            wrong = int(rng.choice([c for c in (3, 4, 5, 6, 7) if c != columns]))
+            yield Case(kind, raw, ERROR, columns=wrong)
+        elif kind == "float64":
+            yield Case(kind, records.astype("<f8").tobytes(), ERROR, columns=int(rng.choice([columns, 3, 4, 5])))
+        elif kind == "scale":
+            s = float(rng.choice([1e3, 1e-3, 1e6, 1e-6, 1e4]))
+            m = records.copy()
+            m[:, :3] *= s
+            yield Case(kind, m.astype("<f4").tobytes(), ERROR, columns=columns)
+        elif kind in ("nan_some", "inf_some"):
+            m = records.copy()
+            rows = rng.random(n) < rng.uniform(0.001, 0.3)
+            m[rows, int(rng.integers(3))] = np.nan if kind == "nan_some" else np.inf
+            yield Case(kind, m.tobytes(), _decode(m.tobytes(), columns), columns=columns)
+        elif kind == "nan_all":
+            m = records.copy()
+            m[:, int(rng.integers(3))] = np.nan
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+        elif kind == "garbage":
+            yield Case(kind, rng.integers(0, 256, len(raw), dtype=np.uint8).tobytes(), ERROR, columns=columns)
+        elif kind == "zeros":
+            yield Case(kind, bytes(len(raw)), ERROR, columns=columns)
+        elif kind == "intensity":
+            m = records.copy()
+            m[:, 3] = rng.choice([1e9, -1e6, np.nan])
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+        elif kind == "axes":  # z swapped with x or y: a sweep on its side
+            m = records.copy()
+            j = int(rng.integers(2))
+            m[:, [j, 2]] = m[:, [2, j]]
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+        elif kind == "same":
+            yield Case(kind, raw, SAME, columns=columns)
+        elif kind == "ring_fraction":
+            m = records.copy()
+            m[:, 4] += 0.5
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+        elif kind == "ring_shuffle":
+            m = records.copy()
+            m[:, 4] = rng.permutation(m[:, 4])
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+        else:  # ring_huge
+            m = records.copy()
+            m[:, 4] = rng.integers(2000, 10 ** 6, n)
+            yield Case(kind, m.tobytes(), ERROR, columns=columns)
+
+
+def _decode(raw: bytes, columns: int):
+    """Independent decode: (points, extra) of little-endian float32 records."""
+    a = np.frombuffer(raw, "<f4").reshape(-1, columns)
+    return a[:, :3], a[:, 3:]
+
+
+def _equal_sweeps(out, ref) -> bool:
+    return all(np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True) for x, y in zip(out, ref)) and \
+        np.asarray(out[0]).shape == np.asarray(ref[0]).shape
+
+
+def _subsample(records: np.ndarray, size: int = 2048) -> np.ndarray:
+    """Every k-th real record (all azimuths), about ``size`` of them."""
+    step = max(1, records.shape[0] // size)
+    return np.ascontiguousarray(records[::step][:size])
+
+
+def test_fuzz_kitti_velodyne_bin(tmp_path):
+    from jaxdepth.io.points import read_points
+    src = require_shared("kitti", "drive_0001_frame05", "lidar_data.bin")
+    records = _subsample(np.fromfile(src, "<f4").reshape(-1, 4))
+    rng = np.random.default_rng(SEED)
+    reference = _decode(records.tobytes(), 4)
+    total = _run(tmp_path, "velodyne", ".bin", _sweep_cases(rng, records, columns=4, ring=False), read_points,
+                 reference, _equal_sweeps)
+    total += _permission_case(tmp_path, "velodyne.bin", records.tobytes(), read_points)
+    assert total >= CASES
+
+
+def test_fuzz_nuscenes_pcd_bin(tmp_path):
+    from jaxdepth.io.points import read_points
+    sample = require_shared("nuscenes", "sample")
+    src = next(sample.glob("*.pcd.bin"))
+    records = _subsample(np.fromfile(src, "<f4").reshape(-1, 5))
+    rng = np.random.default_rng(SEED + 1)
+    reference = _decode(records.tobytes(), 5)
+    total = _run(tmp_path, "lidar_top", ".pcd.bin", _sweep_cases(rng, records, columns=5, ring=True), read_points,
+                 reference, _equal_sweeps)
+    assert total >= CASES
+
+
+def test_nuscenes_layout_checks_hold_on_the_full_real_files():
+    """The checks accept both real sweeps in their own layout and refuse every other layout."""
+    from jaxdepth.io.plausibility import LAYOUTS, decode_layout, layout_problem
+    kitti = require_shared("kitti", "drive_0001_frame05", "lidar_data.bin").read_bytes()
+    nusc = next(require_shared("nuscenes", "sample").glob("*.pcd.bin")).read_bytes()
+    for raw, right in ((kitti, ("<f4", 4)), (nusc, ("<f4", 5))):
+        for dtype, columns, _ in LAYOUTS:
+            array = decode_layout(raw, dtype, columns)
+            if array is None:
+                continue
+            problem = layout_problem(array)
+            assert (problem is None) == ((dtype, columns) == right), (dtype, columns, problem)
+
+
+# ------------------------------------------------------------------ depth PNGs
+
+
+def _png(depth_u16: np.ndarray, level: int = 3) -> bytes:
+    import cv2
+    ok, buf = cv2.imencode(".png", depth_u16, [cv2.IMWRITE_PNG_COMPRESSION, level])
+    assert ok
+    return buf.tobytes()
+
+
+def test_fuzz_depth_png(tmp_path):
+    import cv2
+
+    from jaxdepth.io.plausibility import read_checked_depth_png
+    src = require_shared("kitti", "drive_0001_frame05", "velodyne_raw_image_02.png")
+    u16 = np.ascontiguousarray(cv2.imread(str(src), cv2.IMREAD_UNCHANGED)[200:375, 300:812])
+    reference = u16.astype(np.float32) / 256  # independent decode: OpenCV, metres = value / 256
+    raw = _png(u16)
+    rng = np.random.default_rng(SEED + 2)
+
+    def cases():
+        kinds = ["truncate", "flip", "millimetres", "integer_metres", "decimetres", "uint8", "rgb", "level",
+                 "zeros", "garbage"]
+        for _ in range(CASES):
+            kind = kinds[rng.integers(len(kinds))]
+            metres = u16.astype(np.float64) / 256
+            if kind == "truncate":
+                yield Case(kind, raw[:int(rng.integers(0, len(raw)))], ERROR)
+            elif kind == "flip":
+                data = bytearray(raw)
+                data[int(rng.integers(len(data)))] ^= 1 << int(rng.integers(8))
+                yield Case(kind, bytes(data), ERROR)
+            elif kind == "millimetres":
+                yield Case(kind, _png(np.clip(np.rint(metres * 1000), 0, 65535).astype(np.uint16)), ERROR)
+            elif kind == "integer_metres":
+                yield Case(kind, _png((np.rint(metres) * 256).astype(np.uint16)), ERROR)
+            elif kind == "decimetres":
+                yield Case(kind, _png(np.rint(metres * 10).astype(np.uint16)), ERROR)
+            elif kind == "uint8":
+                yield Case(kind, _png(np.clip(metres, 0, 255).astype(np.uint8)), ERROR)
+            elif kind == "rgb":
+                yield Case(kind, _png(np.repeat(u16[..., None], 3, axis=2)), ERROR)
+            elif kind == "level":
+                yield Case(kind, _png(u16, int(rng.integers(0, 10))), SAME)
+            elif kind == "zeros":  # an empty depth image is legitimate: read as zeros
+                yield Case(kind, _png(np.zeros_like(u16)), np.zeros(u16.shape, np.float32))
+            else:
+                yield Case(kind, rng.integers(0, 256, len(raw), dtype=np.uint8).tobytes(), ERROR)
+
+    def read(path):
+        return read_checked_depth_png(path, role="LiDAR input")
+
+    total = _run(tmp_path, "depth", ".png", cases(), read, reference,
+                 lambda a, b: a.shape == b.shape and np.array_equal(a, b))
+    total += _permission_case(tmp_path, "depth.png", raw, read)
+    assert total >= CASES
+
+
+# ------------------------------------------------------------------ text and JSON calibration
+
+
+def _text_cases(rng, text: str, *, reformat_numbers: bool = True):
+    """Mutations of a calibration text: breaking ones expect an error or the same output (an unread
+    field), value-preserving ones must give the same output."""
+    lines = text.splitlines(keepends=True)
+    numbers = list(_NUMBER.finditer(text))
+    kinds = ["truncate", "drop_line", "duplicate_line", "bad_token", "crlf", "spaces", "reformat", "garbage",
+             "drop_token"]
+    for _ in range(CASES):
+        kind = kinds[rng.integers(len(kinds))]
+        if kind == "truncate":
+            yield Case(kind, text[:int(rng.integers(0, len(text)))].encode(), ERROR)
+        elif kind == "drop_line":
+            j = int(rng.integers(len(lines)))
+            yield Case(kind, "".join(lines[:j] + lines[j + 1:]).encode(), ERROR)
+        elif kind == "duplicate_line":
+            j = int(rng.integers(len(lines)))
+            yield Case(kind, "".join(lines[:j + 1] + lines[j:]).encode(), ERROR)
+        elif kind in ("bad_token", "drop_token"):
+            m = numbers[int(rng.integers(len(numbers)))]
+            token = "" if kind == "drop_token" else str(rng.choice(["nan", "inf", "-inf", "abc", "1e999", "--1",
+                                                                      "0x1p3", "1,,2"]))
+            yield Case(kind, (text[:m.start()] + token + text[m.end():]).encode(), ERROR)
+        elif kind == "crlf":
+            yield Case(kind, text.replace("\n", "\r\n").encode(), SAME)
+        elif kind == "spaces":
+            yield Case(kind, re.sub(r" ", lambda _: " " * int(rng.integers(1, 4)), text).encode(), SAME)
+        elif kind == "reformat":
+            if not reformat_numbers:
+                yield Case(kind, text.encode(), SAME)
+                continue
+            fmt = str(rng.choice(["{:.9e}", "{!r}", "{:.12g}"]))
+            yield Case(kind, _NUMBER.sub(lambda m: fmt.format(float(m.group())), text).encode(), SAME)
+        else:
+            data = bytearray(text.encode())
+            data[int(rng.integers(len(data)))] = int(rng.integers(128, 256))
+            yield Case(kind, bytes(data), ERROR)
+
+
+def test_fuzz_intrinsics_txt(tmp_path):
+    from jaxdepth.io.calib import read_intrinsics_txt
+    text = "7.215377e+02 0.000000e+00 5.965593e+02\n0.000000e+00 7.215377e+02 1.498540e+02\n0.0 0.0 1.0\n"
+    reference = np.array([float(t) for t in text.split()], np.float32).reshape(3, 3)  # independent parse
+    rng = np.random.default_rng(SEED + 3)
+    total = _run(tmp_path, "intrinsics", ".txt", _text_cases(rng, text), read_intrinsics_txt, reference,
+                 lambda a, b: np.array_equal(a, b))
+    total += _permission_case(tmp_path, "intrinsics.txt", text.encode(), read_intrinsics_txt)
+    assert total >= CASES
+
+
+def test_fuzz_kitti_raw_calibration_txt(tmp_path):
+    from jaxdepth.io.calib import read_kitti_raw_calib
+    frame = require_shared("kitti", "drive_0001_frame05")
+    c2c_text = (frame / "calib_cam_to_cam.txt").read_text()
+    v2c = frame / "calib_velo_to_cam.txt"
+    reference = read_kitti_raw_calib(frame / "calib_cam_to_cam.txt", v2c)
+    # Independent check of the reference: camera 2's K is P_rect_02's left 3x3 block as printed.
+    p2 = [float(t) for t in re.search(r"^P_rect_02:(.*)$", c2c_text, re.M).group(1).split()]
+    np.testing.assert_array_equal(reference["cameras"][2]["K"], np.asarray(p2, np.float32).reshape(3, 4)[:, :3])
+
+    def equal(a, b):
+        return all(np.array_equal(a["cameras"][i][k], b["cameras"][i][k]) for i in range(4)
+                   for k in ("K", "T_cam_lidar", "width", "height")) and a["baseline_m"] == b["baseline_m"]
+
+    rng = np.random.default_rng(SEED + 4)
+    total = _run(tmp_path, "calib_cam_to_cam", ".txt", _text_cases(rng, c2c_text),
+                 lambda path: read_kitti_raw_calib(path, v2c), reference, equal)
+    total += _permission_case(tmp_path, "calib_cam_to_cam.txt", c2c_text.encode(),
+                              lambda path: read_kitti_raw_calib(path, v2c))
+    assert total >= CASES
+
+
+def _leaves(doc, path=()):
+    """Paths of every number in a JSON document."""
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            yield from _leaves(v, path + (k,))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            yield from _leaves(v, path + (i,))
+    elif isinstance(doc, (int, float)) and not isinstance(doc, bool):
+        yield path
+
+
+def _set(doc, path, value):
+    import copy
+    doc = copy.deepcopy(doc)
+    node = doc
+    for k in path[:-1]:
+        node = node[k]
+    if value is _DELETE:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return doc
+
+
+_DELETE = object()
+
+
+def _json_cases(rng, doc: dict, *, required: list):
+    text = json.dumps(doc, indent=2)
+    leaves = list(_leaves(doc))
+    outside = np.flatnonzero(_outside_strings(text))
+    kinds = ["truncate", "bad_value", "drop_required", "reindent", "reorder", "garbage", "wrong_shape"]
+    for _ in range(CASES):
+        kind = kinds[rng.integers(len(kinds))]
+        if kind == "truncate":
+            cut = int(rng.integers(0, len(text)))
+            expect = SAME if not text[cut:].strip() else ERROR
+            yield Case(kind, text[:cut].encode(), expect)
+        elif kind == "bad_value":
+            path = leaves[int(rng.integers(len(leaves)))]
+            value = [float("nan"), float("inf"), "x", None, [], {}, True, 1e400][int(rng.integers(8))]
+            yield Case(kind, json.dumps(_set(doc, path, value)).encode(), ERROR)
+        elif kind == "wrong_shape":
+            path = leaves[int(rng.integers(len(leaves)))]
+            yield Case(kind, json.dumps(_set(doc, path[:-1], [1.0, 2.0])).encode(), ERROR)
+        elif kind == "drop_required":
+            path = required[int(rng.integers(len(required)))]
+            yield Case(kind, json.dumps(_set(doc, path, _DELETE)).encode(), ERROR)
+        elif kind == "reindent":
+            yield Case(kind, json.dumps(doc, indent=int(rng.integers(0, 5)), separators=(",", ": ")).encode(), SAME)
+        elif kind == "reorder":
+            yield Case(kind, json.dumps(_shuffled(doc, rng)).encode(), SAME)
+        else:  # a structural byte outside string literals (inside one it is a legitimate other name)
+            data = bytearray(text.encode())
+            data[int(outside[rng.integers(len(outside))])] = int(rng.choice([0x7B, 0x22, 0x5D, 0xFF, 0x2C]))
+            yield Case(kind, bytes(data), ERROR)
+
+
+def _outside_strings(text: str) -> np.ndarray:
+    """(len,) bool: the character is not part of a JSON string literal (ASCII text)."""
+    mask = np.ones(len(text), bool)
+    inside = escaped = False
+    for i, ch in enumerate(text):
+        if inside:
+            mask[i] = False
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                inside = False
+        elif ch == '"':
+            inside, mask[i] = True, False
+    return mask
+
+
+def _shuffled(doc, rng):
+    if isinstance(doc, dict):
+        keys = list(doc)
+        order = rng.permutation(len(keys))
+        return {keys[i]: _shuffled(doc[keys[i]], rng) for i in order}
+    if isinstance(doc, list):
+        return [_shuffled(v, rng) for v in doc]
+    return doc
+
+
+def test_fuzz_rig_json(tmp_path):
+    from jaxdepth.io.rig import read_rig_json, rig_from_kitti_raw, write_rig_json
+    frame = require_shared("kitti", "drive_0001_frame05")
+    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt")
+    write_rig_json(tmp_path / "orig.json", rig)
+    doc = json.loads((tmp_path / "orig.json").read_text())
+    reference = read_rig_json(tmp_path / "orig.json")
+    # Independent check of the reference: the JSON's K and T, read with json + NumPy.
+    for cam, entry in zip(reference.cameras, doc["cameras"]):
+        np.testing.assert_array_equal(cam.K, np.asarray(entry["K"], np.float32))
+    required = [("cameras",)] + [("cameras", i, k) for i in range(len(doc["cameras"]))
+                                 for k in ("K", "T_cam_lidar", "width", "height", "name")]
+    rng = np.random.default_rng(SEED + 5)
+    total = _run(tmp_path, "rig", ".json", _json_cases(rng, doc, required=required), read_rig_json, reference,
+                 lambda a, b: a == b)
+    total += _permission_case(tmp_path, "rig.json", json.dumps(doc).encode(), read_rig_json)
+    assert total >= CASES
+
+
+def test_fuzz_nuscenes_calibration_json(tmp_path):
+    from jaxdepth.io.rig import rig_from_nuscenes_calibration
+    src = require_shared("nuscenes", "sample", "calibration.json")
+    full = json.loads(src.read_text())
+    doc = {"cameras": {name: {k: full["cameras"][name][k] for k in ("cam2img", "lidar2cam")}
+                       for name in list(full["cameras"])[:2]}}
+    (tmp_path / "orig.json").write_text(json.dumps(doc))
+    reference = rig_from_nuscenes_calibration(tmp_path / "orig.json")
+    for cam, (name, entry) in zip(reference.cameras, doc["cameras"].items()):
+        np.testing.assert_allclose(cam.K, np.asarray(entry["cam2img"], np.float64)[:3, :3], rtol=1e-6)
+    required = [("cameras",)] + [("cameras", n, k) for n in doc["cameras"] for k in ("cam2img", "lidar2cam")]
+    rng = np.random.default_rng(SEED + 6)
+    def equal(a, b):  # cameras come in file order: a reordered object is the same rig
+        return a.lidar == b.lidar and sorted(a.cameras, key=lambda c: c.name) == sorted(b.cameras,
+                                                                                       key=lambda c: c.name)
+
+    total = _run(tmp_path, "calibration", ".json", _json_cases(rng, doc, required=required),
+                 rig_from_nuscenes_calibration, reference, equal)
+    assert total >= CASES
+
+
+def test_fuzz_extrinsic_txt(tmp_path):
+    from jaxdepth.io.calib import read_extrinsic_txt
+    text = ("7.533745e-03 -9.999714e-01 -6.166020e-04 -4.069766e-03\n"
+            "1.480249e-02 7.280733e-04 -9.998902e-01 -7.631618e-02\n"
+            "9.998621e-01 7.523790e-03 1.480755e-02 -2.717806e-01\n")
+    top = np.array([float(t) for t in text.split()], np.float64).reshape(3, 4)
+    reference = np.vstack([top, [0, 0, 0, 1]]).astype(np.float32)
+    rng = np.random.default_rng(SEED + 7)
+    total = _run(tmp_path, "extrinsic", ".txt", _text_cases(rng, text), read_extrinsic_txt, reference,
+                 lambda a, b: np.array_equal(a, b))
+    assert total >= CASES

@@ -1,0 +1,125 @@
+"""The README stays short, its links and result files exist, its figures match them, its API block runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import re
+
+import numpy as np
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
+README = REPO / "README.md"
+PAGES = [README, REPO / "benchmarks" / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower().replace("`", ""))
+    return text.replace(" ", "-")
+
+
+def _anchors(page: pathlib.Path) -> set[str]:
+    text = re.sub(r"```.*?```", "", page.read_text(), flags=re.S)
+    return {_slug(m) for m in re.findall(r"^#+ (.+)$", text, flags=re.M)}
+
+
+def test_readme_is_short():
+    assert len(README.read_text().splitlines()) <= 250
+
+
+def test_readme_starts_with_the_two_fresh_machine_commands():
+    lines = README.read_text().splitlines()
+    block = lines[lines.index("```bash"):lines.index("```bash") + 7]
+    assert "jaxdepth demo" in block[2] and "pip install -e ." in block[2]
+    assert "python -m pytest" in block[5] and 'pip install -e ".[test' in block[5]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_relative_links_point_to_existing_files_and_headings(page):
+    assert page.exists(), page
+    broken = []
+    for target in LINK.findall(page.read_text()):
+        if re.match(r"^[a-z]+:", target):  # http:, https:, mailto:
+            continue
+        path, _, anchor = target.partition("#")
+        file = (page.parent / path).resolve() if path else page
+        if not file.exists():
+            broken.append(f"{target}: no file {file}")
+        elif anchor and file.suffix == ".md" and anchor not in _anchors(file):
+            broken.append(f"{target}: no heading #{anchor} in {file.relative_to(REPO)}")
+    assert not broken, broken
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_named_result_files_exist(page):
+    named = set(re.findall(r"(?<![\w/])(?:benchmarks/)?results/[\w.\-]+\.json", page.read_text()))
+    missing = sorted(n for n in named if not (REPO / "benchmarks" / n.removeprefix("benchmarks/")).exists())
+    assert not missing, missing
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(REPO)))
+def test_named_benchmark_scripts_exist(page):
+    text = page.read_text()
+    named = {f"{m}.py" for m in re.findall(r"\bbenchmarks/[\w/]+(?=\.py)", text)}
+    named |= {m.replace(".", "/") + ".py" for m in re.findall(r"python -m (benchmarks(?:\.\w+)+)(?=[\s`\]])", text)}
+    missing = sorted(n for n in named if not (REPO / n).exists())
+    assert not missing, missing
+
+
+def test_readme_accuracy_table_is_the_json():
+    """Every row of the README's accuracy table equals its row in accuracy_rigs.json (0.1 mm)."""
+    text = README.read_text()
+    assert "benchmarks/results/accuracy_rigs.json" in text
+    rows = json.loads((REPO / "benchmarks/results/accuracy_rigs.json").read_text())["rows"]
+    methods = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic")
+    section = text.split("## Accuracy", 1)[1].split("\n## ", 1)[0]
+    checked = 0
+    for line in section.splitlines():
+        cells = [c.strip().replace("*", "") for c in line.strip("|").split("|")]
+        if len(cells) != 6 or cells[0] not in rows:
+            continue
+        scores = rows[cells[0]]["scores"]
+        for cell, method in zip(cells[1:], methods):
+            rmse, mae = (float(x) for x in cell.split("/"))
+            assert (rmse, mae) == (round(scores[method]["rmse"], 1), round(scores[method]["mae"], 1)), (cells[0], method)
+        checked += 1
+    assert checked >= 3
+
+
+def _python_api_block() -> str:
+    section = README.read_text().split("## Python API", 1)[1]
+    return re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
+
+
+def test_readme_python_api_block_runs(tmp_path, monkeypatch):
+    """Runs the README's API block on a small synthetic frame, files laid out as the block names them."""
+    import jaxdepth
+    from jaxdepth.io import write_depth_png
+
+    scene = jaxdepth.make_street_scene(0, image_scale=0.25)
+    cam = scene.cameras[0]
+    h, w = int(cam.height), int(cam.width)
+    K = np.asarray(cam.K, np.float64)
+    T = np.asarray(cam.T_cam_lidar, np.float64)
+    sparse, _ = jaxdepth.project_to_image(scene.points, scene.valid, K, T, height=h, width=w)
+    (tmp_path / "velodyne_raw").mkdir()
+    (tmp_path / "intrinsics").mkdir()
+    write_depth_png(tmp_path / "velodyne_raw" / "0000000005.png", np.asarray(sparse))
+    (tmp_path / "intrinsics" / "0000000005.txt").write_text(" ".join(f"{v:.6f}" for v in K.ravel()) + "\n")
+    points = np.asarray(scene.points)[np.asarray(scene.valid)]
+    np.concatenate([points, np.zeros((len(points), 1))], axis=1).astype(np.float32).tofile(tmp_path / "sweep.bin")
+    rig = {"lidar": {"beams": 64}, "cameras": [{"name": "front", "width": w, "height": h,
+                                                "K": K.tolist(), "T_cam_lidar": T.tolist()}]}
+    (tmp_path / "rig.json").write_text(json.dumps(rig))
+    monkeypatch.chdir(tmp_path)
+    scope: dict = {}
+    exec(compile(_python_api_block(), "README.md (Python API)", "exec"), scope)  # noqa: S102
+    dense, batch, depths = (np.asarray(scope[k]) for k in ("dense", "batch", "depths"))
+    assert dense.shape == (h, w) and batch.shape == (2, h, w) and depths.shape == (1, h, w)
+    np.testing.assert_allclose(batch[1], dense, atol=1e-4)  # vmap equals the loop to float32 rounding
+    assert (dense > 0).mean() > 0.5 and (depths[0] > 0).mean() > 0.5
+    assert os.listdir(tmp_path)  # the block read its inputs from the working directory

@@ -1,0 +1,256 @@
+"""Several sources (LiDARs x sweeps): per-source normals and viewpoints, free space of the reference sweep."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth._src.normals import point_normals
+from jaxdepth._src.outliers import outlier_keep_mask
+from jaxdepth._src.sources import (complete_sources, free_space_keep, free_space_margin, make_sources,
+                                   reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.scene import scene_arrays
+from jaxdepth._src.synthetic import make_street_scene
+from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
+from jaxdepth._src.types import LidarSpec
+
+SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
+WALL_X = 20.0
+
+
+def _pose(t=(0.0, 0.0, 0.0), roll=0.0, pitch=0.0, yaw=0.0):
+    T = np.eye(4)
+    T[:3, :3] = _rotation(roll, pitch, yaw)
+    T[:3, 3] = t
+    return T
+
+
+def _sweep(scene, T, spec=SPEC):
+    """Ray-cast points (reference frame) of a LiDAR posed at T."""
+    pts, valid = _cast_sweep(scene, T[:3, :3], T[:3, 3], lidar=spec, max_range_m=60.0)
+    return np.asarray(pts)[np.asarray(valid)]
+
+
+def _sources(parts, sweeps, spec=SPEC):
+    """Sources of [(points, T)] padded to one bucket."""
+    P = max(len(p) for p, _ in parts)
+    pts = np.zeros((len(parts), P, 3), np.float32)
+    valid = np.zeros((len(parts), P), bool)
+    for i, (p, _) in enumerate(parts):
+        pts[i, :len(p)] = p
+        valid[i, :len(p)] = True
+    return make_sources(pts, valid, np.stack([T for _, T in parts]), lidars=(spec,) * len(parts), sweep=sweeps)
+
+
+def _street(*, boxes=(), cylinders=()):
+    """Ground 1.7 m below the reference origin, a wall across the street at x = 20 m."""
+    return scene_arrays(planes=[[0, 0, 1, -1.7], [1, 0, 0, WALL_X]], boxes=list(boxes) or None,
+                        cylinders=list(cylinders) or None)
+
+
+# ---------------------------------------------------------------- Step 1 per source
+
+def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
+    scene = _street()
+    T = _pose((0.5, 0.3, -0.4), roll=4.0, pitch=7.0, yaw=20.0)
+    pts = _sweep(scene, T)
+    src = _sources([(pts, T)], (0,))
+    got = np.asarray(source_normals(src))[0, :len(pts)]
+    local = (pts - T[:3, 3]) @ T[:3, :3]                       # inv(T) applied
+    want = np.asarray(point_normals(local, np.ones(len(pts), bool), lidar=SPEC)) @ T[:3, :3].T
+    np.testing.assert_allclose(got, want, atol=2e-5)
+    # analytic: ground points' normals are +z, wall points' -x (facing the LiDAR)
+    ground = np.abs(pts[:, 2] + 1.7) < 1e-3
+    wall = np.abs(pts[:, 0] - WALL_X) < 1e-3
+    inner = lambda m: m & (np.abs(pts[:, 1]) < 10)
+    assert np.median(got[inner(ground) & (pts[:, 0] < 15), 2]) > 0.999
+    assert np.median(-got[inner(wall) & (pts[:, 2] > -1.0), 0]) > 0.999
+
+
+def test_source_normals_vmap_equals_loop():
+    scene = _street()
+    Ts = [_pose((0, 0, 0)), _pose((-1.5, 0.2, 0.1), yaw=3.0)]
+    src = _sources([(_sweep(scene, T), T) for T in Ts], (0, 1))
+    batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a[::-1]]), src)
+    out = jax.vmap(source_normals)(batch)
+    for b in range(2):
+        one = jax.tree_util.tree_map(lambda a: a[b], batch)
+        np.testing.assert_array_equal(np.asarray(out[b]), np.asarray(source_normals(one)))
+
+
+# ---------------------------------------------------------------- Step 2 per source
+
+def test_source_keep_mask_with_every_source_at_one_origin_is_algorithm_1():
+    frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.5)
+    cam = frame.cameras[0]
+    depth, index = jaxdepth.project_to_image(frame.points, frame.valid, cam.K, cam.T_cam_lidar,
+                                             height=cam.height, width=cam.width)
+    hit = np.asarray(index) >= 0
+    safe = np.where(hit, np.asarray(index), 0)
+    pc = np.asarray(frame.points)[safe] @ np.asarray(cam.T_cam_lidar)[:3, :3].T + np.asarray(cam.T_cam_lidar)[:3, 3]
+    points_cam = np.where(hit[None], np.moveaxis(pc, -1, 0), 0.0).astype(np.float32)
+    pixel_source = np.where(hit, safe % 3, -1).astype(np.int32)           # three sources, one origin
+    T3 = np.stack([np.asarray(cam.T_cam_lidar)] * 3)
+    got = source_keep_mask(depth, pixel_source, points_cam, cam.K, T3, beams=32)
+    want = outlier_keep_mask(depth, cam.K, cam.T_cam_lidar, beams=32, points_cam=points_cam)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert np.asarray(want).sum() < hit.sum()                             # something was removed
+
+
+def test_one_source_at_the_origin_equals_complete_rig():
+    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
+    cams = jaxdepth.stack_cameras(frame.cameras)
+    want = jaxdepth.complete_rig(frame.points, frame.valid, cams, lidar=SPEC)
+    src = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    np.testing.assert_array_equal(np.asarray(complete_sources(src, cams)), np.asarray(want))
+
+
+# ---------------------------------------------------------------- free space
+
+def test_a_car_that_moved_leaves_no_ghost():
+    car_then = [10.0, -0.5, -1.7 + 0.75, 2.2, 0.9, 0.75, 0.0]          # where the car was one sweep ago
+    car_now = [15.0, -0.5, -1.7 + 0.75, 2.2, 0.9, 0.75, 0.0]          # (centre, half sizes, yaw)
+    T_ref, T_old = _pose(), _pose((-1.5, 0.0, 0.0))
+    ref = _sweep(_street(boxes=[car_now]), T_ref)
+    old = _sweep(_street(boxes=[car_then]), T_old)
+    src = _sources([(ref, T_ref), (old, T_old)], (0, 1))
+    keep = np.asarray(free_space_keep(src))
+    on_old_car = np.zeros(src.points.shape[1], bool)
+    # points of the old car more than 0.4 m above the road (nearer the road the rays bracketing them
+    # include the slanted road itself, within the margin: kept, as documented)
+    on_old_car[:len(old)] = (np.abs(old[:, 0] - 10.0) <= 2.2 + 1e-3) & (np.abs(old[:, 1] + 0.5) <= 0.9 + 1e-3) \
+        & (old[:, 2] > -1.3)
+    assert on_old_car.sum() > 50
+    seen_now = on_old_car.copy()           # ghost points in front of what the reference sweep saw there
+    assert not keep[1][seen_now].any(), "ghost points of the car's old place survive"
+    assert keep[0, :len(ref)].all(), "points of the reference sweep are never removed"
+    static = np.zeros_like(on_old_car)
+    static[:len(old)] = (old[:, 0] < 7.0) & (np.abs(old[:, 2] + 1.7) < 1e-3)     # ground in front of the old car
+    assert keep[1][static].mean() > 0.99
+
+
+def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
+    pole = [8.0, 0.0, 0.15, -1.7, 3.0]
+    scene = _street(cylinders=[pole])
+    T_ref, T_other = _pose(), _pose((0.0, 1.5, 0.0))
+    ref, other = _sweep(scene, T_ref), _sweep(scene, T_other)
+    src = _sources([(ref, T_ref), (other, T_other)], (0, 1))
+    free, shadow = (np.asarray(a)[1, :len(other)] for a in reference_view(src))
+    # wall points the other origin sees behind the pole (hidden from the reference LiDAR)
+    d = other - np.array([0.0, 0.0, 0.0])
+    behind = (np.abs(other[:, 0] - WALL_X) < 1e-3) & (np.abs(np.arctan2(d[:, 1], d[:, 0])) < 0.15 / 8.0 * 0.8) \
+        & (other[:, 2] > -1.5) & (other[:, 2] < 2.0)
+    assert behind.sum() >= 3
+    assert not free[behind].any(), "wall points behind the pole are behind, not in front: kept"
+    assert shadow[behind].all(), "and they lie in the reference LiDAR's shadow"
+    assert not free.any(), "a static scene has no free-space points"
+
+
+def test_two_lidars_at_different_heights():
+    low_box = [6.0, 0.0, -1.7 + 0.25, 0.3, 3.0, 0.25, 0.0]      # a 0.5 m high wall across the street (half sizes)
+    ghost = [13.0, 0.0, -1.7 + 0.5, 0.5, 0.5, 0.5, 0.0]         # only there one sweep ago
+    T_high, T_low = _pose((0.0, 0.0, 0.0)), _pose((0.5, 0.0, -1.0), pitch=5.0)
+    scene_now = _street(boxes=[low_box])
+    scene_then = _street(boxes=[low_box, ghost])
+    shift = _pose((-1.0, 0.0, 0.0))
+    parts = [(_sweep(scene_now, T_high), T_high), (_sweep(scene_now, T_low), T_low),
+             (_sweep(scene_then, shift @ T_high), shift @ T_high), (_sweep(scene_then, shift @ T_low), shift @ T_low)]
+    src = _sources(parts, (0, 0, 1, 1))
+    keep = np.asarray(free_space_keep(src))
+    for s in (2, 3):
+        pts = parts[s][0]
+        k = keep[s, :len(pts)]
+        on_ghost = (np.abs(pts[:, 0] - 12.5) < 1e-3) & (np.abs(pts[:, 1]) < 0.5) & (pts[:, 2] > -1.3)
+        # ground behind the wall: hidden from the low LiDAR (0.2 m above the wall's top), seen by the high one
+        behind_wall = (pts[:, 0] > 10.0) & (pts[:, 0] < 12.0) & (np.abs(pts[:, 2] + 1.7) < 1e-3) \
+            & (np.abs(pts[:, 1]) < 1.0)
+        assert not k[on_ghost].any()
+        if s == 2:
+            assert on_ghost.sum() > 0 and behind_wall.sum() > 0
+        assert k[behind_wall].all()
+
+
+def test_free_space_margin_grows_with_range_and_cell_size():
+    coarse = LidarSpec(beams=16, fov_up_deg=15, fov_down_deg=-15, columns=1024)
+    assert free_space_margin(40.0, SPEC) > free_space_margin(10.0, SPEC) > free_space_margin(0.0, SPEC)
+    assert free_space_margin(20.0, coarse) > free_space_margin(20.0, SPEC)
+    delta = np.radians(35.0) / 32
+    assert free_space_margin(10.0, SPEC, noise_m=0.1, slope=1.0) == pytest.approx(0.1 + 10.0 * delta)
+
+
+def test_free_space_vmap_and_jit_equal_eager():
+    scene = _street(boxes=[[10.0, -0.5, -0.95, 2.2, 0.9, 0.75, 0.0]])
+    Ts = [_pose(), _pose((-1.5, 0.1, 0.0))]
+    src = _sources([(_sweep(_street(), Ts[0]), Ts[0]), (_sweep(scene, Ts[1]), Ts[1])], (0, 1))
+    eager = np.asarray(free_space_keep(src))
+    np.testing.assert_array_equal(np.asarray(jax.jit(free_space_keep)(src)), eager)
+    batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), src)
+    np.testing.assert_array_equal(np.asarray(jax.vmap(free_space_keep)(batch))[1], eager)
+    assert (~eager[1] & np.asarray(src.valid[1])).sum() > 20
+
+
+# ---------------------------------------------------------------- synthetic sequences
+
+def test_sequence_reference_points_lie_on_the_camera_truth():
+    sq = make_street_sequence(0, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    assert sq.T_ref_source.shape == (4, 4, 4) and list(sq.sweep) == [0, 0, 1, 1]
+    cam = sq.camera
+    ref = sq.points[sq.sweep[sq.source] == 0]
+    depth, _ = jaxdepth.project_to_image(ref, np.ones(len(ref), bool), cam.K, cam.T_cam_lidar,
+                                         height=cam.height, width=cam.width)
+    depth = np.asarray(depth)
+    m = (depth > 0) & (sq.dense_depth > 0)
+    assert np.median(np.abs(depth[m] - sq.dense_depth[m])) < 0.05
+    again = make_street_sequence(0, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    np.testing.assert_array_equal(again.points, sq.points)
+
+
+# ---------------------------------------------------------------- the job: complete-rig with a sweeps JSON
+
+def test_complete_rig_job_with_a_sweeps_json(tmp_path):
+    import json
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth.batch.extras import ExtraOutputs
+    from jaxdepth.batch.rig_job import run_rig_job
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io import read_depth_png, read_rig_json
+    from jaxdepth.io.sweeps import read_sweeps_cloud
+
+    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    cam = sq.camera
+    ego = [sq.T_ref_source[2 * k] for k in range(2)]                   # "top" sits at the ego origin
+    mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
+    entries = []
+    for k in range(2):
+        mine = sq.sweep[sq.source] == k
+        inv = np.linalg.inv(ego[k])
+        local = sq.points[mine] @ inv[:3, :3].T + inv[:3, 3]
+        rows = np.concatenate([local, (sq.source[mine] % 2)[:, None]], axis=1).astype(np.float32)
+        rows.tofile(tmp_path / f"sweep{k}.bin")
+        entries.append({"file": f"sweep{k}.bin", "T_ref_sweep": ego[k].tolist()})
+    (tmp_path / "sweeps.json").write_text(json.dumps({"sweeps": entries[::-1]}))
+    lidars = [{"name": "top", "T_points_lidar": np.eye(4).tolist(), "beams": 32, "fov_up_deg": 10.0,
+               "fov_down_deg": -25.0},
+              {"name": "front_low", "T_points_lidar": mount.tolist(), "beams": 16, "fov_up_deg": 15.0,
+               "fov_down_deg": -15.0}]
+    doc = {"lidar": {"beams": 32, "columns": 1024}, "lidars": lidars, "columns": ["x", "y", "z", "lidar"],
+           "cameras": [{"name": "cam", "width": cam.width, "height": cam.height,
+                        "K": np.asarray(cam.K).tolist(), "T_cam_lidar": np.asarray(cam.T_cam_lidar).tolist()}]}
+    (tmp_path / "rig.json").write_text(json.dumps(doc))
+    rig = read_rig_json(tmp_path / "rig.json")
+    cloud = read_sweeps_cloud(tmp_path / "sweeps.json", rig)
+    np.testing.assert_allclose(cloud.T_ref_source, sq.T_ref_source, atol=1e-5)
+    np.testing.assert_allclose(cloud.points, sq.points, atol=1e-4)
+    summary = run_rig_job(tmp_path / "sweeps.json", tmp_path / "rig.json", tmp_path / "out", config=SGMConfig(),
+                          extras=ExtraOutputs())
+    assert [p.name for p in summary.written] == ["cam.png"]
+    want = complete_cloud(cloud, rig)[0]
+    got = read_depth_png(tmp_path / "out" / "cam.png")
+    np.testing.assert_allclose(got, want, atol=1.0 / 256 + 1e-6)
+    gt = sq.dense_depth
+    m = gt > 0
+    assert np.sqrt(np.mean((got[m] - gt[m]) ** 2)) < 5.0              # a sane depth map of the street
