@@ -63,7 +63,7 @@ def test_per_date_calibration_folder(tmp_path, kitti_frame):
 ])
 def test_extrinsic_file_errors(tmp_path, text, message):
     path = tmp_path / "T.txt"
-    path.write_text(text)
+    path.write_text(text + "\n")  # complete files end with a line end (a 3x4 without one is refused as cut short)
     with pytest.raises(InputError, match=message) as err:
         read_extrinsic_txt(path)
     assert "T.txt" in str(err.value)
@@ -71,7 +71,7 @@ def test_extrinsic_file_errors(tmp_path, text, message):
 
 def test_extrinsic_file_reads_3x4_and_4x4(tmp_path):
     T = presets.KITTI_T_CAM3_LIDAR
-    (tmp_path / "a.txt").write_text(" ".join(f"{x:.9g}" for x in T[:3].ravel()))
+    (tmp_path / "a.txt").write_text(" ".join(f"{x:.9g}" for x in T[:3].ravel()) + "\n")
     (tmp_path / "b.txt").write_text("\n".join(", ".join(f"{x:.9g}" for x in row) for row in T))
     for name in ("a.txt", "b.txt"):
         np.testing.assert_allclose(read_extrinsic_txt(tmp_path / name), T, atol=1e-7)
