@@ -440,7 +440,10 @@ def _cmd_complete_nuscenes(args) -> int:
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
-                   on_progress=progress.update, tables=tables, extras=_extras_from(args))
+                   on_progress=progress.update, tables=tables, extras=_extras_from(args),
+                   force=bool(getattr(args, "force", False)))
+    if options["force"]:
+        log.warning("--force: sweeps that fail the plausibility checks are used anyway (each one is logged)")
     if args.engine == "ray":
         from jaxdepth.batch import scale
         summary = scale.run_nuscenes_ray(args.src, dst, batch_size=args.batch_size, address=args.ray_address,

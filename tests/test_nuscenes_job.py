@@ -574,3 +574,53 @@ def test_multisweep_refuses_seed_extras(dataroot, tmp_path, capsys):
     assert cli.main(["complete", str(root), str(tmp_path / "o"), "--nusc-version", VERSION, "--sweeps", "2",
                      "--validity", "-q"]) == 2
     assert "need --sweeps 1" in capsys.readouterr().err
+
+
+def test_force_reaches_the_sweep_reader_on_both_engines(dataroot, tmp_path, monkeypatch):
+    """A sweep in millimetres fails its sample naming the file; ``force`` (``--force``) reads it as is."""
+    from jaxdepth import cli
+    from jaxdepth.batch import nuscenes_job, scale
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import InputError
+    root, _, _ = dataroot
+    bad = tmp_path / "nuscenes"
+    shutil.copytree(root, bad)
+    sweep_file = bad / "samples" / "LIDAR_TOP" / "s1.pcd.bin"
+    records = np.fromfile(sweep_file, np.float32).reshape(-1, 5)
+    records[:, :3] *= 1000.0  # millimetres: no LiDAR returns at 1-300 km
+    records.tofile(sweep_file)
+    tables = nusc.load_tables(bad, VERSION)
+    with pytest.raises(InputError, match="s1.pcd.bin"):
+        nusc.sample_inputs(tables, "s1")
+    forced = nusc.sample_inputs(tables, "s1", force=True)
+    np.testing.assert_array_equal(forced.points, records)
+    cloud = nusc.sample_inputs(tables, "s1", sweeps=2, sources=True, force=True).cloud  # s1 has no earlier sweep
+    np.testing.assert_array_equal(cloud.points, nusc.remove_close(records, nusc.MULTISWEEP_MIN_DISTANCE_M)[:, :3])
+
+    seen = []
+    real = nusc.sample_inputs
+
+    def recording(tables_, token, **options):  # only s1 is loaded: nothing is compiled here
+        seen.append(options["force"])
+        if token != "s1":
+            raise InputError(f"{token}: not loaded in this test")
+        return real(tables_, token, **options)
+
+    monkeypatch.setattr(nusc, "sample_inputs", recording)
+    summary = nuscenes_job.run_nuscenes(bad, tmp_path / "plain", version=VERSION, tables=tables)
+    assert "s1.pcd.bin" in dict(summary.failed)["s1"] and seen and not any(seen)
+    seen.clear()
+    monkeypatch.setattr(nuscenes_job, "complete_samples",
+                        lambda *a, **k: seen.append(k["force"]))
+    nuscenes_job.run_nuscenes(bad, tmp_path / "forced", version=VERSION, tables=tables, force=True)
+    assert seen == [True]
+
+    calls = []
+    monkeypatch.setattr(nuscenes_job, "run_nuscenes", lambda *a, **k: calls.append(k) or RunSummary())
+    monkeypatch.setattr(scale, "run_nuscenes_ray", lambda *a, **k: calls.append(k) or RunSummary())
+    argv = ["complete", str(bad), str(tmp_path / "cli"), "--nusc-version", VERSION, "-q"]
+    assert cli.main(argv + ["--force"]) == 0
+    assert cli.main(argv + ["--force", "--overwrite", "--engine", "ray"]) == 0
+    assert cli.main(argv + ["--overwrite"]) == 0
+    assert [k["force"] for k in calls] == [True, True, False]

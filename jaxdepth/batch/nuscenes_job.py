@@ -132,7 +132,7 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=
     return todo
 
 
-def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False):
+def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False, force: bool = False):
     """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs, images):
     ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None. With ``sweeps > 1``
     the padded points and valid are None and ``inputs.cloud`` holds the sweeps as sources."""
@@ -143,7 +143,8 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
     from jaxdepth.io.rig import Rig, RigCamera
     from jaxdepth.io.sweep_frame import prepare_sweep
 
-    inputs = nusc.sample_inputs(tables, job.token, sweeps=sweeps, ego_motion=ego_motion, sources=sweeps > 1)
+    inputs = nusc.sample_inputs(tables, job.token, sweeps=sweeps, ego_motion=ego_motion, sources=sweeps > 1,
+                                force=force)
     cameras = []
     for cam in inputs.cameras:
         try:
@@ -167,7 +168,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
 def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True, config=None,
                  overwrite: bool = False, png_compression: int | None = None, devices: int = 1,
                  io_threads: int = 2, on_progress: Callable[[str, str], None] | None = None, tables=None,
-                 extras=None):
+                 extras=None, force: bool = False):
     """Completes every sample of ``<dataroot>/<version>`` into ``<dst>/<version>/<CHANNEL>/<token>.png``.
 
     Args:
@@ -191,6 +192,8 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       extras: :class:`jaxdepth.batch.extras.ExtraOutputs` (default none): preview, validity,
         seed distance, zero-invalid beside each PNG as ``<token>_<kind>.png``; validity
         uses the nuScenes HDL-32E field of view.
+      force: complete sweeps that fail the plausibility checks of :mod:`jaxdepth.io.plausibility`
+        (each is logged; default False: such a sample fails with the file named).
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over sample tokens (never raises for a bad sample).
@@ -226,7 +229,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
     complete_samples(tables, todo, summary, notify, sweeps=sweeps, ego_motion=ego_motion, config=config,
                      extras=extras, overwrite=overwrite, png_compression=png_compression,
-                     targets=jax.local_devices()[:devices], io_threads=io_threads)
+                     targets=jax.local_devices()[:devices], io_threads=io_threads, force=force)
     return summary
 
 
@@ -238,7 +241,8 @@ def make_folders(todo) -> None:
 
 
 def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: bool, config, extras,
-                     overwrite: bool, png_compression: int, targets=None, io_threads: int = 2) -> None:
+                     overwrite: bool, png_compression: int, targets=None, io_threads: int = 2,
+                     force: bool = False) -> None:
     """Completes the planned samples ``todo`` (from :func:`plan`; output folders exist) into their
     PNGs, recording each token in ``summary`` as done or failed (never raises for a bad sample).
 
@@ -258,7 +262,7 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     targets = jax.local_devices()[:1] if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
     load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion,
-                             guided=is_guided(config))
+                             guided=is_guided(config), force=force)
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")

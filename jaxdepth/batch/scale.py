@@ -261,12 +261,13 @@ class _CompleteSamples:
     """
 
     def __init__(self, *, dataroot: str, version: str, sweeps: int, ego_motion: bool, config: SGMConfig,
-                 extras, overwrite: bool, png_compression: int, io_threads: int = 2):
+                 extras, overwrite: bool, png_compression: int, io_threads: int = 2, force: bool = False):
         from jaxdepth.io import nuscenes as nusc
 
         self.tables = nusc.load_tables(dataroot, version)
         self.options = dict(sweeps=sweeps, ego_motion=ego_motion, config=config, extras=extras,
-                            overwrite=overwrite, png_compression=png_compression, io_threads=max(1, int(io_threads)))
+                            overwrite=overwrite, png_compression=png_compression, io_threads=max(1, int(io_threads)),
+                            force=force)
 
     def __call__(self, batch: dict[str, Any]) -> dict[str, np.ndarray]:
         from jaxdepth.batch.nuscenes_job import complete_samples
@@ -555,7 +556,7 @@ def run_nuscenes_ray(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion
                      extras=None, batch_size: int = 4, address: str | None = None, num_actors: int | None = None,
                      cpus_per_actor: float = 1.0, gpus_per_actor: float = 0.0, max_restarts: int = 3,
                      max_task_retries: int = 3, runtime_env: dict | None = None,
-                     on_progress: Callable[[str, str], None] | None = None, tables=None):
+                     on_progress: Callable[[str, str], None] | None = None, tables=None, force: bool = False):
     """Completes every sample of a nuScenes version on Ray; never raises for a bad sample.
 
     Same contract and outputs as :func:`jaxdepth.batch.nuscenes_job.run_nuscenes`
@@ -570,7 +571,7 @@ def run_nuscenes_ray(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion
 
     Args:
       dataroot, dst, version, sweeps, ego_motion, config, overwrite, png_compression, extras,
-        on_progress, tables: as in :func:`~jaxdepth.batch.nuscenes_job.run_nuscenes` (``tables``
+        on_progress, tables, force: as in :func:`~jaxdepth.batch.nuscenes_job.run_nuscenes` (``tables``
         is used by the driver only; every actor reads its own from ``dataroot``).
       batch_size: samples per Ray Data batch (default 4): an actor loads the next samples of
         its batch while completing one; smaller batches balance the actors more finely.
@@ -613,7 +614,8 @@ def run_nuscenes_ray(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion
     nuscenes_job.make_folders(todo)
     options = dict(dataroot=os.fspath(dataroot), version=version, sweeps=sweeps, ego_motion=ego_motion,
                    config=SGMConfig() if config is None else config, extras=extras, overwrite=overwrite,
-                   png_compression=DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression)
+                   png_compression=DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression,
+                   force=force)
     with _connected(ray, address, runtime_env):
         _run_pool(ray, ray_data, [_sample_record(job) for job in todo], _CompleteSamples, summary, notify,
                   batch_size=int(batch_size), num_actors=num_actors, cpus_per_actor=cpus_per_actor,

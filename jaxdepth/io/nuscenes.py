@@ -304,14 +304,15 @@ def remove_close(points: np.ndarray, radius_m: float) -> np.ndarray:
     return points[~close]
 
 
-def _sweep_parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float) -> list:
+def _sweep_parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float,
+                 force: bool = False) -> list:
     """``[(points (n, 5) float32 in the key frame's LiDAR frame, T_key_sweep (4, 4))]``: the key frame and
     up to ``sweeps - 1`` earlier sweeps along ``prev``, each with :func:`remove_close` in its own frame."""
     key_from_global = invert_pose(sensor_pose(tables, key_sd)) @ invert_pose(ego_pose(tables, key_sd))
     parts = []
     sd = key_sd
     for _ in range(sweeps):
-        points = remove_close(read_sweep(tables, sd), min_distance_m)
+        points = remove_close(read_sweep(tables, sd, force=force), min_distance_m)
         T = key_from_global @ ego_pose(tables, sd) @ sensor_pose(tables, sd)
         moved = points.copy()
         moved[:, :3] = (points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
@@ -329,7 +330,7 @@ def _check_sweeps(sweeps, where: str) -> None:
 
 
 def accumulate_sweeps(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
-                      min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M) -> np.ndarray:
+                      min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M, force: bool = False) -> np.ndarray:
     """(N, 5) float32: ``sweeps`` LiDAR sweeps ending at ``key_sd``, in ``key_sd``'s LiDAR frame.
 
     ``sweeps == 1``: the key frame's file as recorded. Otherwise the devkit's
@@ -337,17 +338,18 @@ def accumulate_sweeps(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
     sweeps along ``prev`` (fewer at the start of a scene), each with
     :func:`remove_close` (``min_distance_m``) in its own frame and moved by
     ``inv(C_key) @ inv(E_key) @ E_sweep @ C_sweep``. Columns 3 and 4 (intensity,
-    ring) are carried along unchanged.
+    ring) are carried along unchanged. ``force``: sweeps that fail the plausibility checks are
+    used anyway (logged), as in :func:`read_sweep`.
     """
     _check_sweeps(sweeps, "accumulate_sweeps")
     if sweeps == 1:
-        return read_sweep(tables, key_sd)
-    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m)
+        return read_sweep(tables, key_sd, force=force)
+    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m, force=force)
     return np.concatenate([points for points, _ in parts], axis=0)
 
 
 def sweep_cloud(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
-                min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M):
+                min_distance_m: float = MULTISWEEP_MIN_DISTANCE_M, force: bool = False):
     """The sweeps of :func:`accumulate_sweeps` as a :class:`~jaxdepth.io.sources.SourceCloud`: one source per
     sweep (same points, same order), its LiDAR pose ``T_ref_source = inv(C_key) @ inv(E_key) @ E_sweep @
     C_sweep`` in the key frame's LiDAR frame, ``sweep`` 0, -1, -2, ... (earlier sweeps), the HDL-32E
@@ -356,13 +358,14 @@ def sweep_cloud(tables: NuScenesTables, key_sd: dict, *, sweeps: int,
     ``sweeps == 1`` is the key frame as recorded (nothing removed), one source at the origin.
     """
     _check_sweeps(sweeps, "sweep_cloud")
-    return _cloud(tables, key_sd, _parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m))[0]
+    return _cloud(tables, key_sd, _parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m,
+                                         force=force))[0]
 
 
-def _parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float) -> list:
+def _parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_distance_m: float, force: bool = False) -> list:
     if sweeps == 1:
-        return [(read_sweep(tables, key_sd), np.eye(4))]
-    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m)
+        return [(read_sweep(tables, key_sd, force=force), np.eye(4))]
+    parts = _sweep_parts(tables, key_sd, sweeps=sweeps, min_distance_m=min_distance_m, force=force)
     parts[0] = (parts[0][0], np.eye(4))  # the key frame's own pose, exactly
     return parts
 
@@ -442,11 +445,12 @@ def camera_size(tables: NuScenesTables, sd: dict) -> tuple[int, int]:
 
 
 def sample_inputs(tables: NuScenesTables, sample_token: str, *, sweeps: int = 1,
-                  ego_motion: bool = True, sources: bool = False) -> SampleInputs:
+                  ego_motion: bool = True, sources: bool = False, force: bool = False) -> SampleInputs:
     """The points and cameras of one sample (see the module docstring for the geometry).
 
     ``sources``: also return the sweeps as a SourceCloud (``SampleInputs.cloud``), each sweep one
-    source with its own LiDAR pose.
+    source with its own LiDAR pose. ``force``: sweeps that fail the plausibility checks are used
+    anyway (logged).
 
     Raises:
       InputError: a missing key frame, a broken token reference, a bad pose or
@@ -462,9 +466,9 @@ def sample_inputs(tables: NuScenesTables, sample_token: str, *, sweeps: int = 1,
     if sources:
         _check_sweeps(sweeps, "sample_inputs")
         cloud, points = _cloud(tables, lidar_sd, _parts(tables, lidar_sd, sweeps=sweeps,
-                                                        min_distance_m=MULTISWEEP_MIN_DISTANCE_M))
+                                                        min_distance_m=MULTISWEEP_MIN_DISTANCE_M, force=force))
     else:
-        cloud, points = None, accumulate_sweeps(tables, lidar_sd, sweeps=sweeps)
+        cloud, points = None, accumulate_sweeps(tables, lidar_sd, sweeps=sweeps, force=force)
     return SampleInputs(token=sample_token, lidar_token=lidar_sd["token"], points=points, cameras=tuple(cameras),
                         cloud=cloud)
 
