@@ -15,7 +15,10 @@ frames. Inputs are :class:`~jaxdepth._src.types.Stages` fields (``du``, ``dv``,
 * Seed distance: ``|du| + |dv|`` (``"l1"``) or ``sqrt(du**2 + dv**2)`` (``"l2"``),
   the metric of the nearest-seed step (:func:`~jaxdepth._src.distance.nearest_seed`),
   in pixels; ``+inf`` where the image has no seed (``seed_depth == 0``).
-* Validity: inside the field of view and ``seed distance <= max_seed_distance_px``.
+* Validity: inside the field of view and ``seed distance <= max_seed_distance_px``; or,
+  anywhere, within one scan-line spacing of a seed (at most ``max_seed_distance_px``): the
+  rows just beyond the outermost scan lines are as near to a LiDAR pixel as the pixels
+  between two scan lines, though their rays leave the nominal field of view.
 * The default limit follows from the sensor (:func:`sensor_max_seed_distance_px`):
   ``SCAN_LINE_FACTOR`` times the camera's scan-line spacing, ``fy`` times the LiDAR's
   vertical beam spacing ``(fov_up - fov_down) / (beams - 1)`` in radians. KITTI's
@@ -149,14 +152,16 @@ def validity_and_distance(stages: Stages, K: jax.Array, T_cam_lidar: jax.Array, 
 
     Returns:
       ``(valid, distance)``: (H, W) bool, :func:`fov_mask` and
-      ``distance <= max_seed_distance_px``; (H, W) float32 :func:`seed_distance`.
+      ``distance <= max_seed_distance_px``, or ``distance <= min(scan_line_spacing_px,
+      max_seed_distance_px)`` anywhere; (H, W) float32 :func:`seed_distance`.
     """
     h, w = stages.du.shape
     distance = seed_distance(stages.du, stages.dv, stages.seed_depth, metric=metric)
     inside = fov_mask(K, T_cam_lidar, height=h, width=w, lidar=lidar)
     limit = (sensor_max_seed_distance_px(K, lidar) if max_seed_distance_px is None
              else jnp.float32(max_seed_distance_px))
-    return inside & (distance <= limit), distance
+    near = distance <= jnp.minimum(scan_line_spacing_px(K, lidar), limit)  # also beyond the outermost scan lines
+    return (inside & (distance <= limit)) | near, distance
 
 
 def rig_validity_and_distance(stages: Stages, cameras, *, lidar: LidarSpec, metric: str = _DEFAULT_METRIC,
