@@ -286,7 +286,8 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
                                max_half_height_px=config.outlier_max_half_height_px)
     eps = jnp.asarray(config.epsilon_m, jnp.float32)
     n_src = T_cam_sources.shape[0]
-    origins = jnp.moveaxis(T_cam_sources[:, :3, 3][jnp.clip(pixel_source, 0, n_src - 1)], -1, 0)
+    safe = jnp.clip(pixel_source, 0, n_src - 1)
+    origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     return valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer)
