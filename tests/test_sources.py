@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -83,7 +85,10 @@ def test_source_normals_vmap_equals_loop():
 
 # ---------------------------------------------------------------- Step 2 per source
 
-def test_source_keep_mask_with_every_source_at_one_origin_is_algorithm_1():
+@functools.lru_cache(maxsize=1)
+def _three_origins():
+    """A street image whose pixels come from three sources at different origins, and the oracle:
+    Algorithm 1 run once per source origin, each pixel taking its own source's result."""
     frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.5)
     cam = frame.cameras[0]
     depth, index = jaxdepth.project_to_image(frame.points, frame.valid, cam.K, cam.T_cam_lidar,
@@ -92,12 +97,50 @@ def test_source_keep_mask_with_every_source_at_one_origin_is_algorithm_1():
     safe = np.where(hit, np.asarray(index), 0)
     pc = np.asarray(frame.points)[safe] @ np.asarray(cam.T_cam_lidar)[:3, :3].T + np.asarray(cam.T_cam_lidar)[:3, 3]
     points_cam = np.where(hit[None], np.moveaxis(pc, -1, 0), 0.0).astype(np.float32)
-    pixel_source = np.where(hit, safe % 3, -1).astype(np.int32)           # three sources, one origin
-    T3 = np.stack([np.asarray(cam.T_cam_lidar)] * 3)
-    got = source_keep_mask(depth, pixel_source, points_cam, cam.K, T3, beams=32)
-    want = outlier_keep_mask(depth, cam.K, cam.T_cam_lidar, beams=32, points_cam=points_cam)
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
-    assert np.asarray(want).sum() < hit.sum()                             # something was removed
+    pixel_source = np.where(hit, safe % 3, -1).astype(np.int32)
+    T3 = np.stack([np.asarray(cam.T_cam_lidar)] * 3).astype(np.float32)
+    T3[1, :3, 3] += (1.2, -0.4, -1.5)                     # origins beside, above and behind the first
+    T3[2, :3, 3] += (-0.8, 0.6, 0.9)
+    want = hit.copy()
+    for s in range(3):
+        keep_s = np.asarray(outlier_keep_mask(depth, cam.K, T3[s], beams=32, points_cam=points_cam))
+        want &= np.where(pixel_source == s, keep_s, True)
+    assert all((hit & ~want & (pixel_source == s)).any() for s in range(3))   # each source loses points
+    return np.asarray(depth), pixel_source, points_cam, np.asarray(cam.K), T3, hit, safe, want
+
+
+def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
+    """One pass over the image for all sources equals one pass of Algorithm 1 per source origin."""
+    depth, pixel_source, points_cam, K, T3, _, _, want = _three_origins()
+    got = source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32)
+    np.testing.assert_array_equal(np.asarray(got), want)
+
+
+def _nearer_oracle(depth, candidates, *, beams, eps=1.0):
+    """Brute-force condition 2 alone: a candidate is removed when a pixel of S(i) is nearer by more than eps."""
+    from jaxdepth._src.config import DEFAULT_CONFIG
+    from jaxdepth._src.outliers import window_half_sizes
+    height, width = depth.shape
+    hw, hh = window_half_sizes(height, width, beams=beams, max_half_width_px=DEFAULT_CONFIG.outlier_max_half_width_px,
+                               max_half_height_px=DEFAULT_CONFIG.outlier_max_half_height_px)
+    valid = depth > 0
+    k = min((width * beams - 1) // max(int(valid.sum()), 1), hw)
+    z = np.pad(np.where(valid, depth, np.inf), ((hh, hh), (k, k)), constant_values=np.inf)
+    near = np.full(depth.shape, np.inf)
+    for dv in range(2 * hh + 1):
+        for du in range(2 * k + 1):
+            near = np.minimum(near, z[dv:dv + height, du:du + width])
+    return ~(candidates & valid & (depth > near + eps))
+
+
+def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
+    """Shadow pixels are also removed by condition 2 alone (brute-force window oracle)."""
+    depth, pixel_source, points_cam, K, T3, hit, safe, want = _three_origins()
+    shadow = hit & (safe % 7 == 0)
+    got = np.asarray(source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32, pixel_shadow=shadow))
+    extra = ~_nearer_oracle(depth, shadow, beams=32)
+    assert (extra & want).any()                            # the shadow rule removes something more
+    np.testing.assert_array_equal(got, want & ~extra)
 
 
 def test_one_source_at_the_origin_equals_complete_rig():
