@@ -47,7 +47,6 @@ two sources against the same points as one cloud; and 1, 2, 3, 5 sweeps of the s
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pathlib
 import platform
