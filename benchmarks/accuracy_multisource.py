@@ -23,11 +23,16 @@ Nothing was tuned on these numbers: every option is the library default.
 
 Synthetic sequences (:func:`jaxdepth._src.synthetic.make_street_sequence`, exact depth): an ego
 moving 1.5 m per sweep, moving cars, a rig of 2 or 3 LiDARs at different heights and tilts;
-the reference camera of the last sweep. Rows: 1 sweep (all LiDARs of the reference sweep),
-5 sweeps accumulated plainly (every point as one cloud from the reference LiDAR's origin, no
+the reference camera of the last sweep, at half size (176 x 608) and at KITTI's size (352 x 1216;
+``--sequence-scales``); every pixel with truth scored. Rows: 1 sweep (all LiDARs of the reference
+sweep), 5 sweeps accumulated plainly (every point as one cloud from the reference LiDAR's origin, no
 removal beyond the single-origin SGM's), 5 sweeps with the rules (per-source Steps 1 and 2, free
-space). Ghost pixels: depth off by more than 1 m where a moving car was in an earlier sweep but
+space); the nearest fills and IP_Basic on the 5-sweep stack and on the reference sweep; and, as a
+diagnosis (not a method), the SGM on the input without the points the truth shows wrong at their
+pixel. Ghost pixels: depth off by more than 1 m where a moving car was in an earlier sweep but
 is not now, and within 1 m of where that car was (the car's ghost, not an ordinary error).
+``boundary_sse_share_pct``: the share of the squared error on depth boundaries found from the
+truth alone. Seeds 0 and 1 are reported; the free-space rule's choices were made on seeds 10, 11.
 
 Argoverse 2 is read by :mod:`jaxdepth.io.av2` (``read_log``, ``read_cloud``, ``read_rig``), the
 reader the ``av2`` job uses; the benchmark only leaves each LiDAR's spec to be estimated from its rings.
@@ -42,6 +47,7 @@ two sources against the same points as one cloud; and 1, 2, 3, 5 sweeps of the s
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import platform
@@ -203,16 +209,53 @@ def _seq_score(pred, sq):
     near_old_car = np.any((sq.ghost_depth > 0) & (np.abs(pred[None] - sq.ghost_depth) < 1.0), axis=0)
     ghost = sq.ghost_region & scored & (np.abs(pred - gt) > 1.0) & near_old_car
     row["ghost_pct"] = 100.0 * float(ghost.sum()) / float(scored.sum())
+    boundary = depth_boundaries(gt)
+    err2 = np.where(scored, (np.asarray(pred, np.float64) - gt) ** 2, 0.0)
+    row["boundary_sse_share_pct"] = 100.0 * float(err2[boundary].sum()) / max(float(err2.sum()), 1e-12)
     return row
 
 
-def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3)):
-    """Rows of the synthetic drives: 1 sweep vs 5 sweeps plainly accumulated vs 5 sweeps with the rules."""
+def depth_boundaries(gt, *, window_px=5, jump=0.1):
+    """(H, W) bool, from the truth alone: scored pixels whose ``window_px`` square holds depths
+    spanning more than ``jump`` times their own depth (a depth boundary within 2 px)."""
+    from scipy import ndimage
+    has = gt > 0
+    hi = ndimage.maximum_filter(gt, window_px)
+    lo = ndimage.minimum_filter(np.where(has, gt, np.inf), window_px)
+    return has & (hi - lo > jump * gt)
+
+
+def _truth_filtered(cloud, sq, tolerance_m=0.5):
+    """Diagnosis only (uses the truth, not a method): the cloud without the points whose camera
+    pixel's true depth differs from theirs by more than ``tolerance_m`` (points outside the
+    camera kept). What perfect point removal could give a fill."""
+    cam = sq.camera
+    K, T = np.asarray(cam.K, np.float64), np.asarray(cam.T_cam_lidar, np.float64)
+    pc = cloud.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    z = pc[:, 2]
+    ok = z > 1e-3
+    zs = np.where(ok, z, 1.0)
+    u = np.round(K[0, 0] * pc[:, 0] / zs + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * pc[:, 1] / zs + K[1, 2]).astype(np.int64)
+    h, w = sq.dense_depth.shape
+    inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    truth = np.zeros(z.shape)
+    truth[inside] = sq.dense_depth[v[inside], u[inside]]
+    keep = ~(inside & ((truth == 0) | (np.abs(z - truth) > tolerance_m)))
+    return cloud.take(keep)
+
+
+def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3), image_scale=1.0):
+    """Rows of the synthetic drives: 1 sweep vs 5 sweeps plainly accumulated vs 5 sweeps with the rules.
+
+    ``*_truth_filtered`` rows are a diagnosis, not methods: the same input without the points
+    the truth shows wrong at their pixel (what perfect point removal could give the fill).
+    """
     from jaxdepth._src.synthetic_sequences import make_street_sequence
     per = {}
     for n_lidars in lidars:
         for seed in seeds:
-            sq = make_street_sequence(seed, sweeps=sweeps, lidars=n_lidars)
+            sq = make_street_sequence(seed, sweeps=sweeps, lidars=n_lidars, image_scale=image_scale)
             cam = sq.camera
             rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
                                                              np.asarray(cam.T_cam_lidar)),))
@@ -220,7 +263,11 @@ def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3)):
             one, full = _sequence_cloud(sq, 1), _sequence_cloud(sq, sweeps)
             preds = {"sgm_sources_1_sweep": complete_cloud(one, rig, config=config)[0],
                      "sgm_sources_no_free_space": complete_cloud(full, rig, config=config, free_space=False)[0],
-                     "sgm_sources": complete_cloud(full, rig, config=config)[0]}
+                     "sgm_sources": complete_cloud(full, rig, config=config)[0],
+                     "sgm_sources_1_sweep_truth_filtered": complete_cloud(_truth_filtered(one, sq), rig,
+                                                                          config=config, free_space=False)[0],
+                     "sgm_sources_truth_filtered": complete_cloud(_truth_filtered(full, sq), rig, config=config,
+                                                                  free_space=False)[0]}
             pts, valid = jaxdepth.io.pad_points(full.points)
             plain = jaxdepth.complete_rig_stages(pts, valid, cams, config=config, lidar=sq.lidars[0])
             raw = jaxdepth.complete_rig_stages(pts, valid, cams, config=config.replace(outlier_removal=False),
@@ -231,21 +278,34 @@ def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3)):
             preds["nearest"] = np.asarray(raw.seed_depth[0])
             preds["nearest_l2"] = np.asarray(l2.seed_depth[0])
             preds["ip_basic"] = np.asarray(ip_basic(raw.sparse_depth[0]))
+            pts1, valid1 = jaxdepth.io.pad_points(one.points)
+            raw1 = jaxdepth.complete_rig_stages(pts1, valid1, cams, config=config.replace(outlier_removal=False),
+                                                lidar=sq.lidars[0])
+            l21 = jaxdepth.complete_rig_stages(pts1, valid1, cams, lidar=sq.lidars[0],
+                                               config=config.replace(outlier_removal=False, distance_metric="l2"))
+            preds["nearest_1_sweep"] = np.asarray(raw1.seed_depth[0])
+            preds["nearest_l2_1_sweep"] = np.asarray(l21.seed_depth[0])
+            preds["ip_basic_1_sweep"] = np.asarray(ip_basic(raw1.sparse_depth[0]))
             for name, pred in preds.items():
                 per.setdefault(f"{n_lidars}_lidars", {}).setdefault(name, []).append(_seq_score(np.asarray(pred), sq))
-            print(f"sequence lidars={n_lidars} seed={seed}: " + ", ".join(
+            print(f"sequence scale={image_scale} lidars={n_lidars} seed={seed}: " + ", ".join(
                 f"{n} {per[f'{n_lidars}_lidars'][n][-1]['rmse']:.0f}/{per[f'{n_lidars}_lidars'][n][-1]['mae']:.0f}"
                 f" ghost {per[f'{n_lidars}_lidars'][n][-1]['ghost_pct']:.3f} %" for n in preds), flush=True)
     out = {}
     for rig_name, rows in per.items():
-        mean = {n: {k: float(np.mean([r[k] for r in rs])) for k in KEYS + ("ghost_pct",)} for n, rs in rows.items()}
+        mean = {n: {k: float(np.mean([r[k] for r in rs])) for k in KEYS + ("ghost_pct", "boundary_sse_share_pct")}
+                for n, rs in rows.items()}
         s5, s1, acc = mean["sgm_sources"], mean["sgm_sources_1_sweep"], mean["sgm_accumulated_single_origin"]
         out[rig_name] = {"mean": mean, "images": len(rows["sgm_sources"]),
                          "gain_5_vs_1_sweep_rmse_pct": 100.0 * (1.0 - s5["rmse"] / s1["rmse"]),
+                         "gain_5_vs_1_sweep_truth_filtered_rmse_pct": 100.0 * (
+                             1.0 - mean["sgm_sources_truth_filtered"]["rmse"] / s1["rmse"]),
                          "gain_vs_accumulation_pct": {k: 100.0 * (1.0 - s5[k] / acc[k]) for k in ("rmse", "mae")}}
-    return {"rigs": out, "seeds": list(seeds), "sweeps": sweeps,
-            "input": "5 sweeps, ego 1.5 m per sweep, 3 moving cars; reference camera 176 x 608 (KITTI-like, "
-                     "scale 0.5); nearest / nearest_l2 / ip_basic on the plain 5-sweep stack",
+    h, w = round(352 * image_scale), round(1216 * image_scale)
+    return {"rigs": out, "seeds": list(seeds), "sweeps": sweeps, "image_scale": image_scale,
+            "input": f"{sweeps} sweeps, ego 1.5 m per sweep, 3 moving cars; reference camera {h} x {w} "
+                     f"(KITTI-like, scale {image_scale}); nearest / nearest_l2 / ip_basic on the plain "
+                     f"{sweeps}-sweep stack and (*_1_sweep) on the reference sweep",
             "targets": {"gain_5_vs_1_sweep_rmse_pct": ">= 20", "gain_vs_accumulation_pct": "> 0 in both",
                         "ghost_pct": "< 0.1"}}
 
@@ -423,6 +483,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--speed-only", action="store_true", help="only add the speed sections to existing results")
     ap.add_argument("--cameras", nargs="*", default=list(RING_CAMERAS))
+    ap.add_argument("--sequence-scales", nargs="*", type=float, default=[1.0, 0.5],
+                    help="reference camera scales of the synthetic drives (1.0: KITTI's 352 x 1216)")
     ap.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     config = SGMConfig()
@@ -452,7 +514,8 @@ def main(argv=None) -> int:
         for p, r in rows.items():
             print(p, json.dumps({n: (round(m["rmse"], 1), round(m["mae"], 1)) for n, m in r["mean"].items()}))
     if not args.skip_sequences:
-        doc = sequence_rows(config)
+        doc = {"protocols": {f"scale_{scale:g}": sequence_rows(config, image_scale=scale)
+                             for scale in args.sequence_scales}}
         if not args.skip_speed:
             doc["speed"] = speed_sequences(config)
         write(out / "accuracy_sequences.json", doc)

@@ -1,4 +1,4 @@
-"""Several sources (LiDARs x sweeps): per-source normals and viewpoints, free space of the reference sweep."""
+"""Several sources (LiDARs x sweeps): per-source normals and viewpoints, free space seen by other sweeps."""
 
 from __future__ import annotations
 
@@ -173,6 +173,57 @@ def test_a_car_that_moved_leaves_no_ghost():
     static = np.zeros_like(on_old_car)
     static[:len(old)] = (old[:, 0] < 7.0) & (np.abs(old[:, 2] + 1.7) < 1e-3)     # ground in front of the old car
     assert keep[1][static].mean() > 0.99
+
+
+def test_free_space_is_judged_by_the_rays_that_bracket_the_point():
+    # Analytic oracle on a flat road 1.7 m below the reference LiDAR. A point q a quarter of a beam
+    # spacing above beam b, at a column centre: the rays bracketing q are beams b - 1 and b (and
+    # the columns either side, at the same elevations), and the nearest of them is beam b, which
+    # hits the road at R = 1.7 / sin(-elevation_b). q lies in free space iff |q| < R - margin(R):
+    # a ray farther below q (the next row of a 3 x 3 block) is no witness of the space at q.
+    T_ref = _pose()
+    ref = _sweep(_street(), T_ref)
+    dv = np.radians(35.0) / 31
+    beam = np.arange(14, 25)
+    el_b = np.radians(10.0) - beam * dv
+    R = 1.7 / np.sin(-el_b)
+    azimuth = np.pi - 2 * np.pi * (np.arange(250, 262) + 0.5) / 512
+    el_q = el_b + 0.25 * dv
+    inside = R - free_space_margin(R, SPEC) - 0.3                   # free
+    outside = R - free_space_margin(R, SPEC) + 0.3                  # within the margin: kept
+    q = []
+    for r in (inside, outside):
+        d = np.stack([np.cos(el_q)[:, None] * np.cos(azimuth), np.cos(el_q)[:, None] * np.sin(azimuth),
+                      np.broadcast_to(np.sin(el_q)[:, None], (beam.size, azimuth.size))], -1)
+        q.append((d * r[:, None, None]).reshape(-1, 3))
+    q = np.concatenate(q).astype(np.float32)
+    src = _sources([(ref, T_ref), (q, _pose((-1.5, 0.0, 0.0)))], (0, 1))
+    free = np.asarray(reference_view(src)[0])[1, :len(q)]
+    n = beam.size * azimuth.size
+    assert free[:n].all(), f"{int((~free[:n]).sum())} of {n} points every bracketing ray passed are kept"
+    assert not free[n:].any(), "points within the margin of the bracketing ray's road hit are kept"
+
+
+def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
+    # A box hides the car's old place from the reference LiDAR (and from a camera beside it); the
+    # car stood there one sweep ago and not two sweeps ago. The sweep before saw through that space.
+    # (Sweep 1's scene holds only the car: the box is off its line of sight to the car's visible
+    # side, and one box per scene shares the ray caster's compilation with the tests above.)
+    occluder = [6.0, 0.0, -1.7 + 1.1, 0.2, 0.8, 1.1, 0.0]
+    car = [12.0, 0.0, -1.7 + 0.75, 1.0, 1.0, 0.75, 0.0]
+    T0, T1, T2 = _pose(), _pose((-1.5, 3.0, 0.0)), _pose((-3.0, 4.0, 0.0))
+    parts = [(_sweep(_street(boxes=[occluder]), T0), T0), (_sweep(_street(boxes=[car]), T1), T1),
+             (_sweep(_street(boxes=[occluder]), T2), T2)]
+    src = _sources(parts, (0, 1, 2))
+    old = parts[1][0]
+    on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
+    static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
+    assert on_car.sum() > 30
+    free, shadow = (np.asarray(a)[1, :len(old)] for a in reference_view(src))
+    assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
+    assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
+    by_all = free
+    assert not by_all[static].any(), "road, wall and occluder are static: never free"
 
 
 def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
