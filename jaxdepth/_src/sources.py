@@ -50,6 +50,9 @@ FREE_SPACE_NOISE_M = 0.3
 FREE_SPACE_SLOPE = 2.0
 #: Measured cells (of the 2 x 2 whose rays bracket a point) needed before a LiDAR's view there counts.
 FREE_SPACE_MIN_CELLS = 3
+#: Sweeps on each side whose points a LiDAR of a non-reference sweep judges for free space (the
+#: reference sweep's LiDARs judge every sweep's); bounded, so the cost is linear in the sweeps.
+NEIGHBOUR_SWEEPS = 2
 
 
 @jax.tree_util.register_dataclass
@@ -156,15 +159,20 @@ def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_
 
 
 def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
-                   min_cells: int = FREE_SPACE_MIN_CELLS, every_sweep: bool = True):
+                   min_cells: int = FREE_SPACE_MIN_CELLS, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS):
     """Where the rig's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
 
-    Every witness LiDAR ``r`` (each source of every sweep with ``every_sweep``, else those of
-    the reference sweep, ``sweep == 0``) bins its own points into its own range image (its
-    LidarSpec, about its own origin and axes). A point ``q`` of another sweep than ``r``'s, seen
-    from ``r``'s origin, falls in a cell; the rays bracketing ``q``'s direction are those of the
-    2 x 2 cells made of its own cell, the neighbouring row on the side of ``q``'s elevation and
-    the neighbouring column on the side of its azimuth. ``R_lo`` is the nearest range among them.
+    Witnesses: every LiDAR of the reference sweep (``sweep == 0``) judges the points of every
+    other sweep; every LiDAR of another sweep ``w`` judges the points of the sweeps ``v`` with
+    ``0 < |v - w| <= neighbour_sweeps`` (sweep numbers in time order, as the readers give them),
+    or of every other sweep with ``neighbour_sweeps=None`` (cost quadratic in the number of
+    sweeps; bounded work per witness, so linear cost, otherwise); ``neighbour_sweeps=0``: the
+    reference sweep's witnesses alone. A witness ``r`` bins its own points into its own range
+    image (its LidarSpec, about its own origin and axes). A point ``q`` of another sweep than
+    ``r``'s, seen from ``r``'s origin, falls in a cell; the rays bracketing ``q``'s direction are
+    those of the 2 x 2 cells made of its own cell, the neighbouring row on the side of ``q``'s
+    elevation and the neighbouring column on the side of its azimuth. ``R_lo`` is the nearest
+    range among them.
 
     * ``free`` (needs at least ``min_cells`` of those 4 cells measured, else no evidence):
       ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled past it and hit
@@ -179,49 +187,71 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
       the camera sees a nearer pixel next to it (:func:`source_keep_mask`).
 
     ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
-    flag; points outside ``r``'s vertical field of view neither.
+    flag; points outside ``r``'s vertical field of view neither. Shapes are static: each
+    non-reference witness gathers its neighbouring sweeps' sources by static index arrays
+    (padded with a masked slot), the witnesses are vmapped, and their verdicts are OR-ed back.
     """
     s, p = sources.points.shape[:2]
-    flat = sources.points.reshape(-1, 3)
-    point_sweep = np.repeat(np.asarray(sources.sweep), p)
+    sweep = np.asarray(sources.sweep)
+    point_sweep = np.repeat(sweep, p)
     tested = jnp.asarray(point_sweep != 0)
     free = jnp.zeros((s * p,), bool)
     shadow = jnp.zeros((s * p,), bool)
+    if neighbour_sweeps is not None and int(neighbour_sweeps) < 0:
+        raise ValueError(f"reference_view: field 'neighbour_sweeps' expected None or >= 0, got {neighbour_sweeps!r}")
     for spec, idx in _spec_groups(sources.lidars):
-        ref = np.asarray([i for i in idx if every_sweep or sources.sweep[i] == 0], np.int32)
-        if ref.size == 0:
-            continue
-        # A witness of sweep w judges free space for the points of the other sweeps; only the
-        # reference sweep's witnesses judge shadow.
-        others = jnp.asarray(point_sweep[None, :] != np.asarray(sources.sweep)[ref][:, None])
-        is_ref = jnp.asarray(np.asarray(sources.sweep)[ref] == 0)
-        T = sources.T_ref_source[ref]
-        local = _to_source_frames(T, sources.points[ref])
-        rows = None if sources.rows is None else sources.rows[ref]
         delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
-
-        def one_witness(T_r, local_r, valid_r, *rows_r, spec=spec, delta=delta):
-            ri, _ = range_image_and_slots(local_r, valid_r, spec, *rows_r)
-            q = transform_points(invert_rigid(T_r), flat)
-            rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones((s * p,), bool))
-            half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
-            inside = ok & (ph <= spec.fov_up_rad + half) & (ph >= spec.fov_down_rad - half)
-            if rows_r:     # rows by laser rank: the query's row is that of the laser nearest in elevation
-                row = _row_of_elevation(ri, ph)
-                _, col = row_col(th, ph, spec)
-            else:
-                row, col = row_col(th, ph, spec)
-            r_lo, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
-            enough = inside & (n_cells >= min_cells)
-            r_own = ri.r[row, col]
-            return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
-                    inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
-
-        args = (T, local, sources.valid[ref]) + (() if rows is None else (rows,))
-        f, h = jax.vmap(one_witness)(*args)
-        free = free | jnp.any(f & others, axis=0)
-        shadow = shadow | jnp.any(h & is_ref[:, None], axis=0)
+        judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, delta=delta,
+                                  min_cells=min_cells)
+        # The reference sweep's witnesses judge every point (and alone judge shadow).
+        ref = np.asarray([i for i in idx if sweep[i] == 0], np.int32)
+        if ref.size:
+            flat = sources.points.reshape(-1, 3)
+            rows = () if sources.rows is None else (sources.rows[ref],)
+            f, h = jax.vmap(judge, in_axes=(0, 0, 0, None) + (0,) * len(rows))(
+                sources.T_ref_source[ref], sources.points[ref], sources.valid[ref], flat, *rows)
+            free = free | jnp.any(f, axis=0)
+            shadow = shadow | jnp.any(h, axis=0)
+        # Each other witness judges the points of its neighbouring sweeps (never its own, never sweep 0's).
+        wit = np.asarray([i for i in idx if sweep[i] != 0 and neighbour_sweeps != 0], np.int32)
+        if wit.size == 0:
+            continue
+        near = [np.flatnonzero((sweep != 0) & (sweep != sweep[w]) &
+                               (True if neighbour_sweeps is None else np.abs(sweep - sweep[w]) <= neighbour_sweeps))
+                for w in wit]
+        m = max(len(n) for n in near)
+        if m == 0:
+            continue
+        query = np.zeros((wit.size, m), np.int32)            # padded slots: source 0, masked
+        live = np.zeros((wit.size, m), bool)
+        for k, n in enumerate(near):
+            query[k, :len(n)], live[k, :len(n)] = n, True
+        q_points = sources.points[query].reshape(wit.size, m * p, 3)
+        rows = () if sources.rows is None else (sources.rows[wit],)
+        f, _ = jax.vmap(judge)(sources.T_ref_source[wit], sources.points[wit], sources.valid[wit], q_points, *rows)
+        f = f.reshape(wit.size, m, p) & jnp.asarray(live)[:, :, None]
+        free = free.reshape(s, p).at[query].max(f).reshape(-1)
     return (free & tested).reshape(s, p), (shadow & tested).reshape(s, p)
+
+
+def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, delta, min_cells):
+    """One witness LiDAR (pose ``T_r``, its own (P, 3) reference-frame points) on (Q, 3) query
+    points: ``(free, shadow)``, (Q,) bool, as :func:`reference_view` defines them."""
+    ri, _ = range_image_and_slots(transform_points(invert_rigid(T_r), points_r), valid_r, spec, *rows_r)
+    q = transform_points(invert_rigid(T_r), q)
+    rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones(q.shape[:1], bool))
+    half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
+    inside = ok & (ph <= spec.fov_up_rad + half) & (ph >= spec.fov_down_rad - half)
+    if rows_r:     # rows by laser rank: the query's row is that of the laser nearest in elevation
+        row = _row_of_elevation(ri, ph)
+        _, col = row_col(th, ph, spec)
+    else:
+        row, col = row_col(th, ph, spec)
+    r_lo, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
+    enough = inside & (n_cells >= min_cells)
+    r_own = ri.r[row, col]
+    return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
+            inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
 
 
 def _bracket_2x2(ri, row, col, theta, phi, spec):
@@ -327,8 +357,9 @@ def default_beams(sources: Sources) -> int:
     return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams"))
-def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams):
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "neighbour_sweeps"))
+def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams,
+                             neighbour_sweeps=NEIGHBOUR_SWEEPS):
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_sources")
     s, p = sources.points.shape[:2]
     points = jnp.asarray(sources.points, jnp.float32)
@@ -338,7 +369,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
     shadow = None
     if free_space and any(sw != 0 for sw in sources.sweep):       # one sweep: nothing to test
-        free, shadow = reference_view(sources)
+        free, shadow = reference_view(sources, neighbour_sweeps=neighbour_sweeps)
         valid = valid & ~free
         shadow = shadow.reshape(-1)
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
@@ -359,7 +390,8 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                             free_space: bool = True, beams: int | None = None,
-                            images: jax.Array | None = None) -> Stages:
+                            images: jax.Array | None = None,
+                            neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS) -> Stages:
     """SGM completion of several sources for C cameras; every :class:`Stages` field gains a leading C axis.
 
     Args:
@@ -370,6 +402,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
         (:func:`free_space_keep`).
       beams: static L of Step 2's window bounds; default :func:`default_beams`.
       images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.
+      neighbour_sweeps: static; sweeps on each side whose points a non-reference sweep's LiDARs
+        judge for free space (None: every sweep; :func:`reference_view`).
 
     Returns:
       :class:`Stages` with (C, H, W) fields. ``inlier_mask`` is the Step-2 mask of the merged
@@ -377,12 +411,12 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
     """
     beams = default_beams(sources) if beams is None else int(beams)
     return _complete_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space),
-                                    beams=beams)
+                                    beams=beams, neighbour_sweeps=neighbour_sweeps)
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                      free_space: bool = True, beams: int | None = None,
-                     images: jax.Array | None = None) -> jax.Array:
+                     images: jax.Array | None = None, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
     return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                   images=images).depth
+                                   images=images, neighbour_sweeps=neighbour_sweeps).depth

@@ -96,7 +96,7 @@ def _single_origin(cloud) -> bool:
 
 
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
-                   beams: int | None = None, stages: bool = False):
+                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default"):
     """Dense depth for every camera of ``rig`` from every point of ``cloud``.
 
     Args:
@@ -105,11 +105,13 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         points into camera ``i``; ``rig.lidar`` is the fallback spec of sources whose spec is
         neither given nor estimable (and gives the range-image columns of estimated ones).
       config: :class:`SGMConfig`.
-      free_space: remove other sweeps' points that lie in the reference sweep's free space.
+      free_space: remove other sweeps' points that lie in space another sweep's LiDARs saw empty.
       images: optional (C, H_max, W_max[, 3]) camera images on the rig's canvas
         (:func:`~jaxdepth.stack_images`), used only when ``config.guidance_weight > 0``.
       beams: L of Step 2's window bounds; default: the reference sweep's LiDARs' beams together.
       stages: return the :class:`~jaxdepth.Stages` (C leading axis) instead of the depth.
+      neighbour_sweeps: sweeps on each side whose points a non-reference sweep's LiDARs judge for
+        free space (None: every sweep); default ``NEIGHBOUR_SWEEPS`` of :mod:`jaxdepth._src.sources`.
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
@@ -118,7 +120,9 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     import jaxdepth
-    from jaxdepth._src.sources import complete_sources_stages
+    from jaxdepth._src.sources import NEIGHBOUR_SWEEPS, complete_sources_stages
+    if neighbour_sweeps == "default":
+        neighbour_sweeps = NEIGHBOUR_SWEEPS
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     if _single_origin(cloud):
         from jaxdepth.io import pad_points
@@ -128,7 +132,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     else:
         sources, _ = cloud_sources(cloud, fallback=rig.lidar)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images)
+                                      images=images, neighbour_sweeps=neighbour_sweeps)
     return out if stages else np.asarray(out.depth)
 
 
