@@ -427,10 +427,11 @@ def speed_step2_av2(config, *, repeats=5):
             "masks_equal": True, "repeats": repeats}
 
 
-def speed_sequences(config, *, counts=(1, 2, 3, 5), repeats=5):
-    """Synthetic 2-LiDAR drive: :func:`complete_cloud` of the first 1, 2, 3, 5 sweeps (2 sources each), timed
-    alternately (compile excluded), with the stages alone: host padding (``cloud_sources``), Step-1 normals
-    per source, the reference sweep's free-space view, and the jitted core (``complete_sources_stages``)."""
+def speed_sequences(config, *, counts=(1, 2, 3, 5, 8), repeats=5):
+    """Synthetic 2-LiDAR drive: :func:`complete_cloud` of the first 1, 2, 3, 5, 8 sweeps (2 sources each),
+    timed alternately (compile excluded), with the stages alone: host padding (``cloud_sources``), Step-1
+    normals per source, the free-space view (default witnesses, and every sweep as witness of every
+    other, the quadratic rule, for comparison), and the jitted core (``complete_sources_stages``)."""
     from jaxdepth._src import sources as core
     from jaxdepth._src.synthetic_sequences import make_street_sequence
     from jaxdepth.batch.sources_job import cloud_sources
@@ -440,6 +441,7 @@ def speed_sequences(config, *, counts=(1, 2, 3, 5), repeats=5):
                                                      np.asarray(cam.T_cam_lidar)),))
     cams = jaxdepth.stack_cameras([cam])
     normals, view = jax.jit(core.source_normals), jax.jit(core.reference_view)
+    view_every = jax.jit(lambda s: core.reference_view(s, neighbour_sweeps=None, end_sweeps=False))
     fns, points = {}, {}
     for n in counts:
         cloud = _sequence_cloud(sq, n)
@@ -449,12 +451,17 @@ def speed_sequences(config, *, counts=(1, 2, 3, 5), repeats=5):
         fns[f"{n}/host_padding"] = lambda cloud=cloud: cloud_sources(cloud, fallback=rig.lidar)
         fns[f"{n}/normals"] = lambda s=sources: normals(s)
         fns[f"{n}/reference_view"] = lambda s=sources: view(s)
+        fns[f"{n}/reference_view_every_sweep"] = lambda s=sources: view_every(s)
         fns[f"{n}/core"] = lambda s=sources: core.complete_sources_stages(s, cams, config=config).depth
     t = _alternate(fns, repeats=repeats)
     run = {n: t[f"{n}/complete_cloud"]["run_s"] for n in counts}
     stages = {str(n): {k.split("/")[1]: round(v["run_s"], 4) for k, v in t.items() if k.startswith(f"{n}/")}
               for n in counts}
+    view_s = {n: t[f"{n}/reference_view"]["run_s"] for n in counts}
     return {"seconds": {str(n): run[n] for n in counts},
+            "reference_view_seconds_per_sweep": {str(n): view_s[n] / n for n in counts},
+            "reference_view_every_sweep_seconds_per_sweep": {
+                str(n): t[f"{n}/reference_view_every_sweep"]["run_s"] / n for n in counts},
             "seconds_per_sweep": {str(n): run[n] / n for n in counts},
             "ratio_vs_1_sweep": {str(n): run[n] / run[1] for n in counts},
             "points": {str(n): points[n] for n in counts}, "stages_s": stages,
@@ -512,6 +519,9 @@ def main(argv=None) -> int:
     if not args.skip_sequences:
         doc = {"protocols": {f"scale_{scale:g}": sequence_rows(config, image_scale=scale)
                              for scale in args.sequence_scales}}
+        old = out / "accuracy_sequences.json"
+        old = json.loads(old.read_text()) if old.exists() else {}
+        doc.update({k: v for k, v in old.items() if k not in doc and k != "platform"})    # e.g. tuning records
         if not args.skip_speed:
             doc["speed"] = speed_sequences(config)
         write(out / "accuracy_sequences.json", doc)

@@ -226,6 +226,57 @@ def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
     assert not by_all[static].any(), "road, wall and occluder are static: never free"
 
 
+def test_bounded_witnesses_equal_every_sweep_when_they_cover_every_other_sweep():
+    # Sweeps 0, 1, 2: the non-reference sweeps 1 and 2 are one apart and are the window's ends, so
+    # one neighbour on each side, or the end sweeps as witnesses, is every other sweep (sweep 0's
+    # points are never judged): the verdicts must equal the every-sweep rule's. Reference witnesses
+    # alone differ: sweep 2 is what removes the car hidden from sweep 0.
+    occluder = [6.0, 0.0, -1.7 + 1.1, 0.2, 0.8, 1.1, 0.0]
+    car = [12.0, 0.0, -1.7 + 0.75, 1.0, 1.0, 0.75, 0.0]
+    T0, T1, T2 = _pose(), _pose((-1.5, 3.0, 0.0)), _pose((-3.0, 4.0, 0.0))
+    src = _sources([(_sweep(_street(boxes=[occluder]), T0), T0), (_sweep(_street(boxes=[car]), T1), T1),
+                    (_sweep(_street(boxes=[occluder]), T2), T2)], (0, 1, 2))
+    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    every = view(src, neighbour_sweeps=None, end_sweeps=False)
+    for k, ends in ((1, False), (0, True)):
+        for a, b in zip(view(src, neighbour_sweeps=k, end_sweeps=ends), every):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    ref_only = view(src, neighbour_sweeps=0, end_sweeps=False)
+    np.testing.assert_array_equal(np.asarray(ref_only[1]), np.asarray(every[1]))       # shadow: reference only
+    assert np.asarray(every[0][1] & ~ref_only[0][1]).sum() > 30
+
+
+def test_a_neighbour_or_end_sweep_removes_a_ghost_and_no_other_sweep_does():
+    # Analytic: sweep 1's LiDAR sees a flat road (the reference sweep holds no point, so it has
+    # no evidence). Sweeps 2, 3 and 4 hold the same points, each in front of the road hit of the
+    # beam below it by more than the margin (as in the bracketing test): in sweep 1's free space.
+    # With one neighbour on each side sweep 1 judges sweep 2 (removed) but not sweeps 3 and 4;
+    # as an end of the window (sweeps 1 and 4) it judges them all. The copies of the floating
+    # points are no free-space evidence against each other.
+    T = _pose()
+    dv = np.radians(35.0) / 31
+    el = (np.radians(10.0) - np.arange(32) * dv)[:, None]          # SPEC's beams, as the ray caster casts them
+    az = np.pi - 2 * np.pi * (np.arange(512) + 0.5) / 512
+    rng = np.where(el < -0.03, 1.7 / np.sin(-np.minimum(el, -0.03)), np.inf) + 0 * az
+    road = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), -1) * rng[..., None]
+    road = road[np.isfinite(rng) & (rng < 60.0)].astype(np.float32)
+    el_b = np.radians(10.0) - np.arange(14, 25) * dv
+    R = 1.7 / np.sin(-el_b)
+    azimuth = np.pi - 2 * np.pi * (np.arange(250, 262) + 0.5) / 512
+    el_q = (el_b + 0.25 * dv)[:, None]
+    r = (R - free_space_margin(R, SPEC) - 0.3)[:, None, None]
+    d = np.stack(np.broadcast_arrays(np.cos(el_q) * np.cos(azimuth), np.cos(el_q) * np.sin(azimuth), np.sin(el_q)), -1)
+    q = (d * r).reshape(-1, 3).astype(np.float32)
+    src = _sources([(np.zeros((0, 3), np.float32), T), (road, T), (q, T), (q, T), (q, T)], (0, 1, 2, 3, 4))
+    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    free = {(k, e): np.asarray(view(src, neighbour_sweeps=k, end_sweeps=e)[0])[:, :len(q)]
+            for k, e in ((0, False), (1, False), (0, True))}
+    assert not free[0, False].any(), "the empty reference sweep is no witness"
+    assert free[1, False][2].all() and not free[1, False][3:].any()
+    assert free[0, True][2:].all()
+    assert not free[0, True][1].any(), "the road lies behind the floating points: never free"
+
+
 def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     pole = [8.0, 0.0, 0.15, -1.7, 3.0]
     scene = _street(cylinders=[pole])

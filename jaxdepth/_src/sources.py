@@ -50,9 +50,10 @@ FREE_SPACE_NOISE_M = 0.3
 FREE_SPACE_SLOPE = 2.0
 #: Measured cells (of the 2 x 2 whose rays bracket a point) needed before a LiDAR's view there counts.
 FREE_SPACE_MIN_CELLS = 3
-#: Sweeps on each side whose points a LiDAR of a non-reference sweep judges for free space (the
-#: reference sweep's LiDARs judge every sweep's); bounded, so the cost is linear in the sweeps.
-NEIGHBOUR_SWEEPS = 2
+#: Sweeps on each side whose points a LiDAR of a sweep other than the reference and end sweeps judges
+#: for free space (None: every other sweep, a cost quadratic in the sweeps). 0: none (measured: the
+#: end sweeps' witnesses already give what the neighbours add).
+NEIGHBOUR_SWEEPS = 0
 
 
 @jax.tree_util.register_dataclass
@@ -159,7 +160,8 @@ def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_
 
 
 def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
-                   min_cells: int = FREE_SPACE_MIN_CELLS, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS):
+                   min_cells: int = FREE_SPACE_MIN_CELLS, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS,
+                   end_sweeps: bool = True):
     """Where the rig's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
 
     Witnesses: every LiDAR of the reference sweep (``sweep == 0``) judges the points of every
@@ -199,21 +201,24 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
     shadow = jnp.zeros((s * p,), bool)
     if neighbour_sweeps is not None and int(neighbour_sweeps) < 0:
         raise ValueError(f"reference_view: field 'neighbour_sweeps' expected None or >= 0, got {neighbour_sweeps!r}")
+    others = sweep[sweep != 0]
+    wide = {0} | ({int(others.min()), int(others.max())} if end_sweeps and others.size else set())
     for spec, idx in _spec_groups(sources.lidars):
         delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
         judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, delta=delta,
                                   min_cells=min_cells)
         # The reference sweep's witnesses judge every point (and alone judge shadow).
-        ref = np.asarray([i for i in idx if sweep[i] == 0], np.int32)
+        ref = np.asarray([i for i in idx if sweep[i] in wide], np.int32)
         if ref.size:
             flat = sources.points.reshape(-1, 3)
             rows = () if sources.rows is None else (sources.rows[ref],)
             f, h = jax.vmap(judge, in_axes=(0, 0, 0, None) + (0,) * len(rows))(
                 sources.T_ref_source[ref], sources.points[ref], sources.valid[ref], flat, *rows)
-            free = free | jnp.any(f, axis=0)
-            shadow = shadow | jnp.any(h, axis=0)
+            others = jnp.asarray(point_sweep[None, :] != sweep[ref][:, None])
+            free = free | jnp.any(f & others, axis=0)
+            shadow = shadow | jnp.any(h & jnp.asarray(sweep[ref] == 0)[:, None], axis=0)
         # Each other witness judges the points of its neighbouring sweeps (never its own, never sweep 0's).
-        wit = np.asarray([i for i in idx if sweep[i] != 0 and neighbour_sweeps != 0], np.int32)
+        wit = np.asarray([i for i in idx if sweep[i] not in wide and neighbour_sweeps != 0], np.int32)
         if wit.size == 0:
             continue
         near = [np.flatnonzero((sweep != 0) & (sweep != sweep[w]) &
