@@ -10,9 +10,9 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   range image (its :class:`~jaxdepth.LidarSpec`) and get their Badino normals
   there; the normals are rotated back into the reference frame. Sources that
   share a LidarSpec are vmapped together (one static range-image shape per group).
-* Free space (:func:`free_space_keep`): a point of an earlier sweep that lies where
-  a LiDAR of any other sweep saw empty space is removed (a moving object's
-  ghost, or a registration error). See :func:`reference_view` for the rule and margins.
+* Free space (:func:`free_space_keep`): a point of an earlier sweep that lies where a
+  LiDAR of the reference sweep or of the window's end sweeps saw empty space is removed
+  (a moving object's ghost, or a registration error). See :func:`reference_view`.
 * Step 2 per source (:func:`source_keep_mask`): Algorithm 1 on the camera's
   z-buffer of all sources' points, where each pixel's point is tested with *its
   own source's* origin as the viewpoint compared with the camera's; every
@@ -164,12 +164,17 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
                    end_sweeps: bool = True):
     """Where the rig's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
 
-    Witnesses: every LiDAR of the reference sweep (``sweep == 0``) judges the points of every
-    other sweep; every LiDAR of another sweep ``w`` judges the points of the sweeps ``v`` with
-    ``0 < |v - w| <= neighbour_sweeps`` (sweep numbers in time order, as the readers give them),
-    or of every other sweep with ``neighbour_sweeps=None`` (cost quadratic in the number of
-    sweeps; bounded work per witness, so linear cost, otherwise); ``neighbour_sweeps=0``: the
-    reference sweep's witnesses alone. A witness ``r`` bins its own points into its own range
+    Witnesses (sweep numbers in time order, as the readers give them): every LiDAR of the
+    reference sweep (``sweep == 0``) and, with ``end_sweeps``, of the first and last of the other
+    sweeps (the two ends of the window) judges the points of every other sweep; every LiDAR of
+    another sweep ``w`` judges the points of the sweeps ``v`` with ``0 < |v - w| <=
+    neighbour_sweeps``, or of every other sweep with ``neighbour_sweeps=None`` (every sweep a
+    witness of every other: cost quadratic in the number of sweeps). With ``neighbour_sweeps`` an
+    int each point meets a bounded number of witnesses, so the cost is linear in the sweeps.
+    The ends are there because an object that moved is best seen gone by the sweep farthest in
+    time from the one that saw it, and for every sweep that is one of the window's ends (or the
+    reference). ``neighbour_sweeps=0, end_sweeps=False``: the reference sweep's witnesses alone.
+    A witness ``r`` bins its own points into its own range
     image (its LidarSpec, about its own origin and axes). A point ``q`` of another sweep than
     ``r``'s, seen from ``r``'s origin, falls in a cell; the rays bracketing ``q``'s direction are
     those of the 2 x 2 cells made of its own cell, the neighbouring row on the side of ``q``'s
@@ -190,15 +195,14 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
 
     ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
     flag; points outside ``r``'s vertical field of view neither. Shapes are static: each
-    non-reference witness gathers its neighbouring sweeps' sources by static index arrays
-    (padded with a masked slot), the witnesses are vmapped, and their verdicts are OR-ed back.
+    witness gathers the sources it judges by a static index array (padded with masked slots),
+    the witnesses are vmapped, and their verdicts are OR-ed back onto the sources.
     """
     s, p = sources.points.shape[:2]
     sweep = np.asarray(sources.sweep)
-    point_sweep = np.repeat(sweep, p)
-    tested = jnp.asarray(point_sweep != 0)
-    free = jnp.zeros((s * p,), bool)
-    shadow = jnp.zeros((s * p,), bool)
+    tested = jnp.asarray(np.repeat(sweep, p) != 0)
+    free = jnp.zeros((s, p), bool)
+    shadow = jnp.zeros((s, p), bool)
     if neighbour_sweeps is not None and int(neighbour_sweeps) < 0:
         raise ValueError(f"reference_view: field 'neighbour_sweeps' expected None or >= 0, got {neighbour_sweeps!r}")
     others = sweep[sweep != 0]
@@ -207,36 +211,40 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
         delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
         judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, delta=delta,
                                   min_cells=min_cells)
-        # The reference sweep's witnesses judge every point (and alone judge shadow).
-        ref = np.asarray([i for i in idx if sweep[i] in wide], np.int32)
-        if ref.size:
-            flat = sources.points.reshape(-1, 3)
-            rows = () if sources.rows is None else (sources.rows[ref],)
-            f, h = jax.vmap(judge, in_axes=(0, 0, 0, None) + (0,) * len(rows))(
-                sources.T_ref_source[ref], sources.points[ref], sources.valid[ref], flat, *rows)
-            others = jnp.asarray(point_sweep[None, :] != sweep[ref][:, None])
-            free = free | jnp.any(f & others, axis=0)
-            shadow = shadow | jnp.any(h & jnp.asarray(sweep[ref] == 0)[:, None], axis=0)
-        # Each other witness judges the points of its neighbouring sweeps (never its own, never sweep 0's).
-        wit = np.asarray([i for i in idx if sweep[i] not in wide and neighbour_sweeps != 0], np.int32)
-        if wit.size == 0:
-            continue
-        near = [np.flatnonzero((sweep != 0) & (sweep != sweep[w]) &
-                               (True if neighbour_sweeps is None else np.abs(sweep - sweep[w]) <= neighbour_sweeps))
-                for w in wit]
-        m = max(len(n) for n in near)
-        if m == 0:
-            continue
-        query = np.zeros((wit.size, m), np.int32)            # padded slots: source 0, masked
-        live = np.zeros((wit.size, m), bool)
-        for k, n in enumerate(near):
-            query[k, :len(n)], live[k, :len(n)] = n, True
-        q_points = sources.points[query].reshape(wit.size, m * p, 3)
-        rows = () if sources.rows is None else (sources.rows[wit],)
-        f, _ = jax.vmap(judge)(sources.T_ref_source[wit], sources.points[wit], sources.valid[wit], q_points, *rows)
-        f = f.reshape(wit.size, m, p) & jnp.asarray(live)[:, :, None]
-        free = free.reshape(s, p).at[query].max(f).reshape(-1)
-    return (free & tested).reshape(s, p), (shadow & tested).reshape(s, p)
+        # The reference and end sweeps' witnesses judge the points of every other sweep (the reference's
+        # alone judge shadow); each other witness those of its neighbouring sweeps. Sweep 0's points
+        # are never judged, so never gathered.
+        wide_w = [i for i in idx if sweep[i] in wide]
+        near_w = [i for i in idx if sweep[i] not in wide] if neighbour_sweeps != 0 else []
+        for wit, reach in ((wide_w, None), (near_w, neighbour_sweeps)):
+            near = [np.flatnonzero((sweep != 0) & (sweep != sweep[w]) &
+                                   (True if reach is None else np.abs(sweep - sweep[w]) <= reach)) for w in wit]
+            if not near or max(len(n) for n in near) == 0:
+                continue
+            f, h = _gathered_verdicts(judge, sources, np.asarray(wit, np.int32), near)
+            free = free | f
+            shadow = shadow | (h if reach is None else False)
+    return free & tested.reshape(s, p), shadow & tested.reshape(s, p)
+
+
+def _gathered_verdicts(judge, sources, wit, near):
+    """(S, P) bool ``(free, shadow)`` of witnesses ``wit`` (static source indices), witness ``k``
+    judging the points of the sources ``near[k]`` (static), OR-ed over witnesses; ``shadow`` only
+    from reference-sweep witnesses. Each witness's query sources are gathered by one static index
+    array padded to the longest; the witnesses are vmapped; the verdicts are scattered back with
+    padded slots (and, for ``shadow``, other sweeps' witnesses) sent to a dropped row ``S``."""
+    s, p = sources.points.shape[:2]
+    m = max(len(n) for n in near)
+    query = np.full((wit.size, m), s, np.int32)           # padded slots: row S, dropped
+    for k, n in enumerate(near):
+        query[k, :len(n)] = n
+    q_points = sources.points[np.minimum(query, s - 1)].reshape(wit.size, m * p, 3)
+    rows = () if sources.rows is None else (sources.rows[wit],)
+    f, h = jax.vmap(judge)(sources.T_ref_source[wit], sources.points[wit], sources.valid[wit], q_points, *rows)
+    to_shadow = np.where((np.asarray(sources.sweep)[wit] == 0)[:, None], query, s)
+    zero = jnp.zeros((s + 1, p), bool)
+    return (zero.at[query].max(f.reshape(wit.size, m, p))[:s],
+            zero.at[to_shadow].max(h.reshape(wit.size, m, p))[:s])
 
 
 def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, delta, min_cells):
