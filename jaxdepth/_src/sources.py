@@ -219,7 +219,8 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
         for wit, reach in ((wide_w, None), (near_w, neighbour_sweeps)):
             near = [np.flatnonzero((sweep != 0) & (sweep != sweep[w]) &
                                    (True if reach is None else np.abs(sweep - sweep[w]) <= reach)) for w in wit]
-            if not near or max(len(n) for n in near) == 0:
+            wit, near = [w for w, n in zip(wit, near) if n.size], [n for n in near if n.size]
+            if not wit:            # e.g. the end sweep of two sweeps: nothing of another tested sweep to judge
                 continue
             f, h = _gathered_verdicts(judge, sources, np.asarray(wit, np.int32), near)
             free = free | f
