@@ -40,8 +40,9 @@ reader the ``av2`` job uses; the benchmark only leaves each LiDAR's spec to be e
 Speed (``--speed-only`` adds just these sections): wall time of :func:`complete_cloud`, compile
 (first call) reported apart, the functions of one section timed in turn over ``repeats`` rounds
 (so the machine's drift hits all alike), medians, ratios from one process: one two-LiDAR sweep as
-two sources against the same points as one cloud; and 1, 2, 3, 5 sweeps of the synthetic
-2-LiDAR drive, with its stages alone (host padding, Step-1 normals, free-space view, jitted core).
+two sources against the same points as one cloud; and 1, 2, 3, 5, 8 sweeps of the synthetic
+2-LiDAR drive, with its stages alone (host padding, Step-1 normals, free-space view, jitted core)
+and the free-space view with every sweep a witness of every other (the quadratic rule).
 """
 
 from __future__ import annotations
