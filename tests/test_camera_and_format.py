@@ -106,21 +106,20 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
 
 
 def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
-    """The README's example rig (identity extrinsic) with points ahead along the LiDAR's x axis:
-    the camera looks along +z and sees none of them."""
-    rng = np.random.default_rng(0)
-    pts = np.stack([rng.uniform(5, 30, 3000), rng.uniform(-5, 5, 3000), rng.uniform(-5, -1, 3000),
-                    np.zeros(3000)], 1).astype(np.float32)
-    pts = pts[(pts[:, 1] > 0.1) | (pts[:, 1] < -0.1)]
+    """The two-camera rig of the wall sweep (``tests/helpers.py``, as in test_extras_cli: the same
+    compiled completion) with CAM_B turned to look backwards (along the LiDAR's -x): it sees none of
+    the wall's points, is warned about and written all zero; CAM_A is not."""
+    from helpers import wall_sweep, write_wall_rig
     sweep = tmp_path / "sweep.npy"
-    np.save(sweep, pts)
+    wall_sweep(sweep)
     rig = tmp_path / "rig.json"
-    rig.write_text(json.dumps({"lidar": {"beams": 64}, "cameras": [
-        {"name": "CAM_FRONT", "width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]],
-         "T_cam_lidar": np.eye(4).tolist()}]}))
+    backwards = [[0, 1, 0, 0], [0, 0, -1, 0], [-1, 0, 0, 0], [0, 0, 0, 1]]
+    write_wall_rig(rig, T_cam_lidar={"CAM_B": backwards})
     code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
     err = capsys.readouterr().err
-    assert code == 0 and "CAM_FRONT: no LiDAR point projects into this camera" in err
+    assert code == 0 and "CAM_B: no LiDAR point projects into this camera" in err and "CAM_A: no LiDAR" not in err
+    assert not read_depth_png(tmp_path / "out" / "CAM_B.png").any()
+    assert read_depth_png(tmp_path / "out" / "CAM_A.png").all()
 
 
 # ---------------------------------------------------------------- the shared frame through the CLI
