@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 import pytest
 
-import jaxdepth
 from jaxdepth import cli
 from jaxdepth._src import presets
 from jaxdepth.io import InputError, read_depth_png, read_kitti_raw_calib, write_depth_png
