@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import os
 import pathlib
 import subprocess
@@ -49,7 +50,7 @@ def test_help_version_and_usage_errors_do_not_import_jax():
     assert result.returncode == 0, result.stderr[-2000:]
     *_, texts, verdict = result.stdout.strip().splitlines()
     assert verdict == "[0, 0, 2, 2, 2, 0, 0] False False", result.stdout[-2000:]
-    help_text, version = eval(texts)[:2]
+    help_text, version = ast.literal_eval(texts)[:2]
     assert "complete" in help_text and "demo" in help_text
     assert version.startswith("jaxdepth ")
     assert run_cli("complete").returncode == 2  # argparse usage error, through python -m jaxdepth.cli
