@@ -444,6 +444,7 @@ def speed_sequences(config, *, counts=(1, 2, 3, 5), repeats=5):
                                                      np.asarray(cam.T_cam_lidar)),))
     cams = jaxdepth.stack_cameras([cam])
     normals, view = jax.jit(core.source_normals), jax.jit(core.reference_view)
+    view_ref = jax.jit(lambda s: core.reference_view(s, every_sweep=False))
     fns, points = {}, {}
     for n in counts:
         cloud = _sequence_cloud(sq, n)
@@ -453,6 +454,8 @@ def speed_sequences(config, *, counts=(1, 2, 3, 5), repeats=5):
         fns[f"{n}/host_padding"] = lambda cloud=cloud: cloud_sources(cloud, fallback=rig.lidar)
         fns[f"{n}/normals"] = lambda s=sources: normals(s)
         fns[f"{n}/reference_view"] = lambda s=sources: view(s)
+        # witnesses of the reference sweep only: S witnesses x S P points become 2 x S P (linear)
+        fns[f"{n}/reference_view_reference_witnesses"] = lambda s=sources: view_ref(s)
         fns[f"{n}/core"] = lambda s=sources: core.complete_sources_stages(s, cams, config=config).depth
     t = _alternate(fns, repeats=repeats)
     run = {n: t[f"{n}/complete_cloud"]["run_s"] for n in counts}
