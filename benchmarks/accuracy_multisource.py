@@ -47,7 +47,6 @@ two sources against the same points as one cloud; and 1, 2, 3, 5 sweeps of the s
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pathlib
 import platform
@@ -245,6 +244,16 @@ def _truth_filtered(cloud, sq, tolerance_m=0.5):
     return cloud.take(keep)
 
 
+def _baselines(cloud, cams, lidar, config):
+    """{nearest, nearest_l2, ip_basic: (H, W)} of a cloud's points as one image (no removal)."""
+    pts, valid = jaxdepth.io.pad_points(cloud.points)
+    raw = jaxdepth.complete_rig_stages(pts, valid, cams, config=config.replace(outlier_removal=False), lidar=lidar)
+    l2 = jaxdepth.complete_rig_stages(pts, valid, cams, lidar=lidar,
+                                      config=config.replace(outlier_removal=False, distance_metric="l2"))
+    return {"nearest": np.asarray(raw.seed_depth[0]), "nearest_l2": np.asarray(l2.seed_depth[0]),
+            "ip_basic": np.asarray(ip_basic(raw.sparse_depth[0]))}
+
+
 def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3), image_scale=1.0):
     """Rows of the synthetic drives: 1 sweep vs 5 sweeps plainly accumulated vs 5 sweeps with the rules.
 
@@ -268,24 +277,11 @@ def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3), image_scale=
                                                                           config=config, free_space=False)[0],
                      "sgm_sources_truth_filtered": complete_cloud(_truth_filtered(full, sq), rig, config=config,
                                                                   free_space=False)[0]}
-            pts, valid = jaxdepth.io.pad_points(full.points)
-            plain = jaxdepth.complete_rig_stages(pts, valid, cams, config=config, lidar=sq.lidars[0])
-            raw = jaxdepth.complete_rig_stages(pts, valid, cams, config=config.replace(outlier_removal=False),
-                                               lidar=sq.lidars[0])
-            l2 = jaxdepth.complete_rig_stages(pts, valid, cams, lidar=sq.lidars[0],
-                                              config=config.replace(outlier_removal=False, distance_metric="l2"))
+            plain = jaxdepth.complete_rig_stages(*jaxdepth.io.pad_points(full.points), cams, config=config,
+                                                 lidar=sq.lidars[0])
             preds["sgm_accumulated_single_origin"] = np.asarray(plain.depth[0])
-            preds["nearest"] = np.asarray(raw.seed_depth[0])
-            preds["nearest_l2"] = np.asarray(l2.seed_depth[0])
-            preds["ip_basic"] = np.asarray(ip_basic(raw.sparse_depth[0]))
-            pts1, valid1 = jaxdepth.io.pad_points(one.points)
-            raw1 = jaxdepth.complete_rig_stages(pts1, valid1, cams, config=config.replace(outlier_removal=False),
-                                                lidar=sq.lidars[0])
-            l21 = jaxdepth.complete_rig_stages(pts1, valid1, cams, lidar=sq.lidars[0],
-                                               config=config.replace(outlier_removal=False, distance_metric="l2"))
-            preds["nearest_1_sweep"] = np.asarray(raw1.seed_depth[0])
-            preds["nearest_l2_1_sweep"] = np.asarray(l21.seed_depth[0])
-            preds["ip_basic_1_sweep"] = np.asarray(ip_basic(raw1.sparse_depth[0]))
+            preds.update(_baselines(full, cams, sq.lidars[0], config))
+            preds.update({f"{k}_1_sweep": v for k, v in _baselines(one, cams, sq.lidars[0], config).items()})
             for name, pred in preds.items():
                 per.setdefault(f"{n_lidars}_lidars", {}).setdefault(name, []).append(_seq_score(np.asarray(pred), sq))
             print(f"sequence scale={image_scale} lidars={n_lidars} seed={seed}: " + ", ".join(

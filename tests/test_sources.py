@@ -219,7 +219,7 @@ def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
     on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
     static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
     assert on_car.sum() > 30
-    free, shadow = (np.asarray(a)[1, :len(old)] for a in reference_view(src))
+    free, shadow = (np.asarray(a)[1, :len(old)] for a in jax.jit(reference_view)(src))   # jit: one compile
     assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
     assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
     by_all = free
