@@ -237,18 +237,14 @@ def test_no_seed_and_all_seeds():
     assert bool(full.has_seed) and not np.any(full.distance) and not np.any(full.du) and not np.any(full.dv)
 
 
-def test_jit_equals_eager_and_traced_weight():
+def test_traced_weight_equals_static_weight():
+    """jit == eager, vmap == loop and the Dijkstra oracle with a static weight: row geodesic_seed of
+    tests/stage_table.py. Here: a traced weight gives the same bits."""
     keep, img = _scene(5, h=6, w=7)
     jitted = geodesic_seed(keep, img, color_weight=7.0, sweeps=2)
-    with jax.disable_jit():
-        eager = geodesic_seed(keep, img, color_weight=7.0, sweeps=2)
     traced = jax.jit(lambda k, i, cw: geodesic_seed(k, i, color_weight=cw, sweeps=2))(keep, img, 7.0)
-    for name in ("du", "dv", "has_seed"):
-        np.testing.assert_array_equal(getattr(jitted, name), getattr(eager, name))
-        np.testing.assert_array_equal(getattr(jitted, name), getattr(traced, name))
-    np.testing.assert_array_equal(jitted.distance, traced.distance)
-    # Op-by-op evaluation rounds the step costs differently (no fusion): 1 ulp.
-    np.testing.assert_allclose(jitted.distance, eager.distance, rtol=RTOL)
+    for got, want in zip(traced, jitted):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_vmap_equals_loop():

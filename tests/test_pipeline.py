@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxdepth import SGMConfig, complete, complete_points, complete_points_stages, complete_stages, depth_metrics
+from jaxdepth import SGMConfig, complete, complete_points_stages, complete_stages, depth_metrics
 from jaxdepth._src import synthetic
 from jaxdepth._src.geometry import project_to_image
 
-from _harness import check_stage
 from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
 
 def plane_frame(camera, planes):
@@ -73,27 +72,8 @@ def _tiny_frames(seeds, h=32, w=48):
     return frames
 
 
-#: The pipeline against itself jitted / eager / vmapped: the same float32 maths fused differently
-#: (FMA contraction); the residual divides by n . ray >= min_abs_denom = 0.01, amplifying a few
-#: eps up to 100x, and depths are O(10 m): 4 / 0.01 eps of max(|depth|, 1).
-PIPELINE_ULPS = 4 / SGMConfig().min_abs_denom
-
-
-def test_complete_points_harness_jit_vmap_retrace():
-    frames = _tiny_frames((0, 1, 2))
-    depth = check_stage(complete_points, frames, static=dict(lidar=SMALL_LIDAR), ulps=PIPELINE_ULPS, eager_inputs=1)
-    assert all((d > 0).mean() > 0.5 for d in depth)
-
-
-def test_complete_harness_jit_vmap_retrace():
-    """complete() on the sparse images of three frames; K per frame, T shared (in_axes None)."""
-    inputs = []
-    for points, valid, camera in _tiny_frames((3, 4, 5)):
-        sparse, _ = project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=32, width=48)
-        inputs.append((np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)))
-    depth = check_stage(complete, inputs, static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
-                        in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=1)
-    assert all((d > 0).mean() > 0.5 for d in depth)
+# jit == eager, vmap == loop and no retrace of complete_points, complete and complete_stages (against the
+# plain composition of the stage functions) are rows of tests/stage_table.py.
 
 
 def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
