@@ -526,14 +526,16 @@ def _rows() -> list[Row]:
         # the pipeline (eager on one input: op-by-op runs of the whole pipeline take seconds)
         Row("complete_points", complete_points, lambda: _tiny_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),
             ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled),
-        Row("complete", complete, lambda: _tiny_sparse((3, 4, 5)), static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
-            in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled),
         # stages against the plain composition of the public stage functions (masks and seeds exact;
         # depths within the composition's normals rounding, test_speed_equivalence's 1e-3 relative + 2e-3 m)
         Row("complete_stages", complete_stages, lambda: _tiny_sparse((3, 4, 5)),
             static=dict(lidar=SMALL_LIDAR, config=SGMConfig()), in_axes=(0, 0, None),
             oracle=_reference_stages, select=lambda s: tuple(getattr(s, k) for k in _STAGE_FIELDS),
-            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=0),
+            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=1),
+        # complete is complete_stages(...).depth in its own jit: op by op it runs exactly complete_stages'
+        # operations (the row above), so no second eager run here; its jit, vmap and retrace are its own
+        Row("complete", complete, lambda: _tiny_sparse((3, 4, 5)), static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
+            in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=0, check=_mostly_filled),
         # geometry
         Row("project_to_image", geometry.project_to_image, _projection_inputs, static=dict(height=32, width=48),
             in_axes=(0, 0, 0, None), oracle=_projection_oracle, oracle_ulps=8),

@@ -278,6 +278,10 @@ def test_bad_input(keep, img, kwargs, match):
 
 # --- the pipeline option (SGMConfig.guidance_weight / guidance_sweeps, image=) ---
 
+#: One guided configuration for the pipeline tests below (one compiled pipeline), with the noise floor on.
+GUIDED = dict(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)
+
+
 def _pipeline_frame():
     from tests.helpers import small_frames
     frames, T = small_frames(2, seed=3)
@@ -300,12 +304,12 @@ def test_pipeline_guided_seeds_and_vmap():
     """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
     from jaxdepth import SGMConfig, complete, complete_stages
     (frames, T, images) = _pipeline_frame()
-    config = SGMConfig(guidance_weight=8.0, guidance_sweeps=2)
+    config = SGMConfig(**GUIDED)
     loop = []
     for (depth, K), image in zip(frames, images):
         stages = complete_stages(depth, K, T, config=config, image=image)
         want = geodesic_seed(np.asarray(stages.inlier_mask), image.astype(np.float32) / 255.0,
-                             color_weight=8.0, sweeps=2, noise_floor=config.guidance_noise_floor)
+                             color_weight=30.0, sweeps=2, noise_floor=config.guidance_noise_floor)
         np.testing.assert_array_equal(stages.du, want.du)
         np.testing.assert_array_equal(stages.dv, want.dv)
         v, u = np.indices(depth.shape)
@@ -356,8 +360,7 @@ def test_pipeline_passes_the_noise_floor():
     from jaxdepth import SGMConfig, complete_stages
     (frames, T, images) = _pipeline_frame()
     depth, K = frames[0]
-    stages = complete_stages(depth, K, T, config=SGMConfig(guidance_weight=30.0, guidance_noise_floor=1.0),
-                             image=images[0])
+    stages = complete_stages(depth, K, T, config=SGMConfig(**GUIDED), image=images[0])
     keep, image = np.asarray(stages.inlier_mask), images[0].astype(np.float32) / 255.0
     want = geodesic_seed(keep, image, color_weight=30.0, sweeps=2, noise_floor=1.0)
     np.testing.assert_array_equal(stages.du, want.du)

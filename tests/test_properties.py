@@ -7,11 +7,11 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from jaxdepth import SGMConfig, complete, complete_stages
-from jaxdepth._src.types import LidarSpec
+from scenes import SMALL_LIDAR as LIDAR
 
-H, W = 40, 64
-LIDAR = LidarSpec(beams=16, fov_up_deg=2.0, fov_down_deg=-24.9, columns=512)
-CONFIG = SGMConfig(max_depth_m=80.0)
+# The size, LiDAR and configuration of the pipeline rows of tests/stage_table.py: the same compiled programs.
+H, W = 32, 48
+CONFIG = SGMConfig()
 T = np.array([[0, -1, 0, 0.0], [0, 0, -1, -0.3], [1, 0, 0, -0.3], [0, 0, 0, 1]], np.float32)
 SETTINGS = settings(deadline=None, max_examples=12, suppress_health_check=[HealthCheck.too_slow])
 
