@@ -362,6 +362,10 @@ def test_equals_frozen_dense_sweep_configurations(seed, shape, beams, density, c
     np.testing.assert_array_equal(got, np.asarray(frozen(depth, K, T, **kw)))
     if seed == 3:
         assert (~got & (depth > 0)).sum() > outliers_module._CHUNK
+    if seed in (2, 4):
+        # window shapes (half height 0, small caps) that the raw-sweep path shares with the image path;
+        # its own angles (and NaN / inf points) are compared on configurations 1 and 3 and on KITTI's sweep
+        return
     got_raw = np.asarray(outlier_keep_mask(depth, K, T, points_cam=points, **kw, **mode))
     assert (got_raw != (depth > 0)).any()
     np.testing.assert_array_equal(got_raw, np.asarray(frozen(depth, K, T, points_cam=points, **kw)))
