@@ -65,6 +65,8 @@ def test_rig_json_lidars_and_columns(tmp_path):
     (dict(lidars=LIDARS, columns=["x", "y", "z", "intensity"]), "columns"),
     (dict(lidar={"beams": 32}, columns=["x", "y", "z", "lidar"]), "columns"),
     (dict(lidars=[{"name": "a"}]), "lidars[0].T_points_lidar"),
+    (dict(lidars=[LIDARS[0], {"name": "b", "T_points_lidar": np.diag([1.0, 1.0, -1.0, 1.0]).tolist()}]),
+     "lidars[1].T_points_lidar"),                                   # a mirror, not an upside-down LiDAR
     (dict(lidars=LIDARS, columns=["x", "y", "intensity", "lidar"]), "columns"),
 ])
 def test_rig_json_errors_name_the_field(tmp_path, extra, field):
@@ -126,3 +128,31 @@ def test_sweeps_json_errors_name_file_and_field(tmp_path, entries, field):
     path = _sweeps(tmp_path, entries)
     with pytest.raises(InputError, match=r"sweeps\.json: field '" + re.escape(field) + "'"):
         read_sweeps_json(path)
+
+
+def test_sweeps_json_lidar_index_error_names_the_sweep_file(tmp_path):
+    rig = read_rig_json(_rig(tmp_path, lidars=LIDARS, columns=COLUMNS))
+    _points(seed=1).tofile(tmp_path / "now.bin")
+    _points(seed=2, lidar=np.where(np.arange(200) == 3, 5, 1)).tofile(tmp_path / "before.bin")
+    path = _sweeps(tmp_path, [{"file": "now.bin", "T_ref_sweep": np.eye(4).tolist()},
+                              {"file": "before.bin", "T_ref_sweep": _pose((-1.5, 0.0, 0.0)).tolist()}])
+    with pytest.raises(InputError, match=r"before\.bin: field 'lidar' expected an index into the rig's 2 lidars "
+                                         r"\(0\.\.1\) \(sweep before\.bin of .*sweeps\.json\), got 5 \(point 3\)"):
+        read_sweeps_cloud(path, rig)
+
+
+def test_source_cloud_checks_and_take():
+    from jaxdepth.io.sources import SourceCloud
+    pts = np.zeros((4, 3), np.float32)
+    pose = np.stack([np.eye(4), _pose((1.0, 0.0, 0.0))])
+    fields = dict(points=pts, source=np.array([0, 1, 1, 0]), T_ref_source=pose, lidars=(None, None),
+                  sweep=np.zeros(2, np.int32), names=("a", "b"), ring=np.arange(4), path="x.bin")
+    cloud = SourceCloud(**fields)
+    part = cloud.take(np.array([False, True, False, True]))
+    assert list(part.source) == [1, 0] and list(part.ring) == [1, 3] and part.num_sources == 2
+    with pytest.raises(ValueError, match=r"x\.bin: field 'source' expected indices in \[0, 2\), got 2"):
+        SourceCloud(**(fields | dict(source=np.array([0, 2, 1, 0]))))
+    sheared = pose.copy()
+    sheared[1, 0, 1] = 0.3
+    with pytest.raises(ValueError, match=r"x\.bin: field 'T_ref_source\[1\]' expected a rigid 4x4 pose"):
+        SourceCloud(**(fields | dict(T_ref_source=sheared)))

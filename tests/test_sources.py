@@ -1,6 +1,8 @@
-"""Several sources (LiDARs x sweeps): per-source normals and viewpoints, free space of the reference sweep."""
+"""Several sources (LiDARs x sweeps): per-source normals and viewpoints, free space seen by other sweeps."""
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -83,7 +85,10 @@ def test_source_normals_vmap_equals_loop():
 
 # ---------------------------------------------------------------- Step 2 per source
 
-def test_source_keep_mask_with_every_source_at_one_origin_is_algorithm_1():
+@functools.lru_cache(maxsize=1)
+def _three_origins():
+    """A street image whose pixels come from three sources at different origins, and the oracle:
+    Algorithm 1 run once per source origin, each pixel taking its own source's result."""
     frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.5)
     cam = frame.cameras[0]
     depth, index = jaxdepth.project_to_image(frame.points, frame.valid, cam.K, cam.T_cam_lidar,
@@ -92,12 +97,50 @@ def test_source_keep_mask_with_every_source_at_one_origin_is_algorithm_1():
     safe = np.where(hit, np.asarray(index), 0)
     pc = np.asarray(frame.points)[safe] @ np.asarray(cam.T_cam_lidar)[:3, :3].T + np.asarray(cam.T_cam_lidar)[:3, 3]
     points_cam = np.where(hit[None], np.moveaxis(pc, -1, 0), 0.0).astype(np.float32)
-    pixel_source = np.where(hit, safe % 3, -1).astype(np.int32)           # three sources, one origin
-    T3 = np.stack([np.asarray(cam.T_cam_lidar)] * 3)
-    got = source_keep_mask(depth, pixel_source, points_cam, cam.K, T3, beams=32)
-    want = outlier_keep_mask(depth, cam.K, cam.T_cam_lidar, beams=32, points_cam=points_cam)
-    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
-    assert np.asarray(want).sum() < hit.sum()                             # something was removed
+    pixel_source = np.where(hit, safe % 3, -1).astype(np.int32)
+    T3 = np.stack([np.asarray(cam.T_cam_lidar)] * 3).astype(np.float32)
+    T3[1, :3, 3] += (1.2, -0.4, -1.5)                     # origins beside, above and behind the first
+    T3[2, :3, 3] += (-0.8, 0.6, 0.9)
+    want = hit.copy()
+    for s in range(3):
+        keep_s = np.asarray(outlier_keep_mask(depth, cam.K, T3[s], beams=32, points_cam=points_cam))
+        want &= np.where(pixel_source == s, keep_s, True)
+    assert all((hit & ~want & (pixel_source == s)).any() for s in range(3))   # each source loses points
+    return np.asarray(depth), pixel_source, points_cam, np.asarray(cam.K), T3, hit, safe, want
+
+
+def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
+    """One pass over the image for all sources equals one pass of Algorithm 1 per source origin."""
+    depth, pixel_source, points_cam, K, T3, _, _, want = _three_origins()
+    got = source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32)
+    np.testing.assert_array_equal(np.asarray(got), want)
+
+
+def _nearer_oracle(depth, candidates, *, beams, eps=1.0):
+    """Brute-force condition 2 alone: a candidate is removed when a pixel of S(i) is nearer by more than eps."""
+    from jaxdepth._src.config import DEFAULT_CONFIG
+    from jaxdepth._src.outliers import window_half_sizes
+    height, width = depth.shape
+    hw, hh = window_half_sizes(height, width, beams=beams, max_half_width_px=DEFAULT_CONFIG.outlier_max_half_width_px,
+                               max_half_height_px=DEFAULT_CONFIG.outlier_max_half_height_px)
+    valid = depth > 0
+    k = min((width * beams - 1) // max(int(valid.sum()), 1), hw)
+    z = np.pad(np.where(valid, depth, np.inf), ((hh, hh), (k, k)), constant_values=np.inf)
+    near = np.full(depth.shape, np.inf)
+    for dv in range(2 * hh + 1):
+        for du in range(2 * k + 1):
+            near = np.minimum(near, z[dv:dv + height, du:du + width])
+    return ~(candidates & valid & (depth > near + eps))
+
+
+def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
+    """Shadow pixels are also removed by condition 2 alone (brute-force window oracle)."""
+    depth, pixel_source, points_cam, K, T3, hit, safe, want = _three_origins()
+    shadow = hit & (safe % 7 == 0)
+    got = np.asarray(source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32, pixel_shadow=shadow))
+    extra = ~_nearer_oracle(depth, shadow, beams=32)
+    assert (extra & want).any()                            # the shadow rule removes something more
+    np.testing.assert_array_equal(got, want & ~extra)
 
 
 def test_one_source_at_the_origin_equals_complete_rig():
@@ -130,6 +173,57 @@ def test_a_car_that_moved_leaves_no_ghost():
     static = np.zeros_like(on_old_car)
     static[:len(old)] = (old[:, 0] < 7.0) & (np.abs(old[:, 2] + 1.7) < 1e-3)     # ground in front of the old car
     assert keep[1][static].mean() > 0.99
+
+
+def test_free_space_is_judged_by_the_rays_that_bracket_the_point():
+    # Analytic oracle on a flat road 1.7 m below the reference LiDAR. A point q a quarter of a beam
+    # spacing above beam b, at a column centre: the rays bracketing q are beams b - 1 and b (and
+    # the columns either side, at the same elevations), and the nearest of them is beam b, which
+    # hits the road at R = 1.7 / sin(-elevation_b). q lies in free space iff |q| < R - margin(R):
+    # a ray farther below q (the next row of a 3 x 3 block) is no witness of the space at q.
+    T_ref = _pose()
+    ref = _sweep(_street(), T_ref)
+    dv = np.radians(35.0) / 31
+    beam = np.arange(14, 25)
+    el_b = np.radians(10.0) - beam * dv
+    R = 1.7 / np.sin(-el_b)
+    azimuth = np.pi - 2 * np.pi * (np.arange(250, 262) + 0.5) / 512
+    el_q = el_b + 0.25 * dv
+    inside = R - free_space_margin(R, SPEC) - 0.3                   # free
+    outside = R - free_space_margin(R, SPEC) + 0.3                  # within the margin: kept
+    q = []
+    for r in (inside, outside):
+        d = np.stack([np.cos(el_q)[:, None] * np.cos(azimuth), np.cos(el_q)[:, None] * np.sin(azimuth),
+                      np.broadcast_to(np.sin(el_q)[:, None], (beam.size, azimuth.size))], -1)
+        q.append((d * r[:, None, None]).reshape(-1, 3))
+    q = np.concatenate(q).astype(np.float32)
+    src = _sources([(ref, T_ref), (q, _pose((-1.5, 0.0, 0.0)))], (0, 1))
+    free = np.asarray(reference_view(src)[0])[1, :len(q)]
+    n = beam.size * azimuth.size
+    assert free[:n].all(), f"{int((~free[:n]).sum())} of {n} points every bracketing ray passed are kept"
+    assert not free[n:].any(), "points within the margin of the bracketing ray's road hit are kept"
+
+
+def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
+    # A box hides the car's old place from the reference LiDAR (and from a camera beside it); the
+    # car stood there one sweep ago and not two sweeps ago. The sweep before saw through that space.
+    # (Sweep 1's scene holds only the car: the box is off its line of sight to the car's visible
+    # side, and one box per scene shares the ray caster's compilation with the tests above.)
+    occluder = [6.0, 0.0, -1.7 + 1.1, 0.2, 0.8, 1.1, 0.0]
+    car = [12.0, 0.0, -1.7 + 0.75, 1.0, 1.0, 0.75, 0.0]
+    T0, T1, T2 = _pose(), _pose((-1.5, 3.0, 0.0)), _pose((-3.0, 4.0, 0.0))
+    parts = [(_sweep(_street(boxes=[occluder]), T0), T0), (_sweep(_street(boxes=[car]), T1), T1),
+             (_sweep(_street(boxes=[occluder]), T2), T2)]
+    src = _sources(parts, (0, 1, 2))
+    old = parts[1][0]
+    on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
+    static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
+    assert on_car.sum() > 30
+    free, shadow = (np.asarray(a)[1, :len(old)] for a in jax.jit(reference_view)(src))   # jit: one compile
+    assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
+    assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
+    by_all = free
+    assert not by_all[static].any(), "road, wall and occluder are static: never free"
 
 
 def test_a_pole_in_front_of_a_wall_seen_from_two_origins():

@@ -201,11 +201,13 @@ def _z_key(z, part):
                      ).astype(jnp.uint16)
 
 
-def _prefilter_fields(depth_c, t, *points_c, footprint):
+def _prefilter_fields(depth_c, t_z, *points_c, footprint):
     """Per-pixel inputs of the prefilter on the padded canvas (one fenced stage).
 
     A pixel takes part when it has depth and, for the footprint form, lies in
-    front of the LiDAR's virtual camera (as the exact test requires). Returns
+    front of the LiDAR's virtual camera (camera depth above ``t_z``, the LiDAR
+    origin's; with per-pixel origins, the nearest of them: every pixel that
+    takes part for some origin takes part, a superset). Returns
     uint16 keys (see :data:`_ZQ`): the depth key, then (footprint form, raw
     path) the key of the point's own camera depth Z; and, footprint form, the
     inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima.
@@ -214,7 +216,7 @@ def _prefilter_fields(depth_c, t, *points_c, footprint):
     if not footprint:
         return (_z_key(depth_c, ok),)
     big_z = points_c[2] if points_c else depth_c
-    ok = ok & (big_z - t[2] > 1e-3) & jnp.isfinite(big_z)
+    ok = ok & (big_z - t_z > 1e-3) & jnp.isfinite(big_z)
     z_key = _z_key(depth_c, ok)
     big_key = z_key if not points_c else _z_key(big_z, ok)
     inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
@@ -256,7 +258,8 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, mo
     removed by a nearer pixel inside the box of normalised half size r; on
     smooth surfaces, where inverse depth varies little within a window, most
     points take that small box. ``rows`` holds the column minima of
-    :func:`_prefilter_rows`.
+    :func:`_prefilter_rows`. ``move_coef`` holds (c_u, c_v, t_z): three scalars, or three (H, W)
+    maps when each pixel has its own LiDAR origin.
     """
     cols = lambda a, half: a[:, hw - half:hw + half + width]
     centre = lambda a: a[hh:hh + height, hw:hw + width]
@@ -385,12 +388,15 @@ def _pad_canvas(depth: jax.Array, points, token, *, hh: int, hw: int) -> _Canvas
     return _Canvas(canvas[0], canvas[1:] if len(canvas) > 1 else None)
 
 
-def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool):
+def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
+               t_front=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
       canvas: :class:`_Canvas` of the image. K: (3, 3) float32. t: (3,) float32
-        LiDAR origin in the camera frame, metres. eps: float32 condition-2
+        LiDAR origin in the camera frame, metres, or (3, H, W): each pixel's own
+        LiDAR origin (several sources). t_front: float32 scalar, at most every
+        candidate's origin z (default ``t[2]``). eps: float32 condition-2
         margin, metres. bounds: :class:`_Bounds`.
       beams, hh, hw: static L and window half sizes (rows, columns).
       footprint: static; True for the "footprint" form of condition 1.
@@ -406,11 +412,12 @@ def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: i
     width = canvas.depth.shape[1] - 2 * hw
     points_c = canvas.points
     _, hv = _small_box(0, True, height / beams, hh)
+    t_front = t[2] if t_front is None else t_front
     keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
-                 (canvas.depth, t) + (() if points_c is None else tuple(points_c)), bounds.n_points)
+                 (canvas.depth, t_front) + (() if points_c is None else tuple(points_c)), bounds.n_points)
     rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), keys,
                  bounds.n_points)
-    # Parallax-move coefficients (c_u, c_v, t_z); see _prefilter_words.
+    # Parallax-move coefficients (c_u, c_v, t_z), scalars or per-pixel maps; see _prefilter_words.
     move_coef = jnp.stack([K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]])
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
     branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
@@ -425,7 +432,7 @@ class _ExactTest(NamedTuple):
 
     canvas: _Canvas
     K: jax.Array
-    t: jax.Array
+    t: jax.Array              # (3,) LiDAR origin, or (3, H, W) each pixel's own (camera frame)
     eps: jax.Array
     bounds: _Bounds
     count: jax.Array          # int32 number of candidates
@@ -433,6 +440,7 @@ class _ExactTest(NamedTuple):
     hh: int
     hw: int
     test: str
+    nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
 
 
 def _view_at(ex: _ExactTest, row, col, window_of):
@@ -447,13 +455,14 @@ def _view_at(ex: _ExactTest, row, col, window_of):
     return view_fn(d, ex.K, ex.t, p, v, u), jnp.where(d > 0, d, jnp.float32(jnp.inf))
 
 
-def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p):
+def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p, nearer_p=None):
     """Conditions 1 and 2 of a chunk of candidates against one block of window columns.
 
     Window blocks have B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices
     of the padded canvases. Block b starts at du = -k + b B, clipped so that it
     stays on the canvas (a clipped block overlaps the previous one: harmless).
     ``removed``: (_CHUNK,) bool, updated with the candidates some window pixel removes.
+    ``nearer_p``: optional (_CHUNK, 1, 1) bool, candidates that condition 2 alone removes.
     """
     hh, hw = ex.hh, ex.hw
     group = max(min(hw, _GROUP), 0)
@@ -472,6 +481,8 @@ def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p):
 
     view_q, z_q = _view_at(ex, r_p + dv, c_p + du, window)
     flip = _condition_1(ex.test, view_p, view_q, du, dv, ex.bounds.cell_u, ex.bounds.cell_v)
+    if nearer_p is not None:
+        flip = flip | nearer_p
     hit = flip & (z_p > z_q + ex.eps) & (jnp.abs(du) <= ex.bounds.k_max)
     return removed | jnp.any(hit, axis=(1, 2))
 
@@ -484,11 +495,14 @@ def _test_chunk(c, keep, *, ex: _ExactTest):
     slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
     row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
     r_p, c_p = (row + ex.hh)[:, None, None], (col + ex.hw)[:, None, None]
+    if ex.t.ndim == 3:          # each candidate's own LiDAR origin, broadcast over its window
+        ex = ex._replace(t=ex.t.at[:, row, col].get(mode="promise_in_bounds")[:, :, None, None])
+    nearer_p = None if ex.nearer is None else ex.nearer.at[row, col].get(mode="promise_in_bounds")[:, None, None]
     view_p, z_p = _view_at(ex, r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
     block = 2 * max(min(ex.hw, _GROUP), 0) + 1
     n_blocks = jnp.maximum((2 * ex.bounds.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
     removed = jax.lax.fori_loop(0, n_blocks, functools.partial(_column_block, ex=ex, row=row, col=col,
-                                                                view_p=view_p, z_p=z_p),
+                                                                view_p=view_p, z_p=z_p, nearer_p=nearer_p),
                                 jnp.zeros((_CHUNK,), bool))
     flat = jnp.where(slot < ex.count, row * width + col, height * width)
     return keep.at[flat].set(~removed, mode="drop")
@@ -510,7 +524,7 @@ def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
-               half_height, test="footprint"):
+               half_height, test="footprint", origins=None, nearer=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -518,22 +532,35 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
     ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
     pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
-    pixel still serves as a neighbour j). Returns the (H, W) bool keep mask.
+    pixel still serves as a neighbour j). ``origins``: optional (3, H, W) float32, each
+    pixel's own LiDAR origin in the camera frame (several sources in one pass: candidate
+    ``i`` is tested with its own origin as the viewpoint; ``T_cam_lidar`` is then unused).
+    ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
+    S(i)). Returns the (H, W) bool keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
     K = K.astype(jnp.float32)
-    t = T_cam_lidar.astype(jnp.float32)[:3, 3]
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
+    if origins is None:
+        t, t_front = T_cam_lidar.astype(jnp.float32)[:3, 3], None
+    else:
+        t = origins.astype(jnp.float32)
+        # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
+        t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
     bounds = _bounds(valid, beams=beams, half_width=half_width)
     canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
     words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
-                       footprint=test == "footprint")
+                       footprint=test == "footprint", t_front=t_front)
     if candidates is not None:
         words = words & pack_bits(candidates)
+    if nearer is not None:      # the footprint prefilter does not bound them: all are tested
+        nearer = nearer & valid
+        words = words | pack_bits(nearer)
     count, locate = _compact(words)
-    ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test)
+    ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test,
+                    nearer=nearer)
     return _exact_test(valid, ex)
 
 

@@ -10,13 +10,14 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   range image (its :class:`~jaxdepth.LidarSpec`) and get their Badino normals
   there; the normals are rotated back into the reference frame. Sources that
   share a LidarSpec are vmapped together (one static range-image shape per group).
-* Free space (:func:`free_space_keep`): a point of another sweep that lies where
-  a LiDAR of the reference sweep saw empty space is removed (a moving object's
-  ghost, or a registration error). See the function for the rule and margins.
+* Free space (:func:`free_space_keep`): a point of an earlier sweep that lies where
+  a LiDAR of any other sweep saw empty space is removed (a moving object's
+  ghost, or a registration error). See :func:`reference_view` for the rule and margins.
 * Step 2 per source (:func:`source_keep_mask`): Algorithm 1 on the camera's
   z-buffer of all sources' points, where each pixel's point is tested with *its
   own source's* origin as the viewpoint compared with the camera's; every
-  pixel, whatever its source, is a neighbour ``j``. Vmapped over sources.
+  pixel, whatever its source, is a neighbour ``j``. One pass over the image for
+  all sources: each candidate carries its own origin.
 * Steps 3 and 4 are the single-source ones on the merged, filtered image.
 
 With one source at the points' origin, :func:`complete_sources` equals
@@ -47,8 +48,8 @@ FREE_SPACE_NOISE_M = 0.3
 #: Surface slope allowance of the free-space margin: a surface at 45 degrees to the ray changes range
 #: by ``r * delta`` across an angular step ``delta``; the margin allows ``FREE_SPACE_SLOPE`` such steps.
 FREE_SPACE_SLOPE = 2.0
-#: Measured cells (of the 3 x 3 around a point's cell) needed before the reference LiDAR's view there counts.
-FREE_SPACE_MIN_CELLS = 6
+#: Measured cells (of the 2 x 2 whose rays bracket a point) needed before a LiDAR's view there counts.
+FREE_SPACE_MIN_CELLS = 3
 
 
 @jax.tree_util.register_dataclass
@@ -140,29 +141,6 @@ def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_s
     return out
 
 
-def _min_max_count_3x3(r: jax.Array):
-    """Minimum and maximum measured range (inf / -inf where none) and count of measured cells over
-    each 3 x 3 block. Rows are padded as empty, columns wrap around (the image spans 360 degrees)."""
-    has = r > 0
-    n_rows, n_cols = r.shape
-
-    def pad(a, fill):
-        a = jnp.pad(a, ((1, 1), (0, 0)), constant_values=fill)
-        return jnp.concatenate([a[:, -1:], a, a[:, :1]], axis=1)
-
-    lo_p, hi_p = pad(jnp.where(has, r, jnp.inf), jnp.inf), pad(jnp.where(has, r, -jnp.inf), -jnp.inf)
-    has_p = pad(has.astype(jnp.int32), 0)
-    lo = jnp.full(r.shape, jnp.inf, jnp.float32)
-    hi = jnp.full(r.shape, -jnp.inf, jnp.float32)
-    cnt = jnp.zeros(r.shape, jnp.int32)
-    for di in range(3):
-        for dj in range(3):
-            lo = jnp.minimum(lo, lo_p[di:di + n_rows, dj:dj + n_cols])
-            hi = jnp.maximum(hi, hi_p[di:di + n_rows, dj:dj + n_cols])
-            cnt = cnt + has_p[di:di + n_rows, dj:dj + n_cols]
-    return lo, hi, cnt
-
-
 def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_NOISE_M,
                       slope: float = FREE_SPACE_SLOPE):
     """The free-space margin at ``range_m`` metres for a LiDAR of range-image geometry ``lidar``.
@@ -178,37 +156,45 @@ def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_
 
 
 def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
-                   min_cells: int = FREE_SPACE_MIN_CELLS):
-    """Where the reference sweep's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
+                   min_cells: int = FREE_SPACE_MIN_CELLS, every_sweep: bool = True):
+    """Where the rig's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
 
-    Every LiDAR ``r`` of the reference sweep (``sweep == 0``) bins its own points into its
-    own range image (its LidarSpec, about its own origin and axes). A point ``q`` of another
-    sweep, seen from ``r``'s origin, falls in a cell; around it, over the 3 x 3 cells (the
-    rays bracketing ``q``'s ray on both sides), ``R_lo`` is the nearest range ``r`` measured.
+    Every witness LiDAR ``r`` (each source of every sweep with ``every_sweep``, else those of
+    the reference sweep, ``sweep == 0``) bins its own points into its own range image (its
+    LidarSpec, about its own origin and axes). A point ``q`` of another sweep than ``r``'s, seen
+    from ``r``'s origin, falls in a cell; the rays bracketing ``q``'s direction are those of the
+    2 x 2 cells made of its own cell, the neighbouring row on the side of ``q``'s elevation and
+    the neighbouring column on the side of its azimuth. ``R_lo`` is the nearest range among them.
 
-    * ``free`` (needs at least ``min_cells`` of those 9 cells measured, else no evidence):
-      ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled
-      past it and hit nothing there, so ``q`` sits in space the reference sweep saw empty (a
-      moving object's ghost or a registration error). Taking the nearest bracketing range
-      keeps surfaces between rays (a slanted road; a pole between two scan lines, whose range
-      is then ``R_lo``).
-    * ``shadow`` (needs only ``q``'s own cell measured, range ``R``): ``|q - origin_r| > R +
-      margin(R)``: the reference LiDAR's ray through ``q``'s cell stopped in front of it, ``q``
-      is hidden from the reference LiDAR. Step 2 then also removes it when the camera sees a
-      nearer pixel next to it (:func:`source_keep_mask`).
+    * ``free`` (needs at least ``min_cells`` of those 4 cells measured, else no evidence):
+      ``|q - origin_r| < R_lo - margin(R_lo)``: every ray around ``q`` travelled past it and hit
+      nothing there, so ``q`` sits in space ``r`` saw empty: an object that moved (its ghost, or
+      an object that has not yet arrived) or a registration error. Taking the nearest bracketing
+      range keeps surfaces between rays (a slanted road; a pole between two scan lines, whose
+      range is then ``R_lo``). A ray farther from ``q`` than the bracketing ones is no witness of
+      the space at ``q`` (the road two scan lines below a car's bumper).
+    * ``shadow`` (reference-sweep witnesses only; needs ``q``'s own cell measured, range ``R``):
+      ``|q - origin_r| > R + margin(R)``: the reference LiDAR's ray through ``q``'s cell stopped
+      in front of it, ``q`` is hidden from the reference LiDAR. Step 2 then also removes it when
+      the camera sees a nearer pixel next to it (:func:`source_keep_mask`).
 
     ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
     flag; points outside ``r``'s vertical field of view neither.
     """
     s, p = sources.points.shape[:2]
     flat = sources.points.reshape(-1, 3)
-    tested = jnp.asarray(np.repeat(np.asarray(sources.sweep) != 0, p))
+    point_sweep = np.repeat(np.asarray(sources.sweep), p)
+    tested = jnp.asarray(point_sweep != 0)
     free = jnp.zeros((s * p,), bool)
     shadow = jnp.zeros((s * p,), bool)
     for spec, idx in _spec_groups(sources.lidars):
-        ref = np.asarray([i for i in idx if sources.sweep[i] == 0], np.int32)
+        ref = np.asarray([i for i in idx if every_sweep or sources.sweep[i] == 0], np.int32)
         if ref.size == 0:
             continue
+        # A witness of sweep w judges free space for the points of the other sweeps; only the
+        # reference sweep's witnesses judge shadow.
+        others = jnp.asarray(point_sweep[None, :] != np.asarray(sources.sweep)[ref][:, None])
+        is_ref = jnp.asarray(np.asarray(sources.sweep)[ref] == 0)
         T = sources.T_ref_source[ref]
         local = _to_source_frames(T, sources.points[ref])
         rows = None if sources.rows is None else sources.rows[ref]
@@ -216,7 +202,6 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
 
         def one_witness(T_r, local_r, valid_r, *rows_r, spec=spec, delta=delta):
             ri, _ = range_image_and_slots(local_r, valid_r, spec, *rows_r)
-            lo, _, cnt = _min_max_count_3x3(ri.r)
             q = transform_points(invert_rigid(T_r), flat)
             rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones((s * p,), bool))
             half = 0.5 * (spec.fov_up_rad - spec.fov_down_rad) / spec.beams
@@ -226,16 +211,42 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
                 _, col = row_col(th, ph, spec)
             else:
                 row, col = row_col(th, ph, spec)
-            enough = inside & (cnt[row, col] >= min_cells)
-            r_lo, r_own = lo[row, col], ri.r[row, col]
+            r_lo, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
+            enough = inside & (n_cells >= min_cells)
+            r_own = ri.r[row, col]
             return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
                     inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
 
         args = (T, local, sources.valid[ref]) + (() if rows is None else (rows,))
         f, h = jax.vmap(one_witness)(*args)
-        free = free | jnp.any(f, axis=0)
-        shadow = shadow | jnp.any(h, axis=0)
+        free = free | jnp.any(f & others, axis=0)
+        shadow = shadow | jnp.any(h & is_ref[:, None], axis=0)
     return (free & tested).reshape(s, p), (shadow & tested).reshape(s, p)
+
+
+def _bracket_2x2(ri, row, col, theta, phi, spec):
+    """Nearest measured range (inf where none) and count of measured cells among the 2 x 2 cells
+    whose rays bracket each query direction: its own cell ``(row, col)``, the row on the side of
+    its elevation (judged by the row's mean measured elevation, else its centre) and the column on
+    the side of its azimuth. Rows beyond the image count as unmeasured; columns wrap around."""
+    n_rows, n_cols = ri.r.shape
+    has = ri.r > 0
+    count = jnp.sum(has, axis=1)
+    mean = jnp.sum(jnp.where(has, ri.phi, 0.0), axis=1) / jnp.maximum(count, 1)
+    centre = spec.fov_up_rad - (jnp.arange(n_rows, dtype=jnp.float32) + 0.5) * (
+        (spec.fov_up_rad - spec.fov_down_rad) / n_rows)
+    mean = jnp.where(count > 0, mean, centre)
+    row2 = jnp.where(phi > mean[row], row - 1, row + 1)
+    row_ok = (row2 >= 0) & (row2 < n_rows)
+    row2 = jnp.clip(row2, 0, n_rows - 1)
+    col_f = (jnp.pi - theta) * (n_cols / (2 * jnp.pi)) - col
+    col2 = jnp.where(col_f < 0.5, col - 1, col + 1) % n_cols
+    r = jnp.where(has, ri.r, jnp.inf)
+    cells = (r[row, col], r[row, col2], jnp.where(row_ok, r[row2, col], jnp.inf),
+             jnp.where(row_ok, r[row2, col2], jnp.inf))
+    lo = functools.reduce(jnp.minimum, cells)
+    n = sum(jnp.isfinite(c).astype(jnp.int32) for c in cells)
+    return lo, n
 
 
 def _row_of_elevation(ri, phi):
@@ -249,8 +260,8 @@ def _row_of_elevation(ri, phi):
 
 
 def free_space_keep(sources: Sources, **options) -> jax.Array:
-    """(S, P) bool: ``valid`` without the points of other sweeps that lie in space the reference
-    sweep saw empty (``free`` of :func:`reference_view`; options as there)."""
+    """(S, P) bool: ``valid`` without the points of earlier sweeps that lie in space another sweep
+    saw empty (``free`` of :func:`reference_view`; options as there)."""
     free, _ = reference_view(sources, **options)
     return sources.valid & ~free
 
@@ -272,9 +283,10 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
         window S(i) is nearer by more than epsilon (condition 2 alone: the reference
         LiDAR saw something in front of it, and so, next to it, does the camera).
 
-    Algorithm 1 runs once per source (vmapped): the candidates are that source's pixels,
-    the viewpoint compared with the camera's is that source's origin, and every pixel
-    of the image is a possible occluder ``j``.
+    Algorithm 1 tests each pixel's point with that point's own source origin as the
+    viewpoint compared with the camera's; every pixel of the image is a possible occluder
+    ``j``. All sources share one pass over the image (each candidate carries its origin),
+    which gives the same mask as one pass per source at about the cost of one.
     """
     valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
     if not config.outlier_removal:
@@ -284,18 +296,11 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
                                max_half_height_px=config.outlier_max_half_height_px)
     eps = jnp.asarray(config.epsilon_m, jnp.float32)
     n_src = T_cam_sources.shape[0]
-
-    def one(s, T):
-        return _keep_mask(sparse_depth, K, T, points_cam, eps, valid & (pixel_source == s), beams=int(beams),
-                          half_width=hw, half_height=hh, test=config.outlier_test)
-
-    keeps = jax.vmap(one)(jnp.arange(n_src, dtype=jnp.int32), T_cam_sources)
-    mine = pixel_source[None] == jnp.arange(n_src, dtype=jnp.int32)[:, None, None]
-    keep = valid & jnp.all(keeps | ~mine, axis=0)
-    if pixel_shadow is not None:
-        keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, valid & pixel_shadow,
-                                 beams=int(beams), half_width=hw, half_height=hh, test="nearer")
-    return keep
+    safe = jnp.clip(pixel_source, 0, n_src - 1)
+    origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
+    nearer = None if pixel_shadow is None else valid & pixel_shadow
+    return valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
+                              half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer)
 
 
 def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
@@ -332,7 +337,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     sources = dataclasses.replace(sources, points=points, valid=valid)
     normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
     shadow = None
-    if free_space:
+    if free_space and any(sw != 0 for sw in sources.sweep):       # one sweep: nothing to test
         free, shadow = reference_view(sources)
         valid = valid & ~free
         shadow = shadow.reshape(-1)
@@ -361,7 +366,7 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs).
       cameras: :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
       config: static :class:`SGMConfig`.
-      free_space: static; remove other sweeps' points in the reference sweep's free space
+      free_space: static; remove earlier sweeps' points that lie in another sweep's free space
         (:func:`free_space_keep`).
       beams: static L of Step 2's window bounds; default :func:`default_beams`.
       images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.

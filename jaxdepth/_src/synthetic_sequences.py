@@ -25,7 +25,7 @@ import numpy as np
 
 from jaxdepth._src.scene import _box, cast_rays, scene_arrays, street_scene_arrays
 from jaxdepth._src.synthetic import lidar_rays, render_depth, rig_cameras
-from jaxdepth._src.types import Camera, LidarSpec
+from jaxdepth._src.types import Camera, LidarSpec, SourceCloud
 
 #: The rig: (name, position in the reference LiDAR's ego frame (m), roll, pitch (deg), LidarSpec).
 RIG_LIDARS = (
@@ -40,15 +40,13 @@ _LANE_CAR_BOXES = slice(39, 45)
 _GROUND_Z = -1.73
 
 
-@dataclasses.dataclass(frozen=True)
-class SyntheticSequence:
-    """Sweeps of a drive, in the reference frame, with the reference camera's exact depth.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SyntheticSequence(SourceCloud):
+    """Sweeps of a drive: a :class:`~jaxdepth._src.types.SourceCloud` (every valid return of every
+    source, reference frame; ``lidars`` are the rig's specs, ``sweep`` 0 the reference) with the
+    reference camera's exact depth.
 
-    Attributes:
-      points: (N, 3) float32 metres, reference frame (every valid return of every source).
-      source: (N,) int32 source of each point.
-      T_ref_source: (S, 4, 4) float64 pose of each source's LiDAR in the reference frame.
-      lidars: S :class:`LidarSpec`. sweep: (S,) int32 (0 = reference). names: S strings.
+    Attributes (beyond SourceCloud's):
       camera: the reference :class:`Camera` (``T_cam_lidar`` maps reference-frame points).
       dense_depth: (H, W) float32 exact depth of the reference camera, 0 = sky.
       ghost_region: (H, W) bool: pixels where a moving car was in an earlier sweep, more than
@@ -58,12 +56,6 @@ class SyntheticSequence:
         (0 where none): a prediction within 1 m of it inside ``ghost_region`` shows a ghost.
     """
 
-    points: np.ndarray
-    source: np.ndarray
-    T_ref_source: np.ndarray
-    lidars: tuple
-    sweep: np.ndarray
-    names: tuple
     camera: Camera
     dense_depth: np.ndarray
     ghost_region: np.ndarray

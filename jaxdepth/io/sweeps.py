@@ -149,11 +149,15 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
     # reader's own check would take a 5th column for nuScenes' ring).
     points, extra = read_points(file, columns=count, force=names is not None)
     points, extra = _xyz(points, extra, names)
-    ring = _named(extra, names, "ring")
+    ring_raw = _named(extra, names, "ring")
+    # A ring index is a laser of one LiDAR: with a lidar column its elevation is judged about that
+    # LiDAR's own origin and axes (below), not about the points' origin.
+    per_lidar_rings = bool(rig.lidars) and ring_raw is not None and _named(extra, names, "lidar") is not None
     if names is not None:
         from jaxdepth.io.plausibility import check_sweep
-        check_sweep(points, path=file, columns=count, intensity=_named(extra, names, "intensity"), ring=ring)
-    ring = None if ring is None else np.where(np.isfinite(ring), ring, -1).astype(np.int32)
+        check_sweep(points, path=file, columns=count, intensity=_named(extra, names, "intensity"),
+                    ring=None if per_lidar_rings else ring_raw)
+    ring = None if ring_raw is None else np.where(np.isfinite(ring_raw), ring_raw, -1).astype(np.int32)
     pts = (points.astype(np.float64) @ T_ref_sweep[:3, :3].T + T_ref_sweep[:3, 3]).astype(np.float32)
     if rig.lidars:
         lidar = _named(extra, names, "lidar")
@@ -169,6 +173,13 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
             raise field_error(file, "lidar", f"an index into the rig's {len(rig.lidars)} lidars "
                               f"(0..{len(rig.lidars) - 1}){where}", f"{value:g} (point {int(np.argmax(bad))})")
         local = np.where(finite, lidar, 0).astype(np.int32)
+        if per_lidar_rings:
+            from jaxdepth.io.plausibility import check_sweep
+            for j, lid in enumerate(rig.lidars):
+                mine = finite & (local == j)
+                T = np.linalg.inv(np.asarray(lid.T_points_lidar, np.float64))
+                check_sweep(points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3], path=file, columns=count,
+                            ring=ring_raw[mine])
         srcs = [(T_ref_sweep @ np.asarray(lid.T_points_lidar, np.float64), lid.spec, f"{lid.name}@{sweep}")
                 for lid in rig.lidars]
         return pts, local, ring, srcs
