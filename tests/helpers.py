@@ -111,3 +111,33 @@ def block_images(sizes, *, seed: int, block_px: int = 8, noise_dn: int = 8) -> l
         image = np.repeat(np.repeat(blocks, block_px, axis=0), block_px, axis=1)[:h, :w]
         out.append(np.clip(image + rng.integers(-noise_dn, noise_dn + 1, size=image.shape), 0, 255).astype(np.uint8))
     return out
+
+
+#: The small two-camera rig of the ``complete-rig`` tests (test_extras_cli, test_camera_and_format):
+#: name -> (width, height, K). Both cameras look along the LiDAR's +x (:data:`LEVEL`), and a
+#: 16-beam LiDAR from +5 to -10 degrees (:data:`WALL_LIDAR`) scans the wall of :func:`wall_sweep`.
+#: Tests that run the same rig with the same options share one compiled completion.
+WALL_UP_DEG, WALL_DOWN_DEG = 5.0, -10.0
+WALL_LIDAR = {"beams": 16, "fov_up_deg": WALL_UP_DEG, "fov_down_deg": WALL_DOWN_DEG, "columns": 720}
+LEVEL = [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]]
+WALL_CAMERAS = {"CAM_A": (64, 48, [[40, 0, 31.5], [0, 40, 20.2], [0, 0, 1]]),
+                "CAM_B": (40, 30, [[30, 0, 19.5], [0, 30, 9.7], [0, 0, 1]])}
+
+
+def wall_sweep(path, *, up_deg=WALL_UP_DEG, down_deg=WALL_DOWN_DEG, beams=16):
+    """A spinning-LiDAR pattern on the wall x = 20 m, saved as (N, 4) float32 ``.npy``: ``beams``
+    elevations, 0.5 degree azimuth steps from -40 to +40 degrees."""
+    el = np.radians(np.linspace(down_deg, up_deg, beams))[:, None]
+    az = np.radians(np.arange(-40.0, 40.0, 0.5))[None, :]
+    r = 20.0 / (np.cos(el) * np.cos(az))
+    pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], -1).reshape(-1, 3)
+    np.save(path, np.concatenate([pts, np.zeros((len(pts), 1))], 1).astype(np.float32))
+
+
+def write_wall_rig(path, *, T_cam_lidar=None) -> None:
+    """The rig JSON of :data:`WALL_CAMERAS`; ``T_cam_lidar``: camera name -> (4, 4) list (default :data:`LEVEL`)."""
+    import json
+    T = T_cam_lidar or {}
+    pathlib.Path(path).write_text(json.dumps({"lidar": WALL_LIDAR, "cameras": [
+        {"name": n, "width": w, "height": h, "K": K, "T_cam_lidar": T.get(n, LEVEL)}
+        for n, (w, h, K) in WALL_CAMERAS.items()]}))

@@ -149,14 +149,17 @@ def test_integer_metres_are_refused_and_real_metres_pass():
 # ------------------------------------------------------------------ run records
 
 
-def _sparse_folder(root, n=2, shape=(48, 96)):
+def _sparse_folder(root, n=2, shape=(64, 128)):
+    """``n`` random sparse depths and one K. 64 x 128, the size of ``tests/helpers.small_frames``: two
+    frames in one batch compile what test_extras_cli / test_cli compile for that size (the session's
+    compilation cache reads it back)."""
     rng = np.random.default_rng(3)
     root.mkdir()
     for i in range(n):
         d = np.where(rng.random(shape) < 0.08, rng.uniform(4.0, 40.0, shape), 0.0).astype(np.float32)
         write_depth_png(root / f"f{i}.png", d)
     K = root.parent / "K.txt"
-    K.write_text("60 0 48\n0 60 24\n0 0 1\n")
+    K.write_text("60 0 64\n0 60 32\n0 0 1\n")
     return root, K
 
 
@@ -266,28 +269,34 @@ def test_nuscenes_validity_marks_only_pixels_beyond_the_scan_line_spacing_and_co
         tmp_path, capsys):
     """CAM_FRONT of the nuScenes sample through complete-rig: every pixel marked invalid is farther than one
     scan-line spacing from a seed (the fixed 16 px limit marked 26 % of the field of view invalid, in
-    stripes), and the printed count is the written PNG's non-zero pixels."""
+    stripes, at full size), and the printed count is the written PNG's non-zero pixels. The camera at
+    half size (800 x 450, K scaled) to keep the test fast."""
+    import dataclasses
+
     from jaxdepth._src import validity as vd
     from jaxdepth.batch.extras import decode_seed_distance
     from jaxdepth.io.rig import read_rig_json, rig_from_nuscenes_calibration, write_rig_json
     sample = require_shared("nuscenes", "sample")
     full = rig_from_nuscenes_calibration(sample / "calibration.json")
-    rig = type(full)(lidar=full.lidar, cameras=(full.camera("CAM_FRONT"),))
+    front = full.camera("CAM_FRONT")
+    half = dataclasses.replace(front, width=front.width // 2, height=front.height // 2,
+                               K=np.diag([0.5, 0.5, 1.0]).astype(np.float32) @ front.K)
+    rig = type(full)(lidar=full.lidar, cameras=(half,))
     write_rig_json(tmp_path / "rig.json", rig)
     rig = read_rig_json(tmp_path / "rig.json")
     out = tmp_path / "out"
     code, stdout, _ = _run(capsys, "complete-rig", _nusc_sweep(), tmp_path / "rig.json", out, "--validity",
                            "--seed-distance", "--zero-invalid")
     assert code == 0
-    count = int(re.search(r"CAM_FRONT: 1600x900, (\d+) completed pixels", stdout).group(1))
+    count = int(re.search(r"CAM_FRONT: 800x450, (\d+) completed pixels", stdout).group(1))
     depth = read_depth_png(out / "CAM_FRONT.png")
-    assert count == int(np.count_nonzero(depth)) < 1600 * 900
+    assert count == int(np.count_nonzero(depth)) < 800 * 450
     valid = cv2.imread(str(out / "CAM_FRONT_validity.png"), cv2.IMREAD_UNCHANGED) > 0
     distance = decode_seed_distance(cv2.imread(str(out / "CAM_FRONT_seed_distance.png"), cv2.IMREAD_UNCHANGED))
     camera = rig.cameras[0]
-    inside = np.asarray(vd.fov_mask(camera.K, camera.T_cam_lidar, height=900, width=1600, lidar=rig.lidar))
+    inside = np.asarray(vd.fov_mask(camera.K, camera.T_cam_lidar, height=450, width=800, lidar=rig.lidar))
     spacing = float(vd.scan_line_spacing_px(camera.K, rig.lidar))
-    assert 25 < spacing < 35  # HDL-32E, fy ~1266
+    assert 12.5 < spacing < 17.5  # HDL-32E, fy ~1266 / 2
     invalid = inside & ~valid
     assert np.all(distance[~valid] > spacing)  # anywhere: only pixels farther than one spacing from a seed
     assert invalid.sum() / inside.sum() < 0.10
@@ -317,9 +326,10 @@ def test_single_png_output_folder_is_created_or_refused_before_computing(tmp_pat
     code, _, err = _run(capsys, "complete", src / "f0.png", blocker / "out.png", "--intrinsics", K)
     assert code == 1 and "cannot create output folder" in _one_line_error(err)
     monkeypatch.setattr(runner, "run_jobs", real)
+    # One 64 x 128 PNG without outlier removal: test_cli's single-image run compiles the same program.
     target = tmp_path / "new" / "deeper" / "out.png"
-    code, _, err = _run(capsys, "complete", src / "f0.png", target, "--intrinsics", K)
-    assert code == 0 and read_depth_png(target).shape == (48, 96)
+    code, _, err = _run(capsys, "complete", src / "f0.png", target, "--intrinsics", K, "--no-outlier-removal")
+    assert code == 0 and read_depth_png(target).shape == (64, 128)
 
 
 def test_nuscenes_dataroot_without_version_gets_the_hint(tmp_path, capsys):
@@ -357,7 +367,10 @@ def test_kitti_tree_keeps_one_record_per_method_so_two_methods_share_an_output_r
     src = tmp_path / "kitti_depth" / "train"
     folder = src / DRIVE / "proj_depth" / "velodyne_raw" / "image_02"
     folder.mkdir(parents=True)
-    shutil.copyfile(frame / "velodyne_raw_image_02.png", folder / "0000000005.png")
+    # The real frame's top-left 240 x 640 pixels (the calibration's K holds for it; the principal
+    # point is inside): what is checked is the records, on a third of the pixels.
+    cut = _kitti_u16("velodyne_raw_image_02.png")[:240, :640]
+    assert cv2.imwrite(str(folder / "0000000005.png"), cut) and np.count_nonzero(cut) > 1000
     calib = tmp_path / "calib" / DATE
     calib.mkdir(parents=True)
     for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
-import jaxdepth
 from jaxdepth import cli
 from jaxdepth._src import presets
 from jaxdepth.io import InputError, read_depth_png, read_kitti_raw_calib, write_depth_png
@@ -105,53 +105,58 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
 
 
 def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
-    """The README's example rig (identity extrinsic) with points ahead along the LiDAR's x axis:
-    the camera looks along +z and sees none of them."""
-    rng = np.random.default_rng(0)
-    pts = np.stack([rng.uniform(5, 30, 3000), rng.uniform(-5, 5, 3000), rng.uniform(-5, -1, 3000),
-                    np.zeros(3000)], 1).astype(np.float32)
-    pts = pts[(pts[:, 1] > 0.1) | (pts[:, 1] < -0.1)]
+    """The two-camera rig of the wall sweep (``tests/helpers.py``, as in test_extras_cli: the same
+    compiled completion) with CAM_B turned to look backwards (along the LiDAR's -x): it sees none of
+    the wall's points, is warned about and written all zero; CAM_A is not."""
+    from helpers import wall_sweep, write_wall_rig
     sweep = tmp_path / "sweep.npy"
-    np.save(sweep, pts)
+    wall_sweep(sweep)
     rig = tmp_path / "rig.json"
-    rig.write_text(json.dumps({"lidar": {"beams": 64}, "cameras": [
-        {"name": "CAM_FRONT", "width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]],
-         "T_cam_lidar": np.eye(4).tolist()}]}))
+    backwards = [[0, 1, 0, 0], [0, 0, -1, 0], [-1, 0, 0, 0], [0, 0, 0, 1]]
+    write_wall_rig(rig, T_cam_lidar={"CAM_B": backwards})
     code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
     err = capsys.readouterr().err
-    assert code == 0 and "CAM_FRONT: no LiDAR point projects into this camera" in err
+    assert code == 0 and "CAM_B: no LiDAR point projects into this camera" in err and "CAM_A: no LiDAR" not in err
+    assert not read_depth_png(tmp_path / "out" / "CAM_B.png").any()
+    assert read_depth_png(tmp_path / "out" / "CAM_A.png").all()
 
 
 # ---------------------------------------------------------------- the shared frame through the CLI
-@pytest.mark.parametrize("crop", [True, False])
-def test_cli_uses_each_cameras_own_extrinsic(tmp_path, kitti_frame, crop):
-    """Done when of issue 13: the CLI on the shared KITTI frame in depth-completion layout equals the
-    API called with each camera's own extrinsic."""
+def test_cli_uses_each_cameras_own_extrinsic(tmp_path, kitti_frame):
+    """Done when of issue 13: the CLI on the shared KITTI frame in depth-completion layout (the
+    benchmark crop) equals the API called with each camera's own extrinsic. Both cameras go
+    through one compiled batch (``--batch-size 2``): each frame carries its own extrinsic.
+
+    Oracle: :func:`jaxdepth.batch.runner.complete_batch` with the extrinsics given explicitly, at
+    the CLI's batch shape (one compiled program for the CLI and the oracle; ``tests/test_runner.py``
+    checks ``complete_batch`` against per-frame :func:`jaxdepth.complete`). The uncropped frame
+    takes the same path at another shape (another compile, nothing else)."""
+    from jaxdepth.batch.runner import complete_batch
+    from jaxdepth.io import encode_depth_uint16
     calib = read_kitti_raw_calib(kitti_frame / "calib_cam_to_cam.txt", kitti_frame / "calib_velo_to_cam.txt")
     src = tmp_path / "src"
     (src / "velodyne_raw").mkdir(parents=True)
     (src / "intrinsics").mkdir()
-    expected = {}
+    names, depths, Ks, Ts = [], [], [], []
     for cam in (2, 3):
-        sparse = read_depth_png(kitti_frame / f"velodyne_raw_image_0{cam}.png")
-        K = calib["cameras"][cam]["K"]
-        if crop:
-            sparse, K = crop_to_benchmark(sparse, K)
+        sparse, K = crop_to_benchmark(read_depth_png(kitti_frame / f"velodyne_raw_image_0{cam}.png"),
+                                      calib["cameras"][cam]["K"])
         name = NAME.format(cam)
         write_depth_png(src / "velodyne_raw" / f"{name}.png", sparse)
-        (src / "intrinsics" / f"{name}.txt").write_text(" ".join(f"{x:.9g}" for x in np.asarray(K).ravel()))
-        K = np.asarray(" ".join(f"{x:.9g}" for x in np.asarray(K).ravel()).split(), np.float32).reshape(3, 3)
-        api = np.asarray(jaxdepth.complete(read_depth_png(src / "velodyne_raw" / f"{name}.png"), K,
-                                           calib["cameras"][cam]["T_cam_lidar"]))
-        wrong = np.asarray(jaxdepth.complete(read_depth_png(src / "velodyne_raw" / f"{name}.png"), K,
-                                             presets.KITTI_T_CAM2_LIDAR))
-        expected[name] = (api, wrong)
+        text = " ".join(f"{x:.9g}" for x in np.asarray(K).ravel())
+        (src / "intrinsics" / f"{name}.txt").write_text(text)
+        names.append(name)
+        depths.append(read_depth_png(src / "velodyne_raw" / f"{name}.png"))
+        Ks.append(np.asarray(text.split(), np.float32).reshape(3, 3))
+        Ts.append(calib["cameras"][cam]["T_cam_lidar"])
+    depths, Ks = np.stack(depths), np.stack(Ks)
+    options = dict(batch_size=2, strategy="map", devices=1)
+    api = complete_batch(depths, Ks, np.stack(Ts).astype(np.float32), **options)
+    wrong = complete_batch(depths, Ks, presets.KITTI_T_CAM2_LIDAR, **options)  # camera 2's for both
     dst = tmp_path / "dst"
-    assert cli.main(["complete", str(src), str(dst), "--quiet", "--batch-size", "1", "--cpu-devices", "1"]) == 0
-    for name, (api, wrong) in expected.items():
-        got = read_depth_png(dst / f"{name}.png")
-        want = np.round(np.clip(api, 0, 255.99) * 256) / 256
-        close = np.abs(got - want) <= 1.0 / 256 + 1e-6
-        assert close.mean() > 0.9995, name
-        if name.endswith("3"):
-            assert np.mean(np.abs(got - wrong) > 0.05) > 0.001     # camera 2's extrinsic would differ
+    assert cli.main(["complete", str(src), str(dst), "--quiet", "--batch-size", "2", "--cpu-devices", "1"]) == 0
+    for i, name in enumerate(names):
+        got = cv2.imread(str(dst / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(got, encode_depth_uint16(api[i]), err_msg=name)
+    np.testing.assert_array_equal(wrong[0], api[0])  # camera 2: its own extrinsic either way
+    assert np.mean(np.abs(api[1] - wrong[1]) > 0.05) > 0.001  # camera 2's extrinsic would differ on camera 3

@@ -21,7 +21,6 @@ from hypothesis.extra import numpy as hnp
 
 from jaxdepth._src.distance import NearestSeed, gather_at_seed, nearest_seed
 
-from _harness import check_stage
 
 METRICS = ("l1", "l2")
 EPS = float(np.finfo(np.float32).eps)
@@ -170,18 +169,7 @@ def _oracle_or_inf(mask, *, metric):
     return _oracle_distance(mask, metric) if mask.any() else np.full(mask.shape, np.inf, np.float32)
 
 
-@pytest.mark.parametrize("metric", METRICS)
-def test_harness_oracle_jit_vmap_retrace(metric):
-    """Distances against OpenCV (l1) / SciPy (l2), jit == eager, vmap == loop, no retrace."""
-    masks = [_random_mask((16, 21), d, seed=i) for i, d in enumerate([0.0, 0.02, 0.1, 0.6, 1.0])]
-    masks[1][:] = False
-    masks[1][15, 20] = True  # a single seed in the last pixel
-    # l2: SciPy's float64 sqrt rounded once to float32, ours one float32 sqrt: a few eps apart.
-    # jit, eager and vmap run the same integer passes and one sqrt: bit-identical (0 eps).
-    outs = check_stage(nearest_seed, [(m,) for m in masks], static=dict(metric=metric),
-                       oracle=_oracle_or_inf, select=lambda r: r.distance, oracle_ulps=4, ulps=0)
-    for out, mask in zip(outs, masks):
-        _check_result(NearestSeed(*out), mask, metric)
+# OpenCV / SciPy oracle, jit == eager, vmap == loop, no retrace: rows nearest_seed-l1 / -l2 of tests/stage_table.py.
 
 
 # Small shapes, mostly shared with the tests above so that few new programs compile.
@@ -367,20 +355,7 @@ def test_gather_with_nearest_seed_keeps_seed_values():
     assert np.all(out > 0)
 
 
-@pytest.mark.parametrize("channels", [(), (2,)])
-def test_gather_harness_oracle_jit_vmap_retrace(channels):
-    """NumPy fancy indexing as the oracle; jit == eager, vmap == loop, no retrace (exact: a gather)."""
-    rng = np.random.default_rng(4)
-    inputs = []
-    for s in range(4):
-        du, dv = _random_offsets((7, 9), s)
-        inputs.append((rng.random(channels + (7, 9)).astype(np.float32), du, dv))
-
-    def oracle(field, du, dv):
-        v, u = np.indices(du.shape)
-        return field[..., v + dv, u + du]
-
-    check_stage(gather_at_seed, inputs, oracle=oracle, oracle_ulps=0, ulps=0)
+# NumPy fancy-indexing oracle, jit == eager, vmap == loop: rows gather_at_seed-* of tests/stage_table.py.
 
 
 def test_gather_validation():

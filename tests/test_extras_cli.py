@@ -22,7 +22,8 @@ from jaxdepth.research import evaluation
 from jaxdepth._src import presets
 from jaxdepth.io import encode_depth_uint16, read_depth_png
 
-from helpers import small_frames, write_kitti_folder
+from helpers import WALL_CAMERAS, WALL_DOWN_DEG, WALL_UP_DEG, small_frames, wall_sweep, write_kitti_folder, \
+    write_wall_rig
 
 ALL = ["--preview", "--validity", "--seed-distance"]
 B2 = ["--batch-size", "2"]  # one batch bucket (2 frames) for every run here: compiled once per process
@@ -112,11 +113,15 @@ def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
     after = _stamps(out)
     assert {k: v for k, v in after.items() if k in first} == first
     assert sorted(set(after) - set(first)) == [f"frame_00{i}_seed_distance.png" for i in range(3)]
-    # a file removed by hand is filled in; --overwrite rewrites everything
+    # files removed by hand are filled in (two frames: the runs' batch of 2 again, no new compile)
     os.unlink(out / "frame_001_preview.png")
+    os.unlink(out / "frame_002_seed_distance.png")
     assert cli.main(["complete", str(root), str(out), *B2, "--preview", "--seed-distance"]) == 0
-    assert "1 completed, 2 skipped" in capsys.readouterr().err
-    assert (out / "frame_001_preview.png").exists() and _stamps(out)["frame_001.png"] == first["frame_001.png"]
+    assert "2 completed, 1 skipped" in capsys.readouterr().err
+    refilled = _stamps(out)
+    assert (out / "frame_001_preview.png").exists() and (out / "frame_002_seed_distance.png").exists()
+    assert {k: refilled[k] for k in after if k not in ("frame_001_preview.png", "frame_002_seed_distance.png")} == \
+        {k: after[k] for k in after if k not in ("frame_001_preview.png", "frame_002_seed_distance.png")}
     assert all(p.suffix == ".png" or p.name == "jaxdepth_run.json" for p in out.iterdir())  # no temp files left
 
 
@@ -131,26 +136,12 @@ def test_extras_usage_errors_before_any_work(tmp_path, src, capsys, extra, patte
     assert not (tmp_path / "out").exists()
 
 
-def _wall_sweep(path, *, up_deg, down_deg, beams=16):
-    """A spinning-LiDAR pattern on the wall x = 20 m: ``beams`` elevations, 0.5 degree azimuth steps."""
-    el = np.radians(np.linspace(down_deg, up_deg, beams))[:, None]
-    az = np.radians(np.arange(-40.0, 40.0, 0.5))[None, :]
-    r = 20.0 / (np.cos(el) * np.cos(az))
-    pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], -1).reshape(-1, 3)
-    np.save(path, np.concatenate([pts, np.zeros((len(pts), 1))], 1).astype(np.float32))
-
-
 def test_complete_rig_extras_cameras_of_two_sizes(tmp_path, capsys):
-    up, down = 5.0, -10.0
+    up, down, cams = WALL_UP_DEG, WALL_DOWN_DEG, WALL_CAMERAS
     sweep = tmp_path / "sweep.npy"
-    _wall_sweep(sweep, up_deg=up, down_deg=down)
-    level = [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]]
-    cams = {"CAM_A": (64, 48, [[40, 0, 31.5], [0, 40, 20.2], [0, 0, 1]]),
-            "CAM_B": (40, 30, [[30, 0, 19.5], [0, 30, 9.7], [0, 0, 1]])}
+    wall_sweep(sweep)
     rig = tmp_path / "rig.json"
-    rig.write_text(json.dumps({"lidar": {"beams": 16, "fov_up_deg": up, "fov_down_deg": down, "columns": 720},
-                               "cameras": [{"name": n, "width": w, "height": h, "K": K, "T_cam_lidar": level}
-                                           for n, (w, h, K) in cams.items()]}))
+    write_wall_rig(rig)
     plain, full, zeroed = tmp_path / "plain", tmp_path / "full", tmp_path / "zeroed"
     assert cli.main(["complete-rig", str(sweep), str(rig), str(plain), "--no-estimate", "-q"]) == 0
     assert cli.main(["complete-rig", str(sweep), str(rig), str(full), "--no-estimate", "-q", *ALL,

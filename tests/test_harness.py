@@ -43,6 +43,19 @@ def test_check_stage_catches_a_retrace_on_identity_hashed_options():
         check_stage(f, inputs, static=dict(option=_IdentityHashed()))
 
 
+def test_check_stage_catches_a_retrace_of_a_jitted_stage():
+    """A stage that is itself a jax.jit object runs as it is; its retraces are counted through jax.monitoring."""
+    inputs = [(np.ones(3, np.float32),), (np.zeros(3, np.float32),)]
+    f = jax.jit(lambda x, *, option: x * option.factor, static_argnames="option")
+    with pytest.raises(AssertionError, match="retraced"):
+        check_stage(f, inputs, static=dict(option=_IdentityHashed()))
+    g = jax.jit(lambda x: x * 2.0)
+    drift = [(np.ones(3, np.float32),), (np.zeros(3, np.float64).astype(np.int32),)]  # dtype drift: a new trace
+    with pytest.raises(AssertionError, match="retraced"):
+        check_stage(g, drift)
+    check_stage(jax.jit(lambda x, *, k: x * k, static_argnames="k"), inputs, static=dict(k=2.0), oracle=lambda x, k: 2 * x)
+
+
 def test_check_stage_catches_jit_differing_from_eager_and_a_wrong_oracle():
     def f(x):  # a value that differs between tracing and eager execution
         return x + (0.0 if isinstance(x, jax.core.Tracer) else 1.0)

@@ -121,18 +121,7 @@ def test_ip_basic_equals_opencv_on_kitti_and_scores(kitti):
         assert float(ours[k]) < float(raw[k]), k
 
 
-def test_ip_basic_jit_eager_vmap():
-    stack = np.stack([sparse_image(s, 24, 40, 0.1) for s in range(3)])
-    batched = np.asarray(jax.vmap(lambda d: ipb.ip_basic(d, extrapolate=True))(stack))
-    for i, d in enumerate(stack):
-        jitted = np.asarray(ipb.ip_basic(d, extrapolate=True))
-        want = baselines.ip_basic_opencv(d, extrapolate=True, blur_type="gaussian")
-        assert_float32_close(jitted, want, scale=100.0)
-        np.testing.assert_array_equal(batched[i], jitted)
-    with jax.disable_jit():  # eager is slow (op-by-op): one small image
-        eager = np.asarray(ipb.ip_basic(stack[0][:12, :20], extrapolate=True))
-    jitted = np.asarray(ipb.ip_basic(stack[0][:12, :20], extrapolate=True))
-    np.testing.assert_allclose(eager, jitted, rtol=0, atol=4 * EPS * 100.0)
+# The OpenCV port as the oracle, jit == eager, vmap == loop, no retrace: row ip_basic of tests/stage_table.py.
 
 
 def test_ip_basic_keeps_an_isolated_point_and_leaves_far_pixels_empty():

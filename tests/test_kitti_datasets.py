@@ -191,18 +191,27 @@ def test_depth_completion_train_val_tree_with_per_date_calibration(tmp_path, cap
     assert [p.relative_to(dst).as_posix() for p in dst.rglob("*.png")] == [
         f"{DRIVE_A}/proj_depth/nearest/image_03/0000000005.png"]
     # the whole tree (train and val) mirrors into dst; per date and camera its own K and extrinsic
+    # (--batch-size 1: the first run's compiled batch again)
     assert cli.main(["complete", str(src), str(dst / "all"), "--calib-dir", str(calib), "--method", "nearest",
-                     "--name", "nn", "-q"]) == 0
-    from jaxdepth._src.methods import complete_with
+                     "--name", "nn", "-q", "--batch-size", "1"]) == 0
+    # Oracle: the library's batch completion with each frame's K and extrinsic given explicitly, at the
+    # CLI's batch shape (the same compiled program; tests/test_runner.py checks complete_batch against
+    # per-frame calls).
+    from jaxdepth.batch.runner import complete_batch
+    paths, depths, Ks, Ts = [], [], [], []
     for split, date, drive in (("train", DATE_A, DRIVE_A), ("val", DATE_B, DRIVE_B)):
         cams = read_kitti_raw_calib(calib / date / "calib_cam_to_cam.txt",
                                     calib / date / "calib_velo_to_cam.txt")["cameras"]
         for cam in (2, 3):
-            sparse = read_depth_png(src / split / drive / "proj_depth" / "velodyne_raw" / f"image_0{cam}"
-                                    / "0000000005.png")
-            expected = np.asarray(complete_with(sparse, cams[cam]["K"], cams[cam]["T_cam_lidar"], method="nearest"))
-            got = _png_u16(dst / "all" / split / drive / "proj_depth" / "nn" / f"image_0{cam}" / "0000000005.png")
-            np.testing.assert_array_equal(got, encode_depth_uint16(expected))
+            depths.append(read_depth_png(src / split / drive / "proj_depth" / "velodyne_raw" / f"image_0{cam}"
+                                         / "0000000005.png"))
+            Ks.append(cams[cam]["K"])
+            Ts.append(cams[cam]["T_cam_lidar"])
+            paths.append(dst / "all" / split / drive / "proj_depth" / "nn" / f"image_0{cam}" / "0000000005.png")
+    expected = complete_batch(np.stack(depths), np.stack(Ks), np.stack(Ts).astype(np.float32), method="nearest",
+                              batch_size=1)
+    for path, want in zip(paths, expected):
+        np.testing.assert_array_equal(_png_u16(path), encode_depth_uint16(want))
     # --calib-dir holding the two files directly: every date uses them
     flat = kitti_datasets.kitti_depth_tree_jobs(src, dst, calib_dir=calib / DATE_A)
     assert len(flat.jobs) == 4 and all(np.array_equal(j.K, flat.jobs[0].K) for j in flat.jobs[::2])

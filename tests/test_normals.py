@@ -34,7 +34,6 @@ from jaxdepth._src import range_image as RI
 from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import LidarSpec
 
-from _harness import check_stage
 from oracles import normals_58cfbac as reference
 from scenes import SMALL_LIDAR, small_camera
 
@@ -376,32 +375,8 @@ def test_range_image_normals_fill_every_cell():
 
 
 # ----------------------------------------------------------------------------- invariants
-
-
-#: jit vs eager, vmap vs loop: the ranges agree within an ulp (FMA contraction differs), and
-#: the fit divides by range differences of ~1 % of r, amplifying an ulp ~100x: 200 eps.
-NORMAL_ULPS = 200
-
-
-def test_harness_analytic_planes_jit_vmap_retrace():
-    """Three ray-cast planes (and a cloud with duplicates, NaN and origin points) on the 16 x 64
-    sensor: point_normals, range_image and range_image_normals jit == eager, vmap == loop, no
-    retrace; the planes' normals equal the analytic ones on interior rays."""
-    elev = np.radians(np.linspace(9, -19, 16))
-    azim = np.pi - (np.arange(64) + 0.5) * 2 * np.pi / 64
-    planes = (wall(10), wall(-100, 5.0), ground(4))
-    sweeps = [cast_plane(*plane, elev, azim, max_range=40) for plane in planes]
-    inputs = [(pts.reshape(-1, 3), hit.reshape(-1)) for pts, hit in sweeps]
-    inputs.append(random_cloud(np.random.default_rng(4), 1024))
-    normals = check_stage(N.point_normals, inputs, static=dict(lidar=SMALL), ulps=NORMAL_ULPS)
-    for (normal, d), (pts, hit), n in zip(planes, sweeps, normals):
-        want = -np.sign(d) * np.asarray(normal) / np.linalg.norm(normal)
-        inner = interior(hit, 2)
-        assert inner.sum() > 20
-        # a 16 x 64 sensor: ~1.9 x 5.6 degree cells, so the secant error is larger than on KITTI's
-        assert angle_deg(n.reshape(hit.shape + (3,))[inner], want[None]).max() < 3.0
-    images = check_stage(RI.range_image, inputs, static=dict(lidar=SMALL), ulps=2)
-    check_stage(N.range_image_normals, [(ri,) for ri in images], ulps=NORMAL_ULPS)
+# jit == eager, vmap == loop and no retrace of range_image, point_normals, range_image_normals and
+# pixel_normals (with the analytic planes) are rows of tests/stage_table.py.
 
 
 def test_gradient_is_finite():
@@ -521,73 +496,58 @@ def check_pixel_normals(got, depth, K, T, lidar, **options):
 
 
 # The synthetic frames have ~5000 points in 96 x 160 pixels, more than the default
-# capacity of the listed path (H W / 16): max_points=LISTED takes the listed path,
-# None the dense fallback.
+# capacity of the listed path (H W / 16): max_points=LISTED takes the listed path.
 LISTED = 8192
 
 
-@pytest.mark.parametrize("window_columns, max_points", [
-    (None, LISTED),  # auto window
-    (PIX_LIDAR.columns, LISTED),  # whole range image
-    (24, LISTED),  # window too narrow: dense fallback
-    (None, None),  # more points than the capacity: dense fallback
-])
-def test_pixel_normals_equal_point_normals_of_backprojected_pixels(window_columns, max_points):
+def _dense_frame(seed, camera):
+    """The rendered (dense) depth of the street: more pixels with depth than LISTED."""
+    from jaxdepth._src import synthetic
+    frame = synthetic.make_street_scene(seed, lidar=PIX_LIDAR, cameras=[camera])
+    return np.asarray(frame.dense_depth[0], np.float32)
+
+
+def test_pixel_normals_equal_point_normals_of_backprojected_pixels():
+    """One compiled program (default window, capacity LISTED), three paths picked at run time: the
+    listed window; the dense fallback for a camera wider than the window (f = 40 px: ~126 degrees,
+    more than the 100-degree window); the dense fallback for more pixels with depth than the capacity."""
+    narrow, wide = _pix_camera(), _pix_camera(f=40.0)
+    cases = [(narrow, _pix_frame(0, narrow)), (wide, _pix_frame(1, wide)), (narrow, _dense_frame(2, narrow))]
+    assert (cases[0][1] > 0).sum() > 500 and (cases[2][1] > 0).sum() > LISTED
+    for camera, depth in cases:
+        got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED)
+        stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
+        assert stable[depth > 0].mean() > 0.99
+        norms = np.linalg.norm(np.asarray(got)[:, depth > 0], axis=0)
+        np.testing.assert_allclose(norms, 1.0, atol=1e-5)
+
+
+def test_pixel_normals_whole_range_image_window_and_options():
+    """A window as wide as the range image (the listed path without a window), and other smoothing /
+    gap options on the wide camera (the fallback)."""
     camera = _pix_camera()
     depth = _pix_frame(0, camera)
-    assert (depth > 0).sum() > 500
-    got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=window_columns,
-                          max_points=max_points)
-    stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
-    assert stable[depth > 0].mean() > 0.99
-    norms = np.linalg.norm(np.asarray(got)[:, depth > 0], axis=0)
-    np.testing.assert_allclose(norms, 1.0, atol=1e-5)
+    got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, window_columns=PIX_LIDAR.columns,
+                           max_points=LISTED)
+    check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
+    camera = _pix_camera(f=40.0)
+    depth = _pix_frame(1, camera)
+    options = dict(smoothing=2, fill_max_gap=1)
+    got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
+    check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
 
 
 def test_compact_indices_lists_true_entries_in_order():
+    """Two shapes: several fill levels (none, sparse, more than the capacity, all) share one program."""
     rng = np.random.default_rng(7)
     compact = jax.jit(compaction.compact_indices, static_argnums=1)
-    for n, p, capacity in ((37, 0.3, 20), (5000, 0.05, 400), (40000, 0.5, 1024), (64, 1.0, 64), (100, 0.0, 8)):
+    for n, p, capacity in ((5000, 0.05, 400), (5000, 0.3, 400), (5000, 0.0, 400), (5000, 1.0, 400), (64, 1.0, 64)):
         valid = rng.random(n) < p
         pix, total = compact(jnp.asarray(valid), capacity, jnp.int32(0))
         want = np.flatnonzero(valid)[:capacity]
         assert int(total) == valid.sum()
         np.testing.assert_array_equal(np.asarray(pix)[:len(want)], want)
         assert np.all(np.asarray(pix)[len(want):] == n)
-
-
-def test_pixel_normals_options_and_wide_camera():
-    """Other smoothing / gap options, and a camera wider than the default window (falls back)."""
-    camera = _pix_camera(f=40.0)  # ~126 degrees wide: more than the 100-degree window
-    depth = _pix_frame(1, camera)
-    for options in (dict(smoothing=0, fill_max_gap=0), dict(smoothing=2, fill_max_gap=1)):
-        got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED, **options)
-        check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR, **options)
-
-
-def test_pixel_normals_harness_analytic_plane_jit_vmap_retrace():
-    """A flat ground seen by two cameras (one inside the default window, one wider: the fallback),
-    the exact depth at the pixels the LiDAR hits: jit == eager, vmap == loop, no retrace; in the
-    first camera the normals are the analytic ground normal."""
-    from jaxdepth._src import synthetic
-    from jaxdepth._src.geometry import project_to_image
-    cams = [_pix_camera(h=48, w=80), _pix_camera(f=40.0, h=48, w=80)]
-    scene = synthetic.scene_arrays(planes=np.array([[0.0, 0.0, 1.0, -1.73]], np.float32))
-    points, valid = synthetic.lidar_sweep(scene, lidar=PIX_LIDAR)
-    inputs = []
-    for c in cams:
-        hit = np.asarray(project_to_image(points, valid, c.K, c.T_cam_lidar, height=48, width=80)[0]) > 0
-        exact = np.asarray(synthetic.render_depth(c, scene))  # through the pixel centres: on the plane
-        inputs.append((np.where(hit, exact, 0.0).astype(np.float32), np.asarray(c.K), np.asarray(c.T_cam_lidar)))
-    out = check_stage(PN.pixel_normals, inputs, static=dict(lidar=PIX_LIDAR, max_points=LISTED), ulps=NORMAL_ULPS)
-    for (depth, _, _), n in zip(inputs, out):
-        assert (depth > 0).sum() > 1000 and np.all(n[:, depth == 0] == 0)
-    # The wide camera's pixels are sparser than the range image's rows: many isolated points get
-    # the documented face-the-sensor fallback, so only the first camera is held to the plane.
-    depth, n = inputs[0][0], out[0]
-    up = np.asarray(cams[0].T_cam_lidar)[:3, :3] @ np.array([0.0, 0.0, 1.0])  # faces the sensor above it
-    err = angle_deg(np.moveaxis(n, 0, -1)[depth > 0], up[None])
-    assert err.max() < 2.0, (np.median(err), err.max())  # the fit's 1-2 degree bound (module docstring)
 
 
 def test_pixel_normals_bad_inputs_raise():
@@ -606,9 +566,6 @@ def test_pixel_normals_kitti_frame(kitti):
     got = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
     stable = check_pixel_normals(got, depth, K, T, KITTI_HDL64)
     assert stable[depth > 0].mean() > 0.999
-    # the dense fallback (every pixel a point slot, whole range image) gives the same normals
-    dense = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64, max_points=1000)
-    np.testing.assert_allclose(np.asarray(got), np.asarray(dense), atol=1e-6)
 
 
 @pytest.mark.slow  # frozen oracle

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxdepth import SGMConfig, complete, complete_points, complete_points_stages, complete_stages, depth_metrics
+from jaxdepth import SGMConfig, complete, complete_points_stages, complete_stages, depth_metrics
 from jaxdepth._src import synthetic
 from jaxdepth._src.geometry import project_to_image
 
-from _harness import check_stage
 from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
 
 def plane_frame(camera, planes):
@@ -73,27 +72,8 @@ def _tiny_frames(seeds, h=32, w=48):
     return frames
 
 
-#: The pipeline against itself jitted / eager / vmapped: the same float32 maths fused differently
-#: (FMA contraction); the residual divides by n . ray >= min_abs_denom = 0.01, amplifying a few
-#: eps up to 100x, and depths are O(10 m): 4 / 0.01 eps of max(|depth|, 1).
-PIPELINE_ULPS = 4 / SGMConfig().min_abs_denom
-
-
-def test_complete_points_harness_jit_vmap_retrace():
-    frames = _tiny_frames((0, 1, 2))
-    depth = check_stage(complete_points, frames, static=dict(lidar=SMALL_LIDAR), ulps=PIPELINE_ULPS, eager_inputs=1)
-    assert all((d > 0).mean() > 0.5 for d in depth)
-
-
-def test_complete_harness_jit_vmap_retrace():
-    """complete() on the sparse images of three frames; K per frame, T shared (in_axes None)."""
-    inputs = []
-    for points, valid, camera in _tiny_frames((3, 4, 5)):
-        sparse, _ = project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=32, width=48)
-        inputs.append((np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)))
-    depth = check_stage(complete, inputs, static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
-                        in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=1)
-    assert all((d > 0).mean() > 0.5 for d in depth)
+# jit == eager, vmap == loop and no retrace of complete_points, complete and complete_stages (against the
+# plain composition of the stage functions) are rows of tests/stage_table.py.
 
 
 def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
@@ -121,15 +101,16 @@ def _tiny_sparse(seed, *, h, w):
 
 
 def test_scaling_the_scene_scales_the_depth():
-    """Metres in, metres out: scaling depths, epsilon and the LiDAR offset by s scales the output by s."""
+    """Metres in, metres out: scaling depths and the LiDAR offset by s scales the output by s. Without the
+    outlier removal, so that both runs share one configuration (one compiled program): its epsilon scales
+    with the scene too (test_outliers.test_scale_invariance)."""
     depth, K, T = _tiny_sparse(5, h=32, w=48)
     s = 2.0
     T2 = T.copy()
     T2[:3, 3] *= s
-    base = SGMConfig(smoothing_sigma_px=0.0)
-    a = np.asarray(complete(depth, K, T, lidar=SMALL_LIDAR, config=base.replace(max_depth_m=1e4)))
-    b = np.asarray(complete(depth * s, K, T2, lidar=SMALL_LIDAR,
-                            config=base.replace(epsilon_m=s * base.epsilon_m, max_depth_m=1e4)))
+    config = SGMConfig(smoothing_sigma_px=0.0, max_depth_m=1e4, outlier_removal=False)
+    a = np.asarray(complete(depth, K, T, lidar=SMALL_LIDAR, config=config))
+    b = np.asarray(complete(depth * s, K, T2, lidar=SMALL_LIDAR, config=config))
     np.testing.assert_allclose(b, s * a, rtol=1e-4, atol=1e-4)
 
 
@@ -163,13 +144,19 @@ def kitti_frames(kitti):
     return {cam: (kitti.sparse[cam], kitti.truth[cam], kitti.K[cam], kitti.T_cam_lidar[cam]) for cam in (2, 3)}
 
 
-def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames):
+@pytest.fixture(scope="module")
+def kitti_sgm_metrics(kitti_frames):
+    """camera -> depth_metrics of the default SGM on the shared KITTI frame (run once for the tests below)."""
+    return {cam: depth_metrics(complete_stages(sparse, K, T).depth, gt)
+            for cam, (sparse, gt, K, T) in kitti_frames.items()}
+
+
+def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     """Issue 3: SGM must clearly beat a nearest-neighbour fill on the real frame (both cameras)."""
     sgm, nearest = [], []
-    for sparse, gt, K, T in kitti_frames.values():
-        stages = complete_stages(sparse, K, T)
+    for cam, (sparse, gt, K, T) in kitti_frames.items():
         no_removal = complete_stages(sparse, K, T, config=SGMConfig(outlier_removal=False))
-        sgm.append(depth_metrics(stages.depth, gt))
+        sgm.append(kitti_sgm_metrics[cam])
         nearest.append(depth_metrics(no_removal.seed_depth, gt))
     mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))
     assert mean(sgm, "rmse") < 0.85 * mean(nearest, "rmse")
@@ -180,11 +167,11 @@ def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames):
     assert mean(sgm, "rmse") < 975 and mean(sgm, "mae") < 255
 
 
-def test_kitti_sgm_beats_ip_basic(kitti_frames):
+def test_kitti_sgm_beats_ip_basic(kitti_frames, kitti_sgm_metrics):
     from jaxdepth import complete_with
     sgm, ipb = [], []
-    for sparse, gt, K, T in kitti_frames.values():
-        sgm.append(depth_metrics(complete_stages(sparse, K, T).depth, gt))
+    for cam, (sparse, gt, K, T) in kitti_frames.items():
+        sgm.append(kitti_sgm_metrics[cam])
         ipb.append(depth_metrics(complete_with(sparse, K, T, method="ip-basic",
                                                config=SGMConfig(outlier_removal=False)), gt))
     mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))

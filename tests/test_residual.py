@@ -8,7 +8,6 @@ import pytest
 
 from jaxdepth._src.residual import plane_residual
 
-from _harness import check_stage
 
 K = np.array([[500.0, 0.0, 63.5], [0.0, 480.0, 40.2], [0.0, 0.0, 1.0]], np.float32)
 H, W = 80, 128
@@ -84,26 +83,4 @@ def numpy_residual(seed_depth, seed_normal, du, dv, K, *, min_abs_denom, max_res
     return np.clip(dz, -max_residual_ratio * z, max_residual_ratio * z)
 
 
-def test_harness_numpy_oracle_jit_vmap_retrace():
-    """Random seeds, normals and offsets; every frame its own K. Tolerance: the denominator
-    n . ray carries a few eps of rounding (terms of order 1) and is divided by; with
-    |denominator| > min_abs_denom that is amplified at most 1 / min_abs_denom times."""
-    rng = np.random.default_rng(1)
-    h, w, min_abs_denom = 40, 64, 0.05
-    inputs = []
-    for b in range(3):
-        seed_depth = rng.uniform(1, 50, (h, w)).astype(np.float32)
-        seed_depth[rng.random((h, w)) < 0.1] = 0.0  # pixels without a seed
-        n = rng.normal(size=(3, h, w)).astype(np.float32)
-        n /= np.linalg.norm(n, axis=0, keepdims=True)
-        Kb = (K * np.float32(1 + 0.1 * b)).astype(np.float32)
-        Kb[2, 2] = 1
-        v, u = np.indices((h, w))
-        denom = (u - Kb[0, 2]) / Kb[0, 0] * n[0] + (v - Kb[1, 2]) / Kb[1, 1] * n[1] + n[2]
-        n[:, np.abs(np.abs(denom) - min_abs_denom) < 1e-3] = ((0,), (0,), (-1,))  # no pixel on the guard's edge
-        du = rng.integers(-3, 4, (h, w)).astype(np.int32)
-        dv = rng.integers(-3, 4, (h, w)).astype(np.int32)
-        inputs.append((seed_depth, n, du, dv, Kb))
-    ulps = 8 / min_abs_denom
-    check_stage(plane_residual, inputs, static=dict(min_abs_denom=min_abs_denom, max_residual_ratio=0.5),
-                oracle=numpy_residual, oracle_ulps=ulps, ulps=ulps)
+# The NumPy oracle above, jit == eager, vmap == loop, no retrace: row plane_residual of tests/stage_table.py.

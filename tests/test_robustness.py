@@ -26,8 +26,11 @@ def test_nan_and_inf_points_are_ignored(scene):
     frame, camera = scene
     base = np.asarray(complete_points(frame.points, frame.valid, camera, lidar=LIDAR))
     bad = np.array([[np.nan, 1, 1], [np.inf, 0, 0], [5, -np.inf, 0], [10, 0, np.nan]], np.float32)
-    points = np.concatenate([frame.points, bad])
-    valid = np.concatenate([frame.valid, np.ones(4, bool)])
+    # into four of the padding slots (same point count: the same compiled program), marked valid
+    points, valid = np.array(frame.points), np.array(frame.valid)
+    slots = np.flatnonzero(~valid)[:4]
+    assert len(slots) == 4
+    points[slots], valid[slots] = bad, True
     out = np.asarray(complete_points(points, valid, camera, lidar=LIDAR))
     assert np.all(np.isfinite(out))
     np.testing.assert_array_equal(out, base)
@@ -75,7 +78,8 @@ def test_full_disk_during_a_write_fails_that_frame_without_partial_file(tmp_path
         return real_write(fd, data)
 
     monkeypatch.setattr(atomic.os, "write", full_disk)
-    code = cli.main(["complete", str(src), str(tmp_path / "out"), "--method", "nearest", "--batch-size", "1", "-q"])
+    # both frames in one batch (the principal-point test's compiled program); their writes are separate
+    code = cli.main(["complete", str(src), str(tmp_path / "out"), "--method", "nearest", "--batch-size", "2", "-q"])
     monkeypatch.undo()
     err = capsys.readouterr().err
     if state["calls"] == 0:

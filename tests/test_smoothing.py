@@ -8,7 +8,7 @@ import scipy.ndimage
 
 from jaxdepth._src.smoothing import gaussian_blur
 
-from _harness import assert_close, check_stage
+from _harness import assert_close
 
 
 def _blur_ulps(radius: int) -> int:
@@ -50,10 +50,7 @@ def test_zero_sigma_is_identity_and_constant_preserved():
     np.testing.assert_allclose(np.asarray(gaussian_blur(const, sigma_px=1.0, radius_px=3)), const, rtol=1e-6)
 
 
-def test_harness_opencv_jit_vmap_retrace():
-    imgs = np.random.default_rng(2).uniform(0, 80, (3, 20, 30)).astype(np.float32)
-    check_stage(gaussian_blur, [(x,) for x in imgs], static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur,
-                oracle_ulps=_blur_ulps(3), oracle_scale=80.0)
+# OpenCV oracle, jit == eager, vmap == loop, no retrace: row gaussian_blur of tests/stage_table.py.
 
 
 # ------------------------------------------------------------- traced sigma
@@ -79,14 +76,8 @@ def test_traced_sigma_zero_or_radius_zero_is_identity():
     np.testing.assert_array_equal(np.asarray(gaussian_blur_traced(img, 1.5, radius_px=0)), img)
 
 
-def test_traced_sigma_harness_scipy_jit_vmap_retrace():
-    """One compiled function for every sigma (0 included): SciPy oracle, jit == eager, vmap == loop
-    over images and sigmas together, and over sigma alone with a shared image."""
-    imgs = np.random.default_rng(6).uniform(0, 10, (4, 20, 30)).astype(np.float32)
-    sigmas = np.array([0.0, 0.5, 1.0, 2.5], np.float32)
-    kw = dict(static=dict(radius_px=3), oracle=_scipy_blur, oracle_ulps=_blur_ulps(3), oracle_scale=10.0)
-    check_stage(gaussian_blur_traced, list(zip(imgs, sigmas)), **kw)
-    check_stage(gaussian_blur_traced, [(imgs[0], s) for s in sigmas], in_axes=(None, 0), **kw)
+# SciPy oracle, jit == eager, vmap == loop over images and sigmas, and over sigma alone with a shared
+# image: rows gaussian_blur_traced* of tests/stage_table.py.
 
 
 def test_traced_sigma_gradient_is_finite_and_matches_finite_difference():

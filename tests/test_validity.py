@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import cv2
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -131,31 +130,8 @@ def test_seed_distance_matches_brute_force_and_is_inf_without_seeds(metric):
         vd.seed_distance(st.du, st.dv, st.seed_depth, metric="l3")
 
 
-def test_validity_is_fov_and_near_a_seed_jit_eager_vmap_loop():
-    rng = np.random.default_rng(7)
-    cams = [_camera(s) for s in (3, 4, 5)]
-    masks = [rng.random((H, W)) < 0.06 for _ in cams]
-    stages = [_stages(m, "l1", rng) for m in masks]
-    kw = dict(lidar=LIDAR, metric="l1", max_seed_distance_px=3.0)
-    outs = [vd.validity_and_distance(st, K, T, **kw) for st, (K, T) in zip(stages, cams)]
-    for (valid, dist), m, (K, T) in zip(outs, masks, cams):
-        elev = _elevation_loop(K, T, H, W)
-        fov = (elev >= math.radians(LIDAR.fov_down_deg)) & (elev <= math.radians(LIDAR.fov_up_deg))
-        spacing = K[1, 1] * math.radians(LIDAR.fov_up_deg - LIDAR.fov_down_deg) / (LIDAR.beams - 1)
-        dist_loop = _seed_distance_loop(m, "l1")
-        want = (fov & (dist_loop <= 3.0)) | (dist_loop <= min(spacing, 3.0))  # near a seed: valid beyond the FOV too
-        np.testing.assert_array_equal(np.asarray(valid), want)
-    with jax.disable_jit():
-        eager = [vd.validity_and_distance(st, K, T, **kw) for st, (K, T) in zip(stages, cams)]
-    batched = jax.vmap(lambda st, K, T: vd.validity_and_distance(st, K, T, **kw))(
-        jax.tree.map(lambda *x: jnp.stack(x), *stages), jnp.stack([K for K, _ in cams]),
-        jnp.stack([T for _, T in cams]))
-    for i, (valid, dist) in enumerate(outs):
-        np.testing.assert_array_equal(np.asarray(valid), np.asarray(eager[i][0]))
-        np.testing.assert_array_equal(np.asarray(dist), np.asarray(eager[i][1]))
-        np.testing.assert_array_equal(np.asarray(valid), np.asarray(batched[0][i]))
-        np.testing.assert_array_equal(np.asarray(dist), np.asarray(batched[1][i]))
-    np.testing.assert_array_equal(np.asarray(vd.validity_mask(stages[0], *cams[0], **kw)), np.asarray(outs[0][0]))
+# validity_and_distance against the FOV loop and the brute-force seed distance, jit == eager, vmap == loop,
+# no retrace, and validity_mask its first half: row validity_and_distance of tests/stage_table.py.
 
 
 def test_cli_default_matches_the_library_default():
