@@ -258,8 +258,8 @@ def test_a_neighbour_or_end_sweep_removes_a_ghost_and_no_other_sweep_does():
     el = (np.radians(10.0) - np.arange(32) * dv)[:, None]          # SPEC's beams, as the ray caster casts them
     az = np.pi - 2 * np.pi * (np.arange(512) + 0.5) / 512
     rng = np.where(el < -0.03, 1.7 / np.sin(-np.minimum(el, -0.03)), np.inf) + 0 * az
-    road = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), -1) * rng[..., None]
-    road = road[np.isfinite(rng) & (rng < 60.0)].astype(np.float32)
+    ray = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), -1)
+    road = (ray * rng[..., None])[np.isfinite(rng) & (rng < 60.0)].astype(np.float32)
     el_b = np.radians(10.0) - np.arange(14, 25) * dv
     R = 1.7 / np.sin(-el_b)
     azimuth = np.pi - 2 * np.pi * (np.arange(250, 262) + 0.5) / 512
