@@ -7,6 +7,8 @@ compiling again; so a new test should take its scene from here when one fits.
 
 from __future__ import annotations
 
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -45,3 +47,15 @@ def kitti_street(seed: int = 0):
     """(frame, camera): the synthetic street seen by :data:`SMALL_LIDAR` and the KITTI-like camera at 1/4 scale."""
     cams = synthetic.rig_cameras("kitti", image_scale=0.25)
     return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=cams), cams[0]
+
+
+@functools.lru_cache(maxsize=None)
+def tiny_street_frames(seeds: tuple, h: int = 32, w: int = 48):
+    """[(points, valid, camera)] per seed: synthetic street sweeps of :data:`SMALL_LIDAR` for an
+    (h, w) camera (eager runs stay short), focal length 40 + 4 * index px (per-frame intrinsics)."""
+    frames = []
+    for i, seed in enumerate(seeds):
+        camera = small_camera(lidar_to_camera(), h=h, w=w, f=40.0 + 4 * i)
+        frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
+        frames.append((np.asarray(frame.points), np.asarray(frame.valid), camera))
+    return frames

@@ -329,22 +329,10 @@ PIPELINE_ULPS = 4 / SGMConfig().min_abs_denom
 
 
 @functools.lru_cache(maxsize=None)
-def _tiny_frames(seeds, h=32, w=48):
-    """Synthetic street sweeps for a 32 x 48 camera (eager runs stay short); per-frame focal lengths."""
-    from jaxdepth._src import synthetic
-    from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
-    frames = []
-    for i, seed in enumerate(seeds):
-        camera = small_camera(lidar_to_camera(), h=h, w=w, f=40.0 + 4 * i)
-        frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
-        frames.append((np.asarray(frame.points), np.asarray(frame.valid), camera))
-    return frames
-
-
-@functools.lru_cache(maxsize=None)
 def _tiny_sparse(seeds):
+    from scenes import tiny_street_frames
     out = []
-    for points, valid, camera in _tiny_frames(seeds):
+    for points, valid, camera in tiny_street_frames(seeds):
         sparse, _ = geometry.project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=32, width=48)
         out.append((np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)))
     return out
@@ -490,7 +478,7 @@ def _unproject_oracle(depth, K):
 
 # ----------------------------------------------------------------------------- the table
 def _rows() -> list[Row]:
-    from scenes import SMALL_LIDAR
+    from scenes import SMALL_LIDAR, tiny_street_frames
     from test_normals import SMALL
     from test_validity import LIDAR as VALIDITY_LIDAR
     return [
@@ -532,7 +520,7 @@ def _rows() -> list[Row]:
             lambda: [(_blur_images(4, 10)[0], s) for s in _SIGMAS], static=dict(radius_px=3), in_axes=(None, 0),
             oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0),
         # the pipeline (eager on one input: op-by-op runs of the whole pipeline take seconds)
-        Row("complete_points", complete_points, lambda: _tiny_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),
+        Row("complete_points", complete_points, lambda: tiny_street_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),
             ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled),
         # stages against the plain composition of the public stage functions (masks and seeds exact;
         # depths within the composition's normals rounding, test_speed_equivalence's 1e-3 relative + 2e-3 m)

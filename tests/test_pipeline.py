@@ -9,7 +9,7 @@ from jaxdepth import SGMConfig, complete, complete_points_stages, complete_stage
 from jaxdepth._src import synthetic
 from jaxdepth._src.geometry import project_to_image
 
-from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
+from scenes import SMALL_LIDAR, lidar_to_camera, small_camera, tiny_street_frames
 
 def plane_frame(camera, planes):
     scene = synthetic.scene_arrays(planes=np.asarray(planes, np.float32))
@@ -62,16 +62,6 @@ def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
     assert np.all(np.asarray(stages.du)[keep] == 0) and np.all(np.asarray(stages.dv)[keep] == 0)
 
 
-def _tiny_frames(seeds, h=32, w=48):
-    """Synthetic street sweeps for a 32 x 48 camera (eager runs stay short); per-frame focal lengths."""
-    frames = []
-    for i, seed in enumerate(seeds):
-        camera = small_camera(lidar_to_camera(), h=h, w=w, f=40.0 + 4 * i)
-        frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
-        frames.append((np.asarray(frame.points), np.asarray(frame.valid), camera))
-    return frames
-
-
 # jit == eager, vmap == loop and no retrace of complete_points, complete and complete_stages (against the
 # plain composition of the stage functions) are rows of tests/stage_table.py.
 
@@ -95,7 +85,7 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
 
 
 def _tiny_sparse(seed, *, h, w):
-    (points, valid, camera), = _tiny_frames((seed,), h=h, w=w)
+    (points, valid, camera), = tiny_street_frames((seed,), h=h, w=w)
     sparse, _ = project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=h, width=w)
     return np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
 
