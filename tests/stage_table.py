@@ -519,17 +519,20 @@ def _rows() -> list[Row]:
         Row("gaussian_blur_traced-shared-image", gaussian_blur_traced,
             lambda: [(_blur_images(4, 10)[0], s) for s in _SIGMAS], static=dict(radius_px=3), in_axes=(None, 0),
             oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0),
-        # the pipeline (eager on one input: op-by-op runs of the whole pipeline take seconds)
+        # the pipeline from a sweep (eager on one input: the one op-by-op run of a whole pipeline; its
+        # exact point positions and 3-D outlier test have no plain composition to compare against)
         Row("complete_points", complete_points, lambda: tiny_street_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),
             ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled),
         # stages against the plain composition of the public stage functions (masks and seeds exact;
-        # depths within the composition's normals rounding, test_speed_equivalence's 1e-3 relative + 2e-3 m)
+        # depths within the composition's normals rounding, test_speed_equivalence's 1e-3 relative + 2e-3 m).
+        # No op-by-op run: every stage composed has its own jit == eager row above, and the jitted
+        # pipeline equals their composition (this oracle), so jit == eager of the whole adds nothing.
         Row("complete_stages", complete_stages, lambda: _tiny_sparse((3, 4, 5)),
             static=dict(lidar=SMALL_LIDAR, config=SGMConfig()), in_axes=(0, 0, None),
             oracle=_reference_stages, select=lambda s: tuple(getattr(s, k) for k in _STAGE_FIELDS),
-            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=1),
-        # complete is complete_stages(...).depth in its own jit: op by op it runs exactly complete_stages'
-        # operations (the row above), so no second eager run here; its jit, vmap and retrace are its own
+            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=0),
+        # complete is complete_stages(...).depth in its own jit (no eager run, as above); its jit, vmap
+        # and retrace are its own
         Row("complete", complete, lambda: _tiny_sparse((3, 4, 5)), static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
             in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=0, check=_mostly_filled),
         # geometry
