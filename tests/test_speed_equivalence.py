@@ -123,6 +123,19 @@ def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
         np.testing.assert_allclose(batched[i], want, rtol=1e-3, atol=2e-3)
 
 
+def test_thinned_frame_takes_the_listed_normals_and_equals_reference():
+    """1 point in 8 of the 96 x 160 frame: fewer points than the image-plane normals' n_pix / 16
+    slots, so they take the listed branch (compacted pixels on a window of range-image columns) that
+    KITTI frames take, where the full frame takes the dense one. Same shape: same programs."""
+    sparse, K, T = small_frame(0)
+    thin = np.where(np.random.default_rng(0).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
+    assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > 400
+    got = complete_stages(thin, K, T, lidar=SMALL_LIDAR)
+    check_equal(got, reference_stages(thin, K, T, config=SGMConfig(), lidar=SMALL_LIDAR))
+
+
+# KITTI size: the real density and window; slow (two KITTI-size programs and their references).
+@pytest.mark.slow
 @pytest.mark.parametrize("metric", ["l1", "l2"])
 def test_kitti_frame_equals_reference(kitti, metric):
     sparse, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
