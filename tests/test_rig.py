@@ -47,6 +47,7 @@ def test_cameras_of_different_sizes_share_a_padded_canvas(stereo):
     assert np.all(depth[:small.height, :small.width] > 0)
 
 
+@pytest.mark.slow  # real nuScenes sweep, six 225 x 400 cameras: programs of their own
 def test_nuscenes_six_cameras_in_one_call(nuscenes_sample):
     from jaxdepth.io import pad_points, read_points, rig_from_nuscenes_calibration
     rig = rig_from_nuscenes_calibration(nuscenes_sample / "calibration.json")
