@@ -107,9 +107,9 @@ def test_resume_skips_finished_and_never_touches_inputs(tmp_path, frames):
                             intrinsics_path=src / "intrinsics" / (p.stem + ".txt"))
             for p in sorted((src / "velodyne_raw").glob("*.png"))]
     (tmp_path / "out").mkdir()
-    first = runner.run_jobs(jobs[:2], batch_size=2, T_cam_lidar=T)
+    first = runner.run_jobs(jobs[:2], batch_size=2, T_cam_lidar=T, method=PLUMBING)
     stamps = {j.out_path: j.out_path.stat().st_mtime_ns for j in jobs[:2]}
-    second = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T)
+    second = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, method=PLUMBING)  # one frame left: bucket 1
     assert len(first.done) == 2 and second.skipped == [j.name for j in jobs[:2]] and second.done == [jobs[2].name]
     assert all(j.out_path.stat().st_mtime_ns == stamps[j.out_path] for j in jobs[:2])
     assert before == {p: p.read_bytes() for p in src.rglob("*") if p.is_file()}
@@ -123,7 +123,7 @@ def test_bad_frame_is_reported_and_the_rest_completes(tmp_path, frames):
                             intrinsics_path=src / "intrinsics" / (p.stem + ".txt"))
             for p in sorted((src / "velodyne_raw").glob("*.png"))]
     (tmp_path / "out").mkdir()
-    summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T)
+    summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, method=PLUMBING)
     assert [name for name, _ in summary.failed] == ["frame_001.png"]
     assert "frame_001.png" in summary.failed[0][1]
     assert sorted(summary.done) == ["frame_000.png", "frame_002.png"]
