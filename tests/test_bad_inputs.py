@@ -268,6 +268,7 @@ def test_validity_limit_from_the_sensor_kitti_keeps_16_px():
     assert abs(3 * spacing - 16.0) < 0.2
 
 
+@pytest.mark.slow  # the real nuScenes sweep: SGM with extras at 450 x 800
 def test_nuscenes_validity_marks_only_pixels_beyond_the_scan_line_spacing_and_count_honours_zero_invalid(
         tmp_path, capsys):
     """CAM_FRONT of the nuScenes sample through complete-rig: every pixel marked invalid is farther than one
