@@ -285,6 +285,7 @@ def test_rig_from_kitti_object_matches_the_calibration_projection(object_split):
         rig_from_kitti_object(path, width=1000, height=300, crop=True)
 
 
+@pytest.mark.slow  # real KITTI sweeps: SGM batches at 352 x 1216
 def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path):
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""
     from jaxdepth.batch import scale
