@@ -208,9 +208,7 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
     others = sweep[sweep != 0]
     wide = {0} | ({int(others.min()), int(others.max())} if end_sweeps and others.size else set())
     for spec, idx in _spec_groups(sources.lidars):
-        delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
-        judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, delta=delta,
-                                  min_cells=min_cells)
+        judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, min_cells=min_cells)
         # The reference and end sweeps' witnesses judge the points of every other sweep (the reference's
         # alone judge shadow); each other witness those of its neighbouring sweeps. Sweep 0's points
         # are never judged, so never gathered.
@@ -248,7 +246,7 @@ def _gathered_verdicts(judge, sources, wit, near):
             zero.at[to_shadow].max(h.reshape(wit.size, m, p))[:s])
 
 
-def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, delta, min_cells):
+def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, min_cells):
     """One witness LiDAR (pose ``T_r``, its own (P, 3) reference-frame points) on (Q, 3) query
     points: ``(free, shadow)``, (Q,) bool, as :func:`reference_view` defines them."""
     ri, _ = range_image_and_slots(transform_points(invert_rigid(T_r), points_r), valid_r, spec, *rows_r)
@@ -264,8 +262,9 @@ def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, 
     r_lo, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
     enough = inside & (n_cells >= min_cells)
     r_own = ri.r[row, col]
-    return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
-            inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
+    margin = functools.partial(free_space_margin, lidar=spec, noise_m=noise_m, slope=slope)
+    return (enough & (rq < r_lo - margin(r_lo)),
+            inside & (r_own > 0) & (rq > r_own + margin(r_own)))
 
 
 def _bracket_2x2(ri, row, col, theta, phi, spec):
