@@ -281,9 +281,10 @@ def test_radial_offset_over_open_ground_removes_nothing(t_lidar):
     nuScenes' roof LiDAR before its back camera): no point can hide another,
     yet points of neighbouring scan lines swap their u order between the two
     views (the radial parallax of a forward offset). The footprint test removes
-    nothing; the paper's axis-aligned test removes ground points."""
-    height, width = 180, 320
-    K = np.array([[160.0, 0, 159.5], [0, 160.0, 89.5], [0, 0, 1]], np.float32)
+    nothing; the paper's axis-aligned test removes ground points. (The image size, beams and
+    options of the analytic occlusion scene below: the same compiled programs.)"""
+    height, width = 96, 160
+    K = np.array([[80.0, 0, 79.5], [0, 80.0, 47.5], [0, 0, 1]], np.float32)
     o = np.asarray(t_lidar, np.float64)
     ground_y = 1.5                                       # ground plane y = 1.5 m below the camera
     elev = np.deg2rad(np.linspace(29.0, -29.0, 32))     # beams span the image height: H / L = beam spacing
