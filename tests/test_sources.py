@@ -159,9 +159,10 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
 
 
 def test_one_source_at_the_origin_equals_complete_rig():
-    # the shared tiny street frame (32 x 48 camera): the whole pipeline, small images
-    points, valid, camera = tiny_street_frames((0,))[0]
-    cams = jaxdepth.stack_cameras([camera])
+    # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
+    # images (test_robustness compiles the same complete_rig)
+    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
+    cams = jaxdepth.stack_cameras([camera, other])
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
     src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
