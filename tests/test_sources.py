@@ -373,6 +373,7 @@ def test_sequence_reference_points_lie_on_the_camera_truth():
 
 # ---------------------------------------------------------------- the job: complete-rig with a sweeps JSON
 
+@pytest.mark.slow  # the job's whole-pipeline program of its own (four sources of two LiDARs)
 def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     import json
 
