@@ -582,10 +582,7 @@ def _add_complete_command(sub) -> None:
     p.add_argument("--cameras", default=None, metavar="NAMES",
                    help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="recompute outputs that already exist (also needed to re-run into a folder whose "
-                        "jaxdepth_run.json records other settings)")
-    _add_force_option(p)
+    _add_overwrite_and_force_options(p)
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,
                    metavar="0-9",
                    help=f"zlib level of the output PNGs (default {_PNG_COMPRESSION_DEFAULT}: fast; 9: smallest, "
@@ -619,20 +616,27 @@ def _add_complete_rig_command(sub) -> None:
                    help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
                         "or colour, each the camera's width x height; all grey or all colour); default: each "
                         "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace existing outputs (also needed when the folder's jaxdepth_run.json records other "
-                        "settings)")
-    _add_force_option(p)
+    _add_overwrite_and_force_options(p)
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
     p.set_defaults(func=cmd_complete_rig)
 
 
-def _add_force_option(p) -> None:
-    p.add_argument("--force", action="store_true",
-                   help="use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
-                        "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
+_FORCE_HELP = ("use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
+               "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
+
+
+def _add_overwrite_and_force_options(p, *, force_help: str = _FORCE_HELP) -> None:
+    """``--overwrite`` (the job commands) and ``--force`` (every command that checks its inputs)."""
+    p.add_argument("--overwrite", action="store_true",
+                   help="recompute outputs that already exist (also needed to re-run into a folder whose "
+                        "jaxdepth_run.json records other settings)")
+    _add_force_option(p, force_help=force_help)
+
+
+def _add_force_option(p, *, force_help: str = _FORCE_HELP) -> None:
+    p.add_argument("--force", action="store_true", help=force_help)
 
 
 def _add_eval_command(sub) -> None:
@@ -656,9 +660,9 @@ def _add_eval_command(sub) -> None:
     p.add_argument("--csv", metavar="PATH",
                    help="write one row per frame to this CSV file: frame, rmse_mm, mae_mm, irmse_per_km, "
                         "imae_per_km, prediction, ground_truth (the paired files)")
-    p.add_argument("--force", action="store_true",
-                   help="score even when a side fails the checks (a PNG not in metres x 256; a prediction that "
-                        "covers under half of its ground truth: swapped folders or LiDAR input); logged")
+    _add_force_option(p, force_help="score even when a side fails the checks (a PNG not in metres x 256; a "
+                                    "prediction that covers under half of its ground truth: swapped folders or "
+                                    "LiDAR input); logged")
     p.set_defaults(func=cmd_eval)
 
 

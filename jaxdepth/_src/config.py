@@ -14,6 +14,11 @@ DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
 
 
+# (field, note) of the float options that must be >= 0
+_NON_NEGATIVE_FIELDS = (("epsilon_m", ""), ("smoothing_sigma_px", ""), ("guidance_weight", " (0 = off)"),
+                        ("guidance_noise_floor", ""))
+
+
 @dataclasses.dataclass(frozen=True)
 class SGMConfig:
     """Constants of the four SGM steps. Defaults follow the paper where it gives a value.
@@ -114,8 +119,10 @@ class SGMConfig:
         if self.outlier_test not in _OUTLIER_TESTS:
             raise ValueError(
                 f"SGMConfig: field 'outlier_test' expected one of {_OUTLIER_TESTS}, got {self.outlier_test!r}")
-        if not self.epsilon_m >= 0:
-            raise ValueError(f"SGMConfig: field 'epsilon_m' expected >= 0, got {self.epsilon_m!r}")
+        for name, note in _NON_NEGATIVE_FIELDS:  # `not >= 0` also refuses NaN
+            value = getattr(self, name)
+            if not value >= 0:
+                raise ValueError(f"SGMConfig: field {name!r} expected >= 0{note}, got {value!r}")
         if not 0 < self.min_depth_m < self.max_depth_m:
             raise ValueError(
                 "SGMConfig: fields 'min_depth_m' < 'max_depth_m' expected positive and ordered, "
@@ -125,19 +132,10 @@ class SGMConfig:
             value = getattr(self, name)
             if int(value) != value or value < 0:
                 raise ValueError(f"SGMConfig: field {name!r} expected a non-negative integer, got {value!r}")
-        if self.smoothing_sigma_px < 0:
-            raise ValueError(
-                f"SGMConfig: field 'smoothing_sigma_px' expected >= 0, got {self.smoothing_sigma_px!r}")
-        if not self.guidance_weight >= 0:
-            raise ValueError(
-                f"SGMConfig: field 'guidance_weight' expected >= 0 (0 = off), got {self.guidance_weight!r}")
         if isinstance(self.guidance_sweeps, bool) or int(self.guidance_sweeps) != self.guidance_sweeps \
                 or self.guidance_sweeps < 1:
             raise ValueError(
                 f"SGMConfig: field 'guidance_sweeps' expected an integer >= 1, got {self.guidance_sweeps!r}")
-        if not self.guidance_noise_floor >= 0:
-            raise ValueError(
-                f"SGMConfig: field 'guidance_noise_floor' expected >= 0, got {self.guidance_noise_floor!r}")
         if self.blend_hypotheses and not self.column_bracket:
             raise ValueError("SGMConfig: field 'blend_hypotheses' expected with column_bracket=True "
                              "(the blend keeps only hypotheses inside the bracket), got column_bracket=False")

@@ -1,0 +1,23 @@
+"""SGMConfig refuses bad option values with a message naming the field (no compiled code)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from jaxdepth._src.config import SGMConfig
+
+NON_NEGATIVE = ("epsilon_m", "smoothing_sigma_px", "guidance_weight", "guidance_noise_floor")
+
+
+@pytest.mark.parametrize("field", NON_NEGATIVE)
+@pytest.mark.parametrize("value", [-0.5, math.nan])
+def test_negative_or_nan_float_option_is_refused(field, value):
+    with pytest.raises(ValueError, match=f"field '{field}' expected >= 0"):
+        SGMConfig(**{field: value})
+
+
+@pytest.mark.parametrize("field", NON_NEGATIVE)
+def test_zero_is_accepted(field):
+    assert getattr(SGMConfig(**{field: 0.0}), field) == 0.0
