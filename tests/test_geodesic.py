@@ -311,6 +311,7 @@ def test_pipeline_without_guidance_ignores_the_image():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # the guided pipeline: two whole-pipeline programs of its own (per frame, vmapped)
 def test_pipeline_guided_seeds_and_vmap():
     """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
     from jaxdepth import SGMConfig, complete, complete_stages
@@ -367,6 +368,7 @@ def test_config_fields(field, value, match):
         SGMConfig(**{field: value})
 
 
+@pytest.mark.slow  # the guided pipeline program of the test above
 def test_pipeline_passes_the_noise_floor():
     from jaxdepth import SGMConfig, complete_stages
     (frames, T, images) = _pipeline_frame()
@@ -380,6 +382,7 @@ def test_pipeline_passes_the_noise_floor():
     assert np.any(np.asarray(plain.du) != np.asarray(want.du))  # the floor changed some seeds
 
 
+@pytest.mark.slow  # the guided point-cloud pipeline: a whole-pipeline program of its own
 def test_complete_points_guided():
     from jaxdepth import SGMConfig, complete_points_stages
     from scenes import tiny_street_frames

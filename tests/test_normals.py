@@ -559,6 +559,7 @@ def test_pixel_normals_bad_inputs_raise():
         PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)  # noqa
 
 
+@pytest.mark.slow  # KITTI-size program (the frozen-oracle test below runs the same one)
 def test_pixel_normals_kitti_frame(kitti):
     depth, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     got = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)

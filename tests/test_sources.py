@@ -158,6 +158,7 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
     np.testing.assert_array_equal(got, want & ~extra)
 
 
+@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
 def test_one_source_at_the_origin_equals_complete_rig():
     # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
     # images (test_robustness compiles the same complete_rig)
