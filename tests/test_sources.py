@@ -12,8 +12,8 @@ import pytest
 import jaxdepth
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
-from jaxdepth._src.sources import (complete_sources, free_space_keep, free_space_margin, make_sources,
-                                   reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.sources import (camera_witness, complete_sources, free_space_keep, free_space_margin,
+                                   make_sources, reference_view, source_keep_mask, source_normals)
 from jaxdepth._src.scene import scene_arrays
 from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
@@ -238,7 +238,7 @@ def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
     on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
     static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
     assert on_car.sum() > 30
-    free, shadow = (np.asarray(a)[1, :len(old)] for a in _view(src))
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(old)] for a in _view(src))
     assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
     assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
     by_all = free
@@ -302,7 +302,7 @@ def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     T_ref, T_other = _pose(), _pose((0.0, 1.5, 0.0))
     ref, other = _sweep(scene, T_ref), _sweep(scene, T_other)
     src = _sources([(ref, T_ref), (other, T_other)], (0, 1))
-    free, shadow = (np.asarray(a)[1, :len(other)] for a in _view(src))
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(other)] for a in _view(src))
     # wall points the other origin sees behind the pole (hidden from the reference LiDAR)
     d = other - np.array([0.0, 0.0, 0.0])
     behind = (np.abs(other[:, 0] - WALL_X) < 1e-3) & (np.abs(np.arctan2(d[:, 1], d[:, 0])) < 0.15 / 8.0 * 0.8) \
@@ -311,6 +311,73 @@ def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     assert not free[behind].any(), "wall points behind the pole are behind, not in front: kept"
     assert shadow[behind].all(), "and they lie in the reference LiDAR's shadow"
     assert not free.any(), "a static scene has no free-space points"
+
+
+def test_a_post_hides_wall_points_an_origin_5_m_behind_saw():
+    # Analytic oracle: a post (radius 0.5 m at x = 4 m) in front of the wall; the reference LiDAR (and a
+    # camera beside it) at the origin, an earlier sweep's LiDAR 5 m behind. That origin sees the wall in
+    # a band on each side of the post's narrower shadow that the reference LiDAR cannot see. Such a point
+    # is ``hidden`` when every ray of the reference LiDAR bracketing it hits the post: its azimuth more
+    # than 1.5 column spacings inside the post's silhouette (its elevation a beam spacing inside the
+    # silhouette and the reference LiDAR's field of view).
+    # No point of the old sweep that the reference origin sees (its line of sight misses the post) is
+    # hidden, nor any point in the silhouette's edge columns.
+    cx, radius = 4.0, 0.5
+    scene = _street(cylinders=[[cx, 0.0, radius, -1.7, 3.0]])
+    T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
+    old = _sweep(scene, T_old)
+    src = _sources([(_sweep(scene, T_ref), T_ref), (old, T_old)], (0, 1))
+    hidden = np.asarray(reference_view(src)[2])
+    assert hidden.shape == (1, 2, src.points.shape[1])
+    assert not hidden[0, 0].any(), "points of the reference sweep are never judged"
+    h = hidden[0, 1, :len(old)]
+    az = np.abs(np.arctan2(old[:, 1], old[:, 0]))
+    half = np.arcsin(radius / cx)                                       # the post's half silhouette
+    col, row = 2 * np.pi / SPEC.columns, np.radians(35.0) / 32
+    el = np.arctan2(old[:, 2], np.hypot(old[:, 0], old[:, 1]))
+    top = min(np.arctan2(3.0, cx + radius), np.radians(SPEC.fov_up_deg))     # post top or field of view
+    on_wall = np.abs(old[:, 0] - WALL_X) < 1e-3
+    deep = on_wall & (az < half - 1.5 * col) & (el < top - row) & (np.linalg.norm(old, axis=1) > cx + radius)
+    # 2-D distance from the post's axis to the segment origin -> q: the line of sight misses the post
+    t = np.clip(old[:, 0] * cx / np.maximum(np.sum(old[:, :2] ** 2, axis=1), 1e-9), 0.0, 1.0)
+    seen = np.hypot(t * old[:, 0] - cx, t * old[:, 1]) > radius + 1e-3
+    assert deep.sum() >= 20 and seen.sum() > 1000
+    assert h[deep].all(), f"{int((deep & ~h).sum())} of {int(deep.sum())} wall points behind the post kept"
+    assert not h[seen].any(), "a point the reference origin (and the camera) sees is never hidden"
+    assert not h[on_wall & (az > half - 0.5 * col)].any(), "edge columns: a bracketing ray passes the post"
+
+
+def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
+    # Reference LiDARs at x = 0 and x = 1.2 (sweep 0) and one of sweep 1 right at the camera: the witness
+    # is the nearest reference-sweep LiDAR, usable within the baseline bound.
+    Ts = np.stack([_pose(), _pose((1.2, 0.0, -0.9)), _pose((0.9, 0.0, 0.0))]).astype(np.float32)
+    sweep = (0, 0, 1)
+    for cam_x, want, usable in ((0.3, 0, True), (1.0, 1, True), (3.0, 1, False)):
+        T_cam_ref = _pose((-cam_x, 0.0, 0.0)).astype(np.float32)       # camera centre at (cam_x, 0, 0)
+        rank, ok = camera_witness(T_cam_ref, Ts, sweep=sweep)
+        assert (int(rank), bool(ok)) == (want, usable)
+    T_cams = np.stack([_pose((-x, 0.0, 0.0)) for x in (0.3, 1.0, 3.0)]).astype(np.float32)
+    loop = [tuple(np.asarray(a) for a in camera_witness(T, Ts, sweep=sweep)) for T in T_cams]
+    vm = jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep))(T_cams)
+    jt = jax.jit(lambda T: camera_witness(T, Ts, sweep=sweep))
+    for i, (r, ok) in enumerate(loop):
+        assert (int(vm[0][i]), bool(vm[1][i])) == (int(r), bool(ok)) == tuple(
+            (int(a) if a.dtype != bool else bool(a)) for a in (np.asarray(x) for x in jt(T_cams[i])))
+
+
+def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
+    # One sweep: the option changes nothing (bit-identical). Two sweeps: every point removed by the
+    # occlusion rule is an earlier sweep's.
+    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
+    cams = jaxdepth.stack_cameras(frame.cameras)
+    one = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    np.testing.assert_array_equal(np.asarray(complete_sources(one, cams, occlusion=True)),
+                                  np.asarray(complete_sources(one, cams, occlusion=False)))
+    scene = _street(cylinders=[[4.0, 0.0, 0.5, -1.7, 3.0]])
+    T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
+    src = _sources([(_sweep(scene, T_ref), T_ref), (_sweep(scene, T_old), T_old)], (0, 1))
+    hidden = np.asarray(reference_view(src)[2])
+    assert hidden[:, 1].any() and not hidden[:, 0].any()
 
 
 def test_two_lidars_at_different_heights():
