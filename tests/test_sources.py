@@ -19,6 +19,8 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
+from scenes import SMALL_LIDAR, tiny_street_frames
+
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
 WALL_X = 20.0
 
@@ -36,15 +38,26 @@ def _sweep(scene, T, spec=SPEC):
     return np.asarray(pts)[np.asarray(valid)]
 
 
+#: Points per source of every test's Sources: one sweep of SPEC at most, so tests with the same number
+#: of sources and sweeps share their compiled programs (padding rows are invalid and never judged).
+P_BUCKET = SPEC.beams * SPEC.columns
+
+
 def _sources(parts, sweeps, spec=SPEC):
-    """Sources of [(points, T)] padded to one bucket."""
-    P = max(len(p) for p, _ in parts)
+    """Sources of [(points, T)] padded to one bucket of P_BUCKET points (more only if a part is longer)."""
+    P = max([P_BUCKET] + [len(p) for p, _ in parts])
     pts = np.zeros((len(parts), P, 3), np.float32)
     valid = np.zeros((len(parts), P), bool)
     for i, (p, _) in enumerate(parts):
         pts[i, :len(p)] = p
         valid[i, :len(p)] = True
     return make_sources(pts, valid, np.stack([T for _, T in parts]), lidars=(spec,) * len(parts), sweep=sweeps)
+
+
+#: One jit of each free-space function for the module: the tests below of one (sources, sweeps) count run
+#: one compiled program (the eager functions themselves: test_free_space_vmap_and_jit_equal_eager).
+_view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+_keep = jax.jit(free_space_keep)
 
 
 def _street(*, boxes=(), cylinders=()):
@@ -73,10 +86,12 @@ def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
 
 
 def test_source_normals_vmap_equals_loop():
+    # A batch of two one-source Sources of different poses (the per-source calls are the program of
+    # the test above: one source of P_BUCKET points)
     scene = _street()
     Ts = [_pose((0, 0, 0)), _pose((-1.5, 0.2, 0.1), yaw=3.0)]
-    src = _sources([(_sweep(scene, T), T) for T in Ts], (0, 1))
-    batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a[::-1]]), src)
+    one_source = [_sources([(_sweep(scene, T), T)], (0,)) for T in Ts]
+    batch = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *one_source)
     out = jax.vmap(source_normals)(batch)
     for b in range(2):
         one = jax.tree_util.tree_map(lambda a: a[b], batch)
@@ -89,7 +104,7 @@ def test_source_normals_vmap_equals_loop():
 def _three_origins():
     """A street image whose pixels come from three sources at different origins, and the oracle:
     Algorithm 1 run once per source origin, each pixel taking its own source's result."""
-    frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.5)
+    frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.25)
     cam = frame.cameras[0]
     depth, index = jaxdepth.project_to_image(frame.points, frame.valid, cam.K, cam.T_cam_lidar,
                                              height=cam.height, width=cam.width)
@@ -143,11 +158,15 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
     np.testing.assert_array_equal(got, want & ~extra)
 
 
+@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
 def test_one_source_at_the_origin_equals_complete_rig():
-    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
-    cams = jaxdepth.stack_cameras(frame.cameras)
-    want = jaxdepth.complete_rig(frame.points, frame.valid, cams, lidar=SPEC)
-    src = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
+    # images (test_robustness compiles the same complete_rig)
+    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
+    cams = jaxdepth.stack_cameras([camera, other])
+    want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
+    assert (np.asarray(want) > 0).mean() > 0.5
+    src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
     np.testing.assert_array_equal(np.asarray(complete_sources(src, cams)), np.asarray(want))
 
 
@@ -160,7 +179,7 @@ def test_a_car_that_moved_leaves_no_ghost():
     ref = _sweep(_street(boxes=[car_now]), T_ref)
     old = _sweep(_street(boxes=[car_then]), T_old)
     src = _sources([(ref, T_ref), (old, T_old)], (0, 1))
-    keep = np.asarray(free_space_keep(src))
+    keep = np.asarray(_keep(src))
     on_old_car = np.zeros(src.points.shape[1], bool)
     # points of the old car more than 0.4 m above the road (nearer the road the rays bracketing them
     # include the slanted road itself, within the margin: kept, as documented)
@@ -198,7 +217,7 @@ def test_free_space_is_judged_by_the_rays_that_bracket_the_point():
         q.append((d * r[:, None, None]).reshape(-1, 3))
     q = np.concatenate(q).astype(np.float32)
     src = _sources([(ref, T_ref), (q, _pose((-1.5, 0.0, 0.0)))], (0, 1))
-    free = np.asarray(reference_view(src)[0])[1, :len(q)]
+    free = np.asarray(_view(src)[0])[1, :len(q)]
     n = beam.size * azimuth.size
     assert free[:n].all(), f"{int((~free[:n]).sum())} of {n} points every bracketing ray passed are kept"
     assert not free[n:].any(), "points within the margin of the bracketing ray's road hit are kept"
@@ -219,7 +238,7 @@ def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
     on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
     static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
     assert on_car.sum() > 30
-    free, shadow, _ = (np.asarray(a)[..., 1, :len(old)] for a in jax.jit(reference_view)(src))   # jit: one compile
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(old)] for a in _view(src))
     assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
     assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
     by_all = free
@@ -236,7 +255,7 @@ def test_bounded_witnesses_equal_every_sweep_when_they_cover_every_other_sweep()
     T0, T1, T2 = _pose(), _pose((-1.5, 3.0, 0.0)), _pose((-3.0, 4.0, 0.0))
     src = _sources([(_sweep(_street(boxes=[occluder]), T0), T0), (_sweep(_street(boxes=[car]), T1), T1),
                     (_sweep(_street(boxes=[occluder]), T2), T2)], (0, 1, 2))
-    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    view = _view
     every = view(src, neighbour_sweeps=None, end_sweeps=False)
     for k, ends in ((1, False), (0, True)):
         for a, b in zip(view(src, neighbour_sweeps=k, end_sweeps=ends), every):
@@ -268,7 +287,7 @@ def test_a_neighbour_or_end_sweep_removes_a_ghost_and_no_other_sweep_does():
     d = np.stack(np.broadcast_arrays(np.cos(el_q) * np.cos(azimuth), np.cos(el_q) * np.sin(azimuth), np.sin(el_q)), -1)
     q = (d * r).reshape(-1, 3).astype(np.float32)
     src = _sources([(np.zeros((0, 3), np.float32), T), (road, T), (q, T), (q, T), (q, T)], (0, 1, 2, 3, 4))
-    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    view = _view
     free = {(k, e): np.asarray(view(src, neighbour_sweeps=k, end_sweeps=e)[0])[:, :len(q)]
             for k, e in ((0, False), (1, False), (0, True))}
     assert not free[0, False].any(), "the empty reference sweep is no witness"
@@ -283,7 +302,7 @@ def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     T_ref, T_other = _pose(), _pose((0.0, 1.5, 0.0))
     ref, other = _sweep(scene, T_ref), _sweep(scene, T_other)
     src = _sources([(ref, T_ref), (other, T_other)], (0, 1))
-    free, shadow, _ = (np.asarray(a)[..., 1, :len(other)] for a in reference_view(src))
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(other)] for a in _view(src))
     # wall points the other origin sees behind the pole (hidden from the reference LiDAR)
     d = other - np.array([0.0, 0.0, 0.0])
     behind = (np.abs(other[:, 0] - WALL_X) < 1e-3) & (np.abs(np.arctan2(d[:, 1], d[:, 0])) < 0.15 / 8.0 * 0.8) \
@@ -371,7 +390,7 @@ def test_two_lidars_at_different_heights():
     parts = [(_sweep(scene_now, T_high), T_high), (_sweep(scene_now, T_low), T_low),
              (_sweep(scene_then, shift @ T_high), shift @ T_high), (_sweep(scene_then, shift @ T_low), shift @ T_low)]
     src = _sources(parts, (0, 0, 1, 1))
-    keep = np.asarray(free_space_keep(src))
+    keep = np.asarray(_keep(src))
     for s in (2, 3):
         pts = parts[s][0]
         k = keep[s, :len(pts)]
@@ -398,7 +417,7 @@ def test_free_space_vmap_and_jit_equal_eager():
     Ts = [_pose(), _pose((-1.5, 0.1, 0.0))]
     src = _sources([(_sweep(_street(), Ts[0]), Ts[0]), (_sweep(scene, Ts[1]), Ts[1])], (0, 1))
     eager = np.asarray(free_space_keep(src))
-    np.testing.assert_array_equal(np.asarray(jax.jit(free_space_keep)(src)), eager)
+    np.testing.assert_array_equal(np.asarray(_keep(src)), eager)
     batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), src)
     np.testing.assert_array_equal(np.asarray(jax.vmap(free_space_keep)(batch))[1], eager)
     assert (~eager[1] & np.asarray(src.valid[1])).sum() > 20
@@ -422,6 +441,7 @@ def test_sequence_reference_points_lie_on_the_camera_truth():
 
 # ---------------------------------------------------------------- the job: complete-rig with a sweeps JSON
 
+@pytest.mark.slow  # the job's whole-pipeline program of its own (four sources of two LiDARs)
 def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     import json
 
@@ -432,7 +452,7 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     from jaxdepth.io import read_depth_png, read_rig_json
     from jaxdepth.io.sweeps import read_sweeps_cloud
 
-    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.125, noise_std_m=0.0)
     cam = sq.camera
     ego = [sq.T_ref_source[2 * k] for k in range(2)]                   # "top" sits at the ego origin
     mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
