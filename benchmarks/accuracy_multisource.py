@@ -225,10 +225,11 @@ def depth_boundaries(gt, *, window_px=5, jump=0.1):
     return has & (hi - lo > jump * gt)
 
 
-def _truth_filtered(cloud, sq, tolerance_m=0.5):
+def _truth_filtered(cloud, sq, tolerance_m=0.5, *, only_older_sweeps=False):
     """Diagnosis only (uses the truth, not a method): the cloud without the points whose camera
     pixel's true depth differs from theirs by more than ``tolerance_m`` (points outside the
-    camera kept). What perfect point removal could give a fill."""
+    camera kept). What perfect point removal could give a fill; with ``only_older_sweeps`` the
+    reference sweep's points are all kept (what a perfect rule on the other sweeps could give)."""
     cam = sq.camera
     K, T = np.asarray(cam.K, np.float64), np.asarray(cam.T_cam_lidar, np.float64)
     pc = cloud.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
@@ -242,6 +243,8 @@ def _truth_filtered(cloud, sq, tolerance_m=0.5):
     truth = np.zeros(z.shape)
     truth[inside] = sq.dense_depth[v[inside], u[inside]]
     keep = ~(inside & ((truth == 0) | (np.abs(z - truth) > tolerance_m)))
+    if only_older_sweeps:
+        keep |= cloud.sweep[cloud.source] == 0
     return cloud.take(keep)
 
 
@@ -274,6 +277,9 @@ def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3), image_scale=
             preds = {"sgm_sources_1_sweep": complete_cloud(one, rig, config=config)[0],
                      "sgm_sources_no_free_space": complete_cloud(full, rig, config=config, free_space=False)[0],
                      "sgm_sources": complete_cloud(full, rig, config=config)[0],
+                     "sgm_sources_no_occlusion": complete_cloud(full, rig, config=config, occlusion=False)[0],
+                     "sgm_sources_older_sweeps_truth_filtered": complete_cloud(
+                         _truth_filtered(full, sq, only_older_sweeps=True), rig, config=config)[0],
                      "sgm_sources_1_sweep_truth_filtered": complete_cloud(_truth_filtered(one, sq), rig,
                                                                           config=config, free_space=False)[0],
                      "sgm_sources_truth_filtered": complete_cloud(_truth_filtered(full, sq), rig, config=config,
@@ -297,6 +303,10 @@ def sequence_rows(config, *, seeds=(0, 1), sweeps=5, lidars=(2, 3), image_scale=
                          "gain_5_vs_1_sweep_rmse_pct": 100.0 * (1.0 - s5["rmse"] / s1["rmse"]),
                          "gain_5_vs_1_sweep_truth_filtered_rmse_pct": 100.0 * (
                              1.0 - mean["sgm_sources_truth_filtered"]["rmse"] / s1["rmse"]),
+                         "gain_5_vs_1_sweep_no_occlusion_rmse_pct": 100.0 * (
+                             1.0 - mean["sgm_sources_no_occlusion"]["rmse"] / s1["rmse"]),
+                         "gain_5_vs_1_sweep_older_sweeps_truth_filtered_rmse_pct": 100.0 * (
+                             1.0 - mean["sgm_sources_older_sweeps_truth_filtered"]["rmse"] / s1["rmse"]),
                          "gain_vs_accumulation_pct": {k: 100.0 * (1.0 - s5[k] / acc[k]) for k in ("rmse", "mae")}}
     h, w = round(352 * image_scale), round(1216 * image_scale)
     return {"rigs": out, "seeds": list(seeds), "sweeps": sweeps, "image_scale": image_scale,

@@ -122,6 +122,7 @@ def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- the shared frame through the CLI
+@pytest.mark.slow  # the real KITTI pair: SGM batches at 352 x 1216
 def test_cli_uses_each_cameras_own_extrinsic(tmp_path, kitti_frame):
     """Done when of issue 13: the CLI on the shared KITTI frame in depth-completion layout (the
     benchmark crop) equals the API called with each camera's own extrinsic. Both cameras go
@@ -129,7 +130,7 @@ def test_cli_uses_each_cameras_own_extrinsic(tmp_path, kitti_frame):
 
     Oracle: :func:`jaxdepth.batch.runner.complete_batch` with the extrinsics given explicitly, at
     the CLI's batch shape (one compiled program for the CLI and the oracle; ``tests/test_runner.py``
-    checks ``complete_batch`` against per-frame :func:`jaxdepth.complete`). The uncropped frame
+    checks the runner's batches against per-frame ``complete_with``). The uncropped frame
     takes the same path at another shape (another compile, nothing else)."""
     from jaxdepth.batch.runner import complete_batch
     from jaxdepth.io import encode_depth_uint16

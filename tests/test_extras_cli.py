@@ -165,6 +165,7 @@ def test_complete_rig_extras_cameras_of_two_sizes(tmp_path, capsys):
     assert capsys.readouterr().err.count("exists, skipped") == 2
 
 
+@pytest.mark.slow  # the real nuScenes sample: SGM with extras on CAM_FRONT at full size
 def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
     """One camera (CAM_FRONT) of the fake v1.0-mini dataroot of tests/test_nuscenes_job.py."""
     from tests.conftest import require_shared
@@ -210,6 +211,7 @@ def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
     assert sorted(more.done) == ["s1", "s2"] and (folder / "CAM_FRONT_s2_preview.png").exists()
 
 
+@pytest.mark.slow  # the real KITTI sweep: SGM with extras at 352 x 1216
 def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
     """One raw drive (the shared frame's sweep), camera 2, benchmark crop: the sweep path's masks are
     the library's complete_points_stages + validity_and_distance with that camera."""

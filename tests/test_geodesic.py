@@ -20,6 +20,8 @@ import pytest
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed, median_step_difference, step_costs
 
+from scenes import SMALL_LIDAR
+
 RTOL = 2e-6  # float32 sums of up to a few hundred steps vs float64
 
 
@@ -278,13 +280,22 @@ def test_bad_input(keep, img, kwargs, match):
 
 # --- the pipeline option (SGMConfig.guidance_weight / guidance_sweeps, image=) ---
 
+#: The shared scenes' LiDAR (tests/scenes.py), whose 32 x 48 frames the pipeline tests below take.
+LIDAR = SMALL_LIDAR
+
 #: One guided configuration for the pipeline tests below (one compiled pipeline), with the noise floor on.
 GUIDED = dict(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)
 
 
 def _pipeline_frame():
-    from tests.helpers import small_frames
-    frames, T = small_frames(2, seed=3)
+    """Two shared tiny street frames (32 x 48, SMALL_LIDAR, two focal lengths, one T), random colours."""
+    from jaxdepth._src.geometry import project_to_image
+    from scenes import tiny_street_frames
+    frames = []
+    for points, valid, camera in tiny_street_frames((3, 4)):
+        depth, _ = project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=32, width=48)
+        frames.append((np.asarray(depth), np.asarray(camera.K)))
+    T = np.asarray(camera.T_cam_lidar)
     rng = np.random.default_rng(7)
     images = [rng.integers(0, 256, depth.shape + (3,), dtype=np.uint8) for depth, _ in frames]
     return frames, T, images
@@ -294,12 +305,13 @@ def test_pipeline_without_guidance_ignores_the_image():
     from jaxdepth import complete_stages
     (frames, T, images) = _pipeline_frame()
     depth, K = frames[0]
-    plain = complete_stages(depth, K, T)
-    with_image = complete_stages(depth, K, T, image=images[0])
+    plain = complete_stages(depth, K, T, lidar=LIDAR)
+    with_image = complete_stages(depth, K, T, lidar=LIDAR, image=images[0])
     for a, b in zip(plain, with_image):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # the guided pipeline: two whole-pipeline programs of its own (per frame, vmapped)
 def test_pipeline_guided_seeds_and_vmap():
     """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
     from jaxdepth import SGMConfig, complete, complete_stages
@@ -307,7 +319,7 @@ def test_pipeline_guided_seeds_and_vmap():
     config = SGMConfig(**GUIDED)
     loop = []
     for (depth, K), image in zip(frames, images):
-        stages = complete_stages(depth, K, T, config=config, image=image)
+        stages = complete_stages(depth, K, T, lidar=LIDAR, config=config, image=image)
         want = geodesic_seed(np.asarray(stages.inlier_mask), image.astype(np.float32) / 255.0,
                              color_weight=30.0, sweeps=2, noise_floor=config.guidance_noise_floor)
         np.testing.assert_array_equal(stages.du, want.du)
@@ -324,16 +336,16 @@ def test_pipeline_guided_seeds_and_vmap():
     assert guidance_image(as_float, as_float.shape[:2], guided=False, where="t") is None
     depths = np.stack([d for d, _ in frames])
     Ks = np.stack([K for _, K in frames])
-    batched = jax.vmap(lambda d, K, im: complete(d, K, T, config=config, image=im))(depths, Ks, np.stack(images))
+    batched = jax.vmap(lambda d, K, im: complete(d, K, T, lidar=LIDAR, config=config, image=im))(depths, Ks, np.stack(images))
     # Same tolerance as test_pipeline's vmap test (batched XLA kernels round differently).
     np.testing.assert_allclose(batched, np.stack(loop), rtol=1e-5, atol=1e-4)
 
 
 @pytest.mark.parametrize("image,match", [
     (None, r"'image' expected an \(H, W\) or \(H, W, 3\) camera image because config.guidance_weight > 0, got None"),
-    (np.zeros((10, 20, 3), np.uint8), r"'image' expected shape \(64, 128\) \(grey\) or \(64, 128, 3\).*got \(10, 20, 3\)"),
-    (np.zeros((64, 128, 4), np.uint8), r"'image' expected shape .*got \(64, 128, 4\)"),
-    (np.zeros((64, 128, 3), np.uint16), r"'image' expected dtype uint8 \(0-255\) or float in \[0, 1\], got uint16 "
+    (np.zeros((10, 20, 3), np.uint8), r"'image' expected shape \(32, 48\) \(grey\) or \(32, 48, 3\).*got \(10, 20, 3\)"),
+    (np.zeros((32, 48, 4), np.uint8), r"'image' expected shape .*got \(32, 48, 4\)"),
+    (np.zeros((32, 48, 3), np.uint16), r"'image' expected dtype uint8 \(0-255\) or float in \[0, 1\], got uint16 "
                                         r"\(a 16-bit image"),
 ])
 def test_pipeline_bad_image(image, match):
@@ -341,7 +353,7 @@ def test_pipeline_bad_image(image, match):
     (frames, T, _) = _pipeline_frame()
     depth, K = frames[0]
     with pytest.raises(ValueError, match=match):
-        complete(depth, K, T, config=SGMConfig(guidance_weight=1.0), image=image)
+        complete(depth, K, T, lidar=LIDAR, config=SGMConfig(guidance_weight=1.0), image=image)
 
 
 @pytest.mark.parametrize("field,value,match", [
@@ -356,11 +368,12 @@ def test_config_fields(field, value, match):
         SGMConfig(**{field: value})
 
 
+@pytest.mark.slow  # the guided pipeline program of the test above
 def test_pipeline_passes_the_noise_floor():
     from jaxdepth import SGMConfig, complete_stages
     (frames, T, images) = _pipeline_frame()
     depth, K = frames[0]
-    stages = complete_stages(depth, K, T, config=SGMConfig(**GUIDED), image=images[0])
+    stages = complete_stages(depth, K, T, lidar=LIDAR, config=SGMConfig(**GUIDED), image=images[0])
     keep, image = np.asarray(stages.inlier_mask), images[0].astype(np.float32) / 255.0
     want = geodesic_seed(keep, image, color_weight=30.0, sweeps=2, noise_floor=1.0)
     np.testing.assert_array_equal(stages.du, want.du)
@@ -369,20 +382,16 @@ def test_pipeline_passes_the_noise_floor():
     assert np.any(np.asarray(plain.du) != np.asarray(want.du))  # the floor changed some seeds
 
 
+@pytest.mark.slow  # the guided point-cloud pipeline: a whole-pipeline program of its own
 def test_complete_points_guided():
     from jaxdepth import SGMConfig, complete_points_stages
-    from jaxdepth._src import synthetic
-    from jaxdepth._src.types import Camera
-    from tests.helpers import H, W
-    K = np.array([[90.0, 0, (W - 1) / 2], [0, 90.0, 20.0], [0, 0, 1]], np.float32)
-    T = np.asarray(synthetic.rig_cameras("kitti")[0].T_cam_lidar)
-    camera = Camera(K=K, T_cam_lidar=T, height=H, width=W)
-    frame = synthetic.make_street_scene(5, cameras=[camera])
-    image = np.random.default_rng(1).random((H, W), np.float32)
+    from scenes import tiny_street_frames
+    points, valid, camera = tiny_street_frames((5,))[0]
+    image = np.random.default_rng(1).random((camera.height, camera.width), np.float32)
     config = SGMConfig(guidance_weight=3.0, guidance_sweeps=1)
     with pytest.raises(ValueError, match=r"complete_points: field 'image' expected .* got None"):
-        complete_points_stages(frame.points, frame.valid, camera, config=config)
-    stages = complete_points_stages(frame.points, frame.valid, camera, config=config, image=image)
+        complete_points_stages(points, valid, camera, lidar=LIDAR, config=config)
+    stages = complete_points_stages(points, valid, camera, lidar=LIDAR, config=config, image=image)
     want = geodesic_seed(np.asarray(stages.inlier_mask), image, color_weight=3.0, sweeps=1,
                          noise_floor=config.guidance_noise_floor)
     np.testing.assert_array_equal(stages.du, want.du)

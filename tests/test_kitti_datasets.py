@@ -71,6 +71,7 @@ def _png_u16(path) -> np.ndarray:
     return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
 
 
+@pytest.mark.slow  # real KITTI sweeps completed at full camera size
 def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp_path, capsys):
     bad = raw_tree / DATE_B / DRIVE_B / "velodyne_points" / "data" / "0000000001.bin"
     bad.write_bytes((raw_tree / DATE_B / DRIVE_B / "velodyne_points" / "data" / "0000000000.bin").read_bytes()[:1003])
@@ -231,6 +232,7 @@ def object_split(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow  # real KITTI object frames completed at full camera size
 def test_object_split_per_frame_calibration_and_bad_calibration(object_split, tmp_path, capsys):
     calib = object_split / "calib" / "000001.txt"
     good = calib.read_text()
@@ -283,6 +285,7 @@ def test_rig_from_kitti_object_matches_the_calibration_projection(object_split):
         rig_from_kitti_object(path, width=1000, height=300, crop=True)
 
 
+@pytest.mark.slow  # real KITTI sweeps: SGM batches at 352 x 1216
 def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path):
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""
     from jaxdepth.batch import scale

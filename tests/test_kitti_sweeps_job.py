@@ -58,6 +58,7 @@ def _wall_depth(cam_K, T_cam_lidar, T_velo_imu, height, width, frame: int) -> np
     return np.where(ok, z, 0.0)
 
 
+@pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
 def test_sweeps_job_completes_the_wall_and_resumes(drive, tmp_path):
     drive, T_velo_imu = drive
     scan = kitti_datasets.kitti_raw_jobs(drive, tmp_path / "out", camera=2)
@@ -76,6 +77,7 @@ def test_sweeps_job_completes_the_wall_and_resumes(drive, tmp_path):
     assert len(again.skipped) == 4 and not again.done and not again.failed
 
 
+@pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
 def test_missing_oxts_fails_only_its_sweeps(drive, tmp_path):
     drive, _ = drive
     copy = tmp_path / drive.parent.name / drive.name
@@ -102,6 +104,7 @@ def test_analytic_wall_depth_helper_is_consistent():
     assert math.isclose(z[0, 50], 0.0) or z[0, 50] > z[50, 50]
 
 
+@pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size (API and CLI)
 def test_command_line_sweeps(drive, tmp_path, capsys):
     """``jaxdepth complete DRIVE DST --sweeps 1`` runs this job (same bytes as the API); --sweeps on a folder
     that is no KITTI raw drive is a data error; --sweeps 0 is the single-sweep path."""

@@ -387,6 +387,7 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
 
 
+@pytest.mark.slow  # real nuScenes multi-sweep completion, six cameras
 def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     """sweeps=2: each sample's sweeps (s1: one, the scene's first; s2: two) go through complete_cloud as one
     source per sweep; the job's bytes are a direct call's, and s2's differ from the single-sweep job's."""
@@ -529,6 +530,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
 # ---------------------------------------------------------------- image-guided seeds
 
 
+@pytest.mark.slow  # real nuScenes images, guided six-camera completion
 def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, first_run, tmp_path):
     """--guidance-weight: s1's PNGs equal the guided rig completion of the calibration rig path with the
     JPEGs read by OpenCV (BGR -> RGB); s2 has a CAM_BACK JPEG of the wrong size: it fails naming the file,

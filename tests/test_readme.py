@@ -95,6 +95,7 @@ def _python_api_block() -> str:
     return re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
 
 
+@pytest.mark.slow  # the README block's own whole-pipeline programs (single, vmap, rig)
 def test_readme_python_api_block_runs(tmp_path, monkeypatch):
     """Runs the README's API block on a small synthetic frame, files laid out as the block names them."""
     import jaxdepth

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth import Camera, complete_points_stages, complete_rig_stages, stack_cameras
+from jaxdepth import Camera, complete_points_stages, complete_rig_stages, project_to_image, stack_cameras
 
 from scenes import SMALL_LIDAR, stereo_street
 
@@ -37,16 +37,19 @@ def test_cameras_of_different_sizes_share_a_padded_canvas(stereo):
     rig = stack_cameras([big, small])
     assert (rig.height, rig.width) == (big.height, big.width)
     np.testing.assert_array_equal(np.asarray(rig.image_size), [[big.height, big.width], [small.height, small.width]])
-    out = complete_rig_stages(frame.points, frame.valid, rig, lidar=LIDAR)
-    own = complete_points_stages(frame.points, frame.valid, small, lidar=LIDAR)
+    out = complete_rig_stages(frame.points, frame.valid, rig, lidar=LIDAR)  # the program of the test above
+    # the small camera's own z-buffer (the public projection: no completion compiled at its size)
+    own, _ = project_to_image(frame.points, frame.valid, small.K, small.T_cam_lidar, height=small.height,
+                              width=small.width)
     sparse = np.asarray(out.sparse_depth[1])
-    np.testing.assert_array_equal(sparse[:small.height, :small.width], np.asarray(own.sparse_depth))
+    np.testing.assert_array_equal(sparse[:small.height, :small.width], np.asarray(own))
     assert not sparse[small.height:].any() and not sparse[:, small.width:].any()
     depth = np.asarray(out.depth[1])
     assert not depth[small.height:].any() and not depth[:, small.width:].any()
     assert np.all(depth[:small.height, :small.width] > 0)
 
 
+@pytest.mark.slow  # real nuScenes sweep, six 225 x 400 cameras: programs of their own
 def test_nuscenes_six_cameras_in_one_call(nuscenes_sample):
     from jaxdepth.io import pad_points, read_points, rig_from_nuscenes_calibration
     rig = rig_from_nuscenes_calibration(nuscenes_sample / "calibration.json")

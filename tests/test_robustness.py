@@ -12,14 +12,22 @@ import pytest
 from jaxdepth import cli, complete_points, stack_cameras, complete_rig
 
 from helpers import small_frames, write_kitti_folder
-from scenes import SMALL_LIDAR, kitti_street
+from scenes import SMALL_LIDAR, tiny_street_frames
 
 LIDAR = SMALL_LIDAR
 
 
+class _Frame:
+    def __init__(self, points, valid):
+        self.points, self.valid = points, valid
+
+
 @pytest.fixture(scope="module")
 def scene():
-    return kitti_street()
+    """(frame, camera): the shared tiny street frame (32 x 48 camera): the stage table's complete_points
+    program, and test_sources' two-camera complete_rig program."""
+    points, valid, camera = tiny_street_frames((0,))[0]
+    return _Frame(points, valid), camera
 
 
 def test_nan_and_inf_points_are_ignored(scene):

@@ -18,6 +18,12 @@ from jaxdepth.io import read_depth_png
 from helpers import small_frames, write_kitti_folder
 
 CONFIG = SGMConfig()
+#: The batching tests run the "nearest" method (outlier removal, which reads each frame's K and T,
+#: then the nearest-seed fill): the runner's strategies, buckets and sharding wrap any per-frame
+#: function alike, and this one compiles in a fraction of SGM's time. SGM through the runner is
+#: checked against per-frame ``complete_with`` by test_last_batch_is_padded_not_recompiled; SGM's
+#: own vmap == loop by the ``complete`` rows of tests/stage_table.py.
+PLUMBING = "nearest"
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +36,8 @@ def test_batched_equals_single_frame_calls(frames, strategy):
     items, T = frames
     depths = np.stack([d for d, _ in items])
     Ks = np.stack([k for _, k in items])
-    batched = runner.complete_batch(depths, Ks, T, batch_size=2, strategy=strategy)
-    single = np.stack([np.asarray(complete_with(d, k, T)) for d, k in items])
+    batched = runner.complete_batch(depths, Ks, T, batch_size=2, strategy=strategy, method=PLUMBING)
+    single = np.stack([np.asarray(complete_with(d, k, T, method=PLUMBING)) for d, k in items])
     if strategy == "loop":  # single-frame calls: the same bytes
         assert batched.tobytes() == single.tobytes()
     # XLA may fuse the per-frame body differently inside a compiled batch: float32 rounding only
@@ -42,7 +48,8 @@ def test_batch_size_changes_rounding_only(frames):
     items, T = frames
     depths = np.stack([d for d, _ in items])
     Ks = np.stack([k for _, k in items])
-    results = [runner.complete_batch(depths, Ks, T, batch_size=b, strategy="map") for b in (1, 2, 5)]
+    results = [runner.complete_batch(depths, Ks, T, batch_size=b, strategy="map", method=PLUMBING)
+               for b in (1, 2, 5)]
     np.testing.assert_allclose(results[0], results[1], rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(results[0], results[2], rtol=1e-6, atol=1e-5)
 
@@ -100,9 +107,9 @@ def test_resume_skips_finished_and_never_touches_inputs(tmp_path, frames):
                             intrinsics_path=src / "intrinsics" / (p.stem + ".txt"))
             for p in sorted((src / "velodyne_raw").glob("*.png"))]
     (tmp_path / "out").mkdir()
-    first = runner.run_jobs(jobs[:2], batch_size=2, T_cam_lidar=T)
+    first = runner.run_jobs(jobs[:2], batch_size=2, T_cam_lidar=T, method=PLUMBING)
     stamps = {j.out_path: j.out_path.stat().st_mtime_ns for j in jobs[:2]}
-    second = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T)
+    second = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, method=PLUMBING)  # one frame left: bucket 1
     assert len(first.done) == 2 and second.skipped == [j.name for j in jobs[:2]] and second.done == [jobs[2].name]
     assert all(j.out_path.stat().st_mtime_ns == stamps[j.out_path] for j in jobs[:2])
     assert before == {p: p.read_bytes() for p in src.rglob("*") if p.is_file()}
@@ -116,36 +123,12 @@ def test_bad_frame_is_reported_and_the_rest_completes(tmp_path, frames):
                             intrinsics_path=src / "intrinsics" / (p.stem + ".txt"))
             for p in sorted((src / "velodyne_raw").glob("*.png"))]
     (tmp_path / "out").mkdir()
-    summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T)
+    summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, method=PLUMBING)
     assert [name for name, _ in summary.failed] == ["frame_001.png"]
     assert "frame_001.png" in summary.failed[0][1]
     assert sorted(summary.done) == ["frame_000.png", "frame_002.png"]
     assert not (tmp_path / "out" / "frame_001.png").exists()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["frame_000.png", "frame_002.png"]
-
-
-SHARDED = r"""
-import numpy as np, jax, sys
-sys.path.insert(0, {tests!r})
-from helpers import small_frames
-from jaxdepth.batch import runner
-assert len(jax.local_devices()) == 2, jax.local_devices()
-items, T = small_frames(3)
-depths = np.stack([d for d, _ in items]); Ks = np.stack([k for _, k in items])
-one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1)
-two = runner.complete_batch(depths, Ks, T, batch_size=2, devices=2)
-np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
-print("sharded-ok", float(np.abs(two - one).max()))
-"""
-
-
-@pytest.mark.slow  # subprocess
-def test_two_simulated_devices_match_one(tmp_path):
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    script = SHARDED.format(tests=str(pathlib.Path(__file__).parent))
-    result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert "sharded-ok" in result.stdout
 
 
 def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, monkeypatch):
@@ -156,27 +139,44 @@ def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, mon
                           intrinsics_path=src / "intrinsics" / (png.stem + ".txt"))
     runner.batched_completion.cache_clear()
     buckets = _record_buckets(monkeypatch)
-    summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1)
+    summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1, method=PLUMBING)
     assert summary.ok and summary.done == [png.name]
     assert buckets == [1]  # compiled for a batch of one frame, not four
 
 
-SPLIT = r"""
+DEVICES = r"""
 import os, sys
+sys.path.insert(0, {tests!r})
 from jaxdepth.batch.devices import split_cpu_into_devices
 first = split_cpu_into_devices(2)
 again = split_cpu_into_devices(3)   # XLA_FLAGS now sets a count: left alone
 import jax
 n = len(jax.local_devices())
 late = split_cpu_into_devices(4)    # backends running: too late, left alone
-print("split", first, again, n, late, os.environ["XLA_FLAGS"].count("device_count"))
+print("split", first, again, n, late, os.environ["XLA_FLAGS"].count("device_count"), flush=True)
+# the two devices made above: a batch sharded over both equals the batch on one
+import numpy as np
+from helpers import small_frames
+from jaxdepth.batch import runner
+assert len(jax.local_devices()) == 2, jax.local_devices()
+items, T = small_frames(3)
+depths = np.stack([d for d, _ in items]); Ks = np.stack([k for _, k in items])
+one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1, method={method!r})
+two = runner.complete_batch(depths, Ks, T, batch_size=2, devices=2, method={method!r})
+np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
+print("sharded-ok", float(np.abs(two - one).max()))
 """
 
 
 @pytest.mark.slow  # subprocess
-def test_cli_splits_the_cpu_into_one_device_per_core_before_jax_starts():
+def test_cli_split_makes_two_devices_and_two_devices_match_one():
+    """One process: the CLI's split of the CPU into one device per core, before JAX starts (and
+    left alone once a count is set or JAX runs), then a batch sharded over the two devices it
+    made equals the same batch on one device."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
-    result = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, timeout=300)
+    script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), method=PLUMBING)
+    result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "split 2 0 2 0 1" in result.stdout, result.stdout
+    assert "sharded-ok" in result.stdout, result.stdout

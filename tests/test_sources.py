@@ -12,12 +12,14 @@ import pytest
 import jaxdepth
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
-from jaxdepth._src.sources import (complete_sources, free_space_keep, free_space_margin, make_sources,
-                                   reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.sources import (camera_witness, complete_sources, free_space_keep, free_space_margin,
+                                   make_sources, reference_view, source_keep_mask, source_normals)
 from jaxdepth._src.scene import scene_arrays
 from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
 from jaxdepth._src.types import LidarSpec
+
+from scenes import SMALL_LIDAR, tiny_street_frames
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
 WALL_X = 20.0
@@ -36,15 +38,26 @@ def _sweep(scene, T, spec=SPEC):
     return np.asarray(pts)[np.asarray(valid)]
 
 
+#: Points per source of every test's Sources: one sweep of SPEC at most, so tests with the same number
+#: of sources and sweeps share their compiled programs (padding rows are invalid and never judged).
+P_BUCKET = SPEC.beams * SPEC.columns
+
+
 def _sources(parts, sweeps, spec=SPEC):
-    """Sources of [(points, T)] padded to one bucket."""
-    P = max(len(p) for p, _ in parts)
+    """Sources of [(points, T)] padded to one bucket of P_BUCKET points (more only if a part is longer)."""
+    P = max([P_BUCKET] + [len(p) for p, _ in parts])
     pts = np.zeros((len(parts), P, 3), np.float32)
     valid = np.zeros((len(parts), P), bool)
     for i, (p, _) in enumerate(parts):
         pts[i, :len(p)] = p
         valid[i, :len(p)] = True
     return make_sources(pts, valid, np.stack([T for _, T in parts]), lidars=(spec,) * len(parts), sweep=sweeps)
+
+
+#: One jit of each free-space function for the module: the tests below of one (sources, sweeps) count run
+#: one compiled program (the eager functions themselves: test_free_space_vmap_and_jit_equal_eager).
+_view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+_keep = jax.jit(free_space_keep)
 
 
 def _street(*, boxes=(), cylinders=()):
@@ -73,10 +86,12 @@ def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
 
 
 def test_source_normals_vmap_equals_loop():
+    # A batch of two one-source Sources of different poses (the per-source calls are the program of
+    # the test above: one source of P_BUCKET points)
     scene = _street()
     Ts = [_pose((0, 0, 0)), _pose((-1.5, 0.2, 0.1), yaw=3.0)]
-    src = _sources([(_sweep(scene, T), T) for T in Ts], (0, 1))
-    batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a[::-1]]), src)
+    one_source = [_sources([(_sweep(scene, T), T)], (0,)) for T in Ts]
+    batch = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *one_source)
     out = jax.vmap(source_normals)(batch)
     for b in range(2):
         one = jax.tree_util.tree_map(lambda a: a[b], batch)
@@ -89,7 +104,7 @@ def test_source_normals_vmap_equals_loop():
 def _three_origins():
     """A street image whose pixels come from three sources at different origins, and the oracle:
     Algorithm 1 run once per source origin, each pixel taking its own source's result."""
-    frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.5)
+    frame = make_street_scene(1, lidar=SPEC, cameras="kitti", image_scale=0.25)
     cam = frame.cameras[0]
     depth, index = jaxdepth.project_to_image(frame.points, frame.valid, cam.K, cam.T_cam_lidar,
                                              height=cam.height, width=cam.width)
@@ -143,11 +158,15 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
     np.testing.assert_array_equal(got, want & ~extra)
 
 
+@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
 def test_one_source_at_the_origin_equals_complete_rig():
-    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
-    cams = jaxdepth.stack_cameras(frame.cameras)
-    want = jaxdepth.complete_rig(frame.points, frame.valid, cams, lidar=SPEC)
-    src = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
+    # images (test_robustness compiles the same complete_rig)
+    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
+    cams = jaxdepth.stack_cameras([camera, other])
+    want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
+    assert (np.asarray(want) > 0).mean() > 0.5
+    src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
     np.testing.assert_array_equal(np.asarray(complete_sources(src, cams)), np.asarray(want))
 
 
@@ -160,7 +179,7 @@ def test_a_car_that_moved_leaves_no_ghost():
     ref = _sweep(_street(boxes=[car_now]), T_ref)
     old = _sweep(_street(boxes=[car_then]), T_old)
     src = _sources([(ref, T_ref), (old, T_old)], (0, 1))
-    keep = np.asarray(free_space_keep(src))
+    keep = np.asarray(_keep(src))
     on_old_car = np.zeros(src.points.shape[1], bool)
     # points of the old car more than 0.4 m above the road (nearer the road the rays bracketing them
     # include the slanted road itself, within the margin: kept, as documented)
@@ -198,7 +217,7 @@ def test_free_space_is_judged_by_the_rays_that_bracket_the_point():
         q.append((d * r[:, None, None]).reshape(-1, 3))
     q = np.concatenate(q).astype(np.float32)
     src = _sources([(ref, T_ref), (q, _pose((-1.5, 0.0, 0.0)))], (0, 1))
-    free = np.asarray(reference_view(src)[0])[1, :len(q)]
+    free = np.asarray(_view(src)[0])[1, :len(q)]
     n = beam.size * azimuth.size
     assert free[:n].all(), f"{int((~free[:n]).sum())} of {n} points every bracketing ray passed are kept"
     assert not free[n:].any(), "points within the margin of the bracketing ray's road hit are kept"
@@ -219,7 +238,7 @@ def test_a_car_the_reference_lidar_could_not_check_is_judged_by_another_sweep():
     on_car = (np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3) & (old[:, 2] > -1.3)
     static = ~((np.abs(old[:, 0] - 12.0) <= 1.0 + 1e-3) & (np.abs(old[:, 1]) <= 1.0 + 1e-3))
     assert on_car.sum() > 30
-    free, shadow = (np.asarray(a)[1, :len(old)] for a in jax.jit(reference_view)(src))   # jit: one compile
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(old)] for a in _view(src))
     assert shadow[on_car].all(), "the reference LiDAR cannot see the car's old place: its rays stop at the box"
     assert free[on_car].mean() > 0.9, "the sweep before saw that space empty"
     by_all = free
@@ -236,7 +255,7 @@ def test_bounded_witnesses_equal_every_sweep_when_they_cover_every_other_sweep()
     T0, T1, T2 = _pose(), _pose((-1.5, 3.0, 0.0)), _pose((-3.0, 4.0, 0.0))
     src = _sources([(_sweep(_street(boxes=[occluder]), T0), T0), (_sweep(_street(boxes=[car]), T1), T1),
                     (_sweep(_street(boxes=[occluder]), T2), T2)], (0, 1, 2))
-    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    view = _view
     every = view(src, neighbour_sweeps=None, end_sweeps=False)
     for k, ends in ((1, False), (0, True)):
         for a, b in zip(view(src, neighbour_sweeps=k, end_sweeps=ends), every):
@@ -268,7 +287,7 @@ def test_a_neighbour_or_end_sweep_removes_a_ghost_and_no_other_sweep_does():
     d = np.stack(np.broadcast_arrays(np.cos(el_q) * np.cos(azimuth), np.cos(el_q) * np.sin(azimuth), np.sin(el_q)), -1)
     q = (d * r).reshape(-1, 3).astype(np.float32)
     src = _sources([(np.zeros((0, 3), np.float32), T), (road, T), (q, T), (q, T), (q, T)], (0, 1, 2, 3, 4))
-    view = jax.jit(reference_view, static_argnames=("neighbour_sweeps", "end_sweeps"))
+    view = _view
     free = {(k, e): np.asarray(view(src, neighbour_sweeps=k, end_sweeps=e)[0])[:, :len(q)]
             for k, e in ((0, False), (1, False), (0, True))}
     assert not free[0, False].any(), "the empty reference sweep is no witness"
@@ -283,7 +302,7 @@ def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     T_ref, T_other = _pose(), _pose((0.0, 1.5, 0.0))
     ref, other = _sweep(scene, T_ref), _sweep(scene, T_other)
     src = _sources([(ref, T_ref), (other, T_other)], (0, 1))
-    free, shadow = (np.asarray(a)[1, :len(other)] for a in reference_view(src))
+    free, shadow, _ = (np.asarray(a)[..., 1, :len(other)] for a in _view(src))
     # wall points the other origin sees behind the pole (hidden from the reference LiDAR)
     d = other - np.array([0.0, 0.0, 0.0])
     behind = (np.abs(other[:, 0] - WALL_X) < 1e-3) & (np.abs(np.arctan2(d[:, 1], d[:, 0])) < 0.15 / 8.0 * 0.8) \
@@ -292,6 +311,73 @@ def test_a_pole_in_front_of_a_wall_seen_from_two_origins():
     assert not free[behind].any(), "wall points behind the pole are behind, not in front: kept"
     assert shadow[behind].all(), "and they lie in the reference LiDAR's shadow"
     assert not free.any(), "a static scene has no free-space points"
+
+
+def test_a_post_hides_wall_points_an_origin_5_m_behind_saw():
+    # Analytic oracle: a post (radius 0.5 m at x = 4 m) in front of the wall; the reference LiDAR (and a
+    # camera beside it) at the origin, an earlier sweep's LiDAR 5 m behind. That origin sees the wall in
+    # a band on each side of the post's narrower shadow that the reference LiDAR cannot see. Such a point
+    # is ``hidden`` when every ray of the reference LiDAR bracketing it hits the post: its azimuth more
+    # than 1.5 column spacings inside the post's silhouette (its elevation a beam spacing inside the
+    # silhouette and the reference LiDAR's field of view).
+    # No point of the old sweep that the reference origin sees (its line of sight misses the post) is
+    # hidden, nor any point in the silhouette's edge columns.
+    cx, radius = 4.0, 0.5
+    scene = _street(cylinders=[[cx, 0.0, radius, -1.7, 3.0]])
+    T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
+    old = _sweep(scene, T_old)
+    src = _sources([(_sweep(scene, T_ref), T_ref), (old, T_old)], (0, 1))
+    hidden = np.asarray(reference_view(src)[2])
+    assert hidden.shape == (1, 2, src.points.shape[1])
+    assert not hidden[0, 0].any(), "points of the reference sweep are never judged"
+    h = hidden[0, 1, :len(old)]
+    az = np.abs(np.arctan2(old[:, 1], old[:, 0]))
+    half = np.arcsin(radius / cx)                                       # the post's half silhouette
+    col, row = 2 * np.pi / SPEC.columns, np.radians(35.0) / 32
+    el = np.arctan2(old[:, 2], np.hypot(old[:, 0], old[:, 1]))
+    top = min(np.arctan2(3.0, cx + radius), np.radians(SPEC.fov_up_deg))     # post top or field of view
+    on_wall = np.abs(old[:, 0] - WALL_X) < 1e-3
+    deep = on_wall & (az < half - 1.5 * col) & (el < top - row) & (np.linalg.norm(old, axis=1) > cx + radius)
+    # 2-D distance from the post's axis to the segment origin -> q: the line of sight misses the post
+    t = np.clip(old[:, 0] * cx / np.maximum(np.sum(old[:, :2] ** 2, axis=1), 1e-9), 0.0, 1.0)
+    seen = np.hypot(t * old[:, 0] - cx, t * old[:, 1]) > radius + 1e-3
+    assert deep.sum() >= 20 and seen.sum() > 1000
+    assert h[deep].all(), f"{int((deep & ~h).sum())} of {int(deep.sum())} wall points behind the post kept"
+    assert not h[seen].any(), "a point the reference origin (and the camera) sees is never hidden"
+    assert not h[on_wall & (az > half - 0.5 * col)].any(), "edge columns: a bracketing ray passes the post"
+
+
+def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
+    # Reference LiDARs at x = 0 and x = 1.2 (sweep 0) and one of sweep 1 right at the camera: the witness
+    # is the nearest reference-sweep LiDAR, usable within the baseline bound.
+    Ts = np.stack([_pose(), _pose((1.2, 0.0, -0.9)), _pose((0.9, 0.0, 0.0))]).astype(np.float32)
+    sweep = (0, 0, 1)
+    for cam_x, want, usable in ((0.3, 0, True), (1.0, 1, True), (3.0, 1, False)):
+        T_cam_ref = _pose((-cam_x, 0.0, 0.0)).astype(np.float32)       # camera centre at (cam_x, 0, 0)
+        rank, ok = camera_witness(T_cam_ref, Ts, sweep=sweep)
+        assert (int(rank), bool(ok)) == (want, usable)
+    T_cams = np.stack([_pose((-x, 0.0, 0.0)) for x in (0.3, 1.0, 3.0)]).astype(np.float32)
+    loop = [tuple(np.asarray(a) for a in camera_witness(T, Ts, sweep=sweep)) for T in T_cams]
+    vm = jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep))(T_cams)
+    jt = jax.jit(lambda T: camera_witness(T, Ts, sweep=sweep))
+    for i, (r, ok) in enumerate(loop):
+        assert (int(vm[0][i]), bool(vm[1][i])) == (int(r), bool(ok)) == tuple(
+            (int(a) if a.dtype != bool else bool(a)) for a in (np.asarray(x) for x in jt(T_cams[i])))
+
+
+def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
+    # One sweep: the option changes nothing (bit-identical). Two sweeps: every point removed by the
+    # occlusion rule is an earlier sweep's.
+    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
+    cams = jaxdepth.stack_cameras(frame.cameras)
+    one = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    np.testing.assert_array_equal(np.asarray(complete_sources(one, cams, occlusion=True)),
+                                  np.asarray(complete_sources(one, cams, occlusion=False)))
+    scene = _street(cylinders=[[4.0, 0.0, 0.5, -1.7, 3.0]])
+    T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
+    src = _sources([(_sweep(scene, T_ref), T_ref), (_sweep(scene, T_old), T_old)], (0, 1))
+    hidden = np.asarray(reference_view(src)[2])
+    assert hidden[:, 1].any() and not hidden[:, 0].any()
 
 
 def test_two_lidars_at_different_heights():
@@ -304,7 +390,7 @@ def test_two_lidars_at_different_heights():
     parts = [(_sweep(scene_now, T_high), T_high), (_sweep(scene_now, T_low), T_low),
              (_sweep(scene_then, shift @ T_high), shift @ T_high), (_sweep(scene_then, shift @ T_low), shift @ T_low)]
     src = _sources(parts, (0, 0, 1, 1))
-    keep = np.asarray(free_space_keep(src))
+    keep = np.asarray(_keep(src))
     for s in (2, 3):
         pts = parts[s][0]
         k = keep[s, :len(pts)]
@@ -331,7 +417,7 @@ def test_free_space_vmap_and_jit_equal_eager():
     Ts = [_pose(), _pose((-1.5, 0.1, 0.0))]
     src = _sources([(_sweep(_street(), Ts[0]), Ts[0]), (_sweep(scene, Ts[1]), Ts[1])], (0, 1))
     eager = np.asarray(free_space_keep(src))
-    np.testing.assert_array_equal(np.asarray(jax.jit(free_space_keep)(src)), eager)
+    np.testing.assert_array_equal(np.asarray(_keep(src)), eager)
     batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), src)
     np.testing.assert_array_equal(np.asarray(jax.vmap(free_space_keep)(batch))[1], eager)
     assert (~eager[1] & np.asarray(src.valid[1])).sum() > 20
@@ -355,6 +441,7 @@ def test_sequence_reference_points_lie_on_the_camera_truth():
 
 # ---------------------------------------------------------------- the job: complete-rig with a sweeps JSON
 
+@pytest.mark.slow  # the job's whole-pipeline program of its own (four sources of two LiDARs)
 def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     import json
 
@@ -365,7 +452,7 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     from jaxdepth.io import read_depth_png, read_rig_json
     from jaxdepth.io.sweeps import read_sweeps_cloud
 
-    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
+    sq = make_street_sequence(2, sweeps=2, lidars=2, image_scale=0.125, noise_std_m=0.0)
     cam = sq.camera
     ego = [sq.T_ref_source[2 * k] for k in range(2)]                   # "top" sits at the ego origin
     mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]

@@ -164,10 +164,11 @@ def test_errors_name_the_field(call, match):
         call()
 
 
+@pytest.mark.slow  # two whole-pipeline programs (128 and 32 beams) of their own
 def test_sparsity_study_on_a_128_beam_sensor():
     # A sensor the presets do not know: every size follows from the LidarSpec.
     lidar = jaxdepth.LidarSpec(beams=128, fov_up_deg=2.0, fov_down_deg=-24.9, columns=512)
-    frame = jaxdepth.make_street_scene(0, lidar=lidar, image_scale=0.25)
+    frame = jaxdepth.make_street_scene(0, lidar=lidar, image_scale=0.125)
     camera, gt = frame.cameras[0], frame.dense_depth[0]
     result = sparsity.sparsity_study(frame.points, frame.valid, camera, gt, lidar=lidar, beams=(128, 32))
     assert result["lidar_beams"] == 128 and result["beams_found"] == 128
@@ -188,7 +189,7 @@ def test_sparsity_study_on_a_128_beam_sensor():
             np.testing.assert_allclose(sparse[name][key], float(m[key]), rtol=1e-6)
     assert sparse["input_pixels"] == int(np.count_nonzero(np.asarray(stages.sparse_depth)))
     # The plane residual lowers the RMSE of the nearest fill on exact geometry at both densities
-    # (measured at this size: 3326 vs 3815 mm with 128 beams, 3623 vs 4302 mm with 32).
+    # (measured at this size: 4771 vs 5539 mm with 128 beams, 4105 vs 4597 mm with 32).
     for row in (full, sparse):
         assert np.isfinite(row["sgm"]["rmse"]) and row["sgm"]["rmse"] < 0.95 * row["nearest"]["rmse"]
     lines = sparsity.format_sparsity(result)

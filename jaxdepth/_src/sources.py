@@ -12,7 +12,9 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   share a LidarSpec are vmapped together (one static range-image shape per group).
 * Free space (:func:`free_space_keep`): a point of an earlier sweep that lies where a
   LiDAR of the reference sweep or of the window's end sweeps saw empty space is removed
-  (a moving object's ghost, or a registration error). See :func:`reference_view`.
+  (a moving object's ghost, or a registration error); for each camera, a point of an earlier
+  sweep that the reference-sweep LiDAR next to the camera saw covered on all sides by a nearer
+  surface is removed too (occlusion). See :func:`reference_view`, :func:`camera_witness`.
 * Step 2 per source (:func:`source_keep_mask`): Algorithm 1 on the camera's
   z-buffer of all sources' points, where each pixel's point is tested with *its
   own source's* origin as the viewpoint compared with the camera's; every
@@ -54,6 +56,10 @@ FREE_SPACE_MIN_CELLS = 3
 #: for free space (None: every other sweep, a cost quadratic in the sweeps). 0: none (measured: the
 #: end sweeps' witnesses already give what the neighbours add).
 NEIGHBOUR_SWEEPS = 0
+#: Largest distance from a camera to the reference-sweep LiDAR whose view stands in for the camera's in
+#: the occlusion test of other sweeps' points (:func:`camera_witness`), metres; a LiDAR farther away
+#: sees around near objects differently from the camera, and the test is then skipped for that camera.
+OCCLUSION_MAX_BASELINE_M = 1.0
 
 
 @jax.tree_util.register_dataclass
@@ -162,7 +168,10 @@ def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_
 def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slope: float = FREE_SPACE_SLOPE,
                    min_cells: int = FREE_SPACE_MIN_CELLS, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS,
                    end_sweeps: bool = True):
-    """Where the rig's LiDARs place each point of another sweep: ``(free, shadow)``, (S, P) bool.
+    """Where the rig's LiDARs place each point of another sweep: ``(free, shadow, hidden)``.
+
+    ``free``, ``shadow``: (S, P) bool; ``hidden``: (R, S, P) bool, one layer per reference-sweep
+    source (``sweep == 0``, in source order; R of them).
 
     Witnesses (sweep numbers in time order, as the readers give them): every LiDAR of the
     reference sweep (``sweep == 0``) and, with ``end_sweeps``, of the first and last of the other
@@ -192,8 +201,15 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
       ``|q - origin_r| > R + margin(R)``: the reference LiDAR's ray through ``q``'s cell stopped
       in front of it, ``q`` is hidden from the reference LiDAR. Step 2 then also removes it when
       the camera sees a nearer pixel next to it (:func:`source_keep_mask`).
+    * ``hidden[k]`` (the ``k``-th reference-sweep LiDAR as witness; ``min_cells`` of the 4 cells
+      measured): ``|q - origin_r| > R_hi + margin(R_hi)``, ``R_hi`` the farthest range measured
+      among the bracketing cells: every ray around ``q`` stopped in front of it, so a surface
+      covers ``q`` on all sides as seen from that LiDAR (not only its edge: at a silhouette one
+      bracketing ray passes the edge and ``R_hi`` is the background's). For a camera next to that
+      LiDAR (:func:`camera_witness`) ``q`` is hidden too: a point an earlier origin 1.5-6 m
+      behind saw around a near object.
 
-    ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get neither
+    ``margin(R)`` is :func:`free_space_margin`. Points of the reference sweep get no
     flag; points outside ``r``'s vertical field of view neither. Shapes are static: each
     witness gathers the sources it judges by a static index array (padded with masked slots),
     the witnesses are vmapped, and their verdicts are OR-ed back onto the sources.
@@ -203,14 +219,14 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
     tested = jnp.asarray(np.repeat(sweep, p) != 0)
     free = jnp.zeros((s, p), bool)
     shadow = jnp.zeros((s, p), bool)
+    n_ref = int(np.sum(sweep == 0))
+    hidden = jnp.zeros((n_ref, s, p), bool)
     if neighbour_sweeps is not None and int(neighbour_sweeps) < 0:
         raise ValueError(f"reference_view: field 'neighbour_sweeps' expected None or >= 0, got {neighbour_sweeps!r}")
     others = sweep[sweep != 0]
     wide = {0} | ({int(others.min()), int(others.max())} if end_sweeps and others.size else set())
     for spec, idx in _spec_groups(sources.lidars):
-        delta = max((spec.fov_up_rad - spec.fov_down_rad) / spec.beams, 2 * math.pi / spec.columns)
-        judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, delta=delta,
-                                  min_cells=min_cells)
+        judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, min_cells=min_cells)
         # The reference and end sweeps' witnesses judge the points of every other sweep (the reference's
         # alone judge shadow); each other witness those of its neighbouring sweeps. Sweep 0's points
         # are never judged, so never gathered.
@@ -222,16 +238,18 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
             wit, near = [w for w, n in zip(wit, near) if n.size], [n for n in near if n.size]
             if not wit:            # e.g. the end sweep of two sweeps: nothing of another tested sweep to judge
                 continue
-            f, h = _gathered_verdicts(judge, sources, np.asarray(wit, np.int32), near)
+            f, h, d = _gathered_verdicts(judge, sources, np.asarray(wit, np.int32), near)
             free = free | f
             shadow = shadow | (h if reach is None else False)
-    return free & tested.reshape(s, p), shadow & tested.reshape(s, p)
+            hidden = hidden | (d if reach is None else False)
+    tested = tested.reshape(s, p)
+    return free & tested, shadow & tested, hidden & tested[None]
 
 
 def _gathered_verdicts(judge, sources, wit, near):
-    """(S, P) bool ``(free, shadow)`` of witnesses ``wit`` (static source indices), witness ``k``
-    judging the points of the sources ``near[k]`` (static), OR-ed over witnesses; ``shadow`` only
-    from reference-sweep witnesses. Each witness's query sources are gathered by one static index
+    """``(free, shadow)`` (S, P) bool and ``hidden`` (R, S, P) of witnesses ``wit`` (static source
+    indices), witness ``k`` judging the points of the sources ``near[k]`` (static), OR-ed over
+    witnesses; ``shadow`` only from reference-sweep witnesses, ``hidden`` by reference witness. Each witness's query sources are gathered by one static index
     array padded to the longest; the witnesses are vmapped; the verdicts are scattered back with
     padded slots (and, for ``shadow``, other sweeps' witnesses) sent to a dropped row ``S``."""
     s, p = sources.points.shape[:2]
@@ -241,16 +259,20 @@ def _gathered_verdicts(judge, sources, wit, near):
         query[k, :len(n)] = n
     q_points = sources.points[np.minimum(query, s - 1)].reshape(wit.size, m * p, 3)
     rows = () if sources.rows is None else (sources.rows[wit],)
-    f, h = jax.vmap(judge)(sources.T_ref_source[wit], sources.points[wit], sources.valid[wit], q_points, *rows)
-    to_shadow = np.where((np.asarray(sources.sweep)[wit] == 0)[:, None], query, s)
+    f, h, d = jax.vmap(judge)(sources.T_ref_source[wit], sources.points[wit], sources.valid[wit], q_points, *rows)
+    sweep = np.asarray(sources.sweep)
+    to_shadow = np.where((sweep[wit] == 0)[:, None], query, s)
+    n_ref = int(np.sum(sweep == 0))
+    slot = np.where(sweep[wit] == 0, np.cumsum(sweep == 0)[wit] - 1, n_ref)     # rank among reference sources
     zero = jnp.zeros((s + 1, p), bool)
     return (zero.at[query].max(f.reshape(wit.size, m, p))[:s],
-            zero.at[to_shadow].max(h.reshape(wit.size, m, p))[:s])
+            zero.at[to_shadow].max(h.reshape(wit.size, m, p))[:s],
+            jnp.zeros((n_ref + 1, s + 1, p), bool).at[slot[:, None], query].max(d.reshape(wit.size, m, p))[:n_ref, :s])
 
 
-def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, delta, min_cells):
+def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, min_cells):
     """One witness LiDAR (pose ``T_r``, its own (P, 3) reference-frame points) on (Q, 3) query
-    points: ``(free, shadow)``, (Q,) bool, as :func:`reference_view` defines them."""
+    points: ``(free, shadow, hidden)``, (Q,) bool, as :func:`reference_view` defines them."""
     ri, _ = range_image_and_slots(transform_points(invert_rigid(T_r), points_r), valid_r, spec, *rows_r)
     q = transform_points(invert_rigid(T_r), q)
     rq, th, ph, ok = angles_xyz(q[:, 0], q[:, 1], q[:, 2], jnp.ones(q.shape[:1], bool))
@@ -261,15 +283,17 @@ def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, 
         _, col = row_col(th, ph, spec)
     else:
         row, col = row_col(th, ph, spec)
-    r_lo, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
+    r_lo, r_hi, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
     enough = inside & (n_cells >= min_cells)
     r_own = ri.r[row, col]
-    return (enough & (rq < r_lo - (noise_m + slope * delta * r_lo)),
-            inside & (r_own > 0) & (rq > r_own + (noise_m + slope * delta * r_own)))
+    margin = functools.partial(free_space_margin, lidar=spec, noise_m=noise_m, slope=slope)
+    return (enough & (rq < r_lo - margin(r_lo)),
+            inside & (r_own > 0) & (rq > r_own + margin(r_own)),
+            enough & (rq > r_hi + margin(r_hi)))
 
 
 def _bracket_2x2(ri, row, col, theta, phi, spec):
-    """Nearest measured range (inf where none) and count of measured cells among the 2 x 2 cells
+    """Nearest and farthest measured range (inf and 0 where none) and count of measured cells among the 2 x 2 cells
     whose rays bracket each query direction: its own cell ``(row, col)``, the row on the side of
     its elevation (judged by the row's mean measured elevation, else its centre) and the column on
     the side of its azimuth. Rows beyond the image count as unmeasured; columns wrap around."""
@@ -289,8 +313,9 @@ def _bracket_2x2(ri, row, col, theta, phi, spec):
     cells = (r[row, col], r[row, col2], jnp.where(row_ok, r[row2, col], jnp.inf),
              jnp.where(row_ok, r[row2, col2], jnp.inf))
     lo = functools.reduce(jnp.minimum, cells)
+    hi = functools.reduce(jnp.maximum, [jnp.where(jnp.isfinite(c), c, 0.0) for c in cells])
     n = sum(jnp.isfinite(c).astype(jnp.int32) for c in cells)
-    return lo, n
+    return lo, hi, n
 
 
 def _row_of_elevation(ri, phi):
@@ -306,7 +331,7 @@ def _row_of_elevation(ri, phi):
 def free_space_keep(sources: Sources, **options) -> jax.Array:
     """(S, P) bool: ``valid`` without the points of earlier sweeps that lie in space another sweep
     saw empty (``free`` of :func:`reference_view`; options as there)."""
-    free, _ = reference_view(sources, **options)
+    free, _, _ = reference_view(sources, **options)
     return sources.valid & ~free
 
 
@@ -347,6 +372,27 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer)
 
 
+def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OCCLUSION_MAX_BASELINE_M):
+    """The reference-sweep LiDAR whose view stands in for a camera's: ``(rank, usable)``.
+
+    Args:
+      T_cam_ref: (4, 4) reference frame -> camera. T_ref_source: (S, 4, 4) the sources' LiDAR poses.
+      sweep: static tuple of S ints (0 = reference sweep).
+      max_baseline_m: static; farther LiDARs are not used.
+
+    Returns:
+      rank: int32 scalar, the rank among the reference sweep's sources (``sweep == 0``, in source
+      order) of the one whose origin is nearest the camera's centre; usable: bool scalar, that
+      distance is at most ``max_baseline_m``.
+    """
+    ref = np.flatnonzero(np.asarray(sweep) == 0)
+    T = jnp.asarray(T_cam_ref, jnp.float32)
+    origins = jnp.einsum("ij,rj->ri", T[:3, :3], jnp.asarray(T_ref_source, jnp.float32)[ref, :3, 3]) + T[:3, 3]
+    dist = jnp.linalg.norm(origins, axis=1)
+    rank = jnp.argmin(dist).astype(jnp.int32)
+    return rank, dist[rank] <= max_baseline_m
+
+
 def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
                    config, image_size=None, image=None) -> Stages:
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
@@ -371,9 +417,9 @@ def default_beams(sources: Sources) -> int:
     return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "neighbour_sweeps"))
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "neighbour_sweeps", "occlusion"))
 def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams,
-                             neighbour_sweeps=NEIGHBOUR_SWEEPS):
+                             neighbour_sweeps=NEIGHBOUR_SWEEPS, occlusion=True):
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_sources")
     s, p = sources.points.shape[:2]
     points = jnp.asarray(sources.points, jnp.float32)
@@ -381,11 +427,12 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     points = jnp.where(valid[..., None], points, 0.0)
     sources = dataclasses.replace(sources, points=points, valid=valid)
     normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
-    shadow = None
+    shadow = hidden = None
     if free_space and any(sw != 0 for sw in sources.sweep):       # one sweep: nothing to test
-        free, shadow = reference_view(sources, neighbour_sweeps=neighbour_sweeps)
+        free, shadow, hidden = reference_view(sources, neighbour_sweeps=neighbour_sweeps)
         valid = valid & ~free
         shadow = shadow.reshape(-1)
+        hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
@@ -393,7 +440,11 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     def per_camera(K, T, size, image=None):
         if image is not None:
             image = _window_only(image, size)
-        return _camera_stages(flat_points, flat_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
+        cam_valid = flat_valid
+        if hidden is not None:       # other sweeps' points hidden from the LiDAR next to this camera
+            rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep)
+            cam_valid = cam_valid & ~(hidden[rank] & usable)
+        return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
                               height=cameras.height, width=cameras.width, beams=beams, config=config,
                               image_size=size, image=image)
 
@@ -405,7 +456,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                             free_space: bool = True, beams: int | None = None,
                             images: jax.Array | None = None,
-                            neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS) -> Stages:
+                            neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS, occlusion: bool = True) -> Stages:
     """SGM completion of several sources for C cameras; every :class:`Stages` field gains a leading C axis.
 
     Args:
@@ -418,6 +469,9 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.
       neighbour_sweeps: static; sweeps on each side whose points a non-reference sweep's LiDARs
         judge for free space (None: every sweep; :func:`reference_view`).
+      occlusion: static; with ``free_space``, also remove for each camera the other sweeps' points
+        hidden from the reference-sweep LiDAR next to it (``hidden`` of :func:`reference_view`,
+        witness :func:`camera_witness`).
 
     Returns:
       :class:`Stages` with (C, H, W) fields. ``inlier_mask`` is the Step-2 mask of the merged
@@ -425,12 +479,13 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
     """
     beams = default_beams(sources) if beams is None else int(beams)
     return _complete_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space),
-                                    beams=beams, neighbour_sweeps=neighbour_sweeps)
+                                    beams=beams, neighbour_sweeps=neighbour_sweeps, occlusion=bool(occlusion))
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                      free_space: bool = True, beams: int | None = None,
-                     images: jax.Array | None = None, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS) -> jax.Array:
+                     images: jax.Array | None = None, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS,
+                     occlusion: bool = True) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
     return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                   images=images, neighbour_sweeps=neighbour_sweeps).depth
+                                   images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion).depth

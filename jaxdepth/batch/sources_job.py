@@ -96,7 +96,7 @@ def _single_origin(cloud) -> bool:
 
 
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
-                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default"):
+                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True):
     """Dense depth for every camera of ``rig`` from every point of ``cloud``.
 
     Args:
@@ -112,6 +112,8 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       stages: return the :class:`~jaxdepth.Stages` (C leading axis) instead of the depth.
       neighbour_sweeps: sweeps on each side whose points a non-reference sweep's LiDARs judge for
         free space (None: every sweep); default ``NEIGHBOUR_SWEEPS`` of :mod:`jaxdepth._src.sources`.
+      occlusion: with ``free_space``, also remove for each camera the other sweeps' points hidden
+        from the reference-sweep LiDAR next to it (see :func:`~jaxdepth._src.sources.reference_view`).
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
@@ -132,7 +134,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     else:
         sources, _ = cloud_sources(cloud, fallback=rig.lidar)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images, neighbour_sweeps=neighbour_sweeps)
+                                      images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)
 
 
