@@ -59,3 +59,13 @@ def tiny_street_frames(seeds: tuple, h: int = 32, w: int = 48):
         frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
         frames.append((np.asarray(frame.points), np.asarray(frame.valid), camera))
     return frames
+
+
+def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0) -> np.ndarray:
+    """(H, W) float32: ``sparse`` with about 1 pixel in 8 kept, so that it holds fewer points than
+    the image-plane normals' listed-path capacity (``ceil(H W / 16)``, ``pixel_normals``' default
+    ``max_points``) while ``sparse`` holds more: the thinned image takes the listed branch (the one
+    a KITTI frame takes), ``sparse`` the dense one. Both facts are asserted."""
+    thin = np.where(np.random.default_rng(seed).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
+    assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > 400
+    return thin

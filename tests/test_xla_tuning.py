@@ -27,7 +27,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.geometry import project_to_image
 
 from conftest import require_shared
-from scenes import SMALL_LIDAR, small_camera, stereo_street
+from scenes import SMALL_LIDAR, small_camera, stereo_street, thinned_for_listed_normals
 
 
 def _both(run):
@@ -124,10 +124,7 @@ def _small_image_frames():
     K, T = np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
     sparse = np.asarray(project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar,
                                          height=camera.height, width=camera.width)[0])
-    thin = np.where(np.random.default_rng(0).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
-    capacity = -(-sparse.size // 16)
-    assert (sparse > 0).sum() > capacity > (thin > 0).sum() > 400
-    return sparse, thin, K, T, np.asarray(frame.images[0])
+    return sparse, thinned_for_listed_normals(sparse), K, T, np.asarray(frame.images[0])
 
 
 def test_complete_agrees_on_small_frames_both_normal_branches_and_guided():
