@@ -22,7 +22,8 @@ CONFIG = SGMConfig()
 #: then the nearest-seed fill): the runner's strategies, buckets and sharding wrap any per-frame
 #: function alike, and this one compiles in a fraction of SGM's time. SGM through the runner is
 #: checked against per-frame ``complete_with`` by test_last_batch_is_padded_not_recompiled; SGM's
-#: own vmap == loop by the ``complete`` rows of tests/stage_table.py.
+#: own vmap == loop by the ``complete`` rows of tests/stage_table.py; SGM sharded over two devices by
+#: test_cli_split_makes_two_devices_and_two_devices_match_one.
 PLUMBING = "nearest"
 
 
@@ -161,10 +162,11 @@ from jaxdepth.batch import runner
 assert len(jax.local_devices()) == 2, jax.local_devices()
 items, T = small_frames(3)
 depths = np.stack([d for d, _ in items]); Ks = np.stack([k for _, k in items])
-one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1, method={method!r})
-two = runner.complete_batch(depths, Ks, T, batch_size=2, devices=2, method={method!r})
-np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
-print("sharded-ok", float(np.abs(two - one).max()))
+for method in {methods!r}:
+    one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1, method=method)
+    two = runner.complete_batch(depths, Ks, T, batch_size=2, devices=2, method=method)
+    np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
+    print("sharded-ok", method, float(np.abs(two - one).max()))
 """
 
 
@@ -172,11 +174,12 @@ print("sharded-ok", float(np.abs(two - one).max()))
 def test_cli_split_makes_two_devices_and_two_devices_match_one():
     """One process: the CLI's split of the CPU into one device per core, before JAX starts (and
     left alone once a count is set or JAX runs), then a batch sharded over the two devices it
-    made equals the same batch on one device."""
+    made equals the same batch on one device (the plumbing method and SGM)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
-    script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), method=PLUMBING)
+    # the plumbing method, and SGM itself: the one check of SGM sharded over two devices
+    script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), methods=(PLUMBING, "sgm"))
     result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "split 2 0 2 0 1" in result.stdout, result.stdout
-    assert "sharded-ok" in result.stdout, result.stdout
+    assert f"sharded-ok {PLUMBING}" in result.stdout and "sharded-ok sgm" in result.stdout, result.stdout
