@@ -48,8 +48,13 @@ def small_scene():
     return scene, colours
 
 
-def _render(camera, scene, colours, **kw):
-    return np.asarray(synthetic_images.render_image(camera, scene, colours, texture_amplitude=0.0, **kw))
+def _render(camera, scene, colours, *, noise=None, texture_amplitude=0.0):
+    """Flat colours (and no noise) by default; always called with the same arguments (a noise image,
+    zeros by default, and a texture amplitude): one compiled program per camera size."""
+    if noise is None:
+        noise = np.zeros((camera.height, camera.width, 3), np.float32)
+    return np.asarray(synthetic_images.render_image(camera, scene, colours, noise,
+                                                    texture_amplitude=texture_amplitude))
 
 
 def test_analytic_colours_of_known_surfaces(small_scene):
@@ -93,7 +98,8 @@ def test_hits_labels_and_sky_agree_with_depth_and_cast_rays(small_scene):
     cam = _forward_camera()
     origin, d = synthetic.camera_rays(cam)
     t, label = (np.asarray(x) for x in jax.jit(synthetic_images.cast_rays_labelled)(origin, d, scene))
-    t_ref = np.asarray(jax.jit(synthetic.cast_rays)(origin, d, scene))
+    cast = jax.jit(synthetic.cast_rays)   # compiled once per scene layout (op by op: every primitive)
+    t_ref = np.asarray(cast(origin, d, scene))
     assert t.tobytes() == t_ref.tobytes()
     # Oracle: cast each primitive on its own, argmin in NumPy.
     per = []
@@ -101,7 +107,7 @@ def test_hits_labels_and_sky_agree_with_depth_and_cast_rays(small_scene):
         for i in range(np.shape(scene[kind])[0]):
             only = [np.zeros((0, np.shape(x)[1]), np.float32) for x in scene]
             only[kind] = np.asarray(scene[kind])[i:i + 1]
-            per.append(np.asarray(synthetic.cast_rays(origin, d, synthetic.SceneArrays(*only))))
+            per.append(np.asarray(cast(origin, d, synthetic.SceneArrays(*only))))
     per = np.stack(per, 1)
     ref = np.where(np.isfinite(per.min(1)), np.argmin(per, 1), -1)
     np.testing.assert_array_equal(label, ref)
@@ -117,7 +123,7 @@ def test_texture_and_noise_bounds(small_scene):
     scene, colours = small_scene
     cam = _forward_camera()
     flat = _render(cam, scene, colours).astype(float)
-    textured = np.asarray(synthetic_images.render_image(cam, scene, colours, texture_amplitude=0.1)).astype(float)
+    textured = _render(cam, scene, colours, texture_amplitude=0.1).astype(float)
     hit = np.asarray(synthetic.render_depth(cam, scene)) > 0
     # Texture scales each surface pixel by a factor in [0.9, 1.1] (rounding: +-1 DN) and varies it.
     assert np.all(textured[hit] <= 1.1 * flat[hit] + 1) and np.all(textured[hit] >= 0.9 * flat[hit] - 1)
