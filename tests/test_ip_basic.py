@@ -89,8 +89,9 @@ def test_median_network_sorts():
 # --------------------------------------------------------------------- whole pipeline
 @pytest.mark.parametrize("extrapolate", [False, True])
 def test_ip_basic_equals_opencv_synthetic(extrapolate):
+    """80 x 80 (the isolated-point test's size: its program without extrapolation)."""
     for seed in range(3):
-        d = sparse_image(seed, 48, 96, density=(0.02, 0.06, 0.3)[seed])
+        d = sparse_image(seed, 80, 80, density=(0.02, 0.06, 0.3)[seed])
         got = np.asarray(ipb.ip_basic(d, extrapolate=extrapolate, blur_type="gaussian"))
         want = baselines.ip_basic_opencv(d, extrapolate=extrapolate, blur_type="gaussian")
         np.testing.assert_array_equal(got > 0, want > 0)
