@@ -378,7 +378,7 @@ def test_equals_frozen_dense_sweep_kitti(kitti):
 
 
 @pytest.mark.parametrize("seed, shape, beams, density, caps", [
-    (1, (20, 100), 2, 0.008, (12, 24)),   # k = 11 > _STATIC_K: the static-cap prefilter, 3 column blocks
+    (1, (96, 160), 32, 0.02, (12, 24)),   # k = 12 > _STATIC_K: the static-cap prefilter (the scenes' programs)
     (2, (8, 70), 8, 0.3, (12, 24)),       # half height 0; width not a multiple of 32
     (3, (96, 160), 32, 0.3, (12, 24)),    # > _CHUNK removals: several chunks (the analytic scenes' programs)
     (4, (60, 90), 16, 0.1, (3, 2)),       # small caps
