@@ -69,3 +69,29 @@ def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0) -> np.ndarr
     thin = np.where(np.random.default_rng(seed).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
     assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > 400
     return thin
+
+
+# ---------------------------------------------------------------- jobs (batch runner, CLI, Ray engine)
+
+
+def nuscenes_front_dataroot(root, tmp):
+    """The fake v1.0-mini dataroot of ``tests/test_nuscenes_job.py`` with CAM_FRONT only and no JPEGs
+    (s1, s2 complete; s3's LiDAR file is missing), built at ``root`` from a one-camera copy of the
+    shared sample's calibration in ``tmp``. The extras runs of test_extras_cli and test_ray use it:
+    one camera, one compiled rig completion with validity for both."""
+    import json
+    import os
+    import pathlib
+
+    from tests.conftest import require_shared
+    from tests.test_nuscenes_job import LIDAR_FILE, build_dataroot
+
+    sample_dir = require_shared("nuscenes", "sample")
+    calib = json.loads((sample_dir / "calibration.json").read_text())
+    calib["cameras"] = {"CAM_FRONT": calib["cameras"]["CAM_FRONT"]}
+    one = pathlib.Path(tmp) / "sample_one_camera"
+    one.mkdir()
+    (one / "calibration.json").write_text(json.dumps(calib))
+    os.symlink(sample_dir / LIDAR_FILE, one / LIDAR_FILE)
+    build_dataroot(root, one)
+    return root, calib
