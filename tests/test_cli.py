@@ -176,8 +176,8 @@ def _cache_files(folder: pathlib.Path) -> dict:
 def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, frames):
     """The CLI's compile cache: the first run stores the compiled completion, the next reads it back
     (no file written again), a run with ``--no-compile-cache`` writes no cache; all three write the
-    same bytes. The cache holds whatever the run compiles: ``--method nearest`` without outlier
-    removal (the nearest-seed fill alone) compiles in a fraction of the SGM's time. The third run also is the verbose one (issue 14): JAX's
+    same bytes. The cache holds whatever the run compiles: ``--method nearest`` compiles in a
+    fraction of the SGM's time. The third run also is the verbose one (issue 14): JAX's
     "Unable to initialize backend 'tpu'" note never reaches the user, even with ``-v``."""
     items, _ = frames
     src = write_kitti_folder(tmp_path / "src", items[:1])
@@ -197,8 +197,7 @@ def test_compile_cache_is_reused_by_the_next_run_with_the_same_bytes(tmp_path, f
     def run(out, cache_home, *options, quiet=("-q",)):
         result = subprocess.run(
             [sys.executable, "-c", without_filelock, *options, "complete", str(png), str(out), "--intrinsics",
-             str(K), "--method", "nearest", "--no-outlier-removal", *quiet],
-            env=dict(env, XDG_CACHE_HOME=str(cache_home)),
+             str(K), "--method", "nearest", *quiet], env=dict(env, XDG_CACHE_HOME=str(cache_home)),
             capture_output=True, text=True, timeout=900)
         assert result.returncode == 0, result.stderr[-2000:]
         assert "cache" not in result.stderr, result.stderr[-2000:]
