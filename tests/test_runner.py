@@ -184,9 +184,9 @@ def test_cli_split_makes_two_devices_and_two_devices_match_one():
     left alone once a count is set or JAX runs), then a batch sharded over the two devices it
     made equals the same batch on one device. SGM itself (the one check of SGM sharded over two
     devices; the sharding wraps every method's per-frame function alike, so a second method would
-    only compile two more programs); its one-device batch is the 64 x 128 batch of two that
-    test_extras_cli and test_last_batch_is_padded_not_recompiled compile (the session's
-    compilation cache reads it back)."""
+    only compile two more programs). Both programs compile here: on a backend of two devices even
+    the one-device batch has another compilation-cache key than the same batch in a one-device
+    process."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
     script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), methods=("sgm",))
