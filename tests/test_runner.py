@@ -163,34 +163,39 @@ import jax
 n = len(jax.local_devices())
 late = split_cpu_into_devices(4)    # backends running: too late, left alone
 print("split", first, again, n, late, os.environ["XLA_FLAGS"].count("device_count"), flush=True)
-# the two devices made above: a batch sharded over both equals the batch on one
+# the two devices made above: an SGM batch sharded over both (the test compares it with one device)
 import numpy as np
 from helpers import small_frames
 from jaxdepth.batch import runner
 assert len(jax.local_devices()) == 2, jax.local_devices()
 items, T = small_frames(3)
 depths = np.stack([d for d, _ in items]); Ks = np.stack([k for _, k in items])
-for method in {methods!r}:
-    one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1, method=method)
-    two = runner.complete_batch(depths, Ks, T, batch_size=2, devices=2, method=method)
-    np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
-    print("sharded-ok", method, float(np.abs(two - one).max()))
+np.save({out!r}, runner.complete_batch(depths, Ks, T, batch_size=2, devices=2, method="sgm"))
+print("sharded-saved", flush=True)
 """
 
 
 @pytest.mark.slow  # subprocess
-def test_cli_split_makes_two_devices_and_two_devices_match_one():
-    """One process: the CLI's split of the CPU into one device per core, before JAX starts (and
-    left alone once a count is set or JAX runs), then a batch sharded over the two devices it
-    made equals the same batch on one device. SGM itself (the one check of SGM sharded over two
-    devices; the sharding wraps every method's per-frame function alike, so a second method would
-    only compile two more programs). Both programs compile here: on a backend of two devices even
-    the one-device batch has another compilation-cache key than the same batch in a one-device
-    process."""
+@pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 batches once
+def test_cli_split_makes_two_devices_and_two_devices_match_one(tmp_path):
+    """A subprocess: the CLI's split of the CPU into one device per core, before JAX starts (and
+    left alone once a count is set or JAX runs), then an SGM batch sharded over the two devices it
+    made (the one check of SGM sharded over two devices; the sharding wraps every method's
+    per-frame function alike). It equals the same batch on one device, computed here: the
+    64 x 128 SGM batch of two that test_extras_cli and test_last_batch_is_padded_not_recompiled
+    compile (in the subprocess the one-device batch would be a compile of its own: on a backend of
+    two devices it has another compilation-cache key)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"
-    script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), methods=("sgm",))
+    out = tmp_path / "two_devices.npy"
+    script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), out=str(out))
     result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "split 2 0 2 0 1" in result.stdout, result.stdout
-    assert "sharded-ok sgm" in result.stdout, result.stdout
+    assert "split 2 0 2 0 1" in result.stdout and "sharded-saved" in result.stdout, result.stdout
+    items, T = small_frames(3)
+    depths = np.stack([d for d, _ in items])
+    Ks = np.stack([k for _, k in items])
+    one = runner.complete_batch(depths, Ks, T, batch_size=2, devices=1, method="sgm")
+    two = np.load(out)
+    assert two.shape == one.shape == (3, 64, 128)
+    np.testing.assert_allclose(two, one, rtol=1e-6, atol=1e-5)
