@@ -330,9 +330,11 @@ def test_single_png_output_folder_is_created_or_refused_before_computing(tmp_pat
     code, _, err = _run(capsys, "complete", src / "f0.png", blocker / "out.png", "--intrinsics", K)
     assert code == 1 and "cannot create output folder" in _one_line_error(err)
     monkeypatch.setattr(runner, "run_jobs", real)
-    # One 64 x 128 PNG without outlier removal: test_cli's single-image run compiles the same program.
+    # One 64 x 128 PNG, the nearest fill without outlier removal: test_cli's single-image run compiles
+    # the same program.
     target = tmp_path / "new" / "deeper" / "out.png"
-    code, _, err = _run(capsys, "complete", src / "f0.png", target, "--intrinsics", K, "--no-outlier-removal")
+    code, _, err = _run(capsys, "complete", src / "f0.png", target, "--intrinsics", K, "--method", "nearest",
+                        "--no-outlier-removal")
     assert code == 0 and read_depth_png(target).shape == (64, 128)
 
 
