@@ -78,12 +78,16 @@ def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0, keep: float
 # Frames and options of the image-pipeline modules (test_speed_equivalence, test_xla_tuning,
 # test_pipeline, test_geodesic): 32 x 48 frames with SMALL_LIDAR and the default configuration are
 # the programs of the stage table's pipeline rows; the point-cloud pipeline's stages run on the
-# 88 x 304 street cameras of stereo_street / kitti_street with POINTS_CONFIG.
+# 96 x 160 small_camera.
 
-#: The configuration of every complete_points_stages run of the image modules (one program per
-#: camera shape): the default one with the output clip at 60 m, which the street scenes' farthest
-#: returns (~100 m) exceed, so the clip is exercised.
+#: test_pipeline's complete_points_stages configuration where the output clip matters (one program):
+#: the default one with the clip at 60 m, which the street scenes' farthest returns (~100 m) exceed.
 POINTS_CONFIG = SGMConfig(max_depth_m=60.0)
+
+#: The pipeline's non-default code paths in one configuration (one compiled program per function and
+#: shape): no outlier removal, l2 seeds, blended column hypotheses, no smoothing, measured depths not kept.
+NON_DEFAULT = SGMConfig(outlier_removal=False, distance_metric="l2", blend_hypotheses=True, smoothing_sigma_px=0.0,
+                        keep_measured_depth=False)
 
 #: Image-guided seeds with the noise floor: the guided 32 x 48 pipeline of test_geodesic and test_xla_tuning.
 GUIDED = SGMConfig(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)

@@ -577,7 +577,7 @@ def _rows() -> list[Row]:
         Row("validity_and_distance", validity.validity_and_distance, _validity_inputs,
             static=dict(lidar=VALIDITY_LIDAR, metric="l1", max_seed_distance_px=3.0), oracle=_validity_oracle,
             oracle_ulps=4, ulps=0, check=_validity_check, covers=("validity_and_distance", "validity_mask")),
-        Row("ip_basic", ipb.ip_basic, _ip_basic_inputs, static=dict(extrapolate=True), oracle=_ip_basic_oracle,
+        Row("ip_basic", _OneLibraryJit(ipb.ip_basic, ipb._ip_basic), _ip_basic_inputs, static=dict(extrapolate=True), oracle=_ip_basic_oracle,
             oracle_ulps=8, oracle_scale=100.0, ulps=4, scale=100.0, eager_inputs=1),
     ]
 

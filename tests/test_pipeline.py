@@ -11,7 +11,7 @@ from jaxdepth._src import synthetic
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geometry import project_to_image
 
-from scenes import POINTS_CONFIG, SMALL_LIDAR, stereo_street, tiny_street_frames
+from scenes import NON_DEFAULT, POINTS_CONFIG, SMALL_LIDAR, lidar_to_camera, small_camera, tiny_street_frames
 
 
 def plane_frame(camera, planes):
@@ -27,9 +27,9 @@ def plane_frame(camera, planes):
     [[-np.cos(0.5), -np.sin(0.5), 0.0, -12.0]],  # a wall 12 m ahead, yawed by ~29 degrees
 ])
 def test_planar_scene_completes_nearly_exactly(planes):
-    """On the 88 x 304 street camera with POINTS_CONFIG (the program of the tests below); scored on
+    """On the 96 x 160 camera with POINTS_CONFIG (the program of the test below); scored on
     ``depth_raw``, before the smoothing."""
-    camera = synthetic.rig_cameras("kitti", image_scale=0.25)[0]  # the camera of scenes.kitti_street
+    camera = small_camera(lidar_to_camera())
     points, valid, dense = plane_frame(camera, planes)
     stages = complete_points_stages(points, valid, camera, lidar=SMALL_LIDAR, config=POINTS_CONFIG)
     depth = np.asarray(stages.depth_raw)
@@ -52,9 +52,9 @@ def test_planar_scene_completes_nearly_exactly(planes):
 
 
 def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
-    frame, cameras = stereo_street(3)
+    frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=[small_camera(lidar_to_camera())])
     config = POINTS_CONFIG
-    stages = complete_points_stages(frame.points, frame.valid, cameras[0], lidar=SMALL_LIDAR, config=config)
+    stages = complete_points_stages(frame.points, frame.valid, frame.cameras[0], lidar=SMALL_LIDAR, config=config)
     for name, value in stages._asdict().items():
         assert np.all(np.isfinite(np.asarray(value))), name
     depth = np.asarray(stages.depth)
@@ -100,15 +100,17 @@ def _tiny_sparse(seed, *, h, w):
 
 def test_scaling_the_scene_scales_the_depth():
     """Metres in, metres out: scaling depths and the LiDAR offset by s scales the output by s. Without the
-    outlier removal, so that both runs share one configuration (one compiled program): its epsilon scales
-    with the scene too (test_outliers.test_scale_invariance)."""
+    outlier removal, whose epsilon scales with the scene too (test_outliers.test_scale_invariance): with
+    scenes.NON_DEFAULT (no removal, l2 seeds, blended hypotheses, no smoothing), test_speed_equivalence's
+    program; s = 1/2 keeps both runs inside the default clip range."""
     depth, K, T = _tiny_sparse(5, h=32, w=48)
-    s = 2.0
+    s = 0.5
     T2 = T.copy()
     T2[:3, 3] *= s
-    config = SGMConfig(smoothing_sigma_px=0.0, max_depth_m=1e4, outlier_removal=False)
-    a = np.asarray(complete(depth, K, T, lidar=SMALL_LIDAR, config=config))
-    b = np.asarray(complete(depth * s, K, T2, lidar=SMALL_LIDAR, config=config))
+    config = NON_DEFAULT
+    assert depth.max() < config.max_depth_m and depth[depth > 0].min() * s > config.min_depth_m
+    a = np.asarray(complete_stages(depth, K, T, lidar=SMALL_LIDAR, config=config).depth)
+    b = np.asarray(complete_stages(depth * s, K, T2, lidar=SMALL_LIDAR, config=config).depth)
     np.testing.assert_allclose(b, s * a, rtol=1e-4, atol=1e-4)
 
 
@@ -126,8 +128,10 @@ def test_bad_shapes_raise_clear_errors():
 
 
 def test_synthetic_street_sgm_beats_nearest():
-    frame, cameras = stereo_street()
-    stages = complete_points_stages(frame.points, frame.valid, cameras[0], lidar=SMALL_LIDAR, config=POINTS_CONFIG)
+    """The synthetic street through the 96 x 160 camera, default configuration (the program of
+    test_xla_tuning's points test; POINTS_CONFIG's 60 m clip would cut the far truth)."""
+    frame = synthetic.make_street_scene(0, lidar=SMALL_LIDAR, cameras=[small_camera(lidar_to_camera())])
+    stages = complete_points_stages(frame.points, frame.valid, frame.cameras[0], lidar=SMALL_LIDAR)
     gt = np.asarray(frame.dense_depth[0])
     sgm = depth_metrics(stages.depth, gt)
     nearest = depth_metrics(stages.seed_depth, gt)

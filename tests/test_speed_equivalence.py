@@ -37,7 +37,7 @@ from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.types import LidarSpec
 
 from helpers import numpy_column_hypotheses
-from scenes import SMALL_LIDAR, thinned_for_listed_normals, tiny_frame
+from scenes import NON_DEFAULT, SMALL_LIDAR, thinned_for_listed_normals, tiny_frame
 
 
 
@@ -93,14 +93,8 @@ def check_equal(got, want):
                                    err_msg=name)
 
 
-#: The non-default code paths in one configuration (one compiled program): no outlier removal, l2
-#: seeds, blended column hypotheses, no smoothing, measured depths not kept.
-NON_DEFAULT = SGMConfig(outlier_removal=False, distance_metric="l2", blend_hypotheses=True, smoothing_sigma_px=0.0,
-                        keep_measured_depth=False)
-
-
 # 32 x 48 frames of SMALL_LIDAR, T passed: the programs of the stage table's pipeline rows (default
-# configuration); only NON_DEFAULT compiles a pipeline of its own here.
+# configuration); NON_DEFAULT (scenes.py: every non-default code path) is test_pipeline's scaling program.
 @pytest.mark.parametrize("config", [SGMConfig(), NON_DEFAULT], ids=["default", "non_default"])
 def test_synthetic_frame_equals_reference(config):
     sparse, K, T = tiny_frame(0)

@@ -21,10 +21,11 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src import xla_tuning
+from jaxdepth._src import synthetic, xla_tuning
 from jaxdepth._src.config import SGMConfig
 
-from scenes import GUIDED, POINTS_CONFIG, SMALL_LIDAR, stereo_street, thinned_for_listed_normals, tiny_frame
+from scenes import (GUIDED, SMALL_LIDAR, small_camera, stereo_street, thinned_for_listed_normals,
+                    tiny_frame)
 
 
 def _both(run):
@@ -95,19 +96,21 @@ def test_helpers_reduce_to_the_plain_computation():
             assert (int(first), int(stop)) == (2, 5)
 
 
-@pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
+@pytest.mark.parametrize("config, rig", [(SGMConfig(), False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
                          ids=["default-points", "l2_blend-rig"])
 def test_complete_points_and_rig_agree_on_the_synthetic_scene(config, rig):
-    """complete_points (range image, point normals) with the default options (POINTS_CONFIG: the
-    output clip at 60 m; the tuned program is test_pipeline's), and complete_rig (the points pipeline
-    under vmap over cameras: batched stage tokens, shared loop bounds, the widest outlier window) with
-    the l2 seeds and blended hypotheses, on the small stereo street."""
-    frame, cams = stereo_street()
+    """complete_points (range image, point normals) with the default options on the street through
+    the 96 x 160 camera (tuned: test_pipeline.test_synthetic_street_sgm_beats_nearest's program),
+    and complete_rig (the points pipeline under vmap over cameras: batched stage tokens, shared loop
+    bounds, the widest outlier window) with the l2 seeds and blended hypotheses, on the small stereo
+    street."""
     if rig:
+        frame, cams = stereo_street()
         run = lambda: jaxdepth.complete_rig_stages(frame.points, frame.valid, jaxdepth.stack_cameras(cams),
                                                    config=config, lidar=SMALL_LIDAR)
     else:
-        run = lambda: jaxdepth.complete_points_stages(frame.points, frame.valid, cams[0], config=config,
+        frame = synthetic.make_street_scene(1, lidar=SMALL_LIDAR, cameras=[small_camera()])
+        run = lambda: jaxdepth.complete_points_stages(frame.points, frame.valid, frame.cameras[0], config=config,
                                                       lidar=SMALL_LIDAR)
     _assert_same(*_both(run))
 
