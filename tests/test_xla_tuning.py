@@ -100,7 +100,7 @@ def test_helpers_reduce_to_the_plain_computation():
                          ids=["default-points", "l2_blend-rig"])
 def test_complete_points_and_rig_agree_on_the_synthetic_scene(config, rig):
     """complete_points (range image, point normals) with the default options on the street through
-    the 96 x 160 camera (tuned: test_pipeline.test_synthetic_street_sgm_beats_nearest's program),
+    the 96 x 160 camera,
     and complete_rig (the points pipeline under vmap over cameras: batched stage tokens, shared loop
     bounds, the widest outlier window) with the l2 seeds and blended hypotheses, on the small stereo
     street."""
