@@ -58,11 +58,20 @@ def _wall_depth(cam_K, T_cam_lidar, T_velo_imu, height, width, frame: int) -> np
     return np.where(ok, z, 0.0)
 
 
+@pytest.fixture(scope="module")
+def api_run(drive, tmp_path_factory):
+    """(scan, summary, output root) of the job's one API run over the drive (camera 2, one earlier sweep):
+    the run the tests below check, and the bytes the command line must write."""
+    drive, _ = drive
+    out = tmp_path_factory.mktemp("kitti_sweeps_api") / "out"
+    scan = kitti_datasets.kitti_raw_jobs(drive, out, camera=2)
+    return scan, kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1), out
+
+
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
-def test_sweeps_job_completes_the_wall_and_resumes(drive, tmp_path):
+def test_sweeps_job_completes_the_wall_and_resumes(drive, api_run):
     drive, T_velo_imu = drive
-    scan = kitti_datasets.kitti_raw_jobs(drive, tmp_path / "out", camera=2)
-    summary = kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
+    scan, summary, _ = api_run
     assert not summary.failed and len(summary.done) == 4
     job = next(j for j in scan.jobs if j.sparse_path.stem == "0000000001")
     depth = read_depth_png(job.out_path)
@@ -105,14 +114,12 @@ def test_analytic_wall_depth_helper_is_consistent():
 
 
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size (API and CLI)
-def test_command_line_sweeps(drive, tmp_path, capsys):
+def test_command_line_sweeps(drive, api_run, tmp_path, capsys):
     """``jaxdepth complete DRIVE DST --sweeps 1`` runs this job (same bytes as the API); --sweeps on a folder
     that is no KITTI raw drive is a data error; --sweeps 0 is the single-sweep path."""
     from jaxdepth import cli
     drive, _ = drive
-    api = tmp_path / "api"
-    scan = kitti_datasets.kitti_raw_jobs(drive, api, camera=2)
-    kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
+    _, _, api = api_run  # the API's run of test_sweeps_job_completes_the_wall_and_resumes
     dst = tmp_path / "cli"
     assert cli.main(["complete", str(drive), str(dst), "--sweeps", "1", "--camera", "2", "-q"]) == 0
     outs = sorted(p.relative_to(dst) for p in dst.rglob("*.png"))
