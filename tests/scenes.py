@@ -69,3 +69,11 @@ def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0) -> np.ndarr
     thin = np.where(np.random.default_rng(seed).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
     assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > 400
     return thin
+
+
+# ---------------------------------------------------------------- sweeps group (rigs, sources, jobs)
+
+def stereo_cameras():
+    """The two 1/4-scale stereo cameras of :func:`stereo_street` alone (no street ray-cast): with any
+    :data:`SMALL_LIDAR` sweep of 32 x 1024 points, ``complete_rig`` runs tests/test_rig.py's program."""
+    return synthetic.rig_cameras("stereo", image_scale=0.25)

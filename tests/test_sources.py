@@ -19,7 +19,7 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
-from scenes import SMALL_LIDAR, tiny_street_frames
+from scenes import SMALL_LIDAR, stereo_cameras, stereo_street, tiny_street_frames
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
 WALL_X = 20.0
@@ -164,10 +164,10 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
 
 @pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
 def test_one_source_at_the_origin_equals_complete_rig():
-    # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
-    # images (test_robustness compiles the same complete_rig)
-    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
-    cams = jaxdepth.stack_cameras([camera, other])
+    # the shared small stereo street: complete_rig is tests/test_rig.py's program
+    frame, cameras = stereo_street()
+    points, valid = np.asarray(frame.points), np.asarray(frame.valid)
+    cams = jaxdepth.stack_cameras(cameras)
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
     src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
@@ -370,11 +370,11 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
 
 
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical; the shared tiny street and its two cameras, the
+    # One sweep: the option changes nothing (bit-identical; a SMALL_LIDAR sweep and the stereo cameras, the
     # program of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by
     # the occlusion rule is an earlier sweep's.
-    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
-    cams = jaxdepth.stack_cameras([camera, other])
+    (points, valid, _), = tiny_street_frames((0,))
+    cams = jaxdepth.stack_cameras(stereo_cameras())
     one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
     np.testing.assert_array_equal(np.asarray(complete_sources(one, cams, occlusion=True)),
                                   np.asarray(complete_sources(one, cams, occlusion=False)))
