@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src import synthetic
+from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.types import Camera, LidarSpec
 
 #: A 32-beam spinning LiDAR with KITTI's HDL-64 vertical field of view and 1024 columns.
@@ -61,14 +62,72 @@ def tiny_street_frames(seeds: tuple, h: int = 32, w: int = 48):
     return frames
 
 
-def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0) -> np.ndarray:
-    """(H, W) float32: ``sparse`` with about 1 pixel in 8 kept, so that it holds fewer points than
-    the image-plane normals' listed-path capacity (``ceil(H W / 16)``, ``pixel_normals``' default
-    ``max_points``) while ``sparse`` holds more: the thinned image takes the listed branch (the one
-    a KITTI frame takes), ``sparse`` the dense one. Both facts are asserted."""
-    thin = np.where(np.random.default_rng(seed).random(sparse.shape) < 1 / 8, sparse, 0).astype(np.float32)
-    assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > 400
+def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0, keep: float = 1 / 8,
+                               min_points: int = 400) -> np.ndarray:
+    """(H, W) float32: ``sparse`` with about a share ``keep`` of its pixels kept, so that it holds
+    fewer points than the image-plane normals' listed-path capacity (``ceil(H W / 16)``,
+    ``pixel_normals``' default ``max_points``) while ``sparse`` holds more: the thinned image takes
+    the listed branch (the one a KITTI frame takes), ``sparse`` the dense one. Both facts, and at
+    least ``min_points`` points left, are asserted."""
+    thin = np.where(np.random.default_rng(seed).random(sparse.shape) < keep, sparse, 0).astype(np.float32)
+    assert (sparse > 0).sum() > -(-sparse.size // 16) > (thin > 0).sum() > min_points
     return thin
+
+
+# ---------------------------------------------------------------- jobs (batch runner, CLI, Ray engine)
+
+
+def nuscenes_front_dataroot(root, tmp):
+    """The fake v1.0-mini dataroot of ``tests/test_nuscenes_job.py`` with CAM_FRONT only and no JPEGs
+    (s1, s2 complete; s3's LiDAR file is missing), built at ``root`` from a one-camera copy of the
+    shared sample's calibration in ``tmp``. The extras runs of test_extras_cli and test_ray use it:
+    one camera, one compiled rig completion with validity for both."""
+    import json
+    import os
+    import pathlib
+
+    from conftest import require_shared
+    from test_nuscenes_job import LIDAR_FILE, build_dataroot
+
+    sample_dir = require_shared("nuscenes", "sample")
+    calib = json.loads((sample_dir / "calibration.json").read_text())
+    calib["cameras"] = {"CAM_FRONT": calib["cameras"]["CAM_FRONT"]}
+    one = pathlib.Path(tmp) / "sample_one_camera"
+    one.mkdir()
+    (one / "calibration.json").write_text(json.dumps(calib))
+    os.symlink(sample_dir / LIDAR_FILE, one / LIDAR_FILE)
+    build_dataroot(root, one)
+    return root, calib
+
+
+# ----------------------------------------------------------------------------- image group
+# Frames and options of the image-pipeline modules (test_speed_equivalence, test_xla_tuning,
+# test_pipeline, test_geodesic): 32 x 48 frames with SMALL_LIDAR and the default configuration are
+# the programs of the stage table's pipeline rows; the point-cloud pipeline's stages run on the
+# 96 x 160 small_camera.
+
+#: test_pipeline's complete_points_stages configuration where the output clip matters (one program):
+#: the default one with the clip at 60 m, which the street scenes' farthest returns (~100 m) exceed.
+POINTS_CONFIG = SGMConfig(max_depth_m=60.0)
+
+#: The pipeline's non-default code paths in one configuration (one compiled program per function and
+#: shape): no outlier removal, l2 seeds, blended column hypotheses, no smoothing, measured depths not kept.
+NON_DEFAULT = SGMConfig(outlier_removal=False, distance_metric="l2", blend_hypotheses=True, smoothing_sigma_px=0.0,
+                        keep_measured_depth=False)
+
+#: Image-guided seeds with the noise floor: the guided 32 x 48 pipeline of test_geodesic and test_xla_tuning.
+GUIDED = SGMConfig(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)
+
+
+def tiny_frame(seed: int, *, f: float = 40.0, h: int = 32, w: int = 48, images: bool = False):
+    """(sparse, K, T[, image]): a synthetic street sweep of SMALL_LIDAR projected into an (h, w) camera
+    of focal length ``f`` px (float32; the image, with ``images``, is the (h, w, 3) uint8 rendering)."""
+    from jaxdepth._src.geometry import project_to_image
+    camera = small_camera(lidar_to_camera(), h=h, w=w, f=f)
+    frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera], images=images)
+    sparse, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
+    out = (np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar))
+    return out + (np.asarray(frame.images[0]),) if images else out
 
 
 # ---------------------------------------------------------------- sweeps group (rigs, sources, jobs)

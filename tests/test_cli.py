@@ -78,15 +78,17 @@ def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
 
 
 def test_complete_single_image_matches_library(tmp_path, frames):
-    """A single PNG through the CLI (``--no-outlier-removal`` reaching the config) equals the library's
-    batch completion of that frame, the same bytes: ``complete_batch`` at the CLI's batch shape (one
-    compiled program for both; ``tests/test_runner.py`` checks ``complete_batch`` against per-frame
-    :func:`jaxdepth.complete`). The default configuration would differ (outliers removed)."""
+    """A single PNG through the CLI (``--method`` and ``--no-outlier-removal`` reaching the run) equals
+    the library's batch completion of that frame, the same bytes: ``complete_batch`` at the CLI's batch
+    shape (one compiled program for both; ``tests/test_runner.py`` checks ``complete_batch`` against
+    per-frame calls, SGM included). The nearest fill without outlier removal compiles in a fraction of
+    SGM's time; the default configuration would differ (outliers removed)."""
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items[:1])
     out = tmp_path / "one.png"
     code = cli.main(["complete", str(src / "velodyne_raw" / "frame_000.png"), str(out),
-                     "--intrinsics", str(src / "intrinsics" / "frame_000.txt"), "--no-outlier-removal", "-q"])
+                     "--intrinsics", str(src / "intrinsics" / "frame_000.txt"), "--method", "nearest",
+                     "--no-outlier-removal", "-q"])
     assert code == 0
     import cv2
 
@@ -95,8 +97,11 @@ def test_complete_single_image_matches_library(tmp_path, frames):
     from jaxdepth.io import encode_depth_uint16, read_intrinsics_txt
     depth = read_depth_png(src / "velodyne_raw" / "frame_000.png")[None]
     K = read_intrinsics_txt(src / "intrinsics" / "frame_000.txt")[None]
-    expected = complete_batch(depth, K, config=SGMConfig(outlier_removal=False), batch_size=1, strategy="map")[0]
+    expected = complete_batch(depth, K, config=SGMConfig(outlier_removal=False), batch_size=1, strategy="map",
+                              method="nearest")[0]
     np.testing.assert_array_equal(cv2.imread(str(out), cv2.IMREAD_UNCHANGED), encode_depth_uint16(expected))
+    with_removal = complete_batch(depth, K, batch_size=1, strategy="map", method="nearest")[0]
+    assert not np.array_equal(encode_depth_uint16(with_removal), encode_depth_uint16(expected))  # the option counted
 
 
 @pytest.mark.parametrize("args,pattern", [

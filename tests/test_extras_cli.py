@@ -7,7 +7,6 @@ elevation for the rig and nuScenes cameras; file modification times for resume.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import pathlib
@@ -53,6 +52,7 @@ def _elevation_level(K, height, width, R_tilt=np.eye(3)):
     return np.arctan2(d[..., 2], np.hypot(d[..., 0], d[..., 1]))
 
 
+@pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path, src, capsys, monkeypatch):
     root, items = src
     plain, full, zeroed = tmp_path / "plain", tmp_path / "full", tmp_path / "zeroed"
@@ -99,6 +99,7 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
     assert sorted(frames) == [f"frame_00{i}.png" for i in range(3)] and len(skipped) == 9
 
 
+@pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
     root, _ = src
     out = tmp_path / "out"
@@ -168,19 +169,11 @@ def test_complete_rig_extras_cameras_of_two_sizes(tmp_path, capsys):
 @pytest.mark.slow  # the real nuScenes sample: SGM with extras on CAM_FRONT at full size
 def test_nuscenes_job_writes_extras_beside_each_camera_png(tmp_path):
     """One camera (CAM_FRONT) of the fake v1.0-mini dataroot of tests/test_nuscenes_job.py."""
-    from tests.conftest import require_shared
-    from tests.test_nuscenes_job import LIDAR_FILE, SCALE, VERSION, build_dataroot
+    from scenes import nuscenes_front_dataroot
+    from tests.test_nuscenes_job import SCALE, VERSION
     from jaxdepth.batch.nuscenes_job import run_nuscenes
 
-    sample_dir = require_shared("nuscenes", "sample")
-    calib = json.loads((sample_dir / "calibration.json").read_text())
-    one = tmp_path / "sample_one_camera"
-    one.mkdir()
-    calib["cameras"] = {"CAM_FRONT": calib["cameras"]["CAM_FRONT"]}
-    (one / "calibration.json").write_text(json.dumps(calib))
-    os.symlink(sample_dir / LIDAR_FILE, one / LIDAR_FILE)
-    root = tmp_path / "root"
-    build_dataroot(root, one)
+    root, calib = nuscenes_front_dataroot(tmp_path / "root", tmp_path)
     dst = tmp_path / "out"
     wanted = extras.ExtraOutputs(validity=True, seed_distance=True)
     summary = run_nuscenes(root, dst, version=VERSION, extras=wanted)
@@ -250,6 +243,7 @@ def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
     assert _stamps(folder) == stamps
 
 
+@pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_ray_actor_writes_the_local_runners_extras(tmp_path, src):
     """The Ray engine's actor (called directly, no cluster) writes the local runner's files, extras included."""
     from jaxdepth.batch import scale

@@ -20,6 +20,7 @@ import pytest
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed, median_step_difference, step_costs
 
+import scenes
 from scenes import SMALL_LIDAR
 
 RTOL = 2e-6  # float32 sums of up to a few hundred steps vs float64
@@ -283,8 +284,9 @@ def test_bad_input(keep, img, kwargs, match):
 #: The shared scenes' LiDAR (tests/scenes.py), whose 32 x 48 frames the pipeline tests below take.
 LIDAR = SMALL_LIDAR
 
-#: One guided configuration for the pipeline tests below (one compiled pipeline), with the noise floor on.
-GUIDED = dict(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)
+#: One guided configuration for the pipeline tests below (one compiled pipeline, test_xla_tuning's
+#: too), with the noise floor on: weight 30, 2 sweeps, floor 1.
+GUIDED = scenes.GUIDED
 
 
 def _pipeline_frame():
@@ -314,9 +316,9 @@ def test_pipeline_without_guidance_ignores_the_image():
 @pytest.mark.slow  # the guided pipeline: two whole-pipeline programs of its own (per frame, vmapped)
 def test_pipeline_guided_seeds_and_vmap():
     """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
-    from jaxdepth import SGMConfig, complete, complete_stages
+    from jaxdepth import complete, complete_stages
     (frames, T, images) = _pipeline_frame()
-    config = SGMConfig(**GUIDED)
+    config = GUIDED
     loop = []
     for (depth, K), image in zip(frames, images):
         stages = complete_stages(depth, K, T, lidar=LIDAR, config=config, image=image)
@@ -370,10 +372,10 @@ def test_config_fields(field, value, match):
 
 @pytest.mark.slow  # the guided pipeline program of the test above
 def test_pipeline_passes_the_noise_floor():
-    from jaxdepth import SGMConfig, complete_stages
+    from jaxdepth import complete_stages
     (frames, T, images) = _pipeline_frame()
     depth, K = frames[0]
-    stages = complete_stages(depth, K, T, lidar=LIDAR, config=SGMConfig(**GUIDED), image=images[0])
+    stages = complete_stages(depth, K, T, lidar=LIDAR, config=GUIDED, image=images[0])
     keep, image = np.asarray(stages.inlier_mask), images[0].astype(np.float32) / 255.0
     want = geodesic_seed(keep, image, color_weight=30.0, sweeps=2, noise_floor=1.0)
     np.testing.assert_array_equal(stages.du, want.du)

@@ -60,6 +60,7 @@ def _png(path) -> np.ndarray:
     return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
 
 
+@pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_guided_runner_equals_the_api_per_frame(tmp_path, frames):
     items, T = frames
     _, jobs = _selection(tmp_path / "src", items)
@@ -124,6 +125,7 @@ def _bad_images(folder: pathlib.Path, good: np.ndarray) -> dict[str, str]:
     return cases
 
 
+@pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_each_bad_image_fails_its_frame_only_and_a_rerun_resumes(tmp_path, frames):
     items, T = frames
     many = [items[i % len(items)] for i in range(6)]
@@ -159,6 +161,7 @@ def test_a_guided_frame_without_an_image_fails_with_a_clear_message(tmp_path, fr
     assert name == job.name and "no camera image" in message and "--image-dir" in message
 
 
+@pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_complete_batch_with_images_and_its_errors(frames):
     items, T = frames
     depths = np.stack([d for d, _ in items])
@@ -208,6 +211,7 @@ def test_image_names_of_selection_folders_and_plain_folders(tmp_path):
     assert guidance_images.selection_image_folder(tmp_path / "flat", sel / "image") == sel / "image"
 
 
+@pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_ray_actor_reads_the_same_images_as_the_local_runner(tmp_path, frames):
     """The Ray engine's actor (called directly, no cluster): records carry the image, same bytes."""
     from jaxdepth.batch import scale
@@ -231,6 +235,7 @@ def test_ray_actor_reads_the_same_images_as_the_local_runner(tmp_path, frames):
         assert _png(job.out_path).tobytes() == _png(tmp_path / "local" / job.name).tobytes()
 
 
+@pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_cli_end_to_end_on_a_selection_folder_and_its_usage_errors(tmp_path, frames, capsys):
     from jaxdepth import cli
     items, T = frames

@@ -60,10 +60,12 @@ def raw_tree(tmp_path_factory):
 
 
 def _expected_sweep_png(sweep, camera) -> np.ndarray:
-    """The library's own answer, as the uint16 PNG values: complete_points with this camera."""
+    """The library's own answer, as the uint16 PNG values: the depth of complete_points_stages with this
+    camera (the program test_extras_cli's KITTI sweep oracle and notebook 01 compile for this bucket and
+    crop; ``complete_points`` is that same depth in a jit of its own)."""
     points, _ = read_points(sweep, columns=4)
     padded, valid = pad_points(points)
-    depth = np.asarray(jaxdepth.complete_points(padded, valid, camera.as_camera()))
+    depth = np.asarray(jaxdepth.complete_points_stages(padded, valid, camera.as_camera()).depth)
     return encode_depth_uint16(depth)
 
 
@@ -71,6 +73,7 @@ def _png_u16(path) -> np.ndarray:
     return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps")  # one worker compiles the KITTI sweep batch and its oracle once
 @pytest.mark.slow  # real KITTI sweeps completed at full camera size
 def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp_path, capsys):
     bad = raw_tree / DATE_B / DRIVE_B / "velodyne_points" / "data" / "0000000001.bin"
@@ -232,6 +235,7 @@ def object_split(tmp_path_factory):
     return root
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps")  # one worker compiles the KITTI sweep batch and its oracle once
 @pytest.mark.slow  # real KITTI object frames completed at full camera size
 def test_object_split_per_frame_calibration_and_bad_calibration(object_split, tmp_path, capsys):
     calib = object_split / "calib" / "000001.txt"
@@ -254,9 +258,16 @@ def test_object_split_per_frame_calibration_and_bad_calibration(object_split, tm
                                                                    rig.cameras[0]))
     finally:
         calib.write_text(good)
-    # fixed calibration: the re-run completes only the missing frame
+    # fixed calibration, and one finished output deleted by hand: the re-run completes only the two
+    # missing frames (two: the first run's compiled batch again) and leaves the finished one untouched
+    kept = dst / "training" / "depth_2" / "000000.png"
+    stamp = kept.stat().st_mtime_ns
+    (dst / "training" / "depth_2" / "000002.png").unlink()
     code = cli.main(["complete", str(object_split), str(dst), "--crop", "--batch-size", "2"])
-    assert code == 0 and "1 completed, 2 skipped (already done), 0 failed" in capsys.readouterr().err
+    assert code == 0 and "2 completed, 1 skipped (already done), 0 failed" in capsys.readouterr().err
+    assert kept.stat().st_mtime_ns == stamp
+    assert sorted(p.name for p in (dst / "training" / "depth_2").glob("*.png")) == [
+        "000000.png", "000001.png", "000002.png"]
 
 
 def test_rig_from_kitti_object_matches_the_calibration_projection(object_split):
@@ -285,6 +296,7 @@ def test_rig_from_kitti_object_matches_the_calibration_projection(object_split):
         rig_from_kitti_object(path, width=1000, height=300, crop=True)
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps")  # one worker compiles the KITTI sweep batch and its oracle once
 @pytest.mark.slow  # real KITTI sweeps: SGM batches at 352 x 1216
 def test_ray_actor_completes_sweep_jobs_like_the_local_runner(raw_tree, tmp_path):
     """The Ray engine's actor (called directly, no cluster) gives the local runner's bytes for sweep jobs."""

@@ -1,7 +1,7 @@
 """Ray engine (jaxdepth.batch.scale) against the single-process runner, on a local loopback Ray.
 
 Oracle: :func:`jaxdepth.batch.runner.run_jobs` on the same folder must write the same
-bytes. The folder holds the two real KITTI sparse frames (benchmark crop) when
+bytes. The folder holds the two real KITTI sparse frames (whole 375 x 1242 frames) when
 ../shared/data is there, else synthetic sparse images, plus one corrupt PNG.
 Only needs Ray (``pip install 'jaxdepth[ray]'``), never the shared data.
 """
@@ -31,8 +31,11 @@ pytestmark = [pytest.mark.slow,  # Ray clusters and subprocesses
               pytest.mark.filterwarnings("ignore::DeprecationWarning:ray.data.context")]
 
 METHOD = "nearest"  # the fastest method: the engines, not the algorithm, are under test
-BATCH = 2
-TOP, LEFT, H, W = 23, 13, 352, 1216  # KITTI benchmark crop of a 375 x 1242 frame
+#: One frame per batch, at the frame's own 375 x 1242: the local runner's oracle run is then the nearest
+#: fill that test_kitti_datasets' depth-completion tree and test_bad_inputs compile for one such frame
+#: (the session's compilation cache, which Ray's workers share, reads it back).
+BATCH = 1
+H, W = 375, 1242  # a whole KITTI frame (camera 2's K as it is)
 GOOD = ("frame_02", "frame_03")
 BAD = "frame_bad"
 
@@ -45,14 +48,13 @@ def _shared_kitti() -> pathlib.Path:
 
 def _frames() -> list[tuple[str, np.ndarray, np.ndarray]]:
     K = np.array(presets.KITTI_K_CAM2, np.float32).copy()
-    K[0, 2] -= LEFT
-    K[1, 2] -= TOP
     kitti = _shared_kitti()
     frames = []
     for name, cam in zip(GOOD, ("02", "03")):
         png = kitti / f"velodyne_raw_image_{cam}.png"
         if png.exists():
-            depth = read_depth_png(png)[TOP:TOP + H, LEFT:LEFT + W]
+            depth = read_depth_png(png)
+            assert depth.shape == (H, W), depth.shape
         else:  # synthetic stand-in: ~4 % of pixels with depths 2..80 m, like the real input
             rng = np.random.default_rng(int(cam))
             depth = np.where(rng.random((H, W)) < 0.04, rng.uniform(2.0, 80.0, (H, W)), 0.0).astype(np.float32)
@@ -227,26 +229,21 @@ def test_ray_is_imported_only_when_the_ray_engine_runs():
 # ---------------------------------------------------------------- nuScenes dataroot (run_nuscenes_ray)
 
 
-def _nuscenes_two_cameras(tmp_path: pathlib.Path) -> pathlib.Path:
-    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py (quarter-size cameras and JPEGs), with two
-    of the sample's cameras to keep it fast: s1, s2 complete, s3's LiDAR file is missing."""
-    import json
+def _nuscenes_front(tmp_path: pathlib.Path) -> pathlib.Path:
+    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py with CAM_FRONT only (no JPEGs): s1, s2
+    complete, s3's LiDAR file is missing. The one-camera dataroot of test_extras_cli's nuScenes extras run:
+    the same compiled rig completion with validity."""
+    from scenes import nuscenes_front_dataroot
+    return nuscenes_front_dataroot(tmp_path / "dataroot", tmp_path)[0]
 
+
+def _nuscenes_six_cameras(tmp_path: pathlib.Path) -> pathlib.Path:
+    """The fake v1.0-mini dataroot of tests/test_nuscenes_job.py as it is (six quarter-size cameras and their
+    JPEGs): its guided run compiles the same guided rig completion as that module's."""
     from tests.conftest import require_shared
-    from tests.test_nuscenes_job import LIDAR_FILE, build_dataroot
-
-    sample_dir = require_shared("nuscenes", "sample")
-    calib = json.loads((sample_dir / "calibration.json").read_text())
-    calib["cameras"] = {ch: calib["cameras"][ch] for ch in ("CAM_FRONT", "CAM_BACK")}
-    two = tmp_path / "sample_two_cameras"
-    two.mkdir()
-    (two / "calibration.json").write_text(json.dumps(calib))
-    os.symlink(sample_dir / LIDAR_FILE, two / LIDAR_FILE)
-    for jpeg in sample_dir.glob("*.jpg"):
-        if any(f"__{ch}__" in jpeg.name for ch in calib["cameras"]):
-            os.symlink(jpeg, two / jpeg.name)
+    from tests.test_nuscenes_job import build_dataroot
     root = tmp_path / "dataroot"
-    build_dataroot(root, two)
+    build_dataroot(root, require_shared("nuscenes", "sample"))
     return root
 
 
@@ -261,11 +258,11 @@ def test_nuscenes_dataroot_matches_the_local_engine_reports_the_bad_sample_and_r
     from jaxdepth.batch import extras, nuscenes_job
     from tests.test_nuscenes_job import VERSION
 
-    root = _nuscenes_two_cameras(tmp_path)
+    root = _nuscenes_front(tmp_path)
     wanted = extras.ExtraOutputs(validity=True)
     local = nuscenes_job.run_nuscenes(root, tmp_path / "local", version=VERSION, extras=wanted)
     reference = _tree(tmp_path / "local")
-    assert sorted(reference) == sorted(f"{VERSION}/{ch}/{ch}_{s}{kind}.png" for ch in ("CAM_FRONT", "CAM_BACK")
+    assert sorted(reference) == sorted(f"{VERSION}/CAM_FRONT/CAM_FRONT_{s}{kind}.png"
                                        for s in ("s1", "s2") for kind in ("", "_validity"))
     dense = read_depth_png(tmp_path / "local" / VERSION / "CAM_FRONT" / "CAM_FRONT_s1.png")
     assert np.count_nonzero(dense) > 0.5 * dense.size  # a completion, not an empty image
@@ -298,7 +295,7 @@ def test_nuscenes_guided_matches_the_local_engine_and_reports_the_bad_image(loca
     from jaxdepth.batch import nuscenes_job
     from tests.test_nuscenes_job import VERSION
 
-    root = _nuscenes_two_cameras(tmp_path)
+    root = _nuscenes_six_cameras(tmp_path)
     bad = root / "samples" / "CAM_BACK" / "s2.jpg"
     bad.write_bytes(bad.read_bytes()[:200])  # truncated: OpenCV cannot decode it
     config = SGMConfig(guidance_weight=2.0)
@@ -308,6 +305,8 @@ def test_nuscenes_guided_matches_the_local_engine_and_reports_the_bad_image(loca
     summary = scale.run_nuscenes_ray(root, tmp_path / "ray", version=VERSION, config=config)
     assert summary.done == ["s1"] and sorted(summary.failed) == sorted(local.failed)
     reference, got = _tree(tmp_path / "local"), _tree(tmp_path / "ray")
-    assert sorted(reference) == sorted(got) == [f"{VERSION}/{ch}/{ch}_s1.png" for ch in ("CAM_BACK", "CAM_FRONT")]
+    channels = sorted(p.name for p in (root / "samples").iterdir() if p.name.startswith("CAM_"))
+    assert len(channels) == 6
+    assert sorted(reference) == sorted(got) == [f"{VERSION}/{ch}/{ch}_s1.png" for ch in channels]
     for path, data in reference.items():
         assert got[path] == data, f"{path}: Ray output differs from run_nuscenes"

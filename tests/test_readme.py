@@ -95,14 +95,17 @@ def _python_api_block() -> str:
     return re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
 
 
-@pytest.mark.slow  # the README block's own whole-pipeline programs (single, vmap, rig)
+@pytest.mark.slow  # the README block's own programs (single and vmap of complete with its defaults)
 def test_readme_python_api_block_runs(tmp_path, monkeypatch):
-    """Runs the README's API block on a small synthetic frame, files laid out as the block names them."""
+    """Runs the README's API block on a small synthetic frame, files laid out as the block names them:
+    the street of scenes.stereo_street (its first camera's sparse image; the rig JSON its two cameras and
+    SMALL_LIDAR, so the rig completion is test_rig's program)."""
     import jaxdepth
     from jaxdepth.io import write_depth_png
+    from scenes import SMALL_LIDAR, stereo_street
 
-    scene = jaxdepth.make_street_scene(0, image_scale=0.25)
-    cam = scene.cameras[0]
+    scene, cams = stereo_street()
+    cam = cams[0]
     h, w = int(cam.height), int(cam.width)
     K = np.asarray(cam.K, np.float64)
     T = np.asarray(cam.T_cam_lidar, np.float64)
@@ -113,14 +116,18 @@ def test_readme_python_api_block_runs(tmp_path, monkeypatch):
     (tmp_path / "intrinsics" / "0000000005.txt").write_text(" ".join(f"{v:.6f}" for v in K.ravel()) + "\n")
     points = np.asarray(scene.points)[np.asarray(scene.valid)]
     np.concatenate([points, np.zeros((len(points), 1))], axis=1).astype(np.float32).tofile(tmp_path / "sweep.bin")
-    rig = {"lidar": {"beams": 64}, "cameras": [{"name": "front", "width": w, "height": h,
-                                                "K": K.tolist(), "T_cam_lidar": T.tolist()}]}
+    lidar = {k: getattr(SMALL_LIDAR, k) for k in ("beams", "fov_up_deg", "fov_down_deg", "columns")}
+    rig = {"lidar": lidar, "cameras": [{"name": f"cam{i}", "width": int(c.width), "height": int(c.height),
+                                        "K": np.asarray(c.K, np.float64).tolist(),
+                                        "T_cam_lidar": np.asarray(c.T_cam_lidar, np.float64).tolist()}
+                                       for i, c in enumerate(cams)]}
     (tmp_path / "rig.json").write_text(json.dumps(rig))
     monkeypatch.chdir(tmp_path)
     scope: dict = {}
     exec(compile(_python_api_block(), "README.md (Python API)", "exec"), scope)  # noqa: S102
+    assert scope["rig"].lidar == SMALL_LIDAR
     dense, batch, depths = (np.asarray(scope[k]) for k in ("dense", "batch", "depths"))
-    assert dense.shape == (h, w) and batch.shape == (2, h, w) and depths.shape == (1, h, w)
+    assert dense.shape == (h, w) and batch.shape == (2, h, w) and depths.shape == (2, h, w)
     np.testing.assert_allclose(batch[1], dense, atol=1e-4)  # vmap equals the loop to float32 rounding
-    assert (dense > 0).mean() > 0.5 and (depths[0] > 0).mean() > 0.5
+    assert (dense > 0).mean() > 0.5 and (depths > 0).mean(axis=(1, 2)).min() > 0.5
     assert os.listdir(tmp_path)  # the block read its inputs from the working directory

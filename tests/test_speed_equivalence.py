@@ -18,6 +18,8 @@ residual and depths inherit that through ``z' du / fu / denominator``
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import jax
 import jax.numpy as jnp
@@ -25,9 +27,9 @@ import numpy as np
 import pytest
 
 from jaxdepth import SGMConfig
-from jaxdepth._src import presets, synthetic
+from jaxdepth._src import presets
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geometry import invert_rigid, project_to_image, transform_points, unproject_depth
+from jaxdepth._src.geometry import invert_rigid, transform_points, unproject_depth
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.pipeline import complete, complete_stages
@@ -35,7 +37,7 @@ from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.types import LidarSpec
 
 from helpers import numpy_column_hypotheses
-from scenes import SMALL_LIDAR, small_camera, thinned_for_listed_normals
+from scenes import NON_DEFAULT, SMALL_LIDAR, thinned_for_listed_normals, tiny_frame
 
 
 
@@ -91,53 +93,51 @@ def check_equal(got, want):
                                    err_msg=name)
 
 
-def small_frame(seed, f=120.0, h=96, w=160):
-    camera = small_camera(f=f, h=h, w=w)
-    K, T = np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
-    frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
-    depth, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
-    return np.asarray(depth), K, T.astype(np.float32)
-
-
-@pytest.mark.parametrize("config", [SGMConfig(), SGMConfig(outlier_removal=False, distance_metric="l2",
-                                                           blend_hypotheses=True),
-                                    SGMConfig(smoothing_sigma_px=0.0, keep_measured_depth=False)])
+# 32 x 48 frames of SMALL_LIDAR, T passed: the programs of the stage table's pipeline rows (default
+# configuration); NON_DEFAULT (scenes.py: every non-default code path) is test_pipeline's scaling program.
+@pytest.mark.parametrize("config", [SGMConfig(), NON_DEFAULT], ids=["default", "non_default"])
 def test_synthetic_frame_equals_reference(config):
-    sparse, K, T = small_frame(0)
+    sparse, K, T = tiny_frame(0)
     assert (sparse > 0).sum() > 500
     got = complete_stages(sparse, K, T, config=config, lidar=SMALL_LIDAR)
     check_equal(got, reference_stages(sparse, K, T, config=config, lidar=SMALL_LIDAR))
 
 
 def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
-    """A camera wider than the normals' column window (exact fallback), alone and in a batch."""
-    frames = [small_frame(1), small_frame(2, f=40.0)]
-    for sparse, K, T in frames:
+    """Cameras wider than the normals' 100-degree column window (f = 18 and 16 px on 48 columns: 106 and 113 degrees;
+    exact fallback to the whole range image), as projected and thinned to the listed branch, alone and
+    in a batch of three (the stage table's vmap of complete: same program)."""
+    wide = [tiny_frame(1, f=18.0), tiny_frame(2, f=16.0)]
+    sparse, K, T = wide[0]
+    wide.append((thinned_for_listed_normals(sparse, keep=1 / 8, min_points=20), K, T))
+    want = []
+    for sparse, K, T in wide:
         got = complete_stages(sparse, K, T, lidar=SMALL_LIDAR)
-        check_equal(got, reference_stages(sparse, K, T, config=SGMConfig(), lidar=SMALL_LIDAR))
-    depths = np.stack([f[0] for f in frames])
-    Ks = np.stack([f[1] for f in frames])
-    batched = np.asarray(jax.vmap(lambda d, k: complete(d, k, frames[0][2], lidar=SMALL_LIDAR))(depths, Ks))
-    for i, (sparse, K, T) in enumerate(frames):
-        want = reference_stages(sparse, K, T, config=SGMConfig(), lidar=SMALL_LIDAR)["depth"]
-        np.testing.assert_allclose(batched[i], want, rtol=1e-3, atol=2e-3)
+        want.append(reference_stages(sparse, K, T, config=SGMConfig(), lidar=SMALL_LIDAR))
+        check_equal(got, want[-1])
+    depths = np.stack([f[0] for f in wide])
+    Ks = np.stack([f[1] for f in wide])
+    batched = np.asarray(jax.vmap(functools.partial(complete, config=SGMConfig(), lidar=SMALL_LIDAR),
+                                  in_axes=(0, 0, None))(depths, Ks, T))
+    for i in range(len(wide)):
+        np.testing.assert_allclose(batched[i], want[i]["depth"], rtol=1e-3, atol=2e-3)
 
 
 def test_thinned_frame_takes_the_listed_normals_and_equals_reference():
-    """1 point in 8 of the 96 x 160 frame: fewer points than the image-plane normals' n_pix / 16
+    """About 1 point in 16 of the 32 x 48 frame: fewer points than the image-plane normals' n_pix / 16
     slots, so they take the listed branch (compacted pixels on a window of range-image columns) that
     KITTI frames take, where the full frame takes the dense one. Same shape: same programs."""
-    sparse, K, T = small_frame(0)
-    thin = thinned_for_listed_normals(sparse)
+    sparse, K, T = tiny_frame(0)
+    thin = thinned_for_listed_normals(sparse, keep=1 / 16, min_points=20)
     got = complete_stages(thin, K, T, lidar=SMALL_LIDAR)
     check_equal(got, reference_stages(thin, K, T, config=SGMConfig(), lidar=SMALL_LIDAR))
 
 
-# KITTI size: the real density and window; slow (two KITTI-size programs and their references).
+# KITTI size: the real density and window; slow. The default configuration: the program of
+# test_pipeline's and test_xla_tuning's KITTI runs (l2 and the other non-default paths: NON_DEFAULT above).
 @pytest.mark.slow
-@pytest.mark.parametrize("metric", ["l1", "l2"])
-def test_kitti_frame_equals_reference(kitti, metric):
+def test_kitti_frame_equals_reference(kitti):
     sparse, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
-    config = SGMConfig(distance_metric=metric)
+    config = SGMConfig()
     got = complete_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64)
     check_equal(got, reference_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64))

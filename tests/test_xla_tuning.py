@@ -21,13 +21,11 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src import xla_tuning
-from jaxdepth._src import synthetic
+from jaxdepth._src import synthetic, xla_tuning
 from jaxdepth._src.config import SGMConfig
-from jaxdepth._src.geometry import project_to_image
 
-from conftest import require_shared
-from scenes import SMALL_LIDAR, small_camera, stereo_street, thinned_for_listed_normals
+from scenes import (GUIDED, POINTS_CONFIG, SMALL_LIDAR, small_camera, stereo_street, thinned_for_listed_normals,
+                    tiny_frame)
 
 
 def _both(run):
@@ -98,52 +96,45 @@ def test_helpers_reduce_to_the_plain_computation():
             assert (int(first), int(stop)) == (2, 5)
 
 
-@pytest.mark.parametrize("config, rig", [(SGMConfig(), False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
+@pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
                          ids=["default-points", "l2_blend-rig"])
 def test_complete_points_and_rig_agree_on_the_synthetic_scene(config, rig):
-    """complete_points (range image, point normals) with the default options, and complete_rig (the
-    points pipeline under vmap over cameras: batched stage tokens, shared loop bounds, the widest
-    outlier window) with the l2 seeds and blended hypotheses, on the small stereo street."""
-    frame, cams = stereo_street()
+    """complete_points (range image, point normals) with the default options (POINTS_CONFIG: the output
+    clip at 60 m) on the street through the 96 x 160 camera (tuned: test_pipeline's planar program),
+    and complete_rig (the points pipeline under vmap over cameras: batched stage tokens, shared loop
+    bounds, the widest outlier window) with the l2 seeds and blended hypotheses, on the small stereo
+    street."""
     if rig:
+        frame, cams = stereo_street()
         run = lambda: jaxdepth.complete_rig_stages(frame.points, frame.valid, jaxdepth.stack_cameras(cams),
                                                    config=config, lidar=SMALL_LIDAR)
     else:
-        run = lambda: jaxdepth.complete_points_stages(frame.points, frame.valid, cams[0], config=config,
+        frame = synthetic.make_street_scene(1, lidar=SMALL_LIDAR, cameras=[small_camera()])
+        run = lambda: jaxdepth.complete_points_stages(frame.points, frame.valid, frame.cameras[0], config=config,
                                                       lidar=SMALL_LIDAR)
     _assert_same(*_both(run))
 
 
-def _small_image_frames():
-    """(sparse, K, T, image): the 96 x 160 street frame of test_speed_equivalence (same programs), once
-    as projected (5k points, more than the image-plane normals' n_pix / 16 point slots: the dense
-    branch) and once thinned to 1 point in 8 (their listed branch, the one a KITTI frame takes:
-    compacted pixels on a window of range-image columns); the image is the camera's rendering."""
-    camera = small_camera()
-    frame = synthetic.make_street_scene(0, lidar=SMALL_LIDAR, cameras=[camera], images=True)
-    K, T = np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
-    sparse = np.asarray(project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar,
-                                         height=camera.height, width=camera.width)[0])
-    return sparse, thinned_for_listed_normals(sparse), K, T, np.asarray(frame.images[0])
-
-
 def test_complete_agrees_on_small_frames_both_normal_branches_and_guided():
     """complete (image-plane normals from a sparse depth image), unguided on both branches of the
-    image-plane normals, and image-guided (geodesic seeds: near ties may flip, as on KITTI)."""
-    sparse, thin, K, T, image = _small_image_frames()
+    image-plane normals, and image-guided (geodesic seeds: near ties may flip, as on KITTI). The
+    32 x 48 street frame of the stage table (tuned: its programs) as projected (more points than the
+    image-plane normals' n_pix / 16 slots: the dense branch) and thinned to about 1 point in 16 (their
+    listed branch, the one a KITTI frame takes: compacted pixels on a window of range-image columns);
+    guided with test_geodesic's configuration and the camera's uint8 rendering (its program)."""
+    sparse, K, T, image = tiny_frame(0, images=True)
+    thin = thinned_for_listed_normals(sparse, keep=1 / 16, min_points=20)
     for depth in (sparse, thin):
         _assert_same(*_both(lambda: jaxdepth.complete_stages(depth, K, T, lidar=SMALL_LIDAR)))
     _assert_same_but_near_ties(*_both(lambda: jaxdepth.complete_stages(
-        thin, K, T, image=image, config=SGMConfig(guidance_weight=50.0), lidar=SMALL_LIDAR)), share=5e-3)
+        thin, K, T, image=image, config=GUIDED, lidar=SMALL_LIDAR)), share=5e-3)
 
 
 @pytest.mark.slow
 @pytest.mark.shared_data
-def test_complete_agrees_on_the_kitti_frame():
+def test_complete_agrees_on_the_kitti_frame(kitti):
     """The one KITTI-size run: a real frame's density, window and outlier candidate counts (many
-    chunks of the exact test, wide outlier windows)."""
-    from jaxdepth.io import read_depth_png, read_kitti_raw_calib
-    frame = require_shared("kitti", "drive_0001_frame05")
-    sparse = read_depth_png(frame / "velodyne_raw_image_02.png")
-    calib = read_kitti_raw_calib(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt")["cameras"][2]
-    _assert_same(*_both(lambda: jaxdepth.complete_stages(sparse, calib["K"], calib["T_cam_lidar"])))
+    chunks of the exact test, wide outlier windows). The benchmark crop (the tuned program is
+    test_pipeline's and test_speed_equivalence's)."""
+    sparse, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
+    _assert_same(*_both(lambda: jaxdepth.complete_stages(sparse, K, T)))
