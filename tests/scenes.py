@@ -128,3 +128,11 @@ def tiny_frame(seed: int, *, f: float = 40.0, h: int = 32, w: int = 48, images: 
     sparse, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
     out = (np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar))
     return out + (np.asarray(frame.images[0]),) if images else out
+
+
+# ---------------------------------------------------------------- sweeps group (rigs, sources, jobs)
+
+def stereo_cameras():
+    """The two 1/4-scale stereo cameras of :func:`stereo_street` alone (no street ray-cast): with any
+    :data:`SMALL_LIDAR` sweep of 32 x 1024 points, ``complete_rig`` runs tests/test_rig.py's program."""
+    return synthetic.rig_cameras("stereo", image_scale=0.25)

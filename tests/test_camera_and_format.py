@@ -105,15 +105,22 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
 
 
 def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
-    """The two-camera rig of the wall sweep (``tests/helpers.py``, as in test_extras_cli: the same
-    compiled completion) with CAM_B turned to look backwards (along the LiDAR's -x): it sees none of
-    the wall's points, is warned about and written all zero; CAM_A is not."""
-    from helpers import wall_sweep, write_wall_rig
+    """The stereo rig of the shared small street (``scenes.stereo_street``: the same compiled completion as
+    tests/test_rig.py) with CAM_B turned to look straight up, above the LiDAR's field of view (+2 degrees):
+    it sees none of the sweep's points, is warned about and written all zero; CAM_A is not."""
+    from scenes import SMALL_LIDAR, stereo_street
+    frame, cams = stereo_street()
+    points = np.asarray(frame.points)[np.asarray(frame.valid)]
     sweep = tmp_path / "sweep.npy"
-    wall_sweep(sweep)
+    np.save(sweep, np.c_[points, np.zeros(len(points))].astype(np.float32))
+    up = [[0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]   # camera z = LiDAR +z, at the LiDAR
     rig = tmp_path / "rig.json"
-    backwards = [[0, 1, 0, 0], [0, 0, -1, 0], [-1, 0, 0, 0], [0, 0, 0, 1]]
-    write_wall_rig(rig, T_cam_lidar={"CAM_B": backwards})
+    rig.write_text(json.dumps({
+        "lidar": {"beams": SMALL_LIDAR.beams, "fov_up_deg": SMALL_LIDAR.fov_up_deg,
+                  "fov_down_deg": SMALL_LIDAR.fov_down_deg, "columns": SMALL_LIDAR.columns, "origin_m": [0, 0, 0]},
+        "cameras": [{"name": name, "width": cam.width, "height": cam.height, "K": np.asarray(cam.K, float).tolist(),
+                     "T_cam_lidar": T} for name, cam, T in
+                    (("CAM_A", cams[0], np.asarray(cams[0].T_cam_lidar, float).tolist()), ("CAM_B", cams[1], up))]}))
     code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
     err = capsys.readouterr().err
     assert code == 0 and "CAM_B: no LiDAR point projects into this camera" in err and "CAM_A: no LiDAR" not in err

@@ -38,7 +38,9 @@ def drive(tmp_path_factory):
     T_velo_imu = np.eye(4)
     T_velo_imu[:3, 3] = (-0.81, 0.32, -0.80)
     scene = _scene(np.random.default_rng(3))
-    path = [(1.0 * k, 0.0, 0.0, 0.0) for k in range(4)]
+    # two sweeps: with one neighbour on each side every frame holds two sources (one compiled completion for
+    # every test below; a middle frame's three sources would be a second KITTI-size program)
+    path = [(1.0 * k, 0.0, 0.0, 0.0) for k in range(2)]
     drive = _write_drive(root, path, T_velo_imu, scene)
     for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
         shutil.copyfile(calib / name, drive.parent / name)
@@ -58,12 +60,21 @@ def _wall_depth(cam_K, T_cam_lidar, T_velo_imu, height, width, frame: int) -> np
     return np.where(ok, z, 0.0)
 
 
+@pytest.fixture(scope="module")
+def api_run(drive, tmp_path_factory):
+    """(scan, summary, output root) of the job's one API run over the drive (camera 2, one earlier sweep):
+    the run the tests below check, and the bytes the command line must write."""
+    drive, _ = drive
+    out = tmp_path_factory.mktemp("kitti_sweeps_api") / "out"
+    scan = kitti_datasets.kitti_raw_jobs(drive, out, camera=2)
+    return scan, kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1), out
+
+
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
-def test_sweeps_job_completes_the_wall_and_resumes(drive, tmp_path):
+def test_sweeps_job_completes_the_wall_and_resumes(drive, api_run):
     drive, T_velo_imu = drive
-    scan = kitti_datasets.kitti_raw_jobs(drive, tmp_path / "out", camera=2)
-    summary = kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
-    assert not summary.failed and len(summary.done) == 4
+    scan, summary, _ = api_run
+    assert not summary.failed and len(summary.done) == 2
     job = next(j for j in scan.jobs if j.sparse_path.stem == "0000000001")
     depth = read_depth_png(job.out_path)
     assert depth.shape == tuple(job.image_size)
@@ -74,21 +85,25 @@ def test_sweeps_job_completes_the_wall_and_resumes(drive, tmp_path):
     assert np.median(err) < 0.05 and np.mean(err < 0.3) > 0.95
     # resume: nothing left to do
     again = kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
-    assert len(again.skipped) == 4 and not again.done and not again.failed
+    assert len(again.skipped) == 2 and not again.done and not again.failed
 
 
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
 def test_missing_oxts_fails_only_its_sweeps(drive, tmp_path):
+    """A third sweep without its OXTS packet: it fails, and so does sweep 1 (its neighbour); sweep 0, whose
+    only neighbour is sweep 1, completes (two sources: the program of the tests above)."""
     drive, _ = drive
     copy = tmp_path / drive.parent.name / drive.name
     shutil.copytree(drive.parent, tmp_path / drive.parent.name)
-    (copy / "oxts" / "data" / "0000000003.txt").unlink()
+    shutil.copyfile(copy / "velodyne_points" / "data" / "0000000001.bin",
+                    copy / "velodyne_points" / "data" / "0000000002.bin")
+    assert not (copy / "oxts" / "data" / "0000000002.txt").exists()
     scan = kitti_datasets.kitti_raw_jobs(copy, tmp_path / "out", camera=2)
     summary = kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
     failed = sorted(name for name, _ in summary.failed)
-    assert failed == [f"{drive.name}/0000000002", f"{drive.name}/0000000003"]
-    assert all("0000000003.txt: OXTS packet not found" in m for _, m in summary.failed)
-    assert sorted(summary.done) == [f"{drive.name}/0000000000", f"{drive.name}/0000000001"]
+    assert failed == [f"{drive.name}/0000000001", f"{drive.name}/0000000002"]
+    assert all("0000000002.txt: OXTS packet not found" in m for _, m in summary.failed)
+    assert sorted(summary.done) == [f"{drive.name}/0000000000"]
     with pytest.raises(ValueError, match="sweeps"):
         kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=0)
 
@@ -105,18 +120,16 @@ def test_analytic_wall_depth_helper_is_consistent():
 
 
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size (API and CLI)
-def test_command_line_sweeps(drive, tmp_path, capsys):
+def test_command_line_sweeps(drive, api_run, tmp_path, capsys):
     """``jaxdepth complete DRIVE DST --sweeps 1`` runs this job (same bytes as the API); --sweeps on a folder
     that is no KITTI raw drive is a data error; --sweeps 0 is the single-sweep path."""
     from jaxdepth import cli
     drive, _ = drive
-    api = tmp_path / "api"
-    scan = kitti_datasets.kitti_raw_jobs(drive, api, camera=2)
-    kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
+    _, _, api = api_run  # the API's run of test_sweeps_job_completes_the_wall_and_resumes
     dst = tmp_path / "cli"
     assert cli.main(["complete", str(drive), str(dst), "--sweeps", "1", "--camera", "2", "-q"]) == 0
     outs = sorted(p.relative_to(dst) for p in dst.rglob("*.png"))
-    assert len(outs) == 4
+    assert len(outs) == 2
     assert all((dst / p).read_bytes() == (api / p).read_bytes() for p in outs)
     assert cli.main(["complete", str(drive), str(tmp_path / "x"), "--sweeps", "1", "--guidance-weight", "2", "-q"]) == 2
     assert cli.main(["complete", str(drive), str(tmp_path / "x"), "--cameras", "image_02", "-q"]) == 2

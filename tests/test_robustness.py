@@ -12,7 +12,7 @@ import pytest
 from jaxdepth import cli, complete_points, stack_cameras, complete_rig
 
 from helpers import small_frames, write_kitti_folder
-from scenes import SMALL_LIDAR, tiny_street_frames
+from scenes import SMALL_LIDAR, stereo_cameras, tiny_street_frames
 
 LIDAR = SMALL_LIDAR
 
@@ -25,7 +25,7 @@ class _Frame:
 @pytest.fixture(scope="module")
 def scene():
     """(frame, camera): the shared tiny street frame (32 x 48 camera): the stage table's complete_points
-    program, and test_sources' two-camera complete_rig program."""
+    program; with the stereo cameras (scenes.stereo_cameras) its sweep runs test_rig's complete_rig program."""
     points, valid, camera = tiny_street_frames((0,))[0]
     return _Frame(points, valid), camera
 
@@ -57,7 +57,7 @@ def test_no_point_in_the_image_gives_an_empty_depth(scene, case):
         points = np.stack([np.full(len(points), 0.5), np.full(len(points), 40.0), points[:, 2]], axis=1)
     out = np.asarray(complete_points(points.astype(np.float32), valid, camera, lidar=LIDAR))
     assert np.all(out == 0)
-    rig = np.asarray(complete_rig(points.astype(np.float32), valid, stack_cameras([camera, camera]), lidar=LIDAR))
+    rig = np.asarray(complete_rig(points.astype(np.float32), valid, stack_cameras(stereo_cameras()), lidar=LIDAR))
     assert np.all(rig == 0)
 
 

@@ -19,7 +19,7 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
-from scenes import SMALL_LIDAR, tiny_street_frames
+from scenes import SMALL_LIDAR, stereo_cameras, stereo_street, tiny_street_frames
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
 WALL_X = 20.0
@@ -74,8 +74,12 @@ def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
     pts = _sweep(scene, T)
     src = _sources([(pts, T)], (0,))
     got = np.asarray(source_normals(src))[0, :len(pts)]
-    local = (pts - T[:3, 3]) @ T[:3, :3]                       # inv(T) applied
-    want = np.asarray(point_normals(local, np.ones(len(pts), bool), lidar=SPEC)) @ T[:3, :3].T
+    local = np.zeros(src.points.shape, np.float32)              # inv(T) applied, padded as the source
+    local[0, :len(pts)] = (pts - T[:3, 3]) @ T[:3, :3]
+    # point_normals in the source's own frame, over a batch of one (the program source_normals runs;
+    # the stage table checks point_normals' vmap against its per-input calls)
+    want = np.asarray(jax.vmap(functools.partial(point_normals, lidar=SPEC))(local, src.valid))[0, :len(pts)] \
+        @ T[:3, :3].T
     np.testing.assert_allclose(got, want, atol=2e-5)
     # analytic: ground points' normals are +z, wall points' -x (facing the LiDAR)
     ground = np.abs(pts[:, 2] + 1.7) < 1e-3
@@ -160,10 +164,10 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
 
 @pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
 def test_one_source_at_the_origin_equals_complete_rig():
-    # the shared tiny street frame (32 x 48 cameras of two focal lengths): the whole pipeline, small
-    # images (test_robustness compiles the same complete_rig)
-    (points, valid, camera), (_, _, other) = tiny_street_frames((0, 1))
-    cams = jaxdepth.stack_cameras([camera, other])
+    # the shared small stereo street: complete_rig is tests/test_rig.py's program
+    frame, cameras = stereo_street()
+    points, valid = np.asarray(frame.points), np.asarray(frame.valid)
+    cams = jaxdepth.stack_cameras(cameras)
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
     src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
@@ -327,7 +331,7 @@ def test_a_post_hides_wall_points_an_origin_5_m_behind_saw():
     T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
     old = _sweep(scene, T_old)
     src = _sources([(_sweep(scene, T_ref), T_ref), (old, T_old)], (0, 1))
-    hidden = np.asarray(reference_view(src)[2])
+    hidden = np.asarray(_view(src)[2])
     assert hidden.shape == (1, 2, src.points.shape[1])
     assert not hidden[0, 0].any(), "points of the reference sweep are never judged"
     h = hidden[0, 1, :len(old)]
@@ -366,17 +370,18 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
 
 
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical). Two sweeps: every point removed by the
-    # occlusion rule is an earlier sweep's.
-    frame = make_street_scene(0, lidar=SPEC, cameras="kitti", image_scale=0.25)
-    cams = jaxdepth.stack_cameras(frame.cameras)
-    one = make_sources(frame.points[None], frame.valid[None], np.eye(4)[None], lidars=(SPEC,))
+    # One sweep: the option changes nothing (bit-identical; a SMALL_LIDAR sweep and the stereo cameras, the
+    # program of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by
+    # the occlusion rule is an earlier sweep's.
+    (points, valid, _), = tiny_street_frames((0,))
+    cams = jaxdepth.stack_cameras(stereo_cameras())
+    one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
     np.testing.assert_array_equal(np.asarray(complete_sources(one, cams, occlusion=True)),
                                   np.asarray(complete_sources(one, cams, occlusion=False)))
     scene = _street(cylinders=[[4.0, 0.0, 0.5, -1.7, 3.0]])
     T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
     src = _sources([(_sweep(scene, T_ref), T_ref), (_sweep(scene, T_old), T_old)], (0, 1))
-    hidden = np.asarray(reference_view(src)[2])
+    hidden = np.asarray(_view(src)[2])
     assert hidden[:, 1].any() and not hidden[:, 0].any()
 
 

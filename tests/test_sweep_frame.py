@@ -14,6 +14,8 @@ from jaxdepth._src.geometry import project_to_image
 from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth.io import InputError, Rig, RigCamera, prepare_sweep, read_rig_json, shift_rig, write_rig_json
 
+from scenes import stereo_street
+
 
 def _rig_from_frame(frame, *, origin=None, T_extra=None):
     cams = []
@@ -27,7 +29,9 @@ def _rig_from_frame(frame, *, origin=None, T_extra=None):
 
 @pytest.fixture(scope="module")
 def street():
-    return make_street_scene(0, cameras="stereo", image_scale=0.25)
+    """The shared small stereo street (``scenes.stereo_street``: SMALL_LIDAR, two 1/4-scale cameras), whose
+    two-camera ``complete_rig`` program tests/test_rig.py compiles."""
+    return stereo_street()[0]
 
 
 def test_origin_round_trips_through_json(tmp_path, street):
