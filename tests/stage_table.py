@@ -358,12 +358,9 @@ PIPELINE_ULPS = 4 / SGMConfig().min_abs_denom
 
 @functools.lru_cache(maxsize=None)
 def _tiny_sparse(seeds):
-    from scenes import tiny_street_frames
-    out = []
-    for points, valid, camera in tiny_street_frames(seeds):
-        sparse, _ = geometry.project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=32, width=48)
-        out.append((np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)))
-    return out
+    """(sparse, K, T) per seed: the 32 x 48 frames of ``scenes.tiny_street_frames`` (focal length 40 + 4 i)."""
+    from scenes import tiny_frame
+    return [tiny_frame(seed, f=40.0 + 4 * i) for i, seed in enumerate(seeds)]
 
 
 def _mostly_filled(outs, inputs):

@@ -9,9 +9,8 @@ import pytest
 from jaxdepth import SGMConfig, complete, complete_points_stages, complete_stages, depth_metrics
 from jaxdepth._src import synthetic
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
-from jaxdepth._src.geometry import project_to_image
 
-from scenes import NON_DEFAULT, POINTS_CONFIG, SMALL_LIDAR, lidar_to_camera, small_camera, tiny_street_frames
+from scenes import NON_DEFAULT, POINTS_CONFIG, SMALL_LIDAR, lidar_to_camera, small_camera, tiny_frame
 
 
 def plane_frame(camera, planes):
@@ -85,17 +84,11 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(pipeline, "pixel_normals", counted)
-    (d0, K0, T), (d1, K1, _) = [_tiny_sparse(s, h=32, w=48) for s in (6, 7)]
+    (d0, K0, T), (d1, K1, _) = [tiny_frame(s) for s in (6, 7)]
     pipeline._complete_stages.clear_cache()
     complete_stages(d0, K0, T, lidar=SMALL_LIDAR).depth.block_until_ready()
     complete_stages(d1, K1, T, config=SGMConfig(), lidar=SMALL_LIDAR).depth.block_until_ready()
     assert len(traces) == 1
-
-
-def _tiny_sparse(seed, *, h, w):
-    (points, valid, camera), = tiny_street_frames((seed,), h=h, w=w)
-    sparse, _ = project_to_image(points, valid, camera.K, camera.T_cam_lidar, height=h, width=w)
-    return np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
 
 
 def test_scaling_the_scene_scales_the_depth():
@@ -103,7 +96,7 @@ def test_scaling_the_scene_scales_the_depth():
     outlier removal, whose epsilon scales with the scene too (test_outliers.test_scale_invariance): with
     scenes.NON_DEFAULT (no removal, l2 seeds, blended hypotheses, no smoothing), test_speed_equivalence's
     program; s = 1/2 keeps both runs inside the default clip range."""
-    depth, K, T = _tiny_sparse(5, h=32, w=48)
+    depth, K, T = tiny_frame(5)
     s = 0.5
     T2 = T.copy()
     T2[:3, 3] *= s
@@ -115,7 +108,7 @@ def test_scaling_the_scene_scales_the_depth():
 
 
 def test_empty_input_gives_empty_output():
-    _, K, T = _tiny_sparse(3, h=32, w=48)
+    _, K, T = tiny_frame(3)
     out = np.asarray(complete(np.zeros((32, 48), np.float32), K, T, lidar=SMALL_LIDAR))
     assert np.all(out == 0)
 
