@@ -32,6 +32,7 @@ def _sparse_depth(cloud, cam):
     return np.where(np.isfinite(sparse), sparse, 0.0)
 
 
+@pytest.mark.xdist_group("jobs_av2")  # one worker compiles the Argoverse 2 sources program once
 @pytest.mark.slow  # real Argoverse 2 sweeps completed at 1550 x 2048
 def test_job_writes_resumes_and_reports_a_bad_sweep(tmp_path):
     src = tmp_path / "val"
@@ -81,6 +82,7 @@ def test_layout_detection_and_errors(tmp_path):
     assert summary.failed and "sensor_name" in summary.failed[0][1] and not summary.done
 
 
+@pytest.mark.xdist_group("jobs_av2")  # one worker compiles the Argoverse 2 sources program once
 @pytest.mark.slow  # real Argoverse 2 sweeps completed at 1550 x 2048
 def test_command_line_detects_the_log(tmp_path, capsys):
     """``jaxdepth complete LOG DST`` finds the Argoverse 2 layout; options that do not apply are usage errors."""

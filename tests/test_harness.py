@@ -65,3 +65,14 @@ def test_check_stage_catches_jit_differing_from_eager_and_a_wrong_oracle():
     with pytest.raises(AssertionError, match="oracle"):
         check_stage(jnp.sin, inputs, oracle=lambda x: np.cos(x))
     check_stage(jnp.sin, inputs, oracle=lambda x: np.sin(x.astype(np.float64)), oracle_ulps=1)
+
+
+@pytest.mark.xdist_group("harness_group_check")
+def test_xdist_groups_are_honoured(request):
+    """Under ``--dist loadgroup`` pytest-xdist tags each grouped test's node id with its group and
+    schedules a group on one worker. When it cannot tag them (pytest 9.2 with pytest-xdist 3.8), the
+    groups are silently ignored: Ray clusters and module-scoped jobs then start on both workers, and
+    shared programs compile twice. pyproject.toml pins pytest below 9.2."""
+    if not getattr(request.config.option, "loadgroup", False):
+        pytest.skip("not run by a pytest-xdist worker with --dist loadgroup")
+    assert request.node.nodeid.endswith("@harness_group_check"), request.node.nodeid

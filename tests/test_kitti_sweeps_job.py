@@ -70,6 +70,7 @@ def api_run(drive, tmp_path_factory):
     return scan, kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1), out
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps_job")  # one worker builds the drive, runs api_run and compiles the sweep program once
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
 def test_sweeps_job_completes_the_wall_and_resumes(drive, api_run):
     drive, T_velo_imu = drive
@@ -88,6 +89,7 @@ def test_sweeps_job_completes_the_wall_and_resumes(drive, api_run):
     assert len(again.skipped) == 2 and not again.done and not again.failed
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps_job")  # one worker builds the drive, runs api_run and compiles the sweep program once
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size
 def test_missing_oxts_fails_only_its_sweeps(drive, tmp_path):
     """A third sweep without its OXTS packet: it fails, and so does sweep 1 (its neighbour); sweep 0, whose
@@ -119,6 +121,7 @@ def test_analytic_wall_depth_helper_is_consistent():
     assert math.isclose(z[0, 50], 0.0) or z[0, 50] > z[50, 50]
 
 
+@pytest.mark.xdist_group("jobs_kitti_sweeps_job")  # one worker builds the drive, runs api_run and compiles the sweep program once
 @pytest.mark.slow  # 120k-point sweeps completed at KITTI camera size (API and CLI)
 def test_command_line_sweeps(drive, api_run, tmp_path, capsys):
     """``jaxdepth complete DRIVE DST --sweeps 1`` runs this job (same bytes as the API); --sweeps on a folder

@@ -303,6 +303,7 @@ def test_polynomial_atan2_and_sin_cos():
 # ----------------------------------------------------------------------------- every point
 
 
+@pytest.mark.xdist_group("normals_small_cloud")  # shared point_normals / range_image_normals programs: one worker
 def test_every_valid_point_gets_a_unit_normal_random_cloud():
     rng = np.random.default_rng(2)
     pts, valid = random_cloud(rng, 1024)
@@ -314,6 +315,7 @@ def test_every_valid_point_gets_a_unit_normal_random_cloud():
     assert np.all(np.sum(n[good] * pts[good], 1) <= 1e-5)
 
 
+@pytest.mark.xdist_group("normals_small_cloud")  # shared point_normals / range_image_normals programs: one worker
 def test_sparse_isolated_points_face_the_sensor():
     """A point with no measured neighbour has r_theta = r_phi = 0: n = -p / |p|. (The 16 x 64 sensor,
     1024 points: the programs of the random clouds and of the stage table's rows.)"""
@@ -354,6 +356,7 @@ def test_losers_read_their_cell_normal():
     np.testing.assert_allclose(n[:k][hit], n[k:][hit], atol=1e-6)
 
 
+@pytest.mark.xdist_group("normals_small_cloud")  # shared point_normals / range_image_normals programs: one worker
 def test_range_image_normals_fill_every_cell():
     """Irregular beams on the 16 x 64 sensor (1024 points: the random clouds' programs): 9 beams over
     the ground rows (one row with two, one row without a beam between measured rows), azimuths off the

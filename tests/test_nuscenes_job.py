@@ -331,6 +331,7 @@ def calibration_path_frame(tables, sample_dir, tmp_path):
     return prepare_sweep(points, rig, ring=extra[:, -1])
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_path):
     """s1 (ego poses equal) completes exactly as the existing rig path does from a calibration JSON.
 
@@ -361,6 +362,7 @@ def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_pat
         np.testing.assert_array_equal(got, expected, err_msg=cam.name)
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     from jaxdepth.batch.nuscenes_job import run_nuscenes
     root, tables, _ = dataroot
@@ -387,6 +389,7 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 @pytest.mark.slow  # real nuScenes multi-sweep completion, six cameras
 def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     """sweeps=2: each sample's sweeps (s1: one, the scene's first; s2: two) go through complete_cloud as one
@@ -530,6 +533,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
 # ---------------------------------------------------------------- image-guided seeds
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 @pytest.mark.slow  # real nuScenes images, guided six-camera completion
 def test_guided_job_reads_the_jpegs_fails_a_bad_image_and_resumes(dataroot, first_run, tmp_path):
     """--guidance-weight: s1's PNGs equal the guided rig completion of the calibration rig path with the

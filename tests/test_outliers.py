@@ -299,6 +299,7 @@ def test_footprint_prefilter_edge_depths(seed, far, t_z):
         _assert_matches_footprint(got, *footprint_double_loop(depth, K, T, **kw))
 
 
+@pytest.mark.xdist_group("outliers_scene")  # shared keep-mask programs: one worker
 @pytest.mark.parametrize("r0, c0", [(110, 150), (100, 880)])
 def test_matches_footprint_double_loop_kitti_crop(kitti, r0, c0):
     """As the paper form's KITTI test: two 96 x 160 windows, the analytic scenes' program."""
@@ -315,6 +316,7 @@ def test_matches_footprint_double_loop_kitti_crop(kitti, r0, c0):
     assert points > 1000 and removed > 5
 
 
+@pytest.mark.xdist_group("outliers_scene")  # shared keep-mask programs: one worker
 @pytest.mark.parametrize("t_lidar", [(0.0, -0.3, -1.0), (0.2, -0.3, -0.5), (0.0, -0.3, 0.8)])
 def test_radial_offset_over_open_ground_removes_nothing(t_lidar):
     """A LiDAR behind (or ahead of) and above the camera over bare ground (as
@@ -451,6 +453,7 @@ def _camera_sees(p_cam, box):
     return ~((s_near <= s_far) & (s_near > 0) & (s_near < 0.99))
 
 
+@pytest.mark.xdist_group("outliers_scene")  # shared keep-mask programs: one worker
 @pytest.mark.parametrize("t_lidar", [(0.4, 0.0, 0.0), (-0.4, 0.0, 0.0), (0.0, -0.5, 0.0), (0.3, -0.3, -0.2)])
 @pytest.mark.parametrize("raw", [False, True])
 @pytest.mark.parametrize("test", ["footprint", "paper"])

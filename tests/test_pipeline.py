@@ -25,6 +25,7 @@ def plane_frame(camera, planes):
     [[0.05, 0.0, 1.0, -1.73]],  # ground pitched by ~3 degrees
     [[-np.cos(0.5), -np.sin(0.5), 0.0, -12.0]],  # a wall 12 m ahead, yawed by ~29 degrees
 ])
+@pytest.mark.xdist_group("pipeline_planar")  # both planes take one program: compiled once, on one worker
 def test_planar_scene_completes_nearly_exactly(planes):
     """On the 96 x 160 camera with POINTS_CONFIG (the program of the test below); scored on
     ``depth_raw``, before the smoothing."""
@@ -146,6 +147,7 @@ def kitti_sgm_metrics(kitti_frames):
             for cam, (sparse, gt, K, T) in kitti_frames.items()}
 
 
+@pytest.mark.xdist_group("pipeline_kitti")  # one worker runs the module's KITTI completion once
 def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     """Issue 3: SGM must clearly beat a nearest-neighbour fill on the real frame (both cameras)."""
     sgm, nearest = [], []
@@ -163,6 +165,7 @@ def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     assert mean(sgm, "rmse") < 975 and mean(sgm, "mae") < 255
 
 
+@pytest.mark.xdist_group("pipeline_kitti")  # one worker runs the module's KITTI completion once
 def test_kitti_sgm_beats_ip_basic(kitti_frames, kitti_sgm_metrics):
     from jaxdepth import complete_with
     sgm, ipb = [], []

@@ -35,6 +35,7 @@ def _images(cams, *, seed=0):
     return block_images([(cam.height, cam.width) for cam in cams], seed=seed, noise_dn=10)
 
 
+@pytest.mark.xdist_group("rig_images_guided")  # one worker compiles the guided rig program once
 def test_guided_rig_equals_loop_over_cameras(stereo):
     """(Grey images take the same path with one channel: tests/test_geodesic.py covers them.)"""
     frame, cams = stereo
@@ -69,6 +70,7 @@ def test_weight_zero_ignores_images_bit_for_bit(stereo):
                      images=stack_images(_images(cams), cameras).astype(np.uint16))
 
 
+@pytest.mark.xdist_group("rig_images_guided")  # one worker compiles the guided rig program once
 def test_smaller_camera_seeds_stay_in_its_window(stereo):
     """Camera 1 is 16 x 40 px smaller than the canvas. Its seeds equal geodesic_seed on its own window
     (cropped keep mask and image), whatever the padding holds: no path runs through the padding, and

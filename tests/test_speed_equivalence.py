@@ -95,6 +95,7 @@ def check_equal(got, want):
 
 # 32 x 48 frames of SMALL_LIDAR, T passed: the programs of the stage table's pipeline rows (default
 # configuration); NON_DEFAULT (scenes.py: every non-default code path) is test_pipeline's scaling program.
+@pytest.mark.xdist_group("speed_equivalence_synthetic")  # both configurations share the reference's stage programs: one worker
 @pytest.mark.parametrize("config", [SGMConfig(), NON_DEFAULT], ids=["default", "non_default"])
 def test_synthetic_frame_equals_reference(config):
     sparse, K, T = tiny_frame(0)
