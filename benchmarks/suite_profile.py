@@ -1,0 +1,186 @@
+"""Where the test suite's time goes: a pytest plugin that records JAX's compile work per test, and its summary.
+
+Record (from the repository root; one JSON line per test, one file per xdist worker)::
+
+    JAXDEPTH_SUITE_PROFILE=/tmp/profile python -m pytest -q -p benchmarks.suite_profile
+
+Summarise (prints the tables; ``--json`` writes them, default ``results/suite_profile.json``)::
+
+    python -m benchmarks.suite_profile /tmp/profile [--json [PATH]]
+
+Per test: wall seconds, and the seconds JAX reports through ``jax.monitoring`` in that test's
+process: XLA compiling (``backend_compile``), tracing, lowering to MLIR, reading the persistent
+compilation cache; and every single compile of at least 0.25 s with its function's name. Work in
+subprocesses (CLI runs, notebook kernels, Ray workers) shows as wall time only. The summary gives
+the totals, each worker's span, the modules and tests that take longest, and the functions whose
+compiles cost most. The plugin does nothing unless ``JAXDEPTH_SUITE_PROFILE`` names a folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import json
+import os
+import pathlib
+import sys
+import time
+
+import pytest
+
+ENV = "JAXDEPTH_SUITE_PROFILE"
+#: jax.monitoring duration events -> short field names.
+EVENTS = {
+    "/jax/core/compile/backend_compile_duration": "compile_s",
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/compilation_cache/cache_retrieval_time_sec": "cache_read_s",
+}
+BIG_COMPILE_S = 0.25
+
+_state = {"out": None, "sums": collections.Counter(), "big": []}
+
+
+def _listener(event, duration, **kwargs):
+    field = EVENTS.get(event)
+    if field is None:
+        return
+    _state["sums"][field] += duration
+    _state["sums"][field.replace("_s", "_n")] += 1
+    if field == "compile_s" and duration >= BIG_COMPILE_S:
+        _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2)])
+
+
+def pytest_configure(config):
+    folder = os.environ.get(ENV)
+    if not folder:
+        return
+    import jax.monitoring
+    jax.monitoring.register_event_duration_secs_listener(_listener)
+    os.makedirs(folder, exist_ok=True)
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    _state["worker"] = worker
+    _state["out"] = open(os.path.join(folder, f"{worker}.jsonl"), "a", encoding="utf-8")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Runs in the process that runs the test (an xdist worker, or the only process)."""
+    out = _state["out"]
+    if out is None:
+        yield
+        return
+    _state["sums"].clear()
+    _state["big"].clear()
+    start = time.time()
+    yield
+    record = {"id": item.nodeid, "worker": _state["worker"], "start": round(start, 3),
+              "wall_s": round(time.time() - start, 3)}
+    record.update({k: round(v, 3) for k, v in sorted(_state["sums"].items())})
+    record["big_compiles"] = list(_state["big"])
+    out.write(json.dumps(record) + "\n")
+    out.flush()
+
+
+# ---------------------------------------------------------------------------------------- summary
+def load(folder) -> list:
+    """Every test record written under ``folder``."""
+    records = []
+    for path in sorted(glob.glob(os.path.join(folder, "*.jsonl"))):
+        with open(path, encoding="utf-8") as f:
+            records += [json.loads(line) for line in f if line.strip()]
+    return records
+
+
+def _module(nodeid: str) -> str:
+    return nodeid.split("::")[0]
+
+
+def summarise(records: list, *, top: int = 25) -> dict:
+    """Totals, per-worker spans, and the modules, tests and compiled functions that take longest."""
+    fields = ("wall_s", "compile_s", "trace_s", "lower_s", "cache_read_s")
+    totals = {k: round(sum(r.get(k, 0.0) for r in records), 1) for k in fields}
+    totals.update(tests=len(records), compiles=int(sum(r.get("compile_n", 0) for r in records)),
+                  cache_reads=int(sum(r.get("cache_read_n", 0) for r in records)))
+    workers = {}
+    for r in records:
+        w = workers.setdefault(r["worker"], {"tests": 0, "first_start": r["start"], "last_end": 0.0, "wall_s": 0.0})
+        w["tests"] += 1
+        w["first_start"] = min(w["first_start"], r["start"])
+        w["last_end"] = max(w["last_end"], r["start"] + r["wall_s"])
+        w["wall_s"] += r["wall_s"]
+    workers = {k: {"tests": v["tests"], "span_s": round(v["last_end"] - v["first_start"], 1),
+                   "busy_s": round(v["wall_s"], 1)} for k, v in sorted(workers.items())}
+    modules = collections.defaultdict(lambda: [0.0, 0.0, 0])
+    for r in records:
+        m = modules[_module(r["id"])]
+        m[0] += r["wall_s"]
+        m[1] += r.get("compile_s", 0.0)
+        m[2] += 1
+    by_module = [{"module": k, "wall_s": round(v[0], 1), "compile_s": round(v[1], 1), "tests": v[2]}
+                 for k, v in sorted(modules.items(), key=lambda kv: -kv[1][0])[:top]]
+    by_test = [{"test": r["id"], "wall_s": r["wall_s"], "compile_s": round(r.get("compile_s", 0.0), 1),
+                "big_compiles": r["big_compiles"]} for r in sorted(records, key=lambda r: -r["wall_s"])[:top]]
+    funs = collections.defaultdict(lambda: [0.0, 0])
+    for r in records:
+        for name, seconds in r["big_compiles"]:
+            funs[name][0] += seconds
+            funs[name][1] += 1
+    by_function = [{"function": k, "compile_s": round(v[0], 1), "compiles": v[1]}
+                   for k, v in sorted(funs.items(), key=lambda kv: -kv[1][0])[:top]]
+    return {"totals": totals, "workers": workers, "by_module": by_module, "by_test": by_test,
+            "by_function": by_function}
+
+
+def _print(summary: dict) -> None:
+    t = summary["totals"]
+    print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers: XLA compiling {t['compile_s']:.0f} s "
+          f"({t['compiles']} compiles), tracing {t['trace_s']:.0f} s, lowering {t['lower_s']:.0f} s, "
+          f"cache reads {t['cache_read_s']:.0f} s ({t['cache_reads']} programs read back)")
+    for name, w in summary["workers"].items():
+        print(f"  {name}: {w['tests']} tests, busy {w['busy_s']:.0f} s over a span of {w['span_s']:.0f} s")
+    print("\nmodules (wall s, compile s, tests)")
+    for m in summary["by_module"]:
+        print(f"  {m['wall_s']:7.1f} {m['compile_s']:7.1f} {m['tests']:5d}  {m['module']}")
+    print("\ntests (wall s, compile s, compiles >= 0.25 s)")
+    for r in summary["by_test"]:
+        big = " ".join(f"{n}:{s}" for n, s in r["big_compiles"][:4])
+        print(f"  {r['wall_s']:7.1f} {r['compile_s']:7.1f}  {r['test']}  {big}")
+    print("\ncompiled functions (compile s, compiles >= 0.25 s)")
+    for f in summary["by_function"]:
+        print(f"  {f['compile_s']:7.1f} {f['compiles']:5d}  {f['function']}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description="Summarise a suite profile recorded with -p benchmarks.suite_profile.")
+    parser.add_argument("folder", help=f"the folder {ENV} named while the suite ran")
+    parser.add_argument("--top", type=int, default=25, help="rows per table (default 25)")
+    parser.add_argument("--json", nargs="?", const=str(pathlib.Path(__file__).parent / "results" / "suite_profile.json"),
+                        default=None, metavar="PATH", help="also write the summary (default results/suite_profile.json)")
+    args = parser.parse_args(argv)
+    records = load(args.folder)
+    if not records:
+        print(f"suite_profile: no test records in {args.folder} (run pytest with {ENV} set and "
+              "-p benchmarks.suite_profile)", file=sys.stderr)
+        return 1
+    summary = summarise(records, top=args.top)
+    _print(summary)
+    if args.json:
+        import platform
+
+        import jax
+
+        from jaxdepth.io.atomic import atomic_write_bytes
+        doc = {"command": "JAXDEPTH_SUITE_PROFILE=DIR python -m pytest -q -p benchmarks.suite_profile; "
+                          "python -m benchmarks.suite_profile DIR --json", **summary,
+               "environment": {"jax": jax.__version__, "python": platform.python_version(),
+                               "cpu_count": os.cpu_count()}}
+        out = pathlib.Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""benchmarks/suite_profile.py: the plugin records each test's JAX compiles; the summary adds them up."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO
+from benchmarks import suite_profile
+
+
+def _record(nodeid, worker, start, wall, compile_s=0.0, compile_n=0, big=()):
+    return {"id": nodeid, "worker": worker, "start": start, "wall_s": wall, "compile_s": compile_s,
+            "compile_n": compile_n, "big_compiles": [list(b) for b in big]}
+
+
+def test_summary_totals_spans_and_orders_against_hand_sums():
+    records = [
+        _record("tests/a.py::t1", "gw0", 100.0, 4.0, 3.0, 2, [("jit(f)", 2.5)]),
+        _record("tests/a.py::t2", "gw0", 104.0, 1.0, 0.5, 1),
+        _record("tests/b.py::t3", "gw1", 101.0, 6.0, 5.0, 3, [("jit(f)", 1.0), ("jit(g)", 3.5)]),
+    ]
+    s = suite_profile.summarise(records, top=10)
+    assert s["totals"]["tests"] == 3 and s["totals"]["wall_s"] == 11.0 and s["totals"]["compile_s"] == 8.5
+    assert s["totals"]["compiles"] == 6
+    assert s["workers"] == {"gw0": {"tests": 2, "span_s": 5.0, "busy_s": 5.0},
+                            "gw1": {"tests": 1, "span_s": 6.0, "busy_s": 6.0}}
+    assert [m["module"] for m in s["by_module"]] == ["tests/b.py", "tests/a.py"]     # 6 s before 5 s
+    assert [t["test"] for t in s["by_test"]] == ["tests/b.py::t3", "tests/a.py::t1", "tests/a.py::t2"]
+    assert s["by_function"] == [{"function": "jit(f)", "compile_s": 3.5, "compiles": 2},
+                                {"function": "jit(g)", "compile_s": 3.5, "compiles": 1}]
+
+
+@pytest.mark.slow  # a pytest subprocess (Python and JAX start-up)
+def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
+    tests = tmp_path / "test_tiny.py"
+    tests.write_text(
+        "import jax, jax.numpy as jnp\n"
+        "def test_compiles():\n"
+        "    assert float(jax.jit(lambda x: jnp.sin(x) * 3.0)(jnp.float32(1.0))) != 0.0\n"
+        "def test_plain():\n"
+        "    assert 1 + 1 == 2\n")
+    folder = tmp_path / "profile"
+    env = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(folder), JAX_ENABLE_COMPILATION_CACHE="false")
+    for name in [k for k in env if k.startswith("PYTEST_XDIST") or k == "JAX_COMPILATION_CACHE_DIR"]:
+        env.pop(name)  # a process of its own, not this session's xdist worker or compilation cache
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
+                          "-p", "benchmarks.suite_profile", "--rootdir", str(tmp_path), "-c", os.devnull, str(tests)],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    records = {r["id"].split("::")[-1]: r for r in suite_profile.load(folder)}
+    assert sorted(records) == ["test_compiles", "test_plain"]
+    assert records["test_compiles"]["compile_n"] >= 1 and records["test_compiles"]["compile_s"] > 0
+    assert records["test_plain"].get("compile_n", 0) == 0
+    assert all(r["worker"] == "main" and r["wall_s"] >= 0 for r in records.values())
+    out = tmp_path / "summary.json"
+    assert suite_profile.main([str(folder), "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["totals"]["tests"] == 2
