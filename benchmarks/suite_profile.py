@@ -4,9 +4,10 @@ Record (from the repository root; one JSON line per test, one file per xdist wor
 
     JAXDEPTH_SUITE_PROFILE=/tmp/profile python -m pytest -q -p benchmarks.suite_profile
 
-Summarise (prints the tables; ``--json`` writes them, default ``results/suite_profile.json``)::
+Summarise (prints the tables; ``--json`` writes them, default ``results/suite_profile.json``;
+``--compile-cost`` also times one compile of the 32 x 48 pipeline in this process)::
 
-    python -m benchmarks.suite_profile /tmp/profile [--json [PATH]]
+    python -m benchmarks.suite_profile /tmp/profile [--compile-cost] [--json [PATH]]
 
 Per test: wall seconds, and the seconds JAX reports through ``jax.monitoring`` in that test's
 process: XLA compiling (``backend_compile``), tracing, lowering to MLIR, reading the persistent
@@ -133,6 +134,29 @@ def summarise(records: list, *, top: int = 25) -> dict:
             "by_function": by_function}
 
 
+def compile_cost(*, repeats: int = 3) -> dict:
+    """Wall and CPU seconds (medians) to compile ``jaxdepth.complete`` on a 32 x 48 frame, the
+    persistent compilation cache off: what one whole-pipeline program costs the suite."""
+    import jax
+    import numpy as np
+
+    import jaxdepth
+    jax.config.update("jax_enable_compilation_cache", False)
+    rng = np.random.default_rng(0)
+    sparse = np.where(rng.random((32, 48)) < 0.05, rng.uniform(5.0, 50.0, (32, 48)), 0.0).astype(np.float32)
+    K = np.array([[48.0, 0.0, 24.0], [0.0, 48.0, 16.0], [0.0, 0.0, 1.0]], np.float32)
+    walls, cpus = [], []
+    for _ in range(repeats):
+        jax.clear_caches()
+        lowered = jax.jit(lambda s, k: jaxdepth.complete(s, k)).lower(sparse, K)
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        lowered.compile()
+        walls.append(time.perf_counter() - wall0)
+        cpus.append(time.process_time() - cpu0)
+    return {"program": "jaxdepth.complete, 32 x 48, default configuration", "repeats": repeats,
+            "compile_wall_s": round(float(np.median(walls)), 2), "compile_cpu_s": round(float(np.median(cpus)), 2)}
+
+
 def _print(summary: dict) -> None:
     t = summary["totals"]
     print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers: XLA compiling {t['compile_s']:.0f} s "
@@ -155,6 +179,8 @@ def _print(summary: dict) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Summarise a suite profile recorded with -p benchmarks.suite_profile.")
     parser.add_argument("folder", help=f"the folder {ENV} named while the suite ran")
+    parser.add_argument("--compile-cost", action="store_true",
+                        help="also time one compile of the 32 x 48 pipeline here (wall and CPU seconds)")
     parser.add_argument("--top", type=int, default=25, help="rows per table (default 25)")
     parser.add_argument("--json", nargs="?", const=str(pathlib.Path(__file__).parent / "results" / "suite_profile.json"),
                         default=None, metavar="PATH", help="also write the summary (default results/suite_profile.json)")
@@ -166,6 +192,10 @@ def main(argv=None) -> int:
         return 1
     summary = summarise(records, top=args.top)
     _print(summary)
+    if args.compile_cost:
+        summary["pipeline_compile"] = cost = compile_cost()
+        print(f"\none pipeline program ({cost['program']}): compiled in {cost['compile_wall_s']} s of wall time, "
+              f"{cost['compile_cpu_s']} s of CPU time (medians of {cost['repeats']})")
     if args.json:
         import platform
 
@@ -173,7 +203,7 @@ def main(argv=None) -> int:
 
         from jaxdepth.io.atomic import atomic_write_bytes
         doc = {"command": "JAXDEPTH_SUITE_PROFILE=DIR python -m pytest -q -p benchmarks.suite_profile; "
-                          "python -m benchmarks.suite_profile DIR --json", **summary,
+                          "python -m benchmarks.suite_profile DIR --compile-cost --json", **summary,
                "environment": {"jax": jax.__version__, "python": platform.python_version(),
                                "cpu_count": os.cpu_count()}}
         out = pathlib.Path(args.json)
