@@ -55,12 +55,14 @@ def load_frame():
 
 
 def write_results(path, doc: dict, config, t0: float) -> None:
-    """``doc`` plus the config, run time and environment, atomically as JSON at ``path``."""
+    """``doc`` plus the config (none for a tool that runs no configuration), run time and environment,
+    atomically as JSON at ``path``."""
     import jax
 
     from jaxdepth.io.atomic import atomic_write_bytes
-    doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test}, **doc,
-           "seconds": time.time() - t0,
+    if config is not None:
+        doc = {"config": {"distance_metric": config.distance_metric, "outlier_test": config.outlier_test}, **doc}
+    doc = {**doc, "seconds": time.time() - t0,
            "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
     out = pathlib.Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

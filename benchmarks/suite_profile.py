@@ -185,6 +185,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", nargs="?", const=str(pathlib.Path(__file__).parent / "results" / "suite_profile.json"),
                         default=None, metavar="PATH", help="also write the summary (default results/suite_profile.json)")
     args = parser.parse_args(argv)
+    t0 = time.time()
     records = load(args.folder)
     if not records:
         print(f"suite_profile: no test records in {args.folder} (run pytest with {ENV} set and "
@@ -197,18 +198,10 @@ def main(argv=None) -> int:
         print(f"\none pipeline program ({cost['program']}): compiled in {cost['compile_wall_s']} s of wall time, "
               f"{cost['compile_cpu_s']} s of CPU time (medians of {cost['repeats']})")
     if args.json:
-        import platform
-
-        import jax
-
-        from jaxdepth.io.atomic import atomic_write_bytes
-        doc = {"command": "JAXDEPTH_SUITE_PROFILE=DIR python -m pytest -q -p benchmarks.suite_profile; "
-                          "python -m benchmarks.suite_profile DIR --compile-cost --json", **summary,
-               "environment": {"jax": jax.__version__, "python": platform.python_version(),
-                               "cpu_count": os.cpu_count()}}
-        out = pathlib.Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())
+        from benchmarks._common import write_results
+        write_results(args.json, {"command": "JAXDEPTH_SUITE_PROFILE=DIR python -m pytest -q -p benchmarks.suite_profile; "
+                                             "python -m benchmarks.suite_profile DIR --compile-cost --json",
+                                  **summary}, None, t0)
     return 0
 
 

@@ -40,7 +40,7 @@ def small_camera(T_cam_lidar=None, h: int = 96, w: int = 160, f: float = 120.0) 
 
 def stereo_street(seed: int = 1):
     """(frame, cameras): the synthetic street seen by :data:`SMALL_LIDAR` and the stereo rig at 1/4 scale."""
-    cams = synthetic.rig_cameras("stereo", image_scale=0.25)
+    cams = stereo_cameras()
     return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=cams), cams
 
 
@@ -56,10 +56,16 @@ def tiny_street_frames(seeds: tuple, h: int = 32, w: int = 48):
     (h, w) camera (eager runs stay short), focal length 40 + 4 * index px (per-frame intrinsics)."""
     frames = []
     for i, seed in enumerate(seeds):
-        camera = small_camera(lidar_to_camera(), h=h, w=w, f=40.0 + 4 * i)
-        frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera])
+        frame, camera = _small_street(seed, h=h, w=w, f=40.0 + 4 * i)
         frames.append((np.asarray(frame.points), np.asarray(frame.valid), camera))
     return frames
+
+
+def _small_street(seed: int, *, h: int, w: int, f: float, images: bool = False):
+    """(frame, camera): the synthetic street seen by :data:`SMALL_LIDAR` and an (h, w) :func:`small_camera`
+    of focal length ``f`` px (the scene of :func:`tiny_street_frames` and :func:`tiny_frame`)."""
+    camera = small_camera(lidar_to_camera(), h=h, w=w, f=f)
+    return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera], images=images), camera
 
 
 def thinned_for_listed_normals(sparse: np.ndarray, *, seed: int = 0, keep: float = 1 / 8,
@@ -123,8 +129,7 @@ def tiny_frame(seed: int, *, f: float = 40.0, h: int = 32, w: int = 48, images: 
     """(sparse, K, T[, image]): a synthetic street sweep of SMALL_LIDAR projected into an (h, w) camera
     of focal length ``f`` px (float32; the image, with ``images``, is the (h, w, 3) uint8 rendering)."""
     from jaxdepth._src.geometry import project_to_image
-    camera = small_camera(lidar_to_camera(), h=h, w=w, f=f)
-    frame = synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=[camera], images=images)
+    frame, camera = _small_street(seed, h=h, w=w, f=f, images=images)
     sparse, _ = project_to_image(frame.points, frame.valid, camera.K, camera.T_cam_lidar, height=h, width=w)
     out = (np.asarray(sparse), np.asarray(camera.K), np.asarray(camera.T_cam_lidar))
     return out + (np.asarray(frame.images[0]),) if images else out
