@@ -43,6 +43,16 @@ if os.environ.get("JAXDEPTH_TEST_COMPILE_CACHE", "1") != "0":
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
 
+#: Doctests that compile a whole pipeline: slow like the tests that do (docs/testing.md).
+SLOW_DOCTESTS = ("jaxdepth._src.pipeline.complete",)
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if isinstance(item, pytest.DoctestItem) and item.name in SLOW_DOCTESTS:
+            item.add_marker(pytest.mark.slow)
+
+
 def pytest_sessionfinish(session, exitstatus):
     if _SESSION_CACHE_OWNER and not hasattr(session.config, "workerinput"):
         shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)

@@ -55,6 +55,7 @@ class Row:
     eager_inputs: int | None = None
     check: Callable | None = None  # check(outputs, inputs): a further property of the plain outputs
     covers: tuple = ()  # the public names this row checks (default: fn's name)
+    slow: bool = False  # marked slow (docs/testing.md): left out of the quick subset
 
     def names(self) -> tuple:
         return self.covers or (self.fn.__name__,)
@@ -547,7 +548,7 @@ def _rows() -> list[Row]:
         # the pipeline from a sweep (eager on one input: the one op-by-op run of a whole pipeline; its
         # exact point positions and 3-D outlier test have no plain composition to compare against)
         Row("complete_points", _OneLibraryJit(complete_points, pipeline._complete_points_depth), lambda: tiny_street_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),
-            ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled),
+            ulps=PIPELINE_ULPS, eager_inputs=1, check=_mostly_filled, slow=True),
         # stages against the plain composition of the public stage functions (masks and seeds exact;
         # depths within the composition's normals rounding, test_speed_equivalence's 1e-3 relative + 2e-3 m).
         # No op-by-op run: every stage composed has its own jit == eager row above, and the jitted
@@ -555,11 +556,11 @@ def _rows() -> list[Row]:
         Row("complete_stages", _OneLibraryJit(complete_stages, pipeline._complete_stages), lambda: _tiny_sparse((3, 4, 5)),
             static=dict(lidar=SMALL_LIDAR, config=SGMConfig()), in_axes=(0, 0, None),
             oracle=_reference_stages, select=lambda s: tuple(getattr(s, k) for k in _STAGE_FIELDS),
-            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=0),
+            oracle_ulps=2e-3 / float(np.finfo(np.float32).eps), ulps=PIPELINE_ULPS, eager_inputs=0, slow=True),
         # complete is complete_stages(...).depth in its own jit (no eager run, as above); its jit, vmap
         # and retrace are its own
         Row("complete", _OneLibraryJit(complete, pipeline._complete_depth), lambda: _tiny_sparse((3, 4, 5)), static=dict(lidar=SMALL_LIDAR, config=SGMConfig()),
-            in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=0, check=_mostly_filled),
+            in_axes=(0, 0, None), ulps=PIPELINE_ULPS, eager_inputs=0, check=_mostly_filled, slow=True),
         # geometry
         Row("project_to_image", geometry.project_to_image, _projection_inputs, static=dict(height=32, width=48),
             in_axes=(0, 0, 0, None), oracle=_projection_oracle, oracle_ulps=8),

@@ -163,6 +163,7 @@ def _sparse_folder(root, n=2, shape=(64, 128)):
     return root, K
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_rerun_with_other_settings_is_refused_same_settings_resume_overwrite_recomputes(tmp_path, capsys):
     src, K = _sparse_folder(tmp_path / "src")
     out = tmp_path / "out"
@@ -368,6 +369,7 @@ def test_ray_records_carry_force(tmp_path):
     assert [job.force for job in scale._jobs_from_batch(batch)] == [False, True]
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_kitti_tree_keeps_one_record_per_method_so_two_methods_share_an_output_root(tmp_path, capsys):
     frame = require_shared("kitti", "drive_0001_frame05")
     src = tmp_path / "kitti_depth" / "train"

@@ -104,6 +104,7 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
     assert code == 1 and "--point-columns" in err and "Traceback" not in err
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
     """The stereo rig of the shared small street (``scenes.stereo_street``: the same compiled completion as
     tests/test_rig.py) with CAM_B turned to look straight up, above the LiDAR's field of view (+2 degrees):

@@ -56,6 +56,7 @@ def test_help_version_and_usage_errors_do_not_import_jax():
     assert run_cli("complete").returncode == 2  # argparse usage error, through python -m jaxdepth.cli
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items)
@@ -77,6 +78,7 @@ def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
     assert all(p.suffix == ".png" or p.name == "jaxdepth_run.json" for p in dst.iterdir())
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_complete_single_image_matches_library(tmp_path, frames):
     """A single PNG through the CLI (``--method`` and ``--no-outlier-removal`` reaching the run) equals
     the library's batch completion of that frame, the same bytes: ``complete_batch`` at the CLI's batch
@@ -133,6 +135,7 @@ def test_unwritable_output_folder(tmp_path, frames, capsys):
     assert code == 1 and str(blocker) in err and "Traceback" not in err
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_interrupt_leaves_no_partial_png_and_rerun_completes(tmp_path, frames, monkeypatch, capsys):
     items, T = frames
     src = write_kitti_folder(tmp_path / "src", items)
@@ -268,6 +271,7 @@ def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monk
         jax.config.update("jax_compilation_cache_dir", before)
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_png_compression_option_changes_size_not_values_and_summary_has_timings(tmp_path, frames, capsys):
     """Issue 14: --png-compression 0-9; the decoded depth is the same at every level; the summary
     reports start-up and first-frame latency."""

@@ -52,6 +52,7 @@ def _elevation_level(K, height, width, R_tilt=np.eye(3)):
     return np.arctan2(d[..., 2], np.hypot(d[..., 0], d[..., 1]))
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path, src, capsys, monkeypatch):
     root, items = src
@@ -99,6 +100,7 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
     assert sorted(frames) == [f"frame_00{i}.png" for i in range(3)] and len(skipped) == 9
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_resume_with_extras_and_a_flag_added_later(tmp_path, src, capsys):
     root, _ = src
@@ -137,6 +139,7 @@ def test_extras_usage_errors_before_any_work(tmp_path, src, capsys, extra, patte
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_complete_rig_extras_cameras_of_two_sizes(tmp_path, capsys):
     up, down, cams = WALL_UP_DEG, WALL_DOWN_DEG, WALL_CAMERAS
     sweep = tmp_path / "sweep.npy"
@@ -243,6 +246,7 @@ def test_kitti_raw_sweep_jobs_write_extras_into_the_proj_depth_tree(tmp_path):
     assert _stamps(folder) == stamps
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 SGM batches once
 def test_ray_actor_writes_the_local_runners_extras(tmp_path, src):
     """The Ray engine's actor (called directly, no cluster) writes the local runner's files, extras included."""

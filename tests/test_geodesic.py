@@ -154,6 +154,7 @@ def test_step_costs_with_noise_floor_match_numpy():
     assert float(np.min(got_h)) == 1.0 and float(np.min(got_v)) == 1.0  # half of the steps at least cost 1
 
 
+@pytest.mark.xdist_group("geodesic_noise_floor")  # the cases share their programs: one worker compiles their shared program once
 @pytest.mark.parametrize("seed,weight,grey", [(0, 20.0, False), (2, 10.0, True), (3, 50.0, False)])
 def test_noise_floor_matches_dijkstra_when_converged(seed, weight, grey):
     keep, img = _scene(seed, h=14, w=15, grey=grey)
@@ -303,6 +304,7 @@ def _pipeline_frame():
     return frames, T, images
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_pipeline_without_guidance_ignores_the_image():
     from jaxdepth import complete_stages
     (frames, T, images) = _pipeline_frame()
@@ -313,6 +315,7 @@ def test_pipeline_without_guidance_ignores_the_image():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.xdist_group("geodesic_guided_pipeline")  # one worker compiles their shared program once
 @pytest.mark.slow  # the guided pipeline: two whole-pipeline programs of its own (per frame, vmapped)
 def test_pipeline_guided_seeds_and_vmap():
     """Guided seeds are geodesic_seed of Step 2's inliers; uint8 scaling; vmap == loop."""
@@ -370,6 +373,7 @@ def test_config_fields(field, value, match):
         SGMConfig(**{field: value})
 
 
+@pytest.mark.xdist_group("geodesic_guided_pipeline")  # one worker compiles their shared program once
 @pytest.mark.slow  # the guided pipeline program of the test above
 def test_pipeline_passes_the_noise_floor():
     from jaxdepth import complete_stages

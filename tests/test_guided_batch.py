@@ -60,6 +60,7 @@ def _png(path) -> np.ndarray:
     return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_guided_runner_equals_the_api_per_frame(tmp_path, frames):
     items, T = frames
@@ -85,6 +86,7 @@ def test_grey_and_colour_frames_batch_apart_and_unguided_keys_are_unchanged(tmp_
     np.testing.assert_array_equal(grey, cv2.imread(str(jobs[1].image_path), cv2.IMREAD_GRAYSCALE))
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_unguided_run_never_opens_images_and_writes_the_same_bytes(tmp_path, frames, monkeypatch):
     items, T = frames
     _, jobs = _selection(tmp_path / "src", items)
@@ -125,6 +127,7 @@ def _bad_images(folder: pathlib.Path, good: np.ndarray) -> dict[str, str]:
     return cases
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_each_bad_image_fails_its_frame_only_and_a_rerun_resumes(tmp_path, frames):
     items, T = frames
@@ -161,6 +164,7 @@ def test_a_guided_frame_without_an_image_fails_with_a_clear_message(tmp_path, fr
     assert name == job.name and "no camera image" in message and "--image-dir" in message
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_complete_batch_with_images_and_its_errors(frames):
     items, T = frames
@@ -211,6 +215,7 @@ def test_image_names_of_selection_folders_and_plain_folders(tmp_path):
     assert guidance_images.selection_image_folder(tmp_path / "flat", sel / "image") == sel / "image"
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_ray_actor_reads_the_same_images_as_the_local_runner(tmp_path, frames):
     """The Ray engine's actor (called directly, no cluster): records carry the image, same bytes."""
@@ -235,6 +240,7 @@ def test_ray_actor_reads_the_same_images_as_the_local_runner(tmp_path, frames):
         assert _png(job.out_path).tobytes() == _png(tmp_path / "local" / job.name).tobytes()
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_guided_batches")  # one worker compiles the guided batch and its oracle once
 def test_cli_end_to_end_on_a_selection_folder_and_its_usage_errors(tmp_path, frames, capsys):
     from jaxdepth import cli

@@ -98,6 +98,7 @@ def test_scan_line_spacing_px():
     np.testing.assert_allclose(scan_line_spacing_px(K, lidar), 721.5 * np.radians(26.9) / 63, rtol=1e-12)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_hidden_point_scores_uncovered_equal_metrics_at_kept_targets():
     """A near square (4 m) in front of a far plane (20 m); hidden far points behind the square
     are covered. "uncovered" scores equal depth_metrics at the targets covered_targets keeps,
@@ -126,6 +127,7 @@ def test_hidden_point_scores_uncovered_equal_metrics_at_kept_targets():
     assert np.all(np.abs(gt_np[covered] - 20.0) < 0.5)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_hidden_point_scores_under_jit_needs_a_static_window():
     # the point count of the test above: the eager call reuses its compiled programs
     cams, K, T, points = square_before_plane(seed=2, far_points=1500, near_points=300, near_half_m=1.0)

@@ -87,6 +87,7 @@ def test_median_network_sorts():
 
 
 # --------------------------------------------------------------------- whole pipeline
+@pytest.mark.xdist_group("ip_basic_synthetic")  # one worker compiles their shared program once
 @pytest.mark.parametrize("extrapolate", [False, True])
 def test_ip_basic_equals_opencv_synthetic(extrapolate):
     """80 x 80 (the isolated-point test's size: its program without extrapolation)."""
@@ -125,6 +126,7 @@ def test_ip_basic_equals_opencv_on_kitti_and_scores(kitti):
 # The OpenCV port as the oracle, jit == eager, vmap == loop, no retrace: row ip_basic of tests/stage_table.py.
 
 
+@pytest.mark.xdist_group("ip_basic_synthetic")  # one worker compiles their shared program once
 def test_ip_basic_keeps_an_isolated_point_and_leaves_far_pixels_empty():
     d = np.zeros((80, 80), np.float32)
     d[40, 40] = 12.5

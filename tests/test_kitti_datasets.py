@@ -170,6 +170,7 @@ def test_unknown_layout_lists_the_layouts_understood(tmp_path, capsys):
         assert word in err
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_depth_completion_train_val_tree_with_per_date_calibration(tmp_path, capsys):
     frame = require_shared("kitti", "drive_0001_frame05")
     scene = require_shared("kitti", "raw_2011_09_26_scene2")

@@ -393,6 +393,7 @@ def test_range_image_normals_fill_every_cell():
 # pixel_normals (with the analytic planes) are rows of tests/stage_table.py.
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_gradient_is_finite():
     """Gradients flow through ranges and angles (not through the integer cell
     choice) and stay finite, also for padding points at the origin."""

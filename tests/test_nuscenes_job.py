@@ -331,6 +331,7 @@ def calibration_path_frame(tables, sample_dir, tmp_path):
     return prepare_sweep(points, rig, ring=extra[:, -1])
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_path):
     """s1 (ego poses equal) completes exactly as the existing rig path does from a calibration JSON.
@@ -362,6 +363,7 @@ def test_equal_poses_match_the_calibration_rig_path(dataroot, first_run, tmp_pat
         np.testing.assert_array_equal(got, expected, err_msg=cam.name)
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 @pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     from jaxdepth.batch.nuscenes_job import run_nuscenes
@@ -422,6 +424,7 @@ def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     assert changed > 0
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_command_line(dataroot, tmp_path, capsys):
     """`jaxdepth complete DATAROOT DST --nusc-version v1.0-mini`: exit 1 naming the bad sample, then 0 once
     it is fixed (the others are skipped); usage errors exit 2; a missing version lists the ones found."""

@@ -25,6 +25,7 @@ def plane_frame(camera, planes):
     [[0.05, 0.0, 1.0, -1.73]],  # ground pitched by ~3 degrees
     [[-np.cos(0.5), -np.sin(0.5), 0.0, -12.0]],  # a wall 12 m ahead, yawed by ~29 degrees
 ])
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("pipeline_planar")  # both planes take one program: compiled once, on one worker
 def test_planar_scene_completes_nearly_exactly(planes):
     """On the 96 x 160 camera with POINTS_CONFIG (the program of the test below); scored on
@@ -51,6 +52,7 @@ def test_planar_scene_completes_nearly_exactly(planes):
         assert np.mean(rel) < 0.5 * np.mean(nearest_rel)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
     frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=[small_camera(lidar_to_camera())])
     config = POINTS_CONFIG
@@ -71,6 +73,7 @@ def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
 # plain composition of the stage functions) are rows of tests/stage_table.py.
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
     """The library's own jit: a new frame and K, and ``config`` passed or left at its default,
     reuse one trace (counted by a wrapper around a function the traced body calls). The jit's
@@ -92,6 +95,7 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
     assert len(traces) == 1
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_scaling_the_scene_scales_the_depth():
     """Metres in, metres out: scaling depths and the LiDAR offset by s scales the output by s. Without the
     outlier removal, whose epsilon scales with the scene too (test_outliers.test_scale_invariance): with
@@ -108,6 +112,7 @@ def test_scaling_the_scene_scales_the_depth():
     np.testing.assert_allclose(b, s * a, rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_empty_input_gives_empty_output():
     _, K, T = tiny_frame(3)
     out = np.asarray(complete(np.zeros((32, 48), np.float32), K, T, lidar=SMALL_LIDAR))
@@ -121,6 +126,7 @@ def test_bad_shapes_raise_clear_errors():
         complete(np.zeros((30, 40), np.float32), np.eye(4))
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_synthetic_street_sgm_beats_nearest():
     """The full-size synthetic street and its LiDAR (a program of its own: on the small scenes' 96 x 160
     camera and 32-beam LiDAR the nearest fill has the lower MAE, measured)."""
@@ -147,6 +153,7 @@ def kitti_sgm_metrics(kitti_frames):
             for cam, (sparse, gt, K, T) in kitti_frames.items()}
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("pipeline_kitti")  # one worker runs the module's KITTI completion once
 def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     """Issue 3: SGM must clearly beat a nearest-neighbour fill on the real frame (both cameras)."""
@@ -165,6 +172,7 @@ def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     assert mean(sgm, "rmse") < 975 and mean(sgm, "mae") < 255
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("pipeline_kitti")  # one worker runs the module's KITTI completion once
 def test_kitti_sgm_beats_ip_basic(kitti_frames, kitti_sgm_metrics):
     from jaxdepth import complete_with

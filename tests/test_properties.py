@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from jaxdepth import SGMConfig, complete, complete_stages
@@ -28,6 +29,7 @@ def sparse_frames(draw):
     return depth, K
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @SETTINGS
 @given(sparse_frames())
 def test_outputs_finite_clipped_and_seeds_keep_depth(frame):
@@ -45,6 +47,7 @@ def test_outputs_finite_clipped_and_seeds_keep_depth(frame):
     assert not np.any(keep & (depth <= 0))  # padding / empty pixels never become seeds
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @settings(deadline=None, max_examples=4, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(sparse_frames(), min_size=3, max_size=3))
 def test_vmap_equals_loop(frames):

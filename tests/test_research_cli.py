@@ -240,6 +240,7 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
                                np.mean(np.asarray(scores["uncovered"]["nearest"]["mae"])), rtol=1e-5)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_hidden_point_targets_are_the_hidden_z_buffer():
     """Targets come from the hidden points alone, whatever the SGM removes: a
     hidden far point that a given near point hides from the camera stays a

@@ -20,6 +20,7 @@ def stereo():
     return stereo_street()
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_rig_equals_loop_over_cameras(stereo):
     frame, cams = stereo
     rig = complete_rig_stages(frame.points, frame.valid, stack_cameras(cams), lidar=LIDAR)
@@ -30,6 +31,7 @@ def test_rig_equals_loop_over_cameras(stereo):
         np.testing.assert_allclose(np.asarray(rig.depth[i]), np.asarray(single.depth), rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_cameras_of_different_sizes_share_a_padded_canvas(stereo):
     frame, cams = stereo
     big = cams[0]

@@ -35,6 +35,7 @@ def _images(cams, *, seed=0):
     return block_images([(cam.height, cam.width) for cam in cams], seed=seed, noise_dn=10)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("rig_images_guided")  # one worker compiles the guided rig program once
 def test_guided_rig_equals_loop_over_cameras(stereo):
     """(Grey images take the same path with one channel: tests/test_geodesic.py covers them.)"""
@@ -55,6 +56,7 @@ def test_guided_rig_equals_loop_over_cameras(stereo):
         assert np.mean(np.asarray(rig.du[i]) != np.asarray(unguided.du[i])) > 0.01
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_weight_zero_ignores_images_bit_for_bit(stereo):
     frame, cams = stereo
     cameras = stack_cameras(cams)
@@ -70,6 +72,7 @@ def test_weight_zero_ignores_images_bit_for_bit(stereo):
                      images=stack_images(_images(cams), cameras).astype(np.uint16))
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("rig_images_guided")  # one worker compiles the guided rig program once
 def test_smaller_camera_seeds_stay_in_its_window(stereo):
     """Camera 1 is 16 x 40 px smaller than the canvas. Its seeds equal geodesic_seed on its own window
@@ -164,6 +167,7 @@ def _write_rig(folder, cams, frame, *, image_field=False):
     return names, imgs
 
 
+@pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_cli_complete_rig_with_images_writes_the_api_result(stereo, tmp_path, capsys):
     """--image-dir and the rig JSON's image fields give the same PNGs as complete_rig(..., images=) on the
     library's path (read_rig_json -> prepare_sweep -> pad_points); without images the guided run is an

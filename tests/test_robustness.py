@@ -30,6 +30,8 @@ def scene():
     return _Frame(points, valid), camera
 
 
+@pytest.mark.xdist_group("robustness_points")  # one worker compiles their shared program once
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_nan_and_inf_points_are_ignored(scene):
     frame, camera = scene
     base = np.asarray(complete_points(frame.points, frame.valid, camera, lidar=LIDAR))
@@ -44,6 +46,8 @@ def test_nan_and_inf_points_are_ignored(scene):
     np.testing.assert_array_equal(out, base)
 
 
+@pytest.mark.xdist_group("robustness_points")  # one worker compiles their shared program once
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.parametrize("case", ["empty", "behind", "outside"])
 def test_no_point_in_the_image_gives_an_empty_depth(scene, case):
     frame, camera = scene

@@ -26,6 +26,9 @@ CONFIG = SGMConfig()
 #: test_cli_split_makes_two_devices_and_two_devices_match_one.
 PLUMBING = "nearest"
 
+#: Every test here runs the batch runner (job runs, one of them in a subprocess: docs/testing.md).
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def frames():
@@ -175,7 +178,6 @@ print("sharded-saved", flush=True)
 """
 
 
-@pytest.mark.slow  # subprocess
 @pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 batches once
 def test_cli_split_makes_two_devices_and_two_devices_match_one(tmp_path):
     """A subprocess: the CLI's split of the CPU into one device per core, before JAX starts (and

@@ -68,6 +68,7 @@ def _street(*, boxes=(), cylinders=()):
 
 # ---------------------------------------------------------------- Step 1 per source
 
+@pytest.mark.xdist_group("sources_normals")  # one worker compiles their shared program once
 def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
     scene = _street()
     T = _pose((0.5, 0.3, -0.4), roll=4.0, pitch=7.0, yaw=20.0)
@@ -89,6 +90,7 @@ def test_source_normals_are_the_sources_own_range_image_normals_rotated_back():
     assert np.median(-got[inner(wall) & (pts[:, 2] > -1.0), 0]) > 0.999
 
 
+@pytest.mark.xdist_group("sources_normals")  # one worker compiles their shared program once
 def test_source_normals_vmap_equals_loop():
     # A batch of two one-source Sources of different poses (the per-source calls are the program of
     # the test above: one source of P_BUCKET points)
@@ -128,6 +130,7 @@ def _three_origins():
     return np.asarray(depth), pixel_source, points_cam, np.asarray(cam.K), T3, hit, safe, want
 
 
+@pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
 def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
     """One pass over the image for all sources equals one pass of Algorithm 1 per source origin."""
     depth, pixel_source, points_cam, K, T3, _, _, want = _three_origins()
@@ -152,6 +155,7 @@ def _nearer_oracle(depth, candidates, *, beams, eps=1.0):
     return ~(candidates & valid & (depth > near + eps))
 
 
+@pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
 def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
     """Shadow pixels are also removed by condition 2 alone (brute-force window oracle)."""
     depth, pixel_source, points_cam, K, T3, hit, safe, want = _three_origins()
@@ -369,6 +373,7 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
             (int(a) if a.dtype != bool else bool(a)) for a in (np.asarray(x) for x in jt(T_cams[i])))
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
     # One sweep: the option changes nothing (bit-identical; a SMALL_LIDAR sweep and the stereo cameras, the
     # program of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by

@@ -95,6 +95,7 @@ def check_equal(got, want):
 
 # 32 x 48 frames of SMALL_LIDAR, T passed: the programs of the stage table's pipeline rows (default
 # configuration); NON_DEFAULT (scenes.py: every non-default code path) is test_pipeline's scaling program.
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 @pytest.mark.xdist_group("speed_equivalence_synthetic")  # both configurations share the reference's stage programs: one worker
 @pytest.mark.parametrize("config", [SGMConfig(), NON_DEFAULT], ids=["default", "non_default"])
 def test_synthetic_frame_equals_reference(config):
@@ -104,6 +105,7 @@ def test_synthetic_frame_equals_reference(config):
     check_equal(got, reference_stages(sparse, K, T, config=config, lidar=SMALL_LIDAR))
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
     """Cameras wider than the normals' 100-degree column window (f = 18 and 16 px on 48 columns: 106 and 113 degrees;
     exact fallback to the whole range image), as projected and thinned to the listed branch, alone and
@@ -124,6 +126,7 @@ def test_wide_camera_takes_the_whole_range_image_and_vmap_agrees():
         np.testing.assert_allclose(batched[i], want[i]["depth"], rtol=1e-3, atol=2e-3)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_thinned_frame_takes_the_listed_normals_and_equals_reference():
     """About 1 point in 16 of the 32 x 48 frame: fewer points than the image-plane normals' n_pix / 16
     slots, so they take the listed branch (compacted pixels on a window of range-image columns) that

@@ -85,6 +85,7 @@ def test_shift_keeps_every_projection(street):
         np.testing.assert_allclose(da[both], db[both], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
 def test_stated_origin_recovers_the_sensor_frame(street):
     """A sweep given in a vehicle frame (sensor 1.7 m up, 1.2 m ahead of the origin) with its origin
     stated in the rig completes like the sweep in the sensor's own frame."""
