@@ -38,8 +38,8 @@ NO_ROW = {
 }
 
 
-@pytest.mark.parametrize("row", [pytest.param(row, marks=pytest.mark.slow) if row.slow else row for row in ROWS],
-                         ids=[row.name for row in ROWS])
+@pytest.mark.parametrize("row", [pytest.param(row, id=row.name, marks=[pytest.mark.slow] if row.slow else [])
+                                 for row in ROWS])
 def test_stage(row):
     inputs = row.inputs()
     outs = check_stage(row.fn, inputs, static=row.static, oracle=row.oracle, select=row.select,
