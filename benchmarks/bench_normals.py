@@ -48,6 +48,12 @@ REFERENCE_COMMIT = "070cbc9"
 LISTED_COMMIT = "58cfbac"
 
 
+def _current_imports(src: str) -> str:
+    """Old source with its imports of renamed modules pointed at today's (the XLA:CPU helpers moved
+    from ``staging`` to ``xla_tuning`` with the same names)."""
+    return src.replace("jaxdepth._src.staging import", "jaxdepth._src.xla_tuning import")
+
+
 def _reference_module(commit: str = REFERENCE_COMMIT):
     """normals.py at ``commit`` as a module, or None when git or the commit is unavailable."""
     try:
@@ -56,7 +62,7 @@ def _reference_module(commit: str = REFERENCE_COMMIT):
     except (OSError, subprocess.CalledProcessError):
         return None
     path = pathlib.Path(tempfile.mkdtemp()) / f"normals_{commit}.py"
-    path.write_text(src)
+    path.write_text(_current_imports(src))
     spec = importlib.util.spec_from_file_location(f"normals_{commit}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

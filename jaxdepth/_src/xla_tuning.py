@@ -157,9 +157,21 @@ def stage(fn, args, token):
         return fn(*args)
 
     def single(tok, operands):
-        shapes = jax.eval_shape(fn, *operands)
-        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, lambda ops: fn(*ops),
-                            lambda ops: jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes), operands)
+        # The false branch returns zeros of fn's output shapes. lax.cond traces the true
+        # branch first, so its outputs give those shapes without tracing fn a second time
+        # (eval_shape only if another JAX traced the branches in the other order).
+        traced = []
+
+        def run(ops):
+            out = fn(*ops)
+            traced.append(jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), out))
+            return out
+
+        def zeros(ops):
+            shapes = traced[-1] if traced else jax.eval_shape(fn, *ops)
+            return jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes)
+
+        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, run, zeros, operands)
 
     # The batched token is reduced to one predicate for the batch, which keeps the conditional.
     return _steered(jnp.asarray(token, jnp.int32), tuple(args), single=single, reduce=jnp.min,
