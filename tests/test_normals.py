@@ -35,7 +35,7 @@ from jaxdepth._src.presets import KITTI_HDL64, NUSCENES_HDL32
 from jaxdepth._src.types import LidarSpec
 
 from oracles import normals_58cfbac as reference
-from scenes import SMALL_LIDAR, small_camera
+from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
 
 LIDAR = KITTI_HDL64  # 64 x 2048, fov [-24.9, 2] degrees
 SMALL = LidarSpec(beams=16, fov_up_deg=10.0, fov_down_deg=-20.0, columns=64)
@@ -547,6 +547,22 @@ def test_pixel_normals_equal_point_normals_of_backprojected_pixels():
         assert stable[depth > 0].mean() > 0.99
         norms = np.linalg.norm(np.asarray(got)[:, depth > 0], axis=0)
         np.testing.assert_allclose(norms, 1.0, atol=1e-5)
+
+
+def test_pixel_normals_of_a_camera_facing_backwards():
+    """A camera facing backwards (96 x 160, f = 120 px: 67 degrees, inside the 100-degree window) has
+    its window across the range image's 360-degree seam, where the window's azimuths jump by 2 pi
+    (the whole image unwraps them in its column padding). With points near the seam the frame takes
+    the dense path on the whole range image; the listed window gave them normals from neighbours
+    2 pi away."""
+    yaw = np.diag([-1.0, -1.0, 1.0, 1.0]).astype(np.float32)  # LiDAR -x ahead
+    camera = small_camera(lidar_to_camera() @ yaw)
+    for seed in (0, 1):
+        depth = _pix_frame(seed, camera)
+        assert (depth > 0).sum() <= LISTED
+        got = PN.pixel_normals(depth, camera.K, camera.T_cam_lidar, lidar=PIX_LIDAR, max_points=LISTED)
+        stable = check_pixel_normals(got, depth, camera.K, camera.T_cam_lidar, PIX_LIDAR)
+        assert stable[depth > 0].mean() > 0.99
 
 
 def test_pixel_normals_whole_range_image_window_and_options():

@@ -22,7 +22,8 @@ only); back-projection, ``atan2`` binning, the scatter-mins and the gathers
 then run on those points only (the back-projection and both ``atan2`` in one
 stage with three complex outputs, the binning in a second). The range image is
 built on a window of columns around the camera's central ray when every point
-fits inside it with the margin of the neighbour search and smoothing, which
+fits inside it with the margin of the neighbour search and smoothing (and keeps
+that margin from the 360-degree seam, where the window's azimuths jump), which
 gives the whole image's normals exactly.
 """
 
@@ -66,7 +67,7 @@ class _PixelPoints(NamedTuple):
     zr: jax.Array  # complex64 (z, range r), metres; r = 0 for no point
     slot: jax.Array  # int32 flat window cell row * window_cols + col; L window_cols for none / outside
     key: jax.Array  # int32 range bits; INT32_MAX for no point
-    edge: jax.Array  # bool: a point within `margin` columns of the window's edges (or outside it)
+    edge: jax.Array  # bool: a point within `margin` columns of the window's edges or of the seam (or outside it)
 
 
 def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_cols: int, margin: int):
@@ -77,7 +78,8 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
         without depth: no point).
       depth: (H, W) float32 camera depth; only finite positive values are depth.
       col0: int32 first range-image column of the window (0 for the whole image).
-      margin: static number of columns a point must keep from the window's edges.
+      margin: static number of columns a point must keep from the window's edges and from the
+        360-degree seam when the window spans it.
 
     Returns a :class:`_PixelPoints`. The float32 expressions are those of
     :func:`~jaxdepth._src.range_image.range_image` applied to ``unproject_depth`` + ``transform_points``.
@@ -109,7 +111,11 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
         inside = ok & (col < window_cols)
         slot = jnp.where(inside, row * window_cols + col, n_win)
         key = jnp.where(ok, jax.lax.bitcast_convert_type(r, jnp.int32), jnp.iinfo(jnp.int32).max)
-        edge = ok & ((col < margin) | (col >= window_cols - margin))
+        # A window that spans the 360-degree seam holds azimuths that jump by 2 pi there (the
+        # whole range image unwraps them in its column padding): points near it need the whole.
+        seam = n_cols - col0
+        near_seam = (col >= seam - margin) & (col < seam + margin)
+        edge = ok & ((col < margin) | (col >= window_cols - margin) | near_seam)
         return slot, key, edge
 
     thph, xy, zr = stage(per_point, (pix, depth, K, T), token)
@@ -213,8 +219,9 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
     columns around the camera's central ray when every point lies inside it
     (with the margin of the neighbour search and smoothing), which gives the
     whole image's normals exactly. Otherwise (more than ``max_points`` pixels
-    with depth, or points outside the window) a dense path takes every pixel
-    as a point slot and uses the whole range image: same result, slower.
+    with depth, points outside the window, or points near the 360-degree seam
+    inside it: a camera facing backwards) a dense path takes every pixel as a
+    point slot and uses the whole range image: same result, slower.
 
     Args:
       sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
