@@ -18,7 +18,7 @@ import glob
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 
 import jaxdepth
 from jaxdepth.research import sparsity
@@ -53,6 +53,9 @@ def test_beam_index_ignores_range_noise_and_point_order():
 
 @settings(deadline=None, max_examples=8)
 @given(apex=st.floats(-0.3, 0.3), beams=st.sampled_from([8, 16]), seed=st.integers(0, 1000))
+# found by this test: the total gap length alone chose apexes of -0.46 m and -0.20 m here
+@example(apex=0.24703398063352894, beams=8, seed=185)
+@example(apex=0.1811283472309847, beams=8, seed=924)
 def test_beam_index_recovers_cones_with_an_apex_offset(apex, beams, seed):
     # Every beam a cone with its apex at (0, 0, apex); ranges 2 - 60 m, uneven elevations.
     rng = np.random.default_rng(seed)

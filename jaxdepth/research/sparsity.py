@@ -24,10 +24,14 @@ the upper block, 0.11 m for the lower one), so ``phi`` drifts by about
 maximise the separation of the beams. The split: a histogram of ``phi'``
 (``bin_deg`` bins); bins with fewer than ``noise_fraction * n / L`` points
 count as empty (stray returns); the ``L - 1`` longest runs of empty bins
-between occupied bins are the beam boundaries (cut at their middles), and the
-separation score is their total length (ties: the smallest ``|h|``). Points
-closer than ``min_range_m`` (no-return placeholders near the origin, returns
-from the vehicle) and invalid points get beam -1.
+between occupied bins are the beam boundaries (cut at their middles). The
+score is the total length of these gaps minus the total width of the groups
+between them (ties: the smallest ``|h|``): a wrong apex smears each cone over a
+band of elevations, widest for the near points, and the gaps alone can then
+grow, as sparse smeared bins stretch the occupied span (an 8-beam cone sweep
+with its apex 0.25 m up scored a 0.46 m-down apex higher). Points closer
+than ``min_range_m`` (no-return placeholders near the origin, returns from the
+vehicle) and invalid points get beam -1.
 
 Measured (tests/test_sparsity.py):
 
@@ -76,7 +80,7 @@ class BeamModel(NamedTuple):
       apex_height_m: fitted height of the cone apex above the LiDAR origin.
       cuts_deg: (beams_found - 1,) float64 corrected elevations of the beam
         boundaries, descending.
-      separation_deg: total length of the boundary gaps (the score maximised).
+      separation_deg: total length of the boundary gaps.
     """
 
     index: np.ndarray
@@ -105,18 +109,24 @@ def _check_points(points, valid, where: str):
 
 
 def _split(slope: np.ndarray, beams: int, bin_deg: float, min_count: int):
-    """Beam boundaries of corrected slopes tan(phi'): (score_deg, cuts_deg descending)."""
+    """Beam boundaries of corrected slopes tan(phi'): (gaps_deg, widths_deg, cuts_deg descending).
+
+    ``gaps_deg``: total length of the boundary gaps; ``widths_deg``: total width of the groups
+    between them (the occupied span minus the gaps).
+    """
     phi = np.degrees(np.arctan(slope))
     lo = float(phi.min())
     counts = np.bincount(np.floor((phi - lo) / bin_deg).astype(np.int64))
     occupied = np.flatnonzero(counts >= min_count)
     if occupied.size < 2 or beams < 2:
-        return 0.0, np.zeros(0)
+        return 0.0, 0.0, np.zeros(0)
     run = np.diff(occupied) - 1  # empty bins between consecutive occupied bins
     longest = np.argsort(-run, kind="stable")[:beams - 1]
     longest = longest[run[longest] > 0]
     cuts = lo + bin_deg * (occupied[longest] + 1 + 0.5 * run[longest])
-    return float(bin_deg * run[longest].sum()), np.sort(cuts)[::-1]
+    gaps = int(run[longest].sum())
+    widths = int(occupied[-1] - occupied[0] + 1) - gaps
+    return float(bin_deg * gaps), float(bin_deg * widths), np.sort(cuts)[::-1]
 
 
 def _label(slope: np.ndarray, cuts_desc: np.ndarray) -> np.ndarray:
@@ -182,16 +192,17 @@ def beam_model(points: np.ndarray, valid: np.ndarray | None = None, *, lidar: Li
     min_count = max(2, int(math.ceil(noise_fraction * ok.sum() / L)))
     best = None
     for h in np.arange(round((stop - start) / step) + 1) * step + start:
-        score, cuts = _split(ratio - h * inv_rho, L, bin_deg, min_count)
+        gaps, widths, cuts = _split(ratio - h * inv_rho, L, bin_deg, min_count)
+        score = gaps - widths
         if best is None or score > best[0] + 1e-9 or (abs(score - best[0]) <= 1e-9 and abs(h) < abs(best[1])):
-            best = (score, float(h), cuts)
-    score, h, cuts = best
+            best = (score, float(h), cuts, gaps)
+    _, h, cuts, gaps = best
     index[ok] = _label(ratio - h * inv_rho, cuts)
     found = int(cuts.size + 1)
     if found < L:
         log.warning("beam_model: found %d separated elevation groups, expected %d beams; "
                     "groups are numbered from the top without gaps", found, L)
-    return BeamModel(index, found, h, cuts, score)
+    return BeamModel(index, found, h, cuts, gaps)
 
 
 def beam_index(points: np.ndarray, valid: np.ndarray | None = None, *, lidar: LidarSpec,
