@@ -42,6 +42,15 @@ if os.environ.get("JAXDEPTH_TEST_COMPILE_CACHE", "1") != "0":
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
+# Hypothesis draws new examples on every local run (it keeps exploring), but the same ones under CI
+# (derandomize: examples derived from each test's source), so CI's verdict on a commit does not depend
+# on the draw. A failure found locally becomes an @example of its test.
+from hypothesis import settings as _hypothesis_settings  # noqa: E402
+
+_hypothesis_settings.register_profile("ci", derandomize=True, print_blob=True)
+if os.environ.get("CI"):
+    _hypothesis_settings.load_profile("ci")
+
 
 #: Doctests that compile a whole pipeline: slow like the tests that do (docs/testing.md).
 SLOW_DOCTESTS = ("jaxdepth._src.pipeline.complete",)
