@@ -554,7 +554,7 @@ def test_pixel_normals_of_a_camera_facing_backwards():
     its window across the range image's 360-degree seam, where the window's azimuths jump by 2 pi
     (the whole image unwraps them in its column padding). With points near the seam the frame takes
     the dense path on the whole range image; the listed window gave them normals from neighbours
-    2 pi away."""
+    2 pi away (measured: 12 and 60 pixels off by up to 0.017 for seeds 0 and 1; none at 48 x 80)."""
     yaw = np.diag([-1.0, -1.0, 1.0, 1.0]).astype(np.float32)  # LiDAR -x ahead
     camera = small_camera(lidar_to_camera() @ yaw)
     for seed in (0, 1):
@@ -605,6 +605,7 @@ def test_pixel_normals_bad_inputs_raise():
 
 
 @pytest.mark.slow  # KITTI-size program (the frozen-oracle test below runs the same one)
+@pytest.mark.xdist_group("normals_kitti")  # one worker compiles the KITTI-size pixel_normals once
 def test_pixel_normals_kitti_frame(kitti):
     depth, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     got = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
@@ -613,6 +614,7 @@ def test_pixel_normals_kitti_frame(kitti):
 
 
 @pytest.mark.slow  # frozen oracle
+@pytest.mark.xdist_group("normals_kitti")  # one worker compiles the KITTI-size pixel_normals once
 def test_kitti_equal_to_reference_version(kitti):
     """pixel_normals on the KITTI frame and point_normals on its sweep equal the version
     before the speed-up (tests/oracles/normals_58cfbac.py; measured: max difference 1.8e-7,

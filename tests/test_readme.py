@@ -95,24 +95,22 @@ def _python_api_block() -> str:
     return re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
 
 
-@pytest.mark.slow  # the README block's own programs (single and vmap of complete with its defaults)
+@pytest.mark.slow  # the README block's programs: complete's doctest's (single and vmap), test_rig's
 def test_readme_python_api_block_runs(tmp_path, monkeypatch):
-    """Runs the README's API block on a small synthetic frame, files laid out as the block names them:
-    the street of scenes.stereo_street (its first camera's sparse image; the rig JSON its two cameras and
-    SMALL_LIDAR, so the rig completion is test_rig's program)."""
+    """Runs the README's API block on small inputs, files laid out as the block names them: the
+    8 x 12 frame of ``complete``'s doctest (same shape, defaults and program), and the sweep of
+    scenes.stereo_street with a rig JSON of its two cameras and SMALL_LIDAR (test_rig's program)."""
     import jaxdepth
     from jaxdepth.io import write_depth_png
     from scenes import SMALL_LIDAR, stereo_street
 
     scene, cams = stereo_street()
-    cam = cams[0]
-    h, w = int(cam.height), int(cam.width)
-    K = np.asarray(cam.K, np.float64)
-    T = np.asarray(cam.T_cam_lidar, np.float64)
-    sparse, _ = jaxdepth.project_to_image(scene.points, scene.valid, K, T, height=h, width=w)
+    sparse = np.zeros((8, 12), np.float32)  # complete's doctest
+    sparse[6, ::3], sparse[7, 1::3] = 5.0, 4.0
+    K = np.array([[10.0, 0, 5.5], [0, 10.0, 3.5], [0, 0, 1]])
     (tmp_path / "velodyne_raw").mkdir()
     (tmp_path / "intrinsics").mkdir()
-    write_depth_png(tmp_path / "velodyne_raw" / "0000000005.png", np.asarray(sparse))
+    write_depth_png(tmp_path / "velodyne_raw" / "0000000005.png", sparse)
     (tmp_path / "intrinsics" / "0000000005.txt").write_text(" ".join(f"{v:.6f}" for v in K.ravel()) + "\n")
     points = np.asarray(scene.points)[np.asarray(scene.valid)]
     np.concatenate([points, np.zeros((len(points), 1))], axis=1).astype(np.float32).tofile(tmp_path / "sweep.bin")
@@ -127,7 +125,11 @@ def test_readme_python_api_block_runs(tmp_path, monkeypatch):
     exec(compile(_python_api_block(), "README.md (Python API)", "exec"), scope)  # noqa: S102
     assert scope["rig"].lidar == SMALL_LIDAR
     dense, batch, depths = (np.asarray(scope[k]) for k in ("dense", "batch", "depths"))
-    assert dense.shape == (h, w) and batch.shape == (2, h, w) and depths.shape == (2, h, w)
+    h, w = int(cams[0].height), int(cams[0].width)
+    assert dense.shape == (8, 12) and batch.shape == (2, 8, 12) and depths.shape == (2, h, w)
+    np.testing.assert_array_equal(scope["sparse"], sparse)  # the block read the frame written above
+    np.testing.assert_array_equal(dense[sparse > 0], sparse[sparse > 0])
+    assert (dense > 0).all()  # every pixel has a nearest seed
     np.testing.assert_allclose(batch[1], dense, atol=1e-4)  # vmap equals the loop to float32 rounding
-    assert (dense > 0).mean() > 0.5 and (depths > 0).mean(axis=(1, 2)).min() > 0.5
+    assert (depths > 0).mean(axis=(1, 2)).min() > 0.5
     assert os.listdir(tmp_path)  # the block read its inputs from the working directory
