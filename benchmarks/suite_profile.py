@@ -11,10 +11,14 @@ Summarise (prints the tables; ``--json`` writes them, default ``results/suite_pr
 
 Per test: wall seconds, and the seconds JAX reports through ``jax.monitoring`` in that test's
 process: XLA compiling (``backend_compile``), tracing, lowering to MLIR, reading the persistent
-compilation cache; and every single compile of at least 0.25 s with its function's name. Work in
-subprocesses (CLI runs, notebook kernels, Ray workers) shows as wall time only. The summary gives
-the totals, each worker's span, the modules and tests that take longest, and the functions whose
-compiles cost most. The plugin does nothing unless ``JAXDEPTH_SUITE_PROFILE`` names a folder.
+compilation cache; and every single compile of at least 0.25 s (``JAXDEPTH_SUITE_PROFILE_MIN_S``)
+with its function's name and argument shapes (from JAX's ``jax_log_compiles`` messages, which the
+plugin turns on). Work in subprocesses (CLI runs, notebook kernels, Ray workers) shows as wall time
+only. The summary gives the totals, each worker's span, the modules and tests that take longest, the
+functions whose compiles cost most, and the function names compiled more than once with the same
+argument shapes (other static options, another function of that name, or one program compiled twice:
+the first place to look for a compile to share). The plugin does nothing unless
+``JAXDEPTH_SUITE_PROFILE`` names a folder.
 """
 
 from __future__ import annotations
@@ -23,8 +27,10 @@ import argparse
 import collections
 import glob
 import json
+import logging
 import os
 import pathlib
+import re
 import sys
 import time
 
@@ -38,9 +44,28 @@ EVENTS = {
     "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
     "/jax/compilation_cache/cache_retrieval_time_sec": "cache_read_s",
 }
+#: Compiles at least this long are listed one by one (``JAXDEPTH_SUITE_PROFILE_MIN_S`` overrides it).
 BIG_COMPILE_S = 0.25
 
-_state = {"out": None, "sums": collections.Counter(), "big": []}
+_state = {"out": None, "sums": collections.Counter(), "big": [], "signature": ""}
+
+_DTYPES = {"float32": "f32", "float64": "f64", "int32": "s32", "int64": "s64", "uint8": "u8", "bool": "pred"}
+
+
+def signature(message: str) -> str:
+    """``f32[32,48] f32[3,3]``: the argument shapes of JAX's "Compiling <fun> with global shapes and
+    types (ShapedArray(float32[32,48]), ...)" message (static options are not in it)."""
+    shapes = re.findall(r"ShapedArray\((\w+)(\[[^\]]*\])", message)
+    return " ".join(_DTYPES.get(dtype, dtype) + dims for dtype, dims in shapes)
+
+
+class _CompilingMessages(logging.Handler):
+    """Keeps the argument shapes of the program JAX lowered last (``jax_log_compiles``)."""
+
+    def emit(self, record):
+        message = record.getMessage()
+        if message.startswith("Compiling "):
+            _state["signature"] = signature(message)
 
 
 def _listener(event, duration, **kwargs):
@@ -49,16 +74,21 @@ def _listener(event, duration, **kwargs):
         return
     _state["sums"][field] += duration
     _state["sums"][field.replace("_s", "_n")] += 1
-    if field == "compile_s" and duration >= BIG_COMPILE_S:
-        _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2)])
+    if field == "compile_s" and duration >= _state.get("min_s", BIG_COMPILE_S):
+        _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2), _state["signature"]])
 
 
 def pytest_configure(config):
     folder = os.environ.get(ENV)
     if not folder:
         return
+    import jax
     import jax.monitoring
+    _state["min_s"] = float(os.environ.get(ENV + "_MIN_S", BIG_COMPILE_S))
     jax.monitoring.register_event_duration_secs_listener(_listener)
+    # The argument shapes of each compile: JAX logs them (at WARNING) with jax_log_compiles on.
+    jax.config.update("jax_log_compiles", True)
+    logging.getLogger("jax._src.interpreters.pxla").addHandler(_CompilingMessages())
     os.makedirs(folder, exist_ok=True)
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     _state["worker"] = worker
@@ -124,14 +154,20 @@ def summarise(records: list, *, top: int = 25) -> dict:
     by_test = [{"test": r["id"], "wall_s": r["wall_s"], "compile_s": round(r.get("compile_s", 0.0), 1),
                 "big_compiles": r["big_compiles"]} for r in sorted(records, key=lambda r: -r["wall_s"])[:top]]
     funs = collections.defaultdict(lambda: [0.0, 0])
+    same = collections.defaultdict(list)
     for r in records:
-        for name, seconds in r["big_compiles"]:
+        for name, seconds, *shapes in r["big_compiles"]:
             funs[name][0] += seconds
             funs[name][1] += 1
+            if shapes and shapes[0]:
+                same[(name, shapes[0])].append({"test": r["id"], "worker": r["worker"], "compile_s": seconds})
     by_function = [{"function": k, "compile_s": round(v[0], 1), "compiles": v[1]}
                    for k, v in sorted(funs.items(), key=lambda kv: -kv[1][0])[:top]]
+    repeated = [{"function": name, "shapes": shapes, "compile_s": round(sum(c["compile_s"] for c in v), 1),
+                 "compiles": v} for (name, shapes), v in same.items() if len(v) > 1]
+    repeated = sorted(repeated, key=lambda d: -d["compile_s"])[:top]
     return {"totals": totals, "workers": workers, "by_module": by_module, "by_test": by_test,
-            "by_function": by_function}
+            "by_function": by_function, "same_shapes_compiled_again": repeated}
 
 
 def compile_cost(*, repeats: int = 3) -> dict:
@@ -169,11 +205,18 @@ def _print(summary: dict) -> None:
         print(f"  {m['wall_s']:7.1f} {m['compile_s']:7.1f} {m['tests']:5d}  {m['module']}")
     print("\ntests (wall s, compile s, compiles >= 0.25 s)")
     for r in summary["by_test"]:
-        big = " ".join(f"{n}:{s}" for n, s in r["big_compiles"][:4])
+        big = " ".join(f"{n}:{s}" for n, s, *_ in r["big_compiles"][:4])
         print(f"  {r['wall_s']:7.1f} {r['compile_s']:7.1f}  {r['test']}  {big}")
     print("\ncompiled functions (compile s, compiles >= 0.25 s)")
     for f in summary["by_function"]:
         print(f"  {f['compile_s']:7.1f} {f['compiles']:5d}  {f['function']}")
+    print("\none function name compiled more than once with the same argument shapes (compile s): other\n"
+          "static options (a property of their own), another function of that name (a frozen oracle), or one\n"
+          "program compiled twice (by two workers at once, or after the compiled programs were dropped)")
+    for f in summary["same_shapes_compiled_again"]:
+        print(f"  {f['compile_s']:7.1f}  {f['function']} {f['shapes']}")
+        for c in f["compiles"]:
+            print(f"  {c['compile_s']:13.1f}  {c['worker']}  {c['test']}")
 
 
 def main(argv=None) -> int:

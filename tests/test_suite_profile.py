@@ -33,6 +33,25 @@ def test_summary_totals_spans_and_orders_against_hand_sums():
     assert [t["test"] for t in s["by_test"]] == ["tests/b.py::t3", "tests/a.py::t1", "tests/a.py::t2"]
     assert s["by_function"] == [{"function": "jit(f)", "compile_s": 3.5, "compiles": 2},
                                 {"function": "jit(g)", "compile_s": 3.5, "compiles": 1}]
+    assert s["same_shapes_compiled_again"] == []  # records without shapes (older profiles) are read too
+
+
+def test_same_function_and_shapes_compiled_twice_are_listed():
+    records = [
+        _record("tests/a.py::t1", "gw0", 100.0, 4.0, big=[("jit(f)", 2.5, "f32[8,12] f32[3,3]")]),
+        _record("tests/b.py::t2", "gw1", 100.0, 4.0, big=[("jit(f)", 2.0, "f32[8,12] f32[3,3]"),
+                                                          ("jit(f)", 1.0, "f32[2,8,12] f32[2,3,3]")]),
+        _record("tests/b.py::t3", "gw1", 104.0, 1.0, big=[("jit(g)", 1.5, "f32[8,12] f32[3,3]")]),
+    ]
+    (row,) = suite_profile.summarise(records, top=10)["same_shapes_compiled_again"]
+    assert (row["function"], row["shapes"], row["compile_s"]) == ("jit(f)", "f32[8,12] f32[3,3]", 4.5)
+    assert [(c["test"], c["worker"]) for c in row["compiles"]] == [("tests/a.py::t1", "gw0"), ("tests/b.py::t2", "gw1")]
+
+
+def test_signature_reads_jax_compiling_messages():
+    message = ("Compiling jit(_complete_depth) with global shapes and types (ShapedArray(float32[2,32,48]), "
+               "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[])). Argument mapping: ...")
+    assert suite_profile.signature(message) == "f32[2,32,48] f32[2,3,3] u8[2,32,48,3] pred[]"
 
 
 @pytest.mark.slow  # a pytest subprocess (Python and JAX start-up)
@@ -45,7 +64,8 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
         "def test_plain():\n"
         "    assert 1 + 1 == 2\n")
     folder = tmp_path / "profile"
-    env = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(folder), JAX_ENABLE_COMPILATION_CACHE="false")
+    env = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(folder), JAXDEPTH_SUITE_PROFILE_MIN_S="0",
+               JAX_ENABLE_COMPILATION_CACHE="false")
     for name in [k for k in env if k.startswith("PYTEST_XDIST") or k == "JAX_COMPILATION_CACHE_DIR"]:
         env.pop(name)  # a process of its own, not this session's xdist worker or compilation cache
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
@@ -55,6 +75,9 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
     records = {r["id"].split("::")[-1]: r for r in suite_profile.load(folder)}
     assert sorted(records) == ["test_compiles", "test_plain"]
     assert records["test_compiles"]["compile_n"] >= 1 and records["test_compiles"]["compile_s"] > 0
+    # every compile listed (MIN_S=0), each with its argument shapes: the lambda's one float32 scalar
+    listed = {name: shapes for name, _, shapes in records["test_compiles"]["big_compiles"]}
+    assert listed["jit(<lambda>)"] == "f32[]", listed
     assert records["test_plain"].get("compile_n", 0) == 0
     assert all(r["worker"] == "main" and r["wall_s"] >= 0 for r in records.values())
     out = tmp_path / "summary.json"
