@@ -84,7 +84,10 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     deleted beyond that, see :func:`trim_compile_cache`). Left off when
     ``enabled`` is False (``--no-compile-cache``), when ``JAXDEPTH_COMPILE_CACHE=0``, when
     JAX already has a cache folder (``JAX_COMPILATION_CACHE_DIR``), or when the folder
-    cannot be created or written. Returns the folder in use, or None.
+    cannot be created or written. Returns the folder in use, or None. Processes running at
+    once (Ray workers, parallel runs) share the folder; JAX writes entries in place, so one
+    read while another process writes it fails, and JAX warns ("Error reading persistent
+    compilation cache entry") and compiles that program again: slower, never wrong.
     """
     import os
     if not enabled or os.environ.get("JAXDEPTH_COMPILE_CACHE", "1") == "0":
