@@ -87,7 +87,8 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     cannot be created or written. Returns the folder in use, or None. Processes running at
     once (Ray workers, parallel runs) share the folder; JAX writes entries in place, so one
     read while another process writes it fails, and JAX warns ("Error reading persistent
-    compilation cache entry") and compiles that program again: slower, never wrong.
+    compilation cache entry": the truncated entry does not decompress) and compiles that
+    program again.
     """
     import os
     if not enabled or os.environ.get("JAXDEPTH_COMPILE_CACHE", "1") == "0":
