@@ -100,7 +100,6 @@ def test_readme_python_api_block_runs(tmp_path, monkeypatch):
     """Runs the README's API block on small inputs, files laid out as the block names them: the
     8 x 12 frame of ``complete``'s doctest (same shape, defaults and program), and the sweep of
     scenes.stereo_street with a rig JSON of its two cameras and SMALL_LIDAR (test_rig's program)."""
-    import jaxdepth
     from jaxdepth.io import write_depth_png
     from scenes import SMALL_LIDAR, stereo_street
 
