@@ -74,8 +74,11 @@ def _listener(event, duration, **kwargs):
         return
     _state["sums"][field] += duration
     _state["sums"][field.replace("_s", "_n")] += 1
-    if field == "compile_s" and duration >= _state.get("min_s", BIG_COMPILE_S):
-        _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2), _state["signature"]])
+    if field == "compile_s":
+        # the shapes belong to this compile only: a later one without a message of its own gets ""
+        shapes, _state["signature"] = _state["signature"], ""
+        if duration >= _state.get("min_s", BIG_COMPILE_S):
+            _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2), shapes])
 
 
 def pytest_configure(config):
