@@ -46,6 +46,7 @@ EVENTS = {
 }
 #: Compiles at least this long are listed one by one (``JAXDEPTH_SUITE_PROFILE_MIN_S`` overrides it).
 BIG_COMPILE_S = 0.25
+_LISTED = f">= {BIG_COMPILE_S} s, or {ENV}_MIN_S when the run set it"
 
 _state = {"out": None, "sums": collections.Counter(), "big": [], "signature": ""}
 
@@ -206,11 +207,11 @@ def _print(summary: dict) -> None:
     print("\nmodules (wall s, compile s, tests)")
     for m in summary["by_module"]:
         print(f"  {m['wall_s']:7.1f} {m['compile_s']:7.1f} {m['tests']:5d}  {m['module']}")
-    print("\ntests (wall s, compile s, compiles >= 0.25 s)")
+    print(f"\ntests (wall s, compile s, listed compiles: {_LISTED})")
     for r in summary["by_test"]:
         big = " ".join(f"{n}:{s}" for n, s, *_ in r["big_compiles"][:4])
         print(f"  {r['wall_s']:7.1f} {r['compile_s']:7.1f}  {r['test']}  {big}")
-    print("\ncompiled functions (compile s, compiles >= 0.25 s)")
+    print(f"\ncompiled functions (compile s, listed compiles: {_LISTED})")
     for f in summary["by_function"]:
         print(f"  {f['compile_s']:7.1f} {f['compiles']:5d}  {f['function']}")
     print("\none function name compiled more than once with the same argument shapes (compile s): other\n"
