@@ -26,7 +26,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import jaxdepth
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
@@ -38,7 +37,7 @@ from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.types import LidarSpec
 
 from helpers import numpy_column_hypotheses
-from scenes import NON_DEFAULT, SMALL_LIDAR, thinned_for_listed_normals, tiny_frame, tiny_street_frames
+from scenes import NON_DEFAULT, SMALL_LIDAR, thinned_for_listed_normals, tiny_frame
 
 
 
@@ -146,41 +145,3 @@ def test_kitti_frame_equals_reference(kitti):
     config = SGMConfig()
     got = complete_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64)
     check_equal(got, reference_stages(sparse, K, T, config=config, lidar=presets.KITTI_HDL64))
-
-
-
-# ---------------------------------------------------------------- rigs: depth-only programs
-
-def _mixed_rig():
-    """A 32 x 48 street sweep of SMALL_LIDAR and two cameras of different sizes (landscape, portrait) on one canvas."""
-    from scenes import lidar_to_camera, small_camera
-    (points, valid, wide), = tiny_street_frames((0,))
-    tall = small_camera(lidar_to_camera((-0.3, 0.2, 0.3)), h=48, w=32, f=36.0)
-    return points, valid, jaxdepth.stack_cameras([wide, tall])
-
-
-@pytest.mark.slow  # whole pipeline programs of their own (docs/testing.md)
-def test_rig_depth_program_equals_the_stages_depth_bit_for_bit():
-    """complete_rig (its own jit: only the depth leaves the program) gives the bytes of
-    complete_rig_stages(...).depth, on a rig of a landscape and a portrait camera (one padded)."""
-    points, valid, cams = _mixed_rig()
-    want = np.asarray(jaxdepth.complete_rig_stages(points, valid, cams, lidar=SMALL_LIDAR).depth)
-    assert (want > 0).mean() > 0.3
-    np.testing.assert_array_equal(np.asarray(jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)), want)
-
-
-@pytest.mark.slow  # whole pipeline programs of their own (docs/testing.md)
-def test_sources_depth_program_equals_the_stages_depth_bit_for_bit():
-    """complete_sources (depth-only jit) against complete_sources_stages(...).depth on two sweeps of
-    the street (free space, shadow and occlusion verdicts in play) and the mixed rig."""
-    from jaxdepth._src import sources as S
-    points, valid, cams = _mixed_rig()
-    (later, later_valid, _), = tiny_street_frames((1,))
-    T_old = np.eye(4, dtype=np.float32)
-    T_old[0, 3] = -1.0                                           # the earlier sweep's LiDAR 1 m behind
-    old = np.where(later_valid[:, None], later + T_old[:3, 3], 0.0).astype(np.float32)
-    src = S.make_sources(np.stack([points, old]), np.stack([valid, later_valid]), np.stack([np.eye(4), T_old]),
-                         lidars=(SMALL_LIDAR, SMALL_LIDAR), sweep=(0, 1))
-    want = np.asarray(S.complete_sources_stages(src, cams).depth)
-    assert (want > 0).mean() > 0.3
-    np.testing.assert_array_equal(np.asarray(S.complete_sources(src, cams)), want)

@@ -209,11 +209,4 @@ def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
                  config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
                  images: jax.Array | None = None) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera of the rig; see :func:`complete_rig_stages`."""
-    return _complete_rig_depth(points, valid, cameras, images, config=config, lidar=lidar)
-
-
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_rig_depth(points, valid, cameras, images=None, *, config, lidar):
-    # Its own jit: only the depth leaves the computation, so the other stages (ten (C, H, W)
-    # channels) are never written out (as jaxdepth.complete's).
-    return _complete_rig_stages(points, valid, cameras, images, config=config, lidar=lidar).depth
+    return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth

@@ -487,13 +487,5 @@ def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig
                      images: jax.Array | None = None, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS,
                      occlusion: bool = True) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
-    beams = default_beams(sources) if beams is None else int(beams)
-    return _complete_sources_depth(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                                   neighbour_sweeps=neighbour_sweeps, occlusion=bool(occlusion))
-
-
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "neighbour_sweeps", "occlusion"))
-def _complete_sources_depth(sources, cameras, images=None, **static):
-    # Its own jit: only the depth leaves the computation, so the other stages (ten (C, H, W)
-    # channels) are never written out (as jaxdepth.complete's).
-    return _complete_sources_stages(sources, cameras, images, **static).depth
+    return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                                   images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion).depth

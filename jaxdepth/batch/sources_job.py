@@ -122,7 +122,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     import jaxdepth
-    from jaxdepth._src.sources import NEIGHBOUR_SWEEPS, complete_sources, complete_sources_stages
+    from jaxdepth._src.sources import NEIGHBOUR_SWEEPS, complete_sources_stages
     if neighbour_sweeps == "default":
         neighbour_sweeps = NEIGHBOUR_SWEEPS
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
@@ -130,14 +130,12 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-        run = jaxdepth.complete_rig_stages if stages else jaxdepth.complete_rig
-        out = run(padded, valid, cameras, config=config, lidar=spec, images=images)
+        out = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
     else:
         sources, _ = cloud_sources(cloud, fallback=rig.lidar)
-        run = complete_sources_stages if stages else complete_sources
-        out = run(sources, cameras, config=config, free_space=free_space, beams=beams, images=images,
-                  neighbour_sweeps=neighbour_sweeps, occlusion=occlusion)
-    return out if stages else np.asarray(out)
+        out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                                      images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion)
+    return out if stages else np.asarray(out.depth)
 
 
 __all__ = ["complete_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]
