@@ -120,9 +120,18 @@ def _user_rig(rig: RigDef, cams) -> Rig:
     if rig.per_unit_sources:
         lidars = tuple(RigLidar(unit(0).name, np.asarray(T, np.float32), spec)
                        for (unit, T), spec in zip(rig.units, rig.stated))
-        return Rig(lidar=rig.lidar, cameras=cams, lidars=lidars, columns=("x", "y", "z", "lidar", "ring"))
-    columns = ("x", "y", "z", "ring") if rig.ring_column else None
+        return Rig(lidar=rig.lidar, cameras=cams, lidars=lidars, columns=("x", "y", "z", "intensity", "lidar", "ring"))
+    columns = ("x", "y", "z", "intensity", "ring") if rig.ring_column else None
+    if rig.stated[0] is None:
+        # Nothing a user could state about the scanner: one entry without a spec (estimated from the points).
+        return Rig(lidar=rig.lidar, cameras=cams, lidars=(RigLidar(_source_name(rig), np.eye(4, dtype=np.float32)),),
+                   columns=columns)
     return Rig(lidar=rig.lidar, cameras=cams, columns=columns)
+
+
+def _source_name(rig: RigDef) -> str:
+    """The name of a one-source-per-sweep rig's source (``lidar`` as the rig JSON reader names it)."""
+    return {"raster": "roof", "rosette": "rosette"}.get(rig.name, "lidar")
 
 
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
@@ -162,7 +171,7 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
             poses.append(T_ref_points)
             specs.append(rdef.stated[0])
             sweep_ids.append(k)
-            names.append(f"lidar@{k}")
+            names.append(f"{_source_name(rdef)}@{k}")
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             unit = make_unit(k)
             out = cast_unit(scene, unit, T_world_points[k] @ T_points_unit, rates, [seed, k, u, 37])
@@ -213,8 +222,8 @@ def _sweep_file_rows(twin: Twin, k: int) -> np.ndarray:
     sel = np.isin(cloud.source, sources)
     T = np.linalg.inv(twin.sweep_poses[k])
     pts = cloud.points[sel].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-    cols = [pts]
-    if twin.rig.lidars:
+    cols = [pts, np.zeros((pts.shape[0], 1))]   # no reflectance modelled: intensity 0
+    if twin.rig.columns is not None and "lidar" in twin.rig.columns:
         cols.append((cloud.source[sel] - sources[0])[:, None])
     if cloud.ring is not None:
         cols.append(cloud.ring[sel][:, None])
@@ -224,8 +233,9 @@ def _sweep_file_rows(twin: Twin, k: int) -> np.ndarray:
 def write_twin(twin: Twin, folder) -> dict:
     """Writes what a user would have on disk, atomically, into ``folder`` (created).
 
-    Files: ``sweep_<k>.npy`` (float32 rows ``x, y, z`` plus ``lidar`` / ``ring`` where the rig's
-    ``columns`` name them, each sweep in its own points frame), ``rig.json``
+    Files: ``sweep_<k>.npy`` (float32 rows ``x, y, z, intensity`` (0: reflectance is not modelled)
+    plus ``lidar`` / ``ring`` where the rig's ``columns`` name them, each sweep in its own points
+    frame), ``rig.json``
     (:func:`jaxdepth.io.write_rig_json`), ``sweeps.json`` (``T_ref_sweep`` of each sweep, the
     reference first) and ``depth/<camera>.png`` (the exact depth, KITTI uint16 format, at the
     camera's own size).
