@@ -116,7 +116,7 @@ def raster_unit(name: str, *, lines: int = 64, cols: int = 600, h_fov_deg: float
     """A raster-scan unit looking along +x: ``lines`` non-uniform scan lines (:func:`raster_lines_deg`),
     ``cols`` samples across ``h_fov_deg`` per line (left to right), shifted by ``phase`` samples."""
     el = np.radians(raster_lines_deg(lines))[:, None]
-    az = np.radians(h_fov_deg) * (0.5 - (np.arange(cols) + 0.5 + phase) / cols)
+    az = np.radians(h_fov_deg) * (0.5 - (np.arange(cols) + phase) / cols)
     return Unit(name, _spherical(el, az[None, :]).astype(np.float32), int(lines), int(cols), np.zeros(3),
                 float(max_range_m), np.full(lines * cols, -1, np.int32))
 

@@ -53,7 +53,8 @@ class Twin:
       point_origin: (N, 3) float32 that unit's ray origin at that sweep, reference frame (oracle).
       depths: C arrays (H_c, W_c) float32, each camera's exact depth at its own size.
       sweep_poses: (K, 4, 4) float64 pose of each sweep's points frame in the reference frame
-        (the sweeps JSON's ``T_ref_sweep``); ego_step_m: (K - 1,) distance between consecutive sweeps.
+        (the sweeps JSON's ``T_ref_sweep``); ego_step_m: (K - 1,) distance the ego moved between
+      consecutive sweeps, metres.
       point_exact: (N, 3) float32 each point's exact first hit (no noise, no blend).
       point_mixed: (N,) bool points that are mixed returns.
       unit_names: name of each unit index. effects: the rates used. seed, scale: as given.
@@ -202,7 +203,7 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
     for c, d in enumerate(depths):
         canvas[c, :d.shape[0], :d.shape[1]] = d
     sweep_poses = np.stack([T_ref_world @ T for T in T_world_points])
-    steps = np.linalg.norm(np.diff(sweep_poses[:, :3, 3], axis=0), axis=1)
+    steps = np.linalg.norm(np.diff([ego_pose(rdef, k)[:3, 3] for k in range(int(sweeps))], axis=0), axis=1)
     return Twin(name=rig, sensor_class=rdef.sensor_class, cloud=cloud, rig=_user_rig(rdef, rig_cams),
                 dense_depth=canvas, point_unit=cat["unit"], point_origin=cat["origin"], depths=depths,
                 sweep_poses=sweep_poses, ego_step_m=steps, point_exact=cat["exact"], point_mixed=cat["mixed"],
