@@ -57,6 +57,7 @@ class Twin:
       consecutive sweeps, metres.
       point_exact: (N, 3) float32 each point's exact first hit (no noise, no blend).
       point_mixed: (N,) bool points that are mixed returns.
+      point_ring: (N,) int32 each point's row on its unit's scan grid (laser, scan line; 0 for a rosette).
       unit_names: name of each unit index. effects: the rates used. seed, scale: as given.
     """
 
@@ -72,6 +73,7 @@ class Twin:
     ego_step_m: np.ndarray | None = None
     point_exact: np.ndarray | None = None
     point_mixed: np.ndarray | None = None
+    point_ring: np.ndarray | None = None
     unit_names: tuple = ()
     effects: SensorEffects = NO_EFFECTS
     seed: int = 0
@@ -207,6 +209,7 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
     return Twin(name=rig, sensor_class=rdef.sensor_class, cloud=cloud, rig=_user_rig(rdef, rig_cams),
                 dense_depth=canvas, point_unit=cat["unit"], point_origin=cat["origin"], depths=depths,
                 sweep_poses=sweep_poses, ego_step_m=steps, point_exact=cat["exact"], point_mixed=cat["mixed"],
+                point_ring=cat["ring"],
                 unit_names=unit_names, effects=rates, seed=int(seed), scale=float(scale))
 
 
