@@ -144,7 +144,7 @@ def test_av2_table_is_the_real_logs_measurement():
     cal = twin_measure.av2_calibration(log)
     for name, T in cal["lidars"].items():
         np.testing.assert_allclose(twin_tables.AV2_LIDARS[name], T, atol=1e-5)
-    for name, (K, w, h, _) in cal["cameras"].items():
+    for name, (_, w, h, _) in cal["cameras"].items():
         assert twin_tables.AV2_CAMERAS[name][1:3] == (w, h)
     assert twin_tables.AV2_CAMERAS["ring_front_center"][1:3] == (1550, 2048)    # portrait
 

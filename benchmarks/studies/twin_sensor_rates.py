@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import glob
-import pathlib
 import time
 
 import numpy as np

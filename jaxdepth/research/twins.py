@@ -137,6 +137,47 @@ def _source_name(rig: RigDef) -> str:
     return {"raster": "roof", "rosette": "rosette"}.get(rig.name, "lidar")
 
 
+def _moved(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return (np.asarray(p, np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+
+
+def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects):
+    """(SourceCloud in the reference frame, per-point oracle arrays) of every sweep of every unit."""
+    T_ref_world = np.linalg.inv(T_world_points[0])
+    parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
+    poses, specs, sweep_ids, names = [], [], [], []
+    for k, T_world_k in enumerate(T_world_points):
+        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
+        T_ref_points = T_ref_world @ T_world_k
+        if not rdef.per_unit_sources:
+            poses.append(T_ref_points)
+            specs.append(rdef.stated[0])
+            sweep_ids.append(k)
+            names.append(f"{_source_name(rdef)}@{k}")
+        for u, (make_unit, T_points_unit) in enumerate(rdef.units):
+            unit = make_unit(k)
+            out = cast_unit(scene, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
+            if rdef.per_unit_sources:
+                poses.append(T_ref_points @ T_points_unit)
+                specs.append(rdef.stated[u])
+                sweep_ids.append(k)
+                names.append(f"{unit.name}@{k}")
+            keep = out["valid"]
+            n = int(keep.sum())
+            parts["points"].append(_moved(T_ref_world, out["points"][keep]))
+            parts["exact"].append(_moved(T_ref_world, out["exact"][keep]))
+            parts["source"].append(np.full(n, len(poses) - 1, np.int32))
+            parts["ring"].append(out["ring"][keep])
+            parts["unit"].append(np.full(n, u, np.int32))
+            parts["origin"].append(np.repeat(_moved(T_ref_world, out["origin"][None]), n, axis=0))
+            parts["mixed"].append(out["mixed"][keep])
+    cat = {key: np.concatenate(v) for key, v in parts.items()}
+    cloud = SourceCloud(points=cat["points"], source=cat["source"], T_ref_source=np.stack(poses), lidars=tuple(specs),
+                        sweep=np.asarray(sweep_ids, np.int32), names=tuple(names),
+                        ring=cat["ring"] if rdef.ring_column else None, path=f"twin:{rdef.name}")
+    return cloud, cat
+
+
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
               step_m: float | None = None) -> Twin:
     """A digital twin of a real rig (see the module docstring and ``docs/twins.md``).
@@ -163,40 +204,8 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
             raise ValueError(f"make_twin: field 'step_m' expected metres in [0, 5], got {step_m!r}")
         rdef = dataclasses.replace(rdef, step_m=float(step_m))
     T_world_points = [ego_pose(rdef, k) @ rdef.T_ego_points for k in range(int(sweeps))]
+    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates)
     T_ref_world = np.linalg.inv(T_world_points[0])
-    parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
-    poses, specs, sweep_ids, names = [], [], [], []
-    unit_names = tuple(unit(0).name for unit, _ in rdef.units)
-    for k in range(int(sweeps)):
-        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
-        T_ref_points = T_ref_world @ T_world_points[k]
-        if not rdef.per_unit_sources:
-            poses.append(T_ref_points)
-            specs.append(rdef.stated[0])
-            sweep_ids.append(k)
-            names.append(f"{_source_name(rdef)}@{k}")
-        for u, (make_unit, T_points_unit) in enumerate(rdef.units):
-            unit = make_unit(k)
-            out = cast_unit(scene, unit, T_world_points[k] @ T_points_unit, rates, [seed, k, u, 37])
-            if rdef.per_unit_sources:
-                poses.append(T_ref_points @ T_points_unit)
-                specs.append(rdef.stated[u])
-                sweep_ids.append(k)
-                names.append(f"{unit.name}@{k}")
-            keep = out["valid"]
-            n = int(keep.sum())
-            move = lambda p: (p.astype(np.float64) @ T_ref_world[:3, :3].T + T_ref_world[:3, 3]).astype(np.float32)
-            parts["points"].append(move(out["points"][keep]))
-            parts["exact"].append(move(out["exact"][keep]))
-            parts["source"].append(np.full(n, len(poses) - 1, np.int32))
-            parts["ring"].append(out["ring"][keep])
-            parts["unit"].append(np.full(n, u, np.int32))
-            parts["origin"].append(np.repeat(move(out["origin"][None]), n, axis=0))
-            parts["mixed"].append(out["mixed"][keep])
-    cat = {key: np.concatenate(v) for key, v in parts.items()}
-    cloud = SourceCloud(points=cat["points"], source=cat["source"], T_ref_source=np.stack(poses), lidars=tuple(specs),
-                        sweep=np.asarray(sweep_ids, np.int32), names=tuple(names),
-                        ring=cat["ring"] if rdef.ring_column else None, path=f"twin:{rig}")
     rig_cams, world_cams = _cameras(rdef, float(scale), T_world_points[0])
     scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s)
     depths = tuple(np.asarray(render_depth(cam, scene0, max_range_m=CAMERA_MAX_RANGE_M)) for cam in world_cams)
@@ -210,7 +219,7 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
                 dense_depth=canvas, point_unit=cat["unit"], point_origin=cat["origin"], depths=depths,
                 sweep_poses=sweep_poses, ego_step_m=steps, point_exact=cat["exact"], point_mixed=cat["mixed"],
                 point_ring=cat["ring"],
-                unit_names=unit_names, effects=rates, seed=int(seed), scale=float(scale))
+                unit_names=tuple(unit(0).name for unit, _ in rdef.units), effects=rates, seed=int(seed), scale=float(scale))
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
