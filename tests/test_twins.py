@@ -237,3 +237,27 @@ def test_bad_arguments_name_the_field():
     with pytest.raises(ValueError, match="field 'scale'"):
         make_twin("kitti", scale=0)
     assert set(TWIN_RIGS) == set(RIG_BUILDERS)
+
+
+def test_raster_lines_are_densest_at_the_horizon():
+    from jaxdepth.research.twin_sensors import raster_lines_deg
+
+    lines = raster_lines_deg(64, top_deg=10.0, bottom_deg=-20.0)
+    np.testing.assert_allclose(lines[[0, -1]], [10.0, -20.0], atol=1e-9)
+    gaps = -np.diff(lines)
+    assert np.all(gaps > 0)
+    horizon = int(np.argmin(np.abs(lines[:-1] + lines[1:])))     # the gap that straddles 0 deg
+    assert np.all(np.diff(gaps[:horizon + 1]) <= 1e-12) and np.all(np.diff(gaps[horizon:]) >= -1e-12)
+    assert gaps.max() > 2.5 * gaps.min()
+
+
+def test_rosette_sweeps_do_not_repeat_each_others_rays():
+    from scipy.spatial import cKDTree
+
+    from jaxdepth.research.twin_sensors import rosette_unit
+
+    a, b = (rosette_unit("r", points=5000, start=s) for s in (0.0, 5000 * 1.37))
+    cos_half_fov = math.cos(math.radians(35.0)) - 1e-6
+    assert np.all(a.directions[:, 0] >= cos_half_fov)            # inside the 35 deg cone
+    dist, _ = cKDTree(a.directions).query(b.directions)
+    assert np.median(dist) > 1e-4                                  # new directions, not the same path again
