@@ -266,3 +266,25 @@ def test_rosette_sweeps_do_not_repeat_each_others_rays():
     assert np.all(a.directions[:, 0] >= cos_half_fov)            # inside the 35 deg cone
     dist, _ = cKDTree(a.directions).query(b.directions)
     assert np.median(dist) > 1e-4                                  # new directions, not the same path again
+
+
+def test_sphere_hits_match_the_analytic_intersection():
+    from jaxdepth.research.twin_sensors import sphere_hits
+
+    rng = np.random.default_rng(0)
+    centre, radius = np.array([6.0, -1.0, 0.5]), 1.5
+    d = rng.normal(size=(200, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    aim = centre + rng.uniform(-0.5, 0.5, (50, 3))      # rays from the origin that must hit
+    d[:50] = aim / np.linalg.norm(aim, axis=1, keepdims=True)
+    spheres = np.array([[*centre, radius], [40.0, 40.0, 40.0, 0.5]], np.float32)
+    for origin in (np.zeros(3), centre + [0.2, 0.1, 0.0]):         # outside, then inside the sphere
+        t = np.asarray(sphere_hits(origin.astype(np.float32), d.astype(np.float32), spheres), np.float64)
+        b = d @ (origin - centre)
+        disc = b * b - (np.sum((origin - centre) ** 2) - radius ** 2)
+        root = np.sqrt(np.maximum(disc, 0))
+        expect = np.where(-b - root > 1e-6, -b - root, -b + root)
+        expect = np.where((disc >= 0) & (expect > 1e-6), expect, np.inf)
+        assert np.isfinite(expect).sum() >= 50
+        np.testing.assert_array_equal(np.isinf(t), np.isinf(expect))
+        np.testing.assert_allclose(t[np.isfinite(t)], expect[np.isfinite(expect)], rtol=1e-5, atol=1e-5)
