@@ -274,7 +274,8 @@ def _brute_z_buffer(points, cam):
 @pytest.mark.slow  # runs the job twice (two small baseline programs at 96 x 64)
 def test_baselines_fill_the_projected_points(drive, tmp_path):
     """--method nearest: every pixel holds the depth of a LiDAR pixel at the smallest city-block distance
-    (brute force); --method ip-basic: OpenCV's IP_Basic of the same projection; both at camera time."""
+    (brute force); --method ip-basic: OpenCV's IP_Basic (Gaussian blur) of the same projection; both at
+    camera time."""
     from jaxdepth.research.baselines import ip_basic_opencv
 
     for method in ("nearest", "ip-basic"):
@@ -292,7 +293,7 @@ def test_baselines_fill_the_projected_points(drive, tmp_path):
     ok = np.any(nearest & (np.abs(near.reshape(-1, 1) - sparse[sv, su]) <= q), axis=1)
     assert ok.mean() > 0.99, ok.mean()
     ipb = read_depth_png(av2_job.output_path(tmp_path / "ip-basic", drive.name, CAMERA, t_cam))
-    want = ip_basic_opencv(sparse)
+    want = ip_basic_opencv(sparse, blur_type="gaussian")  # jaxdepth.ip_basic's default blur
     assert np.mean(np.abs(ipb - want) <= q + 1e-4) > 0.99
 
 
@@ -328,3 +329,30 @@ def test_extra_outputs_and_clamped_sweeps(drive, tmp_path):
         assert np.percentile(_errors(depth, truth, wall), 90) < 0.05
     again = av2_job.run_av2(drive, dst, cameras=[CAMERA], sweeps=3, extras=extras)
     assert len(again.skipped) == 2 and not again.done
+
+
+def test_lidar_time_flag_applies_to_argoverse_only(tmp_path, capsys):
+    from jaxdepth import cli
+
+    assert cli.main(["complete", str(tmp_path), str(tmp_path / "out"), "--lidar-time", "-q"]) == 2
+    assert "--lidar-time applies to Argoverse 2 logs" in capsys.readouterr().err
+
+
+@pytest.mark.xdist_group("jobs_av2")  # one worker compiles the Argoverse 2 programs once
+@pytest.mark.slow  # runs the job through the command line (the small nearest-fill program)
+def test_command_line_names_outputs_by_time_and_records_it(drive, tmp_path, capsys):
+    """Camera time by default (<camera ts>.png), --lidar-time gives <lidar ts>.png; the run record refuses
+    to mix the two in one folder; a --sweeps beyond the log is clamped with a note on stderr."""
+    from jaxdepth import cli
+
+    dst = tmp_path / "out"
+    base = ["complete", str(drive), str(dst), "--cameras", CAMERA, "--method", "nearest", "-q"]
+    assert cli.main(base + ["--sweeps", "4"]) == 0
+    assert "--sweeps 4 clamped to 1: the log has 2 sweeps" in capsys.readouterr().err
+    outs = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*.png"))
+    assert outs == [f"{drive.name}/{CAMERA}/{t + CAMERA_DELAY_NS}.png" for t in SWEEPS]
+    assert cli.main(base + ["--sweeps", "4", "--lidar-time"]) == 1
+    assert "time" in capsys.readouterr().err
+    assert cli.main(base[:2] + [str(tmp_path / "lidar")] + base[3:] + ["--lidar-time"]) == 0
+    outs = sorted(p.relative_to(tmp_path / "lidar").as_posix() for p in (tmp_path / "lidar").rglob("*.png"))
+    assert outs == [f"{drive.name}/{CAMERA}/{t}.png" for t in SWEEPS]
