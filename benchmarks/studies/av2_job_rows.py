@@ -54,8 +54,9 @@ def rows_filled(cloud, fallback) -> list:
         T = np.linalg.inv(cloud.T_ref_source[s])
         local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
-        step = (spec.fov_up_deg - spec.fov_down_deg) / (spec.beams - 1)
-        row = np.clip(np.round((spec.fov_up_deg - el) / step), 0, spec.beams - 1)
+        # jaxdepth._src.range_image.row_col: row = floor((fov_up - elevation) / (fov_up - fov_down) * beams)
+        row_f = (spec.fov_up_deg - el) * spec.beams / (spec.fov_up_deg - spec.fov_down_deg)
+        row = np.clip(np.floor(np.clip(row_f, -1.0, spec.beams)), 0, spec.beams - 1)
         out.append(int(np.unique(row).size))
     return out
 
@@ -67,7 +68,7 @@ def _z_buffers(points, hidden, rig, half_height):
     pts, valid = pad_points(points)
     out = []
     for cam in rig.cameras:
-        def zb(mask):
+        def zb(mask, cam=cam):
             return jaxdepth.project_to_image(pts, mask, jnp.asarray(cam.K), jnp.asarray(cam.T_cam_lidar),
                                              height=cam.height, width=cam.width)[0]
         target = zb(jnp.asarray(np.pad(hidden, (0, pts.shape[0] - hidden.size))) & valid)
@@ -105,7 +106,7 @@ def run(cameras, *, fraction: float, seed: int, config: SGMConfig) -> dict:
             for i, cam in enumerate(rig.cameras):
                 for v, pred in preds.items():
                     window = jnp.asarray(pred[i, :cam.height, :cam.width])
-                    for which, gt in zip(("all", "uncovered"), targets[i]):
+                    for which, gt in zip(("all", "uncovered"), targets[i], strict=True):
                         m = depth_metrics(window, jnp.asarray(gt))
                         per[protocol][which][v].append({key: float(m[key]) for key in (*KEYS, "count")})
             print(f"sweep {k} {protocol}: " + ", ".join(
