@@ -218,16 +218,10 @@ def _multi_source_usage(args, what: str) -> str | None:
 
 
 def _cmd_complete_av2(args) -> int:
-    """``jaxdepth complete ROOT DST``: Argoverse 2 logs, from the dataset root down to one log (exit 0 ok,
-    1 failed, 2 usage)."""
-    from jaxdepth.batch.av2_job import find_logs, run_av2
+    """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
+    from jaxdepth.batch.av2_job import cli_usage, find_logs, run_av2
 
-    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
-                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic),
-                                      ("--image-dir", args.image_dir), ("--crop", args.crop or None))
-             if value is not None]
-    usage = (f"{', '.join(given)} cannot be used with an Argoverse 2 log (its calibration is used)" if given
-             else _av2_usage(args))
+    usage = cli_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -245,17 +239,6 @@ def _cmd_complete_av2(args) -> int:
                       on_note=lambda text: print(f"jaxdepth: note: {text}", file=sys.stderr))
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
-
-
-def _av2_usage(args) -> str | None:
-    """Why the options given cannot be used with Argoverse 2 logs (None: they can)."""
-    if args.guidance_weight > 0:
-        return "an Argoverse 2 log: --guidance-weight is not supported (no camera images are read)"
-    if args.engine != "local":
-        return "an Argoverse 2 log: --engine local only"
-    if args.sweeps is not None and args.sweeps < 0:
-        return f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
-    return _extras_usage(args)
 
 
 def _cmd_complete_kitti_sweeps(args, scan) -> int:
@@ -593,12 +576,8 @@ def _add_complete_command(sub) -> None:
                         "and Argoverse 2: N neighbouring sweeps on each side of every sweep (default 0), posed by "
                         "OXTS + calib_imu_to_velo.txt / the city poses; nuScenes: N sweeps per sample, the key "
                         "frame and N-1 earlier ones (default 1, the devkit's from_file_multisweep)")
-    p.add_argument("--cameras", default=None, metavar="NAMES",
-                   help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
-    p.add_argument("--lidar-time", action="store_true",
-                   help="Argoverse 2: depth at each LiDAR sweep's timestamp, <log>/<camera>/<lidar ts>.png (default: "
-                        "at the timestamp of the camera image nearest the sweep, ego motion compensated by the city "
-                        "poses, <log>/<camera>/<camera ts>.png)")
+    from jaxdepth.batch import av2_job
+    av2_job.add_cli_options(p)
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     _add_overwrite_and_force_options(p)
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,

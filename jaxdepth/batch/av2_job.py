@@ -327,5 +327,36 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     return summary
 
 
+# ---------------------------------------------------------------- command line glue
+
+
+def add_cli_options(parser) -> None:
+    """The Argoverse 2 options of ``complete`` (no JAX import)."""
+    parser.add_argument("--cameras", default=None, metavar="NAMES",
+                        help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
+    parser.add_argument("--lidar-time", action="store_true",
+                        help="Argoverse 2: depth at each LiDAR sweep's timestamp, <log>/<camera>/<lidar ts>.png "
+                             "(default: at the timestamp of the camera image nearest the sweep, ego motion "
+                             "compensated by the city poses, <log>/<camera>/<camera ts>.png)")
+
+
+def cli_usage(args) -> str | None:
+    """Why the parsed options of ``complete`` cannot be used with Argoverse 2 logs (None: they can; the extra
+    outputs' own checks run before)."""
+    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
+                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic),
+                                      ("--image-dir", args.image_dir), ("--crop", args.crop or None))
+             if value is not None]
+    if given:
+        return f"{', '.join(given)} cannot be used with an Argoverse 2 log (its calibration is used)"
+    for message, bad in (("--guidance-weight is not supported (no camera images are read)", args.guidance_weight > 0),
+                         ("--engine local only", args.engine != "local"),
+                         (f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}",
+                          args.sweeps is not None and args.sweeps < 0)):
+        if bad:
+            return f"an Argoverse 2 log: {message}"
+    return None
+
+
 __all__ = ["run_av2", "plan", "find_logs", "is_av2_root", "output_path", "served_sweeps", "baseline_depth",
-           "completion", "TIMES", "METHODS"]
+           "completion", "add_cli_options", "cli_usage", "TIMES", "METHODS"]
