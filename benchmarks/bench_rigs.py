@@ -10,8 +10,8 @@ first call (trace + compile + one run) reported apart, ``block_until_ready`` bef
   = 29.4 Mpx):
 
   - ``rig stages`` : ``complete_sources_stages(...)`` then ``.depth`` (what ``complete_cloud``
-    ran before: every stage leaves the program);
-  - ``rig depth``  : ``complete_sources`` (depth only, what ``complete_cloud`` runs now);
+    runs: every stage leaves the program);
+  - ``rig depth``  : the same in a jit that returns only the depth (tried; measured slower);
   - ``single cameras`` : the single-camera path (``complete_points``, one camera at its own
     size, the sweep's points as one source at the ego origin, 64 merged lasers) over the 7
     cameras in a loop: the same pixels without the canvas;
@@ -21,8 +21,8 @@ first call (trace + compile + one run) reported apart, ``block_until_ready`` bef
     (z-buffer, points and normals per pixel, each pixel's source), Step 2 (one pass, each
     point's own origin), Steps 3-4 (seeds, residual, bracket, blur).
 
-* nuScenes sample (one HDL-32E, 6 cameras of 900 x 1600, 8.6 Mpx): ``complete_rig`` against a
-  loop of ``complete_points`` over the cameras and the nearest fill.
+* nuScenes sample (one HDL-32E, 6 cameras of 900 x 1600, 8.6 Mpx): ``complete_rig_stages`` (and the
+  depth-only jit) against a loop of ``complete_points`` over the cameras and the nearest fill.
 
 Writes benchmarks/results/rigs.json.
 
@@ -144,6 +144,8 @@ def _rounds(variants: dict, repeats: int, baseline: str) -> dict:
 
 
 def av2_sweep(repeats: int, stages: bool) -> dict:
+    import jax
+
     import jaxdepth
     from jaxdepth._src import sources as S
     from jaxdepth._src.types import LidarSpec
@@ -162,8 +164,9 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
     merged = LidarSpec(beams=2 * spec.beams, fov_up_deg=spec.fov_up_deg, fov_down_deg=spec.fov_down_deg,
                        columns=spec.columns)
     padded, valid = pad_points(cloud.points)
+    depth_only = jax.jit(lambda src, cams: S.complete_sources_stages(src, cams, config=config).depth)
     variants = {
-        "rig depth": lambda: S.complete_sources(sources, cameras, config=config),
+        "rig depth": lambda: depth_only(sources, cameras),
         "rig stages": lambda: np.asarray(S.complete_sources_stages(sources, cameras, config=config).depth),
         "single cameras": _single_fns(padded, valid, rig.cameras, merged, config),
         "nearest": _nearest_fn(padded, valid, cameras),
@@ -180,6 +183,8 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
 
 
 def nuscenes_sample(repeats: int) -> dict:
+    import jax
+
     import jaxdepth
     from jaxdepth.io import pad_points, read_points, rig_from_nuscenes_calibration
 
@@ -189,8 +194,10 @@ def nuscenes_sample(repeats: int) -> dict:
     padded, valid = pad_points(points)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     real_px = sum(c.height * c.width for c in rig.cameras)
+    depth_only = jax.jit(lambda p, v, cams: jaxdepth.complete_rig_stages(p, v, cams, config=config,
+                                                                         lidar=rig.lidar).depth)
     variants = {
-        "rig depth": lambda: jaxdepth.complete_rig(padded, valid, cameras, config=config, lidar=rig.lidar),
+        "rig depth": lambda: depth_only(padded, valid, cameras),
         "rig stages": lambda: np.asarray(jaxdepth.complete_rig_stages(padded, valid, cameras, config=config,
                                                                       lidar=rig.lidar).depth),
         "single cameras": _single_fns(padded, valid, rig.cameras, rig.lidar, config),
