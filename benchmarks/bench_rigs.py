@@ -160,7 +160,7 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     real_px = sum(c.height * c.width for c in rig.cameras)
     canvas_px = cameras.count * cameras.height * cameras.width
-    spec = cloud.lidars[0]
+    spec = sources.lidars[0]  # the stated spec, else the one estimated from the rings (cloud_sources)
     merged = LidarSpec(beams=2 * spec.beams, fov_up_deg=spec.fov_up_deg, fov_down_deg=spec.fov_down_deg,
                        columns=spec.columns)
     padded, valid = pad_points(cloud.points)
