@@ -3,11 +3,9 @@
     python -m benchmarks.accuracy_twins [--rigs kitti av2 ...] [--sweeps 1 3 5] [--seeds 0]
         [--hidden-seeds 0] [--scale 0.25] [--json benchmarks/results/accuracy_twins.json]
 
-The twins (:mod:`jaxdepth.research.twins`: ray-cast copies of the KITTI, nuScenes, Argoverse 2, a
-merged raster and a rosette rig, exact camera depth; a stand-in built on
-:func:`~jaxdepth._src.synthetic_sequences.make_street_sequence` when that module is absent, flagged
-``stand_in`` in the JSON) are written to disk as a user has them (``write_twin``: one point file per
-sweep, ``rig.json``, ``sweeps.json``) and read back as ``jaxdepth complete-rig`` reads them
+The twins (:mod:`jaxdepth.research.twins`, ``docs/twins.md``: ray-cast copies of the KITTI,
+nuScenes, Argoverse 2, a merged raster and a rosette rig, exact camera depth) are written to disk
+as a user has them (``write_twin``: one point file per sweep, ``rig.json``, ``sweeps.json``) and read back as ``jaxdepth complete-rig`` reads them
 (:func:`read_user_input`, the reading half of :func:`jaxdepth.batch.rig_job.run_rig_job`): 1 sweep
 is the reference sweep's point file, 3 and 5 sweeps the sweeps JSON. Methods, on that input:
 
@@ -65,75 +63,6 @@ KEYS = ("rmse", "mae")
 FRACTION = 0.2
 MIN_RANGE_M = 1.0
 TRUTH_TOLERANCE_M = 0.5
-
-
-# ---------------------------------------------------------------- the twins (or a stand-in)
-
-def twin_api():
-    """(make_twin, write_twin, stand_in): the twins module's entry points, else this file's stand-in."""
-    try:
-        from jaxdepth.research.twins import make_twin, write_twin
-        return make_twin, write_twin, False
-    except ImportError:
-        return stand_in_twin, stand_in_write, True
-
-
-@dataclasses.dataclass(frozen=True)
-class StandIn:
-    """The twins contract's shape (docs in /work/coord/twins_api.md) filled from a synthetic street drive."""
-
-    name: str
-    sensor_class: str
-    cloud: object
-    rig: object
-    dense_depth: np.ndarray
-    point_unit: np.ndarray
-    point_origin: np.ndarray
-    sweep_pose: np.ndarray         # (K, 4, 4) pose of each sweep's point file in the reference frame
-
-
-def stand_in_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0) -> StandIn:
-    """A stand-in twin: one spinning LiDAR (kitti, nuscenes, rosette) or two merged into one file per
-    sweep with no per-unit column (av2, raster), the KITTI-like reference camera at ``scale``."""
-    from jaxdepth._src.synthetic_sequences import make_street_sequence
-    from jaxdepth._src.types import SourceCloud
-    from jaxdepth.io.rig import Rig, RigCamera
-    merged = rig in ("av2", "raster")
-    sq = make_street_sequence(seed, sweeps=sweeps, lidars=2 if merged else 1, image_scale=scale)
-    per_sweep = 2 if merged else 1
-    src_sweep = sq.sweep[sq.source]
-    poses = np.asarray(sq.T_ref_source)[::per_sweep]          # the first LiDAR's pose: the sweep's file frame
-    cloud = SourceCloud(points=sq.points, source=src_sweep.astype(np.int32), T_ref_source=poses,
-                        lidars=(None,) * sweeps, sweep=np.arange(sweeps, dtype=np.int32),
-                        names=tuple(f"sweep@{k}" for k in range(sweeps)))
-    cam = sq.camera
-    rig_ = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
-                                                      np.asarray(cam.T_cam_lidar)),),
-               lidar_stated=frozenset() if merged else frozenset(("beams", "fov_up_deg", "fov_down_deg",
-                                                                  "columns")))
-    return StandIn(name=rig, sensor_class="merged" if merged else "spinning", cloud=cloud, rig=rig_,
-                   dense_depth=np.asarray(sq.dense_depth, np.float32)[None],
-                   point_unit=(sq.source % per_sweep).astype(np.int32),
-                   point_origin=np.asarray(sq.T_ref_source)[sq.source, :3, 3].astype(np.float32),
-                   sweep_pose=poses)
-
-
-def stand_in_write(twin: StandIn, folder) -> dict:
-    """The stand-in's files as a user has them: ``sweep_<k>.npy`` (x, y, z in that sweep's frame),
-    ``rig.json``, ``sweeps.json``."""
-    from jaxdepth.io.rig import write_rig_json
-    folder = pathlib.Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    entries = []
-    for k, T in enumerate(twin.sweep_pose):
-        inv = np.linalg.inv(T)
-        pts = twin.cloud.points[twin.cloud.source == k].astype(np.float64)
-        np.save(folder / f"sweep_{k}.npy", (pts @ inv[:3, :3].T + inv[:3, 3]).astype(np.float32))
-        entries.append({"file": f"sweep_{k}.npy", "T_ref_sweep": np.asarray(T).tolist()})
-    (folder / "sweeps.json").write_text(json.dumps({"sweeps": entries}))
-    write_rig_json(folder / "rig.json", twin.rig)
-    return {"rig": folder / "rig.json", "sweeps": folder / "sweeps.json",
-            "points": [folder / f"sweep_{k}.npy" for k in range(len(entries))]}
 
 
 # ---------------------------------------------------------------- the user's input, read as complete-rig reads it
@@ -259,6 +188,7 @@ def score(pred: list, truth: list) -> dict:
 
 
 def exact_truth(twin, rig) -> list:
+    """Each camera's (H_i, W_i) exact depth."""
     return [np.asarray(twin.dense_depth[i, :c.height, :c.width], np.float32) for i, c in enumerate(rig.cameras)]
 
 
@@ -328,7 +258,7 @@ def run_case(make_twin, write_twin, rig_name: str, sweeps: int, seed: int, *, hi
     twin = make_twin(rig_name, sweeps=sweeps, seed=seed, scale=scale)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(twin, tmp)
-        points = paths["sweeps"] if sweeps > 1 else paths["points"][0]
+        points = paths["sweeps_json"] if sweeps > 1 else paths["sweeps"][0]
         inp = read_user_input(points, paths["rig"])
     exact = exact_truth(twin, inp.rig)
     everything = np.ones(len(inp.cloud.points), bool)
@@ -442,23 +372,18 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     t0 = time.time()
     config = SGMConfig()
-    make_twin, write_twin, stand_in = twin_api()
+    from jaxdepth.research.twins import make_twin, write_twin
     cases = []
-    for rig in args.rigs:
-        for n in args.sweeps:
+    for n in args.sweeps:
+        for rig in args.rigs:
             for seed in args.seeds:
                 case = run_case(make_twin, write_twin, rig, n, seed, hidden_seeds=args.hidden_seeds,
                                 scale=args.scale, config=config)
                 cases.append(case)
                 print(f"{rig} sweeps={n} seed={seed} ({case['path']}, {time.time() - t0:.0f} s): " + ", ".join(
                     f"{m} {case['full'][m]['rmse']:.0f}/{case['full'][m]['mae']:.0f}" for m in METHODS), flush=True)
-    table = summary(cases)
-    doc = {"settings": {"rigs": args.rigs, "sweeps": args.sweeps, "seeds": args.seeds,
-                        "hidden_seeds": args.hidden_seeds, "scale": args.scale, "fraction": FRACTION,
-                        "min_range_m": MIN_RANGE_M, "stand_in": stand_in,
-                        "defaults_chosen_on": "none (every option is the library default)"},
-           "methods": list(METHODS), "protocols": list(PROTOCOLS), "summary": table,
-           "targets": targets_check(table), "agreement": agreement(cases), "cases": cases}
+                write_results(args.json, document(cases, args, complete=False), config, t0)
+    doc = document(cases, args, complete=True)
     write_results(args.json, doc, config, t0)
     for metric, rows in doc["agreement"].items():
         for p, per in rows.items():
@@ -466,6 +391,17 @@ def main(argv=None) -> int:
                                                            for k, v in per.items()))
     print(f"wrote {args.json} ({time.time() - t0:.0f} s)")
     return 0
+
+
+def document(cases: list, args, *, complete: bool) -> dict:
+    """The JSON document of the cases run so far (``complete`` False while the run goes on)."""
+    table = summary(cases)
+    return {"settings": {"rigs": args.rigs, "sweeps": args.sweeps, "seeds": args.seeds,
+                        "hidden_seeds": args.hidden_seeds, "scale": args.scale, "fraction": FRACTION,
+                        "min_range_m": MIN_RANGE_M,
+                        "defaults_chosen_on": "none (every option is the library default)"},
+           "methods": list(METHODS), "protocols": list(PROTOCOLS), "summary": table,
+           "targets": targets_check(table), "agreement": agreement(cases), "complete": complete, "cases": cases}
 
 
 if __name__ == "__main__":
