@@ -119,12 +119,13 @@ def read_user_input(points_path, rig_path) -> UserInput:
     return UserInput(rig, cloud, False, str(points_path))
 
 
-def single_path(points, ring, rig, config: SGMConfig):
-    """(C, H_max, W_max) depth and the prepared frame: ``complete-rig``'s single-sweep path."""
+def single_path(points, ring, rig, config: SGMConfig, *, force_removal: bool = False):
+    """(C, H_max, W_max) depth and the prepared frame: ``complete-rig``'s single-sweep path
+    (``force_removal``: keep the configured removal where the sweep check would turn it off)."""
     import jaxdepth
     from jaxdepth.io import pad_points, prepare_sweep
     frame = prepare_sweep(points, rig, ring=ring)
-    if not frame.outlier_removal_trusted:
+    if not frame.outlier_removal_trusted and not force_removal:
         config = config.replace(outlier_removal=False)
     padded, valid = pad_points(frame.points)
     cams = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
@@ -252,9 +253,29 @@ def truth_filtered_keep(cloud, rig, exact: list, *, tolerance_m: float = TRUTH_T
 
 # ---------------------------------------------------------------- one case, the summaries
 
+def removal_diagnosis(inp: UserInput, exact: list, config: SGMConfig) -> dict:
+    """Where the single-sweep path turns removal off (its own input, or every point as one file), the
+    SGM with removal forced on from the points' origin, full input (a diagnosis, not a method)."""
+    from jaxdepth.io import prepare_sweep
+    out = {}
+    c = inp.cloud
+    runs = {"one_cloud": (c.points, None, one_cloud_rig(inp.rig))}
+    if not inp.multi:
+        runs["input"] = (c.points, c.ring, inp.rig)
+    for name, (points, ring, rig) in runs.items():
+        frame = prepare_sweep(points, rig, ring=ring)
+        row = {"removal_trusted": bool(frame.outlier_removal_trusted), "origin_m": frame.origin_m.tolist()}
+        if not frame.outlier_removal_trusted:
+            depth = single_path(points, ring, rig, config, force_removal=True)[0]
+            row["sgm_forced_removal"] = score(crops(depth, inp.rig), exact)
+        out[name] = row
+    return out
+
+
 def run_case(make_twin, write_twin, rig_name: str, sweeps: int, seed: int, *, hidden_seeds, scale: float,
-             config: SGMConfig, oracle: bool = True) -> dict:
-    """Every method on one twin: full-input scores, each hold-out's four protocols, the oracle bound."""
+             config: SGMConfig, oracle: bool = True, diagnose: bool = False) -> dict:
+    """Every method on one twin: full-input scores, each hold-out's four protocols, the oracle bound
+    (and with ``diagnose`` :func:`removal_diagnosis`)."""
     twin = make_twin(rig_name, sweeps=sweeps, seed=seed, scale=scale)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(twin, tmp)
@@ -277,6 +298,8 @@ def run_case(make_twin, write_twin, rig_name: str, sweeps: int, seed: int, *, hi
             depth = single_path(cloud.points, cloud.ring, inp.rig, config)[0]
         case["oracle_truth_filtered"] = dict(score(crops(depth, inp.rig), exact),
                                              points_removed=int((~keep).sum()))
+    if diagnose:
+        case["removal_diagnosis"] = removal_diagnosis(inp, exact, config)
     half = cover_half_height(inp)
     for hs in hidden_seeds:
         hidden, targets, full_z = hold_out(inp, hs)
@@ -369,7 +392,14 @@ def main(argv=None) -> int:
     parser.add_argument("--hidden-seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--scale", type=float, default=0.25, help="camera scale of the twins (1: real sizes)")
     parser.add_argument("--json", default=str(RESULTS / "accuracy_twins.json"))
+    parser.add_argument("--diagnose", action="store_true",
+                        help="also the SGM with removal forced on where the sweep check turns it off")
+    parser.add_argument("--no-hold-out", action="store_true", help="full-input scores only (no protocols)")
+    parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
     args = parser.parse_args(argv)
+    if args.tables:
+        print(markdown(json.loads(pathlib.Path(args.tables).read_text())))
+        return 0
     t0 = time.time()
     config = SGMConfig()
     from jaxdepth.research.twins import make_twin, write_twin
@@ -377,8 +407,8 @@ def main(argv=None) -> int:
     for n in args.sweeps:
         for rig in args.rigs:
             for seed in args.seeds:
-                case = run_case(make_twin, write_twin, rig, n, seed, hidden_seeds=args.hidden_seeds,
-                                scale=args.scale, config=config)
+                case = run_case(make_twin, write_twin, rig, n, seed, config=config, scale=args.scale,
+                                hidden_seeds=() if args.no_hold_out else args.hidden_seeds, diagnose=args.diagnose)
                 cases.append(case)
                 print(f"{rig} sweeps={n} seed={seed} ({case['path']}, {time.time() - t0:.0f} s): " + ", ".join(
                     f"{m} {case['full'][m]['rmse']:.0f}/{case['full'][m]['mae']:.0f}" for m in METHODS), flush=True)
@@ -391,6 +421,42 @@ def main(argv=None) -> int:
                                                            for k, v in per.items()))
     print(f"wrote {args.json} ({time.time() - t0:.0f} s)")
     return 0
+
+
+def markdown(doc: dict) -> str:
+    """The docs' tables (docs/evaluation.md, "Digital twins") from a result document."""
+    short = {"sgm": "SGM", "sgm_no_removal": "no removal", "sgm_no_free_space": "no free space",
+             "sgm_one_cloud": "one cloud", "nearest": "city block", "nearest_l2": "Euclidean", "ip_basic": "IP_Basic",
+             "oracle_truth_filtered": "oracle bound"}
+    lines = ["| twin | sweeps | " + " | ".join(short[m] for m in METHODS) + " | oracle bound |",
+             "|---|---|" + "---|" * (len(METHODS) + 1)]
+    for rig, rows in doc["summary"].items():
+        for n in sorted(rows, key=int):
+            row = rows[n]
+            best = min(METHODS, key=lambda m: row[m]["mae"])
+            cells = [(f"**{row[m]['rmse']:.0f} / {row[m]['mae']:.0f}**" if m == best
+                      else f"{row[m]['rmse']:.0f} / {row[m]['mae']:.0f}") for m in METHODS]
+            orc = row.get("oracle_truth_filtered")
+            cells.append("-" if orc is None else f"{orc['rmse']:.0f} / {orc['mae']:.0f}")
+            lines.append(f"| {rig} | {n} | " + " | ".join(cells) + " |")
+    lines += ["", "| twin | SGM vs city block, 1 sweep | 5 sweeps | 5 sweeps vs 1 | oracle bound 5 vs 1 | met |",
+              "|---|---|---|---|---|---|"]
+    for rig, t in doc["targets"].items():
+        def pct(d):
+            return "-" if d is None else f"{d['rmse']:+.1f} / {d['mae']:+.1f} %"
+        vs = t["sgm_vs_nearest_pct"]
+        lines.append(f"| {rig} | {pct(vs.get('1'))} | {pct(vs.get('5'))} | {pct(t.get('gain_5_vs_1_pct'))} | "
+                     f"{pct(t.get('oracle_gain_5_vs_1_pct'))} | {'yes' if t['met'] else 'no'} |")
+    agree = doc["agreement"]
+    rigs = [r for r in doc["summary"] if r in agree["rmse"].get("hidden_all", {})] + ["overall"]
+    lines += ["", "| protocol | " + " | ".join(rigs) + " |", "|---|" + "---|" * len(rigs)]
+    for p in PROTOCOLS[1:]:
+        cells = []
+        for r in rigs:
+            a, b = agree["rmse"][p][r], agree["mae"][p][r]
+            cells.append(f"{a['agree_pct']:.0f} / {b['agree_pct']:.0f} % ({a['pairs']})")
+        lines.append(f"| {p} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def document(cases: list, args, *, complete: bool) -> dict:
