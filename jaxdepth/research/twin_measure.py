@@ -105,6 +105,95 @@ def nuscenes_calibration(path) -> dict:
     return out
 
 
+# ---------------------------------------------------------------- sensor rates
+
+
+def ring_sequences(points: np.ndarray, ring: np.ndarray, *, min_points: int = 200):
+    """Yields ``(azimuth (n,) rad ascending, range (n,) m, index (n,))`` of each ring's points, in
+    scan order about the frame's origin (points in the LiDAR's own frame)."""
+    p = np.asarray(points, np.float64)
+    az = np.arctan2(p[:, 1], p[:, 0])
+    rng = np.linalg.norm(p, axis=1)
+    for b in np.unique(ring[ring >= 0]):
+        idx = np.flatnonzero((ring == b) & (rng > 1.0))
+        if idx.size < min_points:
+            continue
+        order = idx[np.argsort(az[idx], kind="stable")]
+        yield az[order], rng[order], order
+
+
+def _similar(a, b, rel, abs_m):
+    return np.abs(a - b) <= np.maximum(abs_m, rel * np.minimum(a, b))
+
+
+def ring_rates(points: np.ndarray, ring: np.ndarray) -> dict:
+    """Dropouts and mixed returns along the rings of one LiDAR's sweep (its own frame).
+
+    - ``dropout``: along a ring, a gap of ``k`` azimuth steps (``k = round(gap / median step)``,
+      2 <= k <= 10) between two returns on one surface (ranges within max(0.3 m, 5 %)) holds
+      ``k - 1`` lost returns; the rate is lost / (lost + returns inside such continuing stretches).
+      Counts only losses where the surface continues (not sky, not a window with nothing behind).
+    - ``mixed_share``: triples of consecutive returns (no gap) whose ends differ by more than
+      max(1 m, 10 %) span a depth edge; the share whose middle return lies strictly between the two
+      layers, more than max(0.3 m, 3 %) from both. Sloped surfaces seen at grazing angles also
+      count (an upper bound); :func:`jaxdepth.research.twins` is calibrated by measuring the same
+      statistic on the twin.
+    """
+    lost = kept = spans = between = 0
+    for az, r, _ in ring_sequences(points, ring):
+        d = np.diff(az)
+        step = np.median(d)
+        k = np.rint(d / step)
+        same = _similar(r[:-1], r[1:], 0.05, 0.3)
+        gap = (k >= 2) & (k <= 10) & same
+        lost += int((k[gap] - 1).sum())
+        kept += int(((k == 1) & same).sum())
+        tight = (k[:-1] == 1) & (k[1:] == 1)
+        a, m, c = r[:-2], r[1:-1], r[2:]
+        edge = tight & ~_similar(a, c, 0.10, 1.0)
+        lo, hi = np.minimum(a, c), np.maximum(a, c)
+        mid = edge & (m > lo) & (m < hi) & ~_similar(m, lo, 0.03, 0.3) & ~_similar(m, hi, 0.03, 0.3)
+        spans += int(edge.sum())
+        between += int(mid.sum())
+    return {"dropout": lost / max(1, lost + kept), "lost": lost, "continuing": kept,
+            "mixed_share": between / max(1, spans), "edge_triples": spans}
+
+
+def ground_noise(points_up: np.ndarray, origin: np.ndarray, *, cell_m: float = 1.0, near_m: float = 3.0,
+                 far_m: float = 12.0) -> dict:
+    """Range noise from planar ground patches: points in a z-up frame, ``origin`` (3,) the LiDAR there.
+
+    Ground candidates: within 0.25 m of the lowest dense height band, ``near_m``-``far_m`` from the
+    origin horizontally. Per ``cell_m`` cell with >= 15 points a least-squares plane; each point's
+    residual is measured along its own ray (range minus the range at which the ray meets the
+    plane); the rate is 1.4826 x the median absolute residual (robust to kerbs and objects). The
+    cell's fit absorbs a little of the noise; road roughness and laser-to-laser range offsets count
+    as noise (the SGM sees both).
+    """
+    p = np.asarray(points_up, np.float64) - origin
+    horiz = np.hypot(p[:, 0], p[:, 1])
+    band = (horiz > near_m) & (horiz < far_m)
+    hist, edges = np.histogram(p[band, 2], bins=np.arange(-4.0, 0.0, 0.05))
+    z0 = edges[np.argmax(hist)] + 0.025
+    g = p[band & (np.abs(p[:, 2] - z0) < 0.25)]
+    cells = np.floor(g[:, :2] / cell_m).astype(np.int64)
+    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    residuals = []
+    for c in np.flatnonzero(counts >= 15):
+        q = g[inverse.ravel() == c]
+        centre = q.mean(axis=0)
+        normal = np.linalg.svd(q - centre)[2][-1]
+        rng = np.linalg.norm(q, axis=1)
+        cos = np.abs((q / rng[:, None]) @ normal)
+        ok = cos > 0.05
+        # The ray from the origin meets the plane at range (normal . centre) / (normal . ray).
+        t = np.abs(centre @ normal) / cos[ok]
+        residuals.append(rng[ok] - t)
+    res = np.concatenate(residuals) if residuals else np.zeros(0)
+    mad = float(np.median(np.abs(res - np.median(res)))) if res.size else float("nan")
+    return {"noise_m": 1.4826 * mad, "points": int(res.size), "cells": len(residuals)}
+
+
 def _fmt(a) -> str:
     a = np.asarray(a, np.float64)
     if a.ndim == 1:
@@ -146,19 +235,17 @@ def _calibration_tables(data) -> list:
 AV2_LOG = "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 
 
-def tables_source(data) -> str:
-    """The text of :mod:`jaxdepth.research.twin_tables`, measured from the shared data folder ``data``."""
+def tables_source(data, effects: dict) -> str:
+    """The text of :mod:`jaxdepth.research.twin_tables`, measured from the shared data folder ``data``,
+    with ``effects`` (rig -> {"noise_m", "dropout", "mixed"}) from ``benchmarks/studies/twin_sensor_rates.py``."""
     data = pathlib.Path(data)
     head = ['"""Numbers the digital twins take from the real data (written by',
-            "``jaxdepth.research.twin_measure.tables_source``; do not edit by hand).",
+            "``python -m benchmarks.studies.twin_sensor_rates --write-tables``; do not edit by hand).",
             "",
             "Measured from ../shared/data (KITTI drive_0001 frame 5, the nuScenes sample, the Argoverse 2",
-            'log); the tests re-measure them when the data is present."""', ""]
-    return "\n".join(head + _laser_tables(data) + _calibration_tables(data)) + "\n"
-
-
-if __name__ == "__main__":  # pragma: no cover - regenerates twin_tables.py
-    import sys
-
-    out = pathlib.Path(__file__).with_name("twin_tables.py")
-    out.write_text(tables_source(sys.argv[1] if len(sys.argv) > 1 else "../shared/data"))
+            'log); the tests re-measure the tables when the data is present."""', ""]
+    rates = ["#: Sensor effects per twin (benchmarks/results/twin_sensor_rates.json; docs/twins.md says where",
+             "#: each comes from).", "SENSOR_EFFECTS = {"]
+    rates += [f"    {json.dumps(rig)}: {{" + ", ".join(f"{json.dumps(k)}: {float(v):.4g}" for k, v in e.items()) + "},"
+              for rig, e in effects.items()]
+    return "\n".join(head + _laser_tables(data) + _calibration_tables(data) + rates + ["}"]) + "\n"

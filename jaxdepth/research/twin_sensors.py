@@ -64,7 +64,7 @@ class Unit:
       rows, cols: the scan grid (rows: lasers / scan lines; cols: samples along each).
       apex: (3,) float64 where the rays start in the unit's frame (a spinning LiDAR's cone apex).
       max_range_m: rays without a hit within this range return nothing.
-      ring: (rows * cols,) int32 laser index a user's file would carry (-1: none).
+      ring: (rows * cols,) int32 the row of each ray (the laser index of a spinning LiDAR).
     """
 
     name: str
@@ -116,9 +116,9 @@ def raster_unit(name: str, *, lines: int = 64, cols: int = 600, h_fov_deg: float
     """A raster-scan unit looking along +x: ``lines`` non-uniform scan lines (:func:`raster_lines_deg`),
     ``cols`` samples across ``h_fov_deg`` per line (left to right), shifted by ``phase`` samples."""
     el = np.radians(raster_lines_deg(lines))[:, None]
-    az = np.radians(h_fov_deg) * (0.5 - (np.arange(cols) + 0.5 + phase) / cols)
+    az = np.radians(h_fov_deg) * (0.5 - (np.arange(cols) + phase) / cols)
     return Unit(name, _spherical(el, az[None, :]).astype(np.float32), int(lines), int(cols), np.zeros(3),
-                float(max_range_m), np.full(lines * cols, -1, np.int32))
+                float(max_range_m), np.repeat(np.arange(lines, dtype=np.int32), cols))
 
 
 def rosette_unit(name: str, *, points: int = 40000, half_fov_deg: float = 35.0, start: float = 0.0,
@@ -136,7 +136,7 @@ def rosette_unit(name: str, *, points: int = 40000, half_fov_deg: float = 35.0, 
     ang = np.angle(z)
     az, el = rho * np.cos(ang), rho * np.sin(ang)
     return Unit(name, _spherical(el, az).astype(np.float32), 1, int(points), np.zeros(3), float(max_range_m),
-                np.full(points, -1, np.int32))
+                np.zeros(points, np.int32))
 
 
 @functools.partial(jax.jit, static_argnames=("rows", "cols"))

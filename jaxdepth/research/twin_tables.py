@@ -1,8 +1,8 @@
 """Numbers the digital twins take from the real data (written by
-``jaxdepth.research.twin_measure.tables_source``; do not edit by hand).
+``python -m benchmarks.studies.twin_sensor_rates --write-tables``; do not edit by hand).
 
 Measured from ../shared/data (KITTI drive_0001 frame 5, the nuScenes sample, the Argoverse 2
-log); the tests re-measure them when the data is present."""
+log); the tests re-measure the tables when the data is present."""
 
 #: KITTI HDL-64E laser elevations (deg, top first) about the cone apex, and the apex height (m).
 KITTI_ELEVATIONS_DEG = (1.96, 1.596, 1.326, 0.891, 0.598, 0.198, -0.072, -0.436, -0.789, -1.188, -1.482, -1.822, -2.198, -2.537, -2.865, -3.228, -3.532, -3.93, -4.21, -4.584, -4.91, -5.248, -5.609, -5.958, -6.33, -6.678, -7.002, -7.291, -7.684, -8.065, -8.318, -8.721, -9.384, -9.95, -10.459, -10.884, -11.391, -12.065, -12.6, -13.067, -13.568, -14.03, -14.625, -15.204, -15.813, -16.306, -16.846, -17.238, -17.889, -18.451, -19.072, -19.567, -20.11, -20.54, -21.05, -21.636, -22.186, -22.824, -23.344, -23.778, -24.263, -24.924, -25.472, -25.978)
@@ -49,11 +49,12 @@ AV2_CAMERAS = {
     "ring_side_right": (((1686.76, 0, 1028.96), (0, 1686.76, 764.848), (0, 0, 1)), 2048, 1550,
         ((-0.987962, 0.000586145, -0.154693, 1.3055), (0.154508, 0.0527879, -0.98658, -0.278796), (0.00758764, -0.998606, -0.0522431, 1.39599), (0, 0, 0, 1))),
 }
-#: Sensor effects per twin (placeholder until measured).
+#: Sensor effects per twin (benchmarks/results/twin_sensor_rates.json; docs/twins.md says where
+#: each comes from).
 SENSOR_EFFECTS = {
-    "kitti": {"noise_m": 0.02, "dropout": 0.02, "mixed": 0.3},
-    "nuscenes": {"noise_m": 0.02, "dropout": 0.02, "mixed": 0.3},
-    "av2": {"noise_m": 0.02, "dropout": 0.02, "mixed": 0.3},
-    "raster": {"noise_m": 0.02, "dropout": 0.02, "mixed": 0.3},
-    "rosette": {"noise_m": 0.02, "dropout": 0.02, "mixed": 0.3},
+    "kitti": {"noise_m": 0.03085, "dropout": 0.01399, "mixed": 0},
+    "nuscenes": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
+    "av2": {"noise_m": 0.005025, "dropout": 0.04603, "mixed": 0.02734},
+    "raster": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
+    "rosette": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
 }

@@ -53,9 +53,11 @@ class Twin:
       point_origin: (N, 3) float32 that unit's ray origin at that sweep, reference frame (oracle).
       depths: C arrays (H_c, W_c) float32, each camera's exact depth at its own size.
       sweep_poses: (K, 4, 4) float64 pose of each sweep's points frame in the reference frame
-        (the sweeps JSON's ``T_ref_sweep``); ego_step_m: (K - 1,) distance between consecutive sweeps.
+        (the sweeps JSON's ``T_ref_sweep``); ego_step_m: (K - 1,) distance the ego moved between
+      consecutive sweeps, metres.
       point_exact: (N, 3) float32 each point's exact first hit (no noise, no blend).
       point_mixed: (N,) bool points that are mixed returns.
+      point_ring: (N,) int32 each point's row on its unit's scan grid (laser, scan line; 0 for a rosette).
       unit_names: name of each unit index. effects: the rates used. seed, scale: as given.
     """
 
@@ -71,6 +73,7 @@ class Twin:
     ego_step_m: np.ndarray | None = None
     point_exact: np.ndarray | None = None
     point_mixed: np.ndarray | None = None
+    point_ring: np.ndarray | None = None
     unit_names: tuple = ()
     effects: SensorEffects = NO_EFFECTS
     seed: int = 0
@@ -120,9 +123,59 @@ def _user_rig(rig: RigDef, cams) -> Rig:
     if rig.per_unit_sources:
         lidars = tuple(RigLidar(unit(0).name, np.asarray(T, np.float32), spec)
                        for (unit, T), spec in zip(rig.units, rig.stated))
-        return Rig(lidar=rig.lidar, cameras=cams, lidars=lidars, columns=("x", "y", "z", "lidar", "ring"))
-    columns = ("x", "y", "z", "ring") if rig.ring_column else None
+        return Rig(lidar=rig.lidar, cameras=cams, lidars=lidars, columns=("x", "y", "z", "intensity", "lidar", "ring"))
+    columns = ("x", "y", "z", "intensity", "ring") if rig.ring_column else None
+    if rig.stated[0] is None:
+        # Nothing a user could state about the scanner: one entry without a spec (estimated from the points).
+        return Rig(lidar=rig.lidar, cameras=cams, lidars=(RigLidar(_source_name(rig), np.eye(4, dtype=np.float32)),),
+                   columns=columns)
     return Rig(lidar=rig.lidar, cameras=cams, columns=columns)
+
+
+def _source_name(rig: RigDef) -> str:
+    """The name of a one-source-per-sweep rig's source (``lidar`` as the rig JSON reader names it)."""
+    return {"raster": "roof", "rosette": "rosette"}.get(rig.name, "lidar")
+
+
+def _moved(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return (np.asarray(p, np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+
+
+def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects):
+    """(SourceCloud in the reference frame, per-point oracle arrays) of every sweep of every unit."""
+    T_ref_world = np.linalg.inv(T_world_points[0])
+    parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
+    poses, specs, sweep_ids, names = [], [], [], []
+    for k, T_world_k in enumerate(T_world_points):
+        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
+        T_ref_points = T_ref_world @ T_world_k
+        if not rdef.per_unit_sources:
+            poses.append(T_ref_points)
+            specs.append(rdef.stated[0])
+            sweep_ids.append(k)
+            names.append(f"{_source_name(rdef)}@{k}")
+        for u, (make_unit, T_points_unit) in enumerate(rdef.units):
+            unit = make_unit(k)
+            out = cast_unit(scene, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
+            if rdef.per_unit_sources:
+                poses.append(T_ref_points @ T_points_unit)
+                specs.append(rdef.stated[u])
+                sweep_ids.append(k)
+                names.append(f"{unit.name}@{k}")
+            keep = out["valid"]
+            n = int(keep.sum())
+            parts["points"].append(_moved(T_ref_world, out["points"][keep]))
+            parts["exact"].append(_moved(T_ref_world, out["exact"][keep]))
+            parts["source"].append(np.full(n, len(poses) - 1, np.int32))
+            parts["ring"].append(out["ring"][keep])
+            parts["unit"].append(np.full(n, u, np.int32))
+            parts["origin"].append(np.repeat(_moved(T_ref_world, out["origin"][None]), n, axis=0))
+            parts["mixed"].append(out["mixed"][keep])
+    cat = {key: np.concatenate(v) for key, v in parts.items()}
+    cloud = SourceCloud(points=cat["points"], source=cat["source"], T_ref_source=np.stack(poses), lidars=tuple(specs),
+                        sweep=np.asarray(sweep_ids, np.int32), names=tuple(names),
+                        ring=cat["ring"] if rdef.ring_column else None, path=f"twin:{rdef.name}")
+    return cloud, cat
 
 
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
@@ -151,40 +204,8 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
             raise ValueError(f"make_twin: field 'step_m' expected metres in [0, 5], got {step_m!r}")
         rdef = dataclasses.replace(rdef, step_m=float(step_m))
     T_world_points = [ego_pose(rdef, k) @ rdef.T_ego_points for k in range(int(sweeps))]
+    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates)
     T_ref_world = np.linalg.inv(T_world_points[0])
-    parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
-    poses, specs, sweep_ids, names = [], [], [], []
-    unit_names = tuple(unit(0).name for unit, _ in rdef.units)
-    for k in range(int(sweeps)):
-        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
-        T_ref_points = T_ref_world @ T_world_points[k]
-        if not rdef.per_unit_sources:
-            poses.append(T_ref_points)
-            specs.append(rdef.stated[0])
-            sweep_ids.append(k)
-            names.append(f"lidar@{k}")
-        for u, (make_unit, T_points_unit) in enumerate(rdef.units):
-            unit = make_unit(k)
-            out = cast_unit(scene, unit, T_world_points[k] @ T_points_unit, rates, [seed, k, u, 37])
-            if rdef.per_unit_sources:
-                poses.append(T_ref_points @ T_points_unit)
-                specs.append(rdef.stated[u])
-                sweep_ids.append(k)
-                names.append(f"{unit.name}@{k}")
-            keep = out["valid"]
-            n = int(keep.sum())
-            move = lambda p: (p.astype(np.float64) @ T_ref_world[:3, :3].T + T_ref_world[:3, 3]).astype(np.float32)
-            parts["points"].append(move(out["points"][keep]))
-            parts["exact"].append(move(out["exact"][keep]))
-            parts["source"].append(np.full(n, len(poses) - 1, np.int32))
-            parts["ring"].append(out["ring"][keep])
-            parts["unit"].append(np.full(n, u, np.int32))
-            parts["origin"].append(np.repeat(move(out["origin"][None]), n, axis=0))
-            parts["mixed"].append(out["mixed"][keep])
-    cat = {key: np.concatenate(v) for key, v in parts.items()}
-    cloud = SourceCloud(points=cat["points"], source=cat["source"], T_ref_source=np.stack(poses), lidars=tuple(specs),
-                        sweep=np.asarray(sweep_ids, np.int32), names=tuple(names),
-                        ring=cat["ring"] if rdef.ring_column else None, path=f"twin:{rig}")
     rig_cams, world_cams = _cameras(rdef, float(scale), T_world_points[0])
     scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s)
     depths = tuple(np.asarray(render_depth(cam, scene0, max_range_m=CAMERA_MAX_RANGE_M)) for cam in world_cams)
@@ -193,11 +214,12 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
     for c, d in enumerate(depths):
         canvas[c, :d.shape[0], :d.shape[1]] = d
     sweep_poses = np.stack([T_ref_world @ T for T in T_world_points])
-    steps = np.linalg.norm(np.diff(sweep_poses[:, :3, 3], axis=0), axis=1)
+    steps = np.linalg.norm(np.diff([ego_pose(rdef, k)[:3, 3] for k in range(int(sweeps))], axis=0), axis=1)
     return Twin(name=rig, sensor_class=rdef.sensor_class, cloud=cloud, rig=_user_rig(rdef, rig_cams),
                 dense_depth=canvas, point_unit=cat["unit"], point_origin=cat["origin"], depths=depths,
                 sweep_poses=sweep_poses, ego_step_m=steps, point_exact=cat["exact"], point_mixed=cat["mixed"],
-                unit_names=unit_names, effects=rates, seed=int(seed), scale=float(scale))
+                point_ring=cat["ring"],
+                unit_names=tuple(unit(0).name for unit, _ in rdef.units), effects=rates, seed=int(seed), scale=float(scale))
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
@@ -213,8 +235,8 @@ def _sweep_file_rows(twin: Twin, k: int) -> np.ndarray:
     sel = np.isin(cloud.source, sources)
     T = np.linalg.inv(twin.sweep_poses[k])
     pts = cloud.points[sel].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-    cols = [pts]
-    if twin.rig.lidars:
+    cols = [pts, np.zeros((pts.shape[0], 1))]   # no reflectance modelled: intensity 0
+    if twin.rig.columns is not None and "lidar" in twin.rig.columns:
         cols.append((cloud.source[sel] - sources[0])[:, None])
     if cloud.ring is not None:
         cols.append(cloud.ring[sel][:, None])
@@ -224,8 +246,9 @@ def _sweep_file_rows(twin: Twin, k: int) -> np.ndarray:
 def write_twin(twin: Twin, folder) -> dict:
     """Writes what a user would have on disk, atomically, into ``folder`` (created).
 
-    Files: ``sweep_<k>.npy`` (float32 rows ``x, y, z`` plus ``lidar`` / ``ring`` where the rig's
-    ``columns`` name them, each sweep in its own points frame), ``rig.json``
+    Files: ``sweep_<k>.npy`` (float32 rows ``x, y, z, intensity`` (0: reflectance is not modelled)
+    plus ``lidar`` / ``ring`` where the rig's ``columns`` name them, each sweep in its own points
+    frame), ``rig.json``
     (:func:`jaxdepth.io.write_rig_json`), ``sweeps.json`` (``T_ref_sweep`` of each sweep, the
     reference first) and ``depth/<camera>.png`` (the exact depth, KITTI uint16 format, at the
     camera's own size).
