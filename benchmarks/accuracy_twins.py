@@ -396,11 +396,23 @@ def main(argv=None) -> int:
                         help="also the SGM with removal forced on where the sweep check turns it off")
     parser.add_argument("--no-hold-out", action="store_true", help="full-input scores only (no protocols)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
+    parser.add_argument("--merge", nargs="+", metavar="JSON",
+                        help="write --json from the cases of these result files (runs split by --sweeps) and exit")
     args = parser.parse_args(argv)
     if args.tables:
         print(markdown(json.loads(pathlib.Path(args.tables).read_text())))
         return 0
     t0 = time.time()
+    if args.merge:
+        parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
+        cases = [c for d in parts for c in d["cases"]]
+        for key in ("rigs", "sweeps", "seeds", "hidden_seeds"):
+            setattr(args, key, sorted({x for d in parts for x in d["settings"][key]}, key=str))
+        args.scale = parts[0]["settings"]["scale"]
+        doc = document(cases, args, complete=all(d["complete"] for d in parts))
+        write_results(args.json, dict(doc, merged_from=[str(f) for f in args.merge],
+                                      run_seconds=[d["seconds"] for d in parts]), SGMConfig(), t0)
+        return 0
     config = SGMConfig()
     from jaxdepth.research.twins import make_twin, write_twin
     cases = []
