@@ -18,7 +18,7 @@ def test_one_twin_case_structure_and_scores(tmp_path):
     twin = make_twin("rosette", sweeps=1, seed=0, scale=0.1)
     paths = write_twin(twin, tmp_path)
     inp = bench.read_user_input(paths["sweeps"][0], paths["rig"])
-    assert not inp.multi                      # one point file, no lidars: complete-rig's single-sweep path
+    assert inp.multi == bool(twin.rig.lidars)     # one point file: multi-source exactly when the rig has lidars
     exact = bench.exact_truth(twin, inp.rig)
     hidden, targets, full = bench.hold_out(inp, 0)
     truths, stats = bench.protocol_truths(exact, targets, full, bench.cover_half_height(inp))
@@ -51,7 +51,7 @@ def test_one_twin_case_structure_and_scores(tmp_path):
     for metric in bench.KEYS:
         row = table[metric]["exact_dense"]["overall"]
         assert row["agree_pct"] == 100.0
-        # the single-sweep path has no free-space rules, and one file is the user's input: those ties are left out
+        # one sweep: the free-space rules have nothing to judge (sgm_no_free_space == sgm), a tie left out
         assert 0 < row["pairs"] < len(bench.METHODS) * (len(bench.METHODS) - 1) // 2
 
 
