@@ -391,3 +391,146 @@ def test_kitti_tree_keeps_one_record_per_method_so_two_methods_share_an_output_r
         assert record["settings"]["method"] == method
     code, _, err = _run(capsys, *base, "--method", "nearest", "--epsilon", "2")
     assert code == 1 and "epsilon_m: 1.0 -> 2.0" in _one_line_error(err)
+
+
+# ------------------------------------------------------------------ far points (issue 39, item 1)
+
+
+def _far_ranges(points):
+    """Brute-force oracle: each point's range about the origin, float64."""
+    p = np.asarray(points, np.float64)
+    return np.sqrt((p ** 2).sum(axis=1))
+
+
+@pytest.mark.parametrize("suffix", [".bin", ".npy"])
+def test_far_points_are_dropped_counted_and_named(tmp_path, caplog, suffix):
+    from jaxdepth.io.points import read_points
+    records = _kitti_records().copy()
+    records[0, :3] = (1e6, 0.0, 0.0)
+    records[7, :3] = (1e30, -1e30, 1e29)
+    records[9, :3] = records[9, :3] * (999.0 / _far_ranges(records[9:10, :3])[0])  # 999 m: kept
+    path = tmp_path / f"sweep{suffix}"
+    records.tofile(path) if suffix == ".bin" else np.save(path, records)
+    points, extra = read_points(path, columns=4)
+    far = _far_ranges(records[:, :3]) > 1000.0
+    assert np.flatnonzero(far).tolist() == [0, 7]
+    assert np.all(np.isnan(points[far])) and np.array_equal(points[~far], records[~far, :3])
+    np.testing.assert_array_equal(extra, records[:, 3:])  # the other columns are kept as read
+    lines = [r.getMessage() for r in caplog.records if "farther than" in r.getMessage()]
+    assert len(lines) == 1 and str(path) in lines[0] and "dropped 2 points farther than 1000 m" in lines[0]
+    assert "\n" not in lines[0] and "JAXDEPTH_MAX_RANGE_M" in lines[0]
+
+
+def test_far_point_limit_is_configurable_and_checked(tmp_path, monkeypatch, caplog):
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.points import read_points
+    path = tmp_path / "sweep.bin"
+    records = _kitti_records()
+    records.tofile(path)
+    monkeypatch.setenv("JAXDEPTH_MAX_RANGE_M", "50")
+    points, _ = read_points(path, columns=4)
+    far = _far_ranges(records[:, :3]) > 50.0
+    assert far.sum() > 0 and np.array_equal(np.isnan(points[:, 0]), far)
+    assert f"dropped {int(far.sum())} points farther than 50 m" in caplog.text
+    monkeypatch.setenv("JAXDEPTH_MAX_RANGE_M", "-3")
+    with pytest.raises(InputError, match="JAXDEPTH_MAX_RANGE_M: expected a positive number"):
+        read_points(path, columns=4)
+
+
+def test_far_points_are_dropped_by_the_nuscenes_and_api_entry_points(tmp_path, caplog):
+    """The nuScenes table reader and prepare_sweep (arrays from the API) drop far points too."""
+    from jaxdepth.io.nuscenes import read_sweep
+    from jaxdepth.io.rig import rig_from_kitti_raw
+    from jaxdepth.io.sweep_frame import prepare_sweep
+    records = np.fromfile(_nusc_sweep(), "<f4").reshape(-1, 5).copy()
+    records[3, :3] = (0.0, 2e5, 0.0)
+    (tmp_path / "s.pcd.bin").write_bytes(records.tobytes())
+
+    class Tables:  # the two attributes read_sweep uses
+        dataroot = tmp_path
+
+    out = read_sweep(Tables, {"token": "t", "filename": "s.pcd.bin"})
+    assert np.isnan(out[3, :3]).all() and np.array_equal(out[3, 3:], records[3, 3:])
+    assert np.array_equal(np.delete(out, 3, 0), np.delete(records, 3, 0))
+    frame = require_shared("kitti", "drive_0001_frame05")
+    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt", cameras=(2,))
+    pts = _kitti_records()[:, :3].copy()
+    pts[5] = (1e6, 0.0, 0.0)
+    prepared = prepare_sweep(pts, rig, estimate=False)
+    assert np.isnan(prepared.points[5]).all() and any("dropped 1 point" in n for n in prepared.notes)
+
+
+def _open_sky_pixel(sparse, K_rows):
+    """An empty pixel near the horizon with no LiDAR pixel in the 40 rows above it (sky)."""
+    h, w = sparse.shape
+    for v in range(int(K_rows) + 5, int(K_rows) - 30, -1):
+        for u in range(w // 3, 2 * w // 3, 7):
+            if not sparse[max(v - 40, 0):v + 1, u - 20:u + 21].any():
+                return u, v
+    raise AssertionError("no open sky pixel")
+
+
+def _walled_pixel(sparse):
+    """An empty pixel inside a close surface: 7 x 7 neighbourhood with >= 6 LiDAR pixels, all under 20 m."""
+    h, w = sparse.shape
+    for v in range(h // 2, h - 5):
+        for u in range(w // 4, w - 5, 3):
+            win = sparse[v - 3:v + 4, u - 3:u + 4]
+            if sparse[v, u] == 0 and (win > 0).sum() >= 6 and win.max() < 20:
+                return u, v
+    raise AssertionError("no walled pixel")
+
+
+@pytest.mark.slow  # whole-pipeline rig programs at 375 x 1242 (docs/testing.md)
+def test_one_far_point_changes_only_its_own_neighbourhood():
+    """The KITTI sweep with and without one added point. Beyond the range limit (1e6, 1e30 m): the
+    output does not change at all (before: 7,621 pixels of 150 m). At 250 m behind a wall:
+    Algorithm 1 removes it, nothing changes. At 250 m in the open sky: it changes only pixels within
+    the validity limit (16 px) plus the smoothing radius of its own pixel, among the pixels the
+    LiDAR supports (docs/validity.md); beyond them the nearest-seed fill extends any seed."""
+    import jax
+
+    import jaxdepth
+    from jaxdepth._src.validity import validity_and_distance
+    from jaxdepth.io.points import pad_points
+    from jaxdepth.io.rig import rig_from_kitti_raw
+    from jaxdepth.io.sweep_frame import prepare_sweep
+    frame = require_shared("kitti", "drive_0001_frame05")
+    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt", cameras=(2,))
+    cams = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
+    config = jaxdepth.SGMConfig()
+    run = jax.jit(lambda p, v: jaxdepth.complete_rig_stages(p, v, cams, config=config, lidar=rig.lidar))
+    base_points = _kitti_records()[:, :3]
+
+    def complete(extra_point):
+        points = np.concatenate([base_points, np.asarray([extra_point], np.float32)])
+        padded, valid = pad_points(prepare_sweep(points, rig, estimate=False).points)
+        stages = jax.tree.map(lambda a: a[0], run(padded, valid))
+        keep = np.asarray(validity_and_distance(stages, cams.K[0], cams.T_cam_lidar[0], lidar=rig.lidar)[0])
+        return np.asarray(stages.depth), np.asarray(stages.sparse_depth), keep
+
+    base, sparse, base_valid = complete((np.nan, np.nan, np.nan))  # a missing return: same bucket
+    for far in ((1e6, 0.0, 0.0), (1e30, 0.0, 0.0)):
+        np.testing.assert_array_equal(complete(far)[0], base)
+    K = np.asarray(rig.cameras[0].K, np.float64)
+    T_lidar_cam = np.linalg.inv(np.asarray(rig.cameras[0].T_cam_lidar, np.float64))
+
+    def point_at(u, v, range_m):
+        ray = np.linalg.solve(K, [u + 0.25, v + 0.25, 1.0])  # rounds and floors to (u, v)
+        return T_lidar_cam[:3, :3] @ (ray / np.linalg.norm(ray) * range_m) + T_lidar_cam[:3, 3]
+
+    u, v = _walled_pixel(sparse)
+    depth, new_sparse, _ = complete(point_at(u, v, 250.0))
+    assert new_sparse[v, u] > 200  # it lands on its own pixel ...
+    assert np.abs(depth - base).max() < 0.5  # ... and Algorithm 1 removes it
+    u, v = _open_sky_pixel(sparse, K[1, 2])
+    depth, new_sparse, valid = complete(point_at(u, v, 250.0))
+    assert new_sparse[v, u] > 200
+    changed = np.abs(depth - base) > 0.5
+    rows, cols = np.nonzero(changed & (base_valid | valid))
+    # Its neighbourhood: pixels whose nearest seed it is (validity limit 16.1 px, L1), the column
+    # bracket's window (H / beams = 6 px) and the Gaussian (radius 3 in u and in v).
+    reach = 16 + 6 + 2 * config.smoothing_radius_px
+    print(f"open sky point at ({u}, {v}): {changed.sum()} pixels change, {rows.size} of them supported, "
+          f"the farthest {np.max(np.abs(rows - v) + np.abs(cols - u))} px (L1) away")
+    assert rows.size and np.max(np.abs(rows - v) + np.abs(cols - u)) <= reach

@@ -72,7 +72,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
       estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`).
       overwrite: replace existing outputs (default: skip them).
       report: ``report(kind, text)`` for every message (see the module docstring).
-      force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
+      force: use a sweep or a calibration that fails the plausibility checks
+        (:mod:`jaxdepth.io.plausibility`: the sweep's values, K and T_cam_lidar against the sweep), logged.
       record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
         are added to its settings), checked against ``out_dir``'s and written before any
         computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
@@ -83,6 +84,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     import jaxdepth
     from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
     from jaxdepth.io.atomic import ensure_output_dir
+    from jaxdepth.io.plausibility import check_rig_geometry
     from jaxdepth.io.points import ring_column
 
     from jaxdepth.io.sweeps import is_sweeps_json
@@ -107,6 +109,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
         cloud = read(points_path, rig, point_columns=point_columns)
         report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        check_rig_geometry(cloud.points, rig.cameras, path=rig_path, force=force)
         cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
         stages = complete_cloud(cloud, rig, config=config, images=images, stages=True)
     else:
@@ -121,6 +124,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         for note in frame.notes:
             report("note", note)
         rig = frame.rig
+        check_rig_geometry(frame.points, rig.cameras, path=rig_path, force=force)
         padded, valid = pad_points(frame.points)
         cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
         stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,

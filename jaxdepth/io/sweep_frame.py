@@ -23,8 +23,9 @@ the same points). Where the sensor sits comes from, in order:
    removal off rather than delete good points, and the note says to state
    ``lidar.origin_m``.
 
-Everything estimated is logged on ``logging.getLogger("jaxdepth")`` and
-summarised in :attr:`SweepFrame.notes`.
+Points farther than any LiDAR measures (:func:`jaxdepth.io.plausibility.far_point_mask`)
+get NaN coordinates (a missing return), with a warning. Everything estimated is logged
+on ``logging.getLogger("jaxdepth")`` and summarised in :attr:`SweepFrame.notes`.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import logging
 import numpy as np
 
 from jaxdepth._src.types import LidarSpec
+from jaxdepth.io.plausibility import far_point_mask, report_far_points
 from jaxdepth.io.rig import Rig, RigCamera
 
 log = logging.getLogger("jaxdepth")
@@ -96,6 +98,10 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
     """
     xyz = np.asarray(points, np.float32)[:, :3]
     notes = []
+    far = far_point_mask(xyz)
+    if far.any():  # an array from the API; the readers drop these already (io/plausibility.py)
+        notes.append(report_far_points("sweep", xyz, far))
+        xyz = np.where(far[:, None], np.float32(np.nan), xyz)
     spec = rig.lidar
     trusted = True
     if rig.lidar_origin_m is not None:
