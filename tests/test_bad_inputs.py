@@ -534,3 +534,103 @@ def test_one_far_point_changes_only_its_own_neighbourhood():
     print(f"open sky point at ({u}, {v}): {changed.sum()} pixels change, {rows.size} of them supported, "
           f"the farthest {np.max(np.abs(rows - v) + np.abs(cols - u))} px (L1) away")
     assert rows.size and np.max(np.abs(rows - v) + np.abs(cols - u)) <= reach
+
+
+# ------------------------------------------------------------------ calibration against the sweep (issue 39, item 2)
+
+
+def _real_rigs():
+    """(name, rig, points) of every shared calibration with its own sweep."""
+    from jaxdepth.io import av2
+    from jaxdepth.io.rig import rig_from_kitti_object, rig_from_kitti_raw, rig_from_nuscenes_calibration
+    out = []
+    for folder in ("drive_0001_frame05", "raw_2011_09_26_scene2"):
+        frame = require_shared("kitti", folder)
+        out.append((folder, rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt"),
+                    np.fromfile(frame / "lidar_data.bin", "<f4").reshape(-1, 4)[:, :3]))
+    obj = require_shared("kitti", "object")
+    for i, (w, h) in enumerate([(1224, 370), (1242, 375), (1242, 375)]):
+        out.append((f"object {i}", rig_from_kitti_object(obj / "calib" / f"00000{i}.txt", width=w, height=h),
+                    np.fromfile(obj / "velodyne" / f"00000{i}.bin", "<f4").reshape(-1, 4)[:, :3]))
+    sample = require_shared("nuscenes", "sample")
+    out.append(("nuScenes", rig_from_nuscenes_calibration(sample / "calibration.json"),
+                np.fromfile(_nusc_sweep(), "<f4").reshape(-1, 5)[:, :3]))
+    log = av2.read_log(next(require_shared("av2", "sensor", "val").iterdir()))
+    out.append(("Argoverse 2", av2.read_rig(log), av2.read_cloud(log).points))
+    return out
+
+
+def _with(rig, **change):
+    """``rig`` with every camera's K and / or T_cam_lidar replaced by change[field](camera)."""
+    import dataclasses
+
+    from jaxdepth.io.rig import RigCamera
+    return dataclasses.replace(rig, cameras=tuple(
+        RigCamera(c.name, c.width, c.height, change["K"](c) if "K" in change else c.K,
+                  change["T"](c) if "T" in change else c.T_cam_lidar) for c in rig.cameras))
+
+
+def _inverse(c):
+    return np.linalg.inv(np.asarray(c.T_cam_lidar, np.float64)).astype(np.float32)
+
+
+def _half_K(c):
+    K = np.array(c.K, np.float32)
+    K[:2] *= 0.5
+    return K
+
+
+def test_geometry_checks_pass_every_real_and_synthetic_rig_and_catch_inverted_and_scaled_calibrations():
+    """Every shared calibration fits its own sweep; K at half scale is refused on every camera; an
+    inverted T_cam_lidar on every camera whose rotation is not its own inverse (the oracle: the
+    camera's up axis moves by more than 45 deg under inversion, computed from the matrix alone)."""
+    from jaxdepth._src import synthetic
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.plausibility import check_rig_geometry
+    from tests import scenes
+    for name, rig, points in _real_rigs():
+        check_rig_geometry(points, rig.cameras, path=name)
+        with pytest.raises(InputError, match=r"field 'K': K seems scaled by 0.5 for this image size"):
+            check_rig_geometry(points, _with(rig, K=_half_K).cameras, path=name)
+        for camera in rig.cameras:
+            R = np.asarray(camera.T_cam_lidar, np.float64)[:3, :3]
+            moved = np.degrees(np.arccos(np.clip(R[1] @ R[:, 1], -1, 1)))  # up axis of T vs of inv(T)
+            inverted = _with(rig, T=lambda c: _inverse(c) if c.name == camera.name else c.T_cam_lidar)
+            if moved > 60:
+                with pytest.raises(InputError, match=rf"camera '{camera.name}' field 'T_cam_lidar': T_cam_lidar "
+                                                     r"looks inverted"):
+                    check_rig_geometry(points, inverted.cameras, path=name)
+            elif moved < 30:  # a rotation close to its own inverse (nuScenes CAM_BACK): not told apart
+                check_rig_geometry(points, inverted.cameras, path=name)
+    for frame, cams in (scenes.stereo_street(), (lambda f, c: (f, [c]))(*scenes.kitti_street()),
+                        (synthetic.make_street_scene(0, lidar=scenes.SMALL_LIDAR, cameras="surround",
+                                                     image_scale=0.1), synthetic.rig_cameras("surround",
+                                                                                             image_scale=0.1))):
+        points = np.asarray(frame.points)[np.asarray(frame.valid)]
+        check_rig_geometry(points, cams, path="synthetic")
+
+
+def test_force_uses_an_implausible_calibration_and_logs_it(caplog):
+    from jaxdepth.io.plausibility import check_rig_geometry
+    name, rig, points = _real_rigs()[0]
+    check_rig_geometry(points, _with(rig, T=_inverse).cameras, path="rig.json", force=True)
+    assert any("rig.json: --force: using it although camera 'image_02'" in r.getMessage() and
+               "looks inverted" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("dataset", ["nuScenes", "KITTI"])
+@pytest.mark.parametrize("change, cause", [("inverted", "T_cam_lidar looks inverted"),
+                                           ("half K", "K seems scaled by 0.5 for this image size")])
+def test_complete_rig_refuses_an_inverted_or_scaled_calibration_before_any_work(tmp_path, capsys, dataset,
+                                                                                change, cause):
+    """Before: exit 0, thousands of LiDAR pixels per camera, 58-99 % of the pixels off by > 1 m."""
+    from jaxdepth.io.rig import write_rig_json
+    name, rig, _ = next(r for r in _real_rigs() if r[0] == ("nuScenes" if dataset == "nuScenes"
+                                                              else "drive_0001_frame05"))
+    sweep = _nusc_sweep() if dataset == "nuScenes" else require_shared("kitti", name, "lidar_data.bin")
+    rig_path = write_rig_json(tmp_path / "rig.json", _with(rig, **({"T": _inverse} if change == "inverted"
+                                                                   else {"K": _half_K})))
+    code, _, err = _run(capsys, "complete-rig", sweep, rig_path, tmp_path / "out")
+    line = _one_line_error(err)
+    assert code == 1 and f"{rig_path}: camera '{rig.cameras[0].name}'" in line and cause in line, line
+    assert "--force" in line and not list((tmp_path / "out").glob("*.png"))

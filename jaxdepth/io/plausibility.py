@@ -377,7 +377,8 @@ def check_rig_geometry(points: np.ndarray, cameras, *, path: PathLike, force: bo
 
     Args:
       points: (N, 3) the sweep in the frame every ``T_cam_lidar`` maps from (z up).
-      cameras: objects with ``name``, ``K``, ``T_cam_lidar``, ``width``, ``height`` (rig cameras).
+      cameras: objects with ``K``, ``T_cam_lidar``, ``width``, ``height`` and optionally ``name``
+        (rig cameras, :class:`jaxdepth.Camera`).
       path: the file that holds the calibration, named in the message.
       force: log the problem as a warning instead of raising.
 
@@ -386,8 +387,9 @@ def check_rig_geometry(points: np.ndarray, cameras, *, path: PathLike, force: bo
         (the first camera; the others with the same problem are counted).
     """
     ground = sweep_ground(points)
-    found = [(c.name, camera_geometry_problem(c.K, c.T_cam_lidar, c.width, c.height, ground=ground))
-             for c in cameras]
+    found = [(getattr(c, "name", f"#{i}"), camera_geometry_problem(np.asarray(c.K), np.asarray(c.T_cam_lidar),
+                                                                   int(c.width), int(c.height), ground=ground))
+             for i, c in enumerate(cameras)]
     found = [(name, p) for name, p in found if p is not None]
     if not found:
         return
