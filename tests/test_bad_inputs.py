@@ -634,3 +634,43 @@ def test_complete_rig_refuses_an_inverted_or_scaled_calibration_before_any_work(
     line = _one_line_error(err)
     assert code == 1 and f"{rig_path}: camera '{rig.cameras[0].name}'" in line and cause in line, line
     assert "--force" in line and not list((tmp_path / "out").glob("*.png"))
+
+
+@pytest.mark.parametrize("change, cause", [
+    # T_cam_lidar = inv(cam2ego) @ lidar2ego: with cam2ego inverted it is not inv(T_cam_lidar) either
+    ("inverted", "T_cam_lidar does not fit the sweep: the sweep's ground is"),
+    ("half K", "K seems scaled by 0.5 for this image size")])
+def test_nuscenes_job_refuses_a_sample_whose_calibrated_sensor_contradicts_the_sweep(tmp_path, change, cause):
+    """calibrated_sensor with ego->camera written for every camera (instead of camera->ego), or K at half
+    scale: the sample is refused (the job reports it FAILED and carries on), naming the table."""
+    from jaxdepth.batch.nuscenes_job import _load, _SampleJob
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import InputError
+    from tests.test_nuscenes_job import VERSION, build_dataroot, wxyz
+    build_dataroot(tmp_path, require_shared("nuscenes", "sample"))
+    tables = nusc.load_tables(tmp_path, VERSION)
+    job = _SampleJob("s1", (), ())
+    _load(tables, job, sweeps=1, ego_motion=True)  # as built: plausible
+    for token, cs in tables.tables["calibrated_sensor"].items():
+        if token == "cs_lidar":
+            continue
+        if change == "inverted":
+            T = np.eye(4)
+            T[:3, :3] = _wxyz_matrix(cs["rotation"])
+            T[:3, 3] = cs["translation"]
+            inv = np.linalg.inv(T)
+            cs["rotation"], cs["translation"] = wxyz(inv[:3, :3]), inv[:3, 3].tolist()
+        else:
+            K = np.asarray(cs["camera_intrinsic"], np.float64)
+            K[:2] *= 0.5
+            cs["camera_intrinsic"] = K.tolist()
+    with pytest.raises(InputError, match=rf"calibrated_sensor.json: camera '\w+' \(also .*\) field '\w+': {cause}"):
+        _load(tables, job, sweeps=1, ego_motion=True)
+
+
+def _wxyz_matrix(q):
+    """Rotation matrix of a unit quaternion (w, x, y, z): the analytic formula."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
