@@ -318,3 +318,24 @@ def test_kitti_raw_job_refuses_an_inverted_velo_to_cam_calibration(tmp_path, cap
     line = _one_line_error(err)
     assert code == 1 and "0000000005.bin: camera" in line and "T_cam_lidar looks inverted" in line, line
     assert not list((tmp_path / "out").rglob("*.png"))
+
+
+def test_far_points_are_dropped_by_the_argoverse2_reader(tmp_path, caplog):
+    """Argoverse 2 refuses NaN coordinates, so its far rows are removed (float16: 60 km is the farthest)."""
+    pa = pytest.importorskip("pyarrow")
+    from pyarrow import feather
+
+    from jaxdepth.io.av2 import read_sweep
+    src = sorted(next(require_shared("av2", "sensor", "val").iterdir()).glob("sensors/lidar/*.feather"))[0]
+    table = feather.read_table(src)
+    x = table.column("x").to_numpy().copy()
+    x[[2, 40]] = np.float16(6e4)
+    table = table.set_column(table.schema.get_field_index("x"), "x", pa.array(x))
+    feather.write_feather(table, tmp_path / "sweep.feather")
+    points, laser = read_sweep(tmp_path / "sweep.feather")
+    ref_points, ref_laser = read_sweep(src)
+    keep = np.ones(ref_points.shape[0], bool)
+    keep[[2, 40]] = False
+    np.testing.assert_array_equal(points, ref_points[keep])
+    np.testing.assert_array_equal(laser, ref_laser[keep])
+    assert "sweep.feather: dropped 2 points farther than 1000 m" in caplog.text
