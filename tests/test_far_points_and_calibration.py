@@ -339,3 +339,14 @@ def test_far_points_are_dropped_by_the_argoverse2_reader(tmp_path, caplog):
     np.testing.assert_array_equal(points, ref_points[keep])
     np.testing.assert_array_equal(laser, ref_laser[keep])
     assert "sweep.feather: dropped 2 points farther than 1000 m" in caplog.text
+
+
+def test_force_keeps_far_points_and_says_so(tmp_path, caplog):
+    """--force uses a sweep as read: far points stay (a sweep in millimetres is all far), with the warning."""
+    from jaxdepth.io.points import read_points
+    records = _kitti_records().copy()
+    records[0, :3] = (1e6, 0.0, 0.0)
+    records.tofile(tmp_path / "sweep.bin")
+    points, _ = read_points(tmp_path / "sweep.bin", columns=4, force=True)
+    np.testing.assert_array_equal(points, records[:, :3])
+    assert "sweep.bin: --force: keeping 1 point farther than 1000 m" in caplog.text

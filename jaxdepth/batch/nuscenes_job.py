@@ -163,7 +163,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
         images = read_rig_images(paths, rig.cameras, colour=True)
     if inputs.cloud is not None:
         return None, None, rig, inputs, images
-    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False)
+    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False, drop_far=not force)
     padded, valid = pad_points(frame.points)
     return padded, valid, frame.rig, inputs, images
 

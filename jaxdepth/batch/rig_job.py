@@ -118,7 +118,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
             ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
         else:
             ring = ring_column(extra, columns)
-        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate, drop_far=not force)
         if not frame.outlier_removal_trusted and config.outlier_removal:
             config = config.replace(outlier_removal=False)
         for note in frame.notes:

@@ -318,8 +318,9 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     check_sweep(points, path=path, intensity=cols["intensity"].astype(np.float32), force=force)
     far = far_point_mask(points)
     if far.any():  # beyond any LiDAR's range: dropped, warned (docs/bad_input_checks.md)
-        report_far_points(path, points, far)
-        points, laser = points[~far], laser[~far]
+        report_far_points(path, points, far, kept=force)
+        if not force:
+            points, laser = points[~far], laser[~far]
     return points, laser.astype(np.int32)
 
 

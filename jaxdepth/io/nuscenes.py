@@ -286,7 +286,7 @@ def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False
     from jaxdepth.io.plausibility import check_sweep, drop_far_points
     check_sweep(records[:, :3], path=path, columns=POINT_COLUMNS, intensity=records[:, 3], ring=records[:, 4],
                 raw=raw, force=force)
-    return drop_far_points(records, path=path)
+    return drop_far_points(records, path=path, force=force)
 
 
 def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:

@@ -41,7 +41,8 @@ sensor (default :data:`MAX_RANGE_M` = 1000 m, ``JAXDEPTH_MAX_RANGE_M`` overrides
 measurement: automotive LiDARs reach 100-300 m (HDL-64E 120 m, VLP-32C 200 m, long-range units
 250-600 m). One such point (a driver's glitch, a corrupted record) is not worth refusing the sweep
 for, but kept it would be completed like any other: it is dropped (set to NaN, like a missing
-return) and a one-line warning names the file, the count, the farthest range and the limit.
+return) and a one-line warning names the file, the count, the farthest range and the limit
+(``--force`` keeps them, as read, and says so).
 
 Every check raises :class:`~jaxdepth.io.errors.InputError` naming the file, what was
 measured and what it seems to be. Callers that know better pass ``force=True`` to the
@@ -216,34 +217,41 @@ def far_point_mask(points: np.ndarray, *, limit_m: float | None = None) -> np.nd
     return (rng > limit) & np.all(np.isfinite(xyz), axis=1)
 
 
-def report_far_points(path: PathLike, points: np.ndarray, far: np.ndarray, *, limit_m: float | None = None) -> str:
-    """Logs (and returns) the one-line warning for the ``far`` (N,) points of ``points`` that are dropped."""
+def report_far_points(path: PathLike, points: np.ndarray, far: np.ndarray, *, limit_m: float | None = None,
+                      kept: bool = False) -> str:
+    """Logs (and returns) the one-line warning for the ``far`` (N,) points of ``points``: dropped, or
+    ``kept`` (``--force``)."""
     limit = max_range_m() if limit_m is None else float(limit_m)
     with np.errstate(all="ignore"):
         farthest = float(np.max(np.linalg.norm(np.asarray(points, np.float64)[far, :3], axis=1)))
     count = int(np.count_nonzero(far))
-    text = (f"{path}: dropped {count} point{'s' if count != 1 else ''} farther than {limit:g} m from the sensor "
+    what = "--force: keeping" if kept else "dropped"
+    text = (f"{path}: {what} {count} point{'s' if count != 1 else ''} farther than {limit:g} m from the sensor "
             f"(farthest {farthest:.3g} m): beyond any automotive LiDAR's range, not a measurement "
             f"({MAX_RANGE_ENV} sets the limit)")
     _LOG.warning("%s", text)
     return text
 
 
-def drop_far_points(points: np.ndarray, *, path: PathLike, limit_m: float | None = None) -> np.ndarray:
+def drop_far_points(points: np.ndarray, *, path: PathLike, limit_m: float | None = None,
+                    force: bool = False) -> np.ndarray:
     """``points`` with x, y, z of every point farther than the limit set to NaN (a missing return), warned once.
 
     Args:
       points: (N, C) real, x, y, z first, metres about the sensor (or the file's origin).
       path: the file, named in the warning.
       limit_m: the limit, default :func:`max_range_m`.
+      force: keep them (``--force``: the input is used as read), still warned.
 
     Returns:
-      ``points`` itself when no point is that far, else a float copy with those rows NaN.
+      ``points`` itself when no point is that far (or ``force``), else a float copy with those rows NaN.
     """
     far = far_point_mask(points, limit_m=limit_m)
     if not far.any():
         return points
-    report_far_points(path, points, far, limit_m=limit_m)
+    report_far_points(path, points, far, limit_m=limit_m, kept=force)
+    if force:
+        return points
     out = np.array(points, dtype=np.result_type(np.asarray(points).dtype, np.float32), copy=True)
     out[far, :3] = np.nan
     return out

@@ -179,7 +179,7 @@ def read_points(path: PathLike, *, columns: int = 4, force: bool = False,
       force: read a sweep that fails the plausibility checks
         (:func:`jaxdepth.io.plausibility.check_sweep`), logging a warning.
       drop_far: set x, y, z of points farther than any LiDAR measures to NaN, with one
-        warning (:func:`jaxdepth.io.plausibility.drop_far_points`); False when the first
+        warning (:func:`jaxdepth.io.plausibility.drop_far_points`; ``force`` keeps them, warned); False when the first
         three columns are not x, y, z (the caller drops them after reordering).
 
     Returns:
@@ -207,7 +207,7 @@ def read_points(path: PathLike, *, columns: int = 4, force: bool = False,
         raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
     if drop_far:
         from jaxdepth.io.plausibility import drop_far_points
-        points = drop_far_points(points, path=path)
+        points = drop_far_points(points, path=path, force=force)
     return points, extra
 
 

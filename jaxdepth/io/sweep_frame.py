@@ -81,7 +81,7 @@ def shift_rig(rig: Rig, origin_m, lidar: LidarSpec | None = None) -> Rig:
 
 
 def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = None,
-                  estimate: bool = True) -> SweepFrame:
+                  estimate: bool = True, drop_far: bool = True) -> SweepFrame:
     """Moves ``points`` (and the rig's extrinsics) so that the LiDAR sits at the origin.
 
     Args:
@@ -92,14 +92,15 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
         sharpens the estimate.
       estimate: estimate what the rig leaves open from the sweep (default);
         False keeps the points' origin and the rig's spec.
+      drop_far: set points farther than any LiDAR measures to NaN, noted (False: ``--force``).
 
     Returns:
       :class:`SweepFrame`.
     """
     xyz = np.asarray(points, np.float32)[:, :3]
     notes = []
-    far = far_point_mask(xyz)
-    if far.any():  # an array from the API; the readers drop these already (io/plausibility.py)
+    far = far_point_mask(xyz) if drop_far else None
+    if far is not None and far.any():  # an array from the API; the readers drop these already (io/plausibility.py)
         notes.append(report_far_points("sweep", xyz, far))
         xyz = np.where(far[:, None], np.float32(np.nan), xyz)
     spec = rig.lidar
