@@ -194,10 +194,10 @@ def av2_rows(config, *, fraction=0.2, seed=0, cameras=RING_CAMERAS):
 # ---------------------------------------------------------------- synthetic sequences (exact depth)
 
 def _sequence_cloud(sq, n_sweeps):
-    """The first ``n_sweeps`` sweeps of a synthetic drive (its sources are ordered sweep-major)."""
+    """The latest ``n_sweeps`` sweeps of a synthetic drive (sweep 0, -1, ...; sources ordered sweep-major)."""
     c = sq
-    keep = c.sweep[c.source] < n_sweeps
-    S = int(np.sum(c.sweep < n_sweeps))
+    keep = c.sweep[c.source] > -n_sweeps
+    S = int(np.sum(c.sweep > -n_sweeps))
     return SourceCloud(points=c.points[keep], source=c.source[keep], T_ref_source=c.T_ref_source[:S],
                        lidars=c.lidars[:S], sweep=c.sweep[:S], names=c.names[:S])
 

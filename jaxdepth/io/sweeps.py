@@ -29,6 +29,7 @@ import pathlib
 
 import numpy as np
 
+from jaxdepth._src.poses import apply_pose
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 from jaxdepth.io.points import infer_point_columns, read_points
 from jaxdepth.io.sources import SourceCloud, rigid_pose_problem
@@ -158,7 +159,7 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
         check_sweep(points, path=file, columns=count, intensity=_named(extra, names, "intensity"),
                     ring=None if per_lidar_rings else ring_raw)
     ring = None if ring_raw is None else np.where(np.isfinite(ring_raw), ring_raw, -1).astype(np.int32)
-    pts = (points.astype(np.float64) @ T_ref_sweep[:3, :3].T + T_ref_sweep[:3, 3]).astype(np.float32)
+    pts = apply_pose(T_ref_sweep, points)
     if rig.lidars:
         lidar = _named(extra, names, "lidar")
         if lidar is None:
