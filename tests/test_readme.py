@@ -132,3 +132,78 @@ def test_readme_python_api_block_runs(tmp_path, monkeypatch):
     np.testing.assert_allclose(batch[1], dense, atol=1e-4)  # vmap equals the loop to float32 rounding
     assert (depths > 0).mean(axis=(1, 2)).min() > 0.5
     assert os.listdir(tmp_path)  # the block read its inputs from the working directory
+
+
+def _nuscenes_block() -> str:
+    section = README.read_text().split("**nuScenes dataroot**", 1)[1].split("**Any rig", 1)[0]
+    return re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
+
+
+def test_readme_nuscenes_devkit_block_writes_the_jobs_rig(tmp_path, monkeypatch):
+    """Runs the README's devkit block against a stand-in ``nuscenes.nuscenes.NuScenes`` (random
+    poses and intrinsics in the devkit's record layout): the rig JSON it writes holds each camera's
+    K and SciPy's ``inv(C_cam) inv(E_cam) E_lidar C_lidar``, the chain the nuScenes job uses."""
+    import sys
+    import types
+
+    from scipy.spatial.transform import Rotation
+
+    from jaxdepth.io import read_rig_json
+    from jaxdepth.io.nuscenes import NuScenesTables, camera_from_lidar
+
+    rng = np.random.default_rng(0)
+    channels = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_BACK_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_FRONT_LEFT")
+    tables: dict = {"ego_pose": {}, "calibrated_sensor": {}, "sample_data": {}}
+
+    def pose_record(table, token, **extra):
+        q = rng.normal(size=4)    # any norm and sign: the devkit stores unit (w, x, y, z), pose_matrix normalises
+        tables[table][token] = {"token": token, "translation": rng.uniform(-5, 5, 3).tolist(),
+                                "rotation": q.tolist(), **extra}
+        return token
+
+    data = {}
+    for channel in ("LIDAR_TOP",) + channels:
+        extra = {} if channel == "LIDAR_TOP" else {"camera_intrinsic": [[rng.uniform(1000, 1300), 0, 800],
+                                                                        [0, rng.uniform(1000, 1300), 450], [0, 0, 1]]}
+        sd = {"token": f"sd_{channel}", "ego_pose_token": pose_record("ego_pose", f"ego_{channel}"),
+              "calibrated_sensor_token": pose_record("calibrated_sensor", f"cs_{channel}", **extra),
+              "width": 1600, "height": 900, "filename": f"samples/{channel}/x.pcd.bin"}
+        tables["sample_data"][sd["token"]] = sd
+        data[channel] = sd["token"]
+
+    class NuScenes:  # the devkit's interface as the block uses it: .sample and .get(table, token)
+        def __init__(self, version, dataroot):
+            self.sample = [{"token": "s0", "data": data}]
+
+        def get(self, table, token):
+            return tables[table][token]
+
+    devkit = types.ModuleType("nuscenes")
+    devkit.nuscenes = types.ModuleType("nuscenes.nuscenes")
+    devkit.nuscenes.NuScenes = NuScenes
+    monkeypatch.setitem(sys.modules, "nuscenes", devkit)
+    monkeypatch.setitem(sys.modules, "nuscenes.nuscenes", devkit.nuscenes)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(_nuscenes_block(), "README.md (nuScenes devkit)", "exec"), {})  # noqa: S102
+
+    def oracle(table, token):
+        r = tables[table][token]
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(np.roll(r["rotation"], -1)).as_matrix()   # SciPy: scalar last
+        T[:3, 3] = r["translation"]
+        return T
+
+    rig = read_rig_json(tmp_path / "rig.json")
+    assert [c.name for c in rig.cameras] == list(channels) and rig.lidar.beams == 32
+    job_tables = NuScenesTables(dataroot=tmp_path, version="v1.0-mini", tables=tables, key_frames={})
+    lidar = tables["sample_data"][data["LIDAR_TOP"]]
+    for cam in rig.cameras:
+        sd = tables["sample_data"][data[cam.name]]
+        want = (np.linalg.inv(oracle("calibrated_sensor", sd["calibrated_sensor_token"]))
+                @ np.linalg.inv(oracle("ego_pose", sd["ego_pose_token"])) @ oracle("ego_pose", lidar["ego_pose_token"])
+                @ oracle("calibrated_sensor", lidar["calibrated_sensor_token"]))
+        np.testing.assert_allclose(cam.T_cam_lidar, want, atol=1e-5)          # float32 in the JSON
+        np.testing.assert_allclose(cam.T_cam_lidar, camera_from_lidar(job_tables, sd, lidar), atol=1e-5)
+        np.testing.assert_allclose(cam.K, tables["calibrated_sensor"][sd["calibrated_sensor_token"]]["camera_intrinsic"],
+                                   atol=1e-4)
+        assert (cam.width, cam.height) == (1600, 900)
