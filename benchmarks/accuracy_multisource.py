@@ -536,9 +536,12 @@ def main(argv=None) -> int:
                              for scale in args.sequence_scales}}
         old = out / "accuracy_sequences.json"
         old = json.loads(old.read_text()) if old.exists() else {}
-        doc.update({k: v for k, v in old.items() if k not in doc and k != "platform"})    # e.g. tuning records
+        # only what this script writes is carried over (the speed section of an earlier --speed-only run):
+        # a record that no script regenerates does not live in a results file
         if not args.skip_speed:
             doc["speed"] = speed_sequences(config)
+        elif "speed" in old:
+            doc["speed"] = old["speed"]
         write(out / "accuracy_sequences.json", doc)
     return 0
 
