@@ -197,7 +197,8 @@ def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: P
         T[0] = np.eye(4)
     points, source = [], []
     for s, o in enumerate(offsets):
-        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS, force=force)
+        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS, force=force,
+                             columns_option=None)
         xyz = np.asarray(xyz, np.float32)[:, :3]
         if o:
             xyz = apply_pose(T[s], xyz)
