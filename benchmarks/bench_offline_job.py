@@ -34,6 +34,7 @@ import json
 import os
 import pathlib
 import platform
+import resource
 import shutil
 import statistics
 import subprocess
@@ -104,10 +105,20 @@ def folder_digest(folder: pathlib.Path) -> tuple[str, int, int]:
     return digest.hexdigest(), count, total
 
 
-def timed(cmd, env, label):
-    start = time.perf_counter()
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def timed(cmd, env, label, cpu=None):
+    """Wall seconds and stderr lines of ``cmd``; its CPU seconds (user + system, every thread)
+    are appended to ``cpu`` when given: on a shared machine the CPU a job burns, not its wall
+    time alone, says what it costs."""
+    cpu_before, start = _children_cpu(), time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
+    if cpu is not None:
+        cpu.append(_children_cpu() - cpu_before)
     if proc.returncode != 0:
         raise SystemExit(f"{label} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     return wall, proc.stderr.strip().splitlines()
@@ -143,6 +154,7 @@ def main(argv=None) -> int:
         print(f"warm-up (fills the compile cache): {wall:.1f} s", file=sys.stderr)
 
         runs = {"ip_basic_loop": [], "jaxdepth_complete": []}
+        cpu = {"ip_basic_loop": [], "jaxdepth_complete": []}
         summaries, digests = [], set()
         ip_digest = None
         for r in range(args.repeats):
@@ -151,14 +163,15 @@ def main(argv=None) -> int:
                 out = tmp / f"out_{which}"
                 shutil.rmtree(out, ignore_errors=True)
                 if which == "ip_basic_loop":
-                    wall, _ = timed(ip_cmd + [str(src), str(out), baselines_py], env, which)
+                    wall, _ = timed(ip_cmd + [str(src), str(out), baselines_py], env, which, cpu[which])
                     ip_digest = folder_digest(out)
                 else:
-                    wall, lines = timed(jaxdepth_cmd + [str(src), str(out)] + args.jaxdepth_args, env, which)
+                    wall, lines = timed(jaxdepth_cmd + [str(src), str(out)] + args.jaxdepth_args, env, which,
+                                        cpu[which])
                     summaries.append(lines)
                     digests.add(folder_digest(out))
                 runs[which].append(wall)
-                print(f"repeat {r}: {which:18s} {wall:6.2f} s", file=sys.stderr)
+                print(f"repeat {r}: {which:18s} {wall:6.2f} s, CPU {cpu[which][-1]:6.2f} s", file=sys.stderr)
 
     ip, jd = runs["ip_basic_loop"], runs["jaxdepth_complete"]
     pair_ratios = [j / i for i, j in zip(ip, jd)]
@@ -176,6 +189,9 @@ def main(argv=None) -> int:
         "seconds": runs,
         "median_seconds": {k: statistics.median(v) for k, v in runs.items()},
         "ratio_jaxdepth_over_ip_basic_median": statistics.median(jd) / statistics.median(ip),
+        "cpu_seconds": cpu,
+        "cpu_ratio_jaxdepth_over_ip_basic_median": (statistics.median(cpu["jaxdepth_complete"])
+                                                   / statistics.median(cpu["ip_basic_loop"])),
         "ratio_per_interleaved_pair": pair_ratios,
         "frames_per_second_median": {k: args.frames / statistics.median(v) for k, v in runs.items()},
         "jaxdepth_outputs_identical_between_runs": len(digests) == 1,
@@ -185,6 +201,7 @@ def main(argv=None) -> int:
         "target": "ratio <= 0.7",
     }
     print(json.dumps({k: result[k] for k in ("median_seconds", "ratio_jaxdepth_over_ip_basic_median",
+                                              "cpu_ratio_jaxdepth_over_ip_basic_median",
                                               "ratio_per_interleaved_pair", "jaxdepth_outputs_identical_between_runs",
                                               "jaxdepth_run_summary")}, indent=2))
     out = pathlib.Path(args.json)
