@@ -23,6 +23,10 @@ checks that every jaxdepth run wrote the same bytes, prints the ratios and write
 benchmarks/results/offline_job.json.
 
     python -m benchmarks.bench_offline_job [--frames 960] [--repeats 3] [-- extra jaxdepth complete options]
+    python -m benchmarks.bench_offline_job --breakdown   # per-step CPU / wall ms, one process
+
+Each run's CPU seconds (user + system, every thread) are recorded beside its wall time: when
+other work loads the cores, the job's wall time follows its CPU seconds.
 """
 
 from __future__ import annotations
@@ -124,6 +128,72 @@ def timed(cmd, env, label, cpu=None):
     return wall, proc.stderr.strip().splitlines()
 
 
+def _cpu_ms(fn, repeats: int) -> tuple[float, float]:
+    """(median CPU ms of this process, every thread; median wall ms) of ``fn()``."""
+    cpu, wall = [], []
+    for _ in range(repeats):
+        c0, w0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        fn()
+        c1, w1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        cpu.append((c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime) * 1e3)
+        wall.append((w1 - w0) * 1e3)
+    return statistics.median(cpu), statistics.median(wall)
+
+
+def breakdown(json_path: str, repeats: int = 20) -> int:
+    """Per-frame CPU and wall ms of each step of both jobs, in this one process (``--breakdown``).
+
+    The job's own steps (its reader: PNG read + decode, the scale check; its compute: a
+    batch of 4 on the run's devices, per frame; its writer: float -> uint16, PNG encode,
+    atomic write) against the loop's (``cv2.imread``, IP_Basic, ``cv2.imwrite``).
+    """
+    import jax
+    from jaxdepth._src import presets
+    from jaxdepth.batch import runner
+    from jaxdepth.io.atomic import atomic_write_bytes
+    from jaxdepth.io.depth_png import encode_depth_png, encode_depth_uint16, read_depth_png
+    from jaxdepth.io.plausibility import check_depth_scale
+    from jaxdepth.research import baselines
+    from benchmarks._common import write_results
+    t0 = time.time()
+    with tempfile.TemporaryDirectory(prefix="jaxdepth_breakdown_") as tmp:
+        tmp = pathlib.Path(tmp)
+        src = build_folder(tmp / "job", 2)
+        png = sorted((src / "velodyne_raw").glob("*.png"))[0]
+        K = np.loadtxt(sorted((src / "intrinsics").glob("*.txt"))[0], dtype=np.float32).reshape(3, 3)
+        sparse = read_depth_png(png)
+        devices = len(jax.local_devices())
+        batch = max(4, devices)
+        fn = runner.batched_completion(batch, *sparse.shape, method="sgm", config=runner.SGMConfig(),
+                                       lidar=presets.KITTI_HDL64, strategy=runner.batch_strategy(), devices=devices)
+        args = (np.stack([sparse] * batch), np.stack([K] * batch),
+                np.stack([presets.KITTI_T_CAM2_LIDAR.astype(np.float32)] * batch))
+        dense = np.asarray(fn(*args))[0]  # compiles (or loads) once, untimed
+        u16 = encode_depth_uint16(dense)
+        data = encode_depth_png(u16)
+        steps = {
+            "jaxdepth: read_depth_png (read + decode + to metres)": lambda: read_depth_png(png),
+            "jaxdepth: check_depth_scale": lambda: check_depth_scale(sparse, path=png, role="LiDAR input"),
+            f"jaxdepth: SGM compute, batch of {batch}, per frame": lambda: np.asarray(fn(*args)),
+            "jaxdepth: encode_depth_uint16": lambda: encode_depth_uint16(dense),
+            "jaxdepth: encode_depth_png (level 1)": lambda: encode_depth_png(u16),
+            "jaxdepth: atomic_write_bytes (fsync)": lambda: atomic_write_bytes(tmp / "a.png", data),
+            "loop: cv2.imread": lambda: cv2.imread(str(png), cv2.IMREAD_ANYDEPTH),
+            "loop: IP_Basic fast (Gaussian)": lambda: baselines.ip_basic_opencv(sparse, blur_type="gaussian"),
+            "loop: cv2.imwrite": lambda: cv2.imwrite(str(tmp / "b.png"), u16),
+        }
+        rows = {}
+        for name, step in steps.items():
+            cpu, wall = _cpu_ms(step, repeats)
+            per = batch if "batch of" in name else 1
+            rows[name] = {"cpu_ms": cpu / per, "wall_ms": wall / per}
+            print(f"{name:58s} CPU {cpu / per:7.2f} ms  wall {wall / per:7.2f} ms", file=sys.stderr)
+    write_results(json_path, {"what": "per-frame CPU (all threads) and wall ms of each step of the offline job and "
+                                      "of the imread / IP_Basic / imwrite loop, medians, one process",
+                              "devices": devices, "repeats": repeats, "steps": rows}, None, t0)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=960)
@@ -131,11 +201,17 @@ def main(argv=None) -> int:
     parser.add_argument("--warm-frames", type=int, default=16, help="frames of the untimed cache-filling run")
     parser.add_argument("--json", default=str(RESULTS))
     parser.add_argument("--label", default="", help="free text stored with the results")
+    parser.add_argument("--breakdown", action="store_true",
+                        help="instead: per-step CPU / wall ms of both jobs in this process "
+                             "(default --json results/offline_job_breakdown.json)")
     parser.add_argument("jaxdepth_args", nargs="*", help="extra options for `jaxdepth complete` (after --)")
     args = parser.parse_args(argv)
     if not FRAME.exists():
         print(f"shared data not found: {FRAME}", file=sys.stderr)
         return 1
+    if args.breakdown:
+        return breakdown(str(RESULTS.with_name("offline_job_breakdown.json")) if args.json == str(RESULTS)
+                         else args.json)
 
     with tempfile.TemporaryDirectory(prefix="jaxdepth_offline_") as tmp:
         tmp = pathlib.Path(tmp)
