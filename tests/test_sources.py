@@ -14,9 +14,10 @@ from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.sources import (camera_witness, complete_sources, free_space_keep, free_space_margin,
                                    make_sources, reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.poses import rotation_rpy
 from jaxdepth._src.scene import scene_arrays
 from jaxdepth._src.synthetic import make_street_scene
-from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
+from jaxdepth._src.synthetic_sequences import _cast_sweep, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
 from scenes import SMALL_LIDAR, stereo_cameras, stereo_street, tiny_street_frames
@@ -27,7 +28,7 @@ WALL_X = 20.0
 
 def _pose(t=(0.0, 0.0, 0.0), roll=0.0, pitch=0.0, yaw=0.0):
     T = np.eye(4)
-    T[:3, :3] = _rotation(roll, pitch, yaw)
+    T[:3, :3] = rotation_rpy(roll, pitch, yaw, degrees=True)
     T[:3, 3] = t
     return T
 
@@ -437,7 +438,7 @@ def test_free_space_vmap_and_jit_equal_eager():
 
 def test_sequence_reference_points_lie_on_the_camera_truth():
     sq = make_street_sequence(0, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
-    assert sq.T_ref_source.shape == (4, 4, 4) and list(sq.sweep) == [0, 0, 1, 1]
+    assert sq.T_ref_source.shape == (4, 4, 4) and list(sq.sweep) == [0, 0, -1, -1]  # signed: -1 is one sweep earlier
     cam = sq.camera
     ref = sq.points[sq.sweep[sq.source] == 0]
     depth, _ = jaxdepth.project_to_image(ref, np.ones(len(ref), bool), cam.K, cam.T_cam_lidar,
@@ -468,7 +469,7 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
     entries = []
     for k in range(2):
-        mine = sq.sweep[sq.source] == k
+        mine = sq.sweep[sq.source] == -k
         inv = np.linalg.inv(ego[k])
         local = sq.points[mine] @ inv[:3, :3].T + inv[:3, 3]
         rows = np.concatenate([local, (sq.source[mine] % 2)[:, None]], axis=1).astype(np.float32)

@@ -139,7 +139,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
             message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
                        f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
                        "looks along +z, x right, y down)")
-            log.warning("%s", message)
+            if report is _ignore:          # no reporter (the API): the log; the CLI prints it once itself
+                log.warning("%s", message)
             report("warning", message)
             summary.empty_cameras.append(camera.name)
         target = out_dir / f"{camera.name}.png"

@@ -313,7 +313,7 @@ def _load_sweep(job: FrameJob):
     from jaxdepth.io.points import infer_point_columns, pad_points, read_points
 
     points, _ = read_points(job.sparse_path, columns=infer_point_columns(job.sparse_path, job.point_columns),
-                            force=job.force)
+                            force=job.force, columns_option=None)      # `complete`: the layout fixes the columns
     if job.K is None:
         raise io_errors.InputError(f"{job.sparse_path}: no intrinsics given for this sweep (field 'K' of the job)")
     K = np.asarray(job.K, np.float32)
