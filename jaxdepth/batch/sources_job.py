@@ -111,7 +111,8 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       beams: L of Step 2's window bounds; default: the reference sweep's LiDARs' beams together.
       stages: return the :class:`~jaxdepth.Stages` (C leading axis) instead of the depth.
       neighbour_sweeps: sweeps on each side whose points a non-reference sweep's LiDARs judge for
-        free space (None: every sweep); default ``NEIGHBOUR_SWEEPS`` of :mod:`jaxdepth._src.sources`.
+        free space (None: every sweep); "default": ``config.free_space_neighbour_sweeps`` (the other
+        free-space and occlusion constants are ``config`` fields too).
       occlusion: with ``free_space``, also remove for each camera the other sweeps' points hidden
         from the reference-sweep LiDAR next to it (see :func:`~jaxdepth._src.sources.reference_view`).
 
@@ -122,9 +123,9 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     import jaxdepth
-    from jaxdepth._src.sources import NEIGHBOUR_SWEEPS, complete_sources_stages
-    if neighbour_sweeps == "default":
-        neighbour_sweeps = NEIGHBOUR_SWEEPS
+    from jaxdepth._src.sources import complete_sources_stages
+    if neighbour_sweeps != "default":
+        config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     if _single_origin(cloud):
         from jaxdepth.io import pad_points
@@ -134,8 +135,22 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     else:
         sources, _ = cloud_sources(cloud, fallback=rig.lidar)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion)
+                                      images=images, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)
 
 
-__all__ = ["complete_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]
+def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: bool = True):
+    """The sweep check of a cloud read from a rig JSON (``complete-rig``, ``hidden-eval``): ``(frame, config)``.
+
+    ``frame``: :func:`jaxdepth.io.sweep_frame.prepare_cloud`'s :class:`~jaxdepth.io.sweep_frame.CloudFrame`
+    (complete ``frame.cloud`` with ``frame.rig``); ``config`` with outlier removal off when the check
+    does not trust it, as the single-file path (:func:`jaxdepth.io.prepare_sweep`) decides.
+    """
+    from jaxdepth.io.sweep_frame import prepare_cloud
+    frame = prepare_cloud(cloud, rig, estimate=estimate)
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    return frame, config
+
+
+__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]
