@@ -42,30 +42,27 @@ def _sweeps_count(text: str):
     return value
 
 
-#: The multi-source options: (flag, SGMConfig field, add_argument keywords); unset flags keep the default.
-_SOURCES_OPTIONS = (
-    ("--free-space-noise", "free_space_noise_m", dict(type=float, metavar="M", help=(
-        "several LiDARs / sweeps: range noise and registration error allowed before a point of another sweep "
-        "counts as lying in space a LiDAR saw empty, metres (default 0.3)"))),
-    ("--free-space-slope", "free_space_slope", dict(type=float, metavar="K", help=(
-        "several LiDARs / sweeps: the free-space margin adds K x range x the gap between neighbouring lasers "
-        "(default 2.0)"))),
-    ("--free-space-min-cells", "free_space_min_cells", dict(type=int, choices=(1, 2, 3, 4), help=(
-        "several LiDARs / sweeps: measured cells of the 2 x 2 around a point a LiDAR needs to judge it "
-        "(default 3)"))),
-    ("--neighbour-sweeps", "free_space_neighbour_sweeps", dict(type=_sweeps_count, metavar="N|all", help=(
-        "several sweeps: sweeps on each side a non-reference, non-end sweep's LiDARs judge for free space "
-        "(default 0; all: every sweep, cost quadratic in the sweeps)"))),
-    ("--occlusion-max-baseline", "occlusion_max_baseline_m", dict(type=float, metavar="M", help=(
-        "several sweeps: largest camera-to-LiDAR distance at which the reference LiDAR's view stands in for "
-        "the camera's in the occlusion test, metres (default 1.0)"))),
-)
+#: The multi-source options (docs/multi_source.md): flag -> (SGMConfig field, type, metavar, what it sets).
+#: Unset flags keep the config's default.
+_SOURCES_OPTIONS = {
+    "--free-space-noise": ("free_space_noise_m", float, "M", "range noise and pose error in the free-space margin, "
+                           "metres (default 0.3)"),
+    "--free-space-slope": ("free_space_slope", float, "K", "gaps between neighbouring lasers in the margin "
+                           "(default 2.0)"),
+    "--free-space-min-cells": ("free_space_min_cells", int, "N", "measured cells (of the 2 x 2 bracketing a point) a "
+                               "LiDAR needs to judge it, 1-4 (default 3)"),
+    "--neighbour-sweeps": ("free_space_neighbour_sweeps", _sweeps_count, "N|all", "sweeps on each side the other "
+                           "sweeps' LiDARs judge (default 0; all: every sweep, a cost quadratic in the sweeps)"),
+    "--occlusion-max-baseline": ("occlusion_max_baseline_m", float, "M", "largest camera-to-LiDAR distance of the "
+                                 "occlusion test of other sweeps' points, metres (default 1.0)"),
+}
 
 
 def add_sources_options(p: argparse.ArgumentParser) -> None:
     """The multi-source SGMConfig options (free space, occlusion), part of :func:`add_config_options`."""
-    for flag, field, options in _SOURCES_OPTIONS:
-        p.add_argument(flag, dest=field, default=argparse.SUPPRESS, **options)
+    for flag, (field, kind, metavar, what) in _SOURCES_OPTIONS.items():
+        p.add_argument(flag, dest=field, type=kind, metavar=metavar, default=argparse.SUPPRESS,
+                       help=f"several LiDARs / sweeps: {what}")
 
 
 def config_changes(args) -> dict:
@@ -73,5 +70,5 @@ def config_changes(args) -> dict:
     changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
-    changes.update({field: getattr(args, field) for _, field, _ in _SOURCES_OPTIONS if hasattr(args, field)})
+    changes.update({f: getattr(args, f) for f, *_ in _SOURCES_OPTIONS.values() if hasattr(args, f)})
     return changes

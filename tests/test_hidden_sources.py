@@ -79,14 +79,41 @@ def _write_sequence(tmp_path, sweeps):
     return tmp_path / "sweeps.json", tmp_path / "rig.json"
 
 
-@pytest.mark.slow  # the job's multi-source programs (SGM, no removal, l2) of a 44 x 152 camera, two sweeps
-def test_hidden_eval_scores_what_complete_rig_computes(tmp_path, capsys):
+def _check_against_complete_cloud(doc, points_path, rig_path, *, seed, scale=1.0):
+    """hidden-eval's SGM scores of every camera equal complete_cloud (the job's function) on the cloud
+    without the held-out reference-sweep points, scored at their z-buffer with the devkit metrics."""
     from jaxdepth.batch.sources_job import complete_cloud
-    from jaxdepth.cli import main
     from jaxdepth.io import read_rig_json
     from jaxdepth.io.sweep_frame import prepare_cloud
-    from jaxdepth.io.sweeps import read_sweeps_cloud
+    from jaxdepth.io.sweeps import is_sweeps_json, read_point_file_cloud, read_sweeps_cloud
+    from jaxdepth.research.cli import scaled_rig
     from jaxdepth.research.hidden import hidden_point_mask
+
+    rig = read_rig_json(rig_path)
+    read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+    cloud = prepare_cloud(read(points_path, rig), rig).cloud
+    rig = scaled_rig(rig, scale)
+    near = np.linalg.norm(cloud.points - cloud.T_ref_source[cloud.source, :3, 3], axis=1) < 1.0
+    cloud = cloud.take(~near)
+    hidden = hidden_point_mask(cloud.sweep[cloud.source] == 0, fraction=0.2, seed=seed)
+    assert hidden.any() and not hidden[cloud.sweep[cloud.source] != 0].any()
+    depth = complete_cloud(cloud.take(~hidden), rig)
+    for i, camera in enumerate(rig.cameras):
+        cam = camera.as_camera()
+        target = jaxdepth.project_to_image(jnp.asarray(cloud.points), jnp.asarray(hidden), cam.K, cam.T_cam_lidar,
+                                           height=cam.height, width=cam.width)[0]
+        want = jaxdepth.depth_metrics(jnp.asarray(depth[i, :cam.height, :cam.width]), target)
+        assert doc["cameras"][camera.name]["hidden_pixels"] == int((np.asarray(target) > 0).sum()) > 20
+        for key in ("rmse", "mae"):
+            np.testing.assert_allclose(doc["cameras"][camera.name]["sgm"][key], float(want[key]), rtol=1e-5)
+    for method in doc["methods"]:                        # every method on both target sets
+        assert doc["mean_uncovered"][method]["mae"] > 0 and doc["mean"][method]["mae"] > 0
+    assert 0 < doc["covered_share"] < 0.5
+
+
+@pytest.mark.slow  # the job's multi-source programs (SGM, no removal, l2) of a 44 x 152 camera, two sweeps
+def test_hidden_eval_scores_what_complete_rig_computes(tmp_path, capsys):
+    from jaxdepth.cli import main
 
     sweeps, rig_path = _write_sequence(tmp_path, 2)
     out = tmp_path / "hidden.json"
@@ -95,22 +122,30 @@ def test_hidden_eval_scores_what_complete_rig_computes(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["sources"] == ["top@0", "front_low@0", "top@1", "front_low@1"] and doc["outlier_removal"]
     assert "all targets RMSE / MAE" in text and "uncovered RMSE / MAE" in text
-    # The oracle: complete_cloud (complete-rig's function) on the cloud without the held-out
-    # reference-sweep points, scored at their z-buffer with the devkit metrics.
-    rig = read_rig_json(rig_path)
-    cloud = prepare_cloud(read_sweeps_cloud(sweeps, rig), rig).cloud
-    near = np.linalg.norm(cloud.points - cloud.T_ref_source[cloud.source, :3, 3], axis=1) < 1.0
-    cloud = cloud.take(~near)
-    hidden = hidden_point_mask(cloud.sweep[cloud.source] == 0, fraction=0.2, seed=4)
-    assert hidden.any() and not hidden[cloud.sweep[cloud.source] != 0].any()
-    depth = complete_cloud(cloud.take(~hidden), rig)[0]
-    cam = rig.cameras[0].as_camera()
-    target = jaxdepth.project_to_image(jnp.asarray(cloud.points), jnp.asarray(hidden), cam.K, cam.T_cam_lidar,
-                                       height=cam.height, width=cam.width)[0]
-    want = jaxdepth.depth_metrics(jnp.asarray(depth), target)
-    assert doc["cameras"]["cam"]["hidden_pixels"] == int((np.asarray(target) > 0).sum()) > 100
-    for key in ("rmse", "mae"):
-        np.testing.assert_allclose(doc["cameras"]["cam"]["sgm"][key], float(want[key]), rtol=1e-5)
-    for method in doc["methods"]:                        # every method on both target sets
-        assert doc["mean_uncovered"][method]["mae"] > 0 and doc["mean"][method]["mae"] > 0
-    assert 0 < doc["covered_share"] < 0.5
+    _check_against_complete_cloud(doc, sweeps, rig_path, seed=4)
+
+
+@pytest.mark.slow  # the job's multi-source programs on the shared Argoverse 2 sweep, two cameras at 1/16 size
+def test_hidden_eval_on_argoverse2_lidars(tmp_path):
+    """The shared Argoverse 2 sweep as a rig JSON with both LiDARs (``lidars``, named ``ring`` and
+    ``lidar`` columns, specs left to each LiDAR's own rings), as complete-rig reads it."""
+    from jaxdepth.cli import main
+    from jaxdepth.io import av2
+    from tests.conftest import require_shared
+
+    log = av2.read_log(require_shared("av2", "sensor", "val", "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"))
+    rig = av2.read_rig(log, cameras=("ring_front_left", "ring_side_right"))
+    xyz, laser = av2.read_sweep(log.sweep_path(log.sweeps[0]))
+    np.concatenate([xyz, (laser % 32)[:, None], (laser // 32)[:, None]], axis=1).astype(np.float32).tofile(
+        tmp_path / "sweep.bin")
+    doc = {"lidars": [{"name": name, "T_points_lidar": log.sensor_pose(name).tolist()} for name, _ in av2.LIDARS],
+           "columns": ["x", "y", "z", "ring", "lidar"],
+           "cameras": [{"name": c.name, "width": c.width, "height": c.height, "K": np.asarray(c.K).tolist(),
+                        "T_cam_lidar": np.asarray(c.T_cam_lidar).tolist()} for c in rig.cameras]}
+    (tmp_path / "rig.json").write_text(json.dumps(doc))
+    out = tmp_path / "hidden.json"
+    argv = [str(tmp_path / "sweep.bin"), str(tmp_path / "rig.json"), "--seeds", "1", "--scale", "0.0625"]
+    assert main(["hidden-eval", *argv, "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["sources"] == ["up_lidar@0", "down_lidar@0"] and result["outlier_removal"]
+    _check_against_complete_cloud(result, tmp_path / "sweep.bin", tmp_path / "rig.json", seed=1, scale=0.0625)

@@ -108,7 +108,7 @@ def test_complete_rig_gives_the_same_bytes_for_a_file_and_a_one_entry_sweeps_jso
     _cloud(kind).tofile(tmp_path / "sweep.bin")
     rig = _rig(tmp_path)
     sweeps = _sweeps(tmp_path, [("sweep.bin", np.eye(4))])
-    assert main(["complete-rig", str(tmp_path / "sweep.bin"), str(rig), str(tmp_path / "a"), "--point-columns", "4"]) == 0
-    assert main(["complete-rig", str(sweeps), str(rig), str(tmp_path / "b"), "--point-columns", "4"]) == 0
+    for points, out in ((tmp_path / "sweep.bin", "a"), (sweeps, "b")):
+        assert main(["complete-rig", str(points), str(rig), str(tmp_path / out), "--point-columns", "4"]) == 0
     a, b = (tmp_path / "a" / "cam.png").read_bytes(), (tmp_path / "b" / "cam.png").read_bytes()
     assert a == b

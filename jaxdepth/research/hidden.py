@@ -165,7 +165,8 @@ def own_origin_targets(points, valid, hidden, source, cameras: RigCameras, *, ha
     for s, h in sorted(half_heights.items()):
         mine = source == s
         own = zbuf(jnp.asarray(hidden & mine))
-        cover = jax.vmap(functools.partial(covered_targets, half_height_px=int(h)))(own, zbuf(jnp.asarray(valid & mine)))
+        full = zbuf(jnp.asarray(valid & mine))
+        cover = jax.vmap(functools.partial(covered_targets, half_height_px=int(h)))(own, full)
         covered = covered | (cover & (own == target))
     return target, covered & (target > 0)
 
