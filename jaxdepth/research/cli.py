@@ -345,7 +345,7 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
     from jaxdepth._src.config import SGMConfig
     from jaxdepth._src.ip_basic import ip_basic
     from jaxdepth._src.rig import stack_cameras
-    from jaxdepth.io.sweep_frame import prepare_cloud
+    from jaxdepth.io.sweep_frame import prepare_cloud, source_spec
     from jaxdepth.research.hidden import (default_cover_half_height_px, hidden_point_mask, own_origin_targets,
                                           score_predictions)
 
@@ -363,7 +363,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
     cloud = cloud.take(valid)
     cameras = stack_cameras([c.as_camera() for c in rig.cameras])
     reference = np.asarray(cloud.sweep)[cloud.source] == 0
-    heights = {s: default_cover_half_height_px(cameras.K, rig.lidar if cloud.lidars[s] is None else cloud.lidars[s])
+    # each reference source's cover window: its own scan-line spacing, from the spec complete_cloud uses
+    heights = {s: default_cover_half_height_px(cameras.K, source_spec(cloud, s, rig.lidar)[0])
                for s in range(cloud.num_sources) if cloud.sweep[s] == 0}
     plain = config.replace(outlier_removal=False)
     draws, hidden_total = [], 0
