@@ -33,7 +33,7 @@ import numpy as np
 
 from jaxdepth._src.poses import apply_pose
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
-from jaxdepth.io.points import infer_point_columns, read_points
+from jaxdepth.io.points import infer_point_columns, read_points, ring_column
 from jaxdepth.io.sources import SourceCloud, rigid_pose_problem
 
 _SWEEP_FIELDS = ("file", "T_ref_sweep")
@@ -156,7 +156,8 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
     # reader's own check would take a 5th column for nuScenes' ring).
     points, extra = read_points(file, columns=count, force=names is not None)
     points, extra = _xyz(points, extra, names)
-    ring_raw = _named(extra, names, "ring")
+    # Unnamed columns: the ring of a 5-column sweep as the single-file path reads it (ring_column).
+    ring_raw = _named(extra, names, "ring") if names is not None else ring_column(extra, count)
     # A ring index is a laser of one LiDAR: with a lidar column its elevation is judged about that
     # LiDAR's own origin and axes (below), not about the points' origin.
     per_lidar_rings = bool(rig.lidars) and ring_raw is not None and _named(extra, names, "lidar") is not None
