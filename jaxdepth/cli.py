@@ -129,7 +129,7 @@ def cmd_complete(args) -> int:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
         _claim_output_folder(dst, args, inputs=[src], out_paths=[job.out_path for job in jobs], crop=args.crop,
-                             camera=args.camera)
+                             camera=args.camera, outputs=_job_identities(jobs, args))
         from jaxdepth.io.atomic import make_output_folders
         make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
@@ -151,7 +151,7 @@ def cmd_complete(args) -> int:
                                 intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png),
                                 image_path=image_of(png))
                 for name, png, k_path in frames]
-        _claim_output_folder(dst, args, inputs=[src], camera=args.camera,
+        _claim_output_folder(dst, args, inputs=[src], camera=args.camera, outputs=_job_identities(jobs, args),
                              intrinsics=None if args.intrinsics is None else str(args.intrinsics),
                              extrinsic=None if args.extrinsic is None else str(args.extrinsic))
     return _run_frame_jobs(_forced_jobs(jobs, args), pre_failed, args)
@@ -258,9 +258,10 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
+    from jaxdepth.batch.kitti_sweeps_job import sweep_identities
     _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
                          out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
-                         sweeps=args.sweeps)
+                         sweeps=args.sweeps, outputs=sweep_identities(scan.jobs, sweeps=args.sweeps))
     progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
     for name, message in scan.failed:
         progress.update(name, f"failed: {message}")
@@ -347,17 +348,24 @@ def _forced_jobs(jobs, args):
     return [dataclasses.replace(job, force=True) for job in jobs]
 
 
-def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), **options):
-    """Checks the output folder's run record against this run's settings and writes it
-    (:mod:`jaxdepth.batch.run_record`; KITTI trees: one per ``proj_depth/<name>``): a re-run with
-    other settings is refused unless --overwrite."""
+def _job_identities(jobs, args) -> dict:
+    """``{output: input identity}`` of ``complete``'s frame jobs (:func:`jaxdepth.batch.runner.job_identity`)."""
+    from jaxdepth.batch.runner import job_identity
+    return {job.out_path: job_identity(job, guided=args.guidance_weight > 0) for job in jobs}
+
+
+def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), outputs=None, **options):
+    """Checks the output folder's run record against this run's settings, output version and inputs
+    (``outputs``: ``{output: input identity}``) and writes it (:mod:`jaxdepth.batch.run_record`; KITTI
+    trees: one per ``proj_depth/<name>``): a re-run with other settings or another output version is
+    refused unless --overwrite; outputs whose inputs changed are removed and so recomputed."""
     from jaxdepth.batch import run_record
     _ensure_writable_dir(dst)
     settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
     more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
     record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
     for folder in run_record.record_folders(dst, out_paths):
-        run_record.claim_folder(folder, record, overwrite=args.overwrite)
+        run_record.claim_folder(folder, record, overwrite=args.overwrite, outputs=outputs)
 
 
 def _ensure_writable_dir(path: pathlib.Path):
@@ -436,7 +444,9 @@ def _cmd_complete_nuscenes(args) -> int:
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
     # outputs go to DST/<version>/...: the version is an input, not a setting
-    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion)
+    from jaxdepth.batch.nuscenes_job import output_identities
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion,
+                         outputs=output_identities(tables, dst, sweeps=args.sweeps, guided=args.guidance_weight > 0))
     progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
@@ -500,7 +510,7 @@ def cmd_eval(args) -> int:
     else:
         for line in run_record.summary_lines(found[1], path=found[0]):
             print(line)
-        table["prediction_run"] = dict(found[1], path=str(found[0]))
+        table["prediction_run"] = dict({k: v for k, v in found[1].items() if k != "outputs"}, path=str(found[0]))
     evaluation.write_table(table, json_path=args.json, csv_path=args.csv)
     return 0
 
