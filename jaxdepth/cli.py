@@ -676,8 +676,17 @@ def _add_eval_command(sub) -> None:
     p.set_defaults(func=cmd_eval)
 
 
+_INTERRUPTED = "jaxdepth: interrupted; finished outputs are complete, re-run to resume"
+
+
 def main(argv=None) -> int:
+    """The ``jaxdepth`` command. As the program (``argv`` None) a Ctrl-C ends the process with exit 130
+    through :func:`_exit_now`, never through the interpreter's shutdown (which crashes while XLA's compile
+    threads run, issue 39); a second Ctrl-C stops at once. Called with ``argv`` (tests) it returns 130."""
     t_start = time.perf_counter()
+    program = argv is None
+    if program:
+        _catch_interrupts()
     parser = build_parser()
     args = parser.parse_args(argv)
     # Our own logger follows -v; other libraries' (JAX's) INFO notes are not shown to users.
@@ -687,18 +696,56 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    devices.quiet_jax_start()
     args.t_start = t_start
     args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
-    devices.use_compile_cache(args.compile_cache)
     try:
-        return int(args.func(args) or 0)
+        devices.quiet_jax_start()
+        devices.use_compile_cache(args.compile_cache)
+        code = int(args.func(args) or 0)
     except JaxdepthError as err:
         print(f"jaxdepth: error: {err}", file=sys.stderr)
-        return 1
+        code = 1
     except KeyboardInterrupt:
-        print("jaxdepth: interrupted; finished outputs are complete, re-run to resume", file=sys.stderr)
-        return 130
+        code = _interrupted(program)
+    if program and _SIGINTS[0]:  # a Ctrl-C that JAX swallowed (e.g. in its gc callback) still stops with 130
+        code = _interrupted(program)
+    return code
+
+
+_SIGINTS = [0]
+
+
+def _catch_interrupts() -> None:
+    """SIGINT: the first raises KeyboardInterrupt (the job stops at its next step, queued writes finish),
+    a second ends the process at once (exit 130)."""
+    import signal
+
+    def on_sigint(signum, frame):
+        _SIGINTS[0] += 1
+        if _SIGINTS[0] > 1:
+            print(_INTERRUPTED, file=sys.stderr)
+            _exit_now(130)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
+
+
+def _interrupted(program: bool) -> int:
+    print(_INTERRUPTED, file=sys.stderr)
+    if program:
+        _exit_now(130)
+    return 130
+
+
+def _exit_now(code: int) -> None:
+    """Flushes the output streams and ends the process with ``code`` without the interpreter's shutdown."""
+    import os
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":
