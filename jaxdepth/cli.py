@@ -11,39 +11,14 @@ import pathlib
 import sys
 import time
 
-from jaxdepth import __version__
+from jaxdepth import __version__, interrupts
 from jaxdepth.batch import devices
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 from jaxdepth.options import add_config_options, config_changes
+from jaxdepth.progress import Progress
 
 log = logging.getLogger("jaxdepth")
-
-
-class Progress:
-    """A small progress line on stderr (no dependency); silent with --quiet or when not a TTY."""
-
-    def __init__(self, total: int, *, enabled: bool = True, label: str = ""):
-        self.total, self.count, self.label = total, 0, label
-        self.enabled = enabled
-        self.tty = enabled and sys.stderr.isatty()
-        self.start = time.perf_counter()
-
-    def update(self, name: str, status: str):
-        self.count += 1
-        if not self.enabled:
-            return
-        rate = self.count / max(time.perf_counter() - self.start, 1e-9)
-        line = f"{self.label}[{self.count}/{self.total}] {rate:5.1f} frames/s  {name}: {status}"
-        if status.startswith("failed"):
-            sys.stderr.write(("\r\033[K" if self.tty else "") + line + "\n")
-        elif self.tty:
-            sys.stderr.write("\r\033[K" + line)
-        sys.stderr.flush()
-
-    def close(self):
-        if self.tty:
-            sys.stderr.write("\n")
 
 
 def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest", "ip-basic")):
@@ -165,7 +140,8 @@ def _run_frame_jobs(jobs, pre_failed, args) -> int:
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
         print("jaxdepth: error: --png-compression is only supported with --engine local", file=sys.stderr)
         return 2
-    progress = Progress(len(jobs) + len(pre_failed), enabled=not args.quiet)
+    unit = "sweeps" if jobs and jobs[0].image_size is not None else "images"
+    progress = _progress(args, len(jobs) + len(pre_failed), unit)
     for name, message in pre_failed:
         progress.update(name, f"failed: {message}")
     if args.engine == "ray":
@@ -181,7 +157,7 @@ def _run_frame_jobs(jobs, pre_failed, args) -> int:
                                   extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit=unit)
 
 
 def _complete_own_job(args) -> int | None:
@@ -236,12 +212,12 @@ def _cmd_complete_av2(args) -> int:
     _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0,
                          cameras=None if cameras is None else ",".join(cameras))
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
-    progress = Progress(total, enabled=not args.quiet, label="sweep ")
+    progress = _progress(args, total, "sweeps")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
                       overwrite=args.overwrite, png_compression=args.png_compression,
                       io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
     progress.close()
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
 
 def _cmd_complete_kitti_sweeps(args, scan) -> int:
@@ -262,7 +238,7 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
                          out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
                          sweeps=args.sweeps, outputs=sweep_identities(scan.jobs, sweeps=args.sweeps))
-    progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
+    progress = _progress(args, len({job.sparse_path for job in scan.jobs}), "sweeps")
     for name, message in scan.failed:
         progress.update(name, f"failed: {message}")
     summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
@@ -270,7 +246,7 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
                                    io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
     progress.close()
     summary.failed[:0] = scan.failed
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
 
 def _guidance_usage(args) -> str | None:
@@ -373,31 +349,17 @@ def _ensure_writable_dir(path: pathlib.Path):
     ensure_output_dir(path)
 
 
-def _report(summary, quiet: bool, *, t_start: float | None = None) -> int:
-    for name, message in summary.failed:
-        print(f"FAILED {name}: {message}", file=sys.stderr)
-    if not quiet or summary.failed:
-        print(f"{len(summary.done)} completed, {len(summary.skipped)} skipped (already done), "
-              f"{len(summary.failed)} failed", file=sys.stderr)
-    if not quiet and t_start is not None:
-        print(_timing_line(summary, t_start, time.perf_counter()), file=sys.stderr)
-    return 0 if summary.ok else 1
+def _progress(args, total: int, unit: str, label: str = "complete") -> Progress:
+    """The job's progress on stderr (:mod:`jaxdepth.progress`): a live line on a terminal, a line every
+    few seconds in a log; ``-v`` adds one line per item; silent with ``--quiet``."""
+    return Progress(total, enabled=not getattr(args, "quiet", False), unit=unit, label=label,
+                    verbose=bool(getattr(args, "verbose", False)))
 
 
-def _timing_line(summary, t_start: float, t_end: float) -> str:
-    """Wall time, start-up (command start -> frames start: imports, JAX, listing) and first-frame
-    latency (command start -> first output in place: adds compile-cache load and one batch)."""
-    total = t_end - t_start
-    parts = [f"{total:.1f} s"]
-    if summary.done:
-        parts[0] += f" ({len(summary.done) / max(total, 1e-9):.1f} frames/s)"
-    started = getattr(summary, "started_at", None)
-    if started is not None:
-        parts.append(f"start-up {started - t_start:.2f} s")
-    first = getattr(summary, "first_output_at", None)
-    if first is not None:
-        parts.append(f"first frame written at {first - t_start:.2f} s")
-    return "time: " + ", ".join(parts)
+def _report(summary, quiet: bool, *, t_start: float | None = None, unit: str = "images") -> int:
+    """The job's summary on stderr (:func:`jaxdepth.progress.report_summary`); the exit code."""
+    from jaxdepth.progress import report_summary
+    return report_summary(summary, quiet=quiet, t_start=t_start, unit=unit)
 
 
 def _add_nuscenes_options(parser) -> None:
@@ -447,7 +409,7 @@ def _cmd_complete_nuscenes(args) -> int:
     from jaxdepth.batch.nuscenes_job import output_identities
     _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion,
                          outputs=output_identities(tables, dst, sweeps=args.sweeps, guided=args.guidance_weight > 0))
-    progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
+    progress = _progress(args, len(tables.tables["sample"]), "samples")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
                    on_progress=progress.update, tables=tables, extras=_extras_from(args),
@@ -461,7 +423,7 @@ def _cmd_complete_nuscenes(args) -> int:
     else:
         summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), **options)
     progress.close()
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="samples")
 
 
 def cmd_complete_rig(args) -> int:
@@ -487,9 +449,14 @@ def cmd_complete_rig(args) -> int:
                                       estimate=not args.no_estimate)
     record = run_record.make_record(settings, inputs=[args.points, args.rig],
                                     command=getattr(args, "command_line", None))
-    summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args), extras=_extras_from(args),
-                          point_columns=args.point_columns, estimate=not args.no_estimate, image_dir=args.image_dir,
-                          overwrite=args.overwrite, report=report, force=args.force, record=record)
+    progress = _progress(args, 1, "sweeps", label="complete-rig")
+    try:
+        summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args),
+                              extras=_extras_from(args), point_columns=args.point_columns,
+                              estimate=not args.no_estimate, image_dir=args.image_dir, overwrite=args.overwrite,
+                              report=report, force=args.force, record=record)
+    finally:
+        progress.close()
     return summary.exit_code
 
 
@@ -676,17 +643,14 @@ def _add_eval_command(sub) -> None:
     p.set_defaults(func=cmd_eval)
 
 
-_INTERRUPTED = "jaxdepth: interrupted; finished outputs are complete, re-run to resume"
-
-
 def main(argv=None) -> int:
     """The ``jaxdepth`` command. As the program (``argv`` None) a Ctrl-C ends the process with exit 130
-    through :func:`_exit_now`, never through the interpreter's shutdown (which crashes while XLA's compile
-    threads run, issue 39); a second Ctrl-C stops at once. Called with ``argv`` (tests) it returns 130."""
+    through :mod:`jaxdepth.interrupts`, never through the interpreter's shutdown (which crashes while
+    XLA's compile threads run); a second Ctrl-C stops at once. Called with ``argv`` (tests) it returns 130."""
     t_start = time.perf_counter()
     program = argv is None
     if program:
-        _catch_interrupts()
+        interrupts.catch()
     parser = build_parser()
     args = parser.parse_args(argv)
     # Our own logger follows -v; other libraries' (JAX's) INFO notes are not shown to users.
@@ -706,46 +670,10 @@ def main(argv=None) -> int:
         print(f"jaxdepth: error: {err}", file=sys.stderr)
         code = 1
     except KeyboardInterrupt:
-        code = _interrupted(program)
-    if program and _SIGINTS[0]:  # a Ctrl-C that JAX swallowed (e.g. in its gc callback) still stops with 130
-        code = _interrupted(program)
+        code = interrupts.interrupted(end_process=program)
+    if program and interrupts.received():  # a Ctrl-C that JAX swallowed (e.g. in its gc callback) still stops
+        code = interrupts.interrupted(end_process=True)
     return code
-
-
-_SIGINTS = [0]
-
-
-def _catch_interrupts() -> None:
-    """SIGINT: the first raises KeyboardInterrupt (the job stops at its next step, queued writes finish),
-    a second ends the process at once (exit 130)."""
-    import signal
-
-    def on_sigint(signum, frame):
-        _SIGINTS[0] += 1
-        if _SIGINTS[0] > 1:
-            print(_INTERRUPTED, file=sys.stderr)
-            _exit_now(130)
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, on_sigint)
-
-
-def _interrupted(program: bool) -> int:
-    print(_INTERRUPTED, file=sys.stderr)
-    if program:
-        _exit_now(130)
-    return 130
-
-
-def _exit_now(code: int) -> None:
-    """Flushes the output streams and ends the process with ``code`` without the interpreter's shutdown."""
-    import os
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -209,7 +209,7 @@ def scaled_camera(camera, scale: float):
 
 def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
                 min_range_m: float = 1.0, config=None, ring: np.ndarray | None = None,
-                estimate: bool = True) -> dict:
+                estimate: bool = True, on_progress=None) -> dict:
     """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
 
     The sweep is first put in its LiDAR's frame (:func:`jaxdepth.io.prepare_sweep`:
@@ -219,6 +219,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     Every seed draws its own held-out set; per-camera metrics are the mean over
     the draws, the "mean" row the mean over every camera image of every draw
     (the devkit's data-set score, :func:`jaxdepth.mean_metrics`).
+
+    ``on_progress(name, status)`` is called with ``("seed <s>", "done")`` after each draw.
 
     Returns:
       {"cameras": {name: {"hidden_pixels", method: {rmse, mae, irmse, imae}, ...}},
@@ -262,6 +264,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
                 row[method] = {k: float(scores[method][k][i]) for k in keys}
                 row["uncovered"][method] = {k: float(scores["uncovered"][method][k][i]) for k in keys}
             rows[cam.name].append(row)
+        if on_progress is not None:
+            on_progress(f"seed {seed}", "done")
     draws = [d for per in rows.values() for d in per]
     plain, uncovered = (lambda d: d), (lambda d: d["uncovered"])
 
@@ -327,9 +331,15 @@ def cmd_hidden_eval(args) -> int:
     columns = _point_columns(path, args.point_columns)
     points, extra = read_points(path, columns=columns)
     rig = read_rig_json(args.rig)
-    result = hidden_eval(points, rig, fraction=args.fraction, seeds=args.seeds, scale=args.scale,
-                         ring=ring_column(extra, columns), estimate=not args.no_estimate,
-                         min_range_m=args.min_range_m, config=_config(args))
+    from jaxdepth.progress import Progress
+    progress = Progress(len(args.seeds), unit="seeds", label="hidden-eval",
+                        verbose=bool(getattr(args, "verbose", False)))
+    try:
+        result = hidden_eval(points, rig, fraction=args.fraction, seeds=args.seeds, scale=args.scale,
+                             ring=ring_column(extra, columns), estimate=not args.no_estimate,
+                             min_range_m=args.min_range_m, config=_config(args), on_progress=progress.update)
+    finally:
+        progress.close()
     if result["hidden_points"] == 0:
         raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
     for note in result["sweep_notes"]:
