@@ -1,6 +1,6 @@
 """Command line: a thin layer of argument parsing, exit codes and progress over the library.
 
-Exit codes: 0 success, 1 data error (one-line message) or failed frames, 2 usage error.
+Exit codes: 0 success, 1 data error (one-line message) or failed items, 2 usage error, 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ import os
 import sys
 import threading
 import time
+import weakref
 
 DEFAULT_INTERVAL_S = 5.0
 
@@ -73,7 +74,9 @@ class Progress:
         self._closed = threading.Event()
         self._ticker = None
         if enabled and not self.tty:
-            self._ticker = threading.Thread(target=self._tick, name="jaxdepth-progress", daemon=True)
+            # The thread holds the Progress weakly: one that a failed job never closed stops with it.
+            self._ticker = threading.Thread(target=_tick, args=(weakref.ref(self), self._closed, self.interval_s),
+                                            name="jaxdepth-progress", daemon=True)
             self._ticker.start()
 
     # ------------------------------------------------------------------ counting
@@ -143,11 +146,10 @@ class Progress:
             parts.append(f"last {self.last}")
         return self._prefix() + ", ".join(parts)
 
-    def _tick(self) -> None:
-        while not self._closed.wait(self.interval_s):
-            with self._lock:
-                if self.count < self.total or self.total == 0:
-                    self._write(self.line() + "\n")
+    def _timed_line(self) -> None:
+        with self._lock:
+            if self.count < self.total or self.total == 0:
+                self._write(self.line() + "\n")
 
     def _write(self, text: str) -> None:
         try:
@@ -155,6 +157,16 @@ class Progress:
             self.stream.flush()
         except (OSError, ValueError):  # a closed or broken stream: progress is not worth failing the job
             pass
+
+
+def _tick(ref, closed: threading.Event, interval_s: float) -> None:
+    """The timed lines of the Progress ``ref()`` until it is closed or gone."""
+    while not closed.wait(interval_s):
+        progress = ref()
+        if progress is None:
+            return
+        progress._timed_line()
+        del progress
 
 
 def report_summary(summary, *, quiet: bool, t_start: float | None = None, unit: str = "images") -> int:

@@ -122,3 +122,15 @@ def test_a_job_with_stderr_to_a_file_writes_progress_lines_before_it_ends(tmp_pa
     assert proc.returncode == 0 and "6 completed, 0 skipped" in text
     first = re.search(r"^complete: \d/6 images", text, re.M).start()
     assert first < text.index("6 completed"), text
+
+
+def test_a_progress_never_closed_stops_its_timed_lines_when_it_is_gone():
+    import gc
+    stream = io.StringIO()
+    progress = Progress(3, interval_s=0.02, stream=stream, tty=False)
+    ticker = progress._ticker
+    assert _wait_for(lambda: "starting" in stream.getvalue())
+    del progress  # e.g. the job raised before close()
+    gc.collect()
+    ticker.join(timeout=2.0)
+    assert not ticker.is_alive()

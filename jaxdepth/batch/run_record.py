@@ -242,10 +242,14 @@ def claim_folder(folder: PathLike, record: dict, *, overwrite: bool, outputs=Non
             current[rel] = ident
     changed = [] if overwrite or not has_outputs else _remove_changed(folder, recorded, current)
     new = dict(record, outputs={**recorded, **current})
-    if new != old:
+    if old is None or _without_command(new) != _without_command(old):  # a plain resume leaves the record as is
         atomic_write_bytes(folder / RUN_FILE, (json.dumps(new, indent=1, sort_keys=True) + "\n").encode(),
                            overwrite=True)
     return changed
+
+
+def _without_command(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k != "command"}
 
 
 def _refuse_other_run(folder: pathlib.Path, old: dict | None, record: dict, *, per_output: bool) -> None:
