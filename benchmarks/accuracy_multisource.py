@@ -35,7 +35,8 @@ is not now, and within 1 m of where that car was (the car's ghost, not an ordina
 truth alone. Seeds 0 and 1 are reported; the free-space rule's choices were made on seeds 10, 11.
 
 Argoverse 2 is read by :mod:`jaxdepth.io.av2` (``read_log``, ``read_cloud``, ``read_rig``), the
-reader the ``av2`` job uses; the benchmark only leaves each LiDAR's spec to be estimated from its rings.
+reader the ``av2`` job uses; like the job, it leaves each LiDAR's spec to be estimated from its rings
+(one range-image row per laser; ``read_cloud``'s default since issue 37 item 5).
 
 Speed (``--speed-only`` adds just these sections): wall time of :func:`complete_cloud`, compile
 (first call) reported apart, the functions of one section timed in turn over ``repeats`` rounds

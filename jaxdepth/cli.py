@@ -169,9 +169,10 @@ def _complete_own_job(args) -> int | None:
     from jaxdepth.batch.av2_job import is_av2_root
     if is_av2_root(args.src):
         return _cmd_complete_av2(args)
-    if args.cameras is not None:
-        print("jaxdepth: error: --cameras applies to Argoverse 2 logs", file=sys.stderr)
-        return 2
+    for flag, value in (("--cameras", args.cameras), ("--lidar-time", args.lidar_time or None)):
+        if value is not None:
+            print(f"jaxdepth: error: {flag} applies to Argoverse 2 logs", file=sys.stderr)
+            return 2
     if args.sweeps:
         src = pathlib.Path(args.src)
         return _cmd_complete_kitti_sweeps(args, _discover_dataset(src, pathlib.Path(args.dst), args))
@@ -193,29 +194,25 @@ def _multi_source_usage(args, what: str) -> str | None:
 
 
 def _cmd_complete_av2(args) -> int:
-    """``jaxdepth complete LOG DST``: an Argoverse 2 log or a folder of logs (exit 0 ok, 1 failed, 2 usage)."""
-    from jaxdepth.batch.av2_job import find_logs, run_av2
+    """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
+    from jaxdepth.batch.av2_job import cli_usage, find_logs, run_av2
 
-    given = [flag for flag, value in (("--intrinsics", args.intrinsics), ("--camera", args.camera),
-                                      ("--calib-dir", args.calib_dir), ("--extrinsic", args.extrinsic),
-                                      ("--image-dir", args.image_dir), ("--crop", args.crop or None))
-             if value is not None]
-    usage = (f"{', '.join(given)} cannot be used with an Argoverse 2 log (its calibration is used)" if given
-             else _multi_source_usage(args, "an Argoverse 2 log"))
-    if usage is None and args.sweeps is not None and args.sweeps < 0:
-        usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    usage = cli_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     dst = pathlib.Path(args.dst)
     cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
-    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0,
+    time_ = "lidar" if args.lidar_time else "camera"
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0, time=time_,
                          cameras=None if cameras is None else ",".join(cameras))
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
     progress = _progress(args, total, "sweeps")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
                       overwrite=args.overwrite, png_compression=args.png_compression,
-                      io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+                      io_threads=devices.io_threads(), on_progress=progress.update, force=args.force,
+                      time=time_, method=args.method, extras=_extras_from(args),
+                      on_note=lambda text: print(f"jaxdepth: note: {text}", file=sys.stderr))
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
@@ -556,8 +553,8 @@ def _add_complete_command(sub) -> None:
                         "and Argoverse 2: N neighbouring sweeps on each side of every sweep (default 0), posed by "
                         "OXTS + calib_imu_to_velo.txt / the city poses; nuScenes: N sweeps per sample, the key "
                         "frame and N-1 earlier ones (default 1, the devkit's from_file_multisweep)")
-    p.add_argument("--cameras", default=None, metavar="NAMES",
-                   help="Argoverse 2: comma-separated cameras to complete (default: the 7 ring cameras)")
+    from jaxdepth.batch import av2_job
+    av2_job.add_cli_options(p)
     p.add_argument("--batch-size", type=int, default=4, help="frames per compiled batch (default 4)")
     _add_overwrite_and_force_options(p)
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,

@@ -248,6 +248,20 @@ def _box(x, y, z_bottom, length, width, height, yaw):
     return [x, y, z_bottom + 0.5 * height, 0.5 * length, 0.5 * width, 0.5 * height, yaw]
 
 
+def box_row(x: float, y: float, z_bottom: float, length: float, width: float, height: float, yaw: float) -> list:
+    """One row of :attr:`SceneArrays.boxes` for a box standing on ``z_bottom``.
+
+    Args:
+      x, y: centre of the footprint, metres. z_bottom: height of the bottom face.
+      length, width, height: full extents along the box's own x, y and z, metres.
+      yaw: radians about +z.
+
+    Returns:
+      list ``[cx, cy, cz, half_x, half_y, half_z, yaw]``.
+    """
+    return _box(x, y, z_bottom, length, width, height, yaw)
+
+
 def street_scene_arrays(seed: int = 0, *, lidar_height_m: float = 1.73) -> SceneArrays:
     """The primitives of the procedural street (host side, NumPy).
 

@@ -223,6 +223,12 @@ def _scaled_K(fx, fy, cx, cy, scale):
                      [0.0, 0.0, 1.0]])
 
 
+def scaled_intrinsics(fx: float, fy: float, cx: float, cy: float, scale: float) -> np.ndarray:
+    """(3, 3) float64 K of an image resized by ``scale`` (pixel centres at integers: a pixel
+    covers ``[i - 0.5, i + 0.5]``, so ``c' + 0.5 = scale (c + 0.5)``)."""
+    return _scaled_K(fx, fy, cx, cy, scale)
+
+
 def rig_cameras(preset: str = "kitti", *, lidar_offset_m: Sequence[float] = (-0.3, 0.0, 0.3),
                 image_scale: float = 1.0) -> tuple:
     """Cameras of a named rig, relative to a LiDAR at the origin.

@@ -1,0 +1,153 @@
+"""The digital twins' world: the procedural street with movers and clutter (host side, NumPy).
+
+World frame ``W``: the ego frame of the reference sweep with the ground at ``z = 0`` (x forward
+along the street, y left, z up, metres). The static street is
+:func:`jaxdepth._src.scene.street_scene_arrays` with its three lane cars taken out; added per seed:
+
+- movers: three cars (one ahead, one oncoming, one crossing, 4-10 m/s) and four pedestrians
+  (1.0-1.6 m/s; torso and two leg boxes, a head cylinder), placed at the reference time and
+  moved back ``k * dt`` for sweep ``k``;
+- vegetation: two hedges (rows of 12 boxes of random size, height and yaw, with 6 bushes (spheres)
+  bulging out of them: an irregular, interpenetrating surface) and three trees (trunk cylinder,
+  canopy of 6 overlapping spheres); spheres are cast by :mod:`jaxdepth.research.twin_sensors`
+  (:func:`twin_spheres`, not part of :class:`SceneArrays`);
+- thin poles: six sign posts, radius 2.5-5 cm;
+- a fence: 28 slats 8 cm wide with 7 cm gaps between two rails.
+
+Every seed gives the same primitive counts (one compilation per rig); the same seed gives the
+same bytes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jaxdepth._src.scene import SceneArrays, scene_arrays, street_scene_arrays
+from jaxdepth._src.scene import box_row
+
+#: Boxes of the street's three lane cars (body and cabin each) in ``street_scene_arrays``.
+_LANE_CAR_BOXES = np.arange(39, 45)
+#: Seconds between sweeps at which the movers' speeds are applied (10 Hz LiDARs).
+SWEEP_DT_S = 0.1
+#: Counts of the added primitives (fixed for every seed).
+PEDESTRIANS, HEDGE_BOXES, HEDGE_BUSHES, CANOPY_SPHERES, SLATS, SIGN_POSTS = 4, 12, 6, 6, 28, 6
+
+
+def _movers(seed: int):
+    """Cars ``(x, y, yaw, vx, vy, length, width, body_h, cabin_h)`` and pedestrians ``(x, y, yaw, vx, vy, h)``."""
+    rng = np.random.default_rng([seed, 37, 1])
+    cars = []
+    for x0, y0, yaw, speed in ((rng.uniform(10.0, 16.0), rng.uniform(1.3, 1.9), 0.0, rng.uniform(5.0, 9.0)),
+                               (rng.uniform(22.0, 34.0), -rng.uniform(1.3, 1.9), math.pi, rng.uniform(6.0, 10.0)),
+                               (rng.uniform(18.0, 26.0), rng.uniform(-1.0, 1.0), 0.5 * math.pi, rng.uniform(4.0, 6.0))):
+        cars.append((x0, y0, yaw, speed * math.cos(yaw), speed * math.sin(yaw), rng.uniform(3.9, 4.7),
+                     rng.uniform(1.7, 1.9), rng.uniform(0.9, 1.1), rng.uniform(0.45, 0.6)))
+    peds = []
+    for i in range(PEDESTRIANS):
+        side = 1.0 if i % 2 == 0 else -1.0
+        x0 = rng.uniform(4.0, 30.0) if i < 3 else -rng.uniform(4.0, 12.0)
+        yaw = rng.choice([0.0, math.pi, 0.5 * math.pi * side])
+        speed = rng.uniform(1.0, 1.6)
+        peds.append((x0, side * rng.uniform(5.0, 7.0), yaw, speed * math.cos(yaw), speed * math.sin(yaw),
+                     rng.uniform(1.55, 1.9)))
+    return cars, peds
+
+
+def _mover_prims(seed: int, t_s: float):
+    """(boxes, cylinders) of the movers at time ``-t_s`` seconds (the reference sweep is t = 0)."""
+    cars, peds = _movers(seed)
+    boxes, cyls = [], []
+    for x0, y0, yaw, vx, vy, length, width, body_h, cabin_h in cars:
+        x, y = x0 - t_s * vx, y0 - t_s * vy
+        boxes.append(box_row(x, y, 0.0, length, width, body_h, yaw))
+        back = -0.15 * length
+        boxes.append(box_row(x + back * math.cos(yaw), y + back * math.sin(yaw), body_h, 0.55 * length,
+                          width - 0.15, cabin_h, yaw))
+    for x0, y0, yaw, vx, vy, h in peds:
+        x, y = x0 - t_s * vx, y0 - t_s * vy
+        leg_h = 0.47 * h
+        # Legs apart by a stride that changes with time (a walking gait), 0.25 m sideways apart.
+        stride = 0.25 * math.sin(2.0 * math.pi * 0.9 * t_s)
+        c, s = math.cos(yaw), math.sin(yaw)
+        for sign in (1.0, -1.0):
+            boxes.append(box_row(x + sign * stride * c - sign * 0.1 * s, y + sign * stride * s + sign * 0.1 * c,
+                              0.0, 0.14, 0.13, leg_h, yaw))
+        boxes.append(box_row(x, y, leg_h, 0.28, 0.42, 0.36 * h, yaw))
+        cyls.append([x, y, 0.1, leg_h + 0.36 * h, h])
+    return boxes, cyls
+
+
+def _clutter(seed: int):
+    """(boxes, cylinders) of the static clutter: hedges, trees, sign posts, a fence."""
+    rng = np.random.default_rng([seed, 37, 2])
+    boxes, cyls = [], []
+    for side, x_start in ((1.0, rng.uniform(-20.0, -8.0)), (-1.0, rng.uniform(40.0, 55.0))):
+        x = x_start
+        for _ in range(HEDGE_BOXES):
+            length = rng.uniform(0.5, 1.2)
+            boxes.append(box_row(x, side * rng.uniform(6.6, 7.3), 0.0, length, rng.uniform(0.5, 1.1),
+                              rng.uniform(0.7, 1.6), math.radians(rng.uniform(-35.0, 35.0))))
+            x += 0.7 * length
+    for tx, ty, trunk_h in _trees(seed):
+        cyls.append([tx, ty, rng.uniform(0.12, 0.2), 0.0, trunk_h + 0.3])
+    for _ in range(SIGN_POSTS):
+        cyls.append([rng.uniform(-30.0, 60.0), rng.choice([1.0, -1.0]) * rng.uniform(5.2, 6.0),
+                     rng.uniform(0.025, 0.05), 0.0, rng.uniform(2.2, 3.2)])
+    # A fence of slats along the right kerb ahead: 8 cm slats, 7 cm gaps, two rails behind them.
+    fx, fy = rng.uniform(14.0, 26.0), -rng.uniform(6.3, 6.8)
+    for i in range(SLATS):
+        boxes.append(box_row(fx + 0.15 * i, fy, 0.0, 0.08, 0.02, 1.2, 0.0))
+    for z in (0.25, 0.95):
+        boxes.append(box_row(fx + 0.075 * (SLATS - 1), fy - 0.04, z, 0.15 * SLATS, 0.04, 0.06, 0.0))
+    return boxes, cyls
+
+
+def _trees(seed: int):
+    """(x, y, trunk height) of the three trees."""
+    rng = np.random.default_rng([seed, 37, 3])
+    return [(rng.uniform(-25.0, 60.0), (1.0 if i != 1 else -1.0) * rng.uniform(6.4, 7.2), rng.uniform(2.0, 3.0))
+            for i in range(3)]
+
+
+def twin_spheres(seed: int) -> np.ndarray:
+    """(S, 4) float32 ``[cx, cy, cz, radius]`` of the vegetation's spheres (static; frame ``W``):
+    each tree's canopy of overlapping spheres and the bushes bulging out of the two hedges."""
+    rng = np.random.default_rng([seed, 37, 4])
+    out = []
+    for tx, ty, trunk_h in _trees(seed):
+        for _ in range(CANOPY_SPHERES):
+            r = rng.uniform(0.6, 1.3)
+            out.append([tx + rng.uniform(-1.0, 1.0), ty + rng.uniform(-1.0, 1.0), trunk_h + r + rng.uniform(-0.4, 0.8), r])
+    hedge = np.random.default_rng([seed, 37, 2])
+    for side, x_start in ((1.0, hedge.uniform(-20.0, -8.0)), (-1.0, hedge.uniform(40.0, 55.0))):
+        for _ in range(HEDGE_BUSHES):
+            r = rng.uniform(0.35, 0.75)
+            out.append([x_start + rng.uniform(0.0, 0.7 * 0.85 * HEDGE_BOXES), side * rng.uniform(6.3, 6.9),
+                        rng.uniform(0.3, 1.0), r])
+    return np.asarray(out, np.float32)
+
+
+def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArrays:
+    """The world at sweep ``sweep`` (0 = reference; the movers ``sweep * dt_s`` seconds earlier), frame ``W``.
+
+    Returns:
+      :class:`SceneArrays` (ground plane ``z = 0``), the same shapes for every seed and sweep.
+    """
+    base = street_scene_arrays(seed, lidar_height_m=0.0)
+    static = np.delete(np.asarray(base.boxes), _LANE_CAR_BOXES, axis=0)
+    mover_boxes, mover_cyls = _mover_prims(seed, sweep * dt_s)
+    clutter_boxes, clutter_cyls = _clutter(seed)
+    boxes = np.concatenate([static, np.asarray(mover_boxes + clutter_boxes, np.float64)])
+    cyls = np.concatenate([np.asarray(base.cylinders), np.asarray(mover_cyls + clutter_cyls, np.float64)])
+    return scene_arrays(planes=base.planes, boxes=boxes, cylinders=cyls)
+
+
+def mover_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArrays:
+    """Only the movers at sweep ``sweep`` (for ghost regions), frame ``W``."""
+    boxes, cyls = _mover_prims(seed, sweep * dt_s)
+    return scene_arrays(boxes=boxes, cylinders=cyls)
+
+
+__all__ = ["SWEEP_DT_S", "mover_scene", "twin_scene", "twin_spheres"]
