@@ -288,7 +288,7 @@ def test_png_compression_option_changes_size_not_values_and_summary_has_timings(
         code = cli.main(["complete", str(src), str(dst), "--method", "nearest", "--batch-size", "2", *extra])
         err = capsys.readouterr().err
         assert code == 0, err
-        assert "2 completed" in err and "start-up" in err and "first frame written at" in err
+        assert "2 completed" in err and "start-up" in err and "first output written at" in err
         outs[level] = {p.name: p for p in sorted(dst.glob("*.png"))}
     for name in outs["0"]:
         np.testing.assert_array_equal(read_depth_png(outs["0"][name]), read_depth_png(outs["9"][name]))

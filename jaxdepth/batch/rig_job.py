@@ -50,6 +50,19 @@ def rig_images(rig, rig_path, image_dir):
     return read_rig_images(paths, rig.cameras)
 
 
+def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided: bool) -> dict:
+    """``{<out_dir>/<camera>.png: input identity}``: every camera's output is made from the sweep (or
+    sweeps JSON) and the rig JSON, and its own image when ``guided``
+    (:func:`jaxdepth.batch.run_record.input_identity`)."""
+    from jaxdepth.batch.run_record import input_identity
+    from jaxdepth.io.rig_images import rig_image_paths
+    images = (rig_image_paths(rig.cameras, image_dir=image_dir, rig_json=rig_path,
+                              json_images={c.name: c.image for c in rig.cameras if c.image is not None})
+              if guided else [None] * len(rig.cameras))
+    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([points_path, rig_path, image])
+            for camera, image in zip(rig.cameras, images)}
+
+
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                 point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
                 report: Callable[[str, str], None] = _ignore, force: bool = False,
@@ -100,7 +113,9 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     if record is not None:
         from jaxdepth.batch import run_record
         record = dict(record, settings=dict(record["settings"], point_columns=columns))
-        run_record.claim_folder(out_dir, record, overwrite=overwrite)
+        run_record.claim_folder(out_dir, record, overwrite=overwrite,
+                                outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
+                                                           guided=config.guidance_weight > 0))
     if multi:
         # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
         from jaxdepth.batch.sources_job import complete_cloud

@@ -415,6 +415,16 @@ def _load_sparse(job: FrameJob):
     return depth, K
 
 
+def job_identity(job: FrameJob, *, guided: bool = False) -> dict:
+    """What a frame job's output is made from (:func:`jaxdepth.batch.run_record.input_identity`):
+    its sparse input, its intrinsics file when ``K`` is not given, its camera image when ``guided``;
+    ``K``, ``T_cam_lidar``, image size, point columns and crop as values."""
+    from jaxdepth.batch.run_record import input_identity
+    files = (job.sparse_path, job.intrinsics_path if job.K is None else None, job.image_path if guided else None)
+    return input_identity(files, values=(job.K, job.T_cam_lidar, job.image_size, job.point_columns,
+                                         job.image_crop_from))
+
+
 def pending_jobs(jobs: Iterable[FrameJob], *, overwrite: bool, summary: RunSummary,
                  notify: Callable[[str, str], None], extras=None) -> list:
     """The jobs still to run: a finished output is recorded as skipped (resume) unless ``overwrite``.

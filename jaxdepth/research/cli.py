@@ -212,7 +212,7 @@ def scaled_camera(camera, scale: float):
 
 def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
                 min_range_m: float = 1.0, config=None, ring: np.ndarray | None = None,
-                estimate: bool = True) -> dict:
+                estimate: bool = True, on_progress=None) -> dict:
     """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
 
     The sweep is first put in its LiDAR's frame (:func:`jaxdepth.io.prepare_sweep`:
@@ -222,6 +222,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     Every seed draws its own held-out set; per-camera metrics are the mean over
     the draws, the "mean" row the mean over every camera image of every draw
     (the devkit's data-set score, :func:`jaxdepth.mean_metrics`).
+
+    ``on_progress(name, status)`` is called with ``("seed <s>", "done")`` after each draw.
 
     Returns:
       {"cameras": {name: {"hidden_pixels", method: {rmse, mae, irmse, imae}, ...}},
@@ -253,6 +255,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
         hidden_total += int(hidden.sum())
         draws.append(hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
                                          config=config, lidar=rig.lidar))
+        if on_progress is not None:
+            on_progress(f"seed {seed}", "done")
     return dict(_summarise(draws, [c.name for c in rig.cameras]), points=int(valid.sum()),
                 hidden_points=hidden_total // len(seeds), fraction=fraction, seeds=seeds, scale=scale,
                 min_range_m=min_range_m, sweep_notes=list(frame.notes), outlier_removal=bool(config.outlier_removal),
@@ -324,7 +328,7 @@ def scaled_rig(rig, scale: float):
 
 
 def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
-                      min_range_m: float = 1.0, config=None, estimate: bool = True) -> dict:
+                      min_range_m: float = 1.0, config=None, estimate: bool = True, on_progress=None) -> dict:
     """Hidden-point scores of what ``complete-rig`` computes for a multi-source cloud (``lidars``, sweeps JSON).
 
     The cloud gets ``complete-rig``'s sweep check (:func:`jaxdepth.io.sweep_frame.prepare_cloud`:
@@ -335,6 +339,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
     the SGM, the SGM without removal, its nearest fill, the Euclidean nearest fill and IP_Basic on
     its merged sparse image. ``uncovered`` judges each target's cover from its own source
     (:func:`jaxdepth.research.hidden.own_origin_targets`).
+
+    ``on_progress`` as in :func:`hidden_eval`.
 
     Returns:
       the layout of :func:`hidden_eval`, plus "sources" (the cloud's source names).
@@ -381,6 +387,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
         target, covered = own_origin_targets(cloud.points, np.ones(len(hidden), bool), hidden, cloud.source,
                                              cameras, half_heights=heights)
         draws.append(score_predictions(predictions, target, covered))
+        if on_progress is not None:
+            on_progress(f"seed {seed}", "done")
     return dict(_summarise(draws, [c.name for c in rig.cameras]), points=int(valid.sum()),
                 hidden_points=hidden_total // len(seeds), fraction=fraction, seeds=seeds, scale=scale,
                 min_range_m=min_range_m, sweep_notes=list(frame.notes), outlier_removal=bool(config.outlier_removal),
@@ -429,25 +437,32 @@ def cmd_hidden_eval(args) -> int:
         raise InputError(f"--scale expected a number in (0, 4], got {args.scale}")
     path = pathlib.Path(args.points)
     rig = read_rig_json(args.rig)
-    options = dict(fraction=args.fraction, seeds=args.seeds, scale=args.scale, estimate=not args.no_estimate,
-                   min_range_m=args.min_range_m, config=_config(args))
-    # complete-rig's two paths (jaxdepth.batch.rig_job), chosen and read as it does
-    if is_sweeps_json(path) or rig.lidars:
-        read = read_sweeps_cloud if is_sweeps_json(path) else read_point_file_cloud
-        cloud = read(path, rig, point_columns=args.point_columns)
-        if getattr(args, "complete_cloud", None) is None:
-            raise InputError(f"{path}: a multi-source input (lidars / sweeps JSON) needs the jaxdepth command line's "
-                             "complete_cloud (register(..., complete_cloud=))")
-        result = hidden_eval_cloud(cloud, rig, complete_cloud=args.complete_cloud, **options)
-    else:
-        columns = len(rig.columns) if rig.columns is not None else _point_columns(path, args.point_columns)
-        points, extra = read_points(path, columns=columns)
-        if rig.columns is not None:
-            names = list(rig.columns[3:])
-            ring = extra[:, names.index("ring")] if "ring" in names else None
+    from jaxdepth.progress import Progress
+    progress = Progress(len(args.seeds), unit="seeds", label="hidden-eval",
+                        verbose=bool(getattr(args, "verbose", False)))
+    try:
+        options = dict(fraction=args.fraction, seeds=args.seeds, scale=args.scale, estimate=not args.no_estimate,
+                       min_range_m=args.min_range_m, config=_config(args))
+        # complete-rig's two paths (jaxdepth.batch.rig_job), chosen and read as it does
+        if is_sweeps_json(path) or rig.lidars:
+            read = read_sweeps_cloud if is_sweeps_json(path) else read_point_file_cloud
+            cloud = read(path, rig, point_columns=args.point_columns)
+            if getattr(args, "complete_cloud", None) is None:
+                raise InputError(f"{path}: a multi-source input (lidars / sweeps JSON) needs the jaxdepth command line's "
+                                 "complete_cloud (register(..., complete_cloud=))")
+            result = hidden_eval_cloud(cloud, rig, complete_cloud=args.complete_cloud, on_progress=progress.update,
+                                       **options)
         else:
-            ring = ring_column(extra, columns)
-        result = hidden_eval(points, rig, ring=ring, **options)
+            columns = len(rig.columns) if rig.columns is not None else _point_columns(path, args.point_columns)
+            points, extra = read_points(path, columns=columns)
+            if rig.columns is not None:
+                names = list(rig.columns[3:])
+                ring = extra[:, names.index("ring")] if "ring" in names else None
+            else:
+                ring = ring_column(extra, columns)
+            result = hidden_eval(points, rig, ring=ring, on_progress=progress.update, **options)
+    finally:
+        progress.close()
     if result["hidden_points"] == 0:
         raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
     for note in result["sweep_notes"]:
