@@ -63,6 +63,47 @@ def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided
             for camera, image in zip(rig.cameras, images)}
 
 
+def _complete(points_path, rig, *, config, images, multi, columns, point_columns, estimate, force, report):
+    """The rig's stages for the sweep (or sweeps JSON) ``points_path``, with complete-rig's sweep check:
+    ``(stages, rig, stacked cameras)``, the rig as the check left it."""
+    import jaxdepth
+    from jaxdepth.io import pad_points, prepare_sweep, read_points
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.io.sweeps import is_sweeps_json
+
+    if multi:
+        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
+        from jaxdepth.batch.sources_job import complete_cloud
+        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
+        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+        from jaxdepth.batch.sources_job import checked_cloud
+        cloud = read(points_path, rig, point_columns=point_columns)
+        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
+    else:
+        points, extra = read_points(points_path, columns=columns, force=force)
+        if rig.columns is not None:
+            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
+        else:
+            ring = ring_column(extra, columns)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+        if not frame.outlier_removal_trusted and config.outlier_removal:
+            config = config.replace(outlier_removal=False)
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        padded, valid = pad_points(frame.points)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
+                                              images=images)
+    return stages, rig, cameras
+
+
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                 point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
                 report: Callable[[str, str], None] = _ignore, force: bool = False,
@@ -94,10 +135,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     Raises:
       JaxdepthError: unreadable or invalid inputs, unwritable outputs.
     """
-    import jaxdepth
-    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
+    from jaxdepth.io import infer_point_columns, read_rig_json
     from jaxdepth.io.atomic import ensure_output_dir
-    from jaxdepth.io.points import ring_column
 
     from jaxdepth.io.sweeps import is_sweeps_json
 
@@ -116,36 +155,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         run_record.claim_folder(out_dir, record, overwrite=overwrite,
                                 outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
                                                            guided=config.guidance_weight > 0))
-    if multi:
-        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
-        from jaxdepth.batch.sources_job import complete_cloud
-        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
-        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
-        from jaxdepth.batch.sources_job import checked_cloud
-        cloud = read(points_path, rig, point_columns=point_columns)
-        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
-        frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
-        for note in frame.notes:
-            report("note", note)
-        rig = frame.rig
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
-    else:
-        points, extra = read_points(points_path, columns=columns, force=force)
-        if rig.columns is not None:
-            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
-        else:
-            ring = ring_column(extra, columns)
-        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
-        if not frame.outlier_removal_trusted and config.outlier_removal:
-            config = config.replace(outlier_removal=False)
-        for note in frame.notes:
-            report("note", note)
-        rig = frame.rig
-        padded, valid = pad_points(frame.points)
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
-                                              images=images)
+    stages, rig, cameras = _complete(points_path, rig, config=config, images=images, multi=multi, columns=columns,
+                                     point_columns=point_columns, estimate=estimate, force=force, report=report)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
