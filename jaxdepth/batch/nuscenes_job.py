@@ -132,6 +132,36 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=
     return todo
 
 
+def output_identities(tables, dst: pathlib.Path, *, sweeps: int, guided: bool) -> dict:
+    """``{output: input identity}`` (:func:`jaxdepth.batch.run_record.input_identity`) of every camera
+    output: the sample's LiDAR sweeps (key frame and up to ``sweeps - 1`` earlier ones) and, when
+    ``guided``, the camera image; the version's tables (poses, calibration) as a value. Samples whose
+    key frames cannot be found are left out (the run reports them)."""
+    from jaxdepth.batch.run_record import file_identity, input_identity
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import JaxdepthError
+
+    table_files = sorted((pathlib.Path(tables.dataroot) / tables.version).glob("*.json"))
+    tables_id = repr([file_identity(f) for f in table_files])
+    out = {}
+    for token in tables.samples():
+        try:
+            lidar_sd, cams = nusc.sample_cameras(tables, token)
+            files, sd = [], lidar_sd
+            for _ in range(sweeps):
+                files.append(pathlib.Path(tables.dataroot) / str(sd.get("filename")))
+                sd = tables.tables["sample_data"].get(sd.get("prev") or "")
+                if sd is None:
+                    break
+            for channel, cam in cams:
+                image = [nusc.camera_image_path(tables, cam)] if guided else []
+                out[nusc.output_path(dst, tables.version, channel, cam["token"])] = input_identity(
+                    files + image, values=(tables_id,))
+        except (JaxdepthError, ValueError, KeyError, TypeError):
+            continue
+    return out
+
+
 def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False, force: bool = False):
     """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs, images):
     ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None. With ``sweeps > 1``
@@ -344,4 +374,4 @@ class _SampleRun:
             f.result()
 
 
-__all__ = ["run_nuscenes", "plan", "complete_samples"]
+__all__ = ["run_nuscenes", "plan", "complete_samples", "output_identities"]
