@@ -183,6 +183,9 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
             raise field_error(tables.table_path("calibrated_sensor"), f"{cam.channel} of sample {job.token}",
                               "a pinhole K and rigid poses", str(err)) from None
     rig = Rig(lidar=NUSCENES_HDL32, cameras=tuple(cameras), lidar_origin_m=(0.0, 0.0, 0.0))
+    from jaxdepth.io.plausibility import check_rig_geometry  # K and T_cam_lidar against the sweep
+    check_rig_geometry(inputs.points[:, :3] if inputs.cloud is None else inputs.cloud.points, rig.cameras,
+                       path=tables.table_path("calibrated_sensor"), force=force)
     images = None
     if guided:  # read before the sweep is prepared: a bad image costs no work
         from jaxdepth.io.rig_images import read_rig_images
@@ -190,7 +193,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
         images = read_rig_images(paths, rig.cameras, colour=True)
     if inputs.cloud is not None:
         return None, None, rig, inputs, images
-    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False)
+    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False, drop_far=not force)
     padded, valid = pad_points(frame.points)
     return padded, valid, frame.rig, inputs, images
 

@@ -63,11 +63,14 @@ def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided
             for camera, image in zip(rig.cameras, images)}
 
 
-def _complete(points_path, rig, *, config, images, multi, columns, point_columns, estimate, force, report):
-    """The rig's stages for the sweep (or sweeps JSON) ``points_path``, with complete-rig's sweep check:
-    ``(stages, rig, stacked cameras)``, the rig as the check left it."""
+def _complete(points_path, rig, *, config, images, multi, columns, point_columns, estimate, force, report,
+              rig_path=None):
+    """The rig's stages for the sweep (or sweeps JSON) ``points_path``, with complete-rig's sweep check
+    and the calibration check against the sweep (:func:`jaxdepth.io.plausibility.check_rig_geometry`,
+    naming ``rig_path``): ``(stages, rig, stacked cameras)``, the rig as the check left it."""
     import jaxdepth
     from jaxdepth.io import pad_points, prepare_sweep, read_points
+    from jaxdepth.io.plausibility import check_rig_geometry
     from jaxdepth.io.points import ring_column
     from jaxdepth.io.sweeps import is_sweeps_json
 
@@ -83,6 +86,7 @@ def _complete(points_path, rig, *, config, images, multi, columns, point_columns
         for note in frame.notes:
             report("note", note)
         rig = frame.rig
+        check_rig_geometry(frame.cloud.points, rig.cameras, path=rig_path, force=force)
         cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
         stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
     else:
@@ -91,12 +95,13 @@ def _complete(points_path, rig, *, config, images, multi, columns, point_columns
             ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
         else:
             ring = ring_column(extra, columns)
-        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate, drop_far=not force)
         if not frame.outlier_removal_trusted and config.outlier_removal:
             config = config.replace(outlier_removal=False)
         for note in frame.notes:
             report("note", note)
         rig = frame.rig
+        check_rig_geometry(frame.points, rig.cameras, path=rig_path, force=force)
         padded, valid = pad_points(frame.points)
         cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
         stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
@@ -127,7 +132,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         :func:`jaxdepth.io.sweep_frame.prepare_cloud`, the same decision).
       overwrite: replace existing outputs (default: skip them).
       report: ``report(kind, text)`` for every message (see the module docstring).
-      force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
+      force: use a sweep or a calibration that fails the plausibility checks
+        (:mod:`jaxdepth.io.plausibility`: the sweep's values, K and T_cam_lidar against the sweep), logged.
       record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
         are added to its settings), checked against ``out_dir``'s and written before any
         computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
@@ -156,7 +162,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
                                 outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
                                                            guided=config.guidance_weight > 0))
     stages, rig, cameras = _complete(points_path, rig, config=config, images=images, multi=multi, columns=columns,
-                                     point_columns=point_columns, estimate=estimate, force=force, report=report)
+                                     point_columns=point_columns, estimate=estimate, force=force, report=report,
+                                     rig_path=rig_path)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:

@@ -322,6 +322,12 @@ def _load_sweep(job: FrameJob):
     if not (0 <= cx <= w and 0 <= cy <= h):
         raise io_errors.InputError(f"{job.sparse_path}: field 'K' principal point ({cx:.1f}, {cy:.1f}) expected "
                                    f"inside the {w}x{h} image")
+    if job.T_cam_lidar is not None:  # the frame's own calibration: does it fit the sweep?
+        from types import SimpleNamespace
+
+        from jaxdepth.io.plausibility import check_rig_geometry
+        camera = SimpleNamespace(name=job.name, K=K, T_cam_lidar=job.T_cam_lidar, width=w, height=h)
+        check_rig_geometry(points, [camera], path=job.sparse_path, force=job.force)
     return pad_points(points), K
 
 

@@ -292,12 +292,14 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     The points and intensities pass :func:`jaxdepth.io.plausibility.check_sweep` (ranges, share of
     steep points, intensity) unless ``force`` (then a failure is logged). Its ring test is not run:
     about the ego frame's origin, 1.5 m below the LiDARs, a laser's points spread over ~5 degrees.
+    Points beyond any LiDAR's range are dropped with a warning
+    (:func:`jaxdepth.io.plausibility.far_point_mask`).
 
     Raises:
       InputError: a missing column, a wrong type, non-finite coordinates, a laser number
         outside [0, 64) or an implausible sweep; the message names the file and the column.
     """
-    from jaxdepth.io.plausibility import check_sweep
+    from jaxdepth.io.plausibility import check_sweep, far_point_mask, report_far_points
 
     path = pathlib.Path(path)
     cols = read_feather_columns(path, {"x": "f", "y": "f", "z": "f", "intensity": "i", "laser_number": "i"},
@@ -312,6 +314,11 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     if not finite.all():
         raise field_error(path, "x/y/z", "finite coordinates", f"{int((~finite).sum())} non-finite rows")
     check_sweep(points, path=path, intensity=cols["intensity"].astype(np.float32), force=force)
+    far = far_point_mask(points)
+    if far.any():  # beyond any LiDAR's range: dropped, warned (docs/bad_input_checks.md)
+        report_far_points(path, points, far, kept=force)
+        if not force:
+            points, laser = points[~far], laser[~far]
     return points, laser.astype(np.int32)
 
 

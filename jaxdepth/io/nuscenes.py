@@ -219,7 +219,8 @@ def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False
     """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring).
 
     The records pass :func:`jaxdepth.io.plausibility.check_sweep` (ring column included)
-    unless ``force`` (then a failure is logged)."""
+    unless ``force`` (then a failure is logged); points beyond any LiDAR's range get NaN x, y, z
+    (:func:`jaxdepth.io.plausibility.drop_far_points`, warned)."""
     filename = sample_data.get("filename")
     if not isinstance(filename, str) or not filename:
         raise field_error(tables.table_path("sample_data"), f"{sample_data['token']}.filename",
@@ -231,10 +232,10 @@ def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False
         raise file_error(path, f"size {len(raw)} bytes expected a multiple of {record} "
                                f"({POINT_COLUMNS} float32 values per point)")
     records = np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
-    from jaxdepth.io.plausibility import check_sweep
+    from jaxdepth.io.plausibility import check_sweep, drop_far_points
     check_sweep(records[:, :3], path=path, columns=POINT_COLUMNS, intensity=records[:, 3], ring=records[:, 4],
                 raw=raw, force=force)
-    return records
+    return drop_far_points(records, path=path, force=force)
 
 
 def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:

@@ -12,7 +12,9 @@ Non-finite coordinates (NaN, inf) are *not* an error when reading: some drivers
 write them for missing returns. :func:`pad_points` marks them invalid, so they
 never reach a projection. Values no LiDAR produces are: :func:`read_points` runs the
 checks of :mod:`jaxdepth.io.plausibility` on every sweep it reads (a wrong column count
-or dtype decodes without error into garbage points) unless ``force=True``.
+or dtype decodes without error into garbage points) unless ``force=True``, and drops
+points farther than any LiDAR measures (:func:`jaxdepth.io.plausibility.drop_far_points`:
+their x, y, z become NaN, one warning names the file and the count).
 """
 
 from __future__ import annotations
@@ -167,7 +169,8 @@ def infer_point_columns(path: PathLike, given: int | None = None) -> int:
 
 
 def read_points(path: PathLike, *, columns: int | None = None, force: bool = False,
-                columns_option: str | None = "--point-columns N") -> tuple[np.ndarray, np.ndarray]:
+                columns_option: str | None = "--point-columns N",
+                drop_far: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Reads a LiDAR sweep.
 
     Args:
@@ -179,10 +182,13 @@ def read_points(path: PathLike, *, columns: int | None = None, force: bool = Fal
         (:func:`jaxdepth.io.plausibility.check_sweep`), logging a warning.
       columns_option: named in a refusal as the way to read another layout (the command's
         option); None where the layout fixes the column count.
+      drop_far: set x, y, z of points farther than any LiDAR measures to NaN, with one
+        warning (:func:`jaxdepth.io.plausibility.drop_far_points`; ``force`` keeps them, warned);
+        False when the first three columns are not x, y, z (the caller drops them after reordering).
 
     Returns:
       (points, extra): points (N, 3) float32 x, y, z in metres (non-finite
-      values are returned as they are); extra (N, columns - 3) float32, the
+      values are returned as they are, far points as NaN); extra (N, columns - 3) float32, the
       remaining columns (reflectance, ring index, ...).
 
     Raises:
@@ -197,12 +203,16 @@ def read_points(path: PathLike, *, columns: int | None = None, force: bool = Fal
     check_input_file(path, expected="a point file")
     suffix = path.suffix.lower()
     if suffix == ".bin":
-        return _read_bin(path, columns, force, columns_option)
-    if suffix in (".npy", ".npz"):
+        points, extra = _read_bin(path, columns, force, columns_option)
+    elif suffix in (".npy", ".npz"):
         points, extra = (_read_npy if suffix == ".npy" else _read_npz)(path, columns)
         _check(path, points, extra, columns, force=force)
-        return points, extra
-    raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
+    else:
+        raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
+    if drop_far:
+        from jaxdepth.io.plausibility import drop_far_points
+        points = drop_far_points(points, path=path, force=force)
+    return points, extra
 
 
 def bucket_size(n: int) -> int:

@@ -23,8 +23,9 @@ the same points). Where the sensor sits comes from, in order:
    removal off rather than delete good points, and the note says to state
    ``lidar.origin_m``.
 
-Everything estimated is logged on ``logging.getLogger("jaxdepth")`` and
-summarised in :attr:`SweepFrame.notes`.
+Points farther than any LiDAR measures (:func:`jaxdepth.io.plausibility.far_point_mask`)
+get NaN coordinates (a missing return), with a warning. Everything estimated is logged
+on ``logging.getLogger("jaxdepth")`` and summarised in :attr:`SweepFrame.notes`.
 
 :func:`prepare_cloud` makes the same decision for a
 :class:`~jaxdepth.io.sources.SourceCloud` read from a rig JSON's point file or a sweeps JSON
@@ -45,6 +46,7 @@ import logging
 import numpy as np
 
 from jaxdepth._src.types import LidarSpec
+from jaxdepth.io.plausibility import far_point_mask, report_far_points
 from jaxdepth.io.rig import Rig, RigCamera
 
 log = logging.getLogger("jaxdepth")
@@ -89,7 +91,7 @@ def shift_rig(rig: Rig, origin_m, lidar: LidarSpec | None = None) -> Rig:
 
 
 def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = None,
-                  estimate: bool = True) -> SweepFrame:
+                  estimate: bool = True, drop_far: bool = True) -> SweepFrame:
     """Moves ``points`` (and the rig's extrinsics) so that the LiDAR sits at the origin.
 
     Args:
@@ -100,12 +102,17 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
         sharpens the estimate.
       estimate: estimate what the rig leaves open from the sweep (default);
         False keeps the points' origin and the rig's spec.
+      drop_far: set points farther than any LiDAR measures to NaN, noted (False: ``--force``).
 
     Returns:
       :class:`SweepFrame`.
     """
     xyz = np.asarray(points, np.float32)[:, :3]
     notes = []
+    far = far_point_mask(xyz) if drop_far else None
+    if far is not None and far.any():  # an array from the API; the readers drop these already (io/plausibility.py)
+        notes.append(report_far_points("sweep", xyz, far))
+        xyz = np.where(far[:, None], np.float32(np.nan), xyz)
     spec = rig.lidar
     trusted = True
     if rig.lidar_origin_m is not None:

@@ -154,8 +154,11 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
     count, names = _columns_of(file, names, point_columns)
     # Named columns: the plausibility check runs here with the named ring / intensity columns (the
     # reader's own check would take a 5th column for nuScenes' ring).
-    points, extra = read_points(file, columns=count, force=names is not None)
+    points, extra = read_points(file, columns=count, force=names is not None, drop_far=names is None)
     points, extra = _xyz(points, extra, names)
+    if names is not None:  # far points dropped once x, y, z are known
+        from jaxdepth.io.plausibility import drop_far_points
+        points = drop_far_points(points, path=file)
     # Unnamed columns: the ring of a 5-column sweep as the single-file path reads it (ring_column).
     ring_raw = _named(extra, names, "ring") if names is not None else ring_column(extra, count)
     # A ring index is a laser of one LiDAR: with a lidar column its elevation is judged about that
