@@ -60,13 +60,13 @@ def _write_sequence(tmp_path, sweeps):
     mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
     entries = []
     for k in range(sweeps):
-        mine = sq.sweep[sq.source] == k
+        mine = sq.sweep[sq.source] == -k                              # signed: -1 the sweep before
         inv = np.linalg.inv(ego[k])
         local = sq.points[mine] @ inv[:3, :3].T + inv[:3, 3]
         np.concatenate([local, (sq.source[mine] % 2)[:, None]], axis=1).astype(np.float32).tofile(
             tmp_path / f"sweep{k}.bin")
         entries.append({"file": f"sweep{k}.bin", "T_ref_sweep": ego[k].tolist()})
-    (tmp_path / "sweeps.json").write_text(json.dumps({"sweeps": entries}))
+    (tmp_path / "sweeps.json").write_text(json.dumps({"sweeps": entries[::-1]}))   # time order
     lidars = [{"name": "top", "T_points_lidar": np.eye(4).tolist()},
               {"name": "front_low", "T_points_lidar": mount.tolist(), "beams": 16, "fov_up_deg": 15.0,
                "fov_down_deg": -15.0}]
@@ -120,7 +120,7 @@ def test_hidden_eval_scores_what_complete_rig_computes(tmp_path, capsys):
     assert main(["hidden-eval", str(sweeps), str(rig_path), "--seeds", "4", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     doc = json.loads(out.read_text())
-    assert doc["sources"] == ["top@0", "front_low@0", "top@1", "front_low@1"] and doc["outlier_removal"]
+    assert doc["sources"] == ["top@0", "front_low@0", "top@-1", "front_low@-1"] and doc["outlier_removal"]
     assert "all targets RMSE / MAE" in text and "uncovered RMSE / MAE" in text
     _check_against_complete_cloud(doc, sweeps, rig_path, seed=4)
 
