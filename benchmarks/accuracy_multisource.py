@@ -35,7 +35,8 @@ is not now, and within 1 m of where that car was (the car's ghost, not an ordina
 truth alone. Seeds 0 and 1 are reported; the free-space rule's choices were made on seeds 10, 11.
 
 Argoverse 2 is read by :mod:`jaxdepth.io.av2` (``read_log``, ``read_cloud``, ``read_rig``), the
-reader the ``av2`` job uses; the benchmark only leaves each LiDAR's spec to be estimated from its rings.
+reader the ``av2`` job uses; like the job, it leaves each LiDAR's spec to be estimated from its rings
+(one range-image row per laser; ``read_cloud``'s default since issue 37 item 5).
 
 Speed (``--speed-only`` adds just these sections): wall time of :func:`complete_cloud`, compile
 (first call) reported apart, the functions of one section timed in turn over ``repeats`` rounds
@@ -194,10 +195,10 @@ def av2_rows(config, *, fraction=0.2, seed=0, cameras=RING_CAMERAS):
 # ---------------------------------------------------------------- synthetic sequences (exact depth)
 
 def _sequence_cloud(sq, n_sweeps):
-    """The first ``n_sweeps`` sweeps of a synthetic drive (its sources are ordered sweep-major)."""
+    """The latest ``n_sweeps`` sweeps of a synthetic drive (sweep 0, -1, ...; sources ordered sweep-major)."""
     c = sq
-    keep = c.sweep[c.source] < n_sweeps
-    S = int(np.sum(c.sweep < n_sweeps))
+    keep = c.sweep[c.source] > -n_sweeps
+    S = int(np.sum(c.sweep > -n_sweeps))
     return SourceCloud(points=c.points[keep], source=c.source[keep], T_ref_source=c.T_ref_source[:S],
                        lidars=c.lidars[:S], sweep=c.sweep[:S], names=c.names[:S])
 
@@ -536,9 +537,12 @@ def main(argv=None) -> int:
                              for scale in args.sequence_scales}}
         old = out / "accuracy_sequences.json"
         old = json.loads(old.read_text()) if old.exists() else {}
-        doc.update({k: v for k, v in old.items() if k not in doc and k != "platform"})    # e.g. tuning records
+        # only what this script writes is carried over (the speed section of an earlier --speed-only run):
+        # a record that no script regenerates does not live in a results file
         if not args.skip_speed:
             doc["speed"] = speed_sequences(config)
+        elif "speed" in old:
+            doc["speed"] = old["speed"]
         write(out / "accuracy_sequences.json", doc)
     return 0
 

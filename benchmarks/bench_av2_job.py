@@ -70,7 +70,8 @@ def one_source(cloud):
     from jaxdepth._src.types import LidarSpec
     from jaxdepth.io.sources import SourceCloud
     ref = cloud.sweep[cloud.source] == 0
-    spec = cloud.lidars[0]
+    from jaxdepth._src.presets import AV2_VLP32C
+    spec = cloud.lidars[0] or AV2_VLP32C  # the job states no spec (rows from the laser numbers)
     merged = LidarSpec(beams=2 * spec.beams, fov_up_deg=spec.fov_up_deg, fov_down_deg=spec.fov_down_deg,
                        columns=spec.columns)
     return SourceCloud(points=cloud.points[ref], source=np.zeros(int(ref.sum()), np.int32),

@@ -216,3 +216,23 @@ def test_implausible_sweep_is_refused_unless_forced(tmp_path, log):
     with pytest.raises(InputError, match=rf"{log.sweeps[0]}\.feather: not a plausible LiDAR sweep"):
         av2.read_cloud(fresh)
     assert av2.read_cloud(fresh, force=True).points.shape == (99_229, 3)
+
+
+def test_each_lidar_gets_one_row_per_laser(log):
+    """The job's default input (issue 37 item 5): no spec stated, so every laser of each LiDAR has a row of
+    its own, ranked by its median elevation about its own LiDAR (oracle: the elevations of the points)."""
+    from jaxdepth._src.presets import AV2_VLP32C
+    from jaxdepth.batch.sources_job import cloud_sources
+
+    cloud = av2.read_cloud(log)
+    assert cloud.lidars == (None, None)
+    sources, index = cloud_sources(cloud, fallback=AV2_VLP32C)
+    rows = np.asarray(sources.rows)
+    for s in (0, 1):
+        _, median = _laser_spread(cloud, s, cloud.T_ref_source[s])
+        mine = index[s] >= 0
+        ring = cloud.ring[index[s][mine]]
+        assert np.unique(rows[s][mine]).size == 32
+        row_of_ring = np.empty(32, int)
+        row_of_ring[np.argsort(-median)] = np.arange(32)
+        np.testing.assert_array_equal(rows[s][mine], row_of_ring[ring])

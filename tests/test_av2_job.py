@@ -96,7 +96,7 @@ def test_command_line_detects_the_log(tmp_path, capsys):
     assert outs == [f"{LOG[-1]}/{CAMERA}/{ts}.png" for ts in log.sweeps]
     assert read_depth_png(dst / outs[0]).shape == (1550, 2048)
     capsys.readouterr()
-    for extra in (["--camera", "2"], ["--method", "nearest"], ["--sweeps", "-1"], ["--guidance-weight", "2"],
-                  ["--preview"]):
+    for extra in (["--camera", "2"], ["--method", "nearest", "--validity"], ["--sweeps", "-1"],
+                  ["--guidance-weight", "2"], ["--engine", "ray"]):
         assert cli.main(["complete", str(root), str(dst), "-q"] + extra) == 2, extra
         assert "error" in capsys.readouterr().err

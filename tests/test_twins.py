@@ -9,7 +9,7 @@ import pytest
 
 from jaxdepth.research import twin_measure, twin_tables
 from jaxdepth.research.twin_rigs import RIG_BUILDERS, RASTER_UNITS
-from jaxdepth.research.twin_scene import twin_scene
+from jaxdepth.research.twin_scene import twin_scene, twin_spheres
 from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects
 from jaxdepth.research.twins import TWIN_RIGS, make_twin, write_twin
 from tests.conftest import require_shared
@@ -38,7 +38,7 @@ def _to_world(twin, points):
     return np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
 
 
-def _surface_distance(p, scene):
+def _surface_distance(p, scene, spheres):
     """(N,) distance of world points to the nearest primitive surface, and (N,) depth inside any solid
     (NumPy oracle, independent of the JAX ray caster)."""
     best = np.full(p.shape[0], np.inf)
@@ -53,6 +53,10 @@ def _surface_distance(p, scene):
         depth = -np.minimum(q.max(axis=1), 0)
         best = np.minimum(best, np.where(outside > 0, outside, depth))
         inside = np.maximum(inside, np.where(outside > 0, 0, depth))
+    for cx, cy, cz, r in np.asarray(spheres, np.float64):
+        radial = np.linalg.norm(p - [cx, cy, cz], axis=1) - r
+        best = np.minimum(best, np.abs(radial))
+        inside = np.maximum(inside, np.maximum(-radial, 0))
     for cx, cy, r, z0, z1 in np.asarray(scene.cylinders, np.float64):
         radial = np.hypot(p[:, 0] - cx, p[:, 1] - cy) - r
         axial = np.maximum(z0 - p[:, 2], p[:, 2] - z1)
@@ -72,7 +76,8 @@ def test_exact_points_lie_on_scene_surfaces(name, request):
         mine = np.flatnonzero(np.isin(twin.cloud.source, np.flatnonzero(twin.cloud.sweep == k)))
         pick = rng.choice(mine, size=min(3000, mine.size), replace=False)
         p = _to_world(twin, twin.cloud.points[pick])
-        dist, inside = _surface_distance(p, twin_scene(twin.seed, int(k), dt_s=RIG_BUILDERS[twin.name](NO_EFFECTS).dt_s))
+        scene = twin_scene(twin.seed, int(k), dt_s=RIG_BUILDERS[twin.name](NO_EFFECTS).dt_s)
+        dist, inside = _surface_distance(p, scene, twin_spheres(twin.seed))
         rng_m = np.linalg.norm(twin.cloud.points[pick] - twin.point_origin[pick], axis=1)
         tol = 1e-4 + 2e-6 * rng_m          # float32 ray casting
         assert np.all(dist <= tol), (k, float(dist.max()))
@@ -261,3 +266,25 @@ def test_rosette_sweeps_do_not_repeat_each_others_rays():
     assert np.all(a.directions[:, 0] >= cos_half_fov)            # inside the 35 deg cone
     dist, _ = cKDTree(a.directions).query(b.directions)
     assert np.median(dist) > 1e-4                                  # new directions, not the same path again
+
+
+def test_sphere_hits_match_the_analytic_intersection():
+    from jaxdepth.research.twin_sensors import sphere_hits
+
+    rng = np.random.default_rng(0)
+    centre, radius = np.array([6.0, -1.0, 0.5]), 1.5
+    d = rng.normal(size=(200, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    aim = centre + rng.uniform(-0.5, 0.5, (50, 3))      # rays from the origin that must hit
+    d[:50] = aim / np.linalg.norm(aim, axis=1, keepdims=True)
+    spheres = np.array([[*centre, radius], [40.0, 40.0, 40.0, 0.5]], np.float32)
+    for origin in (np.zeros(3), centre + [0.2, 0.1, 0.0]):         # outside, then inside the sphere
+        t = np.asarray(sphere_hits(origin.astype(np.float32), d.astype(np.float32), spheres), np.float64)
+        b = d @ (origin - centre)
+        disc = b * b - (np.sum((origin - centre) ** 2) - radius ** 2)
+        root = np.sqrt(np.maximum(disc, 0))
+        expect = np.where(-b - root > 1e-6, -b - root, -b + root)
+        expect = np.where((disc >= 0) & (expect > 1e-6), expect, np.inf)
+        assert np.isfinite(expect).sum() >= 50
+        np.testing.assert_array_equal(np.isinf(t), np.isinf(expect))
+        np.testing.assert_allclose(t[np.isfinite(t)], expect[np.isfinite(expect)], rtol=1e-5, atol=1e-5)

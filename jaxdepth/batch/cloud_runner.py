@@ -46,25 +46,36 @@ def complete_sources(cloud, rig, *, config, images=None) -> np.ndarray:
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
-                   io_threads: int = 2) -> None:
+                   io_threads: int = 2, complete: Callable | None = None, extras=None,
+                   overwrite: bool = True) -> None:
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
     ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
+    ``complete(cloud, rig) -> (depth, valid, distance)``, each (C, H, W) on the rig's canvas
+    (``valid`` and ``distance`` None unless ``extras`` needs them); default: :func:`complete_sources`.
+    ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
+    ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
     Records each job in ``summary`` as done or failed (never raises for a bad frame).
     """
+    from jaxdepth.batch import extras as extra_outputs
     from jaxdepth.batch.runner import Ledger, read_ahead, write_failure
-    from jaxdepth.io.depth_png import write_depth_png
     from jaxdepth.io.errors import JaxdepthError
 
     ledger = Ledger(summary, notify)
+    extras = extra_outputs.NONE if extras is None else extras
+    if complete is None:
+        def complete(cloud, rig):
+            return complete_sources(cloud, rig, config=config), None, None
 
-    def write(job, rig, depth):
+    def write(job, rig, depth, valid, distance):
         index = {c.name: i for i, c in enumerate(rig.cameras)}
         for camera, path in job.outputs:
             cam = rig.cameras[index[camera]]
-            window = depth[index[camera], :cam.height, :cam.width]
-            message = write_failure(path, lambda: write_depth_png(pathlib.Path(path), window,
-                                                                  compression=png_compression))
+            window = (index[camera], slice(0, cam.height), slice(0, cam.width))
+            message = write_failure(path, lambda path=path, window=window: extra_outputs.write_outputs(
+                pathlib.Path(path), depth[window], extras=extras, overwrite=overwrite,
+                valid=None if valid is None else valid[window],
+                distance=None if distance is None else distance[window], compression=png_compression))
             if message is not None:
                 ledger.fail(job.name, message)
                 return
@@ -79,11 +90,11 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
                 continue
             cloud, rig = loaded
             try:
-                depth = complete_sources(cloud, rig, config=config)
+                outputs = complete(cloud, rig)
             except (JaxdepthError, ValueError) as err:
                 ledger.fail(job.name, f"completion failed: {err}")
                 continue
-            written.append(writers.submit(write, job, rig, depth))
+            written.append(writers.submit(write, job, rig, *outputs))
         for f in written:
             f.result()
 

@@ -10,7 +10,8 @@ non-headless OpenCV). Layout and columns, as published by the dataset::
     <log>/calibration/intrinsics.feather              sensor_name, fx_px, fy_px, cx_px, cy_px, k1, k2, k3,
                                                       height_px, width_px
     <log>/city_SE3_egovehicle.feather                 timestamp_ns, qw, qx, qy, qz, tx_m, ty_m, tz_m
-    <log>/sensors/cameras/<camera>/<timestamp_ns>.jpg (optional; not read here)
+    <log>/sensors/cameras/<camera>/<timestamp_ns>.jpg (optional; only the names, the images' timestamps,
+                                                      are read)
 
 Conventions:
 
@@ -21,6 +22,16 @@ Conventions:
   two Velodyne VLP-32C: ``laser_number`` 0-31 is ``up_lidar``, 32-63 ``down_lidar``
   (mounted upside down, 11 cm lower). Each LiDAR is one source with its calibrated pose
   ``egovehicle_SE3_<lidar>``; ``ring = laser_number mod 32`` is the laser within its LiDAR.
+  By default no spec is stated (``lidars`` None): each source gets one range-image row per laser,
+  ranked by the laser's elevation about its own LiDAR, and its field of view from those elevations
+  (:func:`jaxdepth.batch.sources_job.source_spec`). A stated uniform spec instead puts the
+  VLP-32C's unevenly spaced lasers on 18 of 32 rows (several lasers per row near the horizon).
+* Camera time (the devkit's motion-compensated projection): a camera image taken at ``t_cam``
+  sees the sweep's ego-frame points (ego pose at the sweep's ``t_lidar``) through
+  ``T_cam_ego = inv(egovehicle_SE3_cam) @ inv(city_SE3_ego(t_cam)) @ city_SE3_ego(t_lidar)``
+  (:func:`camera_from_ego`). The image paired with a sweep (:func:`paired_image`) is the camera's
+  image nearest in time to the sweep, provided the sweep is also the sweep nearest to that image
+  (so no image is paired with two sweeps); ties go to the later image and the earlier sweep.
 * Cameras: ``T_cam_lidar = inv(egovehicle_SE3_<camera>)`` maps ego-frame points into the
   camera frame, which is OpenCV's (x right, y down, z forward). ``K`` is the pinhole part of
   the intrinsics; the radial distortion ``k1..k3`` is not applied (the depth images are on
@@ -37,7 +48,6 @@ Conventions:
 from __future__ import annotations
 
 import dataclasses
-import math
 import pathlib
 
 import numpy as np
@@ -106,7 +116,7 @@ def read_feather_columns(path: PathLike, columns: dict, *, expected: str) -> dic
 
 
 def _quaternion_pose(row: dict, i: int, where: str) -> np.ndarray:
-    from jaxdepth.io.nuscenes import pose_matrix
+    from jaxdepth._src.poses import pose_matrix
     try:
         return pose_matrix([row[k][i] for k in ("tx_m", "ty_m", "tz_m")],
                            [row[k][i] for k in ("qw", "qx", "qy", "qz")], where=where)
@@ -125,6 +135,8 @@ class Av2Log:
       intrinsics: camera name -> (K (3, 3) float64, width, height).
       city_times: (M,) sorted int64 timestamps of the city poses, ns.
       city_poses: (M, 4, 4) float64 ``city_SE3_egovehicle``.
+      camera_times: camera name -> (K,) sorted int64 timestamps (ns) of its images
+        (``sensors/cameras/<camera>/<ts>.jpg``), for the cameras that have a folder there.
     """
 
     folder: pathlib.Path
@@ -133,6 +145,7 @@ class Av2Log:
     intrinsics: dict
     city_times: np.ndarray
     city_poses: np.ndarray
+    camera_times: dict = dataclasses.field(default_factory=dict)
 
     def sweep_path(self, timestamp_ns: int) -> pathlib.Path:
         return self.folder / "sensors" / "lidar" / f"{int(timestamp_ns)}.feather"
@@ -212,7 +225,24 @@ def read_log(folder: PathLike) -> Av2Log:
         raise field_error(log_paths["city"], "timestamp_ns", "distinct timestamps", f"{dup} twice")
     poses = np.stack([_pose_or_error(city, int(i), log_paths["city"], f"timestamp_ns {times[i]}") for i in order])
     return Av2Log(folder=folder, sweeps=tuple(sorted(stamps)), sensor_poses=sensor_poses, intrinsics=intrinsics,
-                  city_times=times[order], city_poses=poses)
+                  city_times=times[order], city_poses=poses, camera_times=_camera_times(folder))
+
+
+def _camera_times(folder: pathlib.Path) -> dict:
+    """camera name -> sorted int64 image timestamps of ``<log>/sensors/cameras/<camera>/<ts>.jpg``."""
+    root = folder / "sensors" / "cameras"
+    out = {}
+    if not root.is_dir():
+        return out
+    for cam_dir in sorted(p for p in root.iterdir() if p.is_dir()):
+        stamps = []
+        for p in cam_dir.glob("*.jpg"):
+            if not p.stem.isdigit():
+                raise file_error(p, "expected a camera image named <timestamp_ns>.jpg")
+            stamps.append(int(p.stem))
+        if stamps:
+            out[cam_dir.name] = np.array(sorted(stamps), np.int64)
+    return out
 
 
 def _pose_or_error(table: dict, i: int, path: pathlib.Path, row: str) -> np.ndarray:
@@ -220,38 +250,6 @@ def _pose_or_error(table: dict, i: int, path: pathlib.Path, row: str) -> np.ndar
         return _quaternion_pose(table, i, row)
     except InputError as err:
         raise file_error(path, str(err)) from None
-
-
-def _slerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
-    """Spherical-linear interpolation of unit quaternions (shortest arc), ``a`` in [0, 1]."""
-    d = float(np.dot(q0, q1))
-    if d < 0:
-        q1, d = -q1, -d
-    if d > 0.9995:
-        q = q0 + a * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(d, 1.0))
-    return (math.sin((1 - a) * theta) * q0 + math.sin(a * theta) * q1) / math.sin(theta)
-
-
-def _matrix_quaternion(R: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method)."""
-    m = R
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
 
 
 def interpolate_pose(times: np.ndarray, poses: np.ndarray, t: int, *, path: PathLike = "poses") -> np.ndarray:
@@ -276,9 +274,9 @@ def interpolate_pose(times: np.ndarray, poses: np.ndarray, t: int, *, path: Path
     t0, t1 = int(times[k - 1]), int(times[k])
     a = (t - t0) / (t1 - t0)
     P0, P1 = poses[k - 1], poses[k]
-    from jaxdepth.io.nuscenes import quaternion_matrix
+    from jaxdepth._src.poses import slerp_rotation
     out = np.eye(4)
-    out[:3, :3] = quaternion_matrix(_slerp(_matrix_quaternion(P0[:3, :3]), _matrix_quaternion(P1[:3, :3]), a))
+    out[:3, :3] = slerp_rotation(P0[:3, :3], P1[:3, :3], a)
     out[:3, 3] = (1 - a) * P0[:3, 3] + a * P1[:3, 3]
     return out
 
@@ -294,12 +292,14 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     The points and intensities pass :func:`jaxdepth.io.plausibility.check_sweep` (ranges, share of
     steep points, intensity) unless ``force`` (then a failure is logged). Its ring test is not run:
     about the ego frame's origin, 1.5 m below the LiDARs, a laser's points spread over ~5 degrees.
+    Points beyond any LiDAR's range are dropped with a warning
+    (:func:`jaxdepth.io.plausibility.far_point_mask`).
 
     Raises:
       InputError: a missing column, a wrong type, non-finite coordinates, a laser number
         outside [0, 64) or an implausible sweep; the message names the file and the column.
     """
-    from jaxdepth.io.plausibility import check_sweep
+    from jaxdepth.io.plausibility import check_sweep, far_point_mask, report_far_points
 
     path = pathlib.Path(path)
     cols = read_feather_columns(path, {"x": "f", "y": "f", "z": "f", "intensity": "i", "laser_number": "i"},
@@ -314,6 +314,11 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     if not finite.all():
         raise field_error(path, "x/y/z", "finite coordinates", f"{int((~finite).sum())} non-finite rows")
     check_sweep(points, path=path, intensity=cols["intensity"].astype(np.float32), force=force)
+    far = far_point_mask(points)
+    if far.any():  # beyond any LiDAR's range: dropped, warned (docs/bad_input_checks.md)
+        report_far_points(path, points, far, kept=force)
+        if not force:
+            points, laser = points[~far], laser[~far]
     return points, laser.astype(np.int32)
 
 
@@ -326,7 +331,8 @@ def _reference_index(log: Av2Log, timestamp_ns: int | None) -> int:
         raise file_error(log.sweep_path(timestamp_ns), "no such LiDAR sweep in the log") from None
 
 
-def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0, force: bool = False):
+def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0, force: bool = False,
+               spec=None):
     """The sources of one reference sweep (and its neighbours) as a :class:`~jaxdepth.io.sources.SourceCloud`.
 
     Args:
@@ -335,14 +341,16 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0,
       sweeps: neighbours on each side of the reference sweep to add (default 0; fewer at
         the ends of the log).
       force: use sweeps that fail the plausibility checks (logged) instead of refusing them.
+      spec: a :class:`~jaxdepth.LidarSpec` stated for every LiDAR (rows from elevation), or None
+        (default): no spec stated, so each source's rows come from its laser numbers (one row
+        per laser, ranked by elevation about its own LiDAR; see the module docstring).
 
     Returns:
       SourceCloud in the reference sweep's ego frame: one source per (LiDAR, sweep), ordered
       sweep by sweep (reference first, then -1, +1, -2, +2, ...) and ``up_lidar`` before
-      ``down_lidar``; ``sweep`` is the signed offset from the reference sweep; ``lidars`` the
-      VLP-32C preset; ``ring = laser_number mod 32``; names ``"<lidar>@<offset>"``.
+      ``down_lidar``; ``sweep`` is the signed offset from the reference sweep; ``lidars``
+      ``spec`` for every source; ``ring = laser_number mod 32``; names ``"<lidar>@<offset>"``.
     """
-    from jaxdepth._src.presets import AV2_VLP32C
     from jaxdepth.io.sources import SourceCloud
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, (int, np.integer)) or sweeps < 0:
@@ -351,7 +359,7 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0,
     offsets = [0]
     for k in range(1, int(sweeps) + 1):
         offsets += [o for o in (-k, k) if 0 <= ref + o < len(log.sweeps)]
-    from jaxdepth.io.nuscenes import invert_pose
+    from jaxdepth._src.poses import invert_pose
 
     ref_from_city = invert_pose(ego_pose(log, log.sweeps[ref])) if len(offsets) > 1 else None
     lidar_poses = [log.sensor_pose(name) for name, _ in LIDARS]
@@ -372,30 +380,81 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0,
             sweep_ids.append(offset)
             names.append(f"{name}@{offset}")
     return SourceCloud(points=np.concatenate(points), source=np.concatenate(source),
-                       T_ref_source=np.stack(T_ref_source), lidars=(AV2_VLP32C,) * len(names),
+                       T_ref_source=np.stack(T_ref_source), lidars=(spec,) * len(names),
                        sweep=np.asarray(sweep_ids, np.int32), names=tuple(names), ring=np.concatenate(ring),
                        path=str(log.sweep_path(log.sweeps[ref])))
 
 
-def read_rig(log: Av2Log, cameras=RING_CAMERAS):
+def paired_image(log: Av2Log, camera: str, sweep_ns: int) -> int | None:
+    """The timestamp (ns) of ``camera``'s image paired with the sweep ``sweep_ns``, or None.
+
+    The camera's image nearest in time to the sweep (a tie: the later image), provided this sweep
+    is also the log's sweep nearest to that image (a tie: the earlier sweep); None when the camera
+    has no images (:attr:`Av2Log.camera_times`) or its nearest image belongs to another sweep.
+
+    >>> log = Av2Log(pathlib.Path("."), (0, 100), {}, {}, np.zeros(0), np.zeros((0, 4, 4)),
+    ...              {"cam": np.array([40, 90, 160])})
+    >>> paired_image(log, "cam", 0), paired_image(log, "cam", 100)
+    (40, 90)
+    """
+    times = log.camera_times.get(camera)
+    if times is None or times.size == 0:
+        return None
+    image = int(times[_nearest_index(times, int(sweep_ns), later=True)])
+    sweeps = np.asarray(log.sweeps, np.int64)
+    return image if int(sweeps[_nearest_index(sweeps, image, later=False)]) == int(sweep_ns) else None
+
+
+def _nearest_index(sorted_times: np.ndarray, t: int, *, later: bool) -> int:
+    """Index of the value of ``sorted_times`` nearest to ``t``; a tie goes to the later one if ``later``."""
+    k = int(np.searchsorted(sorted_times, t))
+    if k == 0:
+        return 0
+    if k == sorted_times.size:
+        return k - 1
+    before, after = t - int(sorted_times[k - 1]), int(sorted_times[k]) - t
+    return k if (after < before or (after == before and later)) else k - 1
+
+
+def camera_from_ego(log: Av2Log, camera: str, *, sweep_ns: int | None = None,
+                    camera_ns: int | None = None) -> np.ndarray:
+    """(4, 4) float64 ``T_cam_ego``: points in the ego frame at ``sweep_ns`` -> ``camera`` at ``camera_ns``.
+
+    ``inv(egovehicle_SE3_cam) @ inv(city_SE3_ego(camera_ns)) @ city_SE3_ego(sweep_ns)`` (the
+    devkit's motion-compensated projection); the calibration alone, ``inv(egovehicle_SE3_cam)``,
+    when either time is None or both are equal. InputError (naming the city poses) for a time
+    outside the pose table.
+    """
+    from jaxdepth._src.poses import invert_pose
+
+    T = invert_pose(log.sensor_pose(camera))
+    if sweep_ns is None or camera_ns is None or int(sweep_ns) == int(camera_ns):
+        return T
+    return T @ invert_pose(ego_pose(log, camera_ns)) @ ego_pose(log, sweep_ns)
+
+
+def read_rig(log: Av2Log, cameras=RING_CAMERAS, *, sweep_ns: int | None = None, camera_ns: dict | None = None):
     """The :class:`~jaxdepth.io.rig.Rig` of ``cameras`` (default: the 7 ring cameras) for ego-frame points.
 
     Each camera: its calibrated size, K from the pinhole part of the intrinsics,
-    ``T_cam_lidar = inv(egovehicle_SE3_camera)`` (ego frame -> OpenCV camera frame). The rig's
-    LiDAR is the VLP-32C preset at ``up_lidar``'s origin (used by single-origin paths; the
-    :class:`SourceCloud` carries both LiDARs' poses).
+    ``T_cam_lidar = inv(egovehicle_SE3_camera)`` (ego frame -> OpenCV camera frame), or, with
+    ``sweep_ns`` and a camera's time in ``camera_ns`` (camera name -> ns), :func:`camera_from_ego`:
+    the ego frame at the sweep's time into the camera at its image's time. The rig's LiDAR is
+    the VLP-32C preset at ``up_lidar``'s origin (used by single-origin paths, as the fallback
+    of sources whose spec cannot be estimated, and for the range-image columns and the validity
+    mask; the :class:`SourceCloud` carries both LiDARs' poses).
     """
     from jaxdepth._src.presets import AV2_VLP32C
-    from jaxdepth.io.nuscenes import invert_pose
     from jaxdepth.io.rig import Rig, RigCamera
 
+    camera_ns = camera_ns or {}
     rig_cameras = []
     for name in cameras:
         if name not in log.intrinsics:
             raise field_error(log.intrinsics_path, "sensor_name", f"a row for camera {name!r}",
                               f"sensors {sorted(log.intrinsics)}")
         K, w, h = log.intrinsics[name]
-        T = invert_pose(log.sensor_pose(name))
+        T = camera_from_ego(log, name, sweep_ns=sweep_ns, camera_ns=camera_ns.get(name))
         try:
             rig_cameras.append(RigCamera(name, w, h, K.astype(np.float32), T.astype(np.float32)))
         except ValueError as err:
@@ -405,4 +464,5 @@ def read_rig(log: Av2Log, cameras=RING_CAMERAS):
 
 
 __all__ = ["Av2Log", "read_log", "read_cloud", "read_rig", "read_sweep", "read_feather_columns", "ego_pose",
-           "interpolate_pose", "is_av2_log", "RING_CAMERAS", "LIDARS", "LASERS_PER_LIDAR"]
+           "interpolate_pose", "is_av2_log", "paired_image", "camera_from_ego", "RING_CAMERAS", "LIDARS",
+           "LASERS_PER_LIDAR"]

@@ -7,8 +7,10 @@ along the street, y left, z up, metres). The static street is
 - movers: three cars (one ahead, one oncoming, one crossing, 4-10 m/s) and four pedestrians
   (1.0-1.6 m/s; torso and two leg boxes, a head cylinder), placed at the reference time and
   moved back ``k * dt`` for sweep ``k``;
-- vegetation: two hedges (rows of 12 boxes of random size, height and yaw: an irregular,
-  interpenetrating surface) and three trees (trunk cylinder, canopy of 5 random boxes);
+- vegetation: two hedges (rows of 12 boxes of random size, height and yaw, with 6 bushes (spheres)
+  bulging out of them: an irregular, interpenetrating surface) and three trees (trunk cylinder,
+  canopy of 6 overlapping spheres); spheres are cast by :mod:`jaxdepth.research.twin_sensors`
+  (:func:`twin_spheres`, not part of :class:`SceneArrays`);
 - thin poles: six sign posts, radius 2.5-5 cm;
 - a fence: 28 slats 8 cm wide with 7 cm gaps between two rails.
 
@@ -30,7 +32,7 @@ _LANE_CAR_BOXES = np.arange(39, 45)
 #: Seconds between sweeps at which the movers' speeds are applied (10 Hz LiDARs).
 SWEEP_DT_S = 0.1
 #: Counts of the added primitives (fixed for every seed).
-PEDESTRIANS, HEDGE_BOXES, TREE_BOXES, SLATS, SIGN_POSTS = 4, 12, 5, 28, 6
+PEDESTRIANS, HEDGE_BOXES, HEDGE_BUSHES, CANOPY_SPHERES, SLATS, SIGN_POSTS = 4, 12, 6, 6, 28, 6
 
 
 def _movers(seed: int):
@@ -88,15 +90,8 @@ def _clutter(seed: int):
             boxes.append(box_row(x, side * rng.uniform(6.6, 7.3), 0.0, length, rng.uniform(0.5, 1.1),
                               rng.uniform(0.7, 1.6), math.radians(rng.uniform(-35.0, 35.0))))
             x += 0.7 * length
-    for i in range(3):
-        side = 1.0 if i != 1 else -1.0
-        tx, ty = rng.uniform(-25.0, 60.0), side * rng.uniform(6.4, 7.2)
-        trunk_h = rng.uniform(2.0, 3.0)
+    for tx, ty, trunk_h in _trees(seed):
         cyls.append([tx, ty, rng.uniform(0.12, 0.2), 0.0, trunk_h + 0.3])
-        for _ in range(TREE_BOXES):
-            size = rng.uniform(1.0, 2.2)
-            boxes.append(box_row(tx + rng.uniform(-0.8, 0.8), ty + rng.uniform(-0.8, 0.8), trunk_h + rng.uniform(0, 1.5),
-                              size, rng.uniform(0.8, 2.0), rng.uniform(0.8, 1.8), rng.uniform(0.0, math.pi)))
     for _ in range(SIGN_POSTS):
         cyls.append([rng.uniform(-30.0, 60.0), rng.choice([1.0, -1.0]) * rng.uniform(5.2, 6.0),
                      rng.uniform(0.025, 0.05), 0.0, rng.uniform(2.2, 3.2)])
@@ -107,6 +102,31 @@ def _clutter(seed: int):
     for z in (0.25, 0.95):
         boxes.append(box_row(fx + 0.075 * (SLATS - 1), fy - 0.04, z, 0.15 * SLATS, 0.04, 0.06, 0.0))
     return boxes, cyls
+
+
+def _trees(seed: int):
+    """(x, y, trunk height) of the three trees."""
+    rng = np.random.default_rng([seed, 37, 3])
+    return [(rng.uniform(-25.0, 60.0), (1.0 if i != 1 else -1.0) * rng.uniform(6.4, 7.2), rng.uniform(2.0, 3.0))
+            for i in range(3)]
+
+
+def twin_spheres(seed: int) -> np.ndarray:
+    """(S, 4) float32 ``[cx, cy, cz, radius]`` of the vegetation's spheres (static; frame ``W``):
+    each tree's canopy of overlapping spheres and the bushes bulging out of the two hedges."""
+    rng = np.random.default_rng([seed, 37, 4])
+    out = []
+    for tx, ty, trunk_h in _trees(seed):
+        for _ in range(CANOPY_SPHERES):
+            r = rng.uniform(0.6, 1.3)
+            out.append([tx + rng.uniform(-1.0, 1.0), ty + rng.uniform(-1.0, 1.0), trunk_h + r + rng.uniform(-0.4, 0.8), r])
+    hedge = np.random.default_rng([seed, 37, 2])
+    for side, x_start in ((1.0, hedge.uniform(-20.0, -8.0)), (-1.0, hedge.uniform(40.0, 55.0))):
+        for _ in range(HEDGE_BUSHES):
+            r = rng.uniform(0.35, 0.75)
+            out.append([x_start + rng.uniform(0.0, 0.7 * 0.85 * HEDGE_BOXES), side * rng.uniform(6.3, 6.9),
+                        rng.uniform(0.3, 1.0), r])
+    return np.asarray(out, np.float32)
 
 
 def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArrays:
@@ -130,4 +150,4 @@ def mover_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArra
     return scene_arrays(boxes=boxes, cylinders=cyls)
 
 
-__all__ = ["twin_scene", "mover_scene", "SWEEP_DT_S"]
+__all__ = ["SWEEP_DT_S", "mover_scene", "twin_scene", "twin_spheres"]

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.scene import SceneArrays, cast_rays
+from jaxdepth._src.scene import SceneArrays, camera_rays, cast_rays
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,11 +139,49 @@ def rosette_unit(name: str, *, points: int = 40000, half_fov_deg: float = 35.0, 
                 np.zeros(points, np.int32))
 
 
+def sphere_hits(origin: jax.Array, d: jax.Array, spheres: jax.Array) -> jax.Array:
+    """(N,) first-hit ray parameter of rays ``origin (3,) + t d (N, 3)`` on solid spheres, inf if none.
+
+    ``spheres`` (S, 4) ``[cx, cy, cz, radius]``; visited by ``lax.scan`` (O(N) working set). A ray
+    starting inside a sphere returns its exit. Closest-approach form: ``t = t_c -+ sqrt((r^2 - m^2) / a)``.
+    """
+    a = jnp.sum(d * d, axis=1)
+    inv_a = 1.0 / jnp.where(a > 0, a, 1.0)
+
+    def body(t_best, sph):
+        oc = origin - sph[:3]
+        t_c = -(d @ oc) * inv_a
+        m = oc + t_c[:, None] * d
+        h2 = (sph[3] * sph[3] - jnp.sum(m * m, axis=1)) * inv_a
+        half = jnp.sqrt(jnp.where(h2 >= 0, h2, 0.0))
+        t_in = t_c - half
+        t = jnp.where(t_in > 1e-6, t_in, t_c + half)
+        return jnp.minimum(t_best, jnp.where((h2 >= 0) & (t > 1e-6), t, jnp.inf)), None
+
+    t, _ = jax.lax.scan(body, jnp.full(d.shape[:1], jnp.inf, jnp.float32), jnp.asarray(spheres, jnp.float32))
+    return t
+
+
+def first_hits(origin, d, scene: SceneArrays, spheres) -> jax.Array:
+    """(N,) first hit on the scene's primitives (:func:`jaxdepth._src.scene.cast_rays`) or the spheres."""
+    return jnp.minimum(cast_rays(origin, d, scene), sphere_hits(origin, d, spheres))
+
+
+@jax.jit
+def render_twin_depth(camera, scene: SceneArrays, spheres, max_range_m) -> jax.Array:
+    """(H, W) float32 exact camera-frame depth of ``scene`` plus ``spheres`` (0 = nothing within
+    ``max_range_m`` along the ray), as :func:`jaxdepth._src.synthetic.render_depth`."""
+    origin, d = camera_rays(camera)
+    t = first_hits(origin, d, scene, spheres)
+    hit = t * jnp.linalg.norm(d, axis=1) <= max_range_m
+    return jnp.where(hit, t, 0.0).reshape(camera.height, camera.width)
+
+
 @functools.partial(jax.jit, static_argnames=("rows", "cols"))
-def _cast_unit(scene: SceneArrays, origin, R, directions, draws, rates, *, rows: int, cols: int):
+def _cast_unit(scene: SceneArrays, spheres, origin, R, directions, draws, rates, *, rows: int, cols: int):
     """Exact ranges and the returned ranges of one unit's rays (see :func:`cast_unit`)."""
     d = directions @ R.T
-    t = cast_rays(origin, d, scene)
+    t = first_hits(origin, d, scene, spheres)
     max_range, noise_m, dropout, mixed, edge_m, edge_rel = (rates[i] for i in range(6))
     hit = t <= max_range
     r = jnp.where(hit, t, jnp.inf).reshape(rows, cols)
@@ -170,8 +208,9 @@ def _cast_unit(scene: SceneArrays, origin, R, directions, draws, rates, *, rows:
     return points.reshape(-1, 3), valid.reshape(-1), exact.reshape(-1, 3), (blend & valid).reshape(-1)
 
 
-def cast_unit(scene: SceneArrays, unit: Unit, T_world_unit: np.ndarray, effects: SensorEffects, rng_key) -> dict:
-    """One sweep of ``unit`` posed at ``T_world_unit`` (4, 4) in ``scene``.
+def cast_unit(scene: SceneArrays, spheres: np.ndarray, unit: Unit, T_world_unit: np.ndarray, effects: SensorEffects,
+              rng_key) -> dict:
+    """One sweep of ``unit`` posed at ``T_world_unit`` (4, 4) in ``scene`` plus ``spheres`` (S, 4).
 
     Args:
       rng_key: a ``numpy.random.default_rng`` seed (e.g. ``[seed, sweep, unit]``) for the effects' draws.
@@ -189,11 +228,11 @@ def cast_unit(scene: SceneArrays, unit: Unit, T_world_unit: np.ndarray, effects:
                       rng.random(n)]).astype(np.float32)
     rates = np.array([unit.max_range_m, effects.noise_m, effects.dropout, effects.mixed, effects.edge_m,
                       effects.edge_rel], np.float32)
-    pts, valid, exact, mixed = _cast_unit(scene, origin.astype(np.float32), T[:3, :3].astype(np.float32),
+    pts, valid, exact, mixed = _cast_unit(scene, np.asarray(spheres, np.float32), origin.astype(np.float32), T[:3, :3].astype(np.float32),
                                           unit.directions, draws, rates, rows=unit.rows, cols=unit.cols)
     return {"points": np.asarray(pts), "valid": np.asarray(valid), "exact": np.asarray(exact),
             "mixed": np.asarray(mixed), "ring": unit.ring, "origin": origin}
 
 
 __all__ = ["SensorEffects", "NO_EFFECTS", "Unit", "spinning_unit", "raster_unit", "raster_lines_deg",
-           "rosette_unit", "cast_unit"]
+           "rosette_unit", "cast_unit", "sphere_hits", "first_hits", "render_twin_depth"]

@@ -52,9 +52,9 @@ AV2_CAMERAS = {
 #: Sensor effects per twin (benchmarks/results/twin_sensor_rates.json; docs/twins.md says where
 #: each comes from).
 SENSOR_EFFECTS = {
-    "kitti": {"noise_m": 0.03085, "dropout": 0.01399, "mixed": 0},
-    "nuscenes": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
-    "av2": {"noise_m": 0.005025, "dropout": 0.04603, "mixed": 0.02734},
-    "raster": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
-    "rosette": {"noise_m": 0.008995, "dropout": 0.03497, "mixed": 0.01953},
+    "kitti": {"noise_m": 0.03079, "dropout": 0.01399, "mixed": 0},
+    "nuscenes": {"noise_m": 0.008975, "dropout": 0.03497, "mixed": 0.02734},
+    "av2": {"noise_m": 0.005023, "dropout": 0.04603, "mixed": 0.01953},
+    "raster": {"noise_m": 0.008975, "dropout": 0.03497, "mixed": 0.01953},
+    "rosette": {"noise_m": 0.008975, "dropout": 0.03497, "mixed": 0.01953},
 }

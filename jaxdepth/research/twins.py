@@ -22,12 +22,12 @@ import pathlib
 
 import numpy as np
 
-from jaxdepth._src.synthetic import render_depth, scaled_intrinsics
+from jaxdepth._src.synthetic import scaled_intrinsics
 from jaxdepth._src.types import Camera, SourceCloud
 from jaxdepth.io.rig import Rig, RigCamera, RigLidar
 from jaxdepth.research import twin_scene
 from jaxdepth.research.twin_rigs import RIG_BUILDERS, RigDef
-from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit
+from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit, render_twin_depth
 from jaxdepth.research.twin_tables import SENSOR_EFFECTS
 
 TWIN_RIGS: tuple = ("kitti", "nuscenes", "av2", "raster", "rosette")
@@ -146,6 +146,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
     T_ref_world = np.linalg.inv(T_world_points[0])
     parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
     poses, specs, sweep_ids, names = [], [], [], []
+    spheres = twin_scene.twin_spheres(seed)
     for k, T_world_k in enumerate(T_world_points):
         scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
         T_ref_points = T_ref_world @ T_world_k
@@ -156,7 +157,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
             names.append(f"{_source_name(rdef)}@{k}")
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             unit = make_unit(k)
-            out = cast_unit(scene, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
+            out = cast_unit(scene, spheres, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
             if rdef.per_unit_sources:
                 poses.append(T_ref_points @ T_points_unit)
                 specs.append(rdef.stated[u])
@@ -208,7 +209,9 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
     T_ref_world = np.linalg.inv(T_world_points[0])
     rig_cams, world_cams = _cameras(rdef, float(scale), T_world_points[0])
     scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s)
-    depths = tuple(np.asarray(render_depth(cam, scene0, max_range_m=CAMERA_MAX_RANGE_M)) for cam in world_cams)
+    spheres = twin_scene.twin_spheres(int(seed))
+    depths = tuple(np.asarray(render_twin_depth(cam, scene0, spheres, np.float32(CAMERA_MAX_RANGE_M)))
+                   for cam in world_cams)
     H, W = max(d.shape[0] for d in depths), max(d.shape[1] for d in depths)
     canvas = np.zeros((len(depths), H, W), np.float32)
     for c, d in enumerate(depths):
