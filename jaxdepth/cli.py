@@ -516,8 +516,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_complete_rig_command(sub)
     _add_eval_command(sub)
     from jaxdepth.research import cli as research_cli
-    research_cli.register(sub)
+    research_cli.register(sub, complete_cloud=_complete_cloud)
     return parser
+
+
+def _complete_cloud(*args, **kwargs):
+    """:func:`jaxdepth.batch.sources_job.complete_cloud`, loaded on use (hidden-eval's multi-source path)."""
+    from jaxdepth.batch.sources_job import complete_cloud
+    return complete_cloud(*args, **kwargs)
 
 
 def _add_demo_command(sub) -> None:

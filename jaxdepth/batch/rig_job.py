@@ -69,7 +69,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         images from ``image_dir`` or the rig JSON's ``image`` fields.
       extras: the extra outputs (:mod:`jaxdepth.batch.extras`).
       point_columns: float32 values per ``.bin`` record (None: inferred).
-      estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`).
+      estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`; several sweeps:
+        :func:`jaxdepth.io.sweep_frame.prepare_cloud`, the same decision).
       overwrite: replace existing outputs (default: skip them).
       report: ``report(kind, text)`` for every message (see the module docstring).
       force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
@@ -105,10 +106,15 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         from jaxdepth.batch.sources_job import complete_cloud
         from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
         read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+        from jaxdepth.batch.sources_job import checked_cloud
         cloud = read(points_path, rig, point_columns=point_columns)
         report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
         cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = complete_cloud(cloud, rig, config=config, images=images, stages=True)
+        stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
     else:
         points, extra = read_points(points_path, columns=columns, force=force)
         if rig.columns is not None:
@@ -139,7 +145,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
             message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
                        f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
                        "looks along +z, x right, y down)")
-            log.warning("%s", message)
+            if report is _ignore:          # no reporter (the API): the log; the CLI prints it once itself
+                log.warning("%s", message)
             report("warning", message)
             summary.empty_cameras.append(camera.name)
         target = out_dir / f"{camera.name}.png"

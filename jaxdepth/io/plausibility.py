@@ -179,7 +179,8 @@ def _forced(path: PathLike, problem: str) -> None:
 
 def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = None,
                 intensity: np.ndarray | None = None, ring: np.ndarray | None = None,
-                raw: bytes | None = None, force: bool = False) -> None:
+                raw: bytes | None = None, force: bool = False,
+                columns_option: str | None = "--point-columns N") -> None:
     """Refuses a sweep no LiDAR produces (see module docs).
 
     Args:
@@ -189,6 +190,8 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
       intensity, ring: (N,) columns as read, or None.
       raw: the file's bytes; when given, a refusal lists the layouts they fit.
       force: log the problem as a warning instead of raising.
+      columns_option: how the caller's user picks another layout, named after the layouts the bytes
+        fit; None where the layout fixes the column count (KITTI raw / object jobs).
 
     Raises:
       InputError: ``<path>: not a plausible LiDAR sweep when read as ...: <measured>;
@@ -204,7 +207,9 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
     hint = ""
     if raw is not None:
         fits = suggest_layouts(raw, exclude=("<f4", columns) if columns else None)
-        hint = ("; the bytes fit " + " or ".join(f"{f}?" for f in fits) + " (--point-columns N)") if fits else \
+        how_else = (f" ({columns_option})" if columns_option else
+                    f" (this dataset's sweeps are {columns} float32 per point: a file of another dataset?)")
+        hint = ("; the bytes fit " + " or ".join(f"{f}?" for f in fits) + how_else) if fits else \
             "; no other layout (3-6 float32 or 3-5 float64 per point) fits either"
     raise file_error(path, f"not a plausible LiDAR sweep{how}: {problem}{hint}; --force uses it anyway")
 
