@@ -14,7 +14,6 @@ import json
 import pathlib
 import sys
 
-import numpy as np
 
 from jaxdepth import SGMConfig
 from jaxdepth._src import presets

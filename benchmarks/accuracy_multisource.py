@@ -195,10 +195,10 @@ def av2_rows(config, *, fraction=0.2, seed=0, cameras=RING_CAMERAS):
 # ---------------------------------------------------------------- synthetic sequences (exact depth)
 
 def _sequence_cloud(sq, n_sweeps):
-    """The first ``n_sweeps`` sweeps of a synthetic drive (its sources are ordered sweep-major)."""
+    """The latest ``n_sweeps`` sweeps of a synthetic drive (sweep 0, -1, ...; sources ordered sweep-major)."""
     c = sq
-    keep = c.sweep[c.source] < n_sweeps
-    S = int(np.sum(c.sweep < n_sweeps))
+    keep = c.sweep[c.source] > -n_sweeps
+    S = int(np.sum(c.sweep > -n_sweeps))
     return SourceCloud(points=c.points[keep], source=c.source[keep], T_ref_source=c.T_ref_source[:S],
                        lidars=c.lidars[:S], sweep=c.sweep[:S], names=c.names[:S])
 
@@ -537,9 +537,12 @@ def main(argv=None) -> int:
                              for scale in args.sequence_scales}}
         old = out / "accuracy_sequences.json"
         old = json.loads(old.read_text()) if old.exists() else {}
-        doc.update({k: v for k, v in old.items() if k not in doc and k != "platform"})    # e.g. tuning records
+        # only what this script writes is carried over (the speed section of an earlier --speed-only run):
+        # a record that no script regenerates does not live in a results file
         if not args.skip_speed:
             doc["speed"] = speed_sequences(config)
+        elif "speed" in old:
+            doc["speed"] = old["speed"]
         write(out / "accuracy_sequences.json", doc)
     return 0
 

@@ -33,14 +33,9 @@ from __future__ import annotations
 
 import argparse
 import glob
-import json
-import os
-import pathlib
-import platform
 import sys
 import time
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 

@@ -87,8 +87,8 @@ def main(argv):
     print(f"wrote {out}")
     if "--write-images" in argv:
         for path, mask in ((ROOT / "docs/images/validity_nuscenes.png", masks_n[("sensor rule", "CAM_FRONT")]),
-                           (ROOT / "docs/images/validity_kitti.png", next(v for (l, _), v in masks_k.items()
-                                                                          if l == "sensor rule"))):
+                           (ROOT / "docs/images/validity_kitti.png", next(v for (rule, _), v in masks_k.items()
+                                                                          if rule == "sensor rule"))):
             img = np.where(mask, 255, 0).astype(np.uint8)
             img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
             cv2.imwrite(str(path), img, [cv2.IMWRITE_PNG_COMPRESSION, 9])

@@ -1,6 +1,6 @@
 """Command line: a thin layer of argument parsing, exit codes and progress over the library.
 
-Exit codes: 0 success, 1 data error (one-line message) or failed frames, 2 usage error.
+Exit codes: 0 success, 1 data error (one-line message) or failed items, 2 usage error, 130 interrupted (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -11,39 +11,14 @@ import pathlib
 import sys
 import time
 
-from jaxdepth import __version__
+from jaxdepth import __version__, interrupts
 from jaxdepth.batch import devices
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 from jaxdepth.options import add_config_options, config_changes
+from jaxdepth.progress import Progress
 
 log = logging.getLogger("jaxdepth")
-
-
-class Progress:
-    """A small progress line on stderr (no dependency); silent with --quiet or when not a TTY."""
-
-    def __init__(self, total: int, *, enabled: bool = True, label: str = ""):
-        self.total, self.count, self.label = total, 0, label
-        self.enabled = enabled
-        self.tty = enabled and sys.stderr.isatty()
-        self.start = time.perf_counter()
-
-    def update(self, name: str, status: str):
-        self.count += 1
-        if not self.enabled:
-            return
-        rate = self.count / max(time.perf_counter() - self.start, 1e-9)
-        line = f"{self.label}[{self.count}/{self.total}] {rate:5.1f} frames/s  {name}: {status}"
-        if status.startswith("failed"):
-            sys.stderr.write(("\r\033[K" if self.tty else "") + line + "\n")
-        elif self.tty:
-            sys.stderr.write("\r\033[K" + line)
-        sys.stderr.flush()
-
-    def close(self):
-        if self.tty:
-            sys.stderr.write("\n")
 
 
 def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest", "ip-basic")):
@@ -129,7 +104,7 @@ def cmd_complete(args) -> int:
         extrinsic_of = KittiExtrinsics(args.calib_dir, camera=args.camera)
     if scan is not None:
         _claim_output_folder(dst, args, inputs=[src], out_paths=[job.out_path for job in jobs], crop=args.crop,
-                             camera=args.camera)
+                             camera=args.camera, outputs=_job_identities(jobs, args))
         from jaxdepth.io.atomic import make_output_folders
         make_output_folders(job.out_path for job in jobs)
     elif src.is_file() or src.suffix.lower() == ".png":
@@ -151,7 +126,7 @@ def cmd_complete(args) -> int:
                                 intrinsics_path=k_path, K=K_override, T_cam_lidar=extrinsic_of(png),
                                 image_path=image_of(png))
                 for name, png, k_path in frames]
-        _claim_output_folder(dst, args, inputs=[src], camera=args.camera,
+        _claim_output_folder(dst, args, inputs=[src], camera=args.camera, outputs=_job_identities(jobs, args),
                              intrinsics=None if args.intrinsics is None else str(args.intrinsics),
                              extrinsic=None if args.extrinsic is None else str(args.extrinsic))
     return _run_frame_jobs(_forced_jobs(jobs, args), pre_failed, args)
@@ -165,7 +140,8 @@ def _run_frame_jobs(jobs, pre_failed, args) -> int:
     if args.engine == "ray" and args.png_compression != _PNG_COMPRESSION_DEFAULT:
         print("jaxdepth: error: --png-compression is only supported with --engine local", file=sys.stderr)
         return 2
-    progress = Progress(len(jobs) + len(pre_failed), enabled=not args.quiet)
+    unit = "sweeps" if jobs and jobs[0].image_size is not None else "images"
+    progress = _progress(args, len(jobs) + len(pre_failed), unit)
     for name, message in pre_failed:
         progress.update(name, f"failed: {message}")
     if args.engine == "ray":
@@ -181,7 +157,7 @@ def _run_frame_jobs(jobs, pre_failed, args) -> int:
                                   extras=_extras_from(args))
     progress.close()
     summary.failed[:0] = pre_failed
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit=unit)
 
 
 def _complete_own_job(args) -> int | None:
@@ -231,14 +207,14 @@ def _cmd_complete_av2(args) -> int:
     _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0, time=time_,
                          cameras=None if cameras is None else ",".join(cameras))
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
-    progress = Progress(total, enabled=not args.quiet, label="sweep ")
+    progress = _progress(args, total, "sweeps")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
                       overwrite=args.overwrite, png_compression=args.png_compression,
                       io_threads=devices.io_threads(), on_progress=progress.update, force=args.force,
                       time=time_, method=args.method, extras=_extras_from(args),
                       on_note=lambda text: print(f"jaxdepth: note: {text}", file=sys.stderr))
     progress.close()
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
 
 def _cmd_complete_kitti_sweeps(args, scan) -> int:
@@ -255,10 +231,11 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
+    from jaxdepth.batch.kitti_sweeps_job import sweep_identities
     _claim_output_folder(pathlib.Path(args.dst), args, inputs=[args.src],
                          out_paths=[job.out_path for job in scan.jobs], crop=args.crop, camera=args.camera,
-                         sweeps=args.sweeps)
-    progress = Progress(len({job.sparse_path for job in scan.jobs}), enabled=not args.quiet, label="sweep ")
+                         sweeps=args.sweeps, outputs=sweep_identities(scan.jobs, sweeps=args.sweeps))
+    progress = _progress(args, len({job.sparse_path for job in scan.jobs}), "sweeps")
     for name, message in scan.failed:
         progress.update(name, f"failed: {message}")
     summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
@@ -266,7 +243,7 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
                                    io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
     progress.close()
     summary.failed[:0] = scan.failed
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
 
 def _guidance_usage(args) -> str | None:
@@ -344,17 +321,24 @@ def _forced_jobs(jobs, args):
     return [dataclasses.replace(job, force=True) for job in jobs]
 
 
-def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), **options):
-    """Checks the output folder's run record against this run's settings and writes it
-    (:mod:`jaxdepth.batch.run_record`; KITTI trees: one per ``proj_depth/<name>``): a re-run with
-    other settings is refused unless --overwrite."""
+def _job_identities(jobs, args) -> dict:
+    """``{output: input identity}`` of ``complete``'s frame jobs (:func:`jaxdepth.batch.runner.job_identity`)."""
+    from jaxdepth.batch.runner import job_identity
+    return {job.out_path: job_identity(job, guided=args.guidance_weight > 0) for job in jobs}
+
+
+def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), outputs=None, **options):
+    """Checks the output folder's run record against this run's settings, output version and inputs
+    (``outputs``: ``{output: input identity}``) and writes it (:mod:`jaxdepth.batch.run_record`; KITTI
+    trees: one per ``proj_depth/<name>``): a re-run with other settings or another output version is
+    refused unless --overwrite; outputs whose inputs changed are removed and so recomputed."""
     from jaxdepth.batch import run_record
     _ensure_writable_dir(dst)
     settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
     more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
     record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
     for folder in run_record.record_folders(dst, out_paths):
-        run_record.claim_folder(folder, record, overwrite=args.overwrite)
+        run_record.claim_folder(folder, record, overwrite=args.overwrite, outputs=outputs)
 
 
 def _ensure_writable_dir(path: pathlib.Path):
@@ -362,31 +346,17 @@ def _ensure_writable_dir(path: pathlib.Path):
     ensure_output_dir(path)
 
 
-def _report(summary, quiet: bool, *, t_start: float | None = None) -> int:
-    for name, message in summary.failed:
-        print(f"FAILED {name}: {message}", file=sys.stderr)
-    if not quiet or summary.failed:
-        print(f"{len(summary.done)} completed, {len(summary.skipped)} skipped (already done), "
-              f"{len(summary.failed)} failed", file=sys.stderr)
-    if not quiet and t_start is not None:
-        print(_timing_line(summary, t_start, time.perf_counter()), file=sys.stderr)
-    return 0 if summary.ok else 1
+def _progress(args, total: int, unit: str, label: str = "complete") -> Progress:
+    """The job's progress on stderr (:mod:`jaxdepth.progress`): a live line on a terminal, a line every
+    few seconds in a log; ``-v`` adds one line per item; silent with ``--quiet``."""
+    return Progress(total, enabled=not getattr(args, "quiet", False), unit=unit, label=label,
+                    verbose=bool(getattr(args, "verbose", False)))
 
 
-def _timing_line(summary, t_start: float, t_end: float) -> str:
-    """Wall time, start-up (command start -> frames start: imports, JAX, listing) and first-frame
-    latency (command start -> first output in place: adds compile-cache load and one batch)."""
-    total = t_end - t_start
-    parts = [f"{total:.1f} s"]
-    if summary.done:
-        parts[0] += f" ({len(summary.done) / max(total, 1e-9):.1f} frames/s)"
-    started = getattr(summary, "started_at", None)
-    if started is not None:
-        parts.append(f"start-up {started - t_start:.2f} s")
-    first = getattr(summary, "first_output_at", None)
-    if first is not None:
-        parts.append(f"first frame written at {first - t_start:.2f} s")
-    return "time: " + ", ".join(parts)
+def _report(summary, quiet: bool, *, t_start: float | None = None, unit: str = "images") -> int:
+    """The job's summary on stderr (:func:`jaxdepth.progress.report_summary`); the exit code."""
+    from jaxdepth.progress import report_summary
+    return report_summary(summary, quiet=quiet, t_start=t_start, unit=unit)
 
 
 def _add_nuscenes_options(parser) -> None:
@@ -433,8 +403,10 @@ def _cmd_complete_nuscenes(args) -> int:
     from jaxdepth.io import nuscenes as nusc
     tables = nusc.load_tables(args.src, args.nusc_version)
     # outputs go to DST/<version>/...: the version is an input, not a setting
-    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion)
-    progress = Progress(len(tables.tables["sample"]), enabled=not args.quiet, label="sample ")
+    from jaxdepth.batch.nuscenes_job import output_identities
+    _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps, ego_motion=args.ego_motion,
+                         outputs=output_identities(tables, dst, sweeps=args.sweeps, guided=args.guidance_weight > 0))
+    progress = _progress(args, len(tables.tables["sample"]), "samples")
     options = dict(version=args.nusc_version, sweeps=args.sweeps, ego_motion=args.ego_motion,
                    config=_config_from(args), overwrite=args.overwrite, png_compression=args.png_compression,
                    on_progress=progress.update, tables=tables, extras=_extras_from(args),
@@ -448,7 +420,7 @@ def _cmd_complete_nuscenes(args) -> int:
     else:
         summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), **options)
     progress.close()
-    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None))
+    return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="samples")
 
 
 def cmd_complete_rig(args) -> int:
@@ -474,9 +446,14 @@ def cmd_complete_rig(args) -> int:
                                       estimate=not args.no_estimate)
     record = run_record.make_record(settings, inputs=[args.points, args.rig],
                                     command=getattr(args, "command_line", None))
-    summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args), extras=_extras_from(args),
-                          point_columns=args.point_columns, estimate=not args.no_estimate, image_dir=args.image_dir,
-                          overwrite=args.overwrite, report=report, force=args.force, record=record)
+    progress = _progress(args, 1, "sweeps", label="complete-rig")
+    try:
+        summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args),
+                              extras=_extras_from(args), point_columns=args.point_columns,
+                              estimate=not args.no_estimate, image_dir=args.image_dir, overwrite=args.overwrite,
+                              report=report, force=args.force, record=record)
+    finally:
+        progress.close()
     return summary.exit_code
 
 
@@ -497,7 +474,7 @@ def cmd_eval(args) -> int:
     else:
         for line in run_record.summary_lines(found[1], path=found[0]):
             print(line)
-        table["prediction_run"] = dict(found[1], path=str(found[0]))
+        table["prediction_run"] = dict({k: v for k, v in found[1].items() if k != "outputs"}, path=str(found[0]))
     evaluation.write_table(table, json_path=args.json, csv_path=args.csv)
     return 0
 
@@ -516,8 +493,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_complete_rig_command(sub)
     _add_eval_command(sub)
     from jaxdepth.research import cli as research_cli
-    research_cli.register(sub)
+    research_cli.register(sub, complete_cloud=_complete_cloud)
     return parser
+
+
+def _complete_cloud(*args, **kwargs):
+    """:func:`jaxdepth.batch.sources_job.complete_cloud`, loaded on use (hidden-eval's multi-source path)."""
+    from jaxdepth.batch.sources_job import complete_cloud
+    return complete_cloud(*args, **kwargs)
 
 
 def _add_demo_command(sub) -> None:
@@ -664,7 +647,13 @@ def _add_eval_command(sub) -> None:
 
 
 def main(argv=None) -> int:
+    """The ``jaxdepth`` command. As the program (``argv`` None) a Ctrl-C ends the process with exit 130
+    through :mod:`jaxdepth.interrupts`, never through the interpreter's shutdown (which crashes while
+    XLA's compile threads run); a second Ctrl-C stops at once. Called with ``argv`` (tests) it returns 130."""
     t_start = time.perf_counter()
+    program = argv is None
+    if program:
+        interrupts.catch()
     parser = build_parser()
     args = parser.parse_args(argv)
     # Our own logger follows -v; other libraries' (JAX's) INFO notes are not shown to users.
@@ -674,18 +663,20 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    devices.quiet_jax_start()
     args.t_start = t_start
     args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
-    devices.use_compile_cache(args.compile_cache)
     try:
-        return int(args.func(args) or 0)
+        devices.quiet_jax_start()
+        devices.use_compile_cache(args.compile_cache)
+        code = int(args.func(args) or 0)
     except JaxdepthError as err:
         print(f"jaxdepth: error: {err}", file=sys.stderr)
-        return 1
+        code = 1
     except KeyboardInterrupt:
-        print("jaxdepth: interrupted; finished outputs are complete, re-run to resume", file=sys.stderr)
-        return 130
+        code = interrupts.interrupted(end_process=program)
+    if program and interrupts.received():  # a Ctrl-C that JAX swallowed (e.g. in its gc callback) still stops
+        code = interrupts.interrupted(end_process=True)
+    return code
 
 
 if __name__ == "__main__":

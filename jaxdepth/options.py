@@ -26,6 +26,43 @@ def add_config_options(p: argparse.ArgumentParser) -> None:
                    help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
                         "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
                         "scan-line spacing), blend (also average in those pixels' own planes)")
+    add_sources_options(p)
+
+
+def _sweeps_count(text: str):
+    """--neighbour-sweeps: an integer >= 0, or "all" (None: every other sweep)."""
+    if text == "all":
+        return None
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0 or 'all', got {text!r}")
+    return value
+
+
+#: The multi-source options (docs/multi_source.md): flag -> (SGMConfig field, type, metavar, what it sets).
+#: Unset flags keep the config's default.
+_SOURCES_OPTIONS = {
+    "--free-space-noise": ("free_space_noise_m", float, "M", "range noise and pose error in the free-space margin, "
+                           "metres (default 0.3)"),
+    "--free-space-slope": ("free_space_slope", float, "K", "gaps between neighbouring lasers in the margin "
+                           "(default 2.0)"),
+    "--free-space-min-cells": ("free_space_min_cells", int, "N", "measured cells (of the 2 x 2 bracketing a point) a "
+                               "LiDAR needs to judge it, 1-4 (default 3)"),
+    "--neighbour-sweeps": ("free_space_neighbour_sweeps", _sweeps_count, "N|all", "sweeps on each side the other "
+                           "sweeps' LiDARs judge (default 0; all: every sweep, a cost quadratic in the sweeps)"),
+    "--occlusion-max-baseline": ("occlusion_max_baseline_m", float, "M", "largest camera-to-LiDAR distance of the "
+                                 "occlusion test of other sweeps' points, metres (default 1.0)"),
+}
+
+
+def add_sources_options(p: argparse.ArgumentParser) -> None:
+    """The multi-source SGMConfig options (free space, occlusion), part of :func:`add_config_options`."""
+    for flag, (field, kind, metavar, what) in _SOURCES_OPTIONS.items():
+        p.add_argument(flag, dest=field, type=kind, metavar=metavar, default=argparse.SUPPRESS,
+                       help=f"several LiDARs / sweeps: {what}")
 
 
 def config_changes(args) -> dict:
@@ -33,4 +70,5 @@ def config_changes(args) -> dict:
     changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
+    changes.update({f: getattr(args, f) for f, *_ in _SOURCES_OPTIONS.values() if hasattr(args, f)})
     return changes

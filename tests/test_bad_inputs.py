@@ -60,6 +60,8 @@ def test_kitti_raw_job_refuses_a_bin_with_another_column_count(tmp_path, capsys,
     line = _one_line_error(err)
     assert code == 1 and "0000000005.bin: not a plausible LiDAR sweep when read as 4 float32 per point" in line
     assert fits in line and "--force" in line
+    # `complete` has no --point-columns (a KITTI raw sweep is 4 columns): the hint names the layout instead
+    assert "--point-columns" not in line and "this dataset's sweeps are 4 float32 per point" in line
     assert not list((tmp_path / "out").rglob("*.png"))
 
 

@@ -105,7 +105,7 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
 
 
 @pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
-def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
+def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys, caplog):
     """The stereo rig of the shared small street (``scenes.stereo_street``: the same compiled completion as
     tests/test_rig.py) with CAM_B turned to look straight up, above the LiDAR's field of view (+2 degrees):
     it sees none of the sweep's points, is warned about and written all zero; CAM_A is not."""
@@ -125,6 +125,9 @@ def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys):
     code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
     err = capsys.readouterr().err
     assert code == 0 and "CAM_B: no LiDAR point projects into this camera" in err and "CAM_A: no LiDAR" not in err
+    # said once: the command prints the job's report, the job does not log it as well
+    assert err.count("CAM_B: no LiDAR point") == 1
+    assert not [r for r in caplog.records if "no LiDAR point" in r.getMessage()]
     assert not read_depth_png(tmp_path / "out" / "CAM_B.png").any()
     assert read_depth_png(tmp_path / "out" / "CAM_A.png").all()
 

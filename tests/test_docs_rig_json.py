@@ -79,10 +79,13 @@ def test_sweeps_example(tmp_path):
     written = [_sweep_file(tmp_path / e["file"], rig_doc, e.get("columns", rig.columns), seed=k)
                for k, e in enumerate(doc["sweeps"])]
     cloud = read_sweeps_cloud(path, rig)
-    assert cloud.names == ("up_lidar@0", "down_lidar@0", "up_lidar@1", "down_lidar@1", "up_lidar@2", "down_lidar@2")
-    assert list(cloud.sweep) == [0, 0, 1, 1, 2, 2]
+    # listed in time order, the reference last: sweeps -2, -1, 0; the cloud puts the reference first
+    assert cloud.names == ("up_lidar@0", "down_lidar@0", "up_lidar@-2", "down_lidar@-2", "up_lidar@-1",
+                           "down_lidar@-1")
+    assert list(cloud.sweep) == [0, 0, -2, -2, -1, -1]
+    order = [2, 0, 1]
     start = 0
-    for k, (entry, values) in enumerate(zip(doc["sweeps"], written)):
+    for k, (entry, values) in enumerate((doc["sweeps"][i], written[i]) for i in order):
         T_ref_sweep = np.asarray(entry["T_ref_sweep"])
         got = cloud.points[start:start + len(values)]
         np.testing.assert_allclose(got, values[:, :3] @ T_ref_sweep[:3, :3].T + T_ref_sweep[:3, 3], atol=1e-4)
@@ -90,4 +93,5 @@ def test_sweeps_example(tmp_path):
             np.testing.assert_allclose(cloud.T_ref_source[2 * k + j], T_ref_sweep @ np.asarray(lidar["T_points_lidar"]),
                                        atol=1e-6)
         start += len(values)
-    assert cloud.ring is not None and np.all(cloud.ring[-len(written[2]):] == -1)   # its own columns: no ring
+    own = slice(len(written[2]), len(written[2]) + len(written[0]))   # 000008: its own columns, no ring
+    assert cloud.ring is not None and np.all(cloud.ring[own] == -1) and np.all(cloud.ring[:len(written[2])] >= 0)

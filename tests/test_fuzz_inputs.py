@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import pathlib
 import re
 
 import numpy as np
@@ -106,7 +105,7 @@ def _sweep_cases(rng, records: np.ndarray, *, columns: int, ring: bool):
     raw = records.astype("<f4").tobytes()
     record = 4 * columns
     kinds = ["truncate", "columns", "float64", "scale", "nan_some", "nan_all", "inf_some", "garbage", "zeros",
-             "intensity", "axes", "same"] + (["ring_fraction", "ring_shuffle", "ring_huge"] if ring else [])
+             "intensity", "axes", "same", "far"] + (["ring_fraction", "ring_shuffle", "ring_huge"] if ring else [])
     for _ in range(CASES):
         kind = kinds[rng.integers(len(kinds))]
         if kind == "truncate":
@@ -149,6 +148,15 @@ def _sweep_cases(rng, records: np.ndarray, *, columns: int, ring: bool):
             yield Case(kind, m.tobytes(), ERROR, columns=columns)
         elif kind == "same":
             yield Case(kind, raw, SAME, columns=columns)
+        elif kind == "far":  # some points pushed along their ray beyond any LiDAR's range (or just inside)
+            m = records.copy()
+            rows = rng.random(n) < rng.uniform(0.0005, 0.2)
+            rows[int(rng.integers(n))] = True
+            rows &= np.any(m[:, :3] != 0, axis=1)
+            target = rng.choice([900.0, 1.5e3, 1e5, 1e6, 1e30], size=int(rows.sum()))
+            scale = target / np.linalg.norm(m[rows, :3].astype(np.float64), axis=1)
+            m[rows, :3] = (m[rows, :3] * scale[:, None]).astype(np.float32)
+            yield Case(kind, m.tobytes(), _decode_far(m.tobytes(), columns), columns=columns)
         elif kind == "ring_fraction":
             m = records.copy()
             m[:, 4] += 0.5
@@ -167,6 +175,13 @@ def _decode(raw: bytes, columns: int):
     """Independent decode: (points, extra) of little-endian float32 records."""
     a = np.frombuffer(raw, "<f4").reshape(-1, columns)
     return a[:, :3], a[:, 3:]
+
+
+def _decode_far(raw: bytes, columns: int, limit_m: float = 1000.0):
+    """Independent decode of a sweep with far points: x, y, z NaN where the float64 range exceeds the limit."""
+    points, extra = _decode(raw, columns)
+    far = np.sqrt((points.astype(np.float64) ** 2).sum(axis=1)) > limit_m
+    return np.where(far[:, None], np.float32(np.nan), points), extra
 
 
 def _equal_sweeps(out, ref) -> bool:
@@ -496,3 +511,131 @@ def test_fuzz_extrinsic_txt(tmp_path):
     total = _run(tmp_path, "extrinsic", ".txt", _text_cases(rng, text), read_extrinsic_txt, reference,
                  lambda a, b: np.array_equal(a, b))
     assert total >= CASES
+
+
+# ------------------------------------------------------------------ calibrations against the sweep
+
+
+GEOMETRY_CASES = 400
+
+
+def _rotation(axis: int, degrees: float) -> np.ndarray:
+    """(4, 4) rotation about x (0), y (1) or z (2), an analytic oracle for the legitimate cases."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(4)
+    R[i, i] = R[j, j] = c
+    R[i, j], R[j, i] = -s, s
+    return R
+
+
+def _up_axis_moves(T: np.ndarray) -> float:
+    """Degrees between the camera's up axis under T and under inv(T), from the matrix alone."""
+    R = np.asarray(T, np.float64)[:3, :3]
+    return float(np.degrees(np.arccos(np.clip(R[1] @ R[:, 1], -1.0, 1.0))))
+
+
+def _geometry_cases(rng, cameras: dict, *, invertible: list):
+    """Mutations of {name: (K, T, width, height)}: inverted T / K scaled for another image size must
+    be refused with the named cause; a camera turned about the vertical, tilted by up to 20 deg in
+    pitch and roll, or resized together with its K must be accepted."""
+    kinds = ["inverted", "scaled", "turned", "resized", "same"]
+    for _ in range(GEOMETRY_CASES):
+        kind = kinds[rng.integers(len(kinds))]
+        new = {n: (np.array(K, np.float64), np.array(T, np.float64), w, h) for n, (K, T, w, h) in cameras.items()}
+        if kind == "inverted":
+            chosen = [n for n in invertible if rng.random() < 0.5] or [invertible[int(rng.integers(len(invertible)))]]
+            for n in chosen:
+                K, T, w, h = new[n]
+                new[n] = (K, np.linalg.inv(T), w, h)
+            yield kind, new, "T_cam_lidar looks inverted"
+        elif kind == "scaled":
+            s = float(rng.choice([0.5, 2.0, 0.25, 4.0]))
+            for n in [n for n in new if rng.random() < 0.5] or list(new)[:1]:
+                K, T, w, h = new[n]
+                K[:2] *= s
+                new[n] = (K, T, w, h)
+            yield kind, new, f"K seems scaled by {s:g} for this image size"
+        elif kind == "turned":
+            for n, (K, T, w, h) in new.items():
+                tilt = _rotation(0, rng.uniform(-14, 14)) @ _rotation(2, rng.uniform(-14, 14))  # pitch, roll
+                new[n] = (K, tilt @ T @ _rotation(2, rng.uniform(-180, 180)), w, h)
+            yield kind, new, None
+        elif kind == "resized":
+            s = float(rng.choice([0.5, 0.25, 2.0]))
+            for n, (K, T, w, h) in new.items():
+                K[:2] *= s
+                new[n] = (K, T, int(round(w * s)), int(round(h * s)))
+            yield kind, new, None
+        else:
+            yield kind, new, None
+
+
+def _run_geometry(tmp_path, name, cases, write, read, points):
+    """Writes each case with ``write``, reads it back with the dataset's reader, checks it against the sweep."""
+    from jaxdepth.io.plausibility import check_rig_geometry
+    counts: dict = {}
+    wrong = []
+    for i, (kind, cameras, cause) in enumerate(cases):
+        counts[kind] = counts.get(kind, 0) + 1
+        path = tmp_path / f"{name}_{i}.json"
+        write(path, cameras)
+        rig = read(path)
+        try:
+            check_rig_geometry(points, rig.cameras, path=path)
+        except JaxdepthError as err:
+            message = str(err)
+            assert "\n" not in message and path.name in message
+            if cause is None or cause not in message:
+                wrong.append((i, kind, message[:160]))
+            continue
+        if cause is not None:
+            wrong.append((i, kind, "accepted"))
+    assert not wrong, f"{name}: {len(wrong)} wrong outcomes, e.g. {wrong[:4]}"
+    print(f"\nfuzz {name} geometry: {sum(counts.values())} calibrations: "
+          + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+
+
+def test_fuzz_nuscenes_calibration_geometry(tmp_path):
+    """calibration.json with inverted lidar2cam / rescaled cam2img, read by the reader, checked against the sweep."""
+    from jaxdepth.io.rig import rig_from_nuscenes_calibration
+    sample = require_shared("nuscenes", "sample")
+    full = json.loads((sample / "calibration.json").read_text())
+    points = np.fromfile(next(sample.glob("*.pcd.bin")), "<f4").reshape(-1, 5)[:, :3]
+    cameras = {n: (np.asarray(c["cam2img"], np.float64)[:3, :3], np.asarray(c["lidar2cam"], np.float64), 1600, 900)
+               for n, c in full["cameras"].items()}
+    invertible = [n for n, (_, T, _, _) in cameras.items() if _up_axis_moves(T) > 60]
+    assert len(invertible) == 5  # all but CAM_BACK, whose rotation is its own inverse (docs/bad_input_checks.md)
+    sizes = {}
+
+    def write(path, cams):
+        sizes.clear()
+        sizes.update({n: (w, h) for n, (_, _, w, h) in cams.items()})
+        path.write_text(json.dumps({"cameras": {n: {"cam2img": K.tolist(), "lidar2cam": T.tolist()}
+                                                for n, (K, T, _, _) in cams.items()}}))
+
+    def read(path):  # one image size for the file, as the reader takes it
+        (w, h), = set(sizes.values())
+        return rig_from_nuscenes_calibration(path, width=w, height=h)
+
+    _run_geometry(tmp_path, "nuscenes", _geometry_cases(np.random.default_rng(SEED + 8), cameras,
+                                                        invertible=invertible), write, read, points)
+
+
+def test_fuzz_kitti_rig_geometry(tmp_path):
+    """The KITTI rig JSON (cameras 2, 3) with inverted / rescaled calibrations, checked against the sweep."""
+    from jaxdepth.io.rig import RigCamera, read_rig_json, rig_from_kitti_raw, write_rig_json
+    frame = require_shared("kitti", "drive_0001_frame05")
+    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt")
+    points = np.fromfile(frame / "lidar_data.bin", "<f4").reshape(-1, 4)[:, :3]
+    cameras = {c.name: (c.K, c.T_cam_lidar, c.width, c.height) for c in rig.cameras}
+    invertible = [n for n, (_, T, _, _) in cameras.items() if _up_axis_moves(T) > 60]
+    assert len(invertible) == 2
+
+    def write(path, cams):
+        import dataclasses
+        write_rig_json(path, dataclasses.replace(rig, cameras=tuple(
+            RigCamera(n, w, h, K.astype(np.float32), T.astype(np.float32)) for n, (K, T, w, h) in cams.items())))
+
+    _run_geometry(tmp_path, "kitti", _geometry_cases(np.random.default_rng(SEED + 9), cameras,
+                                                     invertible=invertible), write, read_rig_json, points)

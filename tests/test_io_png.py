@@ -28,6 +28,16 @@ def test_reads_official_velodyne_raw(kitti_frame):
     assert 0 < depth[depth > 0].min() and depth.max() < 256
 
 
+def test_every_uint16_value_reads_as_its_exact_metres(tmp_path):
+    """Each of the 65,536 stored values v decodes to exactly v / 256 (float64 oracle, PNG written by OpenCV)."""
+    values = np.arange(1 << 16, dtype=np.uint16).reshape(256, 256)
+    path = tmp_path / "all.png"
+    assert cv2.imwrite(str(path), values)
+    depth = read_depth_png(path)
+    assert depth.dtype == np.float32
+    np.testing.assert_array_equal(depth.astype(np.float64), values.astype(np.float64) / 256.0)
+
+
 def test_groundtruth_facts(kitti_frame):
     gt = read_depth_png(kitti_frame / "groundtruth_image_02.png")
     assert int((gt > 0).sum()) == 90839

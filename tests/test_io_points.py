@@ -30,7 +30,7 @@ def test_kitti_bin_matches_fromfile(kitti_frame):
     assert points.flags.c_contiguous
 
 
-def test_nuscenes_bin_five_columns(nuscenes_sample):
+def test_nuscenes_bin_five_columns(nuscenes_sample, tmp_path):
     path = next(nuscenes_sample.glob("*LIDAR_TOP*.pcd.bin"))
     points, extra = read_points(path, columns=5)
     assert points.shape == (34688, 3) and extra.shape == (34688, 2)
@@ -40,6 +40,13 @@ def test_nuscenes_bin_five_columns(nuscenes_sample):
     # ring index then lands in the coordinates. A 3-column read must fail (34,688 * 5 % 3 != 0).
     with pytest.raises(InputError, match=r"not a whole number of 3-value float32 records"):
         read_points(path, columns=3)
+    # the default for a *.pcd.bin is nuScenes' 5 columns, for any other .bin KITTI's 4
+    default, extra5 = read_points(path)
+    np.testing.assert_array_equal(default, points)
+    np.testing.assert_array_equal(extra5, extra)
+    plain = tmp_path / "renamed.bin"
+    np.fromfile(path, np.float32)[:34680 * 5].tofile(plain)   # a whole number of 4- and of 5-value records
+    assert read_points(plain, force=True)[1].shape[1] == 1
 
 
 def test_bin_size_errors(tmp_path):

@@ -107,8 +107,8 @@ def test_sweeps_json_frames(tmp_path):
     entries = read_sweeps_json(path)
     assert entries[0].file.name == "now.bin"                         # the reference sweep comes first
     cloud = read_sweeps_cloud(path, rig)
-    assert cloud.num_sources == 4 and list(cloud.sweep) == [0, 0, 1, 1]
-    assert cloud.names == ("up@0", "down@0", "up@1", "down@1")
+    assert cloud.num_sources == 4 and list(cloud.sweep) == [0, 0, -1, -1]   # listed before the reference: earlier
+    assert cloud.names == ("up@0", "down@0", "up@-1", "down@-1")
     np.testing.assert_allclose(cloud.points[:200], a[:, :3])
     np.testing.assert_allclose(cloud.points[200:], b[:, :3] @ T_old[:3, :3].T + T_old[:3, 3], atol=1e-5)
     np.testing.assert_allclose(cloud.T_ref_source[3], T_old @ _pose((1.3, 0.0, 1.5), 180.0), atol=1e-6)

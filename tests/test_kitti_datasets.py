@@ -166,7 +166,8 @@ def test_unknown_layout_lists_the_layouts_understood(tmp_path, capsys):
     code = cli.main(["complete", str(tmp_path / "src"), str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 1 and len(err.strip().splitlines()) == 1
-    for word in ("KITTI raw", "depth-completion train/val", "KITTI object", "selection folder"):
+    for word in ("KITTI raw", "depth-completion train/val", "KITTI object", "selection folder", "nuScenes dataroot",
+                 "Argoverse 2 sensor logs"):
         assert word in err
 
 

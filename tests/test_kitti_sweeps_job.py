@@ -15,7 +15,6 @@ import pytest
 
 from jaxdepth.batch import kitti_sweeps_job
 from jaxdepth.io import kitti_datasets, read_depth_png
-from jaxdepth.io import kitti_oxts as ko
 
 from conftest import require_shared
 from test_kitti_oxts import _write_drive

@@ -16,13 +16,17 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "jaxdepth"
 
 #: layer -> the layers it may import ("" is the root package, ``jaxdepth/__init__.py``, whose
 #: names load lazily). ``options`` is the leaf module of command-line options that both
-#: ``cli`` and ``research.cli`` use; ``demo`` and ``cli`` sit on top and may import anything.
+#: ``cli`` and ``research.cli`` use, ``progress`` the leaf module of their progress lines and job
+#: summaries, ``interrupts`` the program's Ctrl-C handling; ``demo`` and ``cli`` sit on top and may
+#: import anything.
 ALLOWED = {
     "_src": {"_src", ""},
     "io": {"_src", "io", ""},
     "options": {"_src", ""},
+    "progress": {""},
+    "interrupts": {""},
     "batch": {"_src", "io", "batch", "research", ""},
-    "research": {"_src", "io", "research", "options", ""},
+    "research": {"_src", "io", "research", "options", "progress", ""},
 }
 
 

@@ -22,8 +22,10 @@ def _modules() -> set[str]:
 
 def test_layout_table_lists_every_module():
     text = (REPO / "docs" / "layout.md").read_text()
-    listed = set(re.findall(r"^\| `(jaxdepth/[\w/]+\.py)` \|", text, flags=re.M))
+    rows = re.findall(r"^\| `(jaxdepth/[\w/]+\.py)` \|", text, flags=re.M)
+    listed = set(rows)
     assert listed, "docs/layout.md has no layout table"
+    assert len(rows) == len(listed), {"listed twice": sorted({r for r in rows if rows.count(r) > 1})}
     assert listed == _modules(), {"not in docs/layout.md": sorted(_modules() - listed),
                                   "in docs/layout.md, not on disk": sorted(listed - _modules())}
 

@@ -171,7 +171,7 @@ def test_sparsity_command_matches_the_library(capsys, kitti_frame, tmp_path):
             np.testing.assert_allclose(row[method][key], want[method][key], rtol=1e-6)
     # A quarter of the beams: about a quarter of the points and of the projected pixels.
     assert 0.2 < row["points"] / points.shape[0] < 0.3
-    line = next(l for l in out.splitlines() if l.split() and l.split()[0] == "16")
+    line = next(row for row in out.splitlines() if row.split() and row.split()[0] == "16")
     assert float(line.split()[4]) == pytest.approx(row["sgm"]["rmse"], abs=0.051)
 
 
@@ -226,7 +226,7 @@ def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscen
             for key in ("rmse", "mae"):
                 np.testing.assert_allclose(doc["cameras"][name][method][key], float(scores[method][key][i]),
                                            rtol=1e-6)
-        line = next(l for l in out.splitlines() if l.startswith(name + " "))
+        line = next(row for row in out.splitlines() if row.startswith(name + " "))
         assert int(line.split()[1]) == doc["cameras"][name]["hidden_pixels"]
     # The mean row is the mean over camera images (the devkit's data-set score).
     np.testing.assert_allclose(doc["mean"]["sgm"]["rmse"], np.mean(np.asarray(scores["sgm"]["rmse"])), rtol=1e-5)

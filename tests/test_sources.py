@@ -14,9 +14,10 @@ from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
 from jaxdepth._src.sources import (camera_witness, complete_sources, free_space_keep, free_space_margin,
                                    make_sources, reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.poses import rotation_rpy
 from jaxdepth._src.scene import scene_arrays
 from jaxdepth._src.synthetic import make_street_scene
-from jaxdepth._src.synthetic_sequences import _cast_sweep, _rotation, make_street_sequence
+from jaxdepth._src.synthetic_sequences import _cast_sweep, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
 from scenes import SMALL_LIDAR, stereo_cameras, stereo_street, tiny_street_frames
@@ -27,7 +28,7 @@ WALL_X = 20.0
 
 def _pose(t=(0.0, 0.0, 0.0), roll=0.0, pitch=0.0, yaw=0.0):
     T = np.eye(4)
-    T[:3, :3] = _rotation(roll, pitch, yaw)
+    T[:3, :3] = rotation_rpy(roll, pitch, yaw, degrees=True)
     T[:3, 3] = t
     return T
 
@@ -420,6 +421,57 @@ def test_free_space_margin_grows_with_range_and_cell_size():
     assert free_space_margin(20.0, coarse) > free_space_margin(20.0, SPEC)
     delta = np.radians(35.0) / 32
     assert free_space_margin(10.0, SPEC, noise_m=0.1, slope=1.0) == pytest.approx(0.1 + 10.0 * delta)
+    gaps = jnp.asarray([0.001, 0.02])                                  # a measured gap; below the column step
+    np.testing.assert_allclose(free_space_margin(10.0, SPEC, noise_m=0.1, slope=1.0, gap_rad=gaps),
+                               [0.1 + 10.0 * 2 * np.pi / 512, 0.1 + 10.0 * 0.02], rtol=1e-6)
+
+
+def test_free_space_margin_is_the_gap_between_the_bracketing_lasers():
+    # Analytic oracle. A witness with uneven lasers (0.5 deg apart near the horizon, 4 deg at the edges;
+    # one range-image row per laser by its ring) sees a wall at x = 20 m. A query point between two of
+    # its lasers, at a column centre, is free iff |q| < R_lo - margin(R_lo), with R_lo the nearest wall
+    # range of the 4 bracketing rays and margin = 0.3 + 2 R max(gap, 2 pi / columns), ``gap`` the two
+    # lasers' own gap: not the field of view over the beam count (2 deg here), which would keep the
+    # first points below and flag the second ones.
+    elevations = np.array([8.0, 4.0, 1.0, 0.5, 0.0, -0.5, -1.0, -4.0, -8.0])
+    spec = LidarSpec(beams=9, fov_up_deg=9.0, fov_down_deg=-9.0, columns=512)
+    cols = np.arange(236, 276)                                          # azimuths within about +-14 deg
+    theta = np.pi - 2 * np.pi * (cols + 0.5) / spec.columns
+
+    def rays(el_deg, az):
+        el = np.radians(el_deg)
+        return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el) + 0 * az], -1)
+
+    wall = np.concatenate([rays(e, theta) * (20.0 / rays(e, theta)[:, :1]) for e in elevations])
+    rows = np.repeat(np.arange(elevations.size, dtype=np.int32), cols.size)
+    az_q = theta[5:-5]
+    step = 2 * np.pi / spec.columns
+    queries, want = [], []
+    # (elevation of q, its two lasers, slack, what the uniform margin would say)
+    for el_q, pair, slack, old_free in ((0.25, (0.5, 0.0), -0.25, False), (0.25, (0.5, 0.0), 0.25, False),
+                                        (6.0, (8.0, 4.0), 0.25, True)):
+        # bracketing rays: the two lasers, at q's column and a neighbour (q sits on a column centre;
+        # the wall's range changes by under 0.07 m from one column to the next, within the slack)
+        r_lo = np.min([20.0 / (np.cos(np.radians(e)) * np.cos(az_q + k * step)) for e in pair for k in (-1, 0, 1)], 0)
+        gap = np.radians(abs(pair[0] - pair[1]))
+        margin = 0.3 + 2.0 * max(gap, step) * r_lo
+        uniform = 0.3 + 2.0 * max(np.radians(18.0) / 9, step) * r_lo
+        r_q = r_lo - margin + slack
+        queries.append(rays(el_q, az_q) * r_q[:, None])
+        want.append(np.full(az_q.size, slack < 0))
+        assert np.all((r_q < r_lo - uniform) == old_free)
+    q = np.concatenate(queries).astype(np.float32)
+    P = max(len(wall), len(q))
+    pts = np.zeros((2, P, 3), np.float32)
+    valid = np.zeros((2, P), bool)
+    pts[0, :len(wall)], valid[0, :len(wall)] = wall, True
+    pts[1, :len(q)], valid[1, :len(q)] = q, True
+    all_rows = np.full((2, P), -1, np.int32)
+    all_rows[0, :len(wall)] = rows
+    src = make_sources(pts, valid, np.stack([_pose(), _pose((-1.0, 0.0, 0.0))]), lidars=(spec, spec), sweep=(0, 1),
+                       rows=all_rows)
+    free = np.asarray(reference_view(src)[0])[1, :len(q)]
+    np.testing.assert_array_equal(free, np.concatenate(want))
 
 
 def test_free_space_vmap_and_jit_equal_eager():
@@ -437,7 +489,7 @@ def test_free_space_vmap_and_jit_equal_eager():
 
 def test_sequence_reference_points_lie_on_the_camera_truth():
     sq = make_street_sequence(0, sweeps=2, lidars=2, image_scale=0.25, noise_std_m=0.0)
-    assert sq.T_ref_source.shape == (4, 4, 4) and list(sq.sweep) == [0, 0, 1, 1]
+    assert sq.T_ref_source.shape == (4, 4, 4) and list(sq.sweep) == [0, 0, -1, -1]  # signed: -1 is one sweep earlier
     cam = sq.camera
     ref = sq.points[sq.sweep[sq.source] == 0]
     depth, _ = jaxdepth.project_to_image(ref, np.ones(len(ref), bool), cam.K, cam.T_cam_lidar,
@@ -468,7 +520,7 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     mount = np.linalg.inv(ego[0]) @ sq.T_ref_source[1]
     entries = []
     for k in range(2):
-        mine = sq.sweep[sq.source] == k
+        mine = sq.sweep[sq.source] == -k
         inv = np.linalg.inv(ego[k])
         local = sq.points[mine] @ inv[:3, :3].T + inv[:3, 3]
         rows = np.concatenate([local, (sq.source[mine] % 2)[:, None]], axis=1).astype(np.float32)

@@ -51,7 +51,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import glob
-import pathlib
 import sys
 import time
 

@@ -14,7 +14,6 @@ state; medians and the ratio to the default are reported.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import sys
 import time
 

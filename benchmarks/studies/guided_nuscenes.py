@@ -36,7 +36,7 @@ from jaxdepth._src.rig import _complete_rig_stages, stack_cameras
 from jaxdepth.io import pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
 from jaxdepth.io.rig_images import read_rig_images
 
-from benchmarks._common import DATA, ROOT
+from benchmarks._common import DATA
 
 SAMPLE = DATA / "nuscenes" / "sample"
 KEYS = ("rmse", "mae", "irmse", "imae")

@@ -14,7 +14,6 @@ here chooses a default or a weight.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import sys
 import time
 

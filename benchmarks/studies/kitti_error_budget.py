@@ -27,7 +27,6 @@ here chooses a default.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import sys
 import time
 

@@ -16,7 +16,8 @@ _OUTLIER_TESTS = ("footprint", "paper")
 
 # (field, note) of the float options that must be >= 0
 _NON_NEGATIVE_FIELDS = (("epsilon_m", ""), ("smoothing_sigma_px", ""), ("guidance_weight", " (0 = off)"),
-                        ("guidance_noise_floor", ""))
+                        ("guidance_noise_floor", ""), ("free_space_noise_m", ""), ("free_space_slope", ""),
+                        ("occlusion_max_baseline_m", ""))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +89,25 @@ class SGMConfig:
         default) is GeoS's plain cost. At 1 it helps the synthetic renders and
         not the real KITTI and nuScenes images
         (benchmarks/results/ablation_guided_noise_floor.json), so it stays off.
+
+    Several LiDARs and sweeps (:mod:`~jaxdepth._src.sources`, ``docs/multi_source.md``; beyond
+    the paper, unused by single-origin completion):
+
+      free_space_noise_m: range noise and registration error allowed for before a point of
+        another sweep counts as lying in space a LiDAR saw empty, metres.
+      free_space_slope: surface slope allowance of the free-space margin: the margin adds this
+        many times ``range * gap``, ``gap`` the angular gap between the witness's neighbouring
+        lasers at the point's elevation (or its horizontal step, if larger), radians; a surface
+        at 45 degrees to the ray changes range by ``range * gap`` across one gap.
+      free_space_min_cells: measured cells (of the 2 x 2 whose rays bracket a point) needed
+        before a LiDAR's view there counts as evidence (1 to 4).
+      free_space_neighbour_sweeps: sweeps on each side whose points a LiDAR of a sweep other
+        than the reference and end sweeps judges for free space; None: every other sweep (cost
+        quadratic in the sweeps); 0 (default): none (the end sweeps' witnesses already give
+        what the neighbours add, docs/multi_source.md).
+      occlusion_max_baseline_m: largest distance from a camera to the reference-sweep LiDAR
+        whose view stands in for the camera's in the occlusion test of other sweeps' points,
+        metres; for a camera farther from every such LiDAR the test is skipped.
     """
 
     outlier_removal: bool = True
@@ -110,6 +130,11 @@ class SGMConfig:
     guidance_weight: float = 0.0
     guidance_sweeps: int = 2
     guidance_noise_floor: float = 0.0
+    free_space_noise_m: float = 0.3
+    free_space_slope: float = 2.0
+    free_space_min_cells: int = 3
+    free_space_neighbour_sweeps: int | None = 0
+    occlusion_max_baseline_m: float = 1.0
 
     def __post_init__(self):
         if self.distance_metric not in DISTANCE_METRICS:
@@ -139,6 +164,14 @@ class SGMConfig:
         if self.blend_hypotheses and not self.column_bracket:
             raise ValueError("SGMConfig: field 'blend_hypotheses' expected with column_bracket=True "
                              "(the blend keeps only hypotheses inside the bracket), got column_bracket=False")
+        if isinstance(self.free_space_min_cells, bool) or int(self.free_space_min_cells) != self.free_space_min_cells \
+                or not 1 <= self.free_space_min_cells <= 4:
+            raise ValueError("SGMConfig: field 'free_space_min_cells' expected an integer in 1..4, "
+                             f"got {self.free_space_min_cells!r}")
+        n = self.free_space_neighbour_sweeps
+        if n is not None and (isinstance(n, bool) or int(n) != n or n < 0):
+            raise ValueError(f"SGMConfig: field 'free_space_neighbour_sweeps' expected None or an integer >= 0, "
+                             f"got {n!r}")
         if self.min_abs_denom <= 0:
             raise ValueError(f"SGMConfig: field 'min_abs_denom' expected > 0, got {self.min_abs_denom!r}")
 

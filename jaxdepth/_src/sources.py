@@ -45,21 +45,22 @@ from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import RigCameras, _rig_images, _window_only
 from jaxdepth._src.types import LidarSpec, Stages
 
+# The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
+# these names keep their defaults for the functions that take them one by one.
 #: Range noise and registration error allowed for before a point counts as being in free space, metres.
-FREE_SPACE_NOISE_M = 0.3
-#: Surface slope allowance of the free-space margin: a surface at 45 degrees to the ray changes range
-#: by ``r * delta`` across an angular step ``delta``; the margin allows ``FREE_SPACE_SLOPE`` such steps.
-FREE_SPACE_SLOPE = 2.0
+FREE_SPACE_NOISE_M = DEFAULT_CONFIG.free_space_noise_m
+#: Surface slope allowance of the free-space margin (:func:`free_space_margin`).
+FREE_SPACE_SLOPE = DEFAULT_CONFIG.free_space_slope
 #: Measured cells (of the 2 x 2 whose rays bracket a point) needed before a LiDAR's view there counts.
-FREE_SPACE_MIN_CELLS = 3
+FREE_SPACE_MIN_CELLS = DEFAULT_CONFIG.free_space_min_cells
 #: Sweeps on each side whose points a LiDAR of a sweep other than the reference and end sweeps judges
 #: for free space (None: every other sweep, a cost quadratic in the sweeps). 0: none (measured: the
 #: end sweeps' witnesses already give what the neighbours add).
-NEIGHBOUR_SWEEPS = 0
+NEIGHBOUR_SWEEPS = DEFAULT_CONFIG.free_space_neighbour_sweeps
 #: Largest distance from a camera to the reference-sweep LiDAR whose view stands in for the camera's in
 #: the occlusion test of other sweeps' points (:func:`camera_witness`), metres; a LiDAR farther away
 #: sees around near objects differently from the camera, and the test is then skipped for that camera.
-OCCLUSION_MAX_BASELINE_M = 1.0
+OCCLUSION_MAX_BASELINE_M = DEFAULT_CONFIG.occlusion_max_baseline_m
 
 
 @jax.tree_util.register_dataclass
@@ -152,16 +153,22 @@ def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_s
 
 
 def free_space_margin(range_m, lidar: LidarSpec, *, noise_m: float = FREE_SPACE_NOISE_M,
-                      slope: float = FREE_SPACE_SLOPE):
+                      slope: float = FREE_SPACE_SLOPE, gap_rad=None):
     """The free-space margin at ``range_m`` metres for a LiDAR of range-image geometry ``lidar``.
 
-    ``noise_m + slope * range_m * delta`` with ``delta`` the larger angular side of a
-    range-image cell (radians): vertical ``(fov_up - fov_down) / beams``, horizontal
-    ``2 pi / columns``. A beam of a spinning LiDAR covers about one cell; a surface at 45
-    degrees to the ray changes range by ``range * delta`` across it; ``noise_m`` covers range
-    noise and pose (registration) error.
+    ``noise_m + slope * range_m * delta``, ``delta`` (radians) the larger of the vertical gap
+    between the LiDAR's neighbouring lasers where the point lies and the horizontal step
+    ``2 pi / columns``. ``gap_rad`` (broadcasting with ``range_m``) is that vertical gap, measured
+    from the lasers' own elevations (:func:`reference_view` takes it from the witness's range image:
+    one row per laser with ring indices); None: a uniform ``(fov_up - fov_down) / beams``. A surface
+    at 45 degrees to the ray changes range by ``range * delta`` between two neighbouring beams;
+    ``noise_m`` covers range noise and pose (registration) error.
     """
-    delta = max(math.radians(lidar.fov_up_deg - lidar.fov_down_deg) / lidar.beams, 2 * math.pi / lidar.columns)
+    horizontal = 2 * math.pi / lidar.columns
+    if gap_rad is None:
+        delta = max(math.radians(lidar.fov_up_deg - lidar.fov_down_deg) / lidar.beams, horizontal)
+    else:
+        delta = jnp.maximum(gap_rad, horizontal)
     return noise_m + slope * delta * range_m
 
 
@@ -283,20 +290,24 @@ def _witness_verdicts(T_r, points_r, valid_r, q, *rows_r, spec, noise_m, slope, 
         _, col = row_col(th, ph, spec)
     else:
         row, col = row_col(th, ph, spec)
-    r_lo, r_hi, n_cells = _bracket_2x2(ri, row, col, th, ph, spec)
+    r_lo, r_hi, n_cells, gap = _bracket_2x2(ri, row, col, th, ph, spec)
     enough = inside & (n_cells >= min_cells)
     r_own = ri.r[row, col]
-    margin = functools.partial(free_space_margin, lidar=spec, noise_m=noise_m, slope=slope)
+    margin = functools.partial(free_space_margin, lidar=spec, noise_m=noise_m, slope=slope, gap_rad=gap)
     return (enough & (rq < r_lo - margin(r_lo)),
             inside & (r_own > 0) & (rq > r_own + margin(r_own)),
             enough & (rq > r_hi + margin(r_hi)))
 
 
 def _bracket_2x2(ri, row, col, theta, phi, spec):
-    """Nearest and farthest measured range (inf and 0 where none) and count of measured cells among the 2 x 2 cells
-    whose rays bracket each query direction: its own cell ``(row, col)``, the row on the side of
+    """Nearest and farthest measured range (inf and 0 where none), count of measured cells among the 2 x 2 cells
+    whose rays bracket each query direction, and the vertical gap between the two bracketing rows, radians:
+    its own cell ``(row, col)``, the row on the side of
     its elevation (judged by the row's mean measured elevation, else its centre) and the column on
-    the side of its azimuth. Rows beyond the image count as unmeasured; columns wrap around."""
+    the side of its azimuth. Rows beyond the image count as unmeasured; columns wrap around. The gap is
+    the difference of the two rows' mean measured elevations (rows by laser: the real gap between the
+    two lasers), at the image's edge that to the row on the other side, the row height where either row
+    holds no measurement."""
     n_rows, n_cols = ri.r.shape
     has = ri.r > 0
     count = jnp.sum(has, axis=1)
@@ -306,7 +317,10 @@ def _bracket_2x2(ri, row, col, theta, phi, spec):
     mean = jnp.where(count > 0, mean, centre)
     row2 = jnp.where(phi > mean[row], row - 1, row + 1)
     row_ok = (row2 >= 0) & (row2 < n_rows)
+    other = jnp.clip(jnp.where(row_ok, row2, 2 * row - row2), 0, n_rows - 1)   # the gap's second row
     row2 = jnp.clip(row2, 0, n_rows - 1)
+    measured = (count[row] > 0) & (count[other] > 0) & (other != row)
+    gap = jnp.where(measured, jnp.abs(mean[row] - mean[other]), (spec.fov_up_rad - spec.fov_down_rad) / n_rows)
     col_f = (jnp.pi - theta) * (n_cols / (2 * jnp.pi)) - col
     col2 = jnp.where(col_f < 0.5, col - 1, col + 1) % n_cols
     r = jnp.where(has, ri.r, jnp.inf)
@@ -315,7 +329,7 @@ def _bracket_2x2(ri, row, col, theta, phi, spec):
     lo = functools.reduce(jnp.minimum, cells)
     hi = functools.reduce(jnp.maximum, [jnp.where(jnp.isfinite(c), c, 0.0) for c in cells])
     n = sum(jnp.isfinite(c).astype(jnp.int32) for c in cells)
-    return lo, hi, n
+    return lo, hi, n, gap
 
 
 def _row_of_elevation(ri, phi):
@@ -417,9 +431,9 @@ def default_beams(sources: Sources) -> int:
     return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "neighbour_sweeps", "occlusion"))
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
 def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams,
-                             neighbour_sweeps=NEIGHBOUR_SWEEPS, occlusion=True):
+                             occlusion=True):
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_sources")
     s, p = sources.points.shape[:2]
     points = jnp.asarray(sources.points, jnp.float32)
@@ -429,7 +443,9 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     normals = source_normals(sources, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
     shadow = hidden = None
     if free_space and any(sw != 0 for sw in sources.sweep):       # one sweep: nothing to test
-        free, shadow, hidden = reference_view(sources, neighbour_sweeps=neighbour_sweeps)
+        free, shadow, hidden = reference_view(sources, noise_m=config.free_space_noise_m,
+                                              slope=config.free_space_slope, min_cells=config.free_space_min_cells,
+                                              neighbour_sweeps=config.free_space_neighbour_sweeps)
         valid = valid & ~free
         shadow = shadow.reshape(-1)
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
@@ -442,7 +458,8 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
             image = _window_only(image, size)
         cam_valid = flat_valid
         if hidden is not None:       # other sweeps' points hidden from the LiDAR next to this camera
-            rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep)
+            rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep,
+                                          max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
                               height=cameras.height, width=cameras.width, beams=beams, config=config,
@@ -455,20 +472,18 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                             free_space: bool = True, beams: int | None = None,
-                            images: jax.Array | None = None,
-                            neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS, occlusion: bool = True) -> Stages:
+                            images: jax.Array | None = None, occlusion: bool = True) -> Stages:
     """SGM completion of several sources for C cameras; every :class:`Stages` field gains a leading C axis.
 
     Args:
       sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs).
       cameras: :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
-      config: static :class:`SGMConfig`.
+      config: static :class:`SGMConfig`; its ``free_space_*`` and ``occlusion_max_baseline_m`` fields
+        set the free-space and occlusion rules (:func:`reference_view`, :func:`camera_witness`).
       free_space: static; remove earlier sweeps' points that lie in another sweep's free space
         (:func:`free_space_keep`).
       beams: static L of Step 2's window bounds; default :func:`default_beams`.
       images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.
-      neighbour_sweeps: static; sweeps on each side whose points a non-reference sweep's LiDARs
-        judge for free space (None: every sweep; :func:`reference_view`).
       occlusion: static; with ``free_space``, also remove for each camera the other sweeps' points
         hidden from the reference-sweep LiDAR next to it (``hidden`` of :func:`reference_view`,
         witness :func:`camera_witness`).
@@ -479,13 +494,12 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
     """
     beams = default_beams(sources) if beams is None else int(beams)
     return _complete_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space),
-                                    beams=beams, neighbour_sweeps=neighbour_sweeps, occlusion=bool(occlusion))
+                                    beams=beams, occlusion=bool(occlusion))
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                      free_space: bool = True, beams: int | None = None,
-                     images: jax.Array | None = None, neighbour_sweeps: int | None = NEIGHBOUR_SWEEPS,
-                     occlusion: bool = True) -> jax.Array:
+                     images: jax.Array | None = None, occlusion: bool = True) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
     return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                   images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion).depth
+                                   images=images, occlusion=occlusion).depth

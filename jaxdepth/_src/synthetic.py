@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src import geometry
+from jaxdepth._src.poses import rigid, rotation_rpy
 from jaxdepth._src.presets import KITTI_HDL64, KITTI_K_CAM2
 # The scene and its ray caster live one layer down (shared with synthetic_images); re-exported here.
 from jaxdepth._src.scene import SceneArrays as SceneArrays, camera_rays as camera_rays, cast_rays as cast_rays
@@ -206,12 +207,8 @@ def count_parallax_outliers(points, valid, camera: Camera, dense_depth, *, toler
 
 def _camera(K: np.ndarray, yaw_deg: float, centre_lidar: np.ndarray, height: int, width: int) -> Camera:
     """A camera looking horizontally at ``yaw_deg`` with its optical centre at ``centre_lidar``."""
-    yaw = math.radians(yaw_deg)
-    R_yaw = np.array([[math.cos(yaw), -math.sin(yaw), 0.0], [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
-    R = _R_CAM_FORWARD @ R_yaw.T
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -R @ np.asarray(centre_lidar, np.float64)
+    R = _R_CAM_FORWARD @ rotation_rpy(0.0, 0.0, yaw_deg, degrees=True).T
+    T = rigid(R, -R @ np.asarray(centre_lidar, np.float64))
     return Camera(K=jnp.asarray(K, jnp.float32), T_cam_lidar=jnp.asarray(T, jnp.float32),
                   height=int(height), width=int(width))
 

@@ -6,8 +6,9 @@ ego that moves ``step_m`` per sweep along the street, and a rig of 2 or 3 spinni
 different heights and tilts (:data:`RIG_LIDARS`).
 
 Frames. The *reference frame* is the ego frame of the reference sweep (sweep 0, the latest),
-with the first LiDAR at its origin (the ground at ``z = -1.73``); sweep ``k`` is ``k`` sweeps
-earlier, the ego then ``k * step_m`` further back along x. The reference camera (KITTI-like,
+with the first LiDAR at its origin (the ground at ``z = -1.73``); sweep ``-k`` is ``k`` sweeps
+earlier (signed offsets, negative = earlier, as every reader gives them), the ego then
+``k * step_m`` further back along x. The reference camera (KITTI-like,
 looking forward) and its exact depth belong to sweep 0. Every point is given in the reference
 frame; ``T_ref_source`` is each source's LiDAR pose (ego pose of its sweep composed with the
 LiDAR's mounting). A source is one LiDAR in one sweep, ordered sweep-major.
@@ -23,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.poses import rigid, rotation_rpy
 from jaxdepth._src.scene import _box, cast_rays, scene_arrays, street_scene_arrays
 from jaxdepth._src.synthetic import lidar_rays, render_depth, rig_cameras
 from jaxdepth._src.types import Camera, LidarSpec, SourceCloud
@@ -52,7 +54,7 @@ class SyntheticSequence(SourceCloud):
       ghost_region: (H, W) bool: pixels where a moving car was in an earlier sweep, more than
         1 m in front of what the camera sees now, and no moving car is seen now (where its
         ghost would show).
-      ghost_depth: (K - 1, H, W) float32 depth of the moving cars alone in each earlier sweep
+      ghost_depth: (K - 1, H, W) float32 depth of the moving cars alone in each earlier sweep (sweep -1, -2, ...)
         (0 where none): a prediction within 1 m of it inside ``ghost_region`` shows a ghost.
     """
 
@@ -60,14 +62,6 @@ class SyntheticSequence(SourceCloud):
     dense_depth: np.ndarray
     ghost_region: np.ndarray
     ghost_depth: np.ndarray
-
-
-def _rotation(roll_deg: float, pitch_deg: float, yaw_deg: float = 0.0) -> np.ndarray:
-    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
-    Rx = np.array([[1, 0, 0], [0, math.cos(r), -math.sin(r)], [0, math.sin(r), math.cos(r)]])
-    Ry = np.array([[math.cos(p), 0, math.sin(p)], [0, 1, 0], [-math.sin(p), 0, math.cos(p)]])
-    Rz = np.array([[math.cos(y), -math.sin(y), 0], [math.sin(y), math.cos(y), 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
 
 
 def _moving_cars(seed: int):
@@ -83,10 +77,10 @@ def _moving_cars(seed: int):
     return cars
 
 
-def _car_boxes(cars, k: int):
+def _car_boxes(cars, sweep: int):
     boxes = []
     for x0, y0, yaw, vx, vy, length, width, body_h, cabin_h in cars:
-        x, y = x0 - k * vx, y0 - k * vy
+        x, y = x0 + sweep * vx, y0 + sweep * vy
         boxes.append(_box(x, y, _GROUND_Z, length, width, body_h, yaw))
         back = -0.15 * length
         boxes.append(_box(x + back * math.cos(yaw), y + back * math.sin(yaw), _GROUND_Z + body_h,
@@ -94,14 +88,15 @@ def _car_boxes(cars, k: int):
     return np.asarray(boxes, np.float32)
 
 
-def sequence_scene(seed: int, k: int):
-    """(:class:`SceneArrays` of sweep ``k``, moving cars only at sweep ``k``), reference frame."""
+def sequence_scene(seed: int, sweep: int):
+    """(:class:`SceneArrays` at signed sweep offset ``sweep`` (0 the reference, -1 one sweep earlier),
+    the moving cars alone then), reference frame."""
     base = street_scene_arrays(seed)
     cars = _moving_cars(seed)
     boxes = np.asarray(base.boxes).copy()
-    boxes[_LANE_CAR_BOXES] = _car_boxes(cars, k)
+    boxes[_LANE_CAR_BOXES] = _car_boxes(cars, sweep)
     return (scene_arrays(planes=base.planes, boxes=boxes, cylinders=base.cylinders),
-            scene_arrays(boxes=_car_boxes(cars, k)))
+            scene_arrays(boxes=_car_boxes(cars, sweep)))
 
 
 @functools.partial(jax.jit, static_argnames=("lidar", "max_range_m"))
@@ -138,14 +133,11 @@ def make_street_sequence(seed: int = 0, *, sweeps: int = 5, lidars: int = 3, ste
     points, source, poses, specs, sweep_of, names = [], [], [], [], [], []
     car_depths = []
     for k in range(int(sweeps)):
-        scene, cars_only = sequence_scene(seed, k)
-        ego = np.eye(4)
-        ego[:3, 3] = (-k * step_m, 0.05 * k, 0.0)
+        offset = -k                                   # signed: negative = earlier
+        scene, cars_only = sequence_scene(seed, offset)
+        ego = rigid(np.eye(3), (offset * step_m, -0.05 * offset, 0.0))
         for j, (name, pos, roll, pitch, spec) in enumerate(RIG_LIDARS[:lidars]):
-            mount = np.eye(4)
-            mount[:3, :3] = _rotation(roll, pitch)
-            mount[:3, 3] = pos
-            T = ego @ mount
+            T = ego @ rigid(rotation_rpy(roll, pitch, degrees=True), pos)
             pts, valid = (np.asarray(a) for a in _cast_sweep(scene, T[:3, :3], T[:3, 3], lidar=spec,
                                                               max_range_m=float(max_range_m)))
             if noise_std_m > 0:
@@ -158,8 +150,8 @@ def make_street_sequence(seed: int = 0, *, sweeps: int = 5, lidars: int = 3, ste
             source.append(np.full(int(valid.sum()), s, np.int32))
             poses.append(T)
             specs.append(spec)
-            sweep_of.append(k)
-            names.append(f"{name}@{k}")
+            sweep_of.append(offset)
+            names.append(f"{name}@{offset}")
         car_depths.append(np.asarray(render_depth(camera, cars_only, max_range_m=max_range_m)))
     scene0, _ = sequence_scene(seed, 0)
     gt = np.asarray(render_depth(camera, scene0, max_range_m=max_range_m))

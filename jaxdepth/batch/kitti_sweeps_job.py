@@ -44,6 +44,28 @@ def plan(jobs, *, overwrite: bool, summary, notify) -> list:
     return todo
 
 
+def sweep_identities(jobs, *, sweeps: int) -> dict:
+    """``{output: input identity}`` (:func:`jaxdepth.batch.run_record.input_identity`) of the sweep jobs:
+    the sweep, its ``sweeps`` neighbours on each side and their OXTS packets, the date's
+    ``calib_imu_to_velo.txt``; K, extrinsic, image size and crop as values."""
+    from jaxdepth.batch.run_record import input_identity
+    from jaxdepth.io.kitti_oxts import drive_frames, oxts_path
+
+    frames_of = {}
+    out = {}
+    for job in jobs:
+        sweep = pathlib.Path(job.sparse_path)
+        drive = sweep.parent.parent.parent
+        frames = frames_of.setdefault(drive, drive_frames(drive))
+        i = frames.index(sweep.stem) if sweep.stem in frames else 0
+        used = frames[max(0, i - sweeps):i + sweeps + 1] if sweep.stem in frames else [sweep.stem]
+        files = [sweep.parent / f"{f}.bin" for f in used] + [oxts_path(drive, f) for f in used]
+        files.append(drive.parent / "calib_imu_to_velo.txt")
+        out[job.out_path] = input_identity(files, values=(job.K, job.T_cam_lidar, job.image_size,
+                                                          job.image_crop_from, sweeps))
+    return out
+
+
 def _load(job: CloudJob, *, sweeps: int, force: bool):
     from jaxdepth.io.kitti_oxts import read_drive_cloud
 
@@ -81,4 +103,4 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
     return summary
 
 
-__all__ = ["run_kitti_raw_sweeps", "plan"]
+__all__ = ["run_kitti_raw_sweeps", "plan", "sweep_identities"]

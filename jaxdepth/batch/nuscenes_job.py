@@ -132,6 +132,36 @@ def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=
     return todo
 
 
+def output_identities(tables, dst: pathlib.Path, *, sweeps: int, guided: bool) -> dict:
+    """``{output: input identity}`` (:func:`jaxdepth.batch.run_record.input_identity`) of every camera
+    output: the sample's LiDAR sweeps (key frame and up to ``sweeps - 1`` earlier ones) and, when
+    ``guided``, the camera image; the version's tables (poses, calibration) as a value. Samples whose
+    key frames cannot be found are left out (the run reports them)."""
+    from jaxdepth.batch.run_record import file_identity, input_identity
+    from jaxdepth.io import nuscenes as nusc
+    from jaxdepth.io.errors import JaxdepthError
+
+    table_files = sorted((pathlib.Path(tables.dataroot) / tables.version).glob("*.json"))
+    tables_id = repr([file_identity(f) for f in table_files])
+    out = {}
+    for token in tables.samples():
+        try:
+            lidar_sd, cams = nusc.sample_cameras(tables, token)
+            files, sd = [], lidar_sd
+            for _ in range(sweeps):
+                files.append(pathlib.Path(tables.dataroot) / str(sd.get("filename")))
+                sd = tables.tables["sample_data"].get(sd.get("prev") or "")
+                if sd is None:
+                    break
+            for channel, cam in cams:
+                image = [nusc.camera_image_path(tables, cam)] if guided else []
+                out[nusc.output_path(dst, tables.version, channel, cam["token"])] = input_identity(
+                    files + image, values=(tables_id,))
+        except (JaxdepthError, ValueError, KeyError, TypeError):
+            continue
+    return out
+
+
 def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: bool = False, force: bool = False):
     """Host side of one sample: (padded points, valid, Rig after prepare_sweep, sample inputs, images):
     ``images`` (C, H, W, 3) uint8 RGB on the canvas when ``guided``, else None. With ``sweeps > 1``
@@ -153,6 +183,9 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
             raise field_error(tables.table_path("calibrated_sensor"), f"{cam.channel} of sample {job.token}",
                               "a pinhole K and rigid poses", str(err)) from None
     rig = Rig(lidar=NUSCENES_HDL32, cameras=tuple(cameras), lidar_origin_m=(0.0, 0.0, 0.0))
+    from jaxdepth.io.plausibility import check_rig_geometry  # K and T_cam_lidar against the sweep
+    check_rig_geometry(inputs.points[:, :3] if inputs.cloud is None else inputs.cloud.points, rig.cameras,
+                       path=tables.table_path("calibrated_sensor"), force=force)
     images = None
     if guided:  # read before the sweep is prepared: a bad image costs no work
         from jaxdepth.io.rig_images import read_rig_images
@@ -160,7 +193,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
         images = read_rig_images(paths, rig.cameras, colour=True)
     if inputs.cloud is not None:
         return None, None, rig, inputs, images
-    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False)
+    frame = prepare_sweep(inputs.points[:, :3], rig, estimate=False, drop_far=not force)
     padded, valid = pad_points(frame.points)
     return padded, valid, frame.rig, inputs, images
 
@@ -341,4 +374,4 @@ class _SampleRun:
             f.result()
 
 
-__all__ = ["run_nuscenes", "plan", "complete_samples"]
+__all__ = ["run_nuscenes", "plan", "complete_samples", "output_identities"]

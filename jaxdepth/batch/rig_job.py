@@ -50,6 +50,65 @@ def rig_images(rig, rig_path, image_dir):
     return read_rig_images(paths, rig.cameras)
 
 
+def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided: bool) -> dict:
+    """``{<out_dir>/<camera>.png: input identity}``: every camera's output is made from the sweep (or
+    sweeps JSON) and the rig JSON, and its own image when ``guided``
+    (:func:`jaxdepth.batch.run_record.input_identity`)."""
+    from jaxdepth.batch.run_record import input_identity
+    from jaxdepth.io.rig_images import rig_image_paths
+    images = (rig_image_paths(rig.cameras, image_dir=image_dir, rig_json=rig_path,
+                              json_images={c.name: c.image for c in rig.cameras if c.image is not None})
+              if guided else [None] * len(rig.cameras))
+    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([points_path, rig_path, image])
+            for camera, image in zip(rig.cameras, images)}
+
+
+def _complete(points_path, rig, *, config, images, multi, columns, point_columns, estimate, force, report,
+              rig_path=None):
+    """The rig's stages for the sweep (or sweeps JSON) ``points_path``, with complete-rig's sweep check
+    and the calibration check against the sweep (:func:`jaxdepth.io.plausibility.check_rig_geometry`,
+    naming ``rig_path``): ``(stages, rig, stacked cameras)``, the rig as the check left it."""
+    import jaxdepth
+    from jaxdepth.io import pad_points, prepare_sweep, read_points
+    from jaxdepth.io.plausibility import check_rig_geometry
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.io.sweeps import is_sweeps_json
+
+    if multi:
+        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
+        from jaxdepth.batch.sources_job import complete_cloud
+        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
+        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
+        from jaxdepth.batch.sources_job import checked_cloud
+        cloud = read(points_path, rig, point_columns=point_columns)
+        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
+        frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        check_rig_geometry(frame.cloud.points, rig.cameras, path=rig_path, force=force)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
+    else:
+        points, extra = read_points(points_path, columns=columns, force=force)
+        if rig.columns is not None:
+            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
+        else:
+            ring = ring_column(extra, columns)
+        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate, drop_far=not force)
+        if not frame.outlier_removal_trusted and config.outlier_removal:
+            config = config.replace(outlier_removal=False)
+        for note in frame.notes:
+            report("note", note)
+        rig = frame.rig
+        check_rig_geometry(frame.points, rig.cameras, path=rig_path, force=force)
+        padded, valid = pad_points(frame.points)
+        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
+                                              images=images)
+    return stages, rig, cameras
+
+
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                 point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
                 report: Callable[[str, str], None] = _ignore, force: bool = False,
@@ -69,10 +128,12 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         images from ``image_dir`` or the rig JSON's ``image`` fields.
       extras: the extra outputs (:mod:`jaxdepth.batch.extras`).
       point_columns: float32 values per ``.bin`` record (None: inferred).
-      estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`).
+      estimate: check the sweep against its LiDAR (:func:`jaxdepth.io.prepare_sweep`; several sweeps:
+        :func:`jaxdepth.io.sweep_frame.prepare_cloud`, the same decision).
       overwrite: replace existing outputs (default: skip them).
       report: ``report(kind, text)`` for every message (see the module docstring).
-      force: use a sweep that fails the plausibility checks (:mod:`jaxdepth.io.plausibility`), logged.
+      force: use a sweep or a calibration that fails the plausibility checks
+        (:mod:`jaxdepth.io.plausibility`: the sweep's values, K and T_cam_lidar against the sweep), logged.
       record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
         are added to its settings), checked against ``out_dir``'s and written before any
         computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
@@ -80,10 +141,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     Raises:
       JaxdepthError: unreadable or invalid inputs, unwritable outputs.
     """
-    import jaxdepth
-    from jaxdepth.io import infer_point_columns, pad_points, prepare_sweep, read_points, read_rig_json
+    from jaxdepth.io import infer_point_columns, read_rig_json
     from jaxdepth.io.atomic import ensure_output_dir
-    from jaxdepth.io.points import ring_column
 
     from jaxdepth.io.sweeps import is_sweeps_json
 
@@ -99,32 +158,12 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     if record is not None:
         from jaxdepth.batch import run_record
         record = dict(record, settings=dict(record["settings"], point_columns=columns))
-        run_record.claim_folder(out_dir, record, overwrite=overwrite)
-    if multi:
-        # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
-        from jaxdepth.batch.sources_job import complete_cloud
-        from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
-        read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
-        cloud = read(points_path, rig, point_columns=point_columns)
-        report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = complete_cloud(cloud, rig, config=config, images=images, stages=True)
-    else:
-        points, extra = read_points(points_path, columns=columns, force=force)
-        if rig.columns is not None:
-            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
-        else:
-            ring = ring_column(extra, columns)
-        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
-        if not frame.outlier_removal_trusted and config.outlier_removal:
-            config = config.replace(outlier_removal=False)
-        for note in frame.notes:
-            report("note", note)
-        rig = frame.rig
-        padded, valid = pad_points(frame.points)
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
-                                              images=images)
+        run_record.claim_folder(out_dir, record, overwrite=overwrite,
+                                outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
+                                                           guided=config.guidance_weight > 0))
+    stages, rig, cameras = _complete(points_path, rig, config=config, images=images, multi=multi, columns=columns,
+                                     point_columns=point_columns, estimate=estimate, force=force, report=report,
+                                     rig_path=rig_path)
     depth = np.asarray(stages.depth)
     valid = distance = None
     if extras.needs_seeds:
@@ -139,7 +178,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
             message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
                        f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
                        "looks along +z, x right, y down)")
-            log.warning("%s", message)
+            if report is _ignore:          # no reporter (the API): the log; the CLI prints it once itself
+                log.warning("%s", message)
             report("warning", message)
             summary.empty_cameras.append(camera.name)
         target = out_dir / f"{camera.name}.png"

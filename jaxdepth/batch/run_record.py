@@ -4,20 +4,32 @@ Every output folder of ``jaxdepth complete`` (every dataset layout, the nuScenes
 the local and the Ray engine) and ``complete-rig`` holds one ``jaxdepth_run.json``,
 written atomically before the first output::
 
-    {"jaxdepth_version": "0.4.0",
+    {"jaxdepth_version": "0.1.0", "output_version": "5f1beb652fb8",
      "command": "jaxdepth complete raw/ out/ --distance l2",
      "inputs": ["/abs/path/raw"],
-     "settings": {"method": "sgm", "distance_metric": "l2", ..., "zero_invalid": false}}
+     "settings": {"method": "sgm", "distance_metric": "l2", ..., "zero_invalid": false},
+     "outputs": {"f0.png": {"files": [["/abs/path/raw/f0.png", 18211, 1764325...]], "values": "9c1f..."}}}
 
 ``settings`` holds every field of :class:`~jaxdepth._src.config.SGMConfig`, the method
 and the options that change what is written (extra-output settings, crop, camera,
-sweeps...). A re-run into the same folder:
+sweeps...). ``output_version`` is :data:`jaxdepth.__output_version__`, which changes
+whenever the algorithm's outputs do. ``outputs`` holds, per output (path relative to the
+folder), the identity of the inputs it was made from (:func:`input_identity`: each input
+file's absolute path, size and modification time in ns, and a digest of the calibration
+values). A re-run into the same folder:
 
-* with the same settings resumes (finished outputs are skipped);
+* with the same settings and output version resumes: a finished output is skipped when
+  its inputs are the ones recorded; an output whose input changed (another file, another
+  size or time, other calibration; e.g. ``complete OTHER_FOLDER out/``) or that has no
+  recorded input is removed, with its extra files, before the run and so recomputed; one
+  warning counts them and names the first and what changed;
 * with other settings, when the folder holds depth PNGs, is refused
   (:class:`RunSettingsError`, exit 1), the message
   listing each difference (``distance_metric: l1 -> l2``), unless ``overwrite``: then
   every output is recomputed and the record replaced;
+* written by another output version (another algorithm; records older than the output
+  version count as another) is refused the same way: resuming would mix two algorithms'
+  outputs in one folder;
 * into a folder that holds depth PNGs but no record (an older jaxdepth, another tool)
   is refused too: the settings of those files are unknown, so resuming could mix two
   runs. ``overwrite`` recomputes them and writes the record.
@@ -33,7 +45,9 @@ and ``ip-basic`` side by side) each keep their own record.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+import logging
 import os
 import pathlib
 import shlex
@@ -42,6 +56,8 @@ import sys
 from jaxdepth.io.errors import OutputError, PathLike
 
 RUN_FILE = "jaxdepth_run.json"
+
+log = logging.getLogger("jaxdepth")
 
 
 class RunSettingsError(OutputError):
@@ -80,14 +96,62 @@ def _plain(value):
     return value
 
 
+def output_version() -> str:
+    """:data:`jaxdepth.__output_version__`: changes whenever completion outputs do."""
+    import jaxdepth
+    return jaxdepth.__output_version__
+
+
 def make_record(settings: dict, *, inputs: list, command: list | None = None) -> dict:
-    """The record's JSON object: version, command line (default ``sys.argv``), inputs (absolute), settings."""
+    """The record's JSON object: versions, command line (default ``sys.argv``), inputs (absolute), settings.
+
+    The per-output input identities are added by :func:`claim_folder` (its ``outputs``)."""
     from jaxdepth import __version__
     argv = list(sys.argv if command is None else command)
     if argv:
         argv[0] = "jaxdepth"
-    return {"jaxdepth_version": __version__, "command": shlex.join(str(a) for a in argv),
+    return {"jaxdepth_version": __version__, "output_version": output_version(),
+            "command": shlex.join(str(a) for a in argv),
             "inputs": [os.path.abspath(os.fspath(p)) for p in inputs], "settings": settings}
+
+
+def file_identity(path: PathLike) -> list:
+    """``[absolute path, size in bytes, modification time in ns]`` of an input file (size and time
+    None when it cannot be read: the run itself reports that input)."""
+    path = os.path.abspath(os.fspath(path))
+    try:
+        st = os.stat(path)
+    except OSError:
+        return [path, None, None]
+    return [path, int(st.st_size), int(st.st_mtime_ns)]
+
+
+def input_identity(files, *, values=()) -> dict:
+    """What one output is made from: ``{"files": [file_identity, ...], "values": digest}``.
+
+    Args:
+      files: the input files read for this output (None entries are left out).
+      values: further inputs given as values (K, T_cam_lidar, image size...: arrays, numbers,
+        strings or None); the first 16 hex digits of their SHA-256 (None when there are none).
+    """
+    ident = {"files": [file_identity(f) for f in files if f is not None], "values": None}
+    values = list(values)
+    if values:
+        digest = hashlib.sha256()
+        for value in values:
+            digest.update(b"|" + _value_bytes(value))
+        ident["values"] = digest.hexdigest()[:16]
+    return ident
+
+
+def _value_bytes(value) -> bytes:
+    if value is None:
+        return b"None"
+    if isinstance(value, (str, int, float, bool)):
+        return repr(value).encode()
+    import numpy as np
+    a = np.ascontiguousarray(np.asarray(value, np.float64))
+    return f"{a.shape}".encode() + a.tobytes()
 
 
 def read_record(folder: PathLike) -> dict | None:
@@ -136,46 +200,136 @@ def _has_outputs(folder: pathlib.Path) -> bool:
         return False
 
 
-def claim_folder(folder: PathLike, record: dict, *, overwrite: bool) -> None:
+def claim_folder(folder: PathLike, record: dict, *, overwrite: bool, outputs=None) -> list[str]:
     """Checks ``folder`` against ``record`` (module docs) and writes the record atomically.
 
     Args:
       folder: the output folder (created if missing).
       record: :func:`make_record`'s object.
       overwrite: the run recomputes every output (``--overwrite``): no refusal.
+      outputs: ``{output depth PNG path: input_identity(...)}`` of this run's outputs (those outside
+        ``folder`` are ignored), or None when the job cannot list them up front: then a re-run
+        whose input roots differ from the recorded ones is refused unless ``overwrite``.
+
+    Returns:
+      ``"<output>: <what changed>"`` for every output removed because its inputs changed (to be
+      recomputed by the run; one warning is logged too).
 
     Raises:
-      RunSettingsError: other or unknown settings made the outputs already there.
+      RunSettingsError: other or unknown settings, another output version or (``outputs`` None)
+        other inputs made the outputs already there.
       OutputError: the folder or its record cannot be written.
     """
     from jaxdepth.io.atomic import atomic_write_bytes
 
     folder = pathlib.Path(folder)
     old = read_record(folder)
-    if not overwrite and folder.is_dir() and _has_outputs(folder):
-        if old is not None:
-            diff = differences(old.get("settings", {}), record["settings"])
-            if diff:
-                raise RunSettingsError(
-                    f"{folder}: holds outputs of a run with other settings ({folder / RUN_FILE}): "
-                    + "; ".join(diff) + ". Re-run with --overwrite to recompute them with the new settings, "
-                    "or write to another folder")
-        elif (folder / RUN_FILE).exists():
-            raise RunSettingsError(f"{folder / RUN_FILE}: unreadable run record; its outputs' settings are unknown "
-                                   "(--overwrite recomputes them)")
-        else:
-            raise RunSettingsError(
-                f"{folder}: holds depth PNGs but no {RUN_FILE} (written by an older jaxdepth or another tool), so "
-                "their settings are unknown and resuming could mix two runs. Re-run with --overwrite to recompute "
-                "them, or write to another folder")
+    has_outputs = folder.is_dir() and _has_outputs(folder)
+    if not overwrite and has_outputs:
+        _refuse_other_run(folder, old, record, per_output=outputs is not None)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise OutputError(f"{folder}: cannot create output folder ({err.strerror or err})") from None
-    if old is not None and old.get("settings") == record["settings"]:
-        return  # same settings: resume, the first run's record stays
-    atomic_write_bytes(folder / RUN_FILE, (json.dumps(record, indent=2, sort_keys=True) + "\n").encode(),
-                       overwrite=True)
+    same_run = (old is not None and old.get("settings") == record["settings"]
+                and old.get("output_version") == record.get("output_version"))
+    recorded = old.get("outputs") if same_run else None
+    recorded = dict(recorded) if isinstance(recorded, dict) else {}
+    current = {}
+    for path, ident in (outputs or {}).items():
+        rel = _relative(folder, path)
+        if rel is not None:
+            current[rel] = ident
+    changed = [] if overwrite or not has_outputs else _remove_changed(folder, recorded, current)
+    new = dict(record, outputs={**recorded, **current})
+    if old is None or _without_command(new) != _without_command(old):  # a plain resume leaves the record as is
+        atomic_write_bytes(folder / RUN_FILE, (json.dumps(new, indent=1, sort_keys=True) + "\n").encode(),
+                           overwrite=True)
+    return changed
+
+
+def _without_command(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k != "command"}
+
+
+def _refuse_other_run(folder: pathlib.Path, old: dict | None, record: dict, *, per_output: bool) -> None:
+    """Raises :class:`RunSettingsError` when ``folder``'s outputs were made by another kind of run."""
+    again = ("Re-run with --overwrite to recompute them with the new {}, or write to another folder")
+    if old is None:
+        if (folder / RUN_FILE).exists():
+            raise RunSettingsError(f"{folder / RUN_FILE}: unreadable run record; its outputs' settings are unknown "
+                                   "(--overwrite recomputes them)")
+        raise RunSettingsError(
+            f"{folder}: holds depth PNGs but no {RUN_FILE} (written by an older jaxdepth or another tool), so "
+            "their settings are unknown and resuming could mix two runs. Re-run with --overwrite to recompute "
+            "them, or write to another folder")
+    diff = differences(old.get("settings", {}), record["settings"])
+    if diff:
+        raise RunSettingsError(
+            f"{folder}: holds outputs of a run with other settings ({folder / RUN_FILE}): "
+            + "; ".join(diff) + ". " + again.format("settings"))
+    if old.get("output_version") != record.get("output_version"):
+        was = old.get("output_version") or "none recorded (written before output versions)"
+        raise RunSettingsError(
+            f"{folder}: holds outputs of another jaxdepth algorithm version ({folder / RUN_FILE}: output_version "
+            f"{was} (jaxdepth {old.get('jaxdepth_version', '?')}), this jaxdepth writes "
+            f"{record.get('output_version')}), so resuming would mix two algorithms' outputs. "
+            + again.format("algorithm"))
+    if not per_output and sorted(old.get("inputs", [])) != sorted(record["inputs"]):
+        raise RunSettingsError(
+            f"{folder}: holds outputs made from other inputs ({folder / RUN_FILE}: {', '.join(old.get('inputs', []))}; "
+            f"now {', '.join(record['inputs'])}). " + again.format("inputs"))
+
+
+def _relative(folder: pathlib.Path, path) -> str | None:
+    rel = os.path.relpath(os.path.abspath(os.fspath(path)), os.path.abspath(folder))
+    return None if rel.startswith("..") or os.path.isabs(rel) else pathlib.PurePath(rel).as_posix()
+
+
+def _remove_changed(folder: pathlib.Path, recorded: dict, current: dict) -> list[str]:
+    """Removes every existing output of ``current`` whose recorded inputs differ (and its extra files);
+    ``"<output>: <what changed>"`` for each, logged as one warning."""
+    from jaxdepth.batch.extras import KINDS, extra_path
+
+    changed = []
+    for rel, ident in sorted(current.items()):
+        path = folder / rel
+        if recorded.get(rel) == ident or not path.exists():
+            continue
+        for target in [path] + [extra_path(path, kind) for kind in KINDS]:
+            try:
+                target.unlink(missing_ok=True)
+            except OSError as err:
+                raise OutputError(f"{target}: cannot remove an output whose input changed "
+                                  f"({err.strerror or err})") from None
+        changed.append(f"{rel}: {what_changed(recorded.get(rel), ident)}")
+    if changed:
+        log.warning("%s: %d output%s made from inputs that changed since they were written: removed, to be "
+                    "recomputed (first: %s)", folder, len(changed), "s" if len(changed) > 1 else "", changed[0])
+    return changed
+
+
+def what_changed(old: dict | None, new: dict) -> str:
+    """What differs between two :func:`input_identity` values, in words."""
+    if not isinstance(old, dict):
+        return "no input recorded for it"
+    old_files = [f for f in old.get("files", []) if isinstance(f, list) and len(f) == 3]
+    new_files = new.get("files", [])
+    old_by_path = {f[0]: f for f in old_files}
+    for f in new_files:
+        was = old_by_path.get(f[0])
+        if was is None:
+            gone = [g[0] for g in old_files if g[0] not in {h[0] for h in new_files}]
+            return f"input {gone[0]} -> {f[0]}" if gone else f"new input {f[0]}"
+        if was[1] != f[1]:
+            return f"{f[0]} changed size ({was[1]} -> {f[1]} bytes)"
+        if was[2] != f[2]:
+            return f"{f[0]} modified since (mtime_ns {was[2]} -> {f[2]})"
+    if len(old_files) != len(new_files):
+        return "its input files differ"
+    if old.get("values") != new.get("values"):
+        return "its calibration (K, T_cam_lidar) or image size changed"
+    return "its recorded inputs differ"
 
 
 def record_folders(dst: PathLike, out_paths) -> list[pathlib.Path]:
@@ -208,7 +362,8 @@ def summary_lines(record: dict, *, path: PathLike | None = None) -> list[str]:
     head = f"prediction settings ({path})" if path else "prediction settings"
     main = ", ".join(f"{k} {_show(settings[k])}" for k in ("method", "distance_metric", "outlier_removal")
                      if k in settings)
-    lines = [f"{head}: jaxdepth {record.get('jaxdepth_version', '?')}, {main}"]
+    version = f"jaxdepth {record.get('jaxdepth_version', '?')} (output version {record.get('output_version', '?')})"
+    lines = [f"{head}: {version}, {main}"]
     rest = {k: v for k, v in settings.items() if k not in ("method", "distance_metric", "outlier_removal")}
     if rest:
         lines.append("  " + ", ".join(f"{k}={_show(v)}" for k, v in sorted(rest.items())))
@@ -217,4 +372,5 @@ def summary_lines(record: dict, *, path: PathLike | None = None) -> list[str]:
 
 
 __all__ = ["RUN_FILE", "RunSettingsError", "settings_of", "make_record", "read_record", "find_record",
-           "find_records_below", "record_folders", "differences", "claim_folder", "summary_lines"]
+           "find_records_below", "record_folders", "differences", "claim_folder", "summary_lines", "output_version",
+           "file_identity", "input_identity", "what_changed"]

@@ -16,50 +16,12 @@ import numpy as np
 
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.types import LidarSpec
+from jaxdepth.io.sweep_frame import source_spec
 
 log = logging.getLogger("jaxdepth")
 
 #: Every source is padded to a multiple of this many points (one compilation per bucket).
 POINT_BUCKET = 8192
-
-
-def source_spec(cloud, s: int, fallback: LidarSpec):
-    """Source ``s``'s range-image geometry: ``(LidarSpec, rows)``.
-
-    The stated spec when the cloud gives one (``rows`` None: rows from elevation). Otherwise,
-    with ring indices (``cloud.ring``), when the source's points in its own LiDAR frame look like
-    one spinning LiDAR (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): one row per
-    laser, ranked by its median elevation (``rows``: (n_s,) int32, 0 = highest laser; this keeps
-    unevenly spaced beams, e.g. the VLP-32C's, one per row), beams = the number of lasers, the
-    vertical field of view from the outermost lasers' elevations (half a mean spacing beyond them),
-    columns from ``fallback``. Otherwise ``(fallback, None)``.
-    """
-    spec = cloud.lidars[s]
-    if spec is not None:
-        return spec, None
-    if cloud.ring is None:
-        return fallback, None
-    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
-    mine = cloud.source == s
-    T = np.linalg.inv(cloud.T_ref_source[s])
-    local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-    ring = cloud.ring[mine]
-    est = estimate_lidar_geometry(local, ring=ring)
-    if not est.spinning or est.beams is None:
-        log.info("%s: %s; using the rig's LiDAR spec", cloud.names[s], est.describe())
-        return fallback, None
-    el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
-    lasers, inverse = np.unique(ring, return_inverse=True)
-    far = np.linalg.norm(local, axis=1) > 2.0
-    median = np.array([np.median(el[(inverse == i) & far]) if np.any((inverse == i) & far)
-                       else np.median(el[inverse == i]) for i in range(lasers.size)])
-    rank = np.empty(lasers.size, np.int32)
-    rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
-    half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
-    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=float(median.max() + half),
-                     fov_down_deg=float(median.min() - half), columns=fallback.columns)
-    log.info("%s: %s", cloud.names[s], est.describe())
-    return spec, rank[inverse]
 
 
 def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
@@ -111,7 +73,8 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       beams: L of Step 2's window bounds; default: the reference sweep's LiDARs' beams together.
       stages: return the :class:`~jaxdepth.Stages` (C leading axis) instead of the depth.
       neighbour_sweeps: sweeps on each side whose points a non-reference sweep's LiDARs judge for
-        free space (None: every sweep); default ``NEIGHBOUR_SWEEPS`` of :mod:`jaxdepth._src.sources`.
+        free space (None: every sweep); "default": ``config.free_space_neighbour_sweeps`` (the other
+        free-space and occlusion constants are ``config`` fields too).
       occlusion: with ``free_space``, also remove for each camera the other sweeps' points hidden
         from the reference-sweep LiDAR next to it (see :func:`~jaxdepth._src.sources.reference_view`).
 
@@ -122,9 +85,9 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     import jaxdepth
-    from jaxdepth._src.sources import NEIGHBOUR_SWEEPS, complete_sources_stages
-    if neighbour_sweeps == "default":
-        neighbour_sweeps = NEIGHBOUR_SWEEPS
+    from jaxdepth._src.sources import complete_sources_stages
+    if neighbour_sweeps != "default":
+        config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     if _single_origin(cloud):
         from jaxdepth.io import pad_points
@@ -134,8 +97,22 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     else:
         sources, _ = cloud_sources(cloud, fallback=rig.lidar)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images, neighbour_sweeps=neighbour_sweeps, occlusion=occlusion)
+                                      images=images, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)
 
 
-__all__ = ["complete_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]
+def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: bool = True):
+    """The sweep check of a cloud read from a rig JSON (``complete-rig``, ``hidden-eval``): ``(frame, config)``.
+
+    ``frame``: :func:`jaxdepth.io.sweep_frame.prepare_cloud`'s :class:`~jaxdepth.io.sweep_frame.CloudFrame`
+    (complete ``frame.cloud`` with ``frame.rig``); ``config`` with outlier removal off when the check
+    does not trust it, as the single-file path (:func:`jaxdepth.io.prepare_sweep`) decides.
+    """
+    from jaxdepth.io.sweep_frame import prepare_cloud
+    frame = prepare_cloud(cloud, rig, estimate=estimate)
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    return frame, config
+
+
+__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]

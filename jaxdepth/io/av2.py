@@ -48,7 +48,6 @@ Conventions:
 from __future__ import annotations
 
 import dataclasses
-import math
 import pathlib
 
 import numpy as np
@@ -117,7 +116,7 @@ def read_feather_columns(path: PathLike, columns: dict, *, expected: str) -> dic
 
 
 def _quaternion_pose(row: dict, i: int, where: str) -> np.ndarray:
-    from jaxdepth.io.nuscenes import pose_matrix
+    from jaxdepth._src.poses import pose_matrix
     try:
         return pose_matrix([row[k][i] for k in ("tx_m", "ty_m", "tz_m")],
                            [row[k][i] for k in ("qw", "qx", "qy", "qz")], where=where)
@@ -253,38 +252,6 @@ def _pose_or_error(table: dict, i: int, path: pathlib.Path, row: str) -> np.ndar
         raise file_error(path, str(err)) from None
 
 
-def _slerp(q0: np.ndarray, q1: np.ndarray, a: float) -> np.ndarray:
-    """Spherical-linear interpolation of unit quaternions (shortest arc), ``a`` in [0, 1]."""
-    d = float(np.dot(q0, q1))
-    if d < 0:
-        q1, d = -q1, -d
-    if d > 0.9995:
-        q = q0 + a * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(d, 1.0))
-    return (math.sin((1 - a) * theta) * q0 + math.sin(a * theta) * q1) / math.sin(theta)
-
-
-def _matrix_quaternion(R: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) unit quaternion of a rotation matrix (Shepperd's method)."""
-    m = R
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    return q / np.linalg.norm(q)
-
-
 def interpolate_pose(times: np.ndarray, poses: np.ndarray, t: int, *, path: PathLike = "poses") -> np.ndarray:
     """(4, 4) pose at time ``t`` from sorted ``times`` (M,) and ``poses`` (M, 4, 4).
 
@@ -307,9 +274,9 @@ def interpolate_pose(times: np.ndarray, poses: np.ndarray, t: int, *, path: Path
     t0, t1 = int(times[k - 1]), int(times[k])
     a = (t - t0) / (t1 - t0)
     P0, P1 = poses[k - 1], poses[k]
-    from jaxdepth.io.nuscenes import quaternion_matrix
+    from jaxdepth._src.poses import slerp_rotation
     out = np.eye(4)
-    out[:3, :3] = quaternion_matrix(_slerp(_matrix_quaternion(P0[:3, :3]), _matrix_quaternion(P1[:3, :3]), a))
+    out[:3, :3] = slerp_rotation(P0[:3, :3], P1[:3, :3], a)
     out[:3, 3] = (1 - a) * P0[:3, 3] + a * P1[:3, 3]
     return out
 
@@ -325,12 +292,14 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     The points and intensities pass :func:`jaxdepth.io.plausibility.check_sweep` (ranges, share of
     steep points, intensity) unless ``force`` (then a failure is logged). Its ring test is not run:
     about the ego frame's origin, 1.5 m below the LiDARs, a laser's points spread over ~5 degrees.
+    Points beyond any LiDAR's range are dropped with a warning
+    (:func:`jaxdepth.io.plausibility.far_point_mask`).
 
     Raises:
       InputError: a missing column, a wrong type, non-finite coordinates, a laser number
         outside [0, 64) or an implausible sweep; the message names the file and the column.
     """
-    from jaxdepth.io.plausibility import check_sweep
+    from jaxdepth.io.plausibility import check_sweep, far_point_mask, report_far_points
 
     path = pathlib.Path(path)
     cols = read_feather_columns(path, {"x": "f", "y": "f", "z": "f", "intensity": "i", "laser_number": "i"},
@@ -345,6 +314,11 @@ def read_sweep(path: PathLike, *, force: bool = False) -> tuple[np.ndarray, np.n
     if not finite.all():
         raise field_error(path, "x/y/z", "finite coordinates", f"{int((~finite).sum())} non-finite rows")
     check_sweep(points, path=path, intensity=cols["intensity"].astype(np.float32), force=force)
+    far = far_point_mask(points)
+    if far.any():  # beyond any LiDAR's range: dropped, warned (docs/bad_input_checks.md)
+        report_far_points(path, points, far, kept=force)
+        if not force:
+            points, laser = points[~far], laser[~far]
     return points, laser.astype(np.int32)
 
 
@@ -385,7 +359,7 @@ def read_cloud(log: Av2Log, timestamp_ns: int | None = None, *, sweeps: int = 0,
     offsets = [0]
     for k in range(1, int(sweeps) + 1):
         offsets += [o for o in (-k, k) if 0 <= ref + o < len(log.sweeps)]
-    from jaxdepth.io.nuscenes import invert_pose
+    from jaxdepth._src.poses import invert_pose
 
     ref_from_city = invert_pose(ego_pose(log, log.sweeps[ref])) if len(offsets) > 1 else None
     lidar_poses = [log.sensor_pose(name) for name, _ in LIDARS]
@@ -451,7 +425,7 @@ def camera_from_ego(log: Av2Log, camera: str, *, sweep_ns: int | None = None,
     when either time is None or both are equal. InputError (naming the city poses) for a time
     outside the pose table.
     """
-    from jaxdepth.io.nuscenes import invert_pose
+    from jaxdepth._src.poses import invert_pose
 
     T = invert_pose(log.sensor_pose(camera))
     if sweep_ns is None or camera_ns is None or int(sweep_ns) == int(camera_ns):

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxdepth._src.poses import rigid as _rigid
 from jaxdepth.io.checks import ROTATION_TOL, pinhole_problem, rotation_problem  # noqa: F401 (ROTATION_TOL: public name)
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
 
@@ -100,13 +101,6 @@ def _split_P(path: pathlib.Path, field: str, P: np.ndarray) -> tuple[np.ndarray,
     K = P[:, :3]
     _check_K(path, field, K)
     return K, np.linalg.solve(K, P[:, 3])
-
-
-def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
 
 
 def _cameras(path: pathlib.Path, P: dict[int, np.ndarray], names: dict[int, str], R_rect: np.ndarray,

@@ -12,6 +12,12 @@ import numpy as np
 
 #: Tolerance of the rotation / rigid-transform checks: max |R^T R - I| and |det R - 1|.
 ROTATION_TOL = 1e-3
+#: Largest offset of a principal point from the image centre, as a fraction of the image's width /
+#: height, for :func:`principal_point_scale` to call it centred (real cameras: <= 0.06, KITTI's
+#: benchmark crop 0.07).
+CENTRE_TOL = 0.15
+#: Scale factors :func:`principal_point_scale` tries (K of a half / double / quarter size image).
+K_SCALES = (0.5, 2.0, 0.25, 4.0)
 
 
 def pinhole_problem(K: np.ndarray) -> tuple[str, str] | None:
@@ -57,4 +63,31 @@ def rigid_problem(T: np.ndarray, *, tol: float = ROTATION_TOL) -> tuple[str, str
     problem = rotation_problem(T[:3, :3], tol=tol)
     if problem is not None:
         return "a rigid transform with " + problem[0], problem[1]
+    return None
+
+
+def principal_point_scale(K: np.ndarray, width: int, height: int) -> float | None:
+    """The factor ``s`` when ``K`` seems made for an image ``s`` times the size of ``width`` x ``height``.
+
+    A lens's optical axis meets its sensor near the centre, and a K scaled with its image keeps
+    the principal point there: a principal point off-centre by more than :data:`CENTRE_TOL` (in
+    both the width's and the height's fraction) that lands within it once divided by one of
+    :data:`K_SCALES` is a K scaled by that factor for this image size. A principal point off
+    centre for another reason (a crop) is not judged (None).
+
+    >>> principal_point_scale(np.array([[633.0, 0, 400], [0, 633, 225], [0, 0, 1]]), 1600, 900)
+    0.5
+    >>> principal_point_scale(np.array([[1266.0, 0, 816], [0, 1266, 491], [0, 0, 1]]), 1600, 900) is None
+    True
+    """
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+
+    def centred(x: float, y: float) -> bool:
+        return abs(x / width - 0.5) <= CENTRE_TOL and abs(y / height - 0.5) <= CENTRE_TOL
+
+    if centred(cx, cy):
+        return None
+    for s in K_SCALES:
+        if centred(cx / s, cy / s):
+            return s
     return None

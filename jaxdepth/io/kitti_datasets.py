@@ -501,8 +501,9 @@ def unknown_layout_message(src: PathLike) -> str:
     hint = (f" It looks like a nuScenes dataroot ({', '.join(sorted(nusc))}): pass --nusc-version VERSION "
             "(v1.0-mini, v1.0-trainval, v1.0-test)." if nusc else "")
     return (f"{src}: no dataset layout recognised.{hint} Understood: {items}; ({len(LAYOUTS) + 1}) a nuScenes "
-            "dataroot (v1.0-*/ tables, samples/, sweeps/) with --nusc-version VERSION; or one depth PNG with "
-            "--intrinsics")
+            "dataroot (v1.0-*/ tables, samples/, sweeps/) with --nusc-version VERSION; "
+            f"({len(LAYOUTS) + 2}) Argoverse 2 sensor logs (<log>/sensors/lidar/*.feather and "
+            "<log>/calibration/: one log or a folder of logs, e.g. sensor/val/); or one depth PNG with --intrinsics")
 
 
 def _children(folder: pathlib.Path) -> list:

@@ -37,6 +37,7 @@ import pathlib
 
 import numpy as np
 
+from jaxdepth._src.poses import apply_pose, rigid, rotation_rpy
 from jaxdepth.io.errors import PathLike, field_error, file_error
 
 #: Earth radius of the devkit's Mercator projection, metres.
@@ -91,21 +92,6 @@ def mercator_xy(lat_deg, lon_deg, scale: float) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """(3, 3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``, radians.
-
-    >>> rotation_rpy(0.0, 0.0, math.pi / 2).round(6).tolist()
-    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-    """
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
-
-
 def oxts_poses(packets, *, scale_lat_deg: float | None = None) -> np.ndarray:
     """(F, 4, 4) float64 ``T_w_imu`` of F packets ``(lat, lon, alt, roll, pitch, yaw)`` (module docstring).
 
@@ -130,13 +116,13 @@ def read_imu_to_velo(path: PathLike) -> np.ndarray:
     Raises:
       InputError: missing file or field, wrong count of floats, ``R`` not a rotation.
     """
-    from jaxdepth.io.calib import _check_rotation, _floats, _parse_kv, _rigid
+    from jaxdepth.io.calib import _check_rotation, _floats, _parse_kv
 
     path = pathlib.Path(path)
     fields = _parse_kv(path)
     R = _floats(path, fields, "R", 9).reshape(3, 3)
     _check_rotation(path, "R", R)
-    return _rigid(R, _floats(path, fields, "T", 3))
+    return rigid(R, _floats(path, fields, "T", 3))
 
 
 def relative_velo_poses(T_w_imu: np.ndarray, T_velo_imu: np.ndarray, ref: int) -> np.ndarray:
@@ -211,10 +197,11 @@ def read_drive_cloud(drive: PathLike, frame: str, *, sweeps: int, imu_to_velo: P
         T[0] = np.eye(4)
     points, source = [], []
     for s, o in enumerate(offsets):
-        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS, force=force)
+        xyz, _ = read_points(data / f"{frames[i + o]}.bin", columns=KITTI_POINT_COLUMNS, force=force,
+                             columns_option=None)
         xyz = np.asarray(xyz, np.float32)[:, :3]
         if o:
-            xyz = (xyz.astype(np.float64) @ T[s, :3, :3].T + T[s, :3, 3]).astype(np.float32)
+            xyz = apply_pose(T[s], xyz)
         points.append(xyz)
         source.append(np.full(len(xyz), s, np.int32))
     return SourceCloud(points=np.concatenate(points), source=np.concatenate(source), T_ref_source=T,

@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxdepth._src.poses import apply_pose, invert_pose, pose_matrix, quaternion_matrix
 from jaxdepth.io.errors import InputError, PathLike, field_error, file_error, read_input_bytes
 
 #: Tables read from ``<dataroot>/<version>/``.
@@ -71,58 +72,6 @@ LIDAR_CHANNEL = "LIDAR_TOP"
 POINT_COLUMNS = 5
 #: The devkit's ``from_file_multisweep`` default: points with |x| < 1 and |y| < 1 m are dropped.
 MULTISWEEP_MIN_DISTANCE_M = 1.0
-
-
-def _floats(value, where: str) -> np.ndarray:
-    """A flat float64 array of ``value``; ValueError naming ``where`` if it is not a list of numbers."""
-    text = repr(value)
-    text = text if len(text) <= 60 else text[:57] + "..."
-    if not isinstance(value, (list, tuple, np.ndarray)):
-        raise ValueError(f"field '{where}' expected a list of numbers, got {text}")
-    try:
-        return np.asarray(value, np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"field '{where}' expected a list of numbers, got {text}") from None
-
-
-def quaternion_matrix(q, *, where: str = "rotation") -> np.ndarray:
-    """(3, 3) float64 rotation of a quaternion ``(w, x, y, z)`` (nuScenes / pyquaternion order).
-
-    The quaternion is normalised first. Raises ValueError (naming ``where``) for a
-    zero, non-finite or wrongly sized quaternion.
-
-    >>> np.round(quaternion_matrix([math.cos(math.pi / 4), 0, 0, math.sin(math.pi / 4)]), 6).tolist()
-    [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-    """
-    q = _floats(q, where)
-    norm = float(np.linalg.norm(q)) if q.size == 4 else 0.0
-    if q.size != 4 or not np.all(np.isfinite(q)) or norm < 1e-9:
-        raise ValueError(f"field '{where}' expected a non-zero quaternion [w, x, y, z], got {q.tolist()}")
-    w, x, y, z = q / norm
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def pose_matrix(translation, rotation, *, where: str = "pose") -> np.ndarray:
-    """(4, 4) float64 ``[[R(rotation), translation], [0, 0, 0, 1]]`` (child -> parent frame)."""
-    t = _floats(translation, f"{where}.translation")
-    if t.size != 3 or not np.all(np.isfinite(t)):
-        raise ValueError(f"field '{where}.translation' expected 3 finite numbers, got {t.tolist()}")
-    T = np.eye(4)
-    T[:3, :3] = quaternion_matrix(rotation, where=f"{where}.rotation")
-    T[:3, 3] = t
-    return T
-
-
-def invert_pose(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid (4, 4) transform: ``[[R^T, -R^T t], [0, 1]]``."""
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,7 +219,8 @@ def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False
     """(N, 5) float32 records of a LiDAR sample_data's ``.pcd.bin`` (x, y, z, intensity, ring).
 
     The records pass :func:`jaxdepth.io.plausibility.check_sweep` (ring column included)
-    unless ``force`` (then a failure is logged)."""
+    unless ``force`` (then a failure is logged); points beyond any LiDAR's range get NaN x, y, z
+    (:func:`jaxdepth.io.plausibility.drop_far_points`, warned)."""
     filename = sample_data.get("filename")
     if not isinstance(filename, str) or not filename:
         raise field_error(tables.table_path("sample_data"), f"{sample_data['token']}.filename",
@@ -282,10 +232,10 @@ def read_sweep(tables: NuScenesTables, sample_data: dict, *, force: bool = False
         raise file_error(path, f"size {len(raw)} bytes expected a multiple of {record} "
                                f"({POINT_COLUMNS} float32 values per point)")
     records = np.frombuffer(raw, np.float32).reshape(-1, POINT_COLUMNS).copy()
-    from jaxdepth.io.plausibility import check_sweep
+    from jaxdepth.io.plausibility import check_sweep, drop_far_points
     check_sweep(records[:, :3], path=path, columns=POINT_COLUMNS, intensity=records[:, 3], ring=records[:, 4],
                 raw=raw, force=force)
-    return records
+    return drop_far_points(records, path=path, force=force)
 
 
 def camera_image_path(tables: NuScenesTables, sample_data: dict) -> pathlib.Path:
@@ -315,7 +265,7 @@ def _sweep_parts(tables: NuScenesTables, key_sd: dict, *, sweeps: int, min_dista
         points = remove_close(read_sweep(tables, sd, force=force), min_distance_m)
         T = key_from_global @ ego_pose(tables, sd) @ sensor_pose(tables, sd)
         moved = points.copy()
-        moved[:, :3] = (points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+        moved[:, :3] = apply_pose(T, points[:, :3])
         parts.append((moved, T))
         prev = sd.get("prev")
         if not prev:

@@ -36,6 +36,14 @@ Depth PNGs (:func:`check_depth_scale`), on the non-zero pixels, metres = value /
   24.6 m and 55.9 m when the PNG holds millimetres);
 * median >= 1 m (decimetres or a normalised image give medians of 0.5 m).
 
+Far points (:func:`drop_far_points`): a return farther than :func:`max_range_m` from the
+sensor (default :data:`MAX_RANGE_M` = 1000 m, ``JAXDEPTH_MAX_RANGE_M`` overrides) is no LiDAR
+measurement: automotive LiDARs reach 100-300 m (HDL-64E 120 m, VLP-32C 200 m, long-range units
+250-600 m). One such point (a driver's glitch, a corrupted record) is not worth refusing the sweep
+for, but kept it would be completed like any other: it is dropped (set to NaN, like a missing
+return) and a one-line warning names the file, the count, the farthest range and the limit
+(``--force`` keeps them, as read, and says so).
+
 Every check raises :class:`~jaxdepth.io.errors.InputError` naming the file, what was
 measured and what it seems to be. Callers that know better pass ``force=True`` to the
 readers (``--force`` on the command line), which logs the override as a warning.
@@ -44,6 +52,7 @@ readers (``--force`` on the command line), which logs the override as a warning.
 from __future__ import annotations
 
 import logging
+import os
 import pathlib
 
 import numpy as np
@@ -68,6 +77,9 @@ DEPTH_MAX_MEDIAN_M = 200.0
 DEPTH_MIN_MEDIAN_M = 1.0
 MM_P5_M, MM_MEDIAN_M = 15.0, 40.0
 _MIN_PIXELS = 50  # fewer non-zero pixels: too few to judge the scale
+#: Farthest plausible LiDAR return, metres (module docs); ``JAXDEPTH_MAX_RANGE_M`` overrides it.
+MAX_RANGE_M = 1000.0
+MAX_RANGE_ENV = "JAXDEPTH_MAX_RANGE_M"
 #: Fewer finite points are not judged by the statistical checks (a LiDAR sweep has thousands).
 MIN_POINTS = 100
 
@@ -173,13 +185,86 @@ def suggest_layouts(raw: bytes, *, exclude: tuple | None = None) -> list[str]:
     return fits
 
 
+def max_range_m() -> float:
+    """The far-point limit in metres: ``JAXDEPTH_MAX_RANGE_M`` if set, else :data:`MAX_RANGE_M`.
+
+    Raises:
+      InputError: the variable is not a positive number.
+    """
+    text = os.environ.get(MAX_RANGE_ENV)
+    if text is None or not text.strip():
+        return MAX_RANGE_M
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        raise InputError(f"environment variable {MAX_RANGE_ENV}: expected a positive number of metres, got {text!r}")
+    return value
+
+
+def far_point_mask(points: np.ndarray, *, limit_m: float | None = None) -> np.ndarray:
+    """(N,) bool: finite points whose range about the origin exceeds ``limit_m`` (default :func:`max_range_m`).
+
+    >>> far_point_mask(np.array([[10.0, 0, 0], [1e6, 0, 0], [np.nan, 0, 0]]), limit_m=1000.0).tolist()
+    [False, True, False]
+    """
+    limit = max_range_m() if limit_m is None else float(limit_m)
+    with np.errstate(all="ignore"):
+        xyz = np.asarray(points, np.float64)[:, :3]
+        rng = np.sqrt(np.sum(xyz * xyz, axis=1))  # float64: no overflow below 1e150
+    # A finite point whose squared range overflows (float64 input near 1e308) is far too.
+    return (rng > limit) & np.all(np.isfinite(xyz), axis=1)
+
+
+def report_far_points(path: PathLike, points: np.ndarray, far: np.ndarray, *, limit_m: float | None = None,
+                      kept: bool = False) -> str:
+    """Logs (and returns) the one-line warning for the ``far`` (N,) points of ``points``: dropped, or
+    ``kept`` (``--force``)."""
+    limit = max_range_m() if limit_m is None else float(limit_m)
+    with np.errstate(all="ignore"):
+        farthest = float(np.max(np.linalg.norm(np.asarray(points, np.float64)[far, :3], axis=1)))
+    count = int(np.count_nonzero(far))
+    what = "--force: keeping" if kept else "dropped"
+    text = (f"{path}: {what} {count} point{'s' if count != 1 else ''} farther than {limit:g} m from the sensor "
+            f"(farthest {farthest:.3g} m): beyond any automotive LiDAR's range, not a measurement "
+            f"({MAX_RANGE_ENV} sets the limit)")
+    _LOG.warning("%s", text)
+    return text
+
+
+def drop_far_points(points: np.ndarray, *, path: PathLike, limit_m: float | None = None,
+                    force: bool = False) -> np.ndarray:
+    """``points`` with x, y, z of every point farther than the limit set to NaN (a missing return), warned once.
+
+    Args:
+      points: (N, C) real, x, y, z first, metres about the sensor (or the file's origin).
+      path: the file, named in the warning.
+      limit_m: the limit, default :func:`max_range_m`.
+      force: keep them (``--force``: the input is used as read), still warned.
+
+    Returns:
+      ``points`` itself when no point is that far (or ``force``), else a float copy with those rows NaN.
+    """
+    far = far_point_mask(points, limit_m=limit_m)
+    if not far.any():
+        return points
+    report_far_points(path, points, far, limit_m=limit_m, kept=force)
+    if force:
+        return points
+    out = np.array(points, dtype=np.result_type(np.asarray(points).dtype, np.float32), copy=True)
+    out[far, :3] = np.nan
+    return out
+
+
 def _forced(path: PathLike, problem: str) -> None:
     _LOG.warning("%s: --force: using it although %s", path, problem)
 
 
 def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = None,
                 intensity: np.ndarray | None = None, ring: np.ndarray | None = None,
-                raw: bytes | None = None, force: bool = False) -> None:
+                raw: bytes | None = None, force: bool = False,
+                columns_option: str | None = "--point-columns N") -> None:
     """Refuses a sweep no LiDAR produces (see module docs).
 
     Args:
@@ -189,6 +274,8 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
       intensity, ring: (N,) columns as read, or None.
       raw: the file's bytes; when given, a refusal lists the layouts they fit.
       force: log the problem as a warning instead of raising.
+      columns_option: how the caller's user picks another layout, named after the layouts the bytes
+        fit; None where the layout fixes the column count (KITTI raw / object jobs).
 
     Raises:
       InputError: ``<path>: not a plausible LiDAR sweep when read as ...: <measured>;
@@ -204,9 +291,128 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
     hint = ""
     if raw is not None:
         fits = suggest_layouts(raw, exclude=("<f4", columns) if columns else None)
-        hint = ("; the bytes fit " + " or ".join(f"{f}?" for f in fits) + " (--point-columns N)") if fits else \
+        how_else = (f" ({columns_option})" if columns_option else
+                    f" (this dataset's sweeps are {columns} float32 per point: a file of another dataset?)")
+        hint = ("; the bytes fit " + " or ".join(f"{f}?" for f in fits) + how_else) if fits else \
             "; no other layout (3-6 float32 or 3-5 float64 per point) fits either"
     raise file_error(path, f"not a plausible LiDAR sweep{how}: {problem}{hint}; --force uses it anyway")
+
+
+#: Ground fit of :func:`sweep_ground`: horizontal distances of the candidate points (metres), the
+#: height bin and band (metres), the fewest band points (absolute and share of the candidates).
+GROUND_RING_M = (2.0, 40.0)
+GROUND_BIN_M, GROUND_BAND_M = 0.1, 0.25
+GROUND_MIN_POINTS, GROUND_MIN_SHARE = 200, 0.10
+#: At most this many points (every k-th of the sweep) go into the ground fit.
+GROUND_SAMPLE = 32768
+#: Largest angle between a camera's up axis (-y) and the ground's normal, degrees: a camera on a
+#: vehicle looks at the road, not at the sky or sideways (real rigs: <= 2.4 deg).
+MAX_CAMERA_TILT_DEG = 45.0
+
+
+def sweep_ground(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The ground plane of a sweep: ``(n (3,), d)`` with ``n . p + d = 0``, ``n`` pointing up; None if unclear.
+
+    The points' frame has z along the LiDAR's spin axis, up (the range image's convention, which
+    Steps 1-2 already rely on). The ground is the most populated 10 cm height bin at or below the
+    origin among the points 2-40 m away horizontally (the road around the vehicle); a plane is
+    fitted by least squares to the points within 25 cm of it. Too few points there: None. At
+    most :data:`GROUND_SAMPLE` points (every k-th) are used.
+
+    Args:
+      points: (N, 3) real metres (NaN rows ignored).
+    """
+    xyz = np.asarray(points)[:, :3]
+    xyz = xyz[::max(1, xyz.shape[0] // GROUND_SAMPLE)]  # every k-th point: all azimuths, bounded cost
+    with np.errstate(all="ignore"):
+        xyz = xyz.astype(np.float64)
+        xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+        horizontal = np.hypot(xyz[:, 0], xyz[:, 1])
+        near = xyz[(horizontal >= GROUND_RING_M[0]) & (horizontal <= GROUND_RING_M[1])]
+    low = near[near[:, 2] <= GROUND_BAND_M]
+    if low.shape[0] < GROUND_MIN_POINTS:
+        return None
+    bins = np.floor(low[:, 2] / GROUND_BIN_M).astype(np.int64)
+    counts = np.bincount(bins - bins.min())
+    height = (bins.min() + np.argmax(counts) + 0.5) * GROUND_BIN_M
+    band = low[np.abs(low[:, 2] - height) <= GROUND_BAND_M]
+    if band.shape[0] < max(GROUND_MIN_POINTS, GROUND_MIN_SHARE * near.shape[0]):
+        return None
+    A = np.column_stack([band[:, 0], band[:, 1], np.ones(band.shape[0])])
+    (a, b, c), *_ = np.linalg.lstsq(A, band[:, 2], rcond=None)
+    n = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
+    return n, float(-c * n[2])
+
+
+def _tilt_deg(T: np.ndarray, normal: np.ndarray) -> float:
+    """Angle between the camera's up axis (-y, in the points' frame: -R[1]) and the ground's normal."""
+    return float(np.degrees(np.arccos(np.clip(-T[1, :3] @ normal, -1.0, 1.0))))
+
+
+def camera_geometry_problem(K: np.ndarray, T_cam_lidar: np.ndarray, width: int, height: int, *,
+                            ground: tuple[np.ndarray, float] | None) -> tuple[str, str] | None:
+    """``(field, what is wrong)`` when a camera's calibration cannot fit the sweep; None: plausible.
+
+    Args:
+      K: (3, 3); T_cam_lidar: (4, 4) points' frame -> camera; width, height: pixels.
+      ground: :func:`sweep_ground` of the sweep in the points' frame, or None (not judged).
+    """
+    from jaxdepth.io.checks import principal_point_scale
+    K = np.asarray(K, np.float64)
+    T = np.asarray(T_cam_lidar, np.float64)
+    s = principal_point_scale(K, width, height)
+    if s is not None:
+        return "K", (f"K seems scaled by {s:g} for this image size: principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) in "
+                     f"a {width}x{height} image, K x {1 / s:g} puts it near the centre (scale K with the image)")
+    if ground is None:
+        return None
+    normal, d = ground
+    tilt = _tilt_deg(T, normal)
+    centre = -T[:3, :3].T @ T[:3, 3]
+    above = float(normal @ centre + d)
+    if tilt <= MAX_CAMERA_TILT_DEG and above > 0:
+        return None
+    where = (f"the sweep's ground is {tilt:.0f} deg from below the camera (a camera on a vehicle: under "
+             f"{MAX_CAMERA_TILT_DEG:g}), the camera {above:+.2f} m above it")
+    inverse = np.linalg.inv(T)
+    inv_above = float(normal @ (-inverse[:3, :3].T @ inverse[:3, 3]) + d)
+    if _tilt_deg(inverse, normal) <= MAX_CAMERA_TILT_DEG and inv_above > 0:
+        return "T_cam_lidar", (f"T_cam_lidar looks inverted: {where}; with its inverse "
+                               f"{_tilt_deg(inverse, normal):.0f} deg (it seems to map the camera into the LiDAR "
+                               "frame: write its inverse)")
+    return "T_cam_lidar", (f"T_cam_lidar does not fit the sweep: {where} (another sensor's frame, or its axes "
+                           "swapped?)")
+
+
+def check_rig_geometry(points: np.ndarray, cameras, *, path: PathLike, force: bool = False) -> None:
+    """Refuses a calibration that cannot fit the sweep: a K scaled for another image size, a camera the
+    sweep's ground is not below (an inverted or foreign T_cam_lidar). See docs/bad_input_checks.md.
+
+    Args:
+      points: (N, 3) the sweep in the frame every ``T_cam_lidar`` maps from (z up).
+      cameras: objects with ``K``, ``T_cam_lidar``, ``width``, ``height`` and optionally ``name``
+        (rig cameras, :class:`jaxdepth.Camera`).
+      path: the file that holds the calibration, named in the message.
+      force: log the problem as a warning instead of raising.
+
+    Raises:
+      InputError: ``<path>: camera '<name>' field '<K | T_cam_lidar>': <what is wrong>; --force uses it anyway``
+        (the first camera; the others with the same problem are counted).
+    """
+    ground = sweep_ground(points)
+    found = [(getattr(c, "name", f"#{i}"), camera_geometry_problem(np.asarray(c.K), np.asarray(c.T_cam_lidar),
+                                                                   int(c.width), int(c.height), ground=ground))
+             for i, c in enumerate(cameras)]
+    found = [(name, p) for name, p in found if p is not None]
+    if not found:
+        return
+    name, (field, problem) = found[0]
+    others = f" (also {', '.join(n for n, _ in found[1:])})" if len(found) > 1 else ""
+    text = f"camera '{name}'{others} field '{field}': {problem}"
+    if force:
+        _forced(path, text)
+        return
+    raise file_error(path, f"{text}; --force uses it anyway")
 
 
 def depth_scale_problem(depth_m: np.ndarray) -> str | None:
@@ -265,5 +471,5 @@ def read_checked_depth_png(path: PathLike, *, role: str, force: bool = False) ->
     return depth
 
 
-__all__ = ["check_sweep", "sweep_problem", "suggest_layouts", "decode_layout", "layout_problem", "LAYOUTS",
+__all__ = ["check_sweep", "check_rig_geometry", "camera_geometry_problem", "sweep_ground", "drop_far_points", "far_point_mask", "report_far_points", "max_range_m", "MAX_RANGE_M", "sweep_problem", "suggest_layouts", "decode_layout", "layout_problem", "LAYOUTS",
            "check_depth_scale", "depth_scale_problem", "read_checked_depth_png", "InputError"]

@@ -12,7 +12,9 @@ Non-finite coordinates (NaN, inf) are *not* an error when reading: some drivers
 write them for missing returns. :func:`pad_points` marks them invalid, so they
 never reach a projection. Values no LiDAR produces are: :func:`read_points` runs the
 checks of :mod:`jaxdepth.io.plausibility` on every sweep it reads (a wrong column count
-or dtype decodes without error into garbage points) unless ``force=True``.
+or dtype decodes without error into garbage points) unless ``force=True``, and drops
+points farther than any LiDAR measures (:func:`jaxdepth.io.plausibility.drop_far_points`:
+their x, y, z become NaN, one warning names the file and the count).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ def _split(path: pathlib.Path, array: np.ndarray, columns: int, what: str) -> tu
     return np.ascontiguousarray(data[:, :3]), np.ascontiguousarray(data[:, 3:])
 
 
-def _read_bin(path: pathlib.Path, columns: int, force: bool) -> tuple[np.ndarray, np.ndarray]:
+def _read_bin(path: pathlib.Path, columns: int, force: bool, columns_option) -> tuple[np.ndarray, np.ndarray]:
     record = 4 * columns
     raw = read_input_bytes(path, expected="a point file")
     if len(raw) == 0:
@@ -61,15 +63,15 @@ def _read_bin(path: pathlib.Path, columns: int, force: bool) -> tuple[np.ndarray
                          "check 'columns' (KITTI 4, nuScenes 5)")
     array = np.frombuffer(raw, dtype="<f4").reshape(-1, columns)
     points, extra = _split(path, array, columns, "file")
-    _check(path, points, extra, columns, raw=raw, force=force)
+    _check(path, points, extra, columns, raw=raw, force=force, columns_option=columns_option)
     return points, extra
 
 
-def _check(path, points, extra, columns, *, raw=None, force=False):
+def _check(path, points, extra, columns, *, raw=None, force=False, columns_option="--point-columns N"):
     """The plausibility checks of :mod:`jaxdepth.io.plausibility` on a sweep as read."""
     from jaxdepth.io.plausibility import check_sweep
     check_sweep(points, path=path, columns=columns, intensity=extra[:, 0] if extra.shape[1] >= 1 else None,
-                ring=extra[:, 1] if columns == 5 else None, raw=raw, force=force)
+                ring=extra[:, 1] if columns == 5 else None, raw=raw, force=force, columns_option=columns_option)
 
 
 # Everything a corrupt .npy / .npz can raise while being parsed.
@@ -166,19 +168,27 @@ def infer_point_columns(path: PathLike, given: int | None = None) -> int:
     return fits[0] if fits else 4
 
 
-def read_points(path: PathLike, *, columns: int = 4, force: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def read_points(path: PathLike, *, columns: int | None = None, force: bool = False,
+                columns_option: str | None = "--point-columns N",
+                drop_far: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Reads a LiDAR sweep.
 
     Args:
       path: ``.bin`` (float32 records), ``.npy`` or ``.npz`` file (see module docs).
-      columns: values per point, >= 3 (KITTI 4, nuScenes 5). For ``.npy`` /
-        ``.npz`` the array must have exactly this many columns.
+      columns: values per point, >= 3 (KITTI 4, nuScenes 5); default 5 for ``*.pcd.bin``
+        (nuScenes: x, y, z, intensity, ring), else 4. For ``.npy`` / ``.npz`` the array must
+        have exactly this many columns.
       force: read a sweep that fails the plausibility checks
         (:func:`jaxdepth.io.plausibility.check_sweep`), logging a warning.
+      columns_option: named in a refusal as the way to read another layout (the command's
+        option); None where the layout fixes the column count.
+      drop_far: set x, y, z of points farther than any LiDAR measures to NaN, with one
+        warning (:func:`jaxdepth.io.plausibility.drop_far_points`; ``force`` keeps them, warned);
+        False when the first three columns are not x, y, z (the caller drops them after reordering).
 
     Returns:
       (points, extra): points (N, 3) float32 x, y, z in metres (non-finite
-      values are returned as they are); extra (N, columns - 3) float32, the
+      values are returned as they are, far points as NaN); extra (N, columns - 3) float32, the
       remaining columns (reflectance, ring index, ...).
 
     Raises:
@@ -188,17 +198,21 @@ def read_points(path: PathLike, *, columns: int = 4, force: bool = False) -> tup
         dtype: the message lists the layouts the bytes fit), unless ``force``.
       ValueError: ``columns`` is not an integer >= 3.
     """
-    columns = _check_columns(columns)
     path = pathlib.Path(path)
+    columns = _check_columns((5 if path.name.lower().endswith(".pcd.bin") else 4) if columns is None else columns)
     check_input_file(path, expected="a point file")
     suffix = path.suffix.lower()
     if suffix == ".bin":
-        return _read_bin(path, columns, force)
-    if suffix in (".npy", ".npz"):
+        points, extra = _read_bin(path, columns, force, columns_option)
+    elif suffix in (".npy", ".npz"):
         points, extra = (_read_npy if suffix == ".npy" else _read_npz)(path, columns)
         _check(path, points, extra, columns, force=force)
-        return points, extra
-    raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
+    else:
+        raise file_error(path, f"unsupported suffix '{path.suffix}', expected .bin, .npy or .npz")
+    if drop_far:
+        from jaxdepth.io.plausibility import drop_far_points
+        points = drop_far_points(points, path=path, force=force)
+    return points, extra
 
 
 def bucket_size(n: int) -> int:

@@ -23,8 +23,19 @@ the same points). Where the sensor sits comes from, in order:
    removal off rather than delete good points, and the note says to state
    ``lidar.origin_m``.
 
-Everything estimated is logged on ``logging.getLogger("jaxdepth")`` and
-summarised in :attr:`SweepFrame.notes`.
+Points farther than any LiDAR measures (:func:`jaxdepth.io.plausibility.far_point_mask`)
+get NaN coordinates (a missing return), with a warning. Everything estimated is logged
+on ``logging.getLogger("jaxdepth")`` and summarised in :attr:`SweepFrame.notes`.
+
+:func:`prepare_cloud` makes the same decision for a
+:class:`~jaxdepth.io.sources.SourceCloud` read from a rig JSON's point file or a sweeps JSON
+(``complete-rig``'s multi-source path, ``hidden-eval``), so that one cloud gives one result
+whichever way it is passed: one source (one sweep, no ``lidars``) goes through
+:func:`prepare_sweep` itself; with several sweeps each sweep's points are checked about their
+own origin, an estimated origin moves that source's pose, and one sweep that does not look like
+one spinning LiDAR (a merged cloud of several units with no per-unit column) turns outlier
+removal off as on the single path. Sources whose LiDAR pose the rig states (``lidars``,
+``lidar.origin_m``) are trusted as stated, as :func:`prepare_sweep` trusts a stated origin.
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ import logging
 import numpy as np
 
 from jaxdepth._src.types import LidarSpec
+from jaxdepth.io.plausibility import far_point_mask, report_far_points
 from jaxdepth.io.rig import Rig, RigCamera
 
 log = logging.getLogger("jaxdepth")
@@ -79,7 +91,7 @@ def shift_rig(rig: Rig, origin_m, lidar: LidarSpec | None = None) -> Rig:
 
 
 def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = None,
-                  estimate: bool = True) -> SweepFrame:
+                  estimate: bool = True, drop_far: bool = True) -> SweepFrame:
     """Moves ``points`` (and the rig's extrinsics) so that the LiDAR sits at the origin.
 
     Args:
@@ -90,12 +102,17 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
         sharpens the estimate.
       estimate: estimate what the rig leaves open from the sweep (default);
         False keeps the points' origin and the rig's spec.
+      drop_far: set points farther than any LiDAR measures to NaN, noted (False: ``--force``).
 
     Returns:
       :class:`SweepFrame`.
     """
     xyz = np.asarray(points, np.float32)[:, :3]
     notes = []
+    far = far_point_mask(xyz) if drop_far else None
+    if far is not None and far.any():  # an array from the API; the readers drop these already (io/plausibility.py)
+        notes.append(report_far_points("sweep", xyz, far))
+        xyz = np.where(far[:, None], np.float32(np.nan), xyz)
     spec = rig.lidar
     trusted = True
     if rig.lidar_origin_m is not None:
@@ -133,6 +150,110 @@ def prepare_sweep(points: np.ndarray, rig: Rig, *, ring: np.ndarray | None = Non
                       outlier_removal_trusted=trusted, notes=tuple(notes))
 
 
+@dataclasses.dataclass(frozen=True)
+class CloudFrame:
+    """A SourceCloud after :func:`prepare_cloud`: the cloud and rig to complete, and the decision.
+
+    Attributes:
+      cloud: the :class:`~jaxdepth.io.sources.SourceCloud` (one source: its points moved so that the
+        LiDAR sits at the origin, as :attr:`SweepFrame.points`; several: each source's pose moved to
+        its estimated origin).
+      rig: the :class:`Rig` that goes with it (as :attr:`SweepFrame.rig`).
+      outlier_removal_trusted: False when a sweep does not look like one spinning LiDAR about an
+        origin nothing stated: callers turn outlier removal off.
+      notes: human-readable lines of what was stated, estimated and assumed.
+    """
+
+    cloud: object
+    rig: Rig
+    outlier_removal_trusted: bool
+    notes: tuple
+
+
+def prepare_cloud(cloud, rig: Rig, *, estimate: bool = True) -> CloudFrame:
+    """The sweep check of :func:`prepare_sweep` for a SourceCloud read with ``rig`` (module docstring).
+
+    Args:
+      cloud: :class:`~jaxdepth.io.sources.SourceCloud` from :func:`jaxdepth.io.sweeps.read_point_file_cloud`
+        or :func:`jaxdepth.io.sweeps.read_sweeps_cloud` with ``rig``.
+      rig: the :class:`Rig`.
+      estimate: as :func:`prepare_sweep`; False keeps every stated or points' origin and trusts it.
+
+    Returns:
+      :class:`CloudFrame`. A cloud of one source and a rig without ``lidars`` gives exactly
+      :func:`prepare_sweep`'s points, rig and decision (the source's spec is the prepared rig's).
+    """
+    if rig.lidars:
+        return CloudFrame(cloud, rig, True, ("LiDAR poses stated by the rig's lidars",))
+    if cloud.num_sources == 1:
+        frame = prepare_sweep(cloud.points, rig, ring=cloud.ring, estimate=estimate)
+        moved = dataclasses.replace(cloud, points=frame.points, T_ref_source=np.eye(4)[None],
+                                    lidars=(frame.rig.lidar,))
+        return CloudFrame(moved, frame.rig, frame.outlier_removal_trusted, frame.notes)
+    if rig.lidar_origin_m is not None or not estimate:
+        where = "stated by the rig" if rig.lidar_origin_m is not None else "assumed at each sweep's points' origin"
+        return CloudFrame(cloud, rig, True, (f"LiDAR origin {where}",))
+    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
+    poses, notes, trusted = np.array(cloud.T_ref_source, np.float64), [], True
+    for s in range(cloud.num_sources):
+        mine = cloud.source == s
+        T = np.linalg.inv(poses[s])
+        local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        est = estimate_lidar_geometry(local, ring=None if cloud.ring is None else cloud.ring[mine])
+        notes.append(f"{cloud.names[s]}: estimated from the sweep: {est.describe()}")
+        if not est.spinning:
+            trusted = False
+        elif np.linalg.norm(est.origin_m) >= ORIGIN_SNAP_M:
+            poses[s, :3, 3] += poses[s, :3, :3] @ np.asarray(est.origin_m, np.float64)
+            notes.append(f"{cloud.names[s]}: LiDAR origin estimated at {_fmt(est.origin_m)} m in the sweep's frame")
+    if not trusted:
+        notes.append("a sweep does not look like one spinning LiDAR around its points' origin (a vehicle frame, "
+                     "merged sensors or a non-spinning scan): outlier removal is turned off; state where the "
+                     "sensor sits with lidar.origin_m (or lidars) in the rig JSON to keep it")
+    for line in notes:
+        log.info("%s", line)
+    return CloudFrame(dataclasses.replace(cloud, T_ref_source=poses), rig, trusted, tuple(notes))
+
+
+def source_spec(cloud, s: int, fallback: LidarSpec):
+    """Source ``s``'s range-image geometry: ``(LidarSpec, rows)``.
+
+    The stated spec when the cloud gives one (``rows`` None: rows from elevation). Otherwise,
+    with ring indices (``cloud.ring``), when the source's points in its own LiDAR frame look like
+    one spinning LiDAR (:func:`jaxdepth.io.lidar_estimate.estimate_lidar_geometry`): one row per
+    laser, ranked by its median elevation (``rows``: (n_s,) int32, 0 = highest laser; this keeps
+    unevenly spaced beams, e.g. the VLP-32C's, one per row), beams = the number of lasers, the
+    vertical field of view from the outermost lasers' elevations (half a mean spacing beyond them),
+    columns from ``fallback``. Otherwise ``(fallback, None)``.
+    """
+    spec = cloud.lidars[s]
+    if spec is not None:
+        return spec, None
+    if cloud.ring is None:
+        return fallback, None
+    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
+    mine = cloud.source == s
+    T = np.linalg.inv(cloud.T_ref_source[s])
+    local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    ring = cloud.ring[mine]
+    est = estimate_lidar_geometry(local, ring=ring)
+    if not est.spinning or est.beams is None:
+        log.info("%s: %s; using the rig's LiDAR spec", cloud.names[s], est.describe())
+        return fallback, None
+    el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
+    lasers, inverse = np.unique(ring, return_inverse=True)
+    far = np.linalg.norm(local, axis=1) > 2.0
+    median = np.array([np.median(el[(inverse == i) & far]) if np.any((inverse == i) & far)
+                       else np.median(el[inverse == i]) for i in range(lasers.size)])
+    rank = np.empty(lasers.size, np.int32)
+    rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
+    half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
+    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=float(median.max() + half),
+                     fov_down_deg=float(median.min() - half), columns=fallback.columns)
+    log.info("%s: %s", cloud.names[s], est.describe())
+    return spec, rank[inverse]
+
+
 def _complete_spec(rig: Rig, est, notes: list) -> LidarSpec:
     spec = rig.lidar
     if est.beams is not None and "beams" in rig.lidar_stated and est.beams != spec.beams:
@@ -153,4 +274,4 @@ def _fmt(v) -> str:
     return "(" + ", ".join(f"{x:+.3f}" for x in np.asarray(v, np.float64)) + ")"
 
 
-__all__ = ["SweepFrame", "prepare_sweep", "shift_rig", "ORIGIN_SNAP_M"]
+__all__ = ["SweepFrame", "CloudFrame", "prepare_sweep", "prepare_cloud", "source_spec", "shift_rig", "ORIGIN_SNAP_M"]

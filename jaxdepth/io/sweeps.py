@@ -6,13 +6,15 @@ Two inputs, both named fields so that any tool can write them (``docs/multi_sour
   ``lidars``): :func:`read_point_file_cloud`;
 * a *sweeps JSON*, in place of one point file::
 
-      {"sweeps": [{"file": "000010.bin", "T_ref_sweep": [[1, 0, 0, 0], ...]},
-                  {"file": "000009.bin", "T_ref_sweep": [...], "columns": ["x", "y", "z", "intensity"]}]}
+      {"sweeps": [{"file": "000009.bin", "T_ref_sweep": [...], "columns": ["x", "y", "z", "intensity"]},
+                  {"file": "000010.bin", "T_ref_sweep": [[1, 0, 0, 0], ...]}]}
 
   ``file`` is relative to the JSON's folder (or absolute); ``T_ref_sweep`` (4x4) maps that
   sweep's points' frame into the reference sweep's points' frame (the frame the rig's
   ``T_cam_lidar`` maps from); the reference sweep is the one whose pose is the identity
-  (exactly one); ``columns`` overrides the rig's for that file. :func:`read_sweeps_cloud`.
+  (exactly one); ``columns`` overrides the rig's for that file. The sweeps are listed in time
+  order, so a sweep's number is its signed position from the reference's (negative = earlier,
+  as every reader numbers sweeps). :func:`read_sweeps_cloud`.
 
 Sources. With the rig's ``lidars``, every (sweep, LiDAR) pair is a source posed at
 ``T_ref_sweep @ T_points_lidar``; without them each sweep is one source posed at
@@ -29,8 +31,9 @@ import pathlib
 
 import numpy as np
 
+from jaxdepth._src.poses import apply_pose
 from jaxdepth.io.errors import PathLike, field_error, file_error, read_input_bytes
-from jaxdepth.io.points import infer_point_columns, read_points
+from jaxdepth.io.points import infer_point_columns, read_points, ring_column
 from jaxdepth.io.sources import SourceCloud, rigid_pose_problem
 
 _SWEEP_FIELDS = ("file", "T_ref_sweep")
@@ -39,11 +42,13 @@ _SWEEP_OPTIONAL = ("columns",)
 
 @dataclasses.dataclass(frozen=True)
 class SweepEntry:
-    """One sweep of a sweeps JSON: its file (resolved), pose in the reference frame, optional columns."""
+    """One sweep of a sweeps JSON: its file (resolved), pose in the reference frame, optional columns,
+    and its signed position in the list from the reference sweep (``sweep``: -1 the one listed just before)."""
 
     file: pathlib.Path
     T_ref_sweep: np.ndarray
     columns: tuple | None = None
+    sweep: int = 0
 
 
 def is_sweeps_json(path: PathLike) -> bool:
@@ -55,7 +60,8 @@ def read_sweeps_json(path: PathLike) -> list:
     """Reads and checks a sweeps JSON (format in the module docstring); the reference sweep first.
 
     Returns:
-      list of :class:`SweepEntry`, the reference (identity pose) first, then the others in file order.
+      list of :class:`SweepEntry`, the reference (identity pose) first, then the others in file order;
+      ``sweep`` is each one's list position minus the reference's (the list is in time order).
 
     Raises:
       InputError naming the file and the field: invalid JSON, a missing or unknown field, a
@@ -114,6 +120,7 @@ def read_sweeps_json(path: PathLike) -> list:
         raise field_error(path, "sweeps", "exactly one sweep with the identity T_ref_sweep (the reference sweep)",
                           f"{len(reference)}")
     r = reference[0]
+    entries = [dataclasses.replace(e, sweep=i - r) for i, e in enumerate(entries)]
     return [entries[r]] + entries[:r] + entries[r + 1:]
 
 
@@ -147,9 +154,13 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
     count, names = _columns_of(file, names, point_columns)
     # Named columns: the plausibility check runs here with the named ring / intensity columns (the
     # reader's own check would take a 5th column for nuScenes' ring).
-    points, extra = read_points(file, columns=count, force=names is not None)
+    points, extra = read_points(file, columns=count, force=names is not None, drop_far=names is None)
     points, extra = _xyz(points, extra, names)
-    ring_raw = _named(extra, names, "ring")
+    if names is not None:  # far points dropped once x, y, z are known
+        from jaxdepth.io.plausibility import drop_far_points
+        points = drop_far_points(points, path=file)
+    # Unnamed columns: the ring of a 5-column sweep as the single-file path reads it (ring_column).
+    ring_raw = _named(extra, names, "ring") if names is not None else ring_column(extra, count)
     # A ring index is a laser of one LiDAR: with a lidar column its elevation is judged about that
     # LiDAR's own origin and axes (below), not about the points' origin.
     per_lidar_rings = bool(rig.lidars) and ring_raw is not None and _named(extra, names, "lidar") is not None
@@ -158,7 +169,7 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
         check_sweep(points, path=file, columns=count, intensity=_named(extra, names, "intensity"),
                     ring=None if per_lidar_rings else ring_raw)
     ring = None if ring_raw is None else np.where(np.isfinite(ring_raw), ring_raw, -1).astype(np.int32)
-    pts = (points.astype(np.float64) @ T_ref_sweep[:3, :3].T + T_ref_sweep[:3, 3]).astype(np.float32)
+    pts = apply_pose(T_ref_sweep, points)
     if rig.lidars:
         lidar = _named(extra, names, "lidar")
         if lidar is None:
@@ -190,7 +201,8 @@ def _sources_of_file(file, names, point_columns, rig, T_ref_sweep, sweep: int, w
     return pts, np.zeros(points.shape[0], np.int32), ring, [(T_ref_sweep @ mount, spec, f"lidar@{sweep}")]
 
 
-def _cloud(parts, path) -> SourceCloud:
+def _cloud(parts, path, offsets=(0,)) -> SourceCloud:
+    """One SourceCloud of the parts of :func:`_sources_of_file`; ``offsets``: each part's signed sweep."""
     points, source, rings, poses, specs, names, sweeps = [], [], [], [], [], [], []
     any_ring = any(p[2] is not None for p in parts)
     for k, (pts, local, ring, srcs) in enumerate(parts):
@@ -201,7 +213,7 @@ def _cloud(parts, path) -> SourceCloud:
             poses.append(T)
             specs.append(spec)
             names.append(name)
-            sweeps.append(k)
+            sweeps.append(offsets[k])
     return SourceCloud(points=np.concatenate(points), source=np.concatenate(source).astype(np.int32),
                        T_ref_source=np.stack(poses), lidars=tuple(specs), sweep=np.asarray(sweeps, np.int32),
                        names=tuple(names), ring=np.concatenate(rings) if any_ring else None, path=str(path))
@@ -229,11 +241,12 @@ def read_sweeps_cloud(path: PathLike, rig, *, point_columns: int | None = None) 
     """
     path = pathlib.Path(path)
     parts = []
-    for k, entry in enumerate(read_sweeps_json(path)):
+    entries = read_sweeps_json(path)
+    for entry in entries:
         names = entry.columns if entry.columns is not None else rig.columns
-        parts.append(_sources_of_file(entry.file, names, point_columns, rig, entry.T_ref_sweep, k,
+        parts.append(_sources_of_file(entry.file, names, point_columns, rig, entry.T_ref_sweep, entry.sweep,
                                       f" (sweep {entry.file.name} of {path})", path))
-    return _cloud(parts, path)
+    return _cloud(parts, path, [entry.sweep for entry in entries])
 
 
 __all__ = ["SweepEntry", "is_sweeps_json", "read_sweeps_json", "read_point_file_cloud", "read_sweeps_cloud"]

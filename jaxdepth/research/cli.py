@@ -24,15 +24,18 @@
     (default 64); every entry of ``--beams`` must divide it.
 
 ``jaxdepth hidden-eval POINTS RIG.json [--fraction 0.2] [--seeds 0 1 2 3 4] [--scale 1] [--json OUT]``
-    Hidden-point evaluation of one sweep for every camera of a rig JSON
-    (:func:`jaxdepth.hidden_point_scores`): a seeded share of the points is held
-    out, the rest completed, and the SGM, the SGM without outlier removal, the
-    nearest fill and IP_Basic are scored against the held-out points' own
-    z-buffer (filtered by nothing any method does). Each seed is one draw;
-    the table averages the draws. ``--point-columns`` defaults to 5 for ``*.pcd.bin``
-    (nuScenes) and 4 otherwise; ``--scale`` scales every camera's K and image
+    Hidden-point evaluation of what ``complete-rig`` computes for every camera of a rig JSON:
+    a seeded share of the points is held out, the rest completed, and the SGM, the SGM
+    without outlier removal, both nearest fills and IP_Basic are scored against the held-out
+    points' own z-buffer (filtered by nothing any method does), all targets and ``uncovered``
+    side by side. ``POINTS`` and the rig are read as ``complete-rig`` reads them: one sweep
+    (:func:`jaxdepth.hidden_point_scores`), or, with the rig's ``lidars`` or a sweeps JSON, the
+    multi-source path (:func:`hidden_eval_cloud`: reference-sweep points held out, each target's
+    cover judged from its own LiDAR). Each seed is one draw; the table averages the draws.
+    ``--point-columns`` defaults to the rig's ``columns``, else 5 for ``*.pcd.bin``
+    (nuScenes) and, for a plain ``.bin``, 4 or 5 from its size; ``--scale`` scales every camera's K and image
     size (pixel-centre convention); ``--min-range-m`` (default 1.0) drops
-    returns closer to the LiDAR (no-return placeholders, the vehicle itself).
+    returns closer to their LiDAR (no-return placeholders, the vehicle itself).
 
 Every command prints a table on stdout, writes ``--json`` atomically, raises
 :class:`jaxdepth.io.errors.JaxdepthError` for bad input (the CLI prints one line
@@ -209,7 +212,7 @@ def scaled_camera(camera, scale: float):
 
 def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
                 min_range_m: float = 1.0, config=None, ring: np.ndarray | None = None,
-                estimate: bool = True) -> dict:
+                estimate: bool = True, on_progress=None) -> dict:
     """Per-camera hidden-point scores of one sweep (host wrapper of :func:`jaxdepth.hidden_point_scores`).
 
     The sweep is first put in its LiDAR's frame (:func:`jaxdepth.io.prepare_sweep`:
@@ -220,6 +223,8 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     the draws, the "mean" row the mean over every camera image of every draw
     (the devkit's data-set score, :func:`jaxdepth.mean_metrics`).
 
+    ``on_progress(name, status)`` is called with ``("seed <s>", "done")`` after each draw.
+
     Returns:
       {"cameras": {name: {"hidden_pixels", method: {rmse, mae, irmse, imae}, ...}},
        "mean": {method: {...}}, "methods", "points", "hidden_points", "fraction", "seeds", "scale"},
@@ -228,17 +233,14 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     import jax.numpy as jnp
 
     from jaxdepth._src.config import SGMConfig
-    from jaxdepth.research.hidden import METHODS, hidden_point_mask, hidden_point_scores
-    from jaxdepth._src.metrics import mean_metrics
+    from jaxdepth.research.hidden import hidden_point_mask, hidden_point_scores
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io.points import pad_points
 
     from jaxdepth.io.sweep_frame import prepare_sweep
 
     config = SGMConfig() if config is None else config
-    seeds = [int(s) for s in seeds]
-    if not seeds:
-        raise InputError("hidden_eval: 'seeds' expected at least one seed, got none")
+    seeds = _seeds(seeds)
     frame = prepare_sweep(points, rig, ring=ring, estimate=estimate)
     rig = frame.rig
     if not frame.outlier_removal_trusted and config.outlier_removal:
@@ -247,47 +249,150 @@ def hidden_eval(points: np.ndarray, rig, *, fraction: float = 0.2, seeds=(0,), s
     with np.errstate(invalid="ignore", over="ignore"):
         valid &= np.linalg.norm(padded.astype(np.float64), axis=1) >= min_range_m
     cameras = stack_cameras([scaled_camera(c.as_camera(), scale) for c in rig.cameras])
-    keys = ("rmse", "mae", "irmse", "imae")
-    rows = {cam.name: [] for cam in rig.cameras}
-    hidden_total = 0
+    draws, hidden_total = [], 0
     for seed in seeds:
         hidden = hidden_point_mask(valid, fraction=fraction, seed=seed)
         hidden_total += int(hidden.sum())
-        scores = hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
-                                     config=config, lidar=rig.lidar)
-        for i, cam in enumerate(rig.cameras):
+        draws.append(hidden_point_scores(jnp.asarray(padded), jnp.asarray(valid), jnp.asarray(hidden), cameras,
+                                         config=config, lidar=rig.lidar))
+        if on_progress is not None:
+            on_progress(f"seed {seed}", "done")
+    return dict(_summarise(draws, [c.name for c in rig.cameras]), points=int(valid.sum()),
+                hidden_points=hidden_total // len(seeds), fraction=fraction, seeds=seeds, scale=scale,
+                min_range_m=min_range_m, sweep_notes=list(frame.notes), outlier_removal=bool(config.outlier_removal),
+                **_TARGETS)
+
+
+#: What the two target sets are (recorded in the result).
+_TARGETS = {"targets": "held-out points' own per-pixel z-buffer, unfiltered",
+            "targets_uncovered": "the same without the targets that full-sweep points nearer by "
+                                 "max(1 m, 5 %) cover on both sides (jaxdepth.research.hidden.covered_targets)"}
+
+
+def _seeds(seeds) -> list:
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("hidden_eval: 'seeds' expected at least one seed, got none")
+    return seeds
+
+
+def _summarise(draws: list, names: list) -> dict:
+    """The per-camera and pooled tables of one score dict per draw (:func:`jaxdepth.hidden_point_scores`' layout)."""
+    from jaxdepth._src.metrics import mean_metrics
+    from jaxdepth.research.hidden import METHODS
+
+    keys = ("rmse", "mae", "irmse", "imae")
+    rows = {name: [] for name in names}
+    for scores in draws:
+        for i, name in enumerate(names):
             row = {"hidden_pixels": int(scores["hidden_pixels"][i]),
                    "covered_pixels": int(scores["covered_pixels"][i]), "uncovered": {}}
             for method in METHODS:
                 row[method] = {k: float(scores[method][k][i]) for k in keys}
                 row["uncovered"][method] = {k: float(scores["uncovered"][method][k][i]) for k in keys}
-            rows[cam.name].append(row)
-    draws = [d for per in rows.values() for d in per]
+            rows[name].append(row)
+    every = [d for per in rows.values() for d in per]
     plain, uncovered = (lambda d: d), (lambda d: d["uncovered"])
 
     def draw_mean(per, pick):        # one camera: the mean over its draws
         return {method: {k: float(np.mean([pick(d)[method][k] for d in per])) for k in keys} for method in METHODS}
 
     def pooled(pick, count):         # every camera image of every draw (the devkit's data-set score)
-        means = {method: mean_metrics([dict(pick(d)[method], count=count(d)) for d in draws]) for method in METHODS}
+        means = {method: mean_metrics([dict(pick(d)[method], count=count(d)) for d in every]) for method in METHODS}
         return {method: {k: float(m[k]) for k in keys} for method, m in means.items()}
 
     per_camera = {name: {"hidden_pixels": int(round(np.mean([d["hidden_pixels"] for d in per]))),
                          "covered_pixels": int(round(np.mean([d["covered_pixels"] for d in per]))),
                          **draw_mean(per, plain), "uncovered": draw_mean(per, uncovered)}
                   for name, per in rows.items()}
-    mean = pooled(plain, lambda d: d["hidden_pixels"])
-    mean_uncovered = pooled(uncovered, lambda d: d["hidden_pixels"] - d["covered_pixels"])
-    return {"cameras": per_camera, "mean": mean, "mean_uncovered": mean_uncovered,
-            "covered_share": float(sum(d["covered_pixels"] for d in draws) / max(sum(d["hidden_pixels"]
-                                                                                      for d in draws), 1)),
-            "methods": list(METHODS), "points": int(valid.sum()),
-            "hidden_points": hidden_total // len(seeds), "fraction": fraction, "seeds": seeds, "scale": scale,
-            "min_range_m": min_range_m, "sweep_notes": list(frame.notes),
-            "outlier_removal": bool(config.outlier_removal),
-            "targets": "held-out points' own per-pixel z-buffer, unfiltered",
-            "targets_uncovered": "the same without the targets that full-sweep points nearer by "
-                                 "max(1 m, 5 %) cover on both sides (jaxdepth.research.hidden.covered_targets)"}
+    hidden = sum(d["hidden_pixels"] for d in every)
+    return {"cameras": per_camera, "mean": pooled(plain, lambda d: d["hidden_pixels"]),
+            "mean_uncovered": pooled(uncovered, lambda d: d["hidden_pixels"] - d["covered_pixels"]),
+            "covered_share": float(sum(d["covered_pixels"] for d in every) / max(hidden, 1)),
+            "methods": list(METHODS)}
+
+
+def scaled_rig(rig, scale: float):
+    """``rig`` with every camera's image size and K scaled as :func:`scaled_camera` does."""
+    import dataclasses
+
+    from jaxdepth.io.rig import RigCamera
+    if scale == 1.0:
+        return rig
+    cameras = []
+    for c in rig.cameras:
+        cam = scaled_camera(c.as_camera(), scale)
+        cameras.append(RigCamera(c.name, cam.width, cam.height, np.asarray(cam.K, np.float32), c.T_cam_lidar,
+                                 image=c.image))
+    return dataclasses.replace(rig, cameras=tuple(cameras))
+
+
+def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seeds=(0,), scale: float = 1.0,
+                      min_range_m: float = 1.0, config=None, estimate: bool = True, on_progress=None) -> dict:
+    """Hidden-point scores of what ``complete-rig`` computes for a multi-source cloud (``lidars``, sweeps JSON).
+
+    The cloud gets ``complete-rig``'s sweep check (:func:`jaxdepth.io.sweep_frame.prepare_cloud`:
+    outlier removal off where it is not trusted); each seed holds out a share of the reference
+    sweep's points (points closer than ``min_range_m`` to their own LiDAR dropped first); the methods
+    run ``complete_cloud`` (:func:`jaxdepth.batch.sources_job.complete_cloud`, passed in: the job
+    layer's function, so that the scores are of exactly what ``complete-rig`` runs) on the rest:
+    the SGM, the SGM without removal, its nearest fill, the Euclidean nearest fill and IP_Basic on
+    its merged sparse image. ``uncovered`` judges each target's cover from its own source
+    (:func:`jaxdepth.research.hidden.own_origin_targets`).
+
+    ``on_progress`` as in :func:`hidden_eval`.
+
+    Returns:
+      the layout of :func:`hidden_eval`, plus "sources" (the cloud's source names).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.ip_basic import ip_basic
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.io.sweep_frame import prepare_cloud, source_spec
+    from jaxdepth.research.hidden import (default_cover_half_height_px, hidden_point_mask, own_origin_targets,
+                                          score_predictions)
+
+    config = SGMConfig() if config is None else config
+    seeds = _seeds(seeds)
+    frame = prepare_cloud(cloud, rig, estimate=estimate)
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    rig = scaled_rig(frame.rig, scale)
+    cloud = frame.cloud
+    origin = cloud.T_ref_source[cloud.source, :3, 3]
+    with np.errstate(invalid="ignore", over="ignore"):
+        valid = np.all(np.isfinite(cloud.points), axis=1) & (
+            np.linalg.norm(cloud.points.astype(np.float64) - origin, axis=1) >= min_range_m)
+    cloud = cloud.take(valid)
+    cameras = stack_cameras([c.as_camera() for c in rig.cameras])
+    reference = np.asarray(cloud.sweep)[cloud.source] == 0
+    # each reference source's cover window: its own scan-line spacing, from the spec complete_cloud uses
+    heights = {s: default_cover_half_height_px(cameras.K, source_spec(cloud, s, rig.lidar)[0])
+               for s in range(cloud.num_sources) if cloud.sweep[s] == 0}
+    plain = config.replace(outlier_removal=False)
+    draws, hidden_total = [], 0
+    for seed in seeds:
+        hidden = hidden_point_mask(reference, fraction=fraction, seed=seed)
+        hidden_total += int(hidden.sum())
+        given = cloud.take(~hidden)
+        sgm = complete_cloud(given, rig, config=config, stages=True)
+        base = complete_cloud(given, rig, config=plain, stages=True)
+        euclid = base.seed_depth if config.distance_metric == "l2" else complete_cloud(
+            given, rig, config=plain.replace(distance_metric="l2"), stages=True).seed_depth
+        predictions = {"sgm": sgm.depth, "sgm_no_removal": base.depth, "nearest": base.seed_depth,
+                       "nearest_l2": euclid, "ip_basic": jax.vmap(ip_basic)(jnp.asarray(base.sparse_depth))}
+        target, covered = own_origin_targets(cloud.points, np.ones(len(hidden), bool), hidden, cloud.source,
+                                             cameras, half_heights=heights)
+        draws.append(score_predictions(predictions, target, covered))
+        if on_progress is not None:
+            on_progress(f"seed {seed}", "done")
+    return dict(_summarise(draws, [c.name for c in rig.cameras]), points=int(valid.sum()),
+                hidden_points=hidden_total // len(seeds), fraction=fraction, seeds=seeds, scale=scale,
+                min_range_m=min_range_m, sweep_notes=list(frame.notes), outlier_removal=bool(config.outlier_removal),
+                sources=list(cloud.names), **_TARGETS)
 
 
 _SHORT = {"sgm": "SGM", "sgm_no_removal": "SGM-noOR", "nearest": "nearest", "nearest_l2": "nearest-L2",
@@ -306,30 +411,58 @@ def format_hidden(result: dict) -> list:
         lines.append(f"{name[:16]:16s}{row['hidden_pixels']:6d}" + cells(row))
     lines.append(f"{'mean':16s}{'':6s}" + cells(result["mean"]))
     lines.append(f"{'uncovered':16s}{'':6s}" + cells(result["mean_uncovered"]))
+    lines.append("")
+    lines.append(f"{'method':12s}{'all targets RMSE / MAE':>26s}{'uncovered RMSE / MAE':>26s}")
+    for m in methods:
+        a, u = result["mean"][m], result["mean_uncovered"][m]
+        lines.append(f"{_SHORT[m]:12s}{a['rmse']:>15.1f} /{a['mae']:>8.1f}{u['rmse']:>17.1f} /{u['mae']:>8.1f}")
     lines.append(f"{result['hidden_points']} of {result['points']} points hidden per draw (fraction "
                  f"{result['fraction']}, seeds {result['seeds']}); mm at the held-out points' own z-buffer "
                  f"(unfiltered); SGM-noOR = SGM without outlier removal; nearest = the SGM's own seeds (its metric), "
                  f"nearest-L2 = Euclidean nearest; nearest and IP_Basic without removal")
     lines.append(f"uncovered: the mean without the {100 * result['covered_share']:.1f} % of targets that nearer "
-                 f"sweep points cover on both sides (hidden from the camera; a test independent of every method)")
+                 f"sweep points cover on both sides (hidden from the camera; a test independent of every method)"
+                 + ("; each target judged with its own LiDAR's points" if "sources" in result else ""))
     return lines
 
 
 def cmd_hidden_eval(args) -> int:
     from jaxdepth.io.points import read_points, ring_column
     from jaxdepth.io.rig import read_rig_json
+    from jaxdepth.io.sweeps import is_sweeps_json, read_point_file_cloud, read_sweeps_cloud
 
     if not 0.0 < args.fraction < 1.0:
         raise InputError(f"--fraction expected a number in (0, 1), got {args.fraction}")
     if not 0.0 < args.scale <= 4.0:
         raise InputError(f"--scale expected a number in (0, 4], got {args.scale}")
     path = pathlib.Path(args.points)
-    columns = _point_columns(path, args.point_columns)
-    points, extra = read_points(path, columns=columns)
     rig = read_rig_json(args.rig)
-    result = hidden_eval(points, rig, fraction=args.fraction, seeds=args.seeds, scale=args.scale,
-                         ring=ring_column(extra, columns), estimate=not args.no_estimate,
-                         min_range_m=args.min_range_m, config=_config(args))
+    from jaxdepth.progress import Progress
+    progress = Progress(len(args.seeds), unit="seeds", label="hidden-eval",
+                        verbose=bool(getattr(args, "verbose", False)))
+    try:
+        options = dict(fraction=args.fraction, seeds=args.seeds, scale=args.scale, estimate=not args.no_estimate,
+                       min_range_m=args.min_range_m, config=_config(args))
+        # complete-rig's two paths (jaxdepth.batch.rig_job), chosen and read as it does
+        if is_sweeps_json(path) or rig.lidars:
+            read = read_sweeps_cloud if is_sweeps_json(path) else read_point_file_cloud
+            cloud = read(path, rig, point_columns=args.point_columns)
+            if getattr(args, "complete_cloud", None) is None:
+                raise InputError(f"{path}: a multi-source input (lidars / sweeps JSON) needs the jaxdepth command line's "
+                                 "complete_cloud (register(..., complete_cloud=))")
+            result = hidden_eval_cloud(cloud, rig, complete_cloud=args.complete_cloud, on_progress=progress.update,
+                                       **options)
+        else:
+            columns = len(rig.columns) if rig.columns is not None else _point_columns(path, args.point_columns)
+            points, extra = read_points(path, columns=columns)
+            if rig.columns is not None:
+                names = list(rig.columns[3:])
+                ring = extra[:, names.index("ring")] if "ring" in names else None
+            else:
+                ring = ring_column(extra, columns)
+            result = hidden_eval(points, rig, ring=ring, on_progress=progress.update, **options)
+    finally:
+        progress.close()
     if result["hidden_points"] == 0:
         raise InputError(f"{path}: no valid point to hide (all closer than {args.min_range_m} m or invalid)")
     for note in result["sweep_notes"]:
@@ -345,7 +478,8 @@ def cmd_hidden_eval(args) -> int:
 
 
 _POINT_COLUMNS = ("--point-columns", dict(type=int, default=None,
-                                          help="float32 values per point in a .bin (default 5 for *.pcd.bin, else 4)"))
+                                          help="float32 values per point in a .bin (default: 5 for *.pcd.bin; "
+                                               "a plain .bin's size decides between 4 and 5, refused when both fit)"))
 
 # subcommand -> (help, handler, arguments as (name, add_argument keywords)); every one also takes
 # the SGM options of jaxdepth.options.add_config_options.
@@ -368,10 +502,13 @@ _SUBCOMMANDS = {
         _POINT_COLUMNS,
         ("--json", dict(help="write the table as JSON to this file")),
     )),
-    "hidden-eval": ("hidden-point scores of a sweep for every camera of a rig JSON", cmd_hidden_eval, (
-        ("points", dict(help="LiDAR sweep (.bin, .pcd.bin, .npy, .npz)")),
-        ("rig", dict(help="rig JSON (see jaxdepth.io.rig)")),
-        _POINT_COLUMNS,
+    "hidden-eval": ("hidden-point scores of what complete-rig computes, for every camera of a rig JSON",
+                    cmd_hidden_eval, (
+        ("points", dict(help="LiDAR sweep (.bin, .pcd.bin, .npy, .npz) or a sweeps JSON (docs/multi_source.md)")),
+        ("rig", dict(help="rig JSON (docs/rig_json.md; with lidars / columns as complete-rig reads them)")),
+        ("--point-columns", dict(type=int, default=None, help=(
+            "float32 values per point in a .bin (default: the rig JSON's columns when it names them; else 5 for "
+            "*.pcd.bin, and a plain .bin's size decides between 4 and 5, refused when both fit)"))),
         ("--fraction", dict(type=float, default=0.2, help="share of the points held out (default 0.2)")),
         ("--no-estimate", dict(action="store_true", help="do not estimate the LiDAR's position / field of view "
                                                          "from the sweep (see docs/rig_json.md)")),
@@ -385,15 +522,22 @@ _SUBCOMMANDS = {
 }
 
 
-def register(subparsers) -> None:
-    """Adds ``ablation``, ``sparsity`` and ``hidden-eval`` to an argparse subparsers object."""
+def register(subparsers, *, complete_cloud=None) -> None:
+    """Adds ``ablation``, ``sparsity`` and ``hidden-eval`` to an argparse subparsers object.
+
+    ``complete_cloud``: the job layer's :func:`jaxdepth.batch.sources_job.complete_cloud`, which
+    ``hidden-eval`` runs on a multi-source input (passed in by :func:`jaxdepth.cli.build_parser`:
+    research code sits below the jobs and imports none); None: such inputs are refused.
+    """
     for command, (help_text, handler, arguments) in _SUBCOMMANDS.items():
         p = subparsers.add_parser(command, help=help_text)
         for name, options in arguments:
             p.add_argument(name, **options)
         add_config_options(p)
         p.set_defaults(func=handler)
+        if command == "hidden-eval":
+            p.set_defaults(complete_cloud=complete_cloud)
 
 
-__all__ = ["register", "cmd_ablation", "cmd_sparsity", "cmd_hidden_eval", "hidden_eval", "scaled_camera",
-           "format_hidden"]
+__all__ = ["register", "cmd_ablation", "cmd_sparsity", "cmd_hidden_eval", "hidden_eval", "hidden_eval_cloud",
+           "scaled_camera", "scaled_rig", "format_hidden"]
