@@ -76,7 +76,7 @@ def test_exact_points_lie_on_scene_surfaces(name, request):
         mine = np.flatnonzero(np.isin(twin.cloud.source, np.flatnonzero(twin.cloud.sweep == k)))
         pick = rng.choice(mine, size=min(3000, mine.size), replace=False)
         p = _to_world(twin, twin.cloud.points[pick])
-        scene = twin_scene(twin.seed, int(k), dt_s=RIG_BUILDERS[twin.name](NO_EFFECTS).dt_s)
+        scene = twin_scene(twin.seed, -int(k), dt_s=RIG_BUILDERS[twin.name](NO_EFFECTS).dt_s)
         dist, inside = _surface_distance(p, scene, twin_spheres(twin.seed))
         rng_m = np.linalg.norm(twin.cloud.points[pick] - twin.point_origin[pick], axis=1)
         tol = 1e-4 + 2e-6 * rng_m          # float32 ray casting
@@ -166,7 +166,7 @@ def test_kitti_and_nuscenes_tables_are_the_real_sweeps_measurement():
 def test_raster_is_one_source_per_sweep_but_four_units(raster_exact):
     twin = raster_exact
     cloud = twin.cloud
-    assert cloud.T_ref_source.shape[0] == 2 and list(cloud.sweep) == [0, 1]
+    assert cloud.T_ref_source.shape[0] == 2 and list(cloud.sweep) == [0, -1]
     assert cloud.lidars == (None, None) and cloud.ring is None
     np.testing.assert_array_equal(np.unique(twin.point_unit), np.arange(4))
     rdef = RIG_BUILDERS["raster"](NO_EFFECTS)
@@ -224,6 +224,7 @@ def test_write_twin_reads_back_through_the_rig_and_sweeps_readers(rig, tmp_path)
     np.testing.assert_array_equal(cloud.source, twin.cloud.source)
     np.testing.assert_allclose(cloud.T_ref_source, twin.cloud.T_ref_source, atol=1e-6)
     assert cloud.names == twin.cloud.names and cloud.lidars == twin.cloud.lidars
+    np.testing.assert_array_equal(cloud.sweep, twin.cloud.sweep)      # signed, time order
     if twin.cloud.ring is None:
         assert cloud.ring is None
     else:

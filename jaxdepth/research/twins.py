@@ -7,8 +7,8 @@ geometry (:mod:`jaxdepth.research.twin_rigs`) and sensor effects
 the rig and the exact depth of every camera at the reference sweep. :func:`write_twin` writes
 what a user would have on disk (point files, rig JSON, sweeps JSON, depth PNGs).
 
-Sweep 0 is the reference (the latest); sweep ``k`` was taken ``k`` sweeps earlier, the ego then
-``k * step_m`` further back along its path and turned ``k * yaw_deg`` to the right of the
+Sweep 0 is the reference (the latest); sweep ``-k`` (signed, as every reader numbers sweeps) was taken
+``k`` sweeps earlier, the ego then ``k * step_m`` further back along its path and turned ``k * yaw_deg`` to the right of the
 reference heading. Deterministic in ``(rig, sweeps, seed, scale, effects)``.
 """
 
@@ -153,16 +153,16 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
         if not rdef.per_unit_sources:
             poses.append(T_ref_points)
             specs.append(rdef.stated[0])
-            sweep_ids.append(k)
-            names.append(f"{_source_name(rdef)}@{k}")
+            sweep_ids.append(-k)                      # signed: -k was taken k sweeps earlier
+            names.append(f"{_source_name(rdef)}@{-k}")
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             unit = make_unit(k)
             out = cast_unit(scene, spheres, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
             if rdef.per_unit_sources:
                 poses.append(T_ref_points @ T_points_unit)
                 specs.append(rdef.stated[u])
-                sweep_ids.append(k)
-                names.append(f"{unit.name}@{k}")
+                sweep_ids.append(-k)
+                names.append(f"{unit.name}@{-k}")
             keep = out["valid"]
             n = int(keep.sum())
             parts["points"].append(_moved(T_ref_world, out["points"][keep]))
@@ -232,9 +232,10 @@ def _npy_bytes(array: np.ndarray) -> bytes:
 
 
 def _sweep_file_rows(twin: Twin, k: int) -> np.ndarray:
-    """The float32 rows of sweep ``k``'s point file, in its own points frame."""
+    """The float32 rows of the point file of the sweep taken ``k`` sweeps before the reference (``cloud.sweep``
+    ``-k``), in its own points frame."""
     cloud = twin.cloud
-    sources = np.flatnonzero(cloud.sweep == k)
+    sources = np.flatnonzero(cloud.sweep == -k)
     sel = np.isin(cloud.source, sources)
     T = np.linalg.inv(twin.sweep_poses[k])
     pts = cloud.points[sel].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
@@ -252,8 +253,8 @@ def write_twin(twin: Twin, folder) -> dict:
     Files: ``sweep_<k>.npy`` (float32 rows ``x, y, z, intensity`` (0: reflectance is not modelled)
     plus ``lidar`` / ``ring`` where the rig's ``columns`` name them, each sweep in its own points
     frame), ``rig.json``
-    (:func:`jaxdepth.io.write_rig_json`), ``sweeps.json`` (``T_ref_sweep`` of each sweep, the
-    reference first) and ``depth/<camera>.png`` (the exact depth, KITTI uint16 format, at the
+    (:func:`jaxdepth.io.write_rig_json`), ``sweeps.json`` (``T_ref_sweep`` of each sweep, in time
+    order: the reference, ``sweep_0``, last) and ``depth/<camera>.png`` (the exact depth, KITTI uint16 format, at the
     camera's own size).
 
     Returns:
@@ -271,6 +272,7 @@ def write_twin(twin: Twin, folder) -> dict:
         sweep_paths.append(path)
         entries.append({"file": path.name, "T_ref_sweep": [[float(x) for x in row] for row in twin.sweep_poses[k]]})
     entries[0]["T_ref_sweep"] = np.eye(4).tolist()
+    entries = entries[::-1]                           # a sweeps JSON lists its sweeps in time order
     sweeps_json = atomic_write_bytes(folder / "sweeps.json", (json.dumps({"sweeps": entries}, indent=1) + "\n").encode())
     rig_path = write_rig_json(folder / "rig.json", twin.rig)
     depth = {cam.name: write_depth_png(folder / "depth" / f"{cam.name}.png", d)
