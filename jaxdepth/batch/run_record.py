@@ -4,7 +4,7 @@ Every output folder of ``jaxdepth complete`` (every dataset layout, the nuScenes
 the local and the Ray engine) and ``complete-rig`` holds one ``jaxdepth_run.json``,
 written atomically before the first output::
 
-    {"jaxdepth_version": "0.1.0", "output_version": "5f1beb652fb8",
+    {"jaxdepth_version": "0.1.0", "output_version": "de5d6c957fb7",
      "command": "jaxdepth complete raw/ out/ --distance l2",
      "inputs": ["/abs/path/raw"],
      "settings": {"method": "sgm", "distance_metric": "l2", ..., "zero_invalid": false},
