@@ -4,8 +4,9 @@ Returning from ``main`` after a KeyboardInterrupt lets the interpreter shut down
 compile threads still run, and that shutdown crashed (SIGSEGV, exit 139; issue 39): 4 of 5
 interrupts 2.5 s into the demo's cold compile. So the program prints the message, flushes its
 streams and ends with ``os._exit(130)``. JAX also runs Python callbacks (its gc callback) in which
-a KeyboardInterrupt is printed as "Exception ignored" and lost: :func:`received` still tells that
-one came, so the command ends with 130 when its job returns; a second Ctrl-C ends it at once.
+a KeyboardInterrupt is lost (Python would print it as an "Exception ignored" traceback; the hook
+installed here keeps that traceback off the terminal): :func:`received` still tells that one came, so
+the command ends with 130 when its job returns; a second Ctrl-C ends it at once.
 
 A leaf module (no jaxdepth import); only the command line (``jaxdepth.cli.main``) installs it.
 """
@@ -33,6 +34,16 @@ def catch() -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGINT, on_sigint)
+    default_hook = sys.unraisablehook
+
+    def on_unraisable(info):
+        # our own KeyboardInterrupt raised inside a callback that cannot propagate it (JAX's gc
+        # callback): already counted by on_sigint, so no traceback for the user
+        if isinstance(info.exc_value, KeyboardInterrupt) and received():
+            return
+        default_hook(info)
+
+    sys.unraisablehook = on_unraisable
 
 
 def received() -> bool:

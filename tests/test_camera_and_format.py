@@ -108,7 +108,9 @@ def test_ambiguous_bin_is_refused(tmp_path, capsys):
 def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys, caplog):
     """The stereo rig of the shared small street (``scenes.stereo_street``: the same compiled completion as
     tests/test_rig.py) with CAM_B turned to look straight up, above the LiDAR's field of view (+2 degrees):
-    it sees none of the sweep's points, is warned about and written all zero; CAM_A is not."""
+    it sees none of the sweep's points, is warned about and written all zero; CAM_A is not. A camera looking
+    straight up does not fit a ground-bound sweep, so the plausibility checks refuse it unless ``--force``
+    (tests/test_far_points_and_calibration.py checks that refusal)."""
     from scenes import SMALL_LIDAR, stereo_street
     frame, cams = stereo_street()
     points = np.asarray(frame.points)[np.asarray(frame.valid)]
@@ -122,7 +124,7 @@ def test_complete_rig_warns_when_a_camera_sees_nothing(tmp_path, capsys, caplog)
         "cameras": [{"name": name, "width": cam.width, "height": cam.height, "K": np.asarray(cam.K, float).tolist(),
                      "T_cam_lidar": T} for name, cam, T in
                     (("CAM_A", cams[0], np.asarray(cams[0].T_cam_lidar, float).tolist()), ("CAM_B", cams[1], up))]}))
-    code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate"])
+    code = cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate", "--force"])
     err = capsys.readouterr().err
     assert code == 0 and "CAM_B: no LiDAR point projects into this camera" in err and "CAM_A: no LiDAR" not in err
     # said once: the command prints the job's report, the job does not log it as well

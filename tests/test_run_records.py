@@ -8,6 +8,7 @@ import json
 import logging
 import os
 import pathlib
+import sys
 
 import numpy as np
 import pytest
@@ -208,3 +209,35 @@ def test_ctrl_c_during_a_cold_compile_exits_130_not_a_crash(tmp_path, delay_s):
     assert code == 130, (code, err[-2000:])
     assert err.rstrip().endswith("jaxdepth: interrupted; finished outputs are complete, re-run to resume")
     assert "Traceback" not in err and "Fatal Python error" not in err
+
+
+def test_a_swallowed_interrupt_prints_no_traceback():
+    """A Ctrl-C that lands in a callback which cannot raise (JAX's gc callback) reaches Python's
+    unraisable hook: once jaxdepth's handler counted it, the hook in place before (Python's default
+    prints a traceback) does not see it; any other unraisable exception still goes to it."""
+    import signal
+
+    from jaxdepth import interrupts
+
+    seen = []
+    old_handler, old_hook, old_count = signal.getsignal(signal.SIGINT), sys.unraisablehook, interrupts._COUNT[0]
+    try:
+        sys.unraisablehook = seen.append              # stands in for the default hook
+        interrupts.catch()
+
+        class Info:
+            exc_type, exc_traceback, err_msg, object = KeyboardInterrupt, None, "Exception ignored in", None
+            exc_value = KeyboardInterrupt()
+
+        interrupts._COUNT[0] = 1                      # on_sigint counted it
+        sys.unraisablehook(Info)
+        assert seen == []
+        other = type("Other", (), dict(vars(Info), exc_type=ValueError, exc_value=ValueError("boom")))
+        sys.unraisablehook(other)
+        assert seen == [other]
+        interrupts._COUNT[0] = 0                      # a KeyboardInterrupt jaxdepth did not count: passed on
+        sys.unraisablehook(Info)
+        assert seen == [other, Info]
+    finally:
+        signal.signal(signal.SIGINT, old_handler)
+        sys.unraisablehook, interrupts._COUNT[0] = old_hook, old_count
