@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from jaxdepth._src.poses import rigid
 from jaxdepth._src.presets import AV2_VLP32C, KITTI_HDL64, KITTI_K_CAM2, KITTI_T_CAM_LIDAR, NUSCENES_HDL32
 from jaxdepth._src.types import LidarSpec
 from jaxdepth.research import twin_tables as tables
@@ -67,11 +68,8 @@ class RigDef:
 
 
 def _pose(R=None, t=(0.0, 0.0, 0.0)) -> np.ndarray:
-    T = np.eye(4)
-    if R is not None:
-        T[:3, :3] = R
-    T[:3, 3] = t
-    return T
+    """(4, 4) pose of a rotation (None: identity) and a translation (:func:`jaxdepth._src.poses.rigid`)."""
+    return rigid(np.eye(3) if R is None else R, t)
 
 
 def _yaw(deg: float) -> np.ndarray:
