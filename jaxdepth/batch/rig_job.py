@@ -76,10 +76,9 @@ def _complete(points_path, rig, *, config, images, multi, columns, point_columns
 
     if multi:
         # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
-        from jaxdepth.batch.sources_job import complete_cloud
+        from jaxdepth.batch.sources_job import checked_cloud, complete_cloud
         from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
         read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
-        from jaxdepth.batch.sources_job import checked_cloud
         cloud = read(points_path, rig, point_columns=point_columns)
         report("note", f"{cloud.num_sources} sources ({', '.join(cloud.names)}), {cloud.points.shape[0]} points")
         frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
