@@ -9,7 +9,10 @@ Summarise (prints the tables; ``--json`` writes them, default ``results/suite_pr
 
     python -m benchmarks.suite_profile /tmp/profile [--compile-cost] [--json [PATH]]
 
-Per test: wall seconds, and the seconds JAX reports through ``jax.monitoring`` in that test's
+Per test: wall seconds; CPU seconds of the test's process (``cpu_s``: user + system, every thread,
+XLA's compile threads included) and of the subprocesses it waited for (``child_cpu_s``: CLI runs,
+notebook kernels; not Ray's workers, which outlive the test), which other processes' load on a
+shared machine inflates far less than wall time; and the seconds JAX reports through ``jax.monitoring`` in that test's
 process: XLA compiling (``backend_compile``), tracing, lowering to MLIR, reading the persistent
 compilation cache; and every single compile of at least 0.25 s (``JAXDEPTH_SUITE_PROFILE_MIN_S``)
 with its function's name and argument shapes (from JAX's ``jax_log_compiles`` messages, which the
@@ -31,6 +34,7 @@ import logging
 import os
 import pathlib
 import re
+import resource
 import sys
 import time
 
@@ -99,6 +103,12 @@ def pytest_configure(config):
     _state["out"] = open(os.path.join(folder, f"{worker}.jsonl"), "a", encoding="utf-8")
 
 
+def _child_cpu_s() -> float:
+    """User + system seconds of this process's finished (waited-for) subprocesses so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """Runs in the process that runs the test (an xdist worker, or the only process)."""
@@ -108,10 +118,11 @@ def pytest_runtest_protocol(item, nextitem):
         return
     _state["sums"].clear()
     _state["big"].clear()
-    start = time.time()
+    start, cpu, child = time.time(), time.process_time(), _child_cpu_s()
     yield
     record = {"id": item.nodeid, "worker": _state["worker"], "start": round(start, 3),
-              "wall_s": round(time.time() - start, 3)}
+              "wall_s": round(time.time() - start, 3), "cpu_s": round(time.process_time() - cpu, 3),
+              "child_cpu_s": round(_child_cpu_s() - child, 3)}
     record.update({k: round(v, 3) for k, v in sorted(_state["sums"].items())})
     record["big_compiles"] = list(_state["big"])
     out.write(json.dumps(record) + "\n")
@@ -132,9 +143,14 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::")[0]
 
 
+def _cpu(record: dict) -> float:
+    """CPU seconds of a test, its waited-for subprocesses included (0 in profiles from before they were kept)."""
+    return record.get("cpu_s", 0.0) + record.get("child_cpu_s", 0.0)
+
+
 def summarise(records: list, *, top: int = 25) -> dict:
     """Totals, per-worker spans, and the modules, tests and compiled functions that take longest."""
-    fields = ("wall_s", "compile_s", "trace_s", "lower_s", "cache_read_s")
+    fields = ("wall_s", "cpu_s", "child_cpu_s", "compile_s", "trace_s", "lower_s", "cache_read_s")
     totals = {k: round(sum(r.get(k, 0.0) for r in records), 1) for k in fields}
     totals.update(tests=len(records), compiles=int(sum(r.get("compile_n", 0) for r in records)),
                   cache_reads=int(sum(r.get("cache_read_n", 0) for r in records)))
@@ -147,16 +163,18 @@ def summarise(records: list, *, top: int = 25) -> dict:
         w["wall_s"] += r["wall_s"]
     workers = {k: {"tests": v["tests"], "span_s": round(v["last_end"] - v["first_start"], 1),
                    "busy_s": round(v["wall_s"], 1)} for k, v in sorted(workers.items())}
-    modules = collections.defaultdict(lambda: [0.0, 0.0, 0])
+    modules = collections.defaultdict(lambda: [0.0, 0.0, 0, 0.0])
     for r in records:
         m = modules[_module(r["id"])]
         m[0] += r["wall_s"]
         m[1] += r.get("compile_s", 0.0)
         m[2] += 1
-    by_module = [{"module": k, "wall_s": round(v[0], 1), "compile_s": round(v[1], 1), "tests": v[2]}
-                 for k, v in sorted(modules.items(), key=lambda kv: -kv[1][0])[:top]]
-    by_test = [{"test": r["id"], "wall_s": r["wall_s"], "compile_s": round(r.get("compile_s", 0.0), 1),
-                "big_compiles": r["big_compiles"]} for r in sorted(records, key=lambda r: -r["wall_s"])[:top]]
+        m[3] += _cpu(r)
+    by_module = [{"module": k, "wall_s": round(v[0], 1), "cpu_s": round(v[3], 1), "compile_s": round(v[1], 1),
+                  "tests": v[2]} for k, v in sorted(modules.items(), key=lambda kv: -kv[1][0])[:top]]
+    by_test = [{"test": r["id"], "wall_s": r["wall_s"], "cpu_s": round(_cpu(r), 1),
+                "compile_s": round(r.get("compile_s", 0.0), 1), "big_compiles": r["big_compiles"]}
+               for r in sorted(records, key=lambda r: -r["wall_s"])[:top]]
     funs = collections.defaultdict(lambda: [0.0, 0])
     same = collections.defaultdict(list)
     for r in records:
@@ -199,18 +217,19 @@ def compile_cost(*, repeats: int = 3) -> dict:
 
 def _print(summary: dict) -> None:
     t = summary["totals"]
-    print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers: XLA compiling {t['compile_s']:.0f} s "
+    print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers ({t['cpu_s'] + t['child_cpu_s']:.0f} s "
+          f"of CPU, {t['child_cpu_s']:.0f} s of it in subprocesses): XLA compiling {t['compile_s']:.0f} s "
           f"({t['compiles']} compiles), tracing {t['trace_s']:.0f} s, lowering {t['lower_s']:.0f} s, "
           f"cache reads {t['cache_read_s']:.0f} s ({t['cache_reads']} programs read back)")
     for name, w in summary["workers"].items():
         print(f"  {name}: {w['tests']} tests, busy {w['busy_s']:.0f} s over a span of {w['span_s']:.0f} s")
-    print("\nmodules (wall s, compile s, tests)")
+    print("\nmodules (wall s, CPU s, compile s, tests)")
     for m in summary["by_module"]:
-        print(f"  {m['wall_s']:7.1f} {m['compile_s']:7.1f} {m['tests']:5d}  {m['module']}")
-    print(f"\ntests (wall s, compile s, listed compiles: {_LISTED})")
+        print(f"  {m['wall_s']:7.1f} {m['cpu_s']:7.1f} {m['compile_s']:7.1f} {m['tests']:5d}  {m['module']}")
+    print(f"\ntests (wall s, CPU s, compile s, listed compiles: {_LISTED})")
     for r in summary["by_test"]:
         big = " ".join(f"{n}:{s}" for n, s, *_ in r["big_compiles"][:4])
-        print(f"  {r['wall_s']:7.1f} {r['compile_s']:7.1f}  {r['test']}  {big}")
+        print(f"  {r['wall_s']:7.1f} {r['cpu_s']:7.1f} {r['compile_s']:7.1f}  {r['test']}  {big}")
     print(f"\ncompiled functions (compile s, listed compiles: {_LISTED})")
     for f in summary["by_function"]:
         print(f"  {f['compile_s']:7.1f} {f['compiles']:5d}  {f['function']}")

@@ -13,19 +13,25 @@ from conftest import REPO
 from benchmarks import suite_profile
 
 
-def _record(nodeid, worker, start, wall, compile_s=0.0, compile_n=0, big=()):
-    return {"id": nodeid, "worker": worker, "start": start, "wall_s": wall, "compile_s": compile_s,
-            "compile_n": compile_n, "big_compiles": [list(b) for b in big]}
+def _record(nodeid, worker, start, wall, compile_s=0.0, compile_n=0, big=(), cpu=None):
+    record = {"id": nodeid, "worker": worker, "start": start, "wall_s": wall, "compile_s": compile_s,
+              "compile_n": compile_n, "big_compiles": [list(b) for b in big]}
+    if cpu is not None:  # (own, subprocesses'); records of older profiles have neither
+        record["cpu_s"], record["child_cpu_s"] = cpu
+    return record
 
 
 def test_summary_totals_spans_and_orders_against_hand_sums():
     records = [
-        _record("tests/a.py::t1", "gw0", 100.0, 4.0, 3.0, 2, [("jit(f)", 2.5)]),
-        _record("tests/a.py::t2", "gw0", 104.0, 1.0, 0.5, 1),
+        _record("tests/a.py::t1", "gw0", 100.0, 4.0, 3.0, 2, [("jit(f)", 2.5)], cpu=(5.0, 0.0)),
+        _record("tests/a.py::t2", "gw0", 104.0, 1.0, 0.5, 1, cpu=(0.5, 2.0)),
         _record("tests/b.py::t3", "gw1", 101.0, 6.0, 5.0, 3, [("jit(f)", 1.0), ("jit(g)", 3.5)]),
     ]
     s = suite_profile.summarise(records, top=10)
     assert s["totals"]["tests"] == 3 and s["totals"]["wall_s"] == 11.0 and s["totals"]["compile_s"] == 8.5
+    assert s["totals"]["cpu_s"] == 5.5 and s["totals"]["child_cpu_s"] == 2.0
+    assert {m["module"]: m["cpu_s"] for m in s["by_module"]} == {"tests/a.py": 7.5, "tests/b.py": 0.0}
+    assert [t["cpu_s"] for t in s["by_test"]] == [0.0, 5.0, 2.5]
     assert s["totals"]["compiles"] == 6
     assert s["workers"] == {"gw0": {"tests": 2, "span_s": 5.0, "busy_s": 5.0},
                             "gw1": {"tests": 1, "span_s": 6.0, "busy_s": 6.0}}
@@ -62,7 +68,10 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
         "def test_compiles():\n"
         "    assert float(jax.jit(lambda x: jnp.sin(x) * 3.0)(jnp.float32(1.0))) != 0.0\n"
         "def test_plain():\n"
-        "    assert 1 + 1 == 2\n")
+        "    assert 1 + 1 == 2\n"
+        "def test_subprocess():\n"
+        "    import subprocess, sys\n"
+        "    subprocess.run([sys.executable, '-c', 'sum(range(2 * 10 ** 7))'], check=True)\n")
     folder = tmp_path / "profile"
     env = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(folder), JAXDEPTH_SUITE_PROFILE_MIN_S="0",
                JAX_ENABLE_COMPILATION_CACHE="false")
@@ -73,8 +82,11 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
     records = {r["id"].split("::")[-1]: r for r in suite_profile.load(folder)}
-    assert sorted(records) == ["test_compiles", "test_plain"]
+    assert sorted(records) == ["test_compiles", "test_plain", "test_subprocess"]
     assert records["test_compiles"]["compile_n"] >= 1 and records["test_compiles"]["compile_s"] > 0
+    # CPU seconds: compiling costs this process's CPU; a subprocess's CPU is its parent test's (children)
+    assert records["test_compiles"]["cpu_s"] > 0 and records["test_plain"]["child_cpu_s"] == 0
+    assert records["test_subprocess"]["child_cpu_s"] > 0.2 > records["test_subprocess"]["cpu_s"]
     # every compile listed (MIN_S=0), each with its argument shapes: the lambda's one float32 scalar
     listed = {name: shapes for name, _, shapes in records["test_compiles"]["big_compiles"]}
     assert listed["jit(<lambda>)"] == "f32[]", listed
@@ -82,4 +94,4 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
     assert all(r["worker"] == "main" and r["wall_s"] >= 0 for r in records.values())
     out = tmp_path / "summary.json"
     assert suite_profile.main([str(folder), "--json", str(out)]) == 0
-    assert json.loads(out.read_text())["totals"]["tests"] == 2
+    assert json.loads(out.read_text())["totals"]["tests"] == 3
