@@ -3,7 +3,8 @@
 Oracles: a brute-force NumPy walk over every window, an analytic scene (a
 near wall in front of a far one, sampled on scan lines), jit == eager,
 vmap == loop; and hidden_point_scores' "uncovered" scores equal the devkit
-metrics at the targets the test keeps.
+metrics at the targets the test keeps. The Euclidean nearest fill ("nearest_l2") against a
+brute-force NumPy search.
 """
 
 import jax
@@ -13,7 +14,7 @@ import pytest
 
 import jaxdepth
 from helpers import square_before_plane
-from jaxdepth.research.hidden import covered_targets, scan_line_spacing_px
+from jaxdepth.research.hidden import covered_targets, euclidean_fill, euclidean_fill_jit, scan_line_spacing_px
 
 
 def numpy_covered(target, full, h, w):
@@ -152,3 +153,25 @@ def test_hidden_point_scores_under_jit_needs_a_static_window():
     assert int(np.asarray(eager[0])[0]) > 0
     for got, want in zip(traced[1:], eager[1:]):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-6)
+
+
+def test_euclidean_fill_is_the_depth_of_a_nearest_kept_pixel():
+    """Brute force over every (pixel, kept pixel) pair: each pixel holds the depth of a kept pixel at the
+    smallest Euclidean distance (exactly that pixel's where it is the only one); sparse pixels that are
+    not kept are never used; jit == eager, C cameras at once."""
+    rng = np.random.default_rng(7)
+    shape = (2, 9, 13)
+    sparse = np.where(rng.random(shape) < 0.25, rng.uniform(2.0, 40.0, shape), 0.0).astype(np.float32)
+    keep = (sparse > 0) & (rng.random(shape) < 0.7)
+    got = np.asarray(euclidean_fill(jnp.asarray(keep), jnp.asarray(sparse)))
+    np.testing.assert_array_equal(np.asarray(euclidean_fill_jit(keep, sparse)), got)
+    v, u = np.mgrid[0:shape[1], 0:shape[2]]
+    for c in range(shape[0]):
+        kv, ku = np.nonzero(keep[c])
+        d2 = (v.reshape(-1, 1) - kv) ** 2 + (u.reshape(-1, 1) - ku) ** 2      # (pixels, kept) squared L2
+        nearest = d2 == d2.min(axis=1, keepdims=True)
+        values = sparse[c][kv, ku]
+        assert np.all(np.any(nearest & (got[c].reshape(-1, 1) == values), axis=1))
+        unique = nearest.sum(axis=1) == 1
+        assert unique.mean() > 0.5
+        np.testing.assert_array_equal(got[c].reshape(-1)[unique], values[nearest[unique].argmax(axis=1)])

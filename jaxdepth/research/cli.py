@@ -336,7 +336,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
     sweep's points (points closer than ``min_range_m`` to their own LiDAR dropped first); the methods
     run ``complete_cloud`` (:func:`jaxdepth.batch.sources_job.complete_cloud`, passed in: the job
     layer's function, so that the scores are of exactly what ``complete-rig`` runs) on the rest:
-    the SGM, the SGM without removal, its nearest fill, the Euclidean nearest fill and IP_Basic on
+    the SGM, the SGM without removal, its nearest fill, the Euclidean nearest fill
+    (:func:`jaxdepth.research.hidden.euclidean_fill` of the run without removal) and IP_Basic on
     its merged sparse image. ``uncovered`` judges each target's cover from its own source
     (:func:`jaxdepth.research.hidden.own_origin_targets`).
 
@@ -352,8 +353,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
     from jaxdepth._src.ip_basic import ip_basic
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.io.sweep_frame import prepare_cloud, source_spec
-    from jaxdepth.research.hidden import (default_cover_half_height_px, hidden_point_mask, own_origin_targets,
-                                          score_predictions)
+    from jaxdepth.research.hidden import (default_cover_half_height_px, euclidean_fill_jit, hidden_point_mask,
+                                          own_origin_targets, score_predictions)
 
     config = SGMConfig() if config is None else config
     seeds = _seeds(seeds)
@@ -380,8 +381,8 @@ def hidden_eval_cloud(cloud, rig, *, complete_cloud, fraction: float = 0.2, seed
         given = cloud.take(~hidden)
         sgm = complete_cloud(given, rig, config=config, stages=True)
         base = complete_cloud(given, rig, config=plain, stages=True)
-        euclid = base.seed_depth if config.distance_metric == "l2" else complete_cloud(
-            given, rig, config=plain.replace(distance_metric="l2"), stages=True).seed_depth
+        euclid = base.seed_depth if config.distance_metric == "l2" else euclidean_fill_jit(base.inlier_mask,
+                                                                                        base.sparse_depth)
         predictions = {"sgm": sgm.depth, "sgm_no_removal": base.depth, "nearest": base.seed_depth,
                        "nearest_l2": euclid, "ip_basic": jax.vmap(ip_basic)(jnp.asarray(base.sparse_depth))}
         target, covered = own_origin_targets(cloud.points, np.ones(len(hidden), bool), hidden, cloud.source,

@@ -12,7 +12,8 @@ scored as an error; read the scores with that in mind.
 Methods on the same input: the SGM as configured, the SGM without outlier
 removal, the nearest-LiDAR-pixel fill it starts from (its own distance metric,
 no removal), the Euclidean nearest fill ("nearest_l2"; the same as "nearest"
-when the SGM runs with ``distance_metric="l2"``) and IP_Basic (no removal).
+when the SGM runs with ``distance_metric="l2"``; :func:`euclidean_fill` of the run without
+removal, not a third pipeline) and IP_Basic (no removal).
 
 A second score, reported separately, drops the targets that the sweep itself
 shows to be hidden from the camera (:func:`covered_targets`): a target is
@@ -47,6 +48,7 @@ from jaxdepth._src.geometry import project_to_image
 from jaxdepth._src.ip_basic import ip_basic
 from jaxdepth._src.metrics import depth_metrics
 from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.rig import RigCameras, complete_rig_stages
 from jaxdepth._src.types import LidarSpec
 
@@ -218,6 +220,28 @@ def hidden_point_scores(points: jax.Array, valid: jax.Array, hidden: jax.Array, 
                                 cover=int(cover_half_height_px))
 
 
+def euclidean_fill(keep: jax.Array, sparse_depth: jax.Array) -> jax.Array:
+    """(C, H, W) float32 Euclidean nearest fill of the kept sparse pixels, C images at once.
+
+    Args:
+      keep: (C, H, W) bool kept pixels (a run's ``Stages.inlier_mask``).
+      sparse_depth: (C, H, W) float32 (its ``Stages.sparse_depth``).
+
+    Returns:
+      at every pixel the depth of the kept pixel nearest in the L2 metric, ties as
+      :func:`~jaxdepth.nearest_seed` breaks them: Step 3's ``seed_depth`` of the same run with
+      ``distance_metric="l2"`` (the metric changes nothing before Step 3), without compiling and
+      running another whole pipeline for it.
+    """
+    def one(mask, sparse):
+        seeds = nearest_seed(mask, metric="l2")
+        return gather_at_seed(jnp.where(mask, sparse, 0.0), seeds.du, seeds.dv)
+    return jax.vmap(one)(keep, sparse_depth)
+
+
+euclidean_fill_jit = jax.jit(euclidean_fill)
+
+
 @functools.partial(jax.jit, static_argnames=("config", "lidar", "cover"))
 def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar, cover):
     valid = jnp.asarray(valid, bool)
@@ -225,11 +249,8 @@ def _hidden_point_scores(points, valid, hidden, cameras, *, config, lidar, cover
     given = valid & ~hidden
     stages = complete_rig_stages(points, given, cameras, config=config, lidar=lidar)
     plain = complete_rig_stages(points, given, cameras, config=config.replace(outlier_removal=False), lidar=lidar)
-    if config.distance_metric == "l2":
-        euclid = plain.seed_depth
-    else:
-        euclid = complete_rig_stages(points, given, cameras, lidar=lidar, config=config.replace(
-            outlier_removal=False, distance_metric="l2")).seed_depth
+    euclid = plain.seed_depth if config.distance_metric == "l2" else euclidean_fill(plain.inlier_mask,
+                                                                                    plain.sparse_depth)
 
     def z_buffer(mask):
         """(C, H, W) per-pixel nearest depth of the points in ``mask``, every camera."""
