@@ -85,15 +85,23 @@ def test_layout_detection_and_errors(tmp_path):
 @pytest.mark.xdist_group("jobs_av2")  # one worker compiles the Argoverse 2 sources program once
 @pytest.mark.slow  # real Argoverse 2 sweeps completed at 1550 x 2048
 def test_command_line_detects_the_log(tmp_path, capsys):
-    """``jaxdepth complete LOG DST`` finds the Argoverse 2 layout; options that do not apply are usage errors."""
+    """``jaxdepth complete LOG DST`` finds the Argoverse 2 layout; options that do not apply are usage errors.
+
+    The log's first sweep alone (its files linked, not copied): each sweep compiles a sources program
+    of its own (its LiDAR spec is estimated from its points), and the test above compiled this one."""
     from jaxdepth import cli
 
-    root = require_shared(*LOG)
+    shared = require_shared(*LOG)
+    first = av2.read_log(shared).sweeps[0]
+    root = tmp_path / "one" / LOG[-1]
+    (root / "sensors" / "lidar").mkdir(parents=True)
+    for part in ("calibration", "city_SE3_egovehicle.feather", f"sensors/lidar/{first}.feather"):
+        (root / part).symlink_to(shared / part)
     dst = tmp_path / "cli"
     assert cli.main(["complete", str(root), str(dst), "--cameras", CAMERA, "-q"]) == 0
     log = av2.read_log(root)
     outs = sorted(p.relative_to(dst).as_posix() for p in dst.rglob("*.png"))
-    assert outs == [f"{LOG[-1]}/{CAMERA}/{ts}.png" for ts in log.sweeps]
+    assert log.sweeps == (first,) and outs == [f"{LOG[-1]}/{CAMERA}/{first}.png"]
     assert read_depth_png(dst / outs[0]).shape == (1550, 2048)
     capsys.readouterr()
     for extra in (["--camera", "2"], ["--method", "nearest", "--validity"], ["--sweeps", "-1"],
