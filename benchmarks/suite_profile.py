@@ -152,7 +152,8 @@ def summarise(records: list, *, top: int = 25) -> dict:
     """Totals, per-worker spans, and the modules, tests and compiled functions that take longest."""
     fields = ("wall_s", "cpu_s", "child_cpu_s", "compile_s", "trace_s", "lower_s", "cache_read_s")
     totals = {k: round(sum(r.get(k, 0.0) for r in records), 1) for k in fields}
-    totals.update(tests=len(records), compiles=int(sum(r.get("compile_n", 0) for r in records)),
+    totals.update(tests=len(records), has_cpu=any("cpu_s" in r for r in records),
+                  compiles=int(sum(r.get("compile_n", 0) for r in records)),
                   cache_reads=int(sum(r.get("cache_read_n", 0) for r in records)))
     workers = {}
     for r in records:
@@ -217,8 +218,9 @@ def compile_cost(*, repeats: int = 3) -> dict:
 
 def _print(summary: dict) -> None:
     t = summary["totals"]
-    print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers ({t['cpu_s'] + t['child_cpu_s']:.0f} s "
-          f"of CPU, {t['child_cpu_s']:.0f} s of it in subprocesses): XLA compiling {t['compile_s']:.0f} s "
+    cpu = (f" ({t['cpu_s'] + t['child_cpu_s']:.0f} s of CPU, {t['child_cpu_s']:.0f} s of it in subprocesses)"
+           if t.get("has_cpu") else " (no CPU times: a profile from before they were recorded)")
+    print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers{cpu}: XLA compiling {t['compile_s']:.0f} s "
           f"({t['compiles']} compiles), tracing {t['trace_s']:.0f} s, lowering {t['lower_s']:.0f} s, "
           f"cache reads {t['cache_read_s']:.0f} s ({t['cache_reads']} programs read back)")
     for name, w in summary["workers"].items():

@@ -29,7 +29,8 @@ def test_summary_totals_spans_and_orders_against_hand_sums():
     ]
     s = suite_profile.summarise(records, top=10)
     assert s["totals"]["tests"] == 3 and s["totals"]["wall_s"] == 11.0 and s["totals"]["compile_s"] == 8.5
-    assert s["totals"]["cpu_s"] == 5.5 and s["totals"]["child_cpu_s"] == 2.0
+    assert s["totals"]["cpu_s"] == 5.5 and s["totals"]["child_cpu_s"] == 2.0 and s["totals"]["has_cpu"]
+    assert not suite_profile.summarise(records[2:])["totals"]["has_cpu"]    # an older profile: no CPU times
     assert {m["module"]: m["cpu_s"] for m in s["by_module"]} == {"tests/a.py": 7.5, "tests/b.py": 0.0}
     assert [t["cpu_s"] for t in s["by_test"]] == [0.0, 5.0, 2.5]
     assert s["totals"]["compiles"] == 6
