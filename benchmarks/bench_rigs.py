@@ -12,8 +12,6 @@ first call (trace + compile + one run) reported apart, ``block_until_ready`` bef
   - ``rig stages`` : ``complete_sources_stages(...)`` then ``.depth`` (what ``complete_cloud``
     runs: every stage leaves the program);
   - ``rig depth``  : the same in a jit that returns only the depth (tried; measured slower);
-  - ``rig stages, all vmapped`` : the same program with Steps 2-3 vmapped over the cameras like
-    the projection and Step 4 (as before ``map_cameras``; the same bytes): the before / after pair;
   - ``single cameras`` : the single-camera path (``complete_points``, one camera at its own
     size, the sweep's points as one source at the ego origin, 64 merged lasers) over the 7
     cameras in a loop: the same pixels without the canvas;
@@ -24,7 +22,7 @@ first call (trace + compile + one run) reported apart, ``block_until_ready`` bef
     point's own origin), Steps 3-4 (seeds, residual, bracket, blur).
 
 * nuScenes sample (one HDL-32E, 6 cameras of 900 x 1600, 8.6 Mpx): ``complete_rig_stages`` (and the
-  depth-only jit, and the all-vmapped program) against a loop of ``complete_points`` over the cameras and the nearest fill.
+  depth-only jit) against a loop of ``complete_points`` over the cameras and the nearest fill.
 
 Writes benchmarks/results/rigs.json.
 
@@ -69,24 +67,6 @@ def _nearest_fn(points, valid, cameras):
             return jaxdepth.complete_with(sparse, K, T, method="nearest", config=config)
         return jax.vmap(one)(K, T, size)
     return lambda: run(points, valid, cameras.K, cameras.T_cam_lidar, cameras.image_size)
-
-
-def _all_vmapped(module, jitted, *args, **options):
-    """The rig program as it was before Steps 2-3 went camera by camera: ``jitted`` traced afresh with
-    ``module.map_cameras`` replaced by ``vmap`` (every camera step vmapped; the same bytes)."""
-    import functools
-
-    import jax
-    program = jax.jit(functools.partial(jitted.__wrapped__, **options))
-
-    def run():
-        saved = module.map_cameras
-        module.map_cameras = lambda fn, *xs: jax.vmap(fn)(*xs)
-        try:            # traced on the first call only
-            return np.asarray(program(*args).depth)
-        finally:
-            module.map_cameras = saved
-    return run
 
 
 def _single_fns(points, valid, rig_cameras, spec, config):
@@ -188,9 +168,6 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
     variants = {
         "rig depth": lambda: depth_only(sources, cameras),
         "rig stages": lambda: np.asarray(S.complete_sources_stages(sources, cameras, config=config).depth),
-        "rig stages, all vmapped": _all_vmapped(S, S._complete_sources_stages, sources, cameras, None,
-                                                config=config, free_space=True, beams=S.default_beams(sources),
-                                                occlusion=True),
         "single cameras": _single_fns(padded, valid, rig.cameras, merged, config),
         "nearest": _nearest_fn(padded, valid, cameras),
     }
@@ -209,7 +186,6 @@ def nuscenes_sample(repeats: int) -> dict:
     import jax
 
     import jaxdepth
-    from jaxdepth._src import rig as R
     from jaxdepth.io import pad_points, read_points, rig_from_nuscenes_calibration
 
     config = jaxdepth.SGMConfig()
@@ -224,8 +200,6 @@ def nuscenes_sample(repeats: int) -> dict:
         "rig depth": lambda: depth_only(padded, valid, cameras),
         "rig stages": lambda: np.asarray(jaxdepth.complete_rig_stages(padded, valid, cameras, config=config,
                                                                       lidar=rig.lidar).depth),
-        "rig stages, all vmapped": _all_vmapped(R, R._complete_rig_stages, padded, valid, cameras, None,
-                                                config=config, lidar=rig.lidar),
         "single cameras": _single_fns(padded, valid, rig.cameras, rig.lidar, config),
         "nearest": _nearest_fn(padded, valid, cameras),
     }

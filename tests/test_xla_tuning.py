@@ -94,10 +94,6 @@ def test_helpers_reduce_to_the_plain_computation():
             np.testing.assert_array_equal(xla_tuning.after(a, jnp.int32([7])), a)
             first, stop = xla_tuning.shared_loop_bounds(jnp.int32(2), jnp.int32(5))
             assert (int(first), int(stop)) == (2, 5)
-            xs = jnp.arange(12.0).reshape(3, 4)
-            mapped = xla_tuning.map_cameras(lambda x, none: (jnp.cumsum(x) * 2.0, none), xs, None)
-            np.testing.assert_array_equal(mapped[0], np.cumsum(np.arange(12.0).reshape(3, 4), axis=1) * 2.0)
-            assert mapped[1] is None
 
 
 @pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
@@ -144,44 +140,3 @@ def test_complete_agrees_on_the_kitti_frame(kitti):
     test_pipeline's and test_speed_equivalence's)."""
     sparse, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     _assert_same(*_both(lambda: jaxdepth.complete_stages(sparse, K, T)))
-
-
-@pytest.mark.slow  # two pipeline programs of their own (docs/testing.md)
-def test_rig_and_sources_cameras_mapped_equal_cameras_vmapped(monkeypatch):
-    """complete_rig_stages and complete_sources_stages run Steps 2-3 camera by camera (map_cameras:
-    lax.map with the tricks on); the oracle is the same program with every step vmapped over the
-    cameras (map_cameras replaced by vmap): bit for bit on a rig of three sizes (landscape, smaller,
-    square: the padded canvas) and on two sources of two sweeps (free space, occlusion witness)."""
-    import functools
-
-    import jax
-
-    from jaxdepth._src import rig as rig_module
-    from jaxdepth._src import sources as S
-
-    frame, cams = stereo_street()
-    big = cams[0]
-    small = jaxdepth.Camera(K=cams[1].K, T_cam_lidar=cams[1].T_cam_lidar, height=big.height - 16,
-                            width=big.width - 40)
-    square = jaxdepth.Camera(K=cams[1].K, T_cam_lidar=big.T_cam_lidar, height=big.height, width=big.height)
-    rig = jaxdepth.stack_cameras([big, small, square])
-    pts, val = np.asarray(frame.points), np.asarray(frame.valid)
-    half = len(pts) // 2
-    T = np.stack([np.eye(4), np.eye(4)]).astype(np.float32)
-    T[1, 0, 3] = -0.5
-    src = S.make_sources(np.stack([pts[:half], pts[half:2 * half]]), np.stack([val[:half], val[half:2 * half]]), T,
-                         lidars=(SMALL_LIDAR,) * 2, sweep=(0, -1))
-    runs = {"rig": (rig_module, rig_module._complete_rig_stages, (frame.points, frame.valid, rig, None),
-                    dict(config=SGMConfig(), lidar=SMALL_LIDAR)),
-            "sources": (S, S._complete_sources_stages, (src, rig, None),
-                        dict(config=SGMConfig(), free_space=True, beams=SMALL_LIDAR.beams, occlusion=True))}
-    for name, (module, jitted, args, options) in runs.items():
-        mapped = jitted(*args, **options)
-        monkeypatch.setattr(module, "map_cameras", lambda fn, *xs: jax.vmap(fn)(*xs))
-        # a fresh jit of the same function, traced with every camera step vmapped
-        vmapped = jax.jit(functools.partial(jitted.__wrapped__, **options))(*args)
-        monkeypatch.undo()
-        for field, value in mapped._asdict().items():
-            if value is not None:
-                np.testing.assert_array_equal(np.asarray(value), np.asarray(getattr(vmapped, field)),
-                                              err_msg=f"{name}: {field}")

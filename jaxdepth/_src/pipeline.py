@@ -87,14 +87,6 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     ``keep``: optional (H, W) bool Step-2 mask computed by the caller (several
     sources, each with its own viewpoint); None runs Algorithm 1 here.
     """
-    keep, du, dv = _tail_seeds(sparse_depth, points_cam, K, T_cam_lidar, beams=beams, config=config, image=image,
-                               keep=keep)
-    return _tail_depth(sparse_depth, normals_cam, K, keep, du, dv, beams=beams, config=config)
-
-
-def _tail_seeds(sparse_depth, points_cam, K, T_cam_lidar, *, beams: int, config: SGMConfig, image=None, keep=None):
-    """The first half of :func:`_complete_tail`: Step 2 (unless ``keep`` is given) and Step 3's seed
-    search. Returns ``(keep, du, dv)``: (H, W) bool and int32, each a real buffer (stage fences)."""
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
                                     points_cam=points_cam)
@@ -104,12 +96,6 @@ def _tail_seeds(sparse_depth, points_cam, K, T_cam_lidar, *, beams: int, config:
     keep, = fence(keep)
     seeds = _seeds(keep, image, config)
     du, dv = fence(seeds.du, seeds.dv)
-    return keep, du, dv
-
-
-def _tail_depth(sparse_depth, normals_cam, K, keep, du, dv, *, beams: int, config: SGMConfig) -> Stages:
-    """The second half of :func:`_complete_tail`: the seeds' depth and normal, the residual, the column
-    bracket and the blur, from :func:`_tail_seeds`' ``keep``, ``du``, ``dv``."""
     seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
                               min_abs_denom=config.min_abs_denom,
@@ -131,14 +117,6 @@ def _tail_depth(sparse_depth, normals_cam, K, keep, du, dv, *, beams: int, confi
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
     return Stages(sparse_depth=sparse_depth, normals=normals_cam, inlier_mask=keep, seed_depth=seed_depth,
                   du=du, dv=dv, residual=residual, depth_raw=depth_raw, depth=depth)
-
-
-def window_tail_depth(K, image_size, sparse_depth, normals_cam, keep, du, dv, *, beams: int,
-                      config: SGMConfig) -> Stages:
-    """:func:`_tail_depth` of one camera of a rig, 0 outside its (traced) ``image_size`` window:
-    the rigs' Step 4, vmapped over cameras after their Steps 2-3."""
-    return clear_outside_window(_tail_depth(sparse_depth, normals_cam, K, keep, du, dv, beams=beams, config=config),
-                                image_size)
 
 
 def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,

@@ -1,9 +1,5 @@
 """Several cameras from one sweep: the range image and normals once, the cameras vmapped.
 
-The projection and Step 4 are vmapped over the cameras; Steps 2-3 (outlier mask, seed search)
-run camera by camera on XLA:CPU (:func:`~jaxdepth._src.xla_tuning.map_cameras`: each camera's
-own loop bounds and branches), with the same bytes as vmapping them.
-
 Cameras of different sizes share one padded (H, W) canvas; each keeps a traced
 ``image_size`` window, points outside it are not projected, and the output
 outside it is 0. Outlier removal uses the canvas size for the paper's window
@@ -36,9 +32,8 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.pipeline import _tail_seeds, project_with_normals, window_tail_depth
+from jaxdepth._src.pipeline import camera_stages_from_points
 from jaxdepth._src.types import LidarSpec, Stages
-from jaxdepth._src.xla_tuning import map_cameras
 
 
 @jax.tree_util.register_dataclass
@@ -170,26 +165,16 @@ def _complete_rig_stages(points, valid, cameras, images=None, *, config, lidar):
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
-
-    def project(K, T, size):
-        sparse_depth, _, points_cam, normals_cam = project_with_normals(
-            points, valid, normals_lidar, T, K, height=cameras.height, width=cameras.width, image_size=size)
-        return sparse_depth, points_cam, normals_cam
-
-    def seeds(K, T, size, sparse_depth, points_cam, image):
+    def per_camera(K, T, size, image=None):
         if image is not None:
             image = _window_only(image, size)
-        return _tail_seeds(sparse_depth, points_cam, K, T, beams=lidar.beams, config=config, image=image)
+        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=cameras.height,
+                                         width=cameras.width, lidar=lidar, config=config, image_size=size,
+                                         image=image)
 
-    # Steps 2-3 (outliers, seed search) camera by camera on XLA:CPU (map_cameras: each camera's own loop
-    # bounds and branches); the projection and Step 4 vmapped, whose float products round differently
-    # batched: the same bytes as vmapping camera_stages_from_points.
-    K, T = jnp.asarray(cameras.K, jnp.float32), jnp.asarray(cameras.T_cam_lidar, jnp.float32)
-    size = cameras.image_size
-    sparse_depth, points_cam, normals_cam = jax.vmap(project)(K, T, size)
-    keep, du, dv = map_cameras(seeds, K, T, size, sparse_depth, points_cam, images)
-    depth = functools.partial(window_tail_depth, beams=lidar.beams, config=config)
-    return jax.vmap(depth)(K, size, sparse_depth, normals_cam, keep, du, dv)
+    if images is None:
+        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,

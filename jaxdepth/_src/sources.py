@@ -40,11 +40,10 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import _tail_seeds, project_with_normals, window_tail_depth
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import RigCameras, _rig_images, _window_only
 from jaxdepth._src.types import LidarSpec, Stages
-from jaxdepth._src.xla_tuning import map_cameras
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
 # these names keep their defaults for the functions that take them one by one.
@@ -408,31 +407,23 @@ def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OC
     return rank, dist[rank] <= max_baseline_m
 
 
-def _camera_projection(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width,
-                       image_size=None):
-    """Step 1's projection for one camera from all sources' (N, 3) points and normals: the z-buffer,
-    each pixel's point and normal (camera frame), source and shadow flag, and the sources' poses in
-    the camera frame."""
-    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T_cam_ref, K,
-                                                                        height=height, width=width,
-                                                                        image_size=image_size)
+def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
+                   config, image_size=None, image=None) -> Stages:
+    """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
+    K = jnp.asarray(K, jnp.float32)
+    T = jnp.asarray(T_cam_ref, jnp.float32)
+    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
+                                                                        width=width, image_size=image_size)
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
     pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
-    T_cam_sources = jnp.einsum("ij,sjk->sik", T_cam_ref, T_ref_source)
+    T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
-    return sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow, T_cam_sources
-
-
-def _camera_seeds(K, T_cam_ref, image_size, sparse_depth, points_cam, pixel_source, pixel_shadow, T_cam_sources,
-                  image=None, *, beams, config):
-    """Step 2 (each pixel's own source as viewpoint) and Step 3's seed search for one camera, from
-    :func:`_camera_projection`: ``(keep, du, dv)``."""
-    if image is not None:
-        image = _window_only(image, image_size)
     keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
                             pixel_shadow=pixel_shadow)
-    return _tail_seeds(sparse_depth, points_cam, K, T_cam_ref, beams=beams, config=config, image=image, keep=keep)
+    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
+                            keep=keep)
+    return clear_outside_window(stages, image_size)
 
 
 def default_beams(sources: Sources) -> int:
@@ -462,26 +453,21 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     flat_normals = normals.reshape(-1, 3)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
-    def project(K, T, size):
+    def per_camera(K, T, size, image=None):
+        if image is not None:
+            image = _window_only(image, size)
         cam_valid = flat_valid
         if hidden is not None:       # other sweeps' points hidden from the LiDAR next to this camera
             rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
-        return _camera_projection(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source,
-                                  K, T, height=cameras.height, width=cameras.width, image_size=size)
+        return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
+                              height=cameras.height, width=cameras.width, beams=beams, config=config,
+                              image_size=size, image=image)
 
-    # Steps 2-3 (outliers, seed search) camera by camera on XLA:CPU (map_cameras: each camera's own loop
-    # bounds and branches); the projection and Step 4 vmapped, whose float products round differently
-    # batched: the same bytes as vmapping all of them.
-    K, T = jnp.asarray(cameras.K, jnp.float32), jnp.asarray(cameras.T_cam_lidar, jnp.float32)
-    size = cameras.image_size
-    sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow, T_cam_sources = jax.vmap(project)(K, T, size)
-    seeds = functools.partial(_camera_seeds, beams=beams, config=config)
-    keep, du, dv = map_cameras(seeds, K, T, size, sparse_depth, points_cam, pixel_source, pixel_shadow,
-                               T_cam_sources, images)
-    depth = functools.partial(window_tail_depth, beams=beams, config=config)
-    return jax.vmap(depth)(K, size, sparse_depth, normals_cam, keep, du, dv)
+    if images is None:
+        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
+    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
 
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,

@@ -29,11 +29,6 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
   across its loops, and XLA:CPU copies loop state that aliases live buffers. Plain: the value.
-* **Cameras one after another** (:func:`map_cameras`). Under ``vmap`` a rig's loop bounds and
-  branch indices are the worst camera's (:func:`shared_loop_bounds`, :func:`switch_widest`) and
-  every pass streams all cameras' (H, W) channels; ``lax.map`` runs each camera's Steps 2-3 alone,
-  on its own bounds and branch, and compiles unbatched loops (the Argoverse 2 rig program: 28 s
-  against 37 s). Plain: ``vmap``.
 * **Shared loop bounds** (:func:`shared_loop_bounds`). A loop whose bounds are batched
   (``vmap``) gets a batched counter, which turns every row read and row write in its body into
   gathers and scatters; a ``custom_vmap`` gives the batch the widest bounds instead (callers
@@ -262,20 +257,6 @@ def after(value: jax.Array, result: jax.Array) -> jax.Array:
     if not enabled():
         return value
     return jnp.where(jnp.ravel(result)[0] > _INT32_MIN, value, jnp.zeros((), value.dtype))
-
-
-def map_cameras(fn, *xs):
-    """``jax.vmap(fn)(*xs)``: a function of one camera over arrays with a leading camera axis.
-
-    Tricks on: ``lax.map``, the cameras one after another (see the module docstring). Bit for bit
-    the same as ``vmap`` for the rigs' Steps 2-3 (outlier mask and seed search: comparisons and
-    integer work); float arithmetic fused differently may round differently batched and unbatched
-    (the projection's normal rotation, Step 4's residual), so the rigs keep those vmapped.
-    ``xs`` may hold None (passed through to ``fn``).
-    """
-    if not enabled():
-        return jax.vmap(fn)(*xs)
-    return jax.lax.map(lambda args: fn(*args), xs)
 
 
 @custom_batching.custom_vmap
