@@ -604,7 +604,8 @@ def _add_complete_rig_command(sub) -> None:
 
 
 _FORCE_HELP = ("use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
-               "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
+               "wrong --point-columns; a depth PNG not in metres x 256; a calibration the sweep contradicts); "
+               "each one is logged")
 
 
 def _add_overwrite_and_force_options(p, *, force_help: str = _FORCE_HELP) -> None:

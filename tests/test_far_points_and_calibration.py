@@ -304,16 +304,20 @@ def _wxyz_matrix(q):
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def test_kitti_raw_job_refuses_an_inverted_velo_to_cam_calibration(tmp_path, capsys):
-    """calib_velo_to_cam.txt holding camera->LiDAR: the frame FAILED before any compile, exit 1."""
-    root = _raw_tree(tmp_path / "raw", _kitti_records().tobytes())
-    path = root / DATE / "calib_velo_to_cam.txt"
+def invert_velo_to_cam(path):
+    """Rewrites a KITTI calib_velo_to_cam.txt with the inverse rigid transform (R^T, -R^T t): camera -> LiDAR."""
     fields = {line.split(":")[0]: line.split(":", 1)[1] for line in path.read_text().splitlines()}
     R = np.array(fields["R"].split(), np.float64).reshape(3, 3)
     t = np.array(fields["T"].split(), np.float64)
     fields["R"] = " " + " ".join(f"{x:.6e}" for x in R.T.ravel())
     fields["T"] = " " + " ".join(f"{x:.6e}" for x in -R.T @ t)
     path.write_text("".join(f"{k}:{v}\n" for k, v in fields.items()))
+
+
+def test_kitti_raw_job_refuses_an_inverted_velo_to_cam_calibration(tmp_path, capsys):
+    """calib_velo_to_cam.txt holding camera->LiDAR: the frame FAILED before any compile, exit 1."""
+    root = _raw_tree(tmp_path / "raw", _kitti_records().tobytes())
+    invert_velo_to_cam(root / DATE / "calib_velo_to_cam.txt")
     code, _, err = _run(capsys, "complete", root, tmp_path / "out", "--camera", "2")
     line = _one_line_error(err)
     assert code == 1 and "0000000005.bin: camera" in line and "T_cam_lidar looks inverted" in line, line
