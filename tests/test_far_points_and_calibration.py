@@ -411,7 +411,7 @@ def test_field_of_view_check_refuses_points_in_a_thin_band_or_at_one_edge(change
             check_rig_geometry(points, bad.cameras, path=name)
         got_lo, got_hi, size = _rows_in_message(str(err.value))
         assert size == camera.height
-        assert abs(got_lo - lo * size) <= 0.02 * size and abs(got_hi - hi * size) <= 0.02 * size, (name, err.value)
+        assert abs(got_lo - lo * size) <= 0.03 * size and abs(got_hi - hi * size) <= 0.03 * size, (name, err.value)  # a sample
 
 
 def test_density_check_refuses_a_K_made_for_a_larger_image():

@@ -352,6 +352,9 @@ def _tilt_deg(T: np.ndarray, normal: np.ndarray) -> float:
 #: Projection checks (:func:`projection_problem`): points nearer than this in front of a camera are
 #: not used (metres); fewer in-image points than this are not judged.
 PROJECT_MIN_DEPTH_M, PROJECT_MIN_POINTS = 1.0, 100
+#: At most about this many points (every k-th of the sweep) are projected: >= 800 land in each real
+#: camera's image, enough for the 1-99 % band.
+PROJECT_SAMPLE = 8192
 #: Smallest share of the points within K's own view (the image a centred principal point implies,
 #: 2 cx x 2 cy) that must land in the image (real rigs: >= 0.86; K x 1.5 on KITTI: 0.33-0.42).
 MIN_VIEW_SHARE = 0.5
@@ -407,15 +410,15 @@ def projection_problem(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarra
     in-image points span the image's width and its rows from near the horizon down; a thin band
     (under :data:`MIN_BAND_SPAN` of the rows or columns) or a band only at one edge (inside the
     outer :data:`EDGE_SHARE`) means the image's rows do not match the LiDAR's vertical field of view.
-    Fewer than :data:`PROJECT_MIN_POINTS` points in the view or the image: not judged. At most
-    :data:`GROUND_SAMPLE` points (every k-th) are projected.
+    Fewer than :data:`PROJECT_MIN_POINTS` points in the view or the image: not judged. About
+    :data:`PROJECT_SAMPLE` points (every k-th) are projected.
 
     Args:
       points: (N, 3) the sweep in the frame ``T_cam_lidar`` (4, 4) maps from; K: (3, 3); width,
         height: pixels.
     """
     K = np.asarray(K, np.float64)
-    points = np.asarray(points)[::max(1, np.shape(points)[0] // GROUND_SAMPLE)]  # every k-th: bounded cost
+    points = np.asarray(points)[::max(1, np.shape(points)[0] // PROJECT_SAMPLE)]  # every k-th: bounded cost
     uv = _project(points, K, np.asarray(T_cam_lidar, np.float64))
     u, v = uv[:, 0], uv[:, 1]
     view = (u >= 0) & (u < 2 * K[0, 2]) & (v >= 0) & (v < 2 * K[1, 2])
