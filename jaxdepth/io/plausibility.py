@@ -303,6 +303,9 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
 GROUND_RING_M = (2.0, 40.0)
 GROUND_BIN_M, GROUND_BAND_M = 0.1, 0.25
 GROUND_MIN_POINTS, GROUND_MIN_SHARE = 200, 0.10
+#: The band must spread at least this far (metres, standard deviation across its narrowest horizontal
+#: direction): a ground is a surface around the vehicle, not one beam's line on a wall.
+GROUND_MIN_SPREAD_M = 1.0
 #: At most this many points (every k-th of the sweep) go into the ground fit.
 GROUND_SAMPLE = 32768
 #: Largest angle between a camera's up axis (-y) and the ground's normal, degrees: a camera on a
@@ -316,7 +319,8 @@ def sweep_ground(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     The points' frame has z along the LiDAR's spin axis, up (the range image's convention, which
     Steps 1-2 already rely on). The ground is the most populated 10 cm height bin at or below the
     origin among the points 2-40 m away horizontally (the road around the vehicle); a plane is
-    fitted by least squares to the points within 25 cm of it. Too few points there: None. At
+    fitted by least squares to the points within 25 cm of it. Too few points there, or points along a
+    line (spread under :data:`GROUND_MIN_SPREAD_M` across it: a wall's beam): None. At
     most :data:`GROUND_SAMPLE` points (every k-th) are used.
 
     Args:
@@ -338,6 +342,8 @@ def sweep_ground(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     band = low[np.abs(low[:, 2] - height) <= GROUND_BAND_M]
     if band.shape[0] < max(GROUND_MIN_POINTS, GROUND_MIN_SHARE * near.shape[0]):
         return None
+    if np.sqrt(max(np.linalg.eigvalsh(np.cov(band[:, :2].T))[0], 0.0)) < GROUND_MIN_SPREAD_M:
+        return None  # the band is a line (one beam on a wall), not a surface around the vehicle
     A = np.column_stack([band[:, 0], band[:, 1], np.ones(band.shape[0])])
     (a, b, c), *_ = np.linalg.lstsq(A, band[:, 2], rcond=None)
     n = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
