@@ -13,44 +13,16 @@ import time
 
 from jaxdepth import __version__, interrupts
 from jaxdepth.batch import devices
+from jaxdepth.cli_common import (FORCE_HELP as _FORCE_HELP, add_force_option as _add_force_option,  # noqa: F401
+                                  add_method_options as _add_method_options,
+                                  add_overwrite_and_force_options as _add_overwrite_and_force_options,
+                                  config_from as _config_from, extras_from as _extras_from,
+                                  extras_usage as _extras_usage, guidance_usage as _guidance_usage,
+                                  progress as _progress)
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
-from jaxdepth.options import add_config_options, config_changes
-from jaxdepth.progress import Progress
 
 log = logging.getLogger("jaxdepth")
-
-
-def _add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest", "ip-basic")):
-    p.add_argument("--method", choices=methods, default="sgm", help="completion method (default: sgm)")
-    group = p.add_mutually_exclusive_group()
-    group.add_argument("--outlier-removal", dest="outlier_removal", action="store_true", default=None,
-                       help="run the paper's outlier removal in front of the method (default for every method)")
-    group.add_argument("--no-outlier-removal", dest="outlier_removal", action="store_false",
-                       help="skip outlier removal")
-    add_config_options(p)
-    p.add_argument("--guidance-weight", type=float, default=0.0, metavar="W",
-                   help="image-guided seeds (beyond the paper): geodesic seed search on the camera image with this "
-                        "colour weight (default 0: off, the paper's LiDAR-only SGM)")
-    p.add_argument("--guidance-sweeps", type=int, default=None, metavar="S",
-                   help="raster sweeps of the geodesic transform (default 2)")
-    p.add_argument("--guidance-noise-floor", type=float, default=None, metavar="F",
-                   help="colour differences up to F times the image's median step difference cost nothing "
-                        "(default 0: GeoS's plain cost)")
-
-
-def _config_from(args):
-    from jaxdepth._src.config import SGMConfig
-    changes = config_changes(args)
-    if args.outlier_removal is not None:
-        changes["outlier_removal"] = args.outlier_removal
-    if getattr(args, "guidance_weight", None):
-        changes["guidance_weight"] = args.guidance_weight
-    if getattr(args, "guidance_sweeps", None) is not None:
-        changes["guidance_sweeps"] = args.guidance_sweeps
-    if getattr(args, "guidance_noise_floor", None) is not None:
-        changes["guidance_noise_floor"] = args.guidance_noise_floor
-    return SGMConfig(**changes)
 
 
 def cmd_demo(args) -> int:
@@ -118,6 +90,9 @@ def cmd_complete(args) -> int:
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
                                 K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src),
                                 image_path=image_of(src))]
+        from jaxdepth.batch.run_record import claim_output_file  # its record beside it: out.jaxdepth_run.json
+        claim_output_file(dst, _run_record(args, [src], camera=args.camera), _job_identities(jobs, args)[dst],
+                          overwrite=args.overwrite)
     else:
         K_override = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
         frames = list_depth_completion_folder(src)
@@ -246,15 +221,6 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
 
-def _guidance_usage(args) -> str | None:
-    """Why the image-guidance flags of ``complete`` cannot be used as given (None: they can)."""
-    if args.guidance_weight > 0 and args.method != "sgm":
-        return "--guidance-weight (image-guided seeds) needs --method sgm"
-    if args.image_dir is not None and not args.guidance_weight > 0:
-        return "--image-dir gives the camera images of image-guided seeds: use it with --guidance-weight W > 0"
-    return None
-
-
 def _image_finder(src: pathlib.Path, args):
     """``png -> camera image path`` (None when unguided) for a selection folder, flat folder or
     single file (:mod:`jaxdepth.io.guidance_images`: ``--image-dir`` or ``image/`` beside
@@ -264,22 +230,6 @@ def _image_finder(src: pathlib.Path, args):
         return lambda png: None
     folder = guidance_images.selection_image_folder(src, args.image_dir)
     return lambda png: guidance_images.find_image(folder, png.stem)
-
-
-def _extras_from(args):
-    from jaxdepth.batch import extras
-    return extras.from_args(args)
-
-
-def _extras_usage(args) -> str | None:
-    """Why the extra-output flags cannot be used as given (None: they can)."""
-    try:
-        extras = _extras_from(args)
-    except ValueError as err:
-        return str(err)
-    if extras.needs_seeds and getattr(args, "method", "sgm") != "sgm":
-        return "--validity, --seed-distance and --zero-invalid need --method sgm (they use its seeds)"
-    return None
 
 
 def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
@@ -334,23 +284,22 @@ def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), outpu
     refused unless --overwrite; outputs whose inputs changed are removed and so recomputed."""
     from jaxdepth.batch import run_record
     _ensure_writable_dir(dst)
-    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
-    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
-    record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
+    record = _run_record(args, inputs, **options)
     for folder in run_record.record_folders(dst, out_paths):
         run_record.claim_folder(folder, record, overwrite=args.overwrite, outputs=outputs)
+
+
+def _run_record(args, inputs, **options) -> dict:
+    """This run's record object (:func:`jaxdepth.batch.run_record.make_record`): settings, inputs, command."""
+    from jaxdepth.batch import run_record
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
+    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
+    return run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
 
 
 def _ensure_writable_dir(path: pathlib.Path):
     from jaxdepth.io.atomic import ensure_output_dir
     ensure_output_dir(path)
-
-
-def _progress(args, total: int, unit: str, label: str = "complete") -> Progress:
-    """The job's progress on stderr (:mod:`jaxdepth.progress`): a live line on a terminal, a line every
-    few seconds in a log; ``-v`` adds one line per item; silent with ``--quiet``."""
-    return Progress(total, enabled=not getattr(args, "quiet", False), unit=unit, label=label,
-                    verbose=bool(getattr(args, "verbose", False)))
 
 
 def _report(summary, quiet: bool, *, t_start: float | None = None, unit: str = "images") -> int:
@@ -423,40 +372,6 @@ def _cmd_complete_nuscenes(args) -> int:
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="samples")
 
 
-def cmd_complete_rig(args) -> int:
-    from jaxdepth.batch.rig_job import run_rig_job
-
-    usage = _extras_usage(args) or _guidance_usage(args)
-    if usage:
-        print(f"jaxdepth: error: {usage}", file=sys.stderr)
-        return 2
-
-    def report(kind: str, text: str) -> None:
-        if kind == "warning":
-            print(f"warning: {text}", file=sys.stderr)
-        elif kind == "skipped":
-            print(text, file=sys.stderr)
-        elif kind == "note" and not args.quiet:
-            print(f"sweep: {text}", file=sys.stderr)
-        elif kind == "written" and not args.quiet:
-            print(text)
-
-    from jaxdepth.batch import run_record
-    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args),
-                                      estimate=not args.no_estimate)
-    record = run_record.make_record(settings, inputs=[args.points, args.rig],
-                                    command=getattr(args, "command_line", None))
-    progress = _progress(args, 1, "sweeps", label="complete-rig")
-    try:
-        summary = run_rig_job(args.points, args.rig, args.out_dir, config=_config_from(args),
-                              extras=_extras_from(args), point_columns=args.point_columns,
-                              estimate=not args.no_estimate, image_dir=args.image_dir, overwrite=args.overwrite,
-                              report=report, force=args.force, record=record)
-    finally:
-        progress.close()
-    return summary.exit_code
-
-
 def cmd_eval(args) -> int:
     from jaxdepth.research import evaluation
     from jaxdepth.batch import run_record
@@ -490,7 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_demo_command(sub)
     _add_complete_command(sub)
-    _add_complete_rig_command(sub)
+    from jaxdepth import cli_rig
+    cli_rig.register(sub)
     _add_eval_command(sub)
     from jaxdepth.research import cli as research_cli
     research_cli.register(sub, complete_cloud=_complete_cloud)
@@ -578,45 +494,6 @@ def _add_complete_command(sub) -> None:
     extras_cli.add_cli_options(p)
     _add_nuscenes_options(p)
     p.set_defaults(func=cmd_complete)
-
-
-def _add_complete_rig_command(sub) -> None:
-    p = sub.add_parser("complete-rig", help="complete one LiDAR sweep for every camera of a rig JSON")
-    p.add_argument("points", help="sweep: .bin float32 records (x, y, z, intensity[, ring]) or .npy/.npz; or a "
-                                  "sweeps JSON {\"sweeps\": [{\"file\", \"T_ref_sweep\"}]} (see docs/multi_source.md)")
-    p.add_argument("rig", help="rig JSON (see docs/rig_json.md: lidar beams, cameras with K and T_cam_lidar)")
-    p.add_argument("out_dir", help="output folder: <camera name>.png per camera (uint16, depth*256)")
-    p.add_argument("--point-columns", type=int, default=None,
-                   help="float32 values per .bin record (default: 5 for *.pcd.bin, else the one of 4 or 5 that "
-                        "the file size fits; a size that fits both must be given)")
-    p.add_argument("--no-estimate", action="store_true",
-                   help="do not check the sweep against its LiDAR (see docs/rig_json.md: lidar.origin_m)")
-    _add_method_options(p, methods=("sgm",))
-    p.add_argument("--image-dir", default=None, metavar="DIR",
-                   help="with --guidance-weight: the camera images, DIR/<camera name>.png, .jpg or .jpeg (8-bit grey "
-                        "or colour, each the camera's width x height; all grey or all colour); default: each "
-                        "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
-    _add_overwrite_and_force_options(p)
-    p.add_argument("-q", "--quiet", action="store_true")
-    from jaxdepth.batch import extras as extras_cli
-    extras_cli.add_cli_options(p)
-    p.set_defaults(func=cmd_complete_rig)
-
-
-_FORCE_HELP = ("use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
-               "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
-
-
-def _add_overwrite_and_force_options(p, *, force_help: str = _FORCE_HELP) -> None:
-    """``--overwrite`` (the job commands) and ``--force`` (every command that checks its inputs)."""
-    p.add_argument("--overwrite", action="store_true",
-                   help="recompute outputs that already exist (also needed to re-run into a folder whose "
-                        "jaxdepth_run.json records other settings)")
-    _add_force_option(p, force_help=force_help)
-
-
-def _add_force_option(p, *, force_help: str = _FORCE_HELP) -> None:
-    p.add_argument("--force", action="store_true", help=force_help)
 
 
 def _add_eval_command(sub) -> None:

@@ -545,6 +545,16 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     want = complete_cloud(cloud, rig)[0]
     got = read_depth_png(tmp_path / "out" / "cam.png")
     np.testing.assert_allclose(got, want, atol=1.0 / 256 + 1e-6)
+    # The same sweeps JSON twice in one multi-sweep call (a list file; one program): the single call's bytes.
+    from jaxdepth.batch.rig_sweeps import run_rig_sweeps
+    (tmp_path / "again.json").write_text((tmp_path / "sweeps.json").read_text())
+    (tmp_path / "list.txt").write_text("sweeps.json\nagain.json\n")
+    from jaxdepth.io.sweep_list import list_sweeps
+    many = run_rig_sweeps(list_sweeps(tmp_path / "list.txt"), tmp_path / "rig.json", tmp_path / "many",
+                          config=SGMConfig(), extras=ExtraOutputs())
+    assert sorted(many.done) == sorted(str(tmp_path / n) for n in ("sweeps.json", "again.json")) and not many.failed
+    for stem in ("sweeps", "again"):
+        assert (tmp_path / "many" / stem / "cam.png").read_bytes() == (tmp_path / "out" / "cam.png").read_bytes()
     gt = sq.dense_depth
     m = gt > 0
     assert np.sqrt(np.mean((got[m] - gt[m]) ** 2)) < 5.0              # a sane depth map of the street

@@ -114,6 +114,13 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     return folder
 
 
+def compile_cache_folder() -> str | None:
+    """The persistent compile cache folder JAX uses now (:func:`use_compile_cache`, or the user's
+    ``JAX_COMPILATION_CACHE_DIR``); None when it is off."""
+    import jax
+    return jax.config.jax_compilation_cache_dir or None
+
+
 def io_threads() -> int:
     """Decode / encode threads of the local runner: one per core, at least 2."""
     import os
@@ -157,5 +164,5 @@ def quiet_jax_start():
         os.environ["JAX_PLATFORMS"] = "cpu"
 
 
-__all__ = ["split_cpu_into_devices", "use_compile_cache", "trim_compile_cache", "io_threads",
+__all__ = ["split_cpu_into_devices", "use_compile_cache", "compile_cache_folder", "trim_compile_cache", "io_threads",
            "accelerator_plugin_installed", "quiet_jax_start"]

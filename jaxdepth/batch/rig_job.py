@@ -52,23 +52,52 @@ def rig_images(rig, rig_path, image_dir):
 
 def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided: bool) -> dict:
     """``{<out_dir>/<camera>.png: input identity}``: every camera's output is made from the sweep (or
-    sweeps JSON) and the rig JSON, and its own image when ``guided``
+    sweeps JSON and every point file it names) and the rig JSON, and its own image when ``guided``
     (:func:`jaxdepth.batch.run_record.input_identity`)."""
     from jaxdepth.batch.run_record import input_identity
     from jaxdepth.io.rig_images import rig_image_paths
     images = (rig_image_paths(rig.cameras, image_dir=image_dir, rig_json=rig_path,
                               json_images={c.name: c.image for c in rig.cameras if c.image is not None})
               if guided else [None] * len(rig.cameras))
-    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([points_path, rig_path, image])
+    files = sweep_input_files(points_path)
+    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([*files, rig_path, image])
             for camera, image in zip(rig.cameras, images)}
 
 
-def _complete(points_path, rig, *, config, images, multi, columns, point_columns, estimate, force, report,
-              rig_path=None):
-    """The rig's stages for the sweep (or sweeps JSON) ``points_path``, with complete-rig's sweep check
-    and the calibration check against the sweep (:func:`jaxdepth.io.plausibility.check_rig_geometry`,
-    naming ``rig_path``): ``(stages, rig, stacked cameras)``, the rig as the check left it."""
-    import jaxdepth
+def sweep_input_files(points_path) -> list:
+    """The files one sweep argument is read from: the point file, or a sweeps JSON and every point file it
+    names (the reference first), so that a rewritten member counts as a changed input. A sweeps JSON that
+    cannot be read: itself only (reading it for the completion reports the problem)."""
+    from jaxdepth.io.errors import JaxdepthError
+    from jaxdepth.io.sweeps import is_sweeps_json, read_sweeps_json
+    if not is_sweeps_json(points_path):
+        return [points_path]
+    try:
+        return [points_path, *(entry.file for entry in read_sweeps_json(points_path))]
+    except JaxdepthError:
+        return [points_path]
+
+
+@dataclasses.dataclass
+class PreparedSweep:
+    """One sweep read and checked on the host (:func:`prepare_rig_sweep`), ready for the rig's program.
+
+    ``rig`` and ``config`` as the sweep check left them (origin moved, outlier removal off when the
+    check does not trust it); ``points`` the padded ``(points, valid)`` of one LiDAR, or the checked
+    :class:`~jaxdepth.io.sources.SourceCloud` when ``multi``.
+    """
+
+    rig: object
+    config: SGMConfig
+    points: object
+    multi: bool
+
+
+def prepare_rig_sweep(points_path, rig, *, config, multi, columns, point_columns, estimate, force, report,
+                      rig_path=None) -> PreparedSweep:
+    """Reads the sweep (or sweeps JSON) ``points_path`` with complete-rig's sweep check and the calibration
+    check against the sweep (:func:`jaxdepth.io.plausibility.check_rig_geometry`, naming ``rig_path``);
+    the check's notes go to ``report("note", text)``. Host only: no JAX computation."""
     from jaxdepth.io import pad_points, prepare_sweep, read_points
     from jaxdepth.io.plausibility import check_rig_geometry
     from jaxdepth.io.points import ring_column
@@ -76,7 +105,7 @@ def _complete(points_path, rig, *, config, images, multi, columns, point_columns
 
     if multi:
         # Several sources (LiDARs x sweeps), each seen from its own origin (docs/multi_source.md).
-        from jaxdepth.batch.sources_job import checked_cloud, complete_cloud
+        from jaxdepth.batch.sources_job import checked_cloud
         from jaxdepth.io.sweeps import read_point_file_cloud, read_sweeps_cloud
         read = read_sweeps_cloud if is_sweeps_json(points_path) else read_point_file_cloud
         cloud = read(points_path, rig, point_columns=point_columns)
@@ -84,28 +113,64 @@ def _complete(points_path, rig, *, config, images, multi, columns, point_columns
         frame, config = checked_cloud(cloud, rig, config, estimate=estimate)     # the single path's decision
         for note in frame.notes:
             report("note", note)
-        rig = frame.rig
-        check_rig_geometry(frame.cloud.points, rig.cameras, path=rig_path, force=force)
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-        stages = complete_cloud(frame.cloud, rig, config=config, images=images, stages=True)
+        check_rig_geometry(frame.cloud.points, frame.rig.cameras, path=rig_path, force=force)
+        return PreparedSweep(frame.rig, config, frame.cloud, True)
+    points, extra = read_points(points_path, columns=columns, force=force)
+    if rig.columns is not None:
+        ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
     else:
-        points, extra = read_points(points_path, columns=columns, force=force)
-        if rig.columns is not None:
-            ring = extra[:, list(rig.columns[3:]).index("ring")] if "ring" in rig.columns[3:] else None
-        else:
-            ring = ring_column(extra, columns)
-        frame = prepare_sweep(points, rig, ring=ring, estimate=estimate, drop_far=not force)
-        if not frame.outlier_removal_trusted and config.outlier_removal:
-            config = config.replace(outlier_removal=False)
-        for note in frame.notes:
-            report("note", note)
-        rig = frame.rig
-        check_rig_geometry(frame.points, rig.cameras, path=rig_path, force=force)
-        padded, valid = pad_points(frame.points)
-        cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+        ring = ring_column(extra, columns)
+    frame = prepare_sweep(points, rig, ring=ring, estimate=estimate, drop_far=not force)
+    if not frame.outlier_removal_trusted and config.outlier_removal:
+        config = config.replace(outlier_removal=False)
+    for note in frame.notes:
+        report("note", note)
+    check_rig_geometry(frame.points, frame.rig.cameras, path=rig_path, force=force)
+    return PreparedSweep(frame.rig, config, pad_points(frame.points), False)
+
+
+def rig_stages(prepared: PreparedSweep, *, images=None):
+    """The rig's :class:`~jaxdepth.Stages` (C leading axis) of a :class:`PreparedSweep`:
+    ``(stages, stacked cameras)``."""
+    import jaxdepth
+    rig, config = prepared.rig, prepared.config
+    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+    if prepared.multi:
+        from jaxdepth.batch.sources_job import complete_cloud
+        stages = complete_cloud(prepared.points, rig, config=config, images=images, stages=True)
+    else:
+        padded, valid = prepared.points
         stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
                                               images=images)
-    return stages, rig, cameras
+    return stages, cameras
+
+
+def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.ExtraOutputs):
+    """``(depth, valid, distance)``: (C, H, W) NumPy arrays on the rig's canvas; ``valid`` and
+    ``distance`` None unless ``extras`` needs the seeds."""
+    depth = np.asarray(stages.depth)
+    valid = distance = None
+    if extras.needs_seeds:
+        from jaxdepth._src.validity import rig_validity_and_distance
+        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
+            stages, cameras, lidar=prepared.rig.lidar, metric=prepared.config.distance_metric,
+            max_seed_distance_px=extras.max_seed_distance_px))
+    return depth, valid, distance
+
+
+def empty_camera_message(camera_name: str, rig_path) -> str:
+    """The warning for a camera into which no point of the sweep projects."""
+    return (f"{camera_name}: no LiDAR point projects into this camera; its depth image is all zero "
+            f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
+            "looks along +z, x right, y down)")
+
+
+def point_columns_of(rig, points_path, point_columns, *, multi: bool):
+    """The float32 values per point record: the rig JSON's ``columns``, else given or inferred from the file."""
+    from jaxdepth.io import infer_point_columns
+    if multi or rig.columns is not None:
+        return len(rig.columns) if rig.columns is not None else point_columns
+    return infer_point_columns(points_path, point_columns)
 
 
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
@@ -140,7 +205,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     Raises:
       JaxdepthError: unreadable or invalid inputs, unwritable outputs.
     """
-    from jaxdepth.io import infer_point_columns, read_rig_json
+    from jaxdepth.io import read_rig_json
     from jaxdepth.io.atomic import ensure_output_dir
 
     from jaxdepth.io.sweeps import is_sweeps_json
@@ -148,10 +213,7 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     rig = read_rig_json(rig_path)
     images = rig_images(rig, rig_path, image_dir) if config.guidance_weight > 0 else None
     multi = is_sweeps_json(points_path) or bool(rig.lidars)
-    if multi or rig.columns is not None:
-        columns = len(rig.columns) if rig.columns is not None else point_columns
-    else:
-        columns = infer_point_columns(points_path, point_columns)
+    columns = point_columns_of(rig, points_path, point_columns, multi=multi)
     out_dir = pathlib.Path(out_dir)
     ensure_output_dir(out_dir)
     if record is not None:
@@ -160,23 +222,17 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
         run_record.claim_folder(out_dir, record, overwrite=overwrite,
                                 outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
                                                            guided=config.guidance_weight > 0))
-    stages, rig, cameras = _complete(points_path, rig, config=config, images=images, multi=multi, columns=columns,
-                                     point_columns=point_columns, estimate=estimate, force=force, report=report,
-                                     rig_path=rig_path)
-    depth = np.asarray(stages.depth)
-    valid = distance = None
-    if extras.needs_seeds:
-        from jaxdepth._src.validity import rig_validity_and_distance
-        valid, distance = (np.asarray(a) for a in rig_validity_and_distance(
-            stages, cameras, lidar=rig.lidar, metric=config.distance_metric,
-            max_seed_distance_px=extras.max_seed_distance_px))
+    prepared = prepare_rig_sweep(points_path, rig, config=config, multi=multi, columns=columns,
+                                 point_columns=point_columns, estimate=estimate, force=force, report=report,
+                                 rig_path=rig_path)
+    stages, cameras = rig_stages(prepared, images=images)
+    rig = prepared.rig
+    depth, valid, distance = rig_outputs(prepared, stages, cameras, extras)
     seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
     summary = RigJobSummary()
     for i, camera in enumerate(rig.cameras):
         if seen[i] == 0:
-            message = (f"{camera.name}: no LiDAR point projects into this camera; its depth image is all zero "
-                       f"(check T_cam_lidar in {rig_path}: it maps the sweep's frame into the camera, which "
-                       "looks along +z, x right, y down)")
+            message = empty_camera_message(camera.name, rig_path)
             if report is _ignore:          # no reporter (the API): the log; the CLI prints it once itself
                 log.warning("%s", message)
             report("warning", message)

@@ -1,0 +1,232 @@
+"""Many sweeps of one rig in one process (``complete-rig`` over a folder, glob or list), and the rig warm-up.
+
+:func:`run_rig_sweeps` completes every sweep that :func:`jaxdepth.io.sweep_list.list_sweeps` names into
+``<out_dir>/<sweep stem>/<camera>.png``, each sweep exactly as one ``complete-rig`` call on it would
+(:func:`jaxdepth.batch.rig_job.prepare_rig_sweep`, :func:`~jaxdepth.batch.rig_job.rig_stages`: the same
+bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
+reader threads read and check the next sweeps while the current one computes, writer threads encode
+and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
+reported and skipped; the others carry on. The run record (:mod:`jaxdepth.batch.run_record`) lists
+every output with its inputs, so a re-run skips what is done and redoes what changed.
+
+The rig's shapes do not change between sweeps, so the whole run uses one compiled program as long as
+the sweeps fall in one point bucket (:func:`jaxdepth.io.bucket_size`) and the LiDAR check keeps one
+sensor description: a rig JSON that leaves the LiDAR's field of view open gets each sweep's own
+estimate, hence a program per distinct estimate (state ``fov_up_deg`` / ``fov_down_deg``, or pass
+``--no-estimate``). Each new program after the first is reported as a note.
+
+:func:`warm_rig` compiles the rig's program on zeros, without data, into the persistent compile cache
+(:func:`jaxdepth.batch.devices.use_compile_cache`), so that a later process's first sweep loads it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import time
+from typing import Callable
+
+import numpy as np
+
+from jaxdepth._src.config import SGMConfig
+from jaxdepth.batch import extras as extra_outputs
+from jaxdepth.batch import rig_job
+
+
+def _ignore(kind: str, text: str) -> None:
+    return None
+
+
+def _notify_nothing(name: str, status: str) -> None:
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class _Loaded:
+    stem: str
+    prepared: rig_job.PreparedSweep
+    notes: tuple
+
+
+def _program_key(prepared: rig_job.PreparedSweep) -> tuple:
+    """What selects the compiled program of a sweep, beyond the rig's fixed shapes."""
+    if prepared.multi:
+        cloud = prepared.points
+        return ("sources", cloud.num_sources, prepared.rig.lidar, prepared.config)
+    return ("points", prepared.points[0].shape[0], prepared.rig.lidar, prepared.config)
+
+
+def _claim(out_dir, rig, sweeps, rig_path, *, record, overwrite: bool, columns) -> None:
+    from jaxdepth.batch import run_record
+    from jaxdepth.io.sweep_list import sweep_stem
+    outputs = {out_dir / sweep_stem(path) / f"{camera.name}.png":  # a sweeps JSON: with the files it names
+               run_record.input_identity([*rig_job.sweep_input_files(path), rig_path, None])
+               for path in sweeps for camera in rig.cameras}
+    record = dict(record, settings=dict(record["settings"], point_columns=columns))
+    run_record.claim_folder(out_dir, record, overwrite=overwrite, outputs=outputs)
+
+
+def _jobs(sweeps, rig, out_dir: pathlib.Path, *, extras, overwrite: bool, summary, notify) -> list:
+    """The :class:`~jaxdepth.batch.cloud_runner.CloudJob` of every sweep with an output still to write;
+    sweeps whose outputs all exist are recorded as skipped."""
+    from jaxdepth.batch.cloud_runner import CloudJob
+    from jaxdepth.io.sweep_list import sweep_stem
+    jobs = []
+    for path in sweeps:
+        folder = out_dir / sweep_stem(path)
+        outputs = tuple((c.name, folder / f"{c.name}.png") for c in rig.cameras
+                        if overwrite or not extra_outputs.is_done(folder / f"{c.name}.png", extras))
+        if not outputs:
+            summary.skipped.append(os.fspath(path))
+            notify(os.fspath(path), "skipped")
+            continue
+        jobs.append(CloudJob(name=os.fspath(path), outputs=outputs, source=pathlib.Path(path)))
+    return jobs
+
+
+def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
+                   point_columns: int | None = None, estimate: bool = True, overwrite: bool = False,
+                   report: Callable[[str, str], None] = _ignore, force: bool = False, record: dict | None = None,
+                   io_threads: int = 2, on_progress: Callable[[str, str], None] = _notify_nothing):
+    """Completes every sweep of ``sweeps`` for every camera of the rig JSON ``rig_path`` (module docs).
+
+    Args:
+      sweeps: point files or sweeps JSONs with distinct stems (:func:`jaxdepth.io.sweep_list.list_sweeps`).
+      rig_path, config, extras, point_columns, estimate, force: as :func:`jaxdepth.batch.rig_job.run_rig_job`
+        (image-guided seeds, ``config.guidance_weight > 0``, are refused: a sweep's images are not named).
+      out_dir: output root; ``<out_dir>/<sweep stem>/<camera name>.png``.
+      overwrite: recompute outputs that exist (default: skip them; a sweep with all its outputs is skipped
+        unread).
+      report: ``report(kind, text)``: ``"note"`` (the sweep check, prefixed with the sweep's stem and
+        shown when it differs from the previous sweep's; a new compiled program) and ``"warning"`` (a camera no point projects into).
+      record: the run record (:func:`jaxdepth.batch.run_record.make_record`), claimed for ``out_dir`` with
+        one entry per output before any computation; None: no record.
+      io_threads: reader threads, and as many writer threads.
+      on_progress: ``on_progress(sweep path, "done" | "skipped" | "failed: <message>")``, from any thread.
+
+    Returns:
+      :class:`jaxdepth.batch.runner.RunSummary` over sweeps (failed: ``(sweep path, message)``).
+
+    Raises:
+      JaxdepthError: an unreadable rig JSON, guided seeds, or an output folder or record that cannot
+        be claimed. A bad sweep is a failure in the summary, never an exception.
+    """
+    from jaxdepth.batch.cloud_runner import run_cloud_jobs
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import read_rig_json
+    from jaxdepth.io.atomic import ensure_output_dir
+    from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.sweep_list import check_unique_stems, sweep_stem
+    from jaxdepth.io.sweeps import is_sweeps_json
+
+    if config.guidance_weight > 0:
+        raise InputError(f"{rig_path}: image-guided seeds (--guidance-weight) take one sweep per call: the camera "
+                         "images belong to one sweep")
+    check_unique_stems(sweeps)
+    rig = read_rig_json(rig_path)
+    out_dir = pathlib.Path(out_dir)
+    ensure_output_dir(out_dir)
+    if record is not None:
+        _claim(out_dir, rig, sweeps, rig_path, record=record, overwrite=overwrite,
+               columns=len(rig.columns) if rig.columns is not None else point_columns)
+    summary = RunSummary(started_at=time.perf_counter())
+    jobs = _jobs(sweeps, rig, out_dir, extras=extras, overwrite=overwrite, summary=summary, notify=on_progress)
+
+    def load(job):
+        multi = is_sweeps_json(job.source) or bool(rig.lidars)
+        columns = rig_job.point_columns_of(rig, job.source, point_columns, multi=multi)
+        notes = []
+        prepared = rig_job.prepare_rig_sweep(job.source, rig, config=config, multi=multi, columns=columns,
+                                             point_columns=point_columns, estimate=estimate, force=force,
+                                             report=lambda kind, text: notes.append(text), rig_path=rig_path)
+        ensure_output_dir(out_dir / sweep_stem(job.source))      # once the sweep reads: none for a bad one
+        return _Loaded(sweep_stem(job.source), prepared, tuple(notes)), prepared.rig
+
+    programs, last_notes = set(), [()]
+
+    def complete(loaded: _Loaded, checked_rig):
+        if loaded.notes != last_notes[0]:          # a log's sweeps mostly repeat one check's notes: shown once
+            for note in loaded.notes:
+                report("note", f"{loaded.stem}: {note}")
+            last_notes[0] = loaded.notes
+        key = _program_key(loaded.prepared)
+        if programs and key not in programs:
+            report("note", f"{loaded.stem}: compiles another program ({_key_text(key)})")
+        programs.add(key)
+        stages, cameras = rig_job.rig_stages(loaded.prepared)
+        outputs = rig_job.rig_outputs(loaded.prepared, stages, cameras, extras)
+        seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
+        for i, camera in enumerate(checked_rig.cameras):
+            if seen[i] == 0:
+                report("warning", f"{loaded.stem}: " + rig_job.empty_camera_message(camera.name, rig_path))
+        return outputs
+
+    run_cloud_jobs(jobs, load, summary, on_progress, config=config, png_compression=DEFAULT_PNG_COMPRESSION,
+                   io_threads=io_threads, complete=complete, extras=extras, overwrite=overwrite)
+    return summary
+
+
+def _key_text(key: tuple) -> str:
+    kind, size, lidar, config = key
+    what = f"{size} padded points" if kind == "points" else f"{size} sources"
+    return (f"{what}, LiDAR fov {lidar.fov_up_deg:+.2f} / {lidar.fov_down_deg:+.2f} deg, "
+            f"outlier removal {'on' if config.outlier_removal else 'off'}")
+
+
+def default_warm_points(rig) -> int:
+    """The point count a warm-up compiles for by default: the rig LiDAR's range-image cells (beams x columns),
+    whose bucket holds a typical sweep (KITTI HDL-64E: 131072; nuScenes HDL-32E: 65536)."""
+    return int(rig.lidar.beams) * int(rig.lidar.columns)
+
+
+def warm_rig(rig_path, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs = extra_outputs.NONE,
+             points=None, report: Callable[[str, str], None] = _ignore) -> list:
+    """Compiles the rig's ``complete-rig`` program(s) by running them on an empty sweep (no data read).
+
+    With the persistent compile cache on (:func:`jaxdepth.batch.devices.use_compile_cache`, the CLI's
+    default) the programs are stored, and a later process's first sweep of the same rig, options and
+    point bucket loads them instead of compiling.
+
+    Args:
+      rig_path: the rig JSON of one LiDAR (a rig with ``lidars`` is refused).
+      config, extras: the options the real run will use (each is part of the program).
+      points: point counts of the sweeps to come (one program per bucket,
+        :func:`jaxdepth.io.bucket_size`); default: :func:`default_warm_points`.
+      report: ``report("note", text)``: a rig whose LiDAR field of view is left open (each sweep's
+        estimate then makes its own program unless the run passes ``--no-estimate``).
+
+    Returns:
+      ``[(bucket, seconds), ...]``: each bucket compiled (and run once on zeros), with its wall time.
+
+    Raises:
+      JaxdepthError: an unreadable rig JSON, a rig with ``lidars``, image-guided seeds.
+    """
+    from jaxdepth.io import bucket_size, read_rig_json
+    from jaxdepth.io.errors import InputError
+
+    rig = read_rig_json(rig_path)
+    if rig.lidars:
+        raise InputError(f"{rig_path}: field 'lidars': warm-up supports rigs of one LiDAR (the multi-source "
+                         "program depends on the sweeps' sources)")
+    if config.guidance_weight > 0:
+        raise InputError(f"{rig_path}: warm-up of image-guided seeds (--guidance-weight) is not supported")
+    if not {"fov_up_deg", "fov_down_deg"} <= set(rig.lidar_stated):
+        report("note", f"{rig_path}: the LiDAR's field of view is left open: a sweep's own estimate makes its own "
+                       "program; state lidar.fov_up_deg / fov_down_deg, or run complete-rig with --no-estimate, "
+                       "to use the warmed one")
+    counts = [default_warm_points(rig)] if not points else [int(n) for n in points]
+    done = []
+    for bucket in sorted({bucket_size(n) for n in counts}):
+        start = time.perf_counter()
+        empty = (np.zeros((bucket, 3), np.float32), np.zeros((bucket,), bool))
+        prepared = rig_job.PreparedSweep(rig, config, empty, False)
+        stages, cameras = rig_job.rig_stages(prepared)
+        rig_job.rig_outputs(prepared, stages, cameras, extras)        # NumPy: waits for the result
+        np.asarray(stages.sparse_depth)
+        done.append((bucket, time.perf_counter() - start))
+    return done
+
+
+__all__ = ["run_rig_sweeps", "warm_rig", "default_warm_points"]
