@@ -1,7 +1,8 @@
 """Every method on every digital twin, scored against exact depth and through ``hidden-eval``'s protocols.
 
     python -m benchmarks.accuracy_twins [--rigs kitti av2 ...] [--sweeps 1 3 5] [--seeds 0]
-        [--hidden-seeds 0] [--scale 0.25] [--json benchmarks/results/accuracy_twins.json]
+        [--hidden-seeds 0] [--scale 0.25] [--above-scan plane|background]
+        [--json benchmarks/results/accuracy_twins.json]
 
 The twins (:mod:`jaxdepth.research.twins`, ``docs/twins.md``: ray-cast copies of the KITTI,
 nuScenes, Argoverse 2, a merged raster and a rosette rig, exact camera depth) are written to disk
@@ -35,7 +36,8 @@ ranks the way ``exact_dense`` does (pairs that tie under ``exact_dense`` are lef
 Oracle bound (as docs/multi_source.md): the SGM on the input without every point that the exact
 depth shows wrong at its pixel in some camera (by more than 0.5 m, or seeing sky), free-space rules
 off; its gain over the default SGM on 1 sweep is what more sweeps could give at best with perfect
-point removal. Nothing here chooses a default.
+point removal. Nothing here chooses a default. ``--above-scan`` sets ``SGMConfig.above_scan`` of every
+SGM method (the baselines have no such step); the settings record it.
 """
 
 from __future__ import annotations
@@ -395,6 +397,8 @@ def main(argv=None) -> int:
     parser.add_argument("--diagnose", action="store_true",
                         help="also the SGM with removal forced on where the sweep check turns it off")
     parser.add_argument("--no-hold-out", action="store_true", help="full-input scores only (no protocols)")
+    parser.add_argument("--above-scan", choices=("plane", "background"), default=SGMConfig().above_scan,
+                        help="SGMConfig.above_scan of every SGM method (default: the library's)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="write --json from the cases of these result files (runs split by --sweeps) and exit")
@@ -413,7 +417,7 @@ def main(argv=None) -> int:
         write_results(args.json, dict(doc, merged_from=[str(f) for f in args.merge],
                                       run_seconds=[d["seconds"] for d in parts]), SGMConfig(), t0)
         return 0
-    config = SGMConfig()
+    config = SGMConfig(above_scan=args.above_scan)
     from jaxdepth.research.twins import make_twin, write_twin
     cases = []
     for n in args.sweeps:
@@ -477,7 +481,8 @@ def document(cases: list, args, *, complete: bool) -> dict:
     return {"settings": {"rigs": args.rigs, "sweeps": args.sweeps, "seeds": args.seeds,
                         "hidden_seeds": args.hidden_seeds, "scale": args.scale, "fraction": FRACTION,
                         "min_range_m": MIN_RANGE_M,
-                        "defaults_chosen_on": "none (every option is the library default)"},
+                        "defaults_chosen_on": "none (every option is the library default)",
+                        "above_scan": getattr(args, "above_scan", SGMConfig().above_scan)},
            "methods": list(METHODS), "protocols": list(PROTOCOLS), "summary": table,
            "targets": targets_check(table), "agreement": agreement(cases), "complete": complete, "cases": cases}
 

@@ -90,6 +90,9 @@ def cmd_complete(args) -> int:
         jobs = [runner.FrameJob(name=src.name, sparse_path=src, out_path=dst,
                                 K=read_intrinsics_txt(args.intrinsics), T_cam_lidar=extrinsic_of(src),
                                 image_path=image_of(src))]
+        from jaxdepth.batch.run_record import claim_output_file  # its record beside it: out.jaxdepth_run.json
+        claim_output_file(dst, _run_record(args, [src], camera=args.camera), _job_identities(jobs, args)[dst],
+                          overwrite=args.overwrite)
     else:
         K_override = read_intrinsics_txt(args.intrinsics) if args.intrinsics else None
         frames = list_depth_completion_folder(src)
@@ -281,11 +284,17 @@ def _claim_output_folder(dst: pathlib.Path, args, *, inputs, out_paths=(), outpu
     refused unless --overwrite; outputs whose inputs changed are removed and so recomputed."""
     from jaxdepth.batch import run_record
     _ensure_writable_dir(dst)
-    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
-    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
-    record = run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
+    record = _run_record(args, inputs, **options)
     for folder in run_record.record_folders(dst, out_paths):
         run_record.claim_folder(folder, record, overwrite=args.overwrite, outputs=outputs)
+
+
+def _run_record(args, inputs, **options) -> dict:
+    """This run's record object (:func:`jaxdepth.batch.run_record.make_record`): settings, inputs, command."""
+    from jaxdepth.batch import run_record
+    settings = run_record.settings_of(_config_from(args), method=args.method, extras=_extras_from(args), **options)
+    more = [p for p in (getattr(args, "calib_dir", None), getattr(args, "image_dir", None)) if p is not None]
+    return run_record.make_record(settings, inputs=list(inputs) + more, command=getattr(args, "command_line", None))
 
 
 def _ensure_writable_dir(path: pathlib.Path):

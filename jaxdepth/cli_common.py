@@ -76,7 +76,8 @@ def progress(args, total: int, unit: str, label: str = "complete") -> Progress:
 
 
 FORCE_HELP = ("use inputs that fail the plausibility checks (a sweep whose values no LiDAR gives, e.g. a "
-               "wrong --point-columns; a depth PNG not in metres x 256); each one is logged")
+              "wrong --point-columns; a depth PNG not in metres x 256; a calibration the sweep contradicts); "
+              "each one is logged")
 
 
 def add_overwrite_and_force_options(p, *, force_help: str = FORCE_HELP) -> None:

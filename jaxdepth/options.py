@@ -26,6 +26,10 @@ def add_config_options(p: argparse.ArgumentParser) -> None:
                    help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
                         "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
                         "scan-line spacing), blend (also average in those pixels' own planes)")
+    p.add_argument("--above-scan", dest="above_scan", choices=("plane", "background"), default=argparse.SUPPRESS,
+                   help="Step 4 above the top scan line: plane (the nearest seed's plane, as in the paper) or "
+                        "background (the farthest seed within one LiDAR point spacing, |du| < W L / N, no plane); "
+                        "default: SGMConfig's")
     add_sources_options(p)
 
 
@@ -68,6 +72,8 @@ def add_sources_options(p: argparse.ArgumentParser) -> None:
 def config_changes(args) -> dict:
     """SGMConfig fields set by :func:`add_config_options`' arguments."""
     changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
+    if hasattr(args, "above_scan"):
+        changes["above_scan"] = args.above_scan
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
     changes.update({f: getattr(args, f) for f, *_ in _SOURCES_OPTIONS.values() if hasattr(args, f)})

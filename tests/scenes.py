@@ -117,9 +117,10 @@ def nuscenes_front_dataroot(root, tmp):
 POINTS_CONFIG = SGMConfig(max_depth_m=60.0)
 
 #: The pipeline's non-default code paths in one configuration (one compiled program per function and
-#: shape): no outlier removal, l2 seeds, blended column hypotheses, no smoothing, measured depths not kept.
+#: shape): no outlier removal, l2 seeds, blended column hypotheses, no smoothing, measured depths not kept,
+#: the farthest seed above the top scan line.
 NON_DEFAULT = SGMConfig(outlier_removal=False, distance_metric="l2", blend_hypotheses=True, smoothing_sigma_px=0.0,
-                        keep_measured_depth=False)
+                        keep_measured_depth=False, above_scan="background")
 
 #: Image-guided seeds with the noise floor: the guided 32 x 48 pipeline of test_geodesic and test_xla_tuning.
 GUIDED = SGMConfig(guidance_weight=30.0, guidance_sweeps=2, guidance_noise_floor=1.0)

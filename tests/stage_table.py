@@ -27,6 +27,7 @@ from jaxdepth._src import ip_basic as ipb
 from jaxdepth._src import normals as N
 from jaxdepth._src import pixel_normals as PN
 from jaxdepth._src import range_image as RI
+from jaxdepth._src.above_scan import background_above_scan
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import _geodesic_seed, geodesic_seed
 from jaxdepth._src.hypotheses import column_hypotheses
@@ -333,6 +334,17 @@ def _hypotheses_check(outs, inputs):
         assert not np.array_equal(np.asarray(out), raw)
 
 
+def _above_scan_inputs():
+    from test_above_scan import above_scan_inputs
+    return [above_scan_inputs(seed) for seed in (1, 2)]
+
+
+def _above_scan_oracle(depth_raw, seed_depth, keep, valid, *, beams):
+    from test_above_scan import numpy_above_scan
+    return numpy_above_scan(depth_raw, seed_depth, keep, valid, beams=beams,
+                            max_half_width_px=SGMConfig().outlier_max_half_width_px)
+
+
 def _blur_images(n, high):
     return np.random.default_rng(2 if n == 3 else 6).uniform(0, high, (n, 20, 30)).astype(np.float32)
 
@@ -536,6 +548,8 @@ def _rows() -> list[Row]:
         *[Row(f"column_hypotheses-{'blend' if blend else 'bracket'}", column_hypotheses, _hypotheses_inputs,
               static=dict(window_px=7.0, blend=blend), oracle=_hypotheses_oracle, oracle_ulps=64,
               in_axes=(0, 0, 0, 0, None), check=_hypotheses_check) for blend in (False, True)],
+        Row("background_above_scan", background_above_scan, _above_scan_inputs, static=dict(beams=16),
+            oracle=_above_scan_oracle, oracle_ulps=0, ulps=0),
         Row("gaussian_blur", gaussian_blur, lambda: [(x,) for x in _blur_images(3, 80)],
             static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur, oracle_ulps=15, oracle_scale=80.0),
         # one compiled function for every sigma (0 included), batched over images and sigmas ...

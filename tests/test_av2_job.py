@@ -100,3 +100,32 @@ def test_command_line_detects_the_log(tmp_path, capsys):
                   ["--guidance-weight", "2"], ["--engine", "ray"]):
         assert cli.main(["complete", str(root), str(dst), "-q"] + extra) == 2, extra
         assert "error" in capsys.readouterr().err
+
+
+def test_job_refuses_a_log_whose_camera_pose_is_inverted(tmp_path):
+    """egovehicle_SE3_sensor holding the camera's inverse pose (sensor <- ego): every sweep FAILED naming the
+    calibration file and the cause, before any compile (the job used to complete them: issue 39 item 2)."""
+    import os
+
+    import pyarrow as pa
+    from pyarrow import feather
+    from scipy.spatial.transform import Rotation
+
+    log_dir = tmp_path / "val" / LOG[-1]
+    shutil.copytree(require_shared(*LOG), log_dir, copy_function=os.symlink)  # the inputs are never written
+    path = log_dir / "calibration" / "egovehicle_SE3_sensor.feather"
+    table = feather.read_table(path).to_pydict()
+    path.unlink()
+    i = table["sensor_name"].index("ring_front_center")
+    R = Rotation.from_quat([table[k][i] for k in ("qx", "qy", "qz", "qw")]).as_matrix()
+    t = np.array([table[k][i] for k in ("tx_m", "ty_m", "tz_m")])
+    inverse = Rotation.from_matrix(R.T).as_quat()
+    for k, value in zip(("qx", "qy", "qz", "qw", "tx_m", "ty_m", "tz_m"), [*inverse, *(-R.T @ t)]):
+        table[k][i] = float(value)
+    feather.write_feather(pa.table(table), path)
+    summary = av2_job.run_av2(tmp_path / "val", tmp_path / "out", cameras=["ring_front_center"])
+    assert not summary.done and len(summary.failed) == len(av2.read_log(log_dir).sweeps)
+    for _, message in summary.failed:
+        assert (f"{path}: camera 'ring_front_center' field 'T_cam_lidar': T_cam_lidar looks inverted" in message
+                and "--force" in message), message
+    assert not list((tmp_path / "out").rglob("*.png"))

@@ -304,16 +304,20 @@ def _wxyz_matrix(q):
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def test_kitti_raw_job_refuses_an_inverted_velo_to_cam_calibration(tmp_path, capsys):
-    """calib_velo_to_cam.txt holding camera->LiDAR: the frame FAILED before any compile, exit 1."""
-    root = _raw_tree(tmp_path / "raw", _kitti_records().tobytes())
-    path = root / DATE / "calib_velo_to_cam.txt"
+def invert_velo_to_cam(path):
+    """Rewrites a KITTI calib_velo_to_cam.txt with the inverse rigid transform (R^T, -R^T t): camera -> LiDAR."""
     fields = {line.split(":")[0]: line.split(":", 1)[1] for line in path.read_text().splitlines()}
     R = np.array(fields["R"].split(), np.float64).reshape(3, 3)
     t = np.array(fields["T"].split(), np.float64)
     fields["R"] = " " + " ".join(f"{x:.6e}" for x in R.T.ravel())
     fields["T"] = " " + " ".join(f"{x:.6e}" for x in -R.T @ t)
     path.write_text("".join(f"{k}:{v}\n" for k, v in fields.items()))
+
+
+def test_kitti_raw_job_refuses_an_inverted_velo_to_cam_calibration(tmp_path, capsys):
+    """calib_velo_to_cam.txt holding camera->LiDAR: the frame FAILED before any compile, exit 1."""
+    root = _raw_tree(tmp_path / "raw", _kitti_records().tobytes())
+    invert_velo_to_cam(root / DATE / "calib_velo_to_cam.txt")
     code, _, err = _run(capsys, "complete", root, tmp_path / "out", "--camera", "2")
     line = _one_line_error(err)
     assert code == 1 and "0000000005.bin: camera" in line and "T_cam_lidar looks inverted" in line, line
@@ -350,3 +354,112 @@ def test_force_keeps_far_points_and_says_so(tmp_path, caplog):
     points, _ = read_points(tmp_path / "sweep.bin", columns=4, force=True)
     np.testing.assert_array_equal(points, records[:, :3])
     assert "sweep.bin: --force: keeping 1 point farther than 1000 m" in caplog.text
+
+
+# ------------------------------------------------------------------ field of view and projected density (item 2)
+
+
+def _cv2_pixels(points, K, T):
+    """(M, 2) pixels of the points at least 1 m in front of the camera: OpenCV's projectPoints, the oracle."""
+    cv2 = pytest.importorskip("cv2")
+    p = np.asarray(points, np.float64)
+    T = np.asarray(T, np.float64)
+    p = p[(p @ T[2, :3] + T[2, 3]) >= 1.0]
+    rvec, _ = cv2.Rodrigues(T[:3, :3])
+    uv, _ = cv2.projectPoints(p.reshape(-1, 1, 3), rvec, T[:3, 3], np.asarray(K, np.float64), None)
+    return uv.reshape(-1, 2)
+
+
+def _with_size(rig, size):
+    """``rig`` with every camera's (width, height) replaced by size(camera)."""
+    import dataclasses
+
+    from jaxdepth.io.rig import RigCamera
+    return dataclasses.replace(rig, cameras=tuple(RigCamera(c.name, *size(c), c.K, c.T_cam_lidar)
+                                                  for c in rig.cameras))
+
+
+def _rows_in_message(message):
+    import re
+    lo, hi, size = (int(x) for x in re.search(r"fill only rows (\d+)-(\d+) of (\d+)", message).groups())
+    return lo, hi, size
+
+
+@pytest.mark.parametrize("change", ["fy / 8", "height x 4"])
+def test_field_of_view_check_refuses_points_in_a_thin_band_or_at_one_edge(change):
+    """K with fy an eighth of the real one, or the image 4 times as tall as K's: both passed before (the
+    principal point test does not judge them). Oracle: OpenCV's projection of the whole sweep, its rows'
+    1-99 % band (a thin band: under 30 % of the rows; one edge: inside the outer 40 %)."""
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.plausibility import check_rig_geometry
+
+    def fy_8(c):
+        K = np.array(c.K, np.float32)
+        K[1, 1] /= 8
+        return K
+
+    for name, rig, points in _real_rigs():
+        bad = (_with(rig, K=fy_8) if change == "fy / 8" else _with_size(rig, lambda c: (c.width, 4 * c.height)))
+        camera = bad.cameras[0]
+        uv = _cv2_pixels(points, camera.K, camera.T_cam_lidar)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+        lo, hi = np.percentile(uv[inside, 1], [1, 99]) / camera.height
+        assert hi - lo < 0.3 or hi < 0.4 or lo > 0.6, (name, lo, hi)  # the oracle: points in a band or at an edge
+        with pytest.raises(InputError, match=rf"camera '{camera.name}'.* field 'K': the sweep's points fill only "
+                                             r"rows \d+-\d+ of \d+ \((a thin band|only at the top edge)\): the "
+                                             r"image does not fit the LiDAR's field of view") as err:
+            check_rig_geometry(points, bad.cameras, path=name)
+        got_lo, got_hi, size = _rows_in_message(str(err.value))
+        assert size == camera.height
+        assert abs(got_lo - lo * size) <= 0.03 * size and abs(got_hi - hi * size) <= 0.03 * size, (name, err.value)  # a sample
+
+
+def test_density_check_refuses_a_K_made_for_a_larger_image():
+    """K x 3 with the image size kept: the image holds a ninth of K's view. On KITTI's cameras (principal
+    point at 1.5 times the image size, which the principal point test leaves to a crop) it passed before.
+    Oracle: OpenCV's projection, the share of the points in K's view (2 cx x 2 cy) that land in the image."""
+    import re
+
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.plausibility import check_rig_geometry
+
+    def times_3(c):
+        return np.array(c.K, np.float32) * np.array([[3], [3], [1]], np.float32)
+
+    judged = 0
+    for name, rig, points in _real_rigs():
+        bad = _with(rig, K=times_3)
+        try:
+            check_rig_geometry(points, bad.cameras, path=name)
+        except InputError as err:
+            message = str(err)
+        else:
+            raise AssertionError(f"{name}: K x 3 accepted")
+        if "K seems scaled by" in message:  # the principal point test came first (nuScenes, Argoverse 2)
+            continue
+        camera = bad.cameras[0]
+        K = np.asarray(camera.K, np.float64)
+        uv = _cv2_pixels(points, K, camera.T_cam_lidar)
+        view = (uv >= 0).all(axis=1) & (uv[:, 0] < 2 * K[0, 2]) & (uv[:, 1] < 2 * K[1, 2])
+        inside = (uv >= 0).all(axis=1) & (uv[:, 0] < camera.width) & (uv[:, 1] < camera.height)
+        share = 100 * inside.sum() / view.sum()
+        assert share < 50
+        got = float(re.search(rf"camera '{camera.name}'.* field 'K': only (\d+) % of the sweep's points in K's "
+                              rf"view land in the {camera.width}x{camera.height} image: K seems made for a larger "
+                              "image", message).group(1))
+        assert abs(got - share) <= 2, (name, got, share)
+        judged += 1
+    assert judged >= 4  # the KITTI drives and object frames
+
+
+def test_swapped_image_size_is_refused():
+    """Every camera's width and height swapped: it passed before on every shared rig but KITTI's (ground fine,
+    principal point off-centre read as a crop)."""
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.plausibility import check_rig_geometry
+    for name, rig, points in _real_rigs():
+        bad = _with_size(rig, lambda c: (c.height, c.width))
+        c = rig.cameras[0]
+        with pytest.raises(InputError, match=rf"camera '{c.name}'.* field 'width, height': the image size "
+                                             rf"{c.height}x{c.width} seems swapped"):
+            check_rig_geometry(points, bad.cameras, path=name)

@@ -536,10 +536,13 @@ def _up_axis_moves(T: np.ndarray) -> float:
 
 
 def _geometry_cases(rng, cameras: dict, *, invertible: list):
-    """Mutations of {name: (K, T, width, height)}: inverted T / K scaled for another image size must
-    be refused with the named cause; a camera turned about the vertical, tilted by up to 20 deg in
-    pitch and roll, or resized together with its K must be accepted."""
-    kinds = ["inverted", "scaled", "turned", "resized", "same"]
+    """Mutations of {name: (K, T, width, height)}: inverted T, K scaled for another image size (x 0.5,
+    2, 0.25, 4; or x 3, the image then holds a third of K's view: "oversized"), the image size swapped
+    must be refused with the named cause; a camera turned about the vertical, tilted by up to 14 deg
+    in roll and 6 deg in pitch (KITTI's cameras pitched up by 8 deg or more see the LiDAR's points only
+    at the bottom edge: refused, docs/bad_input_checks.md), or resized together with its K must be
+    accepted."""
+    kinds = ["inverted", "scaled", "oversized", "swapped", "turned", "resized", "same"]
     for _ in range(GEOMETRY_CASES):
         kind = kinds[rng.integers(len(kinds))]
         new = {n: (np.array(K, np.float64), np.array(T, np.float64), w, h) for n, (K, T, w, h) in cameras.items()}
@@ -556,9 +559,20 @@ def _geometry_cases(rng, cameras: dict, *, invertible: list):
                 K[:2] *= s
                 new[n] = (K, T, w, h)
             yield kind, new, f"K seems scaled by {s:g} for this image size"
+        elif kind == "oversized":
+            for n in [n for n in new if rng.random() < 0.5] or list(new)[:1]:
+                K, T, w, h = new[n]
+                K[:2] *= 3.0
+                new[n] = (K, T, w, h)
+            # the principal point test names the nearest of its factors where it applies
+            yield kind, new, ("of the sweep's points in K's view land in the", "K seems scaled by")
+        elif kind == "swapped":  # every camera: the nuScenes reader takes one image size for the file
+            for n, (K, T, w, h) in new.items():
+                new[n] = (K, T, h, w)
+            yield kind, new, "seems swapped"
         elif kind == "turned":
             for n, (K, T, w, h) in new.items():
-                tilt = _rotation(0, rng.uniform(-14, 14)) @ _rotation(2, rng.uniform(-14, 14))  # pitch, roll
+                tilt = _rotation(0, rng.uniform(-6, 6)) @ _rotation(2, rng.uniform(-14, 14))  # pitch, roll
                 new[n] = (K, tilt @ T @ _rotation(2, rng.uniform(-180, 180)), w, h)
             yield kind, new, None
         elif kind == "resized":
@@ -586,7 +600,8 @@ def _run_geometry(tmp_path, name, cases, write, read, points):
         except JaxdepthError as err:
             message = str(err)
             assert "\n" not in message and path.name in message
-            if cause is None or cause not in message:
+            causes = (cause,) if isinstance(cause, str) else cause
+            if cause is None or not any(c in message for c in causes):
                 wrong.append((i, kind, message[:160]))
             continue
         if cause is not None:

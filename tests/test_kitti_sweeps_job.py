@@ -140,3 +140,25 @@ def test_command_line_sweeps(drive, api_run, tmp_path, capsys):
     (flat / "a.png").write_bytes(b"")
     assert cli.main(["complete", str(flat), str(tmp_path / "y"), "--sweeps", "2", "-q"]) == 1
     assert "--sweeps applies to KITTI raw drives" in capsys.readouterr().err
+
+
+def test_sweeps_job_refuses_an_inverted_velo_to_cam_calibration(drive, tmp_path):
+    """calib_velo_to_cam.txt holding camera -> LiDAR: every sweep FAILED naming the file and the cause, before
+    any compile (the job used to complete them: issue 39 item 2); the drive as written passes the check."""
+    from jaxdepth.batch.runner import RunSummary
+    from tests.test_far_points_and_calibration import invert_velo_to_cam
+    drive, _ = drive
+    copy = tmp_path / drive.parent.name / drive.name
+    shutil.copytree(drive.parent, tmp_path / drive.parent.name)
+    scan = kitti_datasets.kitti_raw_jobs(copy, tmp_path / "out", camera=2)
+    todo = kitti_sweeps_job.plan(scan.jobs, overwrite=False, summary=RunSummary(), notify=lambda *a: None)
+    cloud, rig = kitti_sweeps_job._load(todo[0], sweeps=1, force=False)  # as written: plausible
+    assert cloud.num_sources == 2 and rig.cameras[0].name == "image_02"
+    invert_velo_to_cam(copy.parent / "calib_velo_to_cam.txt")
+    scan = kitti_datasets.kitti_raw_jobs(copy, tmp_path / "out", camera=2)
+    summary = kitti_sweeps_job.run_kitti_raw_sweeps(scan.jobs, sweeps=1)
+    assert not summary.done and len(summary.failed) == 2
+    for _, message in summary.failed:
+        assert (f"{copy.parent / 'calib_velo_to_cam.txt'}: camera 'image_02' field 'T_cam_lidar': T_cam_lidar "
+                "looks inverted" in message and "--force" in message), message
+    assert not list((tmp_path / "out").rglob("*.png"))

@@ -99,8 +99,8 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
 def test_scaling_the_scene_scales_the_depth():
     """Metres in, metres out: scaling depths and the LiDAR offset by s scales the output by s. Without the
     outlier removal, whose epsilon scales with the scene too (test_outliers.test_scale_invariance): with
-    scenes.NON_DEFAULT (no removal, l2 seeds, blended hypotheses, no smoothing), test_speed_equivalence's
-    program; s = 1/2 keeps both runs inside the default clip range."""
+    scenes.NON_DEFAULT (no removal, l2 seeds, blended hypotheses, no smoothing, background above the scan),
+    test_speed_equivalence's program; s = 1/2 keeps both runs inside the default clip range."""
     depth, K, T = tiny_frame(5)
     s = 0.5
     T2 = T.copy()

@@ -163,6 +163,80 @@ def test_complete_rig_with_another_sweep_into_the_same_folder_recomputes_it(tmp_
     assert json.loads((out / run_record.RUN_FILE).read_text())["inputs"][0] == str(far.resolve())
 
 
+def test_a_single_file_whose_input_changed_is_recomputed_not_skipped(tmp_path, capsys, caplog):
+    """``complete a.png out.png`` again after a.png changed, or with another input: recomputed (it printed
+    "1 skipped (already done)" and kept the old output); the same input again: skipped. Oracle: a fresh
+    run of the new input into another file (same bytes: deterministic)."""
+    first, second = _sparse_folder(tmp_path / "a", seed=1, n=1), _sparse_folder(tmp_path / "b", seed=2, n=1)
+    K = tmp_path / "K.txt"
+    K.write_text("60 0 64\n0 60 32\n0 0 1\n")
+    nearest = ("--intrinsics", K, "--method", "nearest")
+    src, other, out, fresh = first / "f0.png", second / "f0.png", tmp_path / "out.png", tmp_path / "fresh.png"
+    assert _run(capsys, "complete", other, fresh, *nearest)[0] == 0
+    assert _run(capsys, "complete", src, out, *nearest)[0] == 0
+    record = json.loads(run_record.output_record_path(out).read_text())
+    assert record["outputs"]["out.png"]["files"][0][0] == str(src.resolve())
+    assert "0 completed, 1 skipped" in _run(capsys, "complete", src, out, *nearest)[2]  # resume: the same input
+    old = out.read_bytes()
+    src.write_bytes(other.read_bytes())  # a.png changed in place
+    with caplog.at_level(logging.WARNING, logger="jaxdepth"):
+        code, _, err = _run(capsys, "complete", src, out, *nearest)
+    assert code == 0 and "1 completed, 0 skipped" in err, err
+    assert f"{out}: made from other inputs: {src.resolve()}" in caplog.text
+    assert out.read_bytes() == fresh.read_bytes() != old
+    _sparse_folder(tmp_path / "c", seed=3, n=1)
+    code, _, err = _run(capsys, "complete", tmp_path / "c" / "f0.png", out, *nearest)  # another input file
+    assert code == 0 and "1 completed, 0 skipped" in err, err
+    assert "0 completed, 1 skipped" in _run(capsys, "complete", tmp_path / "c" / "f0.png", out, *nearest)[2]
+
+
+def test_a_single_output_without_its_record_is_refused_unless_overwrite(tmp_path, capsys):
+    _sparse_folder(tmp_path / "a", seed=1, n=1)
+    K = tmp_path / "K.txt"
+    K.write_text("60 0 64\n0 60 32\n0 0 1\n")
+    out = tmp_path / "out.png"
+    out.write_bytes((tmp_path / "a" / "f0.png").read_bytes())  # another tool's file
+    code, _, err = _run(capsys, "complete", tmp_path / "a" / "f0.png", out, "--intrinsics", K, "--method", "nearest")
+    assert code == 1 and "out.jaxdepth_run.json beside it is missing" in err and "--overwrite" in err, err
+    assert not run_record.output_record_path(out).exists()
+
+
+def test_complete_rig_tracks_the_files_a_sweeps_json_names(tmp_path, caplog):
+    """Changing one member file of a sweeps JSON removes the rig's outputs (so the run recomputes them):
+    before, only the JSON itself was an input, and the outputs of the old member resumed."""
+    from jaxdepth.batch.rig_job import _output_identities
+    from jaxdepth.io import read_rig_json
+    rig_path = tmp_path / "rig.json"
+    write_wall_rig(rig_path)
+    rig = read_rig_json(rig_path)
+    ref, earlier = tmp_path / "s0.npy", tmp_path / "s1.npy"
+    wall_sweep(ref)
+    wall_sweep(earlier, beams=8)
+    T = np.eye(4)
+    T[0, 3] = -1.0
+    sweeps = tmp_path / "sweeps.json"
+    sweeps.write_text(json.dumps({"sweeps": [{"file": "s1.npy", "T_ref_sweep": T.tolist()},
+                                             {"file": "s0.npy", "T_ref_sweep": np.eye(4).tolist()}]}))
+    out = tmp_path / "out"
+    record = run_record.make_record(run_record.settings_of(SGMConfig(), method="sgm"), inputs=[sweeps, rig_path])
+
+    def claim():
+        return run_record.claim_folder(out, record, overwrite=False, outputs=_output_identities(
+            rig, sweeps, rig_path, out, None, guided=False))
+
+    assert claim() == []
+    for camera in rig.cameras:  # the run's outputs
+        write_depth_png(out / f"{camera.name}.png", np.ones((camera.height, camera.width), np.float32))
+    assert claim() == []  # nothing changed: resume
+    ident = json.loads((out / run_record.RUN_FILE).read_text())["outputs"][f"{rig.cameras[0].name}.png"]
+    assert [f[0] for f in ident["files"]] == [str(p.resolve()) for p in (sweeps, ref, earlier, rig_path)]  # reference first
+    wall_sweep(earlier, beams=12)  # one member rewritten: another size
+    with caplog.at_level(logging.WARNING, logger="jaxdepth"):
+        changed = claim()
+    assert len(changed) == len(rig.cameras) and f"{earlier.resolve()} changed size" in changed[0]
+    assert not list(out.glob("*.png"))
+
+
 # ------------------------------------------------------------------ Ctrl-C during a cold compile (item 5)
 
 

@@ -37,6 +37,7 @@ from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.types import LidarSpec
 
 from helpers import numpy_column_hypotheses
+from test_above_scan import numpy_above_scan
 from scenes import NON_DEFAULT, SMALL_LIDAR, thinned_for_listed_normals, tiny_frame
 
 
@@ -73,6 +74,9 @@ def reference_stages(sparse, K, T, *, config: SGMConfig, lidar: LidarSpec) -> di
             normals=np.asarray(normals), K=np.asarray(K), blend=config.blend_hypotheses,
             min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio)
     depth_raw = depth_raw.astype(np.float32)
+    if config.above_scan == "background":
+        depth_raw = numpy_above_scan(depth_raw, seed_depth, keep, sparse > 0, beams=lidar.beams,
+                                     max_half_width_px=config.outlier_max_half_width_px)
     r = config.smoothing_radius_px
     depth = cv2.GaussianBlur(depth_raw, (2 * r + 1, 2 * r + 1), config.smoothing_sigma_px,
                              borderType=cv2.BORDER_REFLECT_101) if config.smoothing_sigma_px > 0 else depth_raw

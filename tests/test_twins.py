@@ -289,3 +289,17 @@ def test_sphere_hits_match_the_analytic_intersection():
         assert np.isfinite(expect).sum() >= 50
         np.testing.assert_array_equal(np.isinf(t), np.isinf(expect))
         np.testing.assert_allclose(t[np.isfinite(t)], expect[np.isfinite(expect)], rtol=1e-5, atol=1e-5)
+
+
+def test_calibration_checks_pass_every_twin_and_refuse_its_swapped_image_size(kitti_exact, raster_exact, av2_exact):
+    """The geometry checks (principal point, ground, field of view, projected density: issue 39 item 2)
+    accept every twin's own rig and refuse it with the image sizes swapped."""
+    from jaxdepth.io.errors import InputError
+    from jaxdepth.io.plausibility import check_rig_geometry
+    from jaxdepth.io.rig import RigCamera
+    for twin in (kitti_exact, raster_exact, av2_exact):
+        points = np.asarray(twin.cloud.points)
+        check_rig_geometry(points, twin.rig.cameras, path=twin.name)
+        swapped = [RigCamera(c.name, c.height, c.width, c.K, c.T_cam_lidar) for c in twin.rig.cameras]
+        with pytest.raises(InputError, match="seems swapped"):
+            check_rig_geometry(points, swapped, path=twin.name)

@@ -12,6 +12,8 @@ import dataclasses
 #: The nearest-seed metrics (``SGMConfig.distance_metric``, ``nearest_seed(metric=)``, ``seed_distance``).
 DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
+#: Step 4's choices above the top scan line (``SGMConfig.above_scan``).
+ABOVE_SCAN = ("plane", "background")
 
 
 # (field, note) of the float options that must be >= 0
@@ -66,6 +68,13 @@ class SGMConfig:
         plane predictions of those two column neighbours, where they fall in
         the bracket, weighted by 1 / image distance to each seed. Needs
         ``column_bracket``.
+      above_scan: beyond the paper. What Step 4 writes above the top scan line
+        (above every kept LiDAR pixel of the columns within |du| < W L / N).
+        "plane": the paper's nearest-seed plane. "background": the farthest
+        seed depth among the row's pixels within |du| < W L / N (the paper's
+        window of Algorithm 1), with no plane extrapolation: the top laser hit
+        the bottom of what stands there, and the near things end above it while
+        the background continues (:mod:`~jaxdepth._src.above_scan`).
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
         The paper gives no value; the default 1.4 with radius 3 is OpenCV's
         ``GaussianBlur(depth, (7, 7), 0)``.
@@ -122,6 +131,7 @@ class SGMConfig:
     max_residual_ratio: float = 0.5
     column_bracket: bool = True
     blend_hypotheses: bool = False
+    above_scan: str = "plane"
     smoothing_sigma_px: float = 1.4
     smoothing_radius_px: int = 3
     keep_measured_depth: bool = True
@@ -144,6 +154,8 @@ class SGMConfig:
         if self.outlier_test not in _OUTLIER_TESTS:
             raise ValueError(
                 f"SGMConfig: field 'outlier_test' expected one of {_OUTLIER_TESTS}, got {self.outlier_test!r}")
+        if self.above_scan not in ABOVE_SCAN:
+            raise ValueError(f"SGMConfig: field 'above_scan' expected one of {ABOVE_SCAN}, got {self.above_scan!r}")
         for name, note in _NON_NEGATIVE_FIELDS:  # `not >= 0` also refuses NaN
             value = getattr(self, name)
             if not value >= 0:

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdepth._src import presets
+from jaxdepth._src.above_scan import background_above_scan
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed
@@ -111,6 +112,9 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
             window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
             max_residual_ratio=config.max_residual_ratio)
+    if config.above_scan == "background":
+        depth_raw = background_above_scan(depth_raw, seed_depth, keep, sparse_depth > 0, beams=beams,
+                                          max_half_width_px=config.outlier_max_half_width_px)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)

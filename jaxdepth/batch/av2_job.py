@@ -178,13 +178,19 @@ def plan(logs, dst, *, cameras, overwrite: bool, summary, notify, time: str = "c
 
 
 def _load(job, *, tables: dict, cameras, force: bool):
+    """The sweep's cloud and rig, the rig's calibration checked against the cloud (the log's
+    calibration/egovehicle_SE3_sensor.feather named: :func:`jaxdepth.io.plausibility.check_rig_geometry`)."""
     from jaxdepth.io import av2
+    from jaxdepth.io.plausibility import check_rig_geometry
 
     folder, timestamp_ns, times = job.source
     log_, sweeps = tables[folder]
     camera_ns = {c: t for c, t in times.items() if t is not None}
     rig = av2.read_rig(log_, cameras, sweep_ns=timestamp_ns, camera_ns=camera_ns)
-    return av2.read_cloud(log_, timestamp_ns, sweeps=sweeps, force=force), rig
+    cloud = av2.read_cloud(log_, timestamp_ns, sweeps=sweeps, force=force)
+    check_rig_geometry(cloud.points, rig.cameras, path=pathlib.Path(log_.folder) / "calibration" /
+                       "egovehicle_SE3_sensor.feather", force=force)
+    return cloud, rig
 
 
 @functools.lru_cache(maxsize=8)

@@ -67,10 +67,15 @@ def sweep_identities(jobs, *, sweeps: int) -> dict:
 
 
 def _load(job: CloudJob, *, sweeps: int, force: bool):
+    """The frame's cloud and rig, the rig's calibration checked against the cloud (the date folder's
+    calib_*.txt named: :func:`jaxdepth.io.plausibility.check_rig_geometry`)."""
     from jaxdepth.io.kitti_oxts import read_drive_cloud
+    from jaxdepth.io.plausibility import check_rig_geometry
 
     drive, frame, rig = job.source
-    return read_drive_cloud(drive, frame, sweeps=sweeps, force=force), rig
+    cloud = read_drive_cloud(drive, frame, sweeps=sweeps, force=force)
+    check_rig_geometry(cloud.points, rig.cameras, path=drive.parent / "calib_velo_to_cam.txt", force=force)
+    return cloud, rig
 
 
 def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = False,

@@ -52,15 +52,30 @@ def rig_images(rig, rig_path, image_dir):
 
 def _output_identities(rig, points_path, rig_path, out_dir, image_dir, *, guided: bool) -> dict:
     """``{<out_dir>/<camera>.png: input identity}``: every camera's output is made from the sweep (or
-    sweeps JSON) and the rig JSON, and its own image when ``guided``
+    sweeps JSON and every point file it names) and the rig JSON, and its own image when ``guided``
     (:func:`jaxdepth.batch.run_record.input_identity`)."""
     from jaxdepth.batch.run_record import input_identity
     from jaxdepth.io.rig_images import rig_image_paths
     images = (rig_image_paths(rig.cameras, image_dir=image_dir, rig_json=rig_path,
                               json_images={c.name: c.image for c in rig.cameras if c.image is not None})
               if guided else [None] * len(rig.cameras))
-    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([points_path, rig_path, image])
+    files = sweep_input_files(points_path)
+    return {pathlib.Path(out_dir) / f"{camera.name}.png": input_identity([*files, rig_path, image])
             for camera, image in zip(rig.cameras, images)}
+
+
+def sweep_input_files(points_path) -> list:
+    """The files one sweep argument is read from: the point file, or a sweeps JSON and every point file it
+    names (the reference first), so that a rewritten member counts as a changed input. A sweeps JSON that
+    cannot be read: itself only (reading it for the completion reports the problem)."""
+    from jaxdepth.io.errors import JaxdepthError
+    from jaxdepth.io.sweeps import is_sweeps_json, read_sweeps_json
+    if not is_sweeps_json(points_path):
+        return [points_path]
+    try:
+        return [points_path, *(entry.file for entry in read_sweeps_json(points_path))]
+    except JaxdepthError:
+        return [points_path]
 
 
 @dataclasses.dataclass

@@ -61,7 +61,8 @@ def _program_key(prepared: rig_job.PreparedSweep) -> tuple:
 def _claim(out_dir, rig, sweeps, rig_path, *, record, overwrite: bool, columns) -> None:
     from jaxdepth.batch import run_record
     from jaxdepth.io.sweep_list import sweep_stem
-    outputs = {out_dir / sweep_stem(path) / f"{camera.name}.png": run_record.input_identity([path, rig_path, None])
+    outputs = {out_dir / sweep_stem(path) / f"{camera.name}.png":  # a sweeps JSON: with the files it names
+               run_record.input_identity([*rig_job.sweep_input_files(path), rig_path, None])
                for path in sweeps for camera in rig.cameras}
     record = dict(record, settings=dict(record["settings"], point_columns=columns))
     run_record.claim_folder(out_dir, record, overwrite=overwrite, outputs=outputs)

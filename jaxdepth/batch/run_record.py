@@ -37,6 +37,11 @@ values). A re-run into the same folder:
 Which extra files are requested (``--preview``, ``--validity``...) is not a setting:
 adding one on a re-run fills in the missing files, as before.
 
+A single named output (``complete a.png out.png``) keeps its record beside it,
+``out.jaxdepth_run.json`` (:func:`claim_output_file`): the same inputs, settings and output
+version resume; anything else recomputes it; an ``out.png`` without a record is refused
+unless ``overwrite``.
+
 KITTI trees keep each run's outputs in ``<drive>/proj_depth/<name>/``: the record lives
 there (:func:`record_folders`), so two methods completed into one output root (``sgm``
 and ``ip-basic`` side by side) each keep their own record.
@@ -56,6 +61,8 @@ import sys
 from jaxdepth.io.errors import OutputError, PathLike
 
 RUN_FILE = "jaxdepth_run.json"
+#: The record of one named output ``out.png`` (``complete a.png out.png``): ``out.jaxdepth_run.json``.
+OUTPUT_RECORD_SUFFIX = ".jaxdepth_run.json"
 
 log = logging.getLogger("jaxdepth")
 
@@ -156,7 +163,12 @@ def _value_bytes(value) -> bytes:
 
 def read_record(folder: PathLike) -> dict | None:
     """The record of ``folder`` (None when it has none or it is unreadable JSON)."""
-    path = pathlib.Path(folder) / RUN_FILE
+    return read_record_file(pathlib.Path(folder) / RUN_FILE)
+
+
+def read_record_file(path: PathLike) -> dict | None:
+    """The record in the file ``path`` (None when it is missing or unreadable JSON)."""
+    path = pathlib.Path(path)
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -289,24 +301,28 @@ def _relative(folder: pathlib.Path, path) -> str | None:
 def _remove_changed(folder: pathlib.Path, recorded: dict, current: dict) -> list[str]:
     """Removes every existing output of ``current`` whose recorded inputs differ (and its extra files);
     ``"<output>: <what changed>"`` for each, logged as one warning."""
-    from jaxdepth.batch.extras import KINDS, extra_path
-
     changed = []
     for rel, ident in sorted(current.items()):
         path = folder / rel
         if recorded.get(rel) == ident or not path.exists():
             continue
-        for target in [path] + [extra_path(path, kind) for kind in KINDS]:
-            try:
-                target.unlink(missing_ok=True)
-            except OSError as err:
-                raise OutputError(f"{target}: cannot remove an output whose input changed "
-                                  f"({err.strerror or err})") from None
+        _remove_with_extras(path)
         changed.append(f"{rel}: {what_changed(recorded.get(rel), ident)}")
     if changed:
         log.warning("%s: %d output%s made from inputs that changed since they were written: removed, to be "
                     "recomputed (first: %s)", folder, len(changed), "s" if len(changed) > 1 else "", changed[0])
     return changed
+
+
+def _remove_with_extras(path: pathlib.Path) -> None:
+    """Removes the output depth PNG ``path`` and its extra files (those that exist)."""
+    from jaxdepth.batch.extras import KINDS, extra_path
+    for target in [path] + [extra_path(path, kind) for kind in KINDS]:
+        try:
+            target.unlink(missing_ok=True)
+        except OSError as err:
+            raise OutputError(f"{target}: cannot remove an output whose input changed "
+                              f"({err.strerror or err})") from None
 
 
 def what_changed(old: dict | None, new: dict) -> str:
@@ -330,6 +346,68 @@ def what_changed(old: dict | None, new: dict) -> str:
     if old.get("values") != new.get("values"):
         return "its calibration (K, T_cam_lidar) or image size changed"
     return "its recorded inputs differ"
+
+
+def output_record_path(path: PathLike) -> pathlib.Path:
+    """The record of a single output ``<dir>/<stem>.png``: ``<dir>/<stem>.jaxdepth_run.json`` beside it."""
+    path = pathlib.Path(path)
+    return path.with_name(path.stem + OUTPUT_RECORD_SUFFIX)
+
+
+def claim_output_file(path: PathLike, record: dict, identity: dict, *, overwrite: bool) -> str | None:
+    """A single output's run (``jaxdepth complete a.png out.png``): its record beside it, not in its folder.
+
+    The folder of one named output may hold anything (other runs' files, other tools'), so its record is
+    ``out.jaxdepth_run.json`` (:func:`output_record_path`), :func:`make_record`'s object with
+    ``outputs: {"out.png": identity}``. A re-run when ``out.png`` exists: the same inputs, settings and
+    output version resume (skipped); otherwise ``out.png`` and its extra files are removed, to be
+    recomputed, with one warning saying what changed (one named output cannot mix two runs, so other
+    settings recompute rather than refuse). An ``out.png`` without a readable record is refused, as a
+    folder of depth PNGs without one is, unless ``overwrite``.
+
+    Args:
+      path: the output depth PNG. record: :func:`make_record`'s object. identity: :func:`input_identity`
+        of the output. overwrite: ``--overwrite``.
+
+    Returns:
+      What changed (the output was removed), or None.
+
+    Raises:
+      RunSettingsError: ``path`` exists without a record. OutputError: the record cannot be written.
+    """
+    from jaxdepth.io.atomic import atomic_write_bytes
+
+    path = pathlib.Path(path)
+    side = output_record_path(path)
+    old = read_record_file(side)
+    new = dict(record, outputs={path.name: identity})
+    changed = None
+    if path.exists() and not overwrite:
+        if old is None:
+            raise RunSettingsError(
+                f"{path}: exists, but {side.name} beside it is missing or unreadable (written by an older jaxdepth "
+                "or another tool), so what made it is unknown. Re-run with --overwrite to recompute it, or write "
+                "to another file")
+        changed = _single_change(old, new, path.name)
+        if changed:
+            _remove_with_extras(path)
+            log.warning("%s: made from %s: removed, to be recomputed", path, changed)
+    if old is None or _without_command(new) != _without_command(old):
+        atomic_write_bytes(side, (json.dumps(new, indent=1, sort_keys=True) + "\n").encode(), overwrite=True)
+    return changed
+
+
+def _single_change(old: dict, new: dict, name: str) -> str | None:
+    """What differs between a single output's recorded run and this one, in words (None: the same)."""
+    diff = differences(old.get("settings", {}), new["settings"])
+    if diff:
+        return "other settings (" + "; ".join(diff) + ")"
+    if old.get("output_version") != new.get("output_version"):
+        return f"another output version ({old.get('output_version')} -> {new.get('output_version')})"
+    was = (old.get("outputs") or {}).get(name)
+    if was != new["outputs"][name]:
+        return "other inputs: " + what_changed(was, new["outputs"][name])
+    return None
 
 
 def record_folders(dst: PathLike, out_paths) -> list[pathlib.Path]:
@@ -373,4 +451,5 @@ def summary_lines(record: dict, *, path: PathLike | None = None) -> list[str]:
 
 __all__ = ["RUN_FILE", "RunSettingsError", "settings_of", "make_record", "read_record", "find_record",
            "find_records_below", "record_folders", "differences", "claim_folder", "summary_lines", "output_version",
-           "file_identity", "input_identity", "what_changed"]
+           "file_identity", "input_identity", "what_changed", "claim_output_file", "output_record_path",
+           "read_record_file", "OUTPUT_RECORD_SUFFIX"]

@@ -303,6 +303,9 @@ def check_sweep(points: np.ndarray, *, path: PathLike, columns: int | None = Non
 GROUND_RING_M = (2.0, 40.0)
 GROUND_BIN_M, GROUND_BAND_M = 0.1, 0.25
 GROUND_MIN_POINTS, GROUND_MIN_SHARE = 200, 0.10
+#: The band must spread at least this far (metres, standard deviation across its narrowest horizontal
+#: direction): a ground is a surface around the vehicle, not one beam's line on a wall.
+GROUND_MIN_SPREAD_M = 1.0
 #: At most this many points (every k-th of the sweep) go into the ground fit.
 GROUND_SAMPLE = 32768
 #: Largest angle between a camera's up axis (-y) and the ground's normal, degrees: a camera on a
@@ -316,7 +319,8 @@ def sweep_ground(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     The points' frame has z along the LiDAR's spin axis, up (the range image's convention, which
     Steps 1-2 already rely on). The ground is the most populated 10 cm height bin at or below the
     origin among the points 2-40 m away horizontally (the road around the vehicle); a plane is
-    fitted by least squares to the points within 25 cm of it. Too few points there: None. At
+    fitted by least squares to the points within 25 cm of it. Too few points there, or points along a
+    line (spread under :data:`GROUND_MIN_SPREAD_M` across it: a wall's beam): None. At
     most :data:`GROUND_SAMPLE` points (every k-th) are used.
 
     Args:
@@ -338,6 +342,8 @@ def sweep_ground(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     band = low[np.abs(low[:, 2] - height) <= GROUND_BAND_M]
     if band.shape[0] < max(GROUND_MIN_POINTS, GROUND_MIN_SHARE * near.shape[0]):
         return None
+    if np.sqrt(max(np.linalg.eigvalsh(np.cov(band[:, :2].T))[0], 0.0)) < GROUND_MIN_SPREAD_M:
+        return None  # the band is a line (one beam on a wall), not a surface around the vehicle
     A = np.column_stack([band[:, 0], band[:, 1], np.ones(band.shape[0])])
     (a, b, c), *_ = np.linalg.lstsq(A, band[:, 2], rcond=None)
     n = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
@@ -349,13 +355,108 @@ def _tilt_deg(T: np.ndarray, normal: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(-T[1, :3] @ normal, -1.0, 1.0))))
 
 
+#: Projection checks (:func:`projection_problem`): points nearer than this in front of a camera are
+#: not used (metres); fewer in-image points than this are not judged.
+PROJECT_MIN_DEPTH_M, PROJECT_MIN_POINTS = 1.0, 100
+#: At most about this many points (every k-th of the sweep) are projected: >= 800 land in each real
+#: camera's image, enough for the 1-99 % band.
+PROJECT_SAMPLE = 8192
+#: Smallest share of the points within K's own view (the image a centred principal point implies,
+#: 2 cx x 2 cy) that must land in the image (real rigs: >= 0.86; K x 1.5 on KITTI: 0.33-0.42).
+MIN_VIEW_SHARE = 0.5
+#: Rows (columns) of the in-image points, 1-99 %: the band spans at least this share of the height
+#: (width) and reaches past the outer edge share (real rigs: spans >= 0.46, rows 0.38-0.79 always
+#: inside the band, columns 0.12-0.90).
+MIN_BAND_SPAN, EDGE_SHARE = 0.3, 0.4
+
+
+def _swapped_size(K: np.ndarray, width: int, height: int) -> bool:
+    """The principal point is off-centre in the width x height image and centred in height x width."""
+    from jaxdepth.io.checks import CENTRE_TOL
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+
+    def centred(w: float, h: float) -> bool:
+        return abs(cx / w - 0.5) <= CENTRE_TOL and abs(cy / h - 0.5) <= CENTRE_TOL
+
+    return width != height and not centred(width, height) and centred(height, width)
+
+
+def _project(points: np.ndarray, K: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(M, 2) pixel coordinates (u, v) of the finite points at least PROJECT_MIN_DEPTH_M in front."""
+    with np.errstate(all="ignore"):
+        xyz = np.asarray(points, np.float64)[:, :3]
+        xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+        cam = xyz @ T[:3, :3].T + T[:3, 3]
+    cam = cam[cam[:, 2] >= PROJECT_MIN_DEPTH_M]
+    pixel = cam @ K.T  # K's last row is (0, 0, 1): the third column is the depth
+    return pixel[:, :2] / pixel[:, 2:3]
+
+
+def _band_problem(coords: np.ndarray, size: int, axis: str) -> str | None:
+    """Why the points' ``axis`` coordinates (rows or columns) in an image ``size`` long look wrong."""
+    lo, hi = (float(x) / size for x in np.percentile(coords, [1, 99]))
+    where = f"fill only {axis} {lo * size:.0f}-{hi * size:.0f} of {size}"
+    if hi - lo < MIN_BAND_SPAN:
+        return f"the sweep's points {where} (a thin band)"
+    edge = ("top", "bottom") if axis == "rows" else ("left", "right")
+    if hi < EDGE_SHARE:
+        return f"the sweep's points {where} (only at the {edge[0]} edge)"
+    if lo > 1.0 - EDGE_SHARE:
+        return f"the sweep's points {where} (only at the {edge[1]} edge)"
+    return None
+
+
+def projection_problem(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, width: int,
+                       height: int) -> tuple[str, str] | None:
+    """``(field, what is wrong)`` when the sweep projects into the image as no camera on a vehicle sees it.
+
+    Projected density: of the points within K's own view (the ``2 cx x 2 cy`` image a centred principal
+    point implies), at least :data:`MIN_VIEW_SHARE` land in the image (else K is made for a larger
+    image). Field of view: a LiDAR scans every azimuth and the ground to a few metres, so the
+    in-image points span the image's width and its rows from near the horizon down; a thin band
+    (under :data:`MIN_BAND_SPAN` of the rows or columns) or a band only at one edge (inside the
+    outer :data:`EDGE_SHARE`) means the image's rows do not match the LiDAR's vertical field of view.
+    Fewer than :data:`PROJECT_MIN_POINTS` points in the view or the image: not judged. About
+    :data:`PROJECT_SAMPLE` points (every k-th) are projected.
+
+    Args:
+      points: (N, 3) the sweep in the frame ``T_cam_lidar`` (4, 4) maps from; K: (3, 3); width,
+        height: pixels.
+    """
+    K = np.asarray(K, np.float64)
+    points = np.asarray(points)[::max(1, np.shape(points)[0] // PROJECT_SAMPLE)]  # every k-th: bounded cost
+    uv = _project(points, K, np.asarray(T_cam_lidar, np.float64))
+    u, v = uv[:, 0], uv[:, 1]
+    view = (u >= 0) & (u < 2 * K[0, 2]) & (v >= 0) & (v < 2 * K[1, 2])
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    n_view, n_in = int(np.count_nonzero(view)), int(np.count_nonzero(inside))
+    if n_view >= PROJECT_MIN_POINTS and n_in / n_view < MIN_VIEW_SHARE:
+        return "K", (f"only {100 * n_in / n_view:.0f} % of the sweep's points in K's view land in the "
+                     f"{width}x{height} image: K seems made for a larger image (principal point "
+                     f"({K[0, 2]:.0f}, {K[1, 2]:.0f}): K scaled, or the image size of another camera?)")
+    if n_in < PROJECT_MIN_POINTS:
+        return None
+    for coords, size, axis in ((v[inside], height, "rows"), (u[inside], width, "columns")):
+        problem = _band_problem(coords, size, axis)
+        if problem:
+            return "K", (f"{problem}: the image does not fit the LiDAR's field of view (K's focal length or "
+                         "the image size of another camera, or T_cam_lidar of another sensor?)")
+    return None
+
+
 def camera_geometry_problem(K: np.ndarray, T_cam_lidar: np.ndarray, width: int, height: int, *,
-                            ground: tuple[np.ndarray, float] | None) -> tuple[str, str] | None:
+                            ground: tuple[np.ndarray, float] | None,
+                            points: np.ndarray | None = None) -> tuple[str, str] | None:
     """``(field, what is wrong)`` when a camera's calibration cannot fit the sweep; None: plausible.
+
+    In this order: K scaled for another image size (principal point), width and height swapped,
+    the ground not below the camera (``ground``), then :func:`projection_problem` (``points``).
 
     Args:
       K: (3, 3); T_cam_lidar: (4, 4) points' frame -> camera; width, height: pixels.
-      ground: :func:`sweep_ground` of the sweep in the points' frame, or None (not judged).
+      ground: :func:`sweep_ground` of the sweep in the points' frame, or None: a sweep without a clear
+        ground (not a street) is judged by neither the ground nor the projection.
+      points: (N, 3) the sweep in the points' frame, or None (projection not judged).
     """
     from jaxdepth.io.checks import principal_point_scale
     K = np.asarray(K, np.float64)
@@ -364,8 +465,19 @@ def camera_geometry_problem(K: np.ndarray, T_cam_lidar: np.ndarray, width: int, 
     if s is not None:
         return "K", (f"K seems scaled by {s:g} for this image size: principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) in "
                      f"a {width}x{height} image, K x {1 / s:g} puts it near the centre (scale K with the image)")
-    if ground is None:
+    if _swapped_size(K, width, height):
+        return "width, height", (f"the image size {width}x{height} seems swapped: the principal point "
+                                 f"({K[0, 2]:.0f}, {K[1, 2]:.0f}) is near the centre of a {height}x{width} image")
+    if ground is None:  # no street around the vehicle: neither the ground nor the projection is judged
         return None
+    problem = _ground_problem(T, ground)
+    if problem is None and points is not None:
+        problem = projection_problem(points, K, T, width, height)
+    return problem
+
+
+def _ground_problem(T: np.ndarray, ground: tuple[np.ndarray, float]) -> tuple[str, str] | None:
+    """The ground check of :func:`camera_geometry_problem` (``T`` (4, 4) float64)."""
     normal, d = ground
     tilt = _tilt_deg(T, normal)
     centre = -T[:3, :3].T @ T[:3, 3]
@@ -385,8 +497,10 @@ def camera_geometry_problem(K: np.ndarray, T_cam_lidar: np.ndarray, width: int, 
 
 
 def check_rig_geometry(points: np.ndarray, cameras, *, path: PathLike, force: bool = False) -> None:
-    """Refuses a calibration that cannot fit the sweep: a K scaled for another image size, a camera the
-    sweep's ground is not below (an inverted or foreign T_cam_lidar). See docs/bad_input_checks.md.
+    """Refuses a calibration that cannot fit the sweep: a K scaled for another image size, width and height
+    swapped, a camera the sweep's ground is not below (an inverted or foreign T_cam_lidar), an image that
+    holds less than half of K's view or gets the sweep's points only in a thin band or at one edge
+    (:func:`projection_problem`). See docs/bad_input_checks.md.
 
     Args:
       points: (N, 3) the sweep in the frame every ``T_cam_lidar`` maps from (z up).
@@ -396,12 +510,14 @@ def check_rig_geometry(points: np.ndarray, cameras, *, path: PathLike, force: bo
       force: log the problem as a warning instead of raising.
 
     Raises:
-      InputError: ``<path>: camera '<name>' field '<K | T_cam_lidar>': <what is wrong>; --force uses it anyway``
+      InputError: ``<path>: camera '<name>' field '<K | width, height | T_cam_lidar>': <what is wrong>;
+        --force uses it anyway``
         (the first camera; the others with the same problem are counted).
     """
     ground = sweep_ground(points)
     found = [(getattr(c, "name", f"#{i}"), camera_geometry_problem(np.asarray(c.K), np.asarray(c.T_cam_lidar),
-                                                                   int(c.width), int(c.height), ground=ground))
+                                                                   int(c.width), int(c.height), ground=ground,
+                                                                   points=points))
              for i, c in enumerate(cameras)]
     found = [(name, p) for name, p in found if p is not None]
     if not found:
@@ -471,5 +587,5 @@ def read_checked_depth_png(path: PathLike, *, role: str, force: bool = False) ->
     return depth
 
 
-__all__ = ["check_sweep", "check_rig_geometry", "camera_geometry_problem", "sweep_ground", "drop_far_points", "far_point_mask", "report_far_points", "max_range_m", "MAX_RANGE_M", "sweep_problem", "suggest_layouts", "decode_layout", "layout_problem", "LAYOUTS",
+__all__ = ["check_sweep", "check_rig_geometry", "camera_geometry_problem", "projection_problem", "sweep_ground", "drop_far_points", "far_point_mask", "report_far_points", "max_range_m", "MAX_RANGE_M", "sweep_problem", "suggest_layouts", "decode_layout", "layout_problem", "LAYOUTS",
            "check_depth_scale", "depth_scale_problem", "read_checked_depth_png", "InputError"]

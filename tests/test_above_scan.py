@@ -1,0 +1,110 @@
+"""Above the top scan line (Step 4c, beyond the paper): a per-pixel NumPy oracle, analytic cases,
+the config field and its CLI flag; jit == eager, vmap == loop via _harness (stage_table row
+``background_above_scan``)."""
+
+import argparse
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxdepth
+from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth.options import add_config_options, config_changes
+
+
+def numpy_above_scan(depth_raw, seed_depth, keep, valid, *, beams, max_half_width_px):
+    """Pixel by pixel: N, the window |du| < W L / N, the top kept row of each window column, the farthest seed."""
+    H, W = depth_raw.shape
+    n = int(valid.sum())
+    k_max = 0
+    while n > 0 and k_max + 1 < W * beams / n and k_max + 1 <= min(max_half_width_px, W - 1):
+        k_max += 1
+    out = depth_raw.astype(np.float32).copy()
+    for v in range(H):
+        for u in range(W):
+            cols = [c for c in range(u - k_max, u + k_max + 1) if 0 <= c < W]
+            if seed_depth[v, u] > 0 and not any(keep[:v + 1, c].any() for c in cols):
+                out[v, u] = max(seed_depth[v, c] for c in cols)
+    return out
+
+
+def above_scan_inputs(seed: int, *, H: int = 24, W: int = 40, points: int = 200):
+    """(depth_raw, seed_depth, keep, valid) with scan lines in the lower part and ragged tops; ``points``
+    pixels with depth set N (W L / N with L = 16: 3.2 px at 200, 1.6 at 400)."""
+    rng = np.random.default_rng(seed)
+    valid = np.zeros((H, W), bool)
+    flat = rng.choice(np.arange(8 * W, H * W), points, replace=False)  # no point in the top 8 rows
+    valid.flat[flat] = True
+    keep = valid & (rng.random((H, W)) < 0.9)
+    seed_depth = np.where(rng.random((H, W)) < 0.95, rng.uniform(2, 60, (H, W)), 0.0).astype(np.float32)
+    depth_raw = np.where(seed_depth > 0, seed_depth * rng.uniform(0.7, 1.3, (H, W)), 0.0).astype(np.float32)
+    return depth_raw, seed_depth, keep, valid
+
+
+@pytest.mark.parametrize("points, cap", [(200, 12), (400, 12), (200, 1), (640, 12)])
+def test_matches_the_per_pixel_oracle(points, cap):
+    """Window from N at run time (|du| <= 3, 1, capped at 1, 0): the library equals the walk exactly."""
+    depth_raw, seed_depth, keep, valid = above_scan_inputs(points, points=points)
+    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+                                           jnp.asarray(valid), beams=16, max_half_width_px=cap))
+    want = numpy_above_scan(depth_raw, seed_depth, keep, valid, beams=16, max_half_width_px=cap)
+    np.testing.assert_array_equal(got, want)
+    assert (got != depth_raw).mean() > 0.1  # the rule changed something
+
+
+def test_thin_post_gives_way_to_the_wall_above_the_scan():
+    """A wall at 20 m, a post at 5 m one pixel wide and a box at 8 m six pixels wide, scanned in the lower
+    rows; seeds as the nearest fill gives them (straight up). Above the top scan line the post's column
+    takes the wall (farthest seed within |du| < W L / N = 2 px), the wide box keeps its own depth inside,
+    and nothing changes at or below the top scan line."""
+    H, W, beams = 20, 32, 8
+    scene = np.full(W, 20.0, np.float32)
+    scene[10] = 5.0
+    scene[18:24] = 8.0
+    keep = np.zeros((H, W), bool)
+    keep[[12, 15, 18]] = True
+    valid = keep.copy()  # N = 96: W L / N = 2.67, |du| <= 2
+    seed_depth = np.broadcast_to(scene, (H, W)).astype(np.float32)
+    depth_raw = seed_depth * 1.1  # the plane's extrapolation, whatever it was
+    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+                                           jnp.asarray(valid), beams=beams))
+    np.testing.assert_array_equal(got[12:], depth_raw[12:])
+    np.testing.assert_array_equal(got[:12, 10], 20.0)
+    np.testing.assert_array_equal(got[:12, 20:22], 8.0)
+    np.testing.assert_array_equal(got[:12, 16:18], 20.0)   # within 2 px of the box's edge: the wall behind
+    np.testing.assert_array_equal(got[:12, 0:8], 20.0)
+
+
+def test_a_column_without_points_is_not_open_to_the_top():
+    """Every other column holds no point (sparse horizontal sampling): its pixels below the neighbours'
+    top scan line keep Step 4's prediction."""
+    H, W = 16, 24
+    keep = np.zeros((H, W), bool)
+    keep[8:, ::2] = True
+    seed_depth = np.full((H, W), 10.0, np.float32)
+    seed_depth[:, 5] = 3.0
+    depth_raw = seed_depth + 0.5
+    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+                                           jnp.asarray(keep), beams=16))  # N = 96: W L / N = 4, |du| <= 3
+    np.testing.assert_array_equal(got[8:], depth_raw[8:])
+    np.testing.assert_array_equal(got[:8], 10.0)
+
+
+def test_no_seed_stays_empty():
+    depth_raw, seed_depth, keep, valid = above_scan_inputs(7)
+    seed_depth[:4] = 0.0
+    depth_raw[:4] = 0.0
+    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+                                           jnp.asarray(valid), beams=16))
+    assert (got[:4] == 0).all()
+
+
+def test_config_field_and_cli_flag():
+    with pytest.raises(ValueError, match="'above_scan' expected one of"):
+        jaxdepth.SGMConfig(above_scan="sky")
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--above-scan", "background"]))["above_scan"] == "background"
+    assert config_changes(p.parse_args(["--above-scan", "plane"]))["above_scan"] == "plane"
+    assert jaxdepth.SGMConfig().replace(**config_changes(p.parse_args([]))) == jaxdepth.SGMConfig()
