@@ -176,3 +176,26 @@ def test_warmup_av2_serves_every_sweep_of_the_log(tmp_path):
     assert cli.main(["complete", str(log), str(tmp_path / "out"), "--cameras", CAMERA, "-q", *options]) == 0
     assert len(list((tmp_path / "out" / "synthetic-log" / CAMERA).glob("*.png"))) == 2
     assert not _programs(cache) - before - warmed
+
+
+@pytest.mark.slow  # a subprocess compiles the two-LiDAR wall rig's program with its own epsilon (docs/testing.md)
+def test_warmup_on_a_sample_sweep_serves_complete_rig_of_estimated_lidars(tmp_path):
+    """LiDARs without beams and a ring column: the warm-up reads the sample sweep as complete-rig does."""
+    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    rig = tmp_path / "rig.json"
+    _two_lidar_rig(rig, lidars=[{k: v for k, v in lidar.items() if k in ("name", "T_points_lidar")}
+                                for lidar in TWO_LIDARS], columns=("x", "y", "z", "lidar", "ring"))
+    sweep = tmp_path / "000001.npy"
+    _two_lidar_sweep(sweep)
+    points = np.load(sweep)
+    np.save(sweep, np.concatenate([points, (np.arange(len(points)) // 160)[:, None].astype(np.float32)], 1))
+    options = ["--epsilon", "0.765625"]
+    before = _programs(cache)
+    result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", "warmup", str(rig), "--sample", str(sweep),
+                             *options], capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr
+    assert f"compiled for the sweep {sweep}" in result.stdout
+    warmed = _programs(cache) - before
+    assert warmed
+    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "-q", *options]) == 0
+    assert not _programs(cache) - before - warmed
