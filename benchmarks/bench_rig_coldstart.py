@@ -66,6 +66,17 @@ def _digest(folder: pathlib.Path) -> str:
     return h.hexdigest()
 
 
+def medians(rounds: list) -> dict:
+    """``{variant: {"wall_s", "cpu_s"}}``: the median over rounds of each variant's (wall, CPU) seconds."""
+    return {k: {"wall_s": statistics.median(t[k][0] for t in rounds),
+                "cpu_s": statistics.median(t[k][1] for t in rounds)} for k in rounds[0]}
+
+
+def print_medians(median: dict, rounds: int) -> None:
+    for k, v in median.items():
+        print(f"{k}: {v['wall_s']:.1f} s wall, {v['cpu_s']:.1f} s CPU (median of {rounds})")
+
+
 def one_round(tmp: pathlib.Path, sweep: pathlib.Path, rig: pathlib.Path, points: int, sweeps: int) -> tuple:
     times, digests = {}, {}
     times["cold"] = _run(["complete-rig", sweep, rig, tmp / "cold", "-q"], tmp / "cache_cold")
@@ -116,9 +127,7 @@ def main(argv=None) -> int:
             rounds.append(times)
             print(f"round {r}: " + ", ".join(f"{k} {w:.1f} s wall / {c:.1f} s CPU" for k, (w, c) in times.items()),
                   flush=True)
-    keys = list(rounds[0])
-    median = {k: {"wall_s": statistics.median(t[k][0] for t in rounds),
-                  "cpu_s": statistics.median(t[k][1] for t in rounds)} for k in keys}
+    median = medians(rounds)
     singles = f"{args.sweeps} singles"
     doc = {"what": "complete-rig start-up in fresh processes (nuScenes sample, 6 cameras): empty cache, after "
                    "jaxdepth warmup, warm; N sweeps in one process vs one process per sweep",
@@ -129,8 +138,7 @@ def main(argv=None) -> int:
                            "one_call_wall": median["one call"]["wall_s"] / args.sweeps},
            "outputs_identical": True}
     write_results(args.json, doc, None, t0)
-    for k, v in median.items():
-        print(f"{k}: {v['wall_s']:.1f} s wall, {v['cpu_s']:.1f} s CPU (median of {len(rounds)})")
+    print_medians(median, len(rounds))
     return 0
 
 

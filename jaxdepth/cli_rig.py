@@ -2,7 +2,8 @@
 
 Parsing, messages and exit codes only; the jobs are :func:`jaxdepth.batch.rig_job.run_rig_job` (one
 sweep), :func:`jaxdepth.batch.rig_sweeps.run_rig_sweeps` (a folder, glob or list of sweeps,
-:mod:`jaxdepth.io.sweep_list`) and :func:`jaxdepth.batch.rig_sweeps.warm_rig`.
+:mod:`jaxdepth.io.sweep_list`), :func:`jaxdepth.batch.rig_sweeps.warm_rig` and
+:func:`jaxdepth.batch.av2_job.warm_av2` (``warmup --av2``).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def _complete_rig_sweeps(args, sweeps, record) -> int:
 def cmd_warmup(args) -> int:
     from jaxdepth.batch.rig_sweeps import warm_rig
 
-    usage = extras_usage(args)
+    usage = extras_usage(args) or _warmup_usage(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -85,13 +86,32 @@ def cmd_warmup(args) -> int:
     if folder is None:
         print("warning: the compile cache is off (--no-compile-cache or JAXDEPTH_COMPILE_CACHE=0): nothing is "
               "kept for later runs", file=sys.stderr)
-    done = warm_rig(args.rig, config=config_from(args), extras=extras_from(args), points=args.points,
-                    report=_reporter(args))
+    if args.av2 is not None:
+        from jaxdepth.batch.av2_job import warm_av2
+        cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+        done = [warm_av2(args.av2, sweeps=args.sweeps, cameras=cameras, config=config_from(args),
+                         time="lidar" if args.lidar_time else "camera", extras=extras_from(args))]
+        what = args.av2
+    else:
+        done = warm_rig(args.rig, config=config_from(args), extras=extras_from(args), points=args.points,
+                        sample=args.sample, estimate=not args.no_estimate, report=_reporter(args))
+        what = args.rig
     if not args.quiet:
-        for bucket, seconds in done:
-            print(f"{args.rig}: compiled for {bucket} padded points in {seconds:.1f} s"
-                  + (f" -> {folder}" if folder else ""))
+        for label, seconds in done:
+            print(f"{what}: compiled for {label} in {seconds:.1f} s" + (f" -> {folder}" if folder else ""))
     return 0
+
+
+def _warmup_usage(args) -> str | None:
+    if (args.rig is None) == (args.av2 is None):
+        return "warmup takes a rig JSON or --av2 LOG (one of them)"
+    if args.av2 is not None and (args.points or args.sample or args.no_estimate):
+        return "--av2 takes no --points, --sample or --no-estimate (it warms up on the log's own sweep)"
+    if args.av2 is None and (args.cameras or args.lidar_time or args.sweeps):
+        return "--cameras, --lidar-time and --sweeps go with --av2"
+    if args.sweeps < 0:
+        return f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
+    return None
 
 
 def _add_sweep_options(p) -> None:
@@ -126,15 +146,28 @@ def register(sub) -> None:
     _add_sweep_options(p)
     p.set_defaults(func=cmd_complete_rig)
 
-    w = sub.add_parser("warmup", help="compile a rig's complete-rig program into the on-disk cache, without data",
-                       description="Compiles the program complete-rig runs for RIG (one LiDAR) with the same options, "
-                                   "on an empty sweep, into the persistent compile cache (~/.cache/jaxdepth/xla), so "
-                                   "that a later complete-rig's first sweep loads it instead of compiling (cluster "
-                                   "jobs: warm the shared cache once before the workers start).")
-    w.add_argument("rig", help="rig JSON (see docs/rig_json.md)")
+    w = sub.add_parser("warmup", help="compile a rig's complete-rig program (or an Argoverse 2 job's) into the "
+                                      "on-disk cache, writing nothing",
+                       description="Compiles the program complete-rig runs for RIG with the same options (on an empty "
+                                   "sweep, or on --sample SWEEP), or the one 'jaxdepth complete LOG' runs for "
+                                   "Argoverse 2 (--av2 LOG: on the log's middle sweep), into the persistent compile "
+                                   "cache (~/.cache/jaxdepth/xla), so that a later run's first sweep loads it "
+                                   "instead of compiling (cluster jobs: warm the shared cache once before the "
+                                   "workers start; see docs/speed.md).")
+    w.add_argument("rig", nargs="?", default=None, help="rig JSON (see docs/rig_json.md)")
     w.add_argument("--points", type=int, action="append", default=None, metavar="N",
-                   help="points per sweep of the sweeps to come (repeat for several sizes; one program per "
-                        "power-of-two bucket); default: the LiDAR's beams x columns")
+                   help="points per sweep (per LiDAR with lidars) of the sweeps to come (repeat for several sizes; "
+                        "one program per power-of-two bucket); default: the LiDAR's beams x columns")
+    w.add_argument("--sample", default=None, metavar="SWEEP",
+                   help="warm up on this sweep (file or sweeps JSON), read and checked as complete-rig would: "
+                        "needed when the rig's LiDARs are estimated from each sweep (lidars without beams, "
+                        "with a ring column)")
+    w.add_argument("--no-estimate", action="store_true", help="with --sample: as complete-rig's --no-estimate")
+    w.add_argument("--av2", default=None, metavar="LOG",
+                   help="warm up the Argoverse 2 job (jaxdepth complete LOG DST) instead: a log, split or root")
+    w.add_argument("--sweeps", type=int, default=0, metavar="N", help="with --av2: as complete's --sweeps")
+    w.add_argument("--cameras", default=None, metavar="NAMES", help="with --av2: as complete's --cameras")
+    w.add_argument("--lidar-time", action="store_true", help="with --av2: as complete's --lidar-time")
     _add_sweep_options(w)
     w.set_defaults(func=cmd_warmup)
 

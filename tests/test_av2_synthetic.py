@@ -188,8 +188,10 @@ def test_log_reads_camera_times_and_rows_come_from_laser_numbers(drive):
         np.testing.assert_array_equal(rows[mine], want)
         spec = sources.lidars[s]
         assert spec.beams == 32
-        assert spec.fov_up_deg == pytest.approx(15.0 + 20.0 / 31, abs=0.01)
-        assert spec.fov_down_deg == pytest.approx(-25.0 - 20.0 / 31, abs=0.01)
+        # the outermost lasers plus half the mean spacing (40 / 31 degrees), widened to the 0.25 degree grid
+        assert 15.0 + 20.0 / 31 - 0.01 <= spec.fov_up_deg < 15.0 + 20.0 / 31 + 0.25
+        assert -25.0 - 20.0 / 31 - 0.25 < spec.fov_down_deg <= -25.0 - 20.0 / 31 + 0.01
+        assert (4 * spec.fov_up_deg, 4 * spec.fov_down_deg) == (round(4 * spec.fov_up_deg), round(4 * spec.fov_down_deg))
     stated, _ = cloud_sources(av2.read_cloud(log_, spec=AV2_VLP32C), fallback=AV2_VLP32C)
     assert stated.rows is None and stated.lidars[0] == AV2_VLP32C
 

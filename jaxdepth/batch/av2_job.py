@@ -333,6 +333,43 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     return summary
 
 
+def warm_av2(root, *, sweeps: int = 0, cameras=None, config=None, time: str = "camera", method: str = "sgm",
+             extras=None, force: bool = False) -> tuple[str, float]:
+    """Compiles the program :func:`run_av2` runs, on one sweep of the first log at ``root``, writing nothing.
+
+    With the persistent compile cache on (the CLI's default) a later ``jaxdepth complete`` of any log of
+    the same cameras and options loads it instead of compiling, as long as its sweeps fall in the same
+    program: the sources' point bucket (65,536 for a VLP-32C, :func:`jaxdepth.batch.sources_job.cloud_sources`)
+    and their estimated fields of view (on a 0.25 degree grid, :func:`jaxdepth.io.sweep_frame.source_spec`)
+    match, and the sweep has all its ``sweeps`` neighbours (the log's first and last ``sweeps`` sweeps
+    have fewer sources, hence programs of their own). The sweep used is the log's middle one.
+
+    Args: as :func:`run_av2` (``root``: the first log found, :func:`find_logs`).
+
+    Returns:
+      ``("<log_id>/<timestamp_ns>", wall seconds)``.
+
+    Raises:
+      InputError: no log at ``root``; JaxdepthError: the sweep cannot be read. ValueError: bad options.
+    """
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth.batch.extras import NONE
+    from jaxdepth.io import av2
+
+    cameras = av2.RING_CAMERAS if cameras is None else tuple(cameras)
+    extras = NONE if extras is None else extras
+    _check_options(sweeps, cameras, time, method, extras)
+    config = SGMConfig() if config is None else config
+    folder = find_logs(root)[0]
+    log_ = av2.read_log(folder)
+    ts = log_.sweeps[len(log_.sweeps) // 2]
+    job = CloudJob(name=f"{folder.name}/{ts}", outputs=(), source=(folder, ts, _camera_times(log_, cameras, ts, time)))
+    start = _time.perf_counter()
+    cloud, rig = _load(job, tables={folder: (log_, served_sweeps(log_, sweeps))}, cameras=cameras, force=force)
+    completion(method=method, config=config, extras=extras)(cloud, rig)    # NumPy results: waits for them
+    return job.name, _time.perf_counter() - start
+
+
 # ---------------------------------------------------------------- command line glue
 
 
@@ -364,5 +401,5 @@ def cli_usage(args) -> str | None:
     return None
 
 
-__all__ = ["run_av2", "plan", "find_logs", "is_av2_root", "output_path", "served_sweeps", "baseline_depth",
+__all__ = ["run_av2", "warm_av2", "plan", "find_logs", "is_av2_root", "output_path", "served_sweeps", "baseline_depth",
            "completion", "add_cli_options", "cli_usage", "TIMES", "METHODS"]

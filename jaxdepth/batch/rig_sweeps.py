@@ -15,8 +15,9 @@ sensor description: a rig JSON that leaves the LiDAR's field of view open gets e
 estimate, hence a program per distinct estimate (state ``fov_up_deg`` / ``fov_down_deg``, or pass
 ``--no-estimate``). Each new program after the first is reported as a note.
 
-:func:`warm_rig` compiles the rig's program on zeros, without data, into the persistent compile cache
-(:func:`jaxdepth.batch.devices.use_compile_cache`), so that a later process's first sweep loads it.
+:func:`warm_rig` compiles the rig's program on an empty sweep (one LiDAR, or a rig's ``lidars``), or on
+a sample sweep, into the persistent compile cache (:func:`jaxdepth.batch.devices.use_compile_cache`),
+so that a later process's first sweep loads it.
 """
 
 from __future__ import annotations
@@ -177,55 +178,112 @@ def _key_text(key: tuple) -> str:
 
 def default_warm_points(rig) -> int:
     """The point count a warm-up compiles for by default: the rig LiDAR's range-image cells (beams x columns),
-    whose bucket holds a typical sweep (KITTI HDL-64E: 131072; nuScenes HDL-32E: 65536)."""
-    return int(rig.lidar.beams) * int(rig.lidar.columns)
+    whose bucket holds a typical sweep (KITTI HDL-64E: 131072; nuScenes HDL-32E: 65536). With ``lidars``:
+    the largest of each LiDAR's cells (its stated spec, else the rig's ``lidar``)."""
+    specs = [lid.spec or rig.lidar for lid in rig.lidars] or [rig.lidar]
+    return max(int(spec.beams) * int(spec.columns) for spec in specs)
+
+
+def _estimated_lidars(rig) -> list:
+    """The names of a rig's ``lidars`` whose spec each sweep estimates from its rings (so the program
+    depends on the data: see :func:`jaxdepth.io.sweep_frame.source_spec`)."""
+    rings = rig.columns is not None and "ring" in rig.columns
+    return [lid.name for lid in rig.lidars if lid.spec is None and rings]
+
+
+def _empty_cloud(rig, count: int):
+    """A SourceCloud of the rig's ``lidars`` (one sweep), ``count`` missing points (NaN) per LiDAR: its
+    padded shapes, specs and poses are those of a real sweep of ``count`` points or fewer per LiDAR."""
+    from jaxdepth.io.sources import SourceCloud
+    S = len(rig.lidars)
+    return SourceCloud(points=np.full((S * count, 3), np.nan, np.float32),
+                       source=np.repeat(np.arange(S, dtype=np.int32), count),
+                       T_ref_source=np.stack([np.asarray(lid.T_points_lidar, np.float64) for lid in rig.lidars]),
+                       lidars=tuple(lid.spec for lid in rig.lidars), sweep=np.zeros(S, np.int32),
+                       names=tuple(f"{lid.name}@0" for lid in rig.lidars))
+
+
+def _warm_inputs(rig, rig_path, config, counts, report) -> list:
+    """``[(label, PreparedSweep), ...]``: what warm_rig compiles for a rig without a sample sweep."""
+    from jaxdepth.io import bucket_size
+    from jaxdepth.io.errors import InputError
+    if rig.lidars:
+        estimated = _estimated_lidars(rig)
+        if estimated:
+            raise InputError(f"{rig_path}: field 'lidars': {', '.join(estimated)} state no beams, so each sweep "
+                             "estimates them from its rings: warm up on a real sweep with --sample SWEEP")
+        from jaxdepth.batch.sources_job import POINT_BUCKET
+        return [(f"{max(b, POINT_BUCKET)} padded points per LiDAR",
+                 rig_job.PreparedSweep(rig, config, _empty_cloud(rig, b), True))
+                for b in sorted({bucket_size(n) for n in counts})]
+    if not {"fov_up_deg", "fov_down_deg"} <= set(rig.lidar_stated):
+        report("note", f"{rig_path}: the LiDAR's field of view is left open: a sweep's own estimate makes its own "
+                       "program; state lidar.fov_up_deg / fov_down_deg, or run complete-rig with --no-estimate, "
+                       "to use the warmed one (or warm up on a real sweep with --sample SWEEP)")
+    return [(f"{bucket} padded points", rig_job.PreparedSweep(
+                rig, config, (np.zeros((bucket, 3), np.float32), np.zeros((bucket,), bool)), False))
+            for bucket in sorted({bucket_size(n) for n in counts})]
 
 
 def warm_rig(rig_path, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs = extra_outputs.NONE,
-             points=None, report: Callable[[str, str], None] = _ignore) -> list:
-    """Compiles the rig's ``complete-rig`` program(s) by running them on an empty sweep (no data read).
+             points=None, sample=None, estimate: bool = True, point_columns: int | None = None,
+             report: Callable[[str, str], None] = _ignore) -> list:
+    """Compiles the rig's ``complete-rig`` program(s) by running them once, writing nothing.
 
     With the persistent compile cache on (:func:`jaxdepth.batch.devices.use_compile_cache`, the CLI's
     default) the programs are stored, and a later process's first sweep of the same rig, options and
     point bucket loads them instead of compiling.
 
+    Without ``sample`` no data is read: the program runs on an empty sweep of each bucket. A rig with
+    ``lidars`` gets the multi-source program of one sweep of its LiDARs (each padded to the bucket,
+    :func:`jaxdepth.batch.sources_job.cloud_sources`); it needs every LiDAR's ``beams`` stated, or no
+    ``ring`` column (otherwise each sweep estimates its LiDARs, and only ``sample`` can say what).
+    With ``sample`` (a sweep file or sweeps JSON like those to come) that sweep is read, checked and
+    completed exactly as ``complete-rig`` would (its estimates, sources and bucket), and ``points`` is
+    ignored: one program, serving every sweep whose estimates (fields of view on a 0.25 degree grid,
+    :func:`jaxdepth.io.sweep_frame.source_spec`) and bucket match.
+
     Args:
-      rig_path: the rig JSON of one LiDAR (a rig with ``lidars`` is refused).
+      rig_path: the rig JSON.
       config, extras: the options the real run will use (each is part of the program).
-      points: point counts of the sweeps to come (one program per bucket,
-        :func:`jaxdepth.io.bucket_size`); default: :func:`default_warm_points`.
+      points: point counts of the sweeps to come, per LiDAR with ``lidars`` (one program per power-of-two
+        bucket, :func:`jaxdepth.io.bucket_size`); default: :func:`default_warm_points`.
+      sample: a sweep (or sweeps JSON) to warm up on; None: an empty sweep.
+      estimate, point_columns: as ``complete-rig``'s (used with ``sample``; ``estimate`` is part of the
+        single-LiDAR program only through the sweep check's decisions).
       report: ``report("note", text)``: a rig whose LiDAR field of view is left open (each sweep's
         estimate then makes its own program unless the run passes ``--no-estimate``).
 
     Returns:
-      ``[(bucket, seconds), ...]``: each bucket compiled (and run once on zeros), with its wall time.
+      ``[(what, seconds), ...]``: each program compiled (and run once), with its wall time.
 
     Raises:
-      JaxdepthError: an unreadable rig JSON, a rig with ``lidars``, image-guided seeds.
+      JaxdepthError: an unreadable rig JSON or sample, ``lidars`` whose specs each sweep estimates (without
+        ``sample``), image-guided seeds.
     """
-    from jaxdepth.io import bucket_size, read_rig_json
+    from jaxdepth.io import read_rig_json
     from jaxdepth.io.errors import InputError
+    from jaxdepth.io.sweeps import is_sweeps_json
 
     rig = read_rig_json(rig_path)
-    if rig.lidars:
-        raise InputError(f"{rig_path}: field 'lidars': warm-up supports rigs of one LiDAR (the multi-source "
-                         "program depends on the sweeps' sources)")
     if config.guidance_weight > 0:
         raise InputError(f"{rig_path}: warm-up of image-guided seeds (--guidance-weight) is not supported")
-    if not {"fov_up_deg", "fov_down_deg"} <= set(rig.lidar_stated):
-        report("note", f"{rig_path}: the LiDAR's field of view is left open: a sweep's own estimate makes its own "
-                       "program; state lidar.fov_up_deg / fov_down_deg, or run complete-rig with --no-estimate, "
-                       "to use the warmed one")
-    counts = [default_warm_points(rig)] if not points else [int(n) for n in points]
+    if sample is not None:
+        multi = is_sweeps_json(sample) or bool(rig.lidars)
+        columns = rig_job.point_columns_of(rig, sample, point_columns, multi=multi)
+        inputs = [(f"the sweep {sample}", rig_job.prepare_rig_sweep(
+            sample, rig, config=config, multi=multi, columns=columns, point_columns=point_columns,
+            estimate=estimate, force=False, report=report, rig_path=rig_path))]
+    else:
+        counts = [default_warm_points(rig)] if not points else [int(n) for n in points]
+        inputs = _warm_inputs(rig, rig_path, config, counts, report)
     done = []
-    for bucket in sorted({bucket_size(n) for n in counts}):
+    for label, prepared in inputs:
         start = time.perf_counter()
-        empty = (np.zeros((bucket, 3), np.float32), np.zeros((bucket,), bool))
-        prepared = rig_job.PreparedSweep(rig, config, empty, False)
         stages, cameras = rig_job.rig_stages(prepared)
         rig_job.rig_outputs(prepared, stages, cameras, extras)        # NumPy: waits for the result
         np.asarray(stages.sparse_depth)
-        done.append((bucket, time.perf_counter() - start))
+        done.append((label, time.perf_counter() - start))
     return done
 
 

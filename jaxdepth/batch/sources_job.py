@@ -3,7 +3,9 @@
 The entry point the dataset jobs (Argoverse 2, KITTI raw ``--sweeps``, nuScenes sweeps) and
 ``complete-rig`` with ``lidars`` / a sweeps JSON call: :func:`complete_cloud`. Host side it
 fills in each source's :class:`~jaxdepth.LidarSpec` (the stated one, else an estimate from the
-source's own points and rings, else the rig's), pads every source to one point bucket and hands
+source's own points and rings, its field of view on a 0.25 degree grid, else the rig's), pads every
+source to one power-of-two point bucket (so that one compiled program serves every sweep of a LiDAR
+model: a VLP-32C's 57,600-cell sweeps all pad to 65,536) and hands
 a :class:`~jaxdepth._src.sources.Sources` pytree to the core
 (:func:`~jaxdepth._src.sources.complete_sources`).
 """
@@ -20,20 +22,23 @@ from jaxdepth.io.sweep_frame import source_spec
 
 log = logging.getLogger("jaxdepth")
 
-#: Every source is padded to a multiple of this many points (one compilation per bucket).
+#: The smallest padded source: sources are padded to ``max(POINT_BUCKET, bucket_size(largest source))``,
+#: a power of two (one compilation per bucket; padding slots are invalid and leave every output unchanged).
 POINT_BUCKET = 8192
 
 
 def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
-    """The :class:`~jaxdepth._src.sources.Sources` pytree of a SourceCloud: each source padded to one bucket.
+    """The :class:`~jaxdepth._src.sources.Sources` pytree of a SourceCloud: each source padded to one bucket,
+    the power of two (:func:`jaxdepth.io.bucket_size`) that holds the largest source, at least ``bucket``.
 
     Returns:
       (sources, index): ``index`` (S, P) int64, the cloud row of each padded slot (-1 for padding).
     """
     from jaxdepth._src.sources import make_sources
+    from jaxdepth.io import bucket_size
     S = cloud.num_sources
     counts = np.bincount(cloud.source, minlength=S)
-    P = max(int(bucket), int(-(-max(int(counts.max()), 1) // bucket) * bucket))
+    P = max(int(bucket), bucket_size(int(counts.max())))
     points = np.zeros((S, P, 3), np.float32)
     valid = np.zeros((S, P), bool)
     index = np.full((S, P), -1, np.int64)
