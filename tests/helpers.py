@@ -141,3 +141,33 @@ def write_wall_rig(path, *, T_cam_lidar=None) -> None:
     pathlib.Path(path).write_text(json.dumps({"lidar": WALL_LIDAR, "cameras": [
         {"name": n, "width": w, "height": h, "K": K, "T_cam_lidar": T.get(n, LEVEL)}
         for n, (w, h, K) in WALL_CAMERAS.items()]}))
+
+
+def warm_then_run(cache: pathlib.Path, warmup_args, run_args, *, program: str) -> tuple[set, set, object]:
+    """``jaxdepth warmup`` and then a job, each in a fresh process with ``cache`` as its own persistent
+    compile cache (a folder of this test's only: under xdist the session's cache also gets the other
+    worker's programs, so a listing of it cannot say which run stored what).
+
+    Returns (the ``program*`` entries the warm-up stored, those the job then added, the warm-up's
+    ``subprocess.CompletedProcess``).
+    """
+    import os
+    import subprocess
+    import sys
+
+    cache.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(cache)}
+
+    def programs():
+        return {entry for entry in os.listdir(cache) if entry.startswith(program)}
+
+    def run(args):
+        result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", *map(str, args)], capture_output=True,
+                                text=True, timeout=900, env=env)
+        assert result.returncode == 0, result.stderr
+        return result
+
+    warm = run(["warmup", *warmup_args])
+    warmed = programs()
+    run(run_args)
+    return warmed, programs() - warmed, warm

@@ -2,8 +2,8 @@
 
 Oracles: the sweep list against the files written (brute-force listing); the outputs of one
 multi-sweep call against one single-sweep call per sweep (:func:`jaxdepth.batch.rig_job.run_rig_job`,
-byte for byte); file modification times for resume; the session's persistent compile cache folder
-for the warm-up (the run after it adds no program of its own; rigs of several LiDARs and the
+byte for byte); file modification times for resume; a persistent compile cache folder of the test's
+own for the warm-up (the run after it adds no program of its own; rigs of several LiDARs and the
 Argoverse 2 job: test_warmup_sources).
 """
 
@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -22,7 +20,7 @@ from jaxdepth.batch import extras
 from jaxdepth.io.errors import InputError
 from jaxdepth.io.sweep_list import list_sweeps, sweep_stem
 
-from helpers import WALL_CAMERAS, wall_sweep, write_wall_rig
+from helpers import WALL_CAMERAS, wall_sweep, warm_then_run, write_wall_rig
 
 
 def _touch(*paths):
@@ -140,26 +138,18 @@ def test_sweeps_in_one_call_equal_single_calls_a_bad_one_is_skipped_and_a_rerun_
     assert changed == {out / "000001" / f"{n}.png" for n in WALL_CAMERAS}
 
 
-@pytest.mark.slow  # a subprocess compiles the wall rig's program with its own epsilon (docs/testing.md)
-def test_warmup_stores_the_program_that_complete_rig_then_loads(tmp_path, capsys):
-    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+@pytest.mark.slow  # two subprocesses: the warm-up compiles the wall rig's program (docs/testing.md)
+def test_warmup_stores_the_program_that_complete_rig_then_loads(tmp_path):
     rig = tmp_path / "rig.json"
     write_wall_rig(rig)
-    options = ["--epsilon", "0.8125"]          # a program of this test's own, not in the session's cache
-    before = set(os.listdir(cache))
-    result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", "warmup", str(rig), "--points", "2560", *options],
-                            capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr
-    assert "compiled for 4096 padded points" in result.stdout
-    assert "field of view is left open" not in result.stderr                 # the wall rig states it
-    warmed = set(os.listdir(cache)) - before
-    assert any(name.startswith("jit__complete_rig_stages") for name in warmed)
     sweep = tmp_path / "000001.npy"
     wall_sweep(sweep)
-    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "--no-estimate", "-q",
-                     *options]) == 0
-    added = set(os.listdir(cache)) - before - warmed
-    assert not [name for name in added if name.startswith("jit__complete_rig_stages")]
+    warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--points", "2560"],
+                                          ["complete-rig", sweep, rig, tmp_path / "out", "--no-estimate", "-q"],
+                                          program="jit__complete_rig_stages")
+    assert "compiled for 4096 padded points" in warm.stdout
+    assert "field of view is left open" not in warm.stderr                 # the wall rig states it
+    assert warmed and not added
     assert np.count_nonzero(cv2_read(tmp_path / "out" / "CAM_A.png")) > 0
 
 

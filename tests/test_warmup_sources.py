@@ -1,7 +1,7 @@
 """``jaxdepth warmup`` for multi-source rigs (``lidars``) and the Argoverse 2 job, and the two choices that let
 one compiled program serve a whole log: power-of-two source buckets and estimated fields of view on a grid.
 
-Oracles: the session's persistent compile cache folder (a run after the warm-up adds no program of its own,
+Oracles: a persistent compile cache folder of the test's own (a run after the warm-up adds no program of its own,
 as the single-LiDAR warm-up test in test_rig_sweeps checks); :func:`jaxdepth.io.bucket_size` and the
 laser table of a synthetic spinning LiDAR (the estimate before the grid); the same cloud completed with two
 paddings (padding slots are invalid: identical depth).
@@ -10,10 +10,6 @@ paddings (padding slots are invalid: identical depth).
 from __future__ import annotations
 
 import json
-import os
-import pathlib
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -25,8 +21,10 @@ from jaxdepth.io import bucket_size
 from jaxdepth.io.sources import SourceCloud
 from jaxdepth.io.sweep_frame import FOV_GRID_DEG, source_spec
 
-from helpers import wall_sweep, write_wall_rig
+from helpers import wall_sweep, warm_then_run, write_wall_rig
 
+#: The multi-source rig program (its persistent-cache entries start with this name).
+PROGRAM = "jit__complete_sources_stages"
 SPEC = LidarSpec(beams=16, fov_up_deg=5.0, fov_down_deg=-10.0, columns=720)
 TWO_LIDARS = [{"name": "left", "T_points_lidar": np.eye(4).tolist(), "beams": 16, "fov_up_deg": 5.0,
                "fov_down_deg": -10.0},
@@ -112,27 +110,16 @@ def _two_lidar_sweep(path):
     np.save(path, points)
 
 
-def _programs(cache, name="jit__complete_sources_stages"):
-    return {entry for entry in os.listdir(cache) if entry.startswith(name)}
-
-
-@pytest.mark.slow  # a subprocess compiles the two-LiDAR wall rig's program with its own epsilon (docs/testing.md)
+@pytest.mark.slow  # two subprocesses: the warm-up compiles the two-LiDAR wall rig's program (docs/testing.md)
 def test_warmup_of_a_rig_of_two_lidars_serves_complete_rig(tmp_path):
-    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
     rig = tmp_path / "rig.json"
     _two_lidar_rig(rig)
-    options = ["--epsilon", "0.796875"]          # a program of this test's own, not in the session's cache
-    before = _programs(cache)
-    result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", "warmup", str(rig), "--points", "1280", *options],
-                            capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr
-    assert f"compiled for {POINT_BUCKET} padded points per LiDAR" in result.stdout
-    warmed = _programs(cache) - before
-    assert warmed
     sweep = tmp_path / "000001.npy"
     _two_lidar_sweep(sweep)
-    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "-q", *options]) == 0
-    assert not _programs(cache) - before - warmed
+    warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--points", "1280"],
+                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=PROGRAM)
+    assert f"compiled for {POINT_BUCKET} padded points per LiDAR" in warm.stdout
+    assert warmed and not added
     import cv2
     assert np.count_nonzero(cv2.imread(str(tmp_path / "out" / "CAM_A.png"), cv2.IMREAD_UNCHANGED)) > 0
 
@@ -158,30 +145,23 @@ def test_warmup_usage_errors(argv, match, capsys):
     assert match in capsys.readouterr().err
 
 
-@pytest.mark.slow  # a subprocess compiles the synthetic Argoverse 2 log's program with its own epsilon
+@pytest.mark.slow  # two subprocesses: the warm-up compiles the synthetic Argoverse 2 log's program
 def test_warmup_av2_serves_every_sweep_of_the_log(tmp_path):
     """Both sweeps of the synthetic log (the car 1 m further on) run on the program warmed on one of them."""
     pytest.importorskip("pyarrow")
     from test_av2_synthetic import CAMERA, write_log
-    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
     log = write_log(tmp_path / "synthetic-log")
-    options = ["--epsilon", "0.78125"]
-    before = _programs(cache)
-    result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", "warmup", "--av2", str(log), "--cameras", CAMERA,
-                             *options], capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr
-    assert "compiled for synthetic-log/" in result.stdout
-    warmed = _programs(cache) - before
-    assert warmed
-    assert cli.main(["complete", str(log), str(tmp_path / "out"), "--cameras", CAMERA, "-q", *options]) == 0
+    warmed, added, warm = warm_then_run(tmp_path / "xla", ["--av2", log, "--cameras", CAMERA],
+                                          ["complete", log, tmp_path / "out", "--cameras", CAMERA, "-q"],
+                                          program=PROGRAM)
+    assert "compiled for synthetic-log/" in warm.stdout
+    assert warmed and not added
     assert len(list((tmp_path / "out" / "synthetic-log" / CAMERA).glob("*.png"))) == 2
-    assert not _programs(cache) - before - warmed
 
 
-@pytest.mark.slow  # a subprocess compiles the two-LiDAR wall rig's program with its own epsilon (docs/testing.md)
+@pytest.mark.slow  # two subprocesses: the warm-up compiles the two-LiDAR wall rig's program (docs/testing.md)
 def test_warmup_on_a_sample_sweep_serves_complete_rig_of_estimated_lidars(tmp_path):
     """LiDARs without beams and a ring column: the warm-up reads the sample sweep as complete-rig does."""
-    cache = pathlib.Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
     rig = tmp_path / "rig.json"
     _two_lidar_rig(rig, lidars=[{k: v for k, v in lidar.items() if k in ("name", "T_points_lidar")}
                                 for lidar in TWO_LIDARS], columns=("x", "y", "z", "lidar", "ring"))
@@ -189,13 +169,7 @@ def test_warmup_on_a_sample_sweep_serves_complete_rig_of_estimated_lidars(tmp_pa
     _two_lidar_sweep(sweep)
     points = np.load(sweep)
     np.save(sweep, np.concatenate([points, (np.arange(len(points)) // 160)[:, None].astype(np.float32)], 1))
-    options = ["--epsilon", "0.765625"]
-    before = _programs(cache)
-    result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", "warmup", str(rig), "--sample", str(sweep),
-                             *options], capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr
-    assert f"compiled for the sweep {sweep}" in result.stdout
-    warmed = _programs(cache) - before
-    assert warmed
-    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "-q", *options]) == 0
-    assert not _programs(cache) - before - warmed
+    warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--sample", sweep],
+                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=PROGRAM)
+    assert f"compiled for the sweep {sweep}" in warm.stdout
+    assert warmed and not added
