@@ -13,7 +13,7 @@ import time
 
 from jaxdepth import __version__, interrupts
 from jaxdepth.batch import devices
-from jaxdepth.cli_common import (FORCE_HELP as _FORCE_HELP, add_force_option as _add_force_option,  # noqa: F401
+from jaxdepth.cli_common import (add_force_option as _add_force_option,
                                   add_method_options as _add_method_options,
                                   add_overwrite_and_force_options as _add_overwrite_and_force_options,
                                   config_from as _config_from, extras_from as _extras_from,
