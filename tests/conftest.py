@@ -42,6 +42,22 @@ if os.environ.get("JAXDEPTH_TEST_COMPILE_CACHE", "1") != "0":
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
+# Cheaper compiles for the suite: XLA_FLAGS gains SUITE_XLA_FLAGS (optimisation level 0, the older
+# kernel emitters; about a third of the compile CPU) before JAX starts its backend, here in the first
+# process of the session; xdist workers and every subprocess inherit it. The flags the user had (the
+# production flags) are kept in JAXDEPTH_TEST_PRODUCTION_XLA_FLAGS: tests marked production_flags run
+# in a subprocess under them (below). JAXDEPTH_TEST_XLA=production runs the whole suite at them.
+# Importing xla_tuning imports JAX but does not start its backend. See docs/testing.md, "Compile flags".
+from jaxdepth._src.xla_tuning import SUITE_XLA_FLAGS  # noqa: E402
+
+PRODUCTION_FLAGS_ENV = "JAXDEPTH_TEST_PRODUCTION_XLA_FLAGS"
+if PRODUCTION_FLAGS_ENV not in os.environ:
+    os.environ[PRODUCTION_FLAGS_ENV] = os.environ.get("XLA_FLAGS", "")
+    if os.environ.get("JAXDEPTH_TEST_XLA", "suite") != "production":
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SUITE_XLA_FLAGS}".strip()
+#: True when this process compiles at the suite's flags, not the production ones.
+AT_SUITE_FLAGS = os.environ.get("XLA_FLAGS", "") != os.environ[PRODUCTION_FLAGS_ENV]
+
 # Hypothesis draws new examples on every local run (it keeps exploring), but the same ones under CI
 # (derandomize: examples derived from each test's source), so CI's verdict on a commit does not depend
 # on the draw. A failure found locally becomes an @example of its test.
@@ -56,10 +72,52 @@ if os.environ.get("CI"):
 SLOW_DOCTESTS = ("jaxdepth._src.pipeline.complete",)
 
 
+class ProductionFlagsItem(pytest.Item):
+    """A ``production_flags`` test, run by itself in a pytest subprocess at the production XLA flags.
+
+    Stands in for the test when this process compiles at the suite's flags: it requests no fixture,
+    so nothing of the test is computed here; it carries the test's markers (``slow``,
+    ``xdist_group``) and passes, fails or skips as the subprocess's run of the test does.
+    """
+
+    def __init__(self, *, test_id: str, **kwargs):
+        super().__init__(**kwargs)
+        self.test_id = test_id
+
+    def runtest(self):
+        import subprocess
+        env = dict(os.environ, XLA_FLAGS=os.environ[PRODUCTION_FLAGS_ENV])
+        command = [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", "-rs", self.test_id]
+        proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True)
+        self.child_output = proc.stdout[-6000:] + proc.stderr[-3000:]
+        if proc.returncode != 0:
+            raise RuntimeError(f"{self.test_id} at the production XLA flags: exit {proc.returncode}")
+        if " passed" not in proc.stdout:
+            pytest.skip(f"at the production XLA flags: {proc.stdout.strip().splitlines()[-1]}")
+
+    def repr_failure(self, excinfo):
+        return f"{excinfo.value}\n{getattr(self, 'child_output', '')}"
+
+    def reportinfo(self):
+        return self.path, None, f"{self.test_id} [production XLA flags, subprocess]"
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist tags groups and `-m` deselects: the stand-ins carry the markers
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if isinstance(item, pytest.DoctestItem) and item.name in SLOW_DOCTESTS:
             item.add_marker(pytest.mark.slow)
+    if not AT_SUITE_FLAGS:
+        return
+    for i, item in enumerate(items):
+        if item.get_closest_marker("production_flags") is not None:
+            stand_in = ProductionFlagsItem.from_parent(item.parent, name=item.name, test_id=item.nodeid)
+            stand_in.own_markers.extend(item.own_markers)
+            stand_in.keywords.update(item.keywords)
+            items[i] = stand_in
+    # each stand-in is one long subprocess with no fixture to share: first, so that no worker ends the
+    # run alone on one (sorted is stable: the other tests keep their order)
+    items[:] = sorted(items, key=lambda item: not isinstance(item, ProductionFlagsItem))
 
 
 def pytest_sessionfinish(session, exitstatus):

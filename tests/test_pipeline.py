@@ -154,6 +154,7 @@ def kitti_sgm_metrics(kitti_frames):
 
 
 @pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+@pytest.mark.production_flags  # the figures of accuracy_rigs.json, recorded at the production flags
 @pytest.mark.xdist_group("pipeline_kitti")  # one worker runs the module's KITTI completion once
 def test_kitti_sgm_clearly_beats_nearest_fill(kitti_frames, kitti_sgm_metrics):
     """Issue 3: SGM must clearly beat a nearest-neighbour fill on the real frame (both cameras)."""

@@ -187,7 +187,8 @@ def test_cli_split_makes_two_devices_and_two_devices_match_one(tmp_path):
     64 x 128 SGM batch of two that test_extras_cli and test_last_batch_is_padded_not_recompiled
     compile (in the subprocess the one-device batch would be a compile of its own: on a backend of
     two devices it has another compilation-cache key)."""
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env = dict(os.environ)  # the suite's compile flags (tests/conftest.py), but no device count
+    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split() if "device_count" not in f)
     env["JAX_PLATFORMS"] = "cpu"
     out = tmp_path / "two_devices.npy"
     script = DEVICES.format(tests=str(pathlib.Path(__file__).parent), out=str(out))
