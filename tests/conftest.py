@@ -93,7 +93,9 @@ class ProductionFlagsItem(pytest.Item):
         if proc.returncode != 0:
             raise RuntimeError(f"{self.test_id} at the production XLA flags: exit {proc.returncode}")
         if " passed" not in proc.stdout:
-            pytest.skip(f"at the production XLA flags: {proc.stdout.strip().splitlines()[-1]}")
+            lines = proc.stdout.strip().splitlines()
+            reason = next((line for line in lines if line.startswith("SKIPPED")), lines[-1])
+            pytest.skip(f"at the production XLA flags: {reason}")
 
     def repr_failure(self, excinfo):
         return f"{excinfo.value}\n{getattr(self, 'child_output', '')}"

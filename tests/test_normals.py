@@ -615,7 +615,6 @@ def test_pixel_normals_kitti_frame(kitti):
 
 @pytest.mark.slow  # frozen oracle
 @pytest.mark.xdist_group("normals_kitti")  # one worker compiles the KITTI-size pixel_normals once
-@pytest.mark.production_flags  # 1e-6 holds at the production codegen (1.8e-7 measured); other flags: 6e-5
 def test_kitti_equal_to_reference_version(kitti):
     """pixel_normals on the KITTI frame and point_normals on its sweep equal the version
     before the speed-up (tests/oracles/normals_58cfbac.py; measured: max difference 1.8e-7,

@@ -99,7 +99,6 @@ def test_helpers_reduce_to_the_plain_computation():
 @pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
                          ids=["default-points", "l2_blend-rig"])
 @pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
-@pytest.mark.production_flags  # bit for bit holds for the production codegen; other XLA flags round the two programs apart
 def test_complete_points_and_rig_agree_on_the_synthetic_scene(config, rig):
     """complete_points (range image, point normals) with the default options (POINTS_CONFIG: the output
     clip at 60 m) on the street through the 96 x 160 camera (tuned: test_pipeline's planar program),
@@ -118,7 +117,6 @@ def test_complete_points_and_rig_agree_on_the_synthetic_scene(config, rig):
 
 
 @pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
-@pytest.mark.production_flags  # bit for bit holds for the production codegen; other XLA flags round the two programs apart
 def test_complete_agrees_on_small_frames_both_normal_branches_and_guided():
     """complete (image-plane normals from a sparse depth image), unguided on both branches of the
     image-plane normals, and image-guided (geodesic seeds: near ties may flip, as on KITTI). The
@@ -136,7 +134,6 @@ def test_complete_agrees_on_small_frames_both_normal_branches_and_guided():
 
 @pytest.mark.slow
 @pytest.mark.shared_data
-@pytest.mark.production_flags  # bit for bit holds for the production codegen; other XLA flags round the two programs apart
 def test_complete_agrees_on_the_kitti_frame(kitti):
     """The one KITTI-size run: a real frame's density, window and outlier candidate counts (many
     chunks of the exact test, wide outlier windows). The benchmark crop (the tuned program is
