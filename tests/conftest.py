@@ -117,8 +117,8 @@ def pytest_collection_modifyitems(config, items):
             stand_in.own_markers.extend(item.own_markers)
             stand_in.keywords.update(item.keywords)
             items[i] = stand_in
-    # each stand-in is one long subprocess with no fixture to share: first, so that no worker ends the
-    # run alone on one (sorted is stable: the other tests keep their order)
+    # each stand-in is one long subprocess with no fixture to share: first, so that no worker ends the run
+    # alone on one (loadgroup hands out the groups first, then single tests in this order; sorted is stable)
     items[:] = sorted(items, key=lambda item: not isinstance(item, ProductionFlagsItem))
 
 
