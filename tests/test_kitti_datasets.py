@@ -75,6 +75,7 @@ def _png_u16(path) -> np.ndarray:
 
 @pytest.mark.xdist_group("jobs_kitti_sweeps")  # one worker compiles the KITTI sweep batch and its oracle once
 @pytest.mark.slow  # real KITTI sweeps completed at full camera size
+@pytest.mark.production_flags  # job PNG == API bit for bit at the production codegen (level 0: one pixel 1/256 m off)
 def test_raw_two_dates_per_camera_calibration_resume_and_bad_sweep(raw_tree, tmp_path, capsys):
     bad = raw_tree / DATE_B / DRIVE_B / "velodyne_points" / "data" / "0000000001.bin"
     bad.write_bytes((raw_tree / DATE_B / DRIVE_B / "velodyne_points" / "data" / "0000000000.bin").read_bytes()[:1003])
