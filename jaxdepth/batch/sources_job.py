@@ -148,12 +148,68 @@ def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET,
     return sources, index
 
 
+def _roles(sweep, specs) -> list:
+    """Each source's part in the free-space test with ``free_space_neighbour_sweeps = 0``
+    (:func:`jaxdepth._src.sources.reference_view`): (``"ref"`` | ``"end"`` | ``"inner"``, spec). The ends
+    are the sources of the smallest and largest sweep other than 0."""
+    others = [int(w) for w in sweep if w != 0]
+    ends = {min(others), max(others)} if others else set()
+    return [("ref" if w == 0 else "end" if w in ends else "inner", spec) for w, spec in zip(sweep, specs)]
+
+
+def fit_to_window(sources, index, window: tuple):
+    """``sources`` (and its ``index``) spread over the slots of a fixed sweep ``window``, so that every frame of
+    a job compiles one program: ``(sources, index)`` with ``len(window)`` sources, or None when it cannot.
+
+    ``window``: the static sweep numbers of a frame with all its neighbours (the KITTI job: 0, -1, 1, ...;
+    nuScenes: 0, -1, -2, ...). A frame at the start or end of a drive / scene holds fewer sources; each of
+    them goes, in order, into the next slot of the same part in the free-space test (reference, end sweep
+    or inner sweep, see :func:`_roles`) and the same LiDAR spec, and the slots left over get empty sources
+    (no valid point, identity pose, the window's spec): an empty source bins nothing, so as a witness it
+    judges nothing free, shadowed or hidden, and its points never reach an image. The sources' order is
+    kept (the z-buffer's ties go to the earlier point), so the outputs are those of the frame's own
+    program (tests/test_sources_window.py). None when the frame's sources do not fit in that order (e.g.
+    the KITTI window 0, -1, 1, -2, 2 and a frame holding 0, -1, 1, 2: its end -1 precedes an inner sweep,
+    the window's ends are its last two slots), or differ in spec from the window's, or judge free space
+    on grids of their own (``sources.witnesses``).
+    """
+    from jaxdepth._src.sources import make_sources
+    window = tuple(int(w) for w in window)
+    if sources.count == len(window) and tuple(sources.sweep) == window:
+        return sources, index
+    if sources.count > len(window) or len(set(sources.lidars)) != 1 or sources.witnesses is not None:
+        return None
+    spec = sources.lidars[0]
+    have = _roles(sources.sweep, sources.lidars)
+    slots = _roles(window, (spec,) * len(window))
+    placed, k = [], 0
+    for role in have:
+        while k < len(slots) and slots[k] != role:
+            k += 1
+        if k == len(slots):
+            return None
+        placed.append(k)
+        k += 1
+    S, P = len(window), sources.points.shape[1]
+    points = np.zeros((S, P, 3), np.float32)
+    valid = np.zeros((S, P), bool)
+    T = np.tile(np.eye(4, dtype=np.float32), (S, 1, 1))
+    rows = None if sources.rows is None else np.full((S, P), -1, np.int32)
+    spread = np.full((S, P), -1, np.int64)
+    for i, k in enumerate(placed):
+        points[k], valid[k], T[k], spread[k] = sources.points[i], sources.valid[i], sources.T_ref_source[i], index[i]
+        if rows is not None:
+            rows[k] = sources.rows[i]
+    return make_sources(points, valid, T, lidars=(spec,) * S, sweep=window, rows=rows), spread
+
+
 def _single_origin(cloud) -> bool:
     return cloud.num_sources == 1 and np.allclose(cloud.T_ref_source[0], np.eye(4), atol=1e-9)
 
 
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
-                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True):
+                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
+                   window: tuple | None = None):
     """Dense depth for every camera of ``rig`` from every point of ``cloud``.
 
     Args:
@@ -172,6 +228,11 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         free-space and occlusion constants are ``config`` fields too).
       occlusion: with ``free_space``, also remove for each camera the other sweeps' points hidden
         from the reference-sweep LiDAR next to it (see :func:`~jaxdepth._src.sources.reference_view`).
+      window: optional static sweep numbers of a frame with all its neighbours (a job's ``--sweeps``): a
+        cloud of fewer sources is spread over that window with empty sources (:func:`fit_to_window`), so
+        every frame of the job runs one compiled program, same outputs; used with ``free_space`` on and
+        ``free_space_neighbour_sweeps = 0`` (the default) when every source's spec is stated and the
+        sources fit, else ignored.
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
@@ -184,7 +245,16 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     if neighbour_sweeps != "default":
         config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
-    if _single_origin(cloud):
+    fitted = None
+    if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
+            and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
+        fitted = fit_to_window(*cloud_sources(cloud, fallback=rig.lidar,
+                                              witness_cell_spacings=config.free_space_witness_cell,
+                                              min_cells=config.free_space_min_cells), window)
+    if fitted is not None:
+        out = complete_sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
+                                      images=images, occlusion=occlusion)
+    elif _single_origin(cloud):
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
@@ -211,5 +281,5 @@ def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: b
     return frame, config
 
 
-__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "source_spec", "POINT_BUCKET", "WITNESS_GRID_STEP",
-           "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
+__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec", "POINT_BUCKET",
+           "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
