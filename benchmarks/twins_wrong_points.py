@@ -29,7 +29,6 @@ point. A diagnosis: it reads the truth, and chooses nothing.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 
@@ -152,14 +151,10 @@ def spoiled_pixels(inp, config, views, removed, wrong, classes) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rig", default="rosette", choices=bench.RIGS)
-    parser.add_argument("--sweeps", type=int, default=5)
+    parser = bench.twin_parser(__doc__.splitlines()[0], rig="rosette", sweeps=5, scale=0.25)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--scale", type=float, default=0.25)
     parser.add_argument("--witness-cell", type=float, default=SGMConfig().free_space_witness_cell,
                         help="SGMConfig.free_space_witness_cell (0: the rig's LiDAR spec grid)")
-    parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     t0 = time.time()
     from jaxdepth.research.twins import make_twin, write_twin
