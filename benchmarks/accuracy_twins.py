@@ -86,6 +86,18 @@ def npy_columns(path) -> int | None:
     return int(np.load(path, mmap_mode="r").shape[1]) if path.suffix == ".npy" else None
 
 
+def twin_parser(description: str, *, rig: str, sweeps: int, scale: float):
+    """An argument parser with the options every one-twin study takes: ``--rig``, ``--sweeps``,
+    ``--scale``, ``--json``."""
+    import argparse
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--rig", default=rig, choices=RIGS)
+    parser.add_argument("--sweeps", type=int, default=sweeps)
+    parser.add_argument("--scale", type=float, default=scale)
+    parser.add_argument("--json", default=None)
+    return parser
+
+
 def read_user_input(points_path, rig_path) -> UserInput:
     """Reads a point file or sweeps JSON and a rig JSON the way :func:`~jaxdepth.batch.rig_job.run_rig_job`
     does, with ``--point-columns`` set to a ``.npy`` file's own column count."""

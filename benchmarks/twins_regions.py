@@ -24,7 +24,6 @@ cannot see, mixed returns). A diagnosis: nothing here chooses a default.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 
@@ -81,12 +80,8 @@ def region_errors(pred: list, exact: list, masks: list) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rig", default="kitti", choices=bench.RIGS)
-    parser.add_argument("--sweeps", type=int, default=1)
-    parser.add_argument("--scale", type=float, default=0.5)
+    parser = bench.twin_parser(__doc__.splitlines()[0], rig="kitti", sweeps=1, scale=0.5)
     parser.add_argument("--ratios", nargs="*", type=float, default=[], help="extra SGM max_residual_ratio values")
-    parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     t0 = time.time()
     from jaxdepth.research.twins import make_twin, write_twin

@@ -59,6 +59,9 @@ _SOURCES_OPTIONS = {
                            "sweeps' LiDARs judge (default 0; all: every sweep, a cost quadratic in the sweeps)"),
     "--occlusion-max-baseline": ("occlusion_max_baseline_m", float, "M", "largest camera-to-LiDAR distance of the "
                                  "occlusion test of other sweeps' points, metres (default 1.0)"),
+    "--witness-cell": ("free_space_witness_cell", float, "K", "free-space grid of a scan without laser rows or "
+                       "stated spec whose own grid it fills too sparsely (a rosette): cells of K mean point "
+                       "spacings (default 2.0; 0: the rig's LiDAR spec)"),
 }
 
 

@@ -37,8 +37,8 @@ def drive(tmp_path_factory):
     T_velo_imu = np.eye(4)
     T_velo_imu[:3, 3] = (-0.81, 0.32, -0.80)
     scene = _scene(np.random.default_rng(3))
-    # two sweeps: with one neighbour on each side every frame holds two sources (one compiled completion for
-    # every test below; a middle frame's three sources would be a second KITTI-size program)
+    # two sweeps: with one neighbour on each side every frame holds two sources, spread over the job's window
+    # of three (0, -1, 1: one compiled completion for every test below, and for a middle frame's three)
     path = [(1.0 * k, 0.0, 0.0, 0.0) for k in range(2)]
     drive = _write_drive(root, path, T_velo_imu, scene)
     for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):

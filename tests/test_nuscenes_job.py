@@ -16,6 +16,7 @@ import pathlib
 import shutil
 
 import cv2
+import jax
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -405,8 +406,20 @@ def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     root, tables, _ = dataroot
     single, _, _ = first_run
     dst = tmp_path / "multi"
-    summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
+    compiled = []
+
+    def on_compile(event, secs, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration" and "complete" in str(kwargs.get("fun_name")):
+            compiled.append(kwargs.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(on_compile)
+    try:
+        summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_compile)
     assert sorted(summary.done) == ["s1", "s2"]
+    # s1 (the scene's first sample: one sweep) runs s2's program, its one source in a window of two
+    assert compiled in ([], ["jit(_complete_sources_stages)"]), compiled     # [] when compiled earlier in the session
     t = nusc.load_tables(root, VERSION)
     changed = 0
     for sample, count in (("s1", 1), ("s2", 2)):

@@ -19,7 +19,8 @@ ABOVE_SCAN = ("plane", "background")
 # (field, note) of the float options that must be >= 0
 _NON_NEGATIVE_FIELDS = (("epsilon_m", ""), ("smoothing_sigma_px", ""), ("guidance_weight", " (0 = off)"),
                         ("guidance_noise_floor", ""), ("free_space_noise_m", ""), ("free_space_slope", ""),
-                        ("occlusion_max_baseline_m", ""))
+                        ("occlusion_max_baseline_m", ""),
+                        ("free_space_witness_cell", " (0 = the source's LidarSpec)"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +118,10 @@ class SGMConfig:
       occlusion_max_baseline_m: largest distance from a camera to the reference-sweep LiDAR
         whose view stands in for the camera's in the occlusion test of other sweeps' points,
         metres; for a camera farther from every such LiDAR the test is skipped.
+      free_space_witness_cell: for a source with neither a stated LidarSpec nor laser rows (a
+        raster or rosette unit), the side of its free-space witness grid's square cells in mean
+        point spacings of its own scan (``jaxdepth.batch.sources_job.scan_witness_spec``); 0: the
+        rig's LidarSpec grid, as for every other source.
     """
 
     outlier_removal: bool = True
@@ -145,6 +150,7 @@ class SGMConfig:
     free_space_min_cells: int = 3
     free_space_neighbour_sweeps: int | None = 0
     occlusion_max_baseline_m: float = 1.0
+    free_space_witness_cell: float = 2.0
 
     def __post_init__(self):
         if self.distance_metric not in DISTANCE_METRICS:

@@ -78,6 +78,11 @@ class Sources:
       rows: optional (S, P) int32 range-image row of each point in its own LiDAR's range
         image: its laser's rank by elevation (0 = highest), for LiDARs whose beams are not
         evenly spaced (the VLP-32C); -1 or None: the row of the point's elevation.
+      witnesses: optional static tuple of S :class:`LidarSpec`, the range-image grid each source
+        bins its points into when it judges other sweeps' points for free space and occlusion
+        (:func:`reference_view`); None: ``lidars``. For a scan without laser rows whose spec is
+        not stated (a raster or rosette unit), a grid matched to its own point spacing
+        (:func:`jaxdepth.batch.sources_job.scan_witness_spec`).
     """
 
     points: jax.Array
@@ -86,13 +91,14 @@ class Sources:
     lidars: tuple = dataclasses.field(metadata=dict(static=True))
     sweep: tuple = dataclasses.field(metadata=dict(static=True))
     rows: jax.Array | None = None
+    witnesses: tuple | None = dataclasses.field(default=None, metadata=dict(static=True))
 
     @property
     def count(self) -> int:
         return len(self.lidars)
 
 
-def make_sources(points, valid, T_ref_source, *, lidars, sweep=None, rows=None) -> Sources:
+def make_sources(points, valid, T_ref_source, *, lidars, sweep=None, rows=None, witnesses=None) -> Sources:
     """Checks shapes and builds :class:`Sources` (``sweep`` defaults to all 0: one sweep, several LiDARs)."""
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool)
@@ -114,7 +120,14 @@ def make_sources(points, valid, T_ref_source, *, lidars, sweep=None, rows=None) 
         rows = jnp.asarray(rows, jnp.int32)
         if rows.shape != (s, p):
             raise ValueError(f"Sources: field 'rows' expected shape {(s, p)}, got {rows.shape}")
-    return Sources(points=points, valid=valid, T_ref_source=T, lidars=lidars, sweep=sweep, rows=rows)
+    if witnesses is not None:
+        witnesses = tuple(witnesses)
+        if len(witnesses) != s or not all(isinstance(x, LidarSpec) for x in witnesses):
+            raise ValueError(f"Sources: field 'witnesses' expected {s} LidarSpec, got {witnesses!r}")
+        if witnesses == lidars:
+            witnesses = None
+    return Sources(points=points, valid=valid, T_ref_source=T, lidars=lidars, sweep=sweep, rows=rows,
+                   witnesses=witnesses)
 
 
 def _spec_groups(lidars) -> list[tuple[LidarSpec, np.ndarray]]:
@@ -232,7 +245,7 @@ def reference_view(sources: Sources, *, noise_m: float = FREE_SPACE_NOISE_M, slo
         raise ValueError(f"reference_view: field 'neighbour_sweeps' expected None or >= 0, got {neighbour_sweeps!r}")
     others = sweep[sweep != 0]
     wide = {0} | ({int(others.min()), int(others.max())} if end_sweeps and others.size else set())
-    for spec, idx in _spec_groups(sources.lidars):
+    for spec, idx in _spec_groups(sources.lidars if sources.witnesses is None else sources.witnesses):
         judge = functools.partial(_witness_verdicts, spec=spec, noise_m=noise_m, slope=slope, min_cells=min_cells)
         # The reference and end sweeps' witnesses judge the points of every other sweep (the reference's
         # alone judge shadow); each other witness those of its neighbouring sweeps. Sweep 0's points

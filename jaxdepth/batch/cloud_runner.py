@@ -31,18 +31,20 @@ class CloudJob:
     source: object
 
 
-def complete_sources(cloud, rig, *, config, images=None) -> np.ndarray:
+def complete_sources(cloud, rig, *, config, images=None, window: tuple | None = None) -> np.ndarray:
     """(C, H, W) float32 depth of every camera of ``rig`` (on the largest camera's canvas) from a SourceCloud.
 
     The one completion call of the multi-source jobs:
     :func:`jaxdepth.batch.sources_job.complete_cloud` with free space on (range image, normals and
     Algorithm 1's viewpoint per source; other sweeps' points in the reference sweep's free space
     removed). ``images``: (C, H, W[, 3]) uint8 camera images on the canvas for image-guided seeds
-    (``config.guidance_weight > 0``), else None.
+    (``config.guidance_weight > 0``), else None. ``window``: the sweep numbers of a frame with all its
+    neighbours, so that frames with fewer share its compiled program
+    (:func:`jaxdepth.batch.sources_job.fit_to_window`).
     """
     from jaxdepth.batch.sources_job import complete_cloud
 
-    return complete_cloud(cloud, rig, config=config, free_space=True, images=images)
+    return complete_cloud(cloud, rig, config=config, free_space=True, images=images, window=window)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,

@@ -78,6 +78,19 @@ def _load(job: CloudJob, *, sweeps: int, force: bool):
     return cloud, rig
 
 
+def window(sweeps: int) -> tuple:
+    """The sweep numbers of a frame with all its ``sweeps`` neighbours on each side, in the sources' order
+    (:func:`jaxdepth.io.kitti_oxts.read_drive_cloud`): 0, -1, 1, -2, 2, ..."""
+    return (0,) + tuple(o for k in range(1, sweeps + 1) for o in (-k, k))
+
+
+def _complete(cloud, rig, *, config, window: tuple):
+    """A frame's depth in the run's one program: frames near a drive's ends (fewer neighbours) are spread
+    over the full window with empty sources (:func:`jaxdepth.batch.sources_job.fit_to_window`)."""
+    from jaxdepth.batch.cloud_runner import complete_sources
+    return complete_sources(cloud, rig, config=config, window=window), None, None
+
+
 def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = False,
                          png_compression: int | None = None, io_threads: int = 2,
                          on_progress: Callable[[str, str], None] | None = None, force: bool = False):
@@ -104,8 +117,9 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
     if todo:
         make_output_folders(p for job in todo for _, p in job.outputs)
         run_cloud_jobs(todo, functools.partial(_load, sweeps=sweeps, force=force), summary, notify, config=config,
-                       png_compression=png_compression, io_threads=io_threads)
+                       png_compression=png_compression, io_threads=io_threads,
+                       complete=functools.partial(_complete, config=config, window=window(sweeps)))
     return summary
 
 
-__all__ = ["run_kitti_raw_sweeps", "plan", "sweep_identities"]
+__all__ = ["run_kitti_raw_sweeps", "plan", "sweep_identities", "window"]

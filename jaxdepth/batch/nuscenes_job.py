@@ -306,7 +306,8 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             padded, valid, rig, inputs, images = loaded
             if inputs.cloud is not None:  # several sweeps: one source each
                 try:
-                    out = complete_sources(inputs.cloud, rig, config=config, images=images)
+                    out = complete_sources(inputs.cloud, rig, config=config, images=images,
+                                           window=tuple(-k for k in range(sweeps)))  # one program for every sample
                 except (JaxdepthError, ValueError) as err:
                     run.fail(job.token, f"completion failed: {err}")
                     continue

@@ -25,11 +25,94 @@ log = logging.getLogger("jaxdepth")
 #: The smallest padded source: sources are padded to ``max(POINT_BUCKET, bucket_size(largest source))``,
 #: a power of two (one compilation per bucket; padding slots are invalid and leave every output unchanged).
 POINT_BUCKET = 8192
+#: Rows and columns of a scan-matched witness grid (:func:`scan_witness_spec`) are multiples of this, so
+#: that sweeps of one unit, whose point counts differ slightly, share one compiled program.
+WITNESS_GRID_STEP = 16
 
 
-def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
+def _directions(local):
+    """(elevation, azimuth, covered azimuth span) of a source's (n, 3) own-frame points, radians: the span
+    is 360 degrees less the widest azimuth gap holding no point."""
+    local = np.asarray(local, np.float64)
+    local = local[np.all(np.isfinite(local), axis=1) & (np.linalg.norm(local, axis=1) > 0)]
+    el = np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]))
+    az = np.arctan2(local[:, 1], local[:, 0])
+    ordered = np.sort(az)
+    gaps = np.diff(np.concatenate([ordered, ordered[:1] + 2 * np.pi])) if az.size else np.zeros(1)
+    return el, az, 2 * np.pi - float(gaps.max())
+
+
+def spec_grid_evidence(local, spec: LidarSpec, *, min_cells: int = DEFAULT_CONFIG.free_space_min_cells) -> float:
+    """The chance that a direction inside a scan's coverage finds free-space evidence on ``spec``'s grid.
+
+    ``local``: (n, 3) the source's points in its own frame, binned into ``spec``'s range image (rows
+    evenly by elevation). ``f``, the share of the grid's cells inside the scan's box (its elevations, its
+    covered azimuth span) that hold a point; the 2 x 2 cells bracketing a direction then hold at least
+    ``min_cells`` measurements with probability ``sum_k C(4, k) f^k (1 - f)^(4 - k)``, ``k >= min_cells``
+    (cells taken as independent). A spinning or raster unit's lines fill the rows they run along
+    (the raster twin, 64 lines on the rig's 64 x 2048 grid: f = 0.80, 0.82); a rosette's path leaves
+    holes between its petals in any one sweep (f = 0.44, 0.23), which other sweeps' points fall into.
+    """
+    from math import comb
+    el, az, span = _directions(local)
+    if el.size == 0:
+        return 0.0
+    up, down = np.radians(spec.fov_up_deg), np.radians(spec.fov_down_deg)
+    height, width = (up - down) / spec.beams, 2 * np.pi / spec.columns
+    row = np.floor((up - el) / height).astype(np.int64)
+    col = np.floor((np.pi - az) / width).astype(np.int64) % spec.columns
+    inside = (row >= 0) & (row < spec.beams)
+    if not inside.any():
+        return 0.0
+    occupied = np.unique(row[inside] * spec.columns + col[inside]).size
+    rows = row[inside].max() - row[inside].min() + 1
+    f = min(1.0, occupied / max(1.0, rows * max(1.0, np.ceil(span / width))))
+    return float(sum(comb(4, k) * f ** k * (1 - f) ** (4 - k) for k in range(int(min_cells), 5)))
+
+
+def scan_witness_spec(local, fallback: LidarSpec, *, cell_spacings: float) -> LidarSpec:
+    """The free-space witness grid of a scan without laser rows (raster, rosette): square cells of
+    ``cell_spacings`` times the scan's mean angular point spacing.
+
+    ``local``: (n, 3) the source's points in its own LiDAR frame. The spacing is ``sqrt(omega / n)``,
+    ``omega`` the solid angle of the directions' box: elevations from the lowest to the highest
+    point, azimuths over the covered span (:func:`_directions`). A rosette's 31,000 points in its
+    35-degree cone are 0.35 degree apart on average, while the rig's 64 x 2048 spec cuts 1.09 x 0.18
+    degree cells, 44 % of those in the cone measured in one sweep: the 2 x 2 cells bracketing a query
+    then rarely hold the 3 measurements the free-space test needs. With ``cell_spacings=2`` a cell
+    holds 4 points on average, so it is empty with probability about ``exp(-4)`` (2 %) where the scan
+    covers. Rows and columns are rounded up to multiples of :data:`WITNESS_GRID_STEP`, the field of
+    view to the 0.25 degree grid of estimated specs. Returns ``fallback`` for fewer than 2 points.
+    """
+    from jaxdepth.io.sweep_frame import _on_grid
+    el, _, span = _directions(local)
+    if el.size < 2:
+        return fallback
+    omega = max(span, 1e-6) * max(float(np.sin(el.max()) - np.sin(el.min())), 1e-6)
+    cell = cell_spacings * float(np.sqrt(omega / el.size))
+    up, down = _on_grid(np.degrees(el.max() + 0.5 * cell), np.ceil), _on_grid(np.degrees(el.min() - 0.5 * cell), np.floor)
+    rows = int(np.ceil(np.radians(up - down) / cell / WITNESS_GRID_STEP)) * WITNESS_GRID_STEP
+    columns = int(np.ceil(2 * np.pi / cell / WITNESS_GRID_STEP)) * WITNESS_GRID_STEP
+    return LidarSpec(beams=rows, fov_up_deg=up, fov_down_deg=down, columns=columns)
+
+
+def witness_spec(local, spec: LidarSpec, *, cell_spacings: float, min_cells: int = DEFAULT_CONFIG.free_space_min_cells):
+    """The free-space witness grid of a source with neither a stated spec nor laser rows: ``spec``'s own
+    when a direction in its coverage finds evidence there more often than not
+    (:func:`spec_grid_evidence` >= 1/2), else :func:`scan_witness_spec`'s (``cell_spacings`` 0: always ``spec``)."""
+    if cell_spacings <= 0 or spec_grid_evidence(local, spec, min_cells=min_cells) >= 0.5:
+        return spec
+    return scan_witness_spec(local, spec, cell_spacings=cell_spacings)
+
+
+def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET,
+                  witness_cell_spacings: float = DEFAULT_CONFIG.free_space_witness_cell,
+                  min_cells: int = DEFAULT_CONFIG.free_space_min_cells):
     """The :class:`~jaxdepth._src.sources.Sources` pytree of a SourceCloud: each source padded to one bucket,
     the power of two (:func:`jaxdepth.io.bucket_size`) that holds the largest source, at least ``bucket``.
+
+    A source with neither a stated spec nor laser rows (its spec is ``fallback``) judges free space on
+    :func:`witness_spec`'s grid (``witness_cell_spacings`` > 0; 0: on ``fallback``'s).
 
     Returns:
       (sources, index): ``index`` (S, P) int64, the cloud row of each padded slot (-1 for padding).
@@ -43,7 +126,7 @@ def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
     valid = np.zeros((S, P), bool)
     index = np.full((S, P), -1, np.int64)
     rows = np.full((S, P), -1, np.int32)
-    specs = []
+    specs, witnesses = [], []
     for s in range(S):
         mine = np.nonzero(cloud.source == s)[0]
         points[s, :mine.size] = cloud.points[mine]
@@ -51,11 +134,73 @@ def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET):
         index[s, :mine.size] = mine
         spec, rank = source_spec(cloud, s, fallback)
         specs.append(spec)
+        witness = spec
         if rank is not None:
             rows[s, :mine.size] = rank
+        elif cloud.lidars[s] is None and witness_cell_spacings > 0:
+            T = np.linalg.inv(cloud.T_ref_source[s])
+            local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            witness = witness_spec(local, spec, cell_spacings=witness_cell_spacings, min_cells=min_cells)
+        witnesses.append(witness)
     sources = make_sources(points, valid, cloud.T_ref_source.astype(np.float32), lidars=tuple(specs),
-                           sweep=tuple(int(x) for x in cloud.sweep), rows=rows if np.any(rows >= 0) else None)
+                           sweep=tuple(int(x) for x in cloud.sweep), rows=rows if np.any(rows >= 0) else None,
+                           witnesses=tuple(witnesses))
     return sources, index
+
+
+def _roles(sweep, specs) -> list:
+    """Each source's part in the free-space test with ``free_space_neighbour_sweeps = 0``
+    (:func:`jaxdepth._src.sources.reference_view`): (``"ref"`` | ``"end"`` | ``"inner"``, spec). The ends
+    are the sources of the smallest and largest sweep other than 0."""
+    others = [int(w) for w in sweep if w != 0]
+    ends = {min(others), max(others)} if others else set()
+    return [("ref" if w == 0 else "end" if w in ends else "inner", spec) for w, spec in zip(sweep, specs)]
+
+
+def fit_to_window(sources, index, window: tuple):
+    """``sources`` (and its ``index``) spread over the slots of a fixed sweep ``window``, so that every frame of
+    a job compiles one program: ``(sources, index)`` with ``len(window)`` sources, or None when it cannot.
+
+    ``window``: the static sweep numbers of a frame with all its neighbours (the KITTI job: 0, -1, 1, ...;
+    nuScenes: 0, -1, -2, ...). A frame at the start or end of a drive / scene holds fewer sources; each of
+    them goes, in order, into the next slot of the same part in the free-space test (reference, end sweep
+    or inner sweep, see :func:`_roles`) and the same LiDAR spec, and the slots left over get empty sources
+    (no valid point, identity pose, the window's spec): an empty source bins nothing, so as a witness it
+    judges nothing free, shadowed or hidden, and its points never reach an image. The sources' order is
+    kept (the z-buffer's ties go to the earlier point), so the outputs are those of the frame's own
+    program (tests/test_sources_window.py). None when the frame's sources do not fit in that order (e.g.
+    the KITTI window 0, -1, 1, -2, 2 and a frame holding 0, -1, 1, 2: its end -1 precedes an inner sweep,
+    the window's ends are its last two slots), or differ in spec from the window's, or judge free space
+    on grids of their own (``sources.witnesses``).
+    """
+    from jaxdepth._src.sources import make_sources
+    window = tuple(int(w) for w in window)
+    if sources.count == len(window) and tuple(sources.sweep) == window:
+        return sources, index
+    if sources.count > len(window) or len(set(sources.lidars)) != 1 or sources.witnesses is not None:
+        return None
+    spec = sources.lidars[0]
+    have = _roles(sources.sweep, sources.lidars)
+    slots = _roles(window, (spec,) * len(window))
+    placed, k = [], 0
+    for role in have:
+        while k < len(slots) and slots[k] != role:
+            k += 1
+        if k == len(slots):
+            return None
+        placed.append(k)
+        k += 1
+    S, P = len(window), sources.points.shape[1]
+    points = np.zeros((S, P, 3), np.float32)
+    valid = np.zeros((S, P), bool)
+    T = np.tile(np.eye(4, dtype=np.float32), (S, 1, 1))
+    rows = None if sources.rows is None else np.full((S, P), -1, np.int32)
+    spread = np.full((S, P), -1, np.int64)
+    for i, k in enumerate(placed):
+        points[k], valid[k], T[k], spread[k] = sources.points[i], sources.valid[i], sources.T_ref_source[i], index[i]
+        if rows is not None:
+            rows[k] = sources.rows[i]
+    return make_sources(points, valid, T, lidars=(spec,) * S, sweep=window, rows=rows), spread
 
 
 def _single_origin(cloud) -> bool:
@@ -63,7 +208,8 @@ def _single_origin(cloud) -> bool:
 
 
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
-                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True):
+                   beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
+                   window: tuple | None = None):
     """Dense depth for every camera of ``rig`` from every point of ``cloud``.
 
     Args:
@@ -82,6 +228,11 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         free-space and occlusion constants are ``config`` fields too).
       occlusion: with ``free_space``, also remove for each camera the other sweeps' points hidden
         from the reference-sweep LiDAR next to it (see :func:`~jaxdepth._src.sources.reference_view`).
+      window: optional static sweep numbers of a frame with all its neighbours (a job's ``--sweeps``): a
+        cloud of fewer sources is spread over that window with empty sources (:func:`fit_to_window`), so
+        every frame of the job runs one compiled program, same outputs; used with ``free_space`` on and
+        ``free_space_neighbour_sweeps = 0`` (the default) when every source's spec is stated and the
+        sources fit, else ignored.
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
@@ -94,13 +245,23 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     if neighbour_sweeps != "default":
         config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
-    if _single_origin(cloud):
+    fitted = None
+    if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
+            and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
+        fitted = fit_to_window(*cloud_sources(cloud, fallback=rig.lidar,
+                                              witness_cell_spacings=config.free_space_witness_cell,
+                                              min_cells=config.free_space_min_cells), window)
+    if fitted is not None:
+        out = complete_sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
+                                      images=images, occlusion=occlusion)
+    elif _single_origin(cloud):
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
         out = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
     else:
-        sources, _ = cloud_sources(cloud, fallback=rig.lidar)
+        sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
+                                   min_cells=config.free_space_min_cells)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
                                       images=images, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)
@@ -120,4 +281,5 @@ def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: b
     return frame, config
 
 
-__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "source_spec", "POINT_BUCKET"]
+__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec", "POINT_BUCKET",
+           "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
