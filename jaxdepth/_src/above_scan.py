@@ -46,23 +46,27 @@ def _shift_columns(x: jax.Array, k: int, fill) -> jax.Array:
     return jnp.concatenate([pad, x[:, :k]], axis=1)
 
 
-def paper_half_width(valid: jax.Array, *, beams: int, max_half_width_px: int) -> jax.Array:
+def paper_half_width(valid: jax.Array, *, beams: int, max_half_width_px: int, image_width=None) -> jax.Array:
     """Largest ``|du|`` of the paper's window ``|du| < W L / N`` (int32, traced), capped.
 
     Args:
       valid: (H, W) bool, the pixels with depth (their count is N).
       beams: L, the LiDAR's beam count.
       max_half_width_px: static cap (``SGMConfig.outlier_max_half_width_px``).
+      image_width: optional traced int32 w: the image is the left w columns of ``valid`` (a
+        rig's canvas); W is then w (the cap stays the canvas's: columns past the image are empty).
     """
     width = valid.shape[1]
     n_points = jnp.sum(valid, dtype=jnp.int32)
-    return jnp.where(n_points > 0, jnp.minimum((width * beams - 1) // jnp.maximum(n_points, 1),
+    wl = width * beams if image_width is None else jnp.asarray(image_width, jnp.int32) * beams
+    return jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1),
                                                min(max_half_width_px, width - 1)), 0)
 
 
 def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax.Array, valid: jax.Array, *,
                           beams: int,
-                          max_half_width_px: int = _DEFAULTS.outlier_max_half_width_px) -> jax.Array:
+                          max_half_width_px: int = _DEFAULTS.outlier_max_half_width_px,
+                          image_size=None) -> jax.Array:
     """Step 4's prediction with the pixels above the top scan line set to the farthest seed in the window.
 
     Args:
@@ -72,6 +76,8 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
       valid: (H, W) bool, every pixel with depth (N of the window ``W L / N``).
       beams: L, the LiDAR's beam count.
       max_half_width_px: static cap on the window's half width, pixels.
+      image_size: optional traced (2,) int32 (h, w): the image is the top-left h x w window of
+        the arrays (a rig's canvas); the result inside it is that of the (h, w) image alone.
 
     Returns:
       (H, W) float32 metres: ``depth_raw`` where some kept pixel of the window's
@@ -79,7 +85,10 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
       ``seed_depth`` over the row's pixels with ``|du| < W L / N``.
     """
     height, width = depth_raw.shape
-    k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px)
+    k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
+                             image_width=None if image_size is None else image_size[1])
+    if image_size is not None:      # the seeds of the canvas's padding columns are no part of the image
+        seed_depth = jnp.where(jnp.arange(width)[None, :] < image_size[1], seed_depth, 0.0)
     cap = min(int(max_half_width_px), width - 1)
     top = jnp.where(jnp.any(keep, axis=0), jnp.argmax(keep, axis=0), height).astype(jnp.int32)[None, :]
     top_window, farthest = top, seed_depth

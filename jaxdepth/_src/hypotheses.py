@@ -45,21 +45,41 @@ _DEFAULTS = DEFAULT_CONFIG
 _DEPTH_RANGE_M = 256.0
 
 
-def _column_keys(kept_depth: jax.Array, *, max_gap: int):
+def _depth_bits(h):
+    """Bits of the depth in a key for an image of ``h`` rows: 31 - ceil(log2 h) (at least one row bit).
+
+    ``h``: a static int, or a traced int32 scalar (an image that is a window of a canvas); the
+    scale ``(2**depth_bits - 1) / 256 m`` is then read from a table of the same float32 values.
+    Returns (depth_bits, scale, top): int or int32 scalar, float or float32 scalar, and
+    ``2**depth_bits - 1``.
+    """
+    if isinstance(h, int):
+        depth_bits = 31 - max(1, math.ceil(math.log2(h)))
+        return depth_bits, (2 ** depth_bits - 1) / _DEPTH_RANGE_M, 2 ** depth_bits - 1
+    h = jnp.asarray(h, jnp.int32)
+    row_bits = jnp.maximum(1, 32 - lax.clz(jnp.maximum(h - 1, 0)))     # ceil(log2 h) for h >= 2
+    depth_bits = 31 - row_bits
+    table = jnp.asarray([(2 ** b - 1) / _DEPTH_RANGE_M for b in range(31)], jnp.float32)
+    return depth_bits, table[depth_bits], (jnp.int32(1) << depth_bits) - 1
+
+
+def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
     """Packed keys of the nearest kept pixel above and below every pixel (see :func:`column_neighbours`).
 
+    ``height``: optional traced int32 h, the image as the top h rows of ``kept_depth`` (the
+    keys are then those of the (h, W) image: its own depth quantisation and row order).
+
     Returns:
-      (up, down, depth_bits, scale): (H, W) int32 keys, -1 where there is no kept
+      (up, down, depth_bits, scale, last): (H, W) int32 keys, -1 where there is no kept
       pixel within ``max_gap`` rows on that side; ``up >> depth_bits`` is the row
-      above, ``H - 1 - (down >> depth_bits)`` the row below, ``key & (2**depth_bits
-      - 1)`` the depth times ``scale``.
+      above, ``last - (down >> depth_bits)`` the row below, ``key & (2**depth_bits
+      - 1)`` the depth times ``scale``; ``last`` is the image's last row.
     """
     h, _ = kept_depth.shape
-    row_bits = max(1, math.ceil(math.log2(h)))
-    depth_bits = 31 - row_bits
-    scale = (2 ** depth_bits - 1) / _DEPTH_RANGE_M
+    depth_bits, scale, top = _depth_bits(h if height is None else height)
+    last = h - 1 if height is None else jnp.asarray(height, jnp.int32) - 1
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    level = jnp.clip(jnp.round(kept_depth * scale), 1, 2 ** depth_bits - 1).astype(jnp.int32)
+    level = jnp.clip(jnp.round(kept_depth * scale), 1, top).astype(jnp.int32)
     g = int(max_gap)
 
     def nearest(order, padding):
@@ -67,11 +87,11 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int):
         return lax.reduce_window(key, -1, lax.max, (g + 1, 1), (1, 1), [padding, (0, 0)])
 
     up = nearest(rows, (g, 0))                    # above: the largest row wins
-    down = nearest(h - 1 - rows, (0, g))          # below: the smallest row wins
-    return up, down, depth_bits, scale
+    down = nearest(last - rows, (0, g))           # below: the smallest row wins
+    return up, down, depth_bits, scale, last
 
 
-def column_neighbours(kept_depth: jax.Array, *, max_gap: int):
+def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=None):
     """The nearest kept LiDAR pixels straight above and below every pixel: their rows and depths.
 
     A LiDAR pixel is its own neighbour (gap 0). Each direction is one
@@ -84,23 +104,30 @@ def column_neighbours(kept_depth: jax.Array, *, max_gap: int):
     Args:
       kept_depth: (H, W) float32 metres, 0 = no LiDAR pixel (the seeds kept by Step 2).
       max_gap: static search range in rows.
+      height, gap: optional traced int32 scalars: the image is the top ``height`` rows of
+        ``kept_depth`` (a window of a rig's canvas; the rest is empty) and its search range
+        is ``gap <= max_gap`` rows. The result on those rows is that of the
+        (height, W) image alone with ``max_gap=gap``, bit for bit.
 
     Returns:
       (row_up, z_up, row_down, z_down): (H, W) int32 rows, -1 where there is no
       kept pixel within ``max_gap`` rows on that side, and (H, W) float32 depths,
       0 there.
     """
-    h, _ = kept_depth.shape
-    up, down, depth_bits, scale = _column_keys(kept_depth, max_gap=max_gap)
-    mask = 2 ** depth_bits - 1
+    up, down, depth_bits, scale, last = _column_keys(kept_depth, max_gap=max_gap, height=height)
+    if gap is not None:             # the image's own search range (the keys' row bits give the distance)
+        rows = jnp.arange(kept_depth.shape[0], dtype=jnp.int32)[:, None]
+        up = jnp.where((up >= 0) & (rows - (up >> depth_bits) <= gap), up, -1)
+        down = jnp.where((down >= 0) & (last - (down >> depth_bits) - rows <= gap), down, -1)
+    mask = (jnp.int32(1) << depth_bits) - 1 if height is not None else 2 ** depth_bits - 1
     depth = lambda key: jnp.where(key >= 0, (key & mask).astype(jnp.float32) / scale, 0.0)  # noqa: E731
     return (jnp.where(up >= 0, up >> depth_bits, -1), depth(up),
-            jnp.where(down >= 0, h - 1 - (down >> depth_bits), -1), depth(down))
+            jnp.where(down >= 0, last - (down >> depth_bits), -1), depth(down))
 
 
 def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance: jax.Array,
                       normals: jax.Array, K: jax.Array, *, window_px: float, blend: bool = False,
-                      materialise: bool = True,
+                      materialise: bool = True, image_size=None, image_gap=None,
                       min_abs_denom: float = _DEFAULTS.min_abs_denom,
                       max_residual_ratio: float = _DEFAULTS.max_residual_ratio) -> jax.Array:
     """The bracket (and optionally the blend) of the module docstring.
@@ -119,6 +146,10 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
         faster (the gathers otherwise re-run the row search) and the image-guided
         one no faster, so the pipeline turns it off when guided.
       min_abs_denom, max_residual_ratio: as in :func:`~jaxdepth._src.residual.plane_residual`.
+      image_size, image_gap: optional traced (2,) int32 (h, w) and int32 ``floor(h / L)``: the
+        image is the top-left h x w window of the arrays (a rig's canvas), ``window_px`` is then
+        the canvas's H / L (a static bound) and the window used is the image's own
+        ``image_gap`` rows (see :func:`column_neighbours`); both or neither.
 
     Returns:
       (H, W) float32 metres: ``depth_raw`` clipped to the bracket (and blended)
@@ -128,7 +159,11 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     """
     max_gap = int(math.floor(window_px))
     h, w = kept_depth.shape
-    row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap)
+    if image_size is None:
+        row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap)
+    else:
+        row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap, height=image_size[0],
+                                                       gap=image_gap)
     if blend and materialise:
         row_up, z_up, row_dn, z_dn = fence(row_up, z_up, row_dn, z_dn)
     bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)

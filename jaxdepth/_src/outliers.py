@@ -235,8 +235,8 @@ def _prefilter_rows(*keys, height, hh, hv, footprint):
     return tuple(rows)
 
 
-def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, move_coef, *, height, width, hh, hw,
-                     cell_v, footprint):
+def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, cell_v_run, move_coef, *, height,
+                     width, hh, hw, cell_v, footprint):
     """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
     Every form of condition 1 needs condition 2: a pixel more than ``eps``
@@ -259,7 +259,8 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, mo
     smooth surfaces, where inverse depth varies little within a window, most
     points take that small box. ``rows`` holds the column minima of
     :func:`_prefilter_rows`. ``move_coef`` holds (c_u, c_v, t_z): three scalars, or three (H, W)
-    maps when each pixel has its own LiDAR origin.
+    maps when each pixel has its own LiDAR origin. ``cell_v_run``: the image's traced H / L (the
+    static ``cell_v``, the canvas's, is at least it: it only sizes the small box, a superset).
     """
     cols = lambda a, half: a[:, hw - half:hw + half + width]
     centre = lambda a: a[hh:hh + height, hw:hw + width]
@@ -290,7 +291,7 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, mo
         # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
         d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1)
         d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
-        reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v + 1e-3) ** 2 + 0.25
+        reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v_run + 1e-3) ** 2 + 0.25
         small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
         cand = cand & (~small | nearer_in(rows[1], hu))
     return pack_bits(cand)
@@ -351,6 +352,7 @@ class _Bounds(NamedTuple):
     k_max: jax.Array     # int32 largest |du| in S(i): (W L - 1) // N, capped at the static half width
     cell_u: jax.Array    # float32 W L / N, pixels (the horizontal point spacing)
     cell_v: jax.Array    # float32 H / L, pixels (the vertical point spacing)
+    h_max: jax.Array | None = None   # int32 largest |dv| in S(i) of a window of a canvas (None: the static one)
 
 
 class _Canvas(NamedTuple):
@@ -360,17 +362,32 @@ class _Canvas(NamedTuple):
     points: tuple | None      # three such float32 camera-frame x, y, z canvases, or None
 
 
-def _bounds(valid: jax.Array, *, beams: int, half_width: int) -> _Bounds:
-    """N and the window bounds W L / N, H / L of an (H, W) bool mask of pixels with depth."""
+def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None) -> _Bounds:
+    """N and the window bounds W L / N, H / L of an (H, W) bool mask of pixels with depth.
+
+    ``image_size``: optional traced (2,) int32 (h, w) of the image, a window in the top-left
+    corner of the (H, W) canvas (rigs of mixed sizes): the bounds are then the image's own,
+    ``w L / N`` and ``h / L`` (the same float32 values as for an (h, w) array), and
+    ``h_max = min(half_height, ceil(h / L) - 1, h - 1)``, the image's own vertical bound. The
+    horizontal bound keeps the canvas's static cap: offsets past the image's edge reach only
+    empty pixels.
+    """
     height, width = valid.shape
     # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
     n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
         jnp.sum(valid, dtype=jnp.int32)
-    wl = width * beams
+    h_max = None
+    if image_size is None:
+        wl, cell_v = width * beams, jnp.float32(height / beams)
+    else:
+        h, w = jnp.asarray(image_size[0], jnp.int32), jnp.asarray(image_size[1], jnp.int32)
+        # float32(h) / float32(L) equals float32(h / L) for every h < 4100, L <= 256 (checked).
+        wl, cell_v = w * beams, h.astype(jnp.float32) / jnp.float32(beams)
+        h_max = jnp.minimum(jnp.minimum((h + beams - 1) // beams - 1, h - 1), half_height)
     # |du| = k is in S(i) iff k < W L / N, i.e. k <= (W L - 1) // N (integers).
     k_max = jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1), half_width), 0)
-    cell_u = jnp.float32(wl) / jnp.maximum(n_points, 1).astype(jnp.float32)
-    return _Bounds(n_points, k_max, cell_u, jnp.float32(height / beams))
+    cell_u = jnp.asarray(wl, jnp.float32) / jnp.maximum(n_points, 1).astype(jnp.float32)
+    return _Bounds(n_points, k_max, cell_u, cell_v, h_max)
 
 
 def _pad_canvas(depth: jax.Array, points, token, *, hh: int, hw: int) -> _Canvas:
@@ -424,7 +441,7 @@ def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: i
                                   cell_v=height / beams, footprint=footprint) for k in widths]
     big_z_c = canvas.depth if points_c is None else points_c[2]
     return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0], canvas.depth,
-                         big_z_c, eps, bounds.cell_u, move_coef)
+                         big_z_c, eps, bounds.cell_u, bounds.cell_v, move_coef)
 
 
 class _ExactTest(NamedTuple):
@@ -484,6 +501,8 @@ def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p, nearer_p
     if nearer_p is not None:
         flip = flip | nearer_p
     hit = flip & (z_p > z_q + ex.eps) & (jnp.abs(du) <= ex.bounds.k_max)
+    if ex.bounds.h_max is not None:     # a window of a canvas: the image's own |dv| < h / L
+        hit = hit & (jnp.abs(dv) <= ex.bounds.h_max)
     return removed | jnp.any(hit, axis=(1, 2))
 
 
@@ -524,7 +543,7 @@ def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
-               half_height, test="footprint", origins=None, nearer=None):
+               half_height, test="footprint", origins=None, nearer=None, image_size=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -536,7 +555,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     pixel's own LiDAR origin in the camera frame (several sources in one pass: candidate
     ``i`` is tested with its own origin as the viewpoint; ``T_cam_lidar`` is then unused).
     ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
-    S(i)). Returns the (H, W) bool keep mask.
+    S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
+    corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
+    Returns the (H, W) bool keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -549,7 +570,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         t = origins.astype(jnp.float32)
         # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
         t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
-    bounds = _bounds(valid, beams=beams, half_width=half_width)
+    bounds = _bounds(valid, beams=beams, half_width=half_width, half_height=half_height, image_size=image_size)
     canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
     words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
                        footprint=test == "footprint", t_front=t_front)
@@ -568,7 +589,8 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
                       epsilon_m: float = DEFAULT_CONFIG.epsilon_m,
                       max_half_width_px: int = DEFAULT_CONFIG.outlier_max_half_width_px,
                       max_half_height_px: int = DEFAULT_CONFIG.outlier_max_half_height_px,
-                      points_cam: jax.Array | None = None, test: str = DEFAULT_CONFIG.outlier_test) -> jax.Array:
+                      points_cam: jax.Array | None = None, test: str = DEFAULT_CONFIG.outlier_test,
+                      image_size: jax.Array | None = None) -> jax.Array:
     """Occlusion outlier mask of a sparse LiDAR depth image (the paper's Algorithm 1).
 
     Args:
@@ -591,6 +613,11 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         the projection).
       test: static form of condition 1: "footprint" (default) or "paper" (see
         the module docstring).
+      image_size: optional traced (2,) int32 (h, w): the image is the top-left
+        h x w window of ``sparse_depth``, a canvas shared by cameras of several
+        sizes (the rest empty). The window bounds are then the image's own
+        (``w L / N``, ``h / L``), so the mask equals that of the (h, w) image
+        alone, bit for bit (tests/test_rig.py).
 
     Returns:
       (H, W) bool: True where a sparse pixel is kept; False where it is
@@ -655,11 +682,12 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         height, width, beams=int(beams), max_half_width_px=int(max_half_width_px),
         max_half_height_px=int(max_half_height_px))
     return _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, jnp.asarray(epsilon_m, jnp.float32),
-                      beams=int(beams), half_width=half_width, half_height=half_height, test=test)
+                      beams=int(beams), half_width=half_width, half_height=half_height, test=test,
+                      image_size=image_size)
 
 
 def keep_mask_for_config(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,
-                         config, points_cam: jax.Array | None = None) -> jax.Array:
+                         config, points_cam: jax.Array | None = None, image_size=None) -> jax.Array:
     """Step 2 as an :class:`~jaxdepth.SGMConfig` asks: :func:`outlier_keep_mask`, or every sparse pixel
     when ``config.outlier_removal`` is off. The one place where config fields map to the stage's options.
     """
@@ -668,4 +696,4 @@ def keep_mask_for_config(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax
     return outlier_keep_mask(sparse_depth, K, T_cam_lidar, beams=beams, epsilon_m=config.epsilon_m,
                              max_half_width_px=config.outlier_max_half_width_px,
                              max_half_height_px=config.outlier_max_half_height_px, points_cam=points_cam,
-                             test=config.outlier_test)
+                             test=config.outlier_test, image_size=image_size)

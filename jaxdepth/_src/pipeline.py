@@ -82,15 +82,20 @@ def _seeds(keep, image, config: SGMConfig):
 
 
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
-                   config: SGMConfig, image=None, keep=None) -> Stages:
+                   config: SGMConfig, image=None, keep=None, image_size=None) -> Stages:
     """Steps 2-4 on one camera image: outliers, nearest seed, residual, smoothing.
 
     ``keep``: optional (H, W) bool Step-2 mask computed by the caller (several
     sources, each with its own viewpoint); None runs Algorithm 1 here.
+    ``image_size``: optional traced (2,) int32 (h, w), the camera's image as the
+    top-left window of a rig's (H, W) canvas (nothing projected beyond it). Every
+    stage then uses the camera's own size (Step 2's window bounds, the column
+    bracket's h / L, the blur's border), so inside the window the result is that
+    of the (h, w) image alone (tests/test_rig.py); outside it, any value.
     """
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
-                                    points_cam=points_cam)
+                                    points_cam=points_cam, image_size=image_size)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather).
@@ -111,11 +116,14 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
             depth_raw, bracket_input, distance, normals_cam, K,
             window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
             materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
-            max_residual_ratio=config.max_residual_ratio)
+            max_residual_ratio=config.max_residual_ratio, image_size=image_size,
+            image_gap=None if image_size is None else image_size[0] // beams)
     if config.above_scan == "background":
         depth_raw = background_above_scan(depth_raw, seed_depth, keep, sparse_depth > 0, beams=beams,
-                                          max_half_width_px=config.outlier_max_half_width_px)
-    depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px)
+                                          max_half_width_px=config.outlier_max_half_width_px,
+                                          image_size=image_size)
+    depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
+                          image_size=image_size)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
@@ -251,7 +259,7 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, height=height,
                                                                     width=width, image_size=image_size)
     stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=lidar.beams, config=config,
-                            image=image)
+                            image=image, image_size=image_size)
     return clear_outside_window(stages, image_size)
 
 

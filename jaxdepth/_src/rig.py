@@ -2,9 +2,13 @@
 
 Cameras of different sizes share one padded (H, W) canvas; each keeps a traced
 ``image_size`` window, points outside it are not projected, and the output
-outside it is 0. Outlier removal uses the canvas size for the paper's window
-bounds (W L / N, H / L), which equals the camera's own size when all cameras
-have the same size (KITTI stereo, nuScenes).
+outside it is 0. Every stage uses the camera's own size, never the canvas's:
+Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
+above-scan window and the blur's border (mirrored at the window's edge, the
+padding never read). A camera's result is therefore the single-camera call's
+(``complete_points`` with its K, pose and size) whatever the other cameras:
+the mask and seeds bit for bit, the depths to float32 rounding (the vmapped body
+is fused differently; tests/test_rig_sizes.py).
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)

@@ -42,6 +42,20 @@ def _reflect101_pad(image: jax.Array, radius: int, axis: int) -> jax.Array:
     return jnp.concatenate(lo + [image] + hi, axis=axis)
 
 
+def _reflect101_pad_window(image: jax.Array, radius: int, axis: int, n) -> jax.Array:
+    """:func:`_reflect101_pad` of the first ``n`` (traced int32) entries of ``axis``: the image is
+    a window of a canvas, mirrored at its own edge (index ``n - 1``), never read beyond it.
+
+    Returns the canvas's length + 2 ``radius`` along ``axis``; the first ``n + 2 radius`` entries
+    are those of :func:`_reflect101_pad` of the window (one row / column gather).
+    """
+    idx = jnp.arange(-radius, image.shape[axis] + radius, dtype=jnp.int32)
+    period = jnp.maximum(2 * n - 2, 1)
+    idx = jnp.abs(idx) % period
+    idx = jnp.where(idx >= n, period - idx, idx)
+    return jnp.take(image, idx, axis=axis, mode="clip")      # idx is in [0, n), n <= the length
+
+
 def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
     n = padded.shape[axis] - (len(weights) - 1)
     out = None
@@ -51,13 +65,18 @@ def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
     return out
 
 
-def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.Array:
+def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_size=None) -> jax.Array:
     """Separable Gaussian blur of an (H, W) image (BORDER_REFLECT_101).
 
     Args:
       image: (H, W) float32.
       sigma_px: standard deviation in pixels (static); 0 returns the input.
       radius_px: kernel half width (static); the kernel is (2r+1) x (2r+1).
+      image_size: optional traced (2,) int32 (h, w), h, w >= 2: the image is the
+        top-left h x w window of a canvas (rigs of mixed sizes). The border
+        is then the window's own (mirrored at row h - 1 and column w - 1, the
+        canvas beyond never read): inside the window the result equals the blur
+        of the (h, w) image alone, bit for bit; outside it, any value.
 
     Returns:
       (H, W) float32.
@@ -87,8 +106,14 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int) -> jax.A
     radius = (len(weights) - 1) // 2
     image = image.astype(jnp.float32)
     token = jax.lax.bitcast_convert_type(jnp.ravel(image)[0], jnp.int32)
-    padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
-    vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]
+    if image_size is None:
+        padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
+        vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]
+        return _taps(vertical, weights, cols)
+    size = jnp.asarray(image_size, jnp.int32)
+    padded = stage(lambda a, n: (_reflect101_pad_window(a, radius, rows, n[0]),), (image, size), token)[0]
+    vertical = stage(lambda p, n: (_reflect101_pad_window(_taps(p, weights, rows), radius, cols, n[1]),),
+                     (padded, size), token)[0]
     return _taps(vertical, weights, cols)
 
 

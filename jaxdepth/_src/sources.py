@@ -363,7 +363,7 @@ def free_space_keep(sources: Sources, **options) -> jax.Array:
 
 
 def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
-                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None) -> jax.Array:
+                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None, image_size=None) -> jax.Array:
     """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
 
     Args:
@@ -378,6 +378,8 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
         shadow (:func:`reference_view`); such a point is also removed when a pixel of its
         window S(i) is nearer by more than epsilon (condition 2 alone: the reference
         LiDAR saw something in front of it, and so, next to it, does the camera).
+      image_size: optional traced (2,) int32 (h, w): the image is the top-left window of a
+        rig's canvas; the window bounds are the image's own (as :func:`~jaxdepth.outlier_keep_mask`).
 
     Algorithm 1 tests each pixel's point with that point's own source origin as the
     viewpoint compared with the camera's; every pixel of the image is a possible occluder
@@ -396,7 +398,8 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     return valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
-                              half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer)
+                              half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
+                              image_size=image_size)
 
 
 def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OCCLUSION_MAX_BASELINE_M):
@@ -433,9 +436,9 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
     keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
-                            pixel_shadow=pixel_shadow)
+                            pixel_shadow=pixel_shadow, image_size=image_size)
     stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
-                            keep=keep)
+                            keep=keep, image_size=image_size)
     return clear_outside_window(stages, image_size)
 
 

@@ -84,13 +84,13 @@ def scan_witness_spec(local, fallback: LidarSpec, *, cell_spacings: float) -> Li
     covers. Rows and columns are rounded up to multiples of :data:`WITNESS_GRID_STEP`, the field of
     view to the 0.25 degree grid of estimated specs. Returns ``fallback`` for fewer than 2 points.
     """
-    from jaxdepth.io.sweep_frame import _on_grid
+    from jaxdepth.io.sweep_frame import on_fov_grid
     el, _, span = _directions(local)
     if el.size < 2:
         return fallback
     omega = max(span, 1e-6) * max(float(np.sin(el.max()) - np.sin(el.min())), 1e-6)
     cell = cell_spacings * float(np.sqrt(omega / el.size))
-    up, down = _on_grid(np.degrees(el.max() + 0.5 * cell), np.ceil), _on_grid(np.degrees(el.min() - 0.5 * cell), np.floor)
+    up, down = on_fov_grid(np.degrees(el.max() + 0.5 * cell), np.ceil), on_fov_grid(np.degrees(el.min() - 0.5 * cell), np.floor)
     rows = int(np.ceil(np.radians(up - down) / cell / WITNESS_GRID_STEP)) * WITNESS_GRID_STEP
     columns = int(np.ceil(2 * np.pi / cell / WITNESS_GRID_STEP)) * WITNESS_GRID_STEP
     return LidarSpec(beams=rows, fov_up_deg=up, fov_down_deg=down, columns=columns)

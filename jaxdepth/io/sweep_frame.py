@@ -220,7 +220,9 @@ def prepare_cloud(cloud, rig: Rig, *, estimate: bool = True) -> CloudFrame:
 FOV_GRID_DEG = 0.25
 
 
-def _on_grid(degrees: float, direction) -> float:
+def on_fov_grid(degrees: float, direction) -> float:
+    """``degrees`` moved to a multiple of :data:`FOV_GRID_DEG` by ``direction`` (``np.ceil`` outwards
+    for an upper bound, ``np.floor`` for a lower one), so nearby estimates share one program."""
     return float(direction(round(degrees / FOV_GRID_DEG, 6)) * FOV_GRID_DEG)
 
 
@@ -262,8 +264,8 @@ def source_spec(cloud, s: int, fallback: LidarSpec):
     rank = np.empty(lasers.size, np.int32)
     rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
     half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
-    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=_on_grid(median.max() + half, np.ceil),
-                     fov_down_deg=_on_grid(median.min() - half, np.floor), columns=fallback.columns)
+    spec = LidarSpec(beams=int(lasers.size), fov_up_deg=on_fov_grid(median.max() + half, np.ceil),
+                     fov_down_deg=on_fov_grid(median.min() - half, np.floor), columns=fallback.columns)
     log.info("%s: %s", cloud.names[s], est.describe())
     return spec, rank[inverse]
 

@@ -1,0 +1,206 @@
+"""A rig camera's depth does not depend on the rig's other cameras.
+
+Cameras of several sizes share one padded canvas (the largest height and width). Inside its
+own window each camera's result must equal the single-camera call at its own size, with the
+same K and pose: Step 2's window bounds (H / L, W L / N), the column bracket's H / L, the
+blur's border and the above-scan window are the camera's own, and the padding is never read.
+Oracle: :func:`jaxdepth.complete_points_stages` (one LiDAR) and
+:func:`jaxdepth.complete_sources` of a one-camera rig (several sources), at each camera's own
+size (the mask and seeds bit for bit, depths to float32 rounding). Plus jit == eager of the
+mixed-size rig.
+"""
+
+from __future__ import annotations
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdepth import complete_points_stages, complete_rig_stages, outlier_keep_mask, project_to_image, stack_cameras
+from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth._src.hypotheses import column_hypotheses
+from jaxdepth._src.smoothing import gaussian_blur
+from jaxdepth._src import synthetic
+from jaxdepth._src.sources import complete_sources_stages, make_sources
+
+from _harness import assert_close, assert_tree_close, check_stage
+from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
+
+LIDAR = SMALL_LIDAR
+FIELDS = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv", "residual", "depth_raw", "depth")
+EXACT = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv")
+
+
+@pytest.fixture(scope="module")
+def mixed_rig():
+    """(points, valid, cameras): two landscape 24 x 40 cameras and one portrait 40 x 24 (canvas 40 x 40)."""
+    cams = [small_camera(h=24, w=40, f=30.0),
+            small_camera(lidar_to_camera((0.2, 0.0, 0.5)), h=40, w=24, f=30.0),
+            small_camera(lidar_to_camera((-0.5, 0.1, 0.2)), h=24, w=40, f=34.0)]
+    frame = synthetic.make_street_scene(3, lidar=LIDAR, cameras=cams)
+    return np.asarray(frame.points), np.asarray(frame.valid), cams
+
+
+def _assert_own_size(rig, i, cam, single):
+    """Camera ``i`` of the rig's stages, on its window, equals ``single``; depth 0 beyond it.
+
+    Bit for bit: the z-buffer, Step 2's mask and Step 3's seeds (depth and offsets). The float
+    fields computed from them (residual, depth) within 16 eps x max(|x|, 1): the vmapped body is
+    fused differently from the single call (1 ulp seen on the residual; same-size rigs too,
+    tests/test_rig.py), while a camera's size read from the canvas moves depths by centimetres
+    to metres (the blur's border, Step 2's window).
+    """
+    h, w = cam.height, cam.width
+    for name in FIELDS:
+        got = np.asarray(getattr(rig, name)[i])[:h, :w]
+        want = np.asarray(getattr(single, name))
+        msg = f"camera {i} ({h} x {w}) field {name}"
+        if name in EXACT:
+            np.testing.assert_array_equal(got, want, err_msg=msg)
+        else:
+            assert_close(got, want, ulps=16, err_msg=msg)
+    depth = np.asarray(rig.depth[i])
+    assert not depth[h:].any() and not depth[:, w:].any()
+
+
+@pytest.mark.slow  # whole pipeline programs of their own: the 40 x 40 rig and each camera size
+def test_rig_camera_equals_its_own_single_camera_call(mixed_rig):
+    points, valid, cams = mixed_rig
+    rig = complete_rig_stages(points, valid, stack_cameras(cams), lidar=LIDAR)
+    assert rig.depth.shape == (3, 40, 40)
+    for i, cam in enumerate(cams):
+        single = complete_points_stages(points, valid, cam, lidar=LIDAR)
+        assert int(np.asarray(single.inlier_mask).sum()) > 20      # a real scene in every camera
+        _assert_own_size(rig, i, cam, single)
+
+
+@pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
+def test_sources_rig_camera_equals_its_own_single_camera_call(mixed_rig):
+    points, valid, cams = mixed_rig
+    # One source at the points' origin: complete_sources equals complete_rig (docs/multi_source.md),
+    # through Step 2 per source (each pixel's own origin) and the free-space path's projection.
+    sources = make_sources(points[None], valid[None], np.eye(4, dtype=np.float32)[None], lidars=(LIDAR,))
+    rig = complete_sources_stages(sources, stack_cameras(cams))
+    for i, cam in enumerate(cams):
+        _assert_own_size(rig, i, cam, complete_points_stages(points, valid, cam, lidar=LIDAR))
+
+
+@pytest.mark.slow  # the rig's program, and the pipeline op by op
+def test_mixed_rig_jit_equals_eager(mixed_rig):
+    points, valid, cams = mixed_rig
+    cameras = stack_cameras(cams)
+    fast = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
+    with jax.disable_jit():
+        eager = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
+    np.testing.assert_array_equal(np.asarray(fast.inlier_mask), np.asarray(eager.inlier_mask))
+    assert_tree_close(fast.depth, eager.depth, ulps=8, err_msg="jit != eager")
+
+
+# ---- The stages one by one (no pipeline compiled): each with ``image_size`` on a 40 x 40 canvas
+# whose padding holds garbage, against the stage's oracle on the camera's own (h, w) image; jit ==
+# eager, vmap == loop (cameras of three sizes in one batch) and no retrace via check_stage.
+
+CANVAS = 40
+SIZES = ((24, 40), (40, 24), (31, 33))
+
+
+def _inside(x, size):
+    """``x`` (.., H, W) with 0 outside the top-left ``size`` window."""
+    h, w = x.shape[-2:]
+    keep = (jnp.arange(h)[:, None] < size[0]) & (jnp.arange(w)[None, :] < size[1])
+    return jnp.where(keep, x, jnp.zeros((), x.dtype))
+
+
+def _embed(x, size):
+    """NumPy: the (h, w) ``x`` in the top-left corner of a zero canvas."""
+    out = np.zeros(x.shape[:-2] + (CANVAS, CANVAS), x.dtype)
+    out[..., :size[0], :size[1]] = x
+    return out
+
+
+def test_blur_mirrors_at_the_cameras_own_border():
+    rng = np.random.default_rng(0)
+    inputs = []
+    for h, w in SIZES:
+        canvas = rng.uniform(1e3, 2e3, (CANVAS, CANVAS)).astype(np.float32)    # garbage beyond the window
+        canvas[:h, :w] = rng.uniform(1, 50, (h, w))
+        inputs.append((canvas, np.array([h, w], np.int32)))
+
+    def oracle(canvas, size):
+        h, w = size
+        return _embed(cv2.GaussianBlur(canvas[:h, :w], (7, 7), 1.4, borderType=cv2.BORDER_REFLECT_101), size)
+
+    check_stage(lambda c, s: _inside(gaussian_blur(c, sigma_px=1.4, radius_px=3, image_size=s), s), inputs,
+                oracle=oracle, oracle_ulps=8, eager_inputs=1)
+
+
+def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
+    points, valid, cams = mixed_rig
+    inputs, removed = [], 0
+    for cam in cams:
+        sparse, _ = project_to_image(points, valid, cam.K, cam.T_cam_lidar, height=cam.height, width=cam.width)
+        size = (cam.height, cam.width)
+        inputs.append((_embed(np.asarray(sparse), size), np.asarray(cam.K), np.asarray(cam.T_cam_lidar),
+                       np.array(size, np.int32)))
+        removed += int((np.asarray(sparse) > 0).sum() - np.asarray(outlier_keep_mask(sparse, cam.K, cam.T_cam_lidar,
+                                                                                     beams=LIDAR.beams)).sum())
+    assert removed > 0      # the scene has outliers to remove
+
+    def oracle(canvas, K, T, size):
+        h, w = size
+        return _embed(np.asarray(outlier_keep_mask(canvas[:h, :w], K, T, beams=LIDAR.beams)), size)
+
+    check_stage(lambda c, K, T, s: _inside(outlier_keep_mask(c, K, T, beams=LIDAR.beams, image_size=s), s),
+                inputs, oracle=oracle, eager_inputs=1)
+
+
+def test_column_bracket_uses_the_cameras_own_window():
+    rng = np.random.default_rng(1)
+    beams = 8                                   # h / L: 3 rows (h = 24), 5 (h = 40), 3 (h = 31); canvas 5
+    K = np.array([[30, 0, 19.5], [0, 30, 12], [0, 0, 1]], np.float32)
+    inputs = []
+    for h, w in SIZES:
+        kept = np.zeros((CANVAS, CANVAS), np.float32)
+        rows = np.zeros(CANVAS, bool)
+        rows[rng.choice(h, h // 3, replace=False)] = True
+        kept[:h, :w] = np.where(rows[:h, None] & (rng.random((h, w)) < 0.7), rng.uniform(2, 40, (h, w)), 0.0)
+        raw = rng.uniform(0.5, 60, (CANVAS, CANVAS)).astype(np.float32)
+        dist = rng.integers(0, 8, (CANVAS, CANVAS)).astype(np.float32)
+        normals = rng.normal(size=(3, CANVAS, CANVAS)).astype(np.float32)
+        size = np.array([h, w], np.int32)
+        inputs.append((raw, kept, dist, normals, size))
+
+    def run(raw, kept, dist, normals, size):
+        return _inside(column_hypotheses(raw, kept, dist, normals, K, window_px=CANVAS / beams, blend=True,
+                                         image_size=size, image_gap=size[0] // beams), size)
+
+    bracket = jax.jit(column_hypotheses, static_argnames=("window_px", "blend"))
+
+    def oracle(raw, kept, dist, normals, size):
+        h, w = size
+        return _embed(np.asarray(bracket(raw[:h, :w], kept[:h, :w], dist[:h, :w], normals[:, :h, :w], K,
+                                         window_px=h / beams, blend=True)), size)
+
+    check_stage(run, inputs, oracle=oracle, eager_inputs=1)      # the blend: jit and eager round apart
+
+
+def test_above_scan_window_is_the_cameras_own():
+    from test_above_scan import above_scan_inputs, numpy_above_scan
+    rng = np.random.default_rng(2)
+    inputs = []
+    for n, (h, w) in enumerate(SIZES):
+        depth_raw, seed_depth, keep, valid = above_scan_inputs(n, H=h, W=w, points=3 * w)
+        garbage = lambda x: np.where(np.asarray(_embed(np.ones_like(x, bool), (h, w))), _embed(x, (h, w)),  # noqa: E731
+                                     rng.uniform(70, 90, (CANVAS, CANVAS)).astype(np.float32))
+        inputs.append((garbage(depth_raw), garbage(seed_depth), _embed(keep, (h, w)), _embed(valid, (h, w)),
+                       np.array([h, w], np.int32)))
+
+    def oracle(depth_raw, seed_depth, keep, valid, size):
+        h, w = size
+        return _embed(numpy_above_scan(depth_raw[:h, :w], seed_depth[:h, :w], keep[:h, :w], valid[:h, :w],
+                                       beams=16, max_half_width_px=12), size)
+
+    check_stage(lambda d, s, k, v, n: _inside(background_above_scan(d, s, k, v, beams=16, image_size=n), n), inputs,
+                oracle=oracle, oracle_ulps=0, eager_inputs=1)
