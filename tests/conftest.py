@@ -42,8 +42,8 @@ if os.environ.get("JAXDEPTH_TEST_COMPILE_CACHE", "1") != "0":
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
-# Cheaper compiles for the suite: XLA_FLAGS gains SUITE_XLA_FLAGS (optimisation level 0, the older
-# kernel emitters; about a third of the compile CPU) before JAX starts its backend, here in the first
+# Cheaper compiles for the suite: XLA_FLAGS gains SUITE_XLA_FLAGS (optimisation level 0: about half
+# the compile CPU of a pipeline program, runs 3-5x slower) before JAX starts its backend, here in the first
 # process of the session; xdist workers and every subprocess inherit it. The flags the user had (the
 # production flags) are kept in JAXDEPTH_TEST_PRODUCTION_XLA_FLAGS: tests marked production_flags run
 # in a subprocess under them (below). JAXDEPTH_TEST_XLA=production runs the whole suite at them.
