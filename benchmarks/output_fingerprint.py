@@ -195,7 +195,21 @@ def synthetic(tmp: pathlib.Path) -> dict:
     cameras = jaxdepth.stack_cameras(frame.cameras)
     stages = jaxdepth.complete_rig_stages(frame.points, frame.valid, cameras, lidar=frame.lidar)
     out.update(stages_digests(stages, "synthetic.api.complete_rig_stages"))
+    # cameras of two sizes on one canvas: each camera's stages use its own size, never the padding
+    cropped = jaxdepth.Camera(K=crop_K(frame.cameras[1].K, top=52, left=300), T_cam_lidar=frame.cameras[1].T_cam_lidar,
+                              height=300, width=600)
+    cameras = jaxdepth.stack_cameras([frame.cameras[0], cropped])
+    stages = jaxdepth.complete_rig_stages(frame.points, frame.valid, cameras, lidar=frame.lidar)
+    out.update(stages_digests(stages, "synthetic.api.complete_rig_stages_mixed_sizes"))
     return out
+
+
+def crop_K(K, *, top: int, left: int) -> np.ndarray:
+    """Intrinsics of the image cropped at row ``top``, column ``left``."""
+    K = np.array(K, np.float32)
+    K[0, 2] -= left
+    K[1, 2] -= top
+    return K
 
 
 def main(argv=None) -> int:
