@@ -4,9 +4,10 @@ The suite compiles at cheaper XLA flags (``SUITE_XLA_FLAGS``, tests/conftest.py)
 code differs in the last bits, so this test is marked ``production_flags``: it runs in a subprocess at
 the flags users compile with. It recomputes the synthetic street's outputs of
 ``benchmarks/output_fingerprint.py`` (the CLI's ``demo``, the scene itself, ``complete_points_stages``
-with and without guidance, the stereo ``complete_rig_stages``: no shared data needed) and compares
+with and without guidance, the stereo ``complete_rig_stages`` and a rig of two camera sizes: no shared
+data needed) and compares
 their SHA-256 with the recorded file, the same file ``python -m benchmarks.output_fingerprint --check``
-compares all 89 outputs with.
+compares all 98 outputs with.
 """
 
 from __future__ import annotations
