@@ -70,10 +70,10 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
     keys are then those of the (h, W) image: its own depth quantisation and row order).
 
     Returns:
-      (up, down, depth_bits, scale, last): (H, W) int32 keys, -1 where there is no kept
+      (up, down, depth_bits, scale, top, last): (H, W) int32 keys, -1 where there is no kept
       pixel within ``max_gap`` rows on that side; ``up >> depth_bits`` is the row
-      above, ``last - (down >> depth_bits)`` the row below, ``key & (2**depth_bits
-      - 1)`` the depth times ``scale``; ``last`` is the image's last row.
+      above, ``last - (down >> depth_bits)`` the row below, ``key & top`` (``top =
+      2**depth_bits - 1``) the depth times ``scale``; ``last`` is the image's last row.
     """
     h, _ = kept_depth.shape
     depth_bits, scale, top = _depth_bits(h if height is None else height)
@@ -88,7 +88,7 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
 
     up = nearest(rows, (g, 0))                    # above: the largest row wins
     down = nearest(last - rows, (0, g))           # below: the smallest row wins
-    return up, down, depth_bits, scale, last
+    return up, down, depth_bits, scale, top, last
 
 
 def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=None):
@@ -114,12 +114,11 @@ def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=N
       kept pixel within ``max_gap`` rows on that side, and (H, W) float32 depths,
       0 there.
     """
-    up, down, depth_bits, scale, last = _column_keys(kept_depth, max_gap=max_gap, height=height)
+    up, down, depth_bits, scale, mask, last = _column_keys(kept_depth, max_gap=max_gap, height=height)
     if gap is not None:             # the image's own search range (the keys' row bits give the distance)
         rows = jnp.arange(kept_depth.shape[0], dtype=jnp.int32)[:, None]
         up = jnp.where((up >= 0) & (rows - (up >> depth_bits) <= gap), up, -1)
         down = jnp.where((down >= 0) & (last - (down >> depth_bits) - rows <= gap), down, -1)
-    mask = (jnp.int32(1) << depth_bits) - 1 if height is not None else 2 ** depth_bits - 1
     depth = lambda key: jnp.where(key >= 0, (key & mask).astype(jnp.float32) / scale, 0.0)  # noqa: E731
     return (jnp.where(up >= 0, up >> depth_bits, -1), depth(up),
             jnp.where(down >= 0, last - (down >> depth_bits), -1), depth(down))
@@ -159,11 +158,8 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     """
     max_gap = int(math.floor(window_px))
     h, w = kept_depth.shape
-    if image_size is None:
-        row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap)
-    else:
-        row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap, height=image_size[0],
-                                                       gap=image_gap)
+    row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap, gap=image_gap,
+                                                   height=None if image_size is None else image_size[0])
     if blend and materialise:
         row_up, z_up, row_dn, z_dn = fence(row_up, z_up, row_dn, z_dn)
     bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)

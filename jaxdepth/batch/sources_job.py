@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.types import LidarSpec
-from jaxdepth.io.sweep_frame import source_spec
+from jaxdepth.io.sweep_frame import source_points_local, source_spec
 
 log = logging.getLogger("jaxdepth")
 
@@ -138,9 +138,8 @@ def cloud_sources(cloud, *, fallback: LidarSpec, bucket: int = POINT_BUCKET,
         if rank is not None:
             rows[s, :mine.size] = rank
         elif cloud.lidars[s] is None and witness_cell_spacings > 0:
-            T = np.linalg.inv(cloud.T_ref_source[s])
-            local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-            witness = witness_spec(local, spec, cell_spacings=witness_cell_spacings, min_cells=min_cells)
+            witness = witness_spec(source_points_local(cloud, s), spec, cell_spacings=witness_cell_spacings,
+                                   min_cells=min_cells)
         witnesses.append(witness)
     sources = make_sources(points, valid, cloud.T_ref_source.astype(np.float32), lidars=tuple(specs),
                            sweep=tuple(int(x) for x in cloud.sweep), rows=rows if np.any(rows >= 0) else None,
@@ -245,12 +244,12 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     if neighbour_sweeps != "default":
         config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
-    fitted = None
+    sources = fitted = None
     if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
             and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
-        fitted = fit_to_window(*cloud_sources(cloud, fallback=rig.lidar,
-                                              witness_cell_spacings=config.free_space_witness_cell,
-                                              min_cells=config.free_space_min_cells), window)
+        sources, index = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
+                                       min_cells=config.free_space_min_cells)
+        fitted = fit_to_window(sources, index, window)
     if fitted is not None:
         out = complete_sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
                                       images=images, occlusion=occlusion)
@@ -260,8 +259,9 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
         out = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
     else:
-        sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
-                                   min_cells=config.free_space_min_cells)
+        if sources is None:         # not built for the window above
+            sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
+                                       min_cells=config.free_space_min_cells)
         out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
                                       images=images, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)

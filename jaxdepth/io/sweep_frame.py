@@ -226,6 +226,12 @@ def on_fov_grid(degrees: float, direction) -> float:
     return float(direction(round(degrees / FOV_GRID_DEG, 6)) * FOV_GRID_DEG)
 
 
+def source_points_local(cloud, s: int) -> np.ndarray:
+    """(n, 3) float64: source ``s``'s points of ``cloud`` in that source's own LiDAR frame, in cloud order."""
+    T = np.linalg.inv(cloud.T_ref_source[s])
+    return cloud.points[cloud.source == s].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+
+
 def source_spec(cloud, s: int, fallback: LidarSpec):
     """Source ``s``'s range-image geometry: ``(LidarSpec, rows)``.
 
@@ -249,8 +255,7 @@ def source_spec(cloud, s: int, fallback: LidarSpec):
         return fallback, None
     from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
     mine = cloud.source == s
-    T = np.linalg.inv(cloud.T_ref_source[s])
-    local = cloud.points[mine].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    local = source_points_local(cloud, s)
     ring = cloud.ring[mine]
     est = estimate_lidar_geometry(local, ring=ring)
     if not est.spinning or est.beams is None:
@@ -290,4 +295,4 @@ def _fmt(v) -> str:
     return "(" + ", ".join(f"{x:+.3f}" for x in np.asarray(v, np.float64)) + ")"
 
 
-__all__ = ["SweepFrame", "CloudFrame", "prepare_sweep", "prepare_cloud", "source_spec", "shift_rig", "ORIGIN_SNAP_M"]
+__all__ = ["SweepFrame", "CloudFrame", "prepare_sweep", "prepare_cloud", "source_spec", "source_points_local", "shift_rig", "ORIGIN_SNAP_M"]
