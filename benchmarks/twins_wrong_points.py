@@ -154,20 +154,42 @@ def spoiled_pixels(inp, config, views, removed, wrong, classes) -> tuple:
     return {k: sum(row[k] for row in per) for k in CLASSES}, per
 
 
-def sweep_loss(inp, exact, config, wrong) -> dict:
+def wrong_per_camera(views, exact, *, tolerance_m: float = bench.TRUTH_TOLERANCE_M) -> list:
+    """[(N,) bool per camera]: points that camera sees at a pixel whose exact depth differs from theirs
+    by more than ``tolerance_m`` (or is sky); :func:`benchmarks.accuracy_twins.truth_filtered_keep`
+    removes the union of these."""
+    out = []
+    for (inside, uv, z), truth in zip(views, exact):
+        seen = np.zeros(len(z))
+        seen[inside] = truth[uv[inside, 1], uv[inside, 0]]
+        out.append(inside & ((seen == 0) | (np.abs(seen - z) > tolerance_m)))
+    return out
+
+
+def sweep_loss(inp, exact, config, wrong, views) -> dict:
     """Per-camera SGM scores (RMSE / MAE mm) of the reference sweep alone (what one sweep gives: the same
-    bytes as the single-sweep path, docs/multi_source.md), every sweep (the default), and every sweep
+    scores as the single-sweep path, docs/multi_source.md), every sweep (the default), and every sweep
     without the older sweeps' wrong points (an oracle of point removal that leaves the reference sweep
     alone), with and without the free-space rules: where extra sweeps lose, and what perfect removal
-    of older points could give back."""
+    of older points could give back. ``*_per_camera`` rows remove, for each camera's image, only the
+    points wrong in that camera (one run per camera): the accuracy table's oracle removes a point
+    wrong in any camera from every camera, which opens holes where cameras overlap."""
     from jaxdepth.batch.sources_job import complete_cloud
     c = inp.cloud
     older = c.sweep[c.source] != 0
-    runs = {"reference_sweep_alone": (c.take(~older), True), "every_sweep": (c, True),
-            "older_wrong_removed": (c.take(~(older & wrong)), True),
-            "older_wrong_removed_no_rules": (c.take(~(older & wrong)), False)}
-    return {name: bench.score(bench.crops(complete_cloud(cloud, inp.rig, config=config, free_space=rules), inp.rig),
-                              exact) for name, (cloud, rules) in runs.items()}
+
+    def run(keep, rules):
+        return bench.crops(complete_cloud(c.take(keep), inp.rig, config=config, free_space=rules), inp.rig)
+
+    runs = {"reference_sweep_alone": run(~older, True), "every_sweep": run(np.ones_like(older), True),
+            "older_wrong_removed": run(~(older & wrong), True),
+            "older_wrong_removed_no_rules": run(~(older & wrong), False)}
+    per_cam = wrong_per_camera(views, exact)
+    for name, base, only_older, rules in (("reference_wrong_removed_per_camera", ~older, False, True),
+                                          ("older_wrong_removed_per_camera", True, True, True),
+                                          ("every_wrong_removed_per_camera", True, False, False)):
+        runs[name] = [run(base & ~(w & older if only_older else w), rules)[i] for i, w in enumerate(per_cam)]
+    return {name: bench.score(pred, exact) for name, pred in runs.items()}
 
 
 def main(argv=None) -> int:
@@ -203,7 +225,7 @@ def main(argv=None) -> int:
               "right_older_points_removed": int((~wrong & older & rules["removed"]).sum()),
               "right_older_points": int((~wrong & older).sum()), "classes": table,
               "cameras": [c.name for c in inp.rig.cameras], "pixels_spoiled_per_camera": spoiled_per_camera,
-              "scores": sweep_loss(inp, exact, config, wrong)}
+              "scores": sweep_loss(inp, exact, config, wrong, views)}
     print(f"{args.rig}, {args.sweeps} sweeps, seed {args.seed}, witness cell {args.witness_cell}: "
           f"{len(wrong)} points, {int(wrong.sum())} wrong; right older points removed "
           f"{result['right_older_points_removed']} of {result['right_older_points']}")
