@@ -455,7 +455,8 @@ def merge_parts(parts: list, notes: list) -> tuple:
     """(cases, merged_from) of result documents merged in order. A case without a ``scale`` (a file
     written before scales were per twin) takes its file's ``settings.scale``. A later file's cases
     replace earlier cases of the same (twin, sweeps, seed), and every earlier case of a twin that the
-    later file runs at another scale. ``merged_from``: per file, what it contributed (no paths)."""
+    later file runs at another scale. Cases come out in :data:`RIGS` order, then by sweeps and seed.
+    ``merged_from``: per file, what it contributed (no paths)."""
     kept = []                                           # (part index, case)
     for i, doc in enumerate(parts):
         new = [dict(c, scale=float(c.get("scale", doc["settings"]["scale"]))) for c in doc["cases"]]
@@ -472,7 +473,8 @@ def merge_parts(parts: list, notes: list) -> tuple:
         if mine:
             entry = {"cases": describe_part(mine), "run_seconds": doc.get("run_seconds", doc["seconds"])}
             merged_from.append(dict(entry, note=note) if note else entry)
-    return [c for _, c in kept], merged_from
+    order = sorted(kept, key=lambda jc: (RIGS.index(jc[1]["rig"]), jc[1]["sweeps"], jc[1]["seed"]))
+    return [c for _, c in order], merged_from
 
 
 def main(argv=None) -> int:

@@ -109,6 +109,7 @@ def test_merge_mixes_scales_across_twins_and_replaces_a_twin_run_at_another_scal
     extra = _part([_scaled_case("av2", 5, 0, 99.0, scale=0.25, sizes=((512, 388),))])
     cases, merged_from = bench.merge_parts([old, new, extra], [None, "full-size KITTI", None])
     got = {(c["rig"], c["sweeps"], c["scale"]): c["full"]["sgm"]["rmse"] for c in cases}
+    assert [(c["rig"], c["sweeps"]) for c in cases] == [("kitti", 1), ("kitti", 5), ("av2", 1), ("av2", 5)]
     # every KITTI case at 0.25 goes (3 sweeps too: a twin keeps one scale); av2 5 is the later file's
     assert got == {("kitti", 1, 1.0): 31.0, ("kitti", 5, 1.0): 35.0, ("av2", 1, 0.25): 21.0, ("av2", 5, 0.25): 99.0}
     # an old case gets make_twin's camera sizes at its file's scale
