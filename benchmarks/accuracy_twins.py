@@ -70,9 +70,9 @@ FRACTION = 0.2
 MIN_RANGE_M = 1.0
 TRUTH_TOLERANCE_M = 0.5
 # The camera scale each twin runs at unless --scale is given (1.0: the real rig's camera sizes). KITTI
-# (2 x 0.47 Mpx), nuScenes (6 x 1.44 Mpx) and the rosette (2.07 Mpx) run at full size; Argoverse 2
-# (7 x 3.2 Mpx) and the raster rig (6 x 2.35 Mpx) at a quarter (run times: docs/twins.md, "Camera scale").
-DEFAULT_SCALES = {"kitti": 1.0, "nuscenes": 1.0, "av2": 0.25, "raster": 0.25, "rosette": 1.0}
+# (2 x 0.47 Mpx), nuScenes (6 x 1.44 Mpx), the raster rig (6 x 2.35 Mpx) and the rosette (2.07 Mpx) run
+# at full size; Argoverse 2 (7 x 3.2 Mpx) at a quarter (run times: docs/twins.md, "Camera scale").
+DEFAULT_SCALES = {"kitti": 1.0, "nuscenes": 1.0, "av2": 0.25, "raster": 1.0, "rosette": 1.0}
 
 
 def rig_scale(rig: str, override: float | None = None) -> float:
