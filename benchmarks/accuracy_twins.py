@@ -5,7 +5,7 @@
         [--json benchmarks/results/accuracy_twins.json]
 
 Each twin runs at its own camera scale (:data:`DEFAULT_SCALES`: the real camera sizes where a
-full-size run is affordable on the shared 2-core machine, a quarter for the big rigs); ``--scale``
+full-size run is affordable on the shared 2-core machine, a quarter for Argoverse 2); ``--scale``
 sets one scale for every twin. Each case records its scale and camera sizes.
 
 The twins (:mod:`jaxdepth.research.twins`, ``docs/twins.md``: ray-cast copies of the KITTI,
