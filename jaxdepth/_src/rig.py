@@ -13,7 +13,9 @@ above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
 the mask and seeds bit for bit, the depths to float32 rounding (the vmapped body
-is fused differently; tests/test_rig_sizes.py).
+is fused differently; tests/test_rig_sizes.py). On a real sweep that rounding can
+also move a projected point into the next pixel (a vmapped and an unbatched
+projection round u, v apart; docs/speed.md, "Grouped by size").
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
@@ -247,7 +249,9 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
         ignored (the result is the paper's LiDAR-only SGM, bit for bit).
 
     Returns:
-      :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals).
+      :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals); beyond a camera's window
+      every field is 0 (False), ``depth`` and ``depth_raw`` always, the others when
+      ``cameras.sizes`` is known (:func:`stack_cameras`: the cameras run grouped by size).
 
     Raises:
       ValueError (at trace time) naming the field 'images': missing while
