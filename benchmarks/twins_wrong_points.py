@@ -24,7 +24,11 @@ Per class: the wrong points, those the free-space and occlusion rules remove
 LiDAR), those kept with and without *evidence* (at least ``free_space_min_cells`` of the bracketing
 2 x 2 cells measured by a reference-sweep LiDAR, on its witness grid), those in a reference LiDAR's
 shadow, and the pixels they *spoil*: pixels of the Step-2-kept z-buffer whose point is that wrong
-point. A diagnosis: it reads the truth, and chooses nothing.
+point (also per camera). Then, per camera, the SGM on the reference sweep alone (one sweep), on
+every sweep (the default) and on every sweep without the older sweeps' wrong points, with and
+without the free-space rules (:func:`sweep_loss`): which cameras carry the loss of extra sweeps and
+what perfect removal of older points would give back. A diagnosis: it reads the truth, and chooses
+nothing.
 """
 
 from __future__ import annotations
@@ -134,20 +138,58 @@ def rule_verdicts(inp, config: SGMConfig) -> dict:
     return {"removed": removed, "shadow": back(shadow), "evidence": evidence}
 
 
-def spoiled_pixels(inp, config, views, removed, wrong, classes) -> dict:
-    """{class: pixels of the Step-2-kept z-buffers (every camera) whose point is a wrong point of that class}."""
+def spoiled_pixels(inp, config, views, removed, wrong, classes) -> tuple:
+    """({class: pixels of the Step-2-kept z-buffers (every camera) whose point is a wrong point of that class},
+    [the same, per camera])."""
     from jaxdepth.batch.sources_job import complete_cloud
     stages = complete_cloud(inp.cloud, inp.rig, config=config, stages=True)
-    out = dict.fromkeys(CLASSES, 0)
+    per = []
     for i, (cam, (inside, uv, z)) in enumerate(zip(inp.rig.cameras, views)):
         sparse = np.asarray(stages.sparse_depth[i, :cam.height, :cam.width])
         kept = np.asarray(stages.inlier_mask[i, :cam.height, :cam.width])
         cand = np.flatnonzero(inside & ~removed & wrong)
         u, v = uv[cand, 0], uv[cand, 1]
         won = cand[(np.abs(sparse[v, u] - z[cand]) < 1e-3) & kept[v, u]]
-        for k in CLASSES:
-            out[k] += int(np.sum(classes[won] == k))
+        per.append({k: int(np.sum(classes[won] == k)) for k in CLASSES})
+    return {k: sum(row[k] for row in per) for k in CLASSES}, per
+
+
+def wrong_per_camera(views, exact, *, tolerance_m: float = bench.TRUTH_TOLERANCE_M) -> list:
+    """[(N,) bool per camera]: points that camera sees at a pixel whose exact depth differs from theirs
+    by more than ``tolerance_m`` (or is sky); :func:`benchmarks.accuracy_twins.truth_filtered_keep`
+    removes the union of these."""
+    out = []
+    for (inside, uv, z), truth in zip(views, exact):
+        seen = np.zeros(len(z))
+        seen[inside] = truth[uv[inside, 1], uv[inside, 0]]
+        out.append(inside & ((seen == 0) | (np.abs(seen - z) > tolerance_m)))
     return out
+
+
+def sweep_loss(inp, exact, config, wrong, views) -> dict:
+    """Per-camera SGM scores (RMSE / MAE mm) of the reference sweep alone (what one sweep gives: the same
+    scores as the single-sweep path, docs/multi_source.md), every sweep (the default), and every sweep
+    without the older sweeps' wrong points (an oracle of point removal that leaves the reference sweep
+    alone), with and without the free-space rules: where extra sweeps lose, and what perfect removal
+    of older points could give back. ``*_per_camera`` rows remove, for each camera's image, only the
+    points wrong in that camera (one run per camera): the accuracy table's oracle removes a point
+    wrong in any camera from every camera, which opens holes where cameras overlap."""
+    from jaxdepth.batch.sources_job import complete_cloud
+    c = inp.cloud
+    older = c.sweep[c.source] != 0
+
+    def run(keep, rules):
+        return bench.crops(complete_cloud(c.take(keep), inp.rig, config=config, free_space=rules), inp.rig)
+
+    runs = {"reference_sweep_alone": run(~older, True), "every_sweep": run(np.ones_like(older), True),
+            "older_wrong_removed": run(~(older & wrong), True),
+            "older_wrong_removed_no_rules": run(~(older & wrong), False)}
+    per_cam = wrong_per_camera(views, exact)
+    for name, base, only_older, rules in (("reference_wrong_removed_per_camera", ~older, False, True),
+                                          ("older_wrong_removed_per_camera", True, True, True),
+                                          ("every_wrong_removed_per_camera", True, False, False)):
+        runs[name] = [run(base & ~(w & older if only_older else w), rules)[i] for i, w in enumerate(per_cam)]
+    return {name: bench.score(pred, exact) for name, pred in runs.items()}
 
 
 def main(argv=None) -> int:
@@ -168,7 +210,7 @@ def main(argv=None) -> int:
     wrong = np.abs(np.nan_to_num(err, nan=0.0)) > bench.TRUTH_TOLERANCE_M
     classes = point_classes(twin, inp, err)
     rules = rule_verdicts(inp, config)
-    spoiled = spoiled_pixels(inp, config, views, rules["removed"], wrong, classes)
+    spoiled, spoiled_per_camera = spoiled_pixels(inp, config, views, rules["removed"], wrong, classes)
     table = {}
     for k in CLASSES:
         m = wrong & (classes == k)
@@ -181,12 +223,19 @@ def main(argv=None) -> int:
     result = {"rig": args.rig, "sweeps": args.sweeps, "seed": args.seed, "scale": args.scale,
               "witness_cell": args.witness_cell, "points": int(len(wrong)), "wrong": int(wrong.sum()),
               "right_older_points_removed": int((~wrong & older & rules["removed"]).sum()),
-              "right_older_points": int((~wrong & older).sum()), "classes": table}
+              "right_older_points": int((~wrong & older).sum()), "classes": table,
+              "cameras": [c.name for c in inp.rig.cameras], "pixels_spoiled_per_camera": spoiled_per_camera,
+              "scores": sweep_loss(inp, exact, config, wrong, views)}
     print(f"{args.rig}, {args.sweeps} sweeps, seed {args.seed}, witness cell {args.witness_cell}: "
           f"{len(wrong)} points, {int(wrong.sum())} wrong; right older points removed "
           f"{result['right_older_points_removed']} of {result['right_older_points']}")
     for k, row in table.items():
         print(f"  {k:10s} " + "  ".join(f"{n} {v}" for n, v in row.items()))
+    for name, row in zip(result["cameras"], spoiled_per_camera):
+        print(f"  {name}: pixels spoiled " + "  ".join(f"{k} {v}" for k, v in row.items()))
+    for name, sc in result["scores"].items():
+        print(f"  {name:30s} {sc['rmse']:7.1f} / {sc['mae']:6.1f} | "
+              + " ".join(f"{r['rmse']:.0f}/{r['mae']:.0f}" for r in sc["per_camera"]))
     write_results(args.json or RESULTS / f"twins_wrong_points_{args.rig}_{args.sweeps}.json", result, config, t0)
     return 0
 
