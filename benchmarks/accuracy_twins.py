@@ -1,8 +1,12 @@
 """Every method on every digital twin, scored against exact depth and through ``hidden-eval``'s protocols.
 
     python -m benchmarks.accuracy_twins [--rigs kitti av2 ...] [--sweeps 1 3 5] [--seeds 0]
-        [--hidden-seeds 0] [--scale 0.25] [--above-scan plane|background]
+        [--hidden-seeds 0] [--scale S] [--above-scan plane|background]
         [--json benchmarks/results/accuracy_twins.json]
+
+Each twin runs at its own camera scale (:data:`DEFAULT_SCALES`: the real camera sizes where a
+full-size run is affordable on the shared 2-core machine: today every twin); ``--scale``
+sets one scale for every twin. Each case records its scale and camera sizes.
 
 The twins (:mod:`jaxdepth.research.twins`, ``docs/twins.md``: ray-cast copies of the KITTI,
 nuScenes, Argoverse 2, a merged raster and a rosette rig, exact camera depth) are written to disk
@@ -65,6 +69,29 @@ KEYS = ("rmse", "mae")
 FRACTION = 0.2
 MIN_RANGE_M = 1.0
 TRUTH_TOLERANCE_M = 0.5
+# The camera scale each twin runs at unless --scale is given (1.0: the real rig's camera sizes). Every
+# twin runs at full size, Argoverse 2's 7 cameras (22 Mpx) too: a case with hold-out takes 4-10 min on
+# the shared 2-core machine (run times: docs/twins.md, "Camera scale"). A rig too big for that gets < 1.
+DEFAULT_SCALES = {"kitti": 1.0, "nuscenes": 1.0, "av2": 1.0, "raster": 1.0, "rosette": 1.0}
+
+
+def rig_scale(rig: str, override: float | None = None) -> float:
+    """The camera scale twin ``rig`` runs at: ``override`` (``--scale``) if given, else :data:`DEFAULT_SCALES`."""
+    return float(DEFAULT_SCALES[rig] if override is None else override)
+
+
+def twin_camera_sizes(rig: str, scale: float) -> list:
+    """[[W, H], ...] of twin ``rig``'s cameras at ``scale``, as ``make_twin`` sizes them (without building it)."""
+    from jaxdepth.research.twin_rigs import RIG_BUILDERS
+    from jaxdepth.research.twin_sensors import SensorEffects
+    return [[max(1, round(w * scale)), max(1, round(h * scale))]
+            for _, _, w, h, _ in RIG_BUILDERS[rig](SensorEffects()).cameras]
+
+
+def size_label(scale: float, sizes: list) -> str:
+    """``"1 (1242 x 375)"``: a twin's camera scale and its cameras' most common size."""
+    w, h = max(sizes, key=lambda s: (sizes.count(s), s))
+    return f"{scale:g} ({w} x {h})"
 
 
 # ---------------------------------------------------------------- the user's input, read as complete-rig reads it
@@ -299,6 +326,7 @@ def run_case(make_twin, write_twin, rig_name: str, sweeps: int, seed: int, *, hi
     everything = np.ones(len(inp.cloud.points), bool)
     full = predictions(inp, everything, config)
     case = {"rig": rig_name, "sensor_class": twin.sensor_class, "sweeps": sweeps, "seed": seed,
+            "scale": float(scale), "camera_sizes": [[int(c.width), int(c.height)] for c in inp.rig.cameras],
             "path": "multi-source" if inp.multi else "single-sweep", "points": len(inp.cloud.points),
             "cameras": [c.name for c in inp.rig.cameras],
             "full": {m: score(full[m], exact) for m in METHODS}, "held_out": []}
@@ -361,8 +389,20 @@ def _mean(rows: list, key: str) -> float:
     return float(np.mean([r[key] for r in rows]))
 
 
+def scales(cases: list) -> dict:
+    """{rig: camera scale} of the cases; a ValueError if one twin's cases mix scales (their scores
+    are not comparable: one table row per twin and sweep count)."""
+    out = {}
+    for c in cases:
+        if out.setdefault(c["rig"], c["scale"]) != c["scale"]:
+            raise ValueError(f"accuracy_twins: field 'scale' of the {c['rig']} cases expected one value, got "
+                             f"{sorted({x['scale'] for x in cases if x['rig'] == c['rig']})}")
+    return out
+
+
 def summary(cases: list) -> dict:
     """{rig: {sweeps: {method: {rmse, mae}}}}: full-input scores, mean over seeds (and the oracle row)."""
+    scales(cases)
     out = {}
     for rig in dict.fromkeys(c["rig"] for c in cases):
         for n in sorted({c["sweeps"] for c in cases if c["rig"] == rig}):
@@ -398,13 +438,53 @@ def targets_check(table: dict) -> dict:
     return out
 
 
+def describe_part(cases: list) -> str:
+    """A one-line description of a result file's cases: each twin's scale, sweep counts, seeds, hold-outs."""
+    out = []
+    for rig in dict.fromkeys(c["rig"] for c in cases):
+        mine = [c for c in cases if c["rig"] == rig]
+        draws = sorted({d["hidden_seed"] for c in mine for d in c["held_out"]})
+        out.append(f"{rig} at camera scale {mine[0]['scale']:g}, sweeps "
+                   + " ".join(str(n) for n in sorted({c["sweeps"] for c in mine}))
+                   + ", seeds " + " ".join(str(x) for x in sorted({c["seed"] for c in mine}))
+                   + (", hold-out seeds " + " ".join(map(str, draws)) if draws else ", no hold-out"))
+    return "; ".join(out)
+
+
+def merge_parts(parts: list, notes: list) -> tuple:
+    """(cases, merged_from) of result documents merged in order. A case without a ``scale`` (a file
+    written before scales were per twin) takes its file's ``settings.scale``. A later file's cases
+    replace earlier cases of the same (twin, sweeps, seed), and every earlier case of a twin that the
+    later file runs at another scale. Cases come out in :data:`RIGS` order, then by sweeps and seed.
+    ``merged_from``: per file, what it contributed (no paths)."""
+    kept = []                                           # (part index, case)
+    for i, doc in enumerate(parts):
+        new = [dict(c, scale=float(c.get("scale", doc["settings"]["scale"]))) for c in doc["cases"]]
+        new = [c if "camera_sizes" in c else dict(c, camera_sizes=twin_camera_sizes(c["rig"], c["scale"]))
+               for c in new]
+        ids = {(c["rig"], c["sweeps"], c["seed"]) for c in new}
+        scale_of = {c["rig"]: c["scale"] for c in new}
+        kept = [(j, c) for j, c in kept if (c["rig"], c["sweeps"], c["seed"]) not in ids
+                and scale_of.get(c["rig"], c["scale"]) == c["scale"]]
+        kept += [(i, c) for c in new]
+    merged_from = []
+    for i, (doc, note) in enumerate(zip(parts, notes)):
+        mine = [c for j, c in kept if j == i]
+        if mine:
+            entry = {"cases": describe_part(mine), "run_seconds": doc.get("run_seconds", doc["seconds"])}
+            merged_from.append(dict(entry, note=note) if note else entry)
+    order = sorted(kept, key=lambda jc: (RIGS.index(jc[1]["rig"]), jc[1]["sweeps"], jc[1]["seed"]))
+    return [c for _, c in order], merged_from
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rigs", nargs="+", default=list(RIGS), choices=RIGS)
     parser.add_argument("--sweeps", nargs="+", type=int, default=[1, 3, 5])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--hidden-seeds", nargs="+", type=int, default=[0])
-    parser.add_argument("--scale", type=float, default=0.25, help="camera scale of the twins (1: real sizes)")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="camera scale of every twin (1: real sizes; default: each twin's DEFAULT_SCALES)")
     parser.add_argument("--json", default=str(RESULTS / "accuracy_twins.json"))
     parser.add_argument("--diagnose", action="store_true",
                         help="also the SGM with removal forced on where the sweep check turns it off")
@@ -413,21 +493,27 @@ def main(argv=None) -> int:
                         help="SGMConfig.above_scan of every SGM method (default: the library's)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
-                        help="write --json from the cases of these result files (runs split by --sweeps) and exit")
+                        help="write --json from the cases of these result files and exit; a later file's cases "
+                             "replace earlier ones of the same twin, sweeps and seed, or of that twin at another scale")
+    parser.add_argument("--notes", nargs="+", metavar="TEXT", default=(),
+                        help="with --merge: one note per file (what its run was), recorded in merged_from")
     args = parser.parse_args(argv)
     if args.tables:
         print(markdown(json.loads(pathlib.Path(args.tables).read_text())))
         return 0
     t0 = time.time()
     if args.merge:
+        if args.notes and len(args.notes) != len(args.merge):
+            parser.error(f"--notes: expected one note per --merge file ({len(args.merge)}), got {len(args.notes)}")
         parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
-        cases = [c for d in parts for c in d["cases"]]
-        for key in ("rigs", "sweeps", "seeds", "hidden_seeds"):
-            setattr(args, key, sorted({x for d in parts for x in d["settings"][key]}, key=str))
-        args.scale = parts[0]["settings"]["scale"]
+        cases, merged_from = merge_parts(parts, list(args.notes) or [None] * len(parts))
+        args.rigs = list(dict.fromkeys(c["rig"] for c in cases))
+        args.sweeps = sorted({c["sweeps"] for c in cases})
+        args.seeds = sorted({c["seed"] for c in cases})
+        args.hidden_seeds = sorted({d["hidden_seed"] for c in cases for d in c["held_out"]})
+        args.scale = None
         doc = document(cases, args, complete=all(d["complete"] for d in parts))
-        write_results(args.json, dict(doc, merged_from=[str(f) for f in args.merge],
-                                      run_seconds=[d["seconds"] for d in parts]), SGMConfig(), t0)
+        write_results(args.json, dict(doc, merged_from=merged_from), SGMConfig(), t0)
         return 0
     config = SGMConfig(above_scan=args.above_scan)
     from jaxdepth.research.twins import make_twin, write_twin
@@ -435,10 +521,11 @@ def main(argv=None) -> int:
     for n in args.sweeps:
         for rig in args.rigs:
             for seed in args.seeds:
-                case = run_case(make_twin, write_twin, rig, n, seed, config=config, scale=args.scale,
+                case = run_case(make_twin, write_twin, rig, n, seed, config=config,
+                                scale=rig_scale(rig, args.scale),
                                 hidden_seeds=() if args.no_hold_out else args.hidden_seeds, diagnose=args.diagnose)
                 cases.append(case)
-                print(f"{rig} sweeps={n} seed={seed} ({case['path']}, {time.time() - t0:.0f} s): " + ", ".join(
+                print(f"{rig} scale={case['scale']:g} sweeps={n} seed={seed} ({case['path']}, {time.time() - t0:.0f} s): " + ", ".join(
                     f"{m} {case['full'][m]['rmse']:.0f}/{case['full'][m]['mae']:.0f}" for m in METHODS), flush=True)
                 write_results(args.json, document(cases, args, complete=False), config, t0)
     doc = document(cases, args, complete=True)
@@ -456,8 +543,10 @@ def markdown(doc: dict) -> str:
     short = {"sgm": "SGM", "sgm_no_removal": "no removal", "sgm_no_free_space": "no free space",
              "sgm_one_cloud": "one cloud", "nearest": "city block", "nearest_l2": "Euclidean", "ip_basic": "IP_Basic",
              "oracle_truth_filtered": "oracle bound"}
-    lines = ["| twin | sweeps | " + " | ".join(short[m] for m in METHODS) + " | oracle bound |",
-             "|---|---|" + "---|" * (len(METHODS) + 1)]
+    sizes = doc["settings"]["camera_sizes"]
+    label = {rig: size_label(scale, sizes[rig]) for rig, scale in doc["settings"]["scales"].items()}
+    lines = ["| twin | camera scale | sweeps | " + " | ".join(short[m] for m in METHODS) + " | oracle bound |",
+             "|---|---|---|" + "---|" * (len(METHODS) + 1)]
     for rig, rows in doc["summary"].items():
         for n in sorted(rows, key=int):
             row = rows[n]
@@ -466,18 +555,21 @@ def markdown(doc: dict) -> str:
                       else f"{row[m]['rmse']:.0f} / {row[m]['mae']:.0f}") for m in METHODS]
             orc = row.get("oracle_truth_filtered")
             cells.append("-" if orc is None else f"{orc['rmse']:.0f} / {orc['mae']:.0f}")
-            lines.append(f"| {rig} | {n} | " + " | ".join(cells) + " |")
-    lines += ["", "| twin | SGM vs city block, 1 sweep | 5 sweeps | 5 sweeps vs 1 | oracle bound 5 vs 1 | met |",
-              "|---|---|---|---|---|---|"]
+            lines.append(f"| {rig} | {label[rig]} | {n} | " + " | ".join(cells) + " |")
+    lines += ["", "| twin | camera scale | SGM vs city block, 1 sweep | 5 sweeps | 5 sweeps vs 1 | "
+              "oracle bound 5 vs 1 | met |", "|---|---|---|---|---|---|---|"]
     for rig, t in doc["targets"].items():
         def pct(d):
             return "-" if d is None else f"{d['rmse']:+.1f} / {d['mae']:+.1f} %"
         vs = t["sgm_vs_nearest_pct"]
-        lines.append(f"| {rig} | {pct(vs.get('1'))} | {pct(vs.get('5'))} | {pct(t.get('gain_5_vs_1_pct'))} | "
+        lines.append(f"| {rig} | {label[rig]} | {pct(vs.get('1'))} | {pct(vs.get('5'))} | {pct(t.get('gain_5_vs_1_pct'))} | "
                      f"{pct(t.get('oracle_gain_5_vs_1_pct'))} | {'yes' if t['met'] else 'no'} |")
     agree = doc["agreement"]
+    if not agree["rmse"]:                               # no hold-out (--no-hold-out): no agreement table
+        return "\n".join(lines)
     rigs = [r for r in doc["summary"] if r in agree["rmse"].get("hidden_all", {})] + ["overall"]
-    lines += ["", "| protocol | " + " | ".join(rigs) + " |", "|---|" + "---|" * len(rigs)]
+    head = [f"{r} ({doc['settings']['scales'][r]:g})" if r != "overall" else r for r in rigs]
+    lines += ["", "| protocol | " + " | ".join(head) + " |", "|---|" + "---|" * len(rigs)]
     for p in PROTOCOLS[1:]:
         cells = []
         for r in rigs:
@@ -490,8 +582,10 @@ def markdown(doc: dict) -> str:
 def document(cases: list, args, *, complete: bool) -> dict:
     """The JSON document of the cases run so far (``complete`` False while the run goes on)."""
     table = summary(cases)
+    sizes = {c["rig"]: c["camera_sizes"] for c in cases if "camera_sizes" in c}
     return {"settings": {"rigs": args.rigs, "sweeps": args.sweeps, "seeds": args.seeds,
-                        "hidden_seeds": args.hidden_seeds, "scale": args.scale, "fraction": FRACTION,
+                        "hidden_seeds": args.hidden_seeds, "scale": args.scale, "scales": scales(cases),
+                        "camera_sizes": sizes, "fraction": FRACTION,
                         "min_range_m": MIN_RANGE_M,
                         "defaults_chosen_on": "none (every option is the library default)",
                         "above_scan": getattr(args, "above_scan", SGMConfig().above_scan)},

@@ -10,23 +10,29 @@ first call (trace + compile + one run) reported apart, ``block_until_ready`` bef
   = 29.4 Mpx):
 
   - ``rig stages`` : ``complete_sources_stages(...)`` then ``.depth`` (what ``complete_cloud``
-    runs: every stage leaves the program);
-  - ``rig depth``  : the same in a jit that returns only the depth (tried; measured slower);
+    runs: every stage leaves the program), the cameras grouped by size (six on 1550 x 2048, one
+    on 2048 x 1550);
+  - ``rig stages, one canvas`` : the same program with every camera on the 2048 x 2048 canvas
+    (``RigCameras.sizes=None``: the program before the grouping; outputs identical in each
+    camera's window);
+  - ``rig depth`` (``--depth-only``) : the grouped program in a jit that returns only the depth
+    (tried before the grouping; no consistent gain);
   - ``single cameras`` : the single-camera path (``complete_points``, one camera at its own
     size, the sweep's points as one source at the ego origin, 64 merged lasers) over the 7
     cameras in a loop: the same pixels without the canvas;
   - ``nearest`` : a nearest fill of the same sweep through the public API (``project_to_image``
     per camera on the canvas, then ``complete_with(method="nearest")`` without outlier removal);
-  - the rig path's stages, each jitted apart over the 7 cameras: source normals, projection
-    (z-buffer, points and normals per pixel, each pixel's source), Step 2 (one pass, each
-    point's own origin), Steps 3-4 (seeds, residual, bracket, blur).
+  - the rig path's stages, each jitted apart over the cameras of one size group (grouped, and
+    ``one canvas stage``: all 7 on the canvas): source normals, projection (z-buffer, points and
+    normals per pixel, each pixel's source), Step 2 (one pass, each point's own origin), Steps 3-4
+    (seeds, residual, bracket, blur).
 
-* nuScenes sample (one HDL-32E, 6 cameras of 900 x 1600, 8.6 Mpx): ``complete_rig_stages`` (and the
-  depth-only jit) against a loop of ``complete_points`` over the cameras and the nearest fill.
+* nuScenes sample (one HDL-32E, 6 cameras of 900 x 1600, 8.6 Mpx, one size: one group):
+  ``complete_rig_stages`` against a loop of ``complete_points`` over the cameras and the nearest fill.
 
 Writes benchmarks/results/rigs.json.
 
-    python -m benchmarks.bench_rigs [--repeats 3] [--skip-stages] [--skip-nuscenes]
+    python -m benchmarks.bench_rigs [--repeats 3] [--skip-stages] [--skip-nuscenes] [--depth-only]
 """
 
 from __future__ import annotations
@@ -76,8 +82,10 @@ def _single_fns(points, valid, rig_cameras, spec, config):
     return lambda: [jaxdepth.complete_points(points, valid, c, config=config, lidar=spec) for c in cams]
 
 
-def _stage_fns(sources, cameras, config):
-    """The rig path's stages, each its own jit over every camera: ``{name: thunk}`` (inputs precomputed)."""
+def _stage_fns(sources, cameras, config, prefix="stage"):
+    """The rig path's stages, each its own jit over the cameras of one size group (every camera on the
+    canvas when ``cameras.sizes`` is None), the groups one after another: ``{name: thunk}`` (inputs
+    precomputed)."""
     import jax
     import jax.numpy as jnp
 
@@ -87,7 +95,7 @@ def _stage_fns(sources, cameras, config):
         clear_outside_window,
         project_with_normals,
     )
-    h, w = cameras.height, cameras.width
+    from jaxdepth._src.rig import size_groups
     s, p = sources.points.shape[:2]
     beams = S.default_beams(sources)
     normals_fn = jax.jit(lambda src: S.source_normals(src, smoothing=config.normal_smoothing,
@@ -96,33 +104,41 @@ def _stage_fns(sources, cameras, config):
     points, valid = sources.points.reshape(-1, 3), sources.valid.reshape(-1)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
-    @jax.jit
-    @jax.vmap
-    def project(K, T, size):
-        depth, index, pc, nc = project_with_normals(points, valid, normals, T, K, height=h, width=w, image_size=size)
-        hit = index >= 0
-        pixel_source = jnp.where(hit, source_id[jnp.where(hit, index, 0).reshape(-1)].reshape(h, w), -1)
-        return depth, pixel_source, pc, nc
+    def group(h, w, K, T, size):
+        @jax.jit
+        @jax.vmap
+        def project(K, T, size):
+            depth, index, pc, nc = project_with_normals(points, valid, normals, T, K, height=h, width=w,
+                                                        image_size=size)
+            hit = index >= 0
+            pixel_source = jnp.where(hit, source_id[jnp.where(hit, index, 0).reshape(-1)].reshape(h, w), -1)
+            return depth, pixel_source, pc, nc
 
-    @jax.jit
-    @jax.vmap
-    def keep(depth, pixel_source, pc, K, T):
-        T_cam_sources = jnp.einsum("ij,sjk->sik", T, sources.T_ref_source)
-        return S.source_keep_mask(depth, pixel_source, pc, K, T_cam_sources, beams=beams, config=config)
+        @jax.jit
+        @jax.vmap
+        def keep(depth, pixel_source, pc, K, T, size):
+            T_cam_sources = jnp.einsum("ij,sjk->sik", T, sources.T_ref_source)
+            return S.source_keep_mask(depth, pixel_source, pc, K, T_cam_sources, beams=beams, config=config,
+                                      image_size=size)
 
-    @jax.jit
-    @jax.vmap
-    def tail(depth, nc, pc, K, T, kept, size):
-        stages = _complete_tail(depth, nc, pc, K, T, beams=beams, config=config, keep=kept)
-        return clear_outside_window(stages, size).depth
+        @jax.jit
+        @jax.vmap
+        def tail(depth, nc, pc, K, T, kept, size):
+            stages = _complete_tail(depth, nc, pc, K, T, beams=beams, config=config, keep=kept, image_size=size)
+            return clear_outside_window(stages, size).depth
 
-    K, T, size = cameras.K, cameras.T_cam_lidar, cameras.image_size
-    depth, pixel_source, pc, nc = project(K, T, size)
-    kept = keep(depth, pixel_source, pc, K, T)
-    return {"stage: source normals (Step 1)": lambda: normals_fn(sources),
-            "stage: projection": lambda: project(K, T, size),
-            "stage: Step 2 (per-source viewpoints)": lambda: keep(depth, pixel_source, pc, K, T),
-            "stage: Steps 3-4": lambda: tail(depth, nc, pc, K, T, kept, size)}
+        depth, pixel_source, pc, nc = project(K, T, size)
+        kept = keep(depth, pixel_source, pc, K, T, size)
+        return (lambda: project(K, T, size), lambda: keep(depth, pixel_source, pc, K, T, size),
+                lambda: tail(depth, nc, pc, K, T, kept, size))
+
+    groups = [group(h, w, cameras.K[idx], cameras.T_cam_lidar[idx], cameras.image_size[idx])
+              for (h, w), idx in size_groups(cameras)]
+    run_all = lambda k: lambda: [g[k]() for g in groups]  # noqa: E731
+    return {f"{prefix}: source normals (Step 1)": lambda: normals_fn(sources),
+            f"{prefix}: projection": run_all(0),
+            f"{prefix}: Step 2 (per-source viewpoints)": run_all(1),
+            f"{prefix}: Steps 3-4": run_all(2)}
 
 
 def _rounds(variants: dict, repeats: int, baseline: str) -> dict:
@@ -143,7 +159,9 @@ def _rounds(variants: dict, repeats: int, baseline: str) -> dict:
                 k: statistics.median(v[i] / runs[baseline][i] for i in range(repeats)) for k, v in runs.items()}}
 
 
-def av2_sweep(repeats: int, stages: bool) -> dict:
+def av2_sweep(repeats: int, stages: bool, depth_only: bool = False) -> dict:
+    import dataclasses
+
     import jax
 
     import jaxdepth
@@ -164,15 +182,20 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
     merged = LidarSpec(beams=2 * spec.beams, fov_up_deg=spec.fov_up_deg, fov_down_deg=spec.fov_down_deg,
                        columns=spec.columns)
     padded, valid = pad_points(cloud.points)
-    depth_only = jax.jit(lambda src, cams: S.complete_sources_stages(src, cams, config=config).depth)
+    one_canvas = dataclasses.replace(cameras, sizes=None)     # every camera on the 2048 x 2048 canvas
     variants = {
-        "rig depth": lambda: depth_only(sources, cameras),
         "rig stages": lambda: np.asarray(S.complete_sources_stages(sources, cameras, config=config).depth),
+        "rig stages, one canvas": lambda: np.asarray(
+            S.complete_sources_stages(sources, one_canvas, config=config).depth),
         "single cameras": _single_fns(padded, valid, rig.cameras, merged, config),
         "nearest": _nearest_fn(padded, valid, cameras),
     }
+    if depth_only:
+        depth_fn = jax.jit(lambda src, cams: S.complete_sources_stages(src, cams, config=config).depth)
+        variants["rig depth"] = lambda: depth_fn(sources, cameras)
     if stages:
         variants.update(_stage_fns(sources, cameras, config))
+        variants.update(_stage_fns(sources, one_canvas, config, prefix="one canvas stage"))
     print(f"Argoverse 2: {len(cloud.points)} points, {sources.count} sources, {cameras.count} cameras, "
           f"{real_px / 1e6:.1f} Mpx real, {canvas_px / 1e6:.1f} Mpx canvas", flush=True)
     out = _rounds(variants, repeats, "single cameras")
@@ -183,8 +206,6 @@ def av2_sweep(repeats: int, stages: bool) -> dict:
 
 
 def nuscenes_sample(repeats: int) -> dict:
-    import jax
-
     import jaxdepth
     from jaxdepth.io import pad_points, read_points, rig_from_nuscenes_calibration
 
@@ -194,10 +215,7 @@ def nuscenes_sample(repeats: int) -> dict:
     padded, valid = pad_points(points)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
     real_px = sum(c.height * c.width for c in rig.cameras)
-    depth_only = jax.jit(lambda p, v, cams: jaxdepth.complete_rig_stages(p, v, cams, config=config,
-                                                                         lidar=rig.lidar).depth)
     variants = {
-        "rig depth": lambda: depth_only(padded, valid, cameras),
         "rig stages": lambda: np.asarray(jaxdepth.complete_rig_stages(padded, valid, cameras, config=config,
                                                                       lidar=rig.lidar).depth),
         "single cameras": _single_fns(padded, valid, rig.cameras, rig.lidar, config),
@@ -215,6 +233,8 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--skip-stages", action="store_true", help="no per-stage jits of the Argoverse 2 rig path")
     parser.add_argument("--skip-nuscenes", action="store_true")
+    parser.add_argument("--depth-only", action="store_true",
+                        help="also the depth-only jit of the rig path (tried: no consistent gain)")
     parser.add_argument("--json", default=str(RESULTS / "rigs.json"))
     args = parser.parse_args(argv)
     if not AV2_LOG.is_dir():
@@ -223,7 +243,7 @@ def main(argv=None) -> int:
     t0 = time.time()
     doc = {"what": "rig paths stage by stage against the single-camera path and a nearest fill, one process",
            "repeats": args.repeats,
-           "av2": av2_sweep(args.repeats, stages=not args.skip_stages)}
+           "av2": av2_sweep(args.repeats, stages=not args.skip_stages, depth_only=args.depth_only)}
     if not args.skip_nuscenes and NUSCENES.is_dir():
         doc["nuscenes"] = nuscenes_sample(args.repeats)
     write_results(args.json, doc, None, t0)

@@ -19,6 +19,8 @@ def test_one_twin_case_structure_and_scores(tmp_path):
     paths = write_twin(twin, tmp_path)
     inp = bench.read_user_input(paths["sweeps"][0], paths["rig"])
     assert inp.multi == bool(twin.rig.lidars)     # one point file: multi-source exactly when the rig has lidars
+    # the sizes a merge gives an old case without building its twin are make_twin's
+    assert bench.twin_camera_sizes("rosette", 0.1) == [[c.width, c.height] for c in twin.rig.cameras]
     exact = bench.exact_truth(twin, inp.rig)
     hidden, targets, full = bench.hold_out(inp, 0)
     truths, stats = bench.protocol_truths(exact, targets, full, bench.cover_half_height(inp))
@@ -79,3 +81,56 @@ def test_agreement_counts_pairs_against_an_analytic_answer():
     # pairs tied under the exact dense depth are left out
     flat = _case("c", {p: [1.0] * n for p in bench.PROTOCOLS})
     assert bench.agreement([flat]) == {"rmse": {}, "mae": {}}
+
+
+def _scaled_case(rig, sweeps, seed, value, scale=None, sizes=((8, 4),)):
+    case = {"rig": rig, "sweeps": sweeps, "seed": seed, "held_out": [],
+            "full": {m: {"rmse": value, "mae": value} for m in bench.METHODS}}
+    if scale is not None:
+        case.update(scale=scale, camera_sizes=[list(s) for s in sizes])
+    return case
+
+
+def _part(cases, scale=None, seconds=1.0):
+    return {"settings": {"scale": scale}, "cases": cases, "seconds": seconds, "complete": True}
+
+
+def test_each_twin_runs_at_its_own_scale_unless_overridden():
+    assert {bench.rig_scale(r) for r in bench.RIGS} == {1.0}                       # the real camera sizes
+    assert {bench.rig_scale(r, 0.5) for r in bench.RIGS} == {0.5}                 # --scale: one for all
+
+
+def test_merge_mixes_scales_across_twins_and_replaces_a_twin_run_at_another_scale():
+    old = _part([_scaled_case("kitti", n, 0, 10.0 + n) for n in (1, 3, 5)]
+                + [_scaled_case("av2", n, 0, 20.0 + n) for n in (1, 5)], scale=0.25)   # written before per-twin scales
+    new = _part([_scaled_case("kitti", n, 0, 30.0 + n, scale=1.0, sizes=((1242, 375), (1242, 375)))
+                 for n in (1, 5)])
+    extra = _part([_scaled_case("av2", 5, 0, 99.0, scale=0.25, sizes=((512, 388),))])
+    cases, merged_from = bench.merge_parts([old, new, extra], [None, "full-size KITTI", None])
+    got = {(c["rig"], c["sweeps"], c["scale"]): c["full"]["sgm"]["rmse"] for c in cases}
+    assert [(c["rig"], c["sweeps"]) for c in cases] == [("kitti", 1), ("kitti", 5), ("av2", 1), ("av2", 5)]
+    # every KITTI case at 0.25 goes (3 sweeps too: a twin keeps one scale); av2 5 is the later file's
+    assert got == {("kitti", 1, 1.0): 31.0, ("kitti", 5, 1.0): 35.0, ("av2", 1, 0.25): 21.0, ("av2", 5, 0.25): 99.0}
+    # an old case gets make_twin's camera sizes at its file's scale
+    assert [c["camera_sizes"] for c in cases if c["rig"] == "av2"][0] == bench.twin_camera_sizes("av2", 0.25)
+    assert [m["cases"] for m in merged_from] == [
+        "av2 at camera scale 0.25, sweeps 1, seeds 0, no hold-out",
+        "kitti at camera scale 1, sweeps 1 5, seeds 0, no hold-out",
+        "av2 at camera scale 0.25, sweeps 5, seeds 0, no hold-out"]
+    assert merged_from[1]["note"] == "full-size KITTI" and "note" not in merged_from[0]
+    assert bench.scales(cases) == {"kitti": 1.0, "av2": 0.25}
+    with pytest.raises(ValueError, match="field 'scale' of the kitti cases"):
+        bench.summary(cases + [_scaled_case("kitti", 3, 0, 1.0, scale=0.25)])
+
+
+def test_tables_state_each_twins_scale():
+    cases = ([_scaled_case("kitti", n, 0, 10.0, scale=1.0, sizes=((1242, 375), (1242, 375))) for n in (1, 5)]
+             + [_scaled_case("av2", n, 0, 20.0, scale=0.25, sizes=((388, 512), (512, 388), (512, 388)))
+                for n in (1, 5)])
+    args = type("Args", (), {"rigs": ["kitti", "av2"], "sweeps": [1, 5], "seeds": [0], "hidden_seeds": [],
+                             "scale": None})()
+    text = bench.markdown(bench.document(cases, args, complete=True))
+    rows = [line for line in text.splitlines() if line.startswith("| kitti") or line.startswith("| av2")]
+    assert len(rows) == 6                                    # 2 twins x 2 sweep counts, and the targets table
+    assert all("| 1 (1242 x 375) |" in r for r in rows if r.startswith("| kitti"))
+    assert all("| 0.25 (512 x 388) |" in r for r in rows if r.startswith("| av2"))

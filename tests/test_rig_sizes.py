@@ -7,7 +7,9 @@ blur's border and the above-scan window are the camera's own, and the padding is
 Oracle: :func:`jaxdepth.complete_points_stages` (one LiDAR) and
 :func:`jaxdepth.complete_sources` of a one-camera rig (several sources), at each camera's own
 size (the mask and seeds bit for bit, depths to float32 rounding). Plus jit == eager of the
-mixed-size rig.
+mixed-size rig, and the cameras grouped by size (one vmap per size on a canvas of that size) against
+the same program with every camera on the padded canvas (``RigCameras.sizes=None``): bit for bit
+inside each window, every field 0 (False) beyond it.
 """
 
 from __future__ import annotations
@@ -18,11 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import dataclasses
+
 from jaxdepth import complete_points_stages, complete_rig_stages, outlier_keep_mask, project_to_image, stack_cameras
 from jaxdepth._src.above_scan import background_above_scan
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.smoothing import gaussian_blur
 from jaxdepth._src import synthetic
+from jaxdepth._src.rig import size_groups, vmap_by_size
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 
 from _harness import assert_close, assert_tree_close, check_stage
@@ -96,6 +101,88 @@ def test_mixed_rig_jit_equals_eager(mixed_rig):
         eager = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
     np.testing.assert_array_equal(np.asarray(fast.inlier_mask), np.asarray(eager.inlier_mask))
     assert_tree_close(fast.depth, eager.depth, ulps=8, err_msg="jit != eager")
+
+
+def _assert_grouped_equals_one_canvas(grouped, one_canvas, cams):
+    """Every field of ``grouped`` equals ``one_canvas`` bit for bit in each camera's window, 0 beyond it."""
+    for name in grouped._fields:
+        for i, cam in enumerate(cams):
+            got, want = np.array(getattr(grouped, name)[i]), np.asarray(getattr(one_canvas, name)[i])
+            assert got.shape == want.shape == got.shape[:-2] + (40, 40)
+            window = (Ellipsis, slice(cam.height), slice(cam.width))
+            np.testing.assert_array_equal(got[window], want[window], err_msg=f"camera {i} field {name}")
+            got[window] = 0
+            assert not got.any(), f"camera {i} field {name}: not 0 beyond the window"
+
+
+@pytest.mark.slow  # the rig's program with every camera on the canvas (the grouped one is the tests' above)
+def test_rig_grouped_by_size_equals_one_canvas(mixed_rig):
+    points, valid, cams = mixed_rig
+    cameras = stack_cameras(cams)
+    assert cameras.sizes == ((24, 40), (40, 24), (24, 40))
+    one_canvas = dataclasses.replace(cameras, sizes=None)
+    _assert_grouped_equals_one_canvas(complete_rig_stages(points, valid, cameras, lidar=LIDAR),
+                                      complete_rig_stages(points, valid, one_canvas, lidar=LIDAR), cams)
+
+
+@pytest.mark.slow  # the several-sources program with every camera on the canvas
+def test_sources_grouped_by_size_equals_one_canvas(mixed_rig):
+    points, valid, cams = mixed_rig
+    # Two sources of two sweeps (the second the first moved by 0.3 m): the free-space and occlusion
+    # verdicts (once per sweep, outside the camera groups) reach every group.
+    shift = np.eye(4, dtype=np.float32)
+    shift[0, 3] = 0.3
+    sources = make_sources(np.stack([points, points + shift[:3, 3]]), np.stack([valid, valid]),
+                           np.stack([np.eye(4, dtype=np.float32), shift]), lidars=(LIDAR, LIDAR), sweep=(0, 1))
+    cameras = stack_cameras(cams)
+    _assert_grouped_equals_one_canvas(complete_sources_stages(sources, cameras),
+                                      complete_sources_stages(sources, dataclasses.replace(cameras, sizes=None)), cams)
+
+
+def test_size_groups_are_static_in_first_appearance_order():
+    cams = [small_camera(h=h, w=w) for h, w in ((24, 40), (40, 24), (24, 40), (31, 33), (40, 24))]
+    cameras = stack_cameras(cams)
+    assert (cameras.height, cameras.width) == (40, 40)
+    groups = size_groups(cameras)
+    assert [size for size, _ in groups] == [(24, 40), (40, 24), (31, 33)]
+    assert [idx.tolist() for _, idx in groups] == [[0, 2], [1, 4], [3]]
+    one = size_groups(dataclasses.replace(cameras, sizes=None))
+    assert len(one) == 1 and one[0][0] == (40, 40) and one[0][1].tolist() == [0, 1, 2, 3, 4]
+    assert jax.tree_util.tree_structure(cameras) != jax.tree_util.tree_structure(
+        dataclasses.replace(cameras, sizes=None))      # the sizes are static: part of a jit's key
+
+
+@pytest.mark.parametrize("colour", [False, True])
+def test_vmap_by_size_puts_each_camera_back_on_the_canvas(colour):
+    """A per-camera function on each group's own (h, w) canvas: its output for camera ``i`` (NumPy
+    oracle: built from K, the size and the image's top-left corner) lands at index ``i`` of the (C, H,
+    W) canvas, zeros beyond; under jit == eager, and every camera's image cropped to its group."""
+    sizes = ((24, 40), (40, 24), (24, 40), (31, 33))
+    cameras = stack_cameras([small_camera(h=h, w=w, f=20.0 + i) for i, (h, w) in enumerate(sizes)])
+    rng = np.random.default_rng(3)
+    images = rng.uniform(0, 1, (4, 40, 40) + ((3,) if colour else ())).astype(np.float32)
+
+    def per_camera(K, T, size, image, *, height, width):
+        grey = image if image.ndim == 2 else image.sum(-1)
+        assert grey.shape == (height, width)       # the group's canvas, static
+        rows = jnp.arange(height, dtype=jnp.float32)[:, None]
+        return {"value": K[0, 0] + 100 * rows + grey + T[0, 0] * size[1], "hit": grey > 0.5}
+
+    def oracle(i, h, w):
+        grey = images[i] if not colour else images[i].sum(-1)
+        value = np.zeros((40, 40), np.float32)
+        t00 = np.asarray(cameras.T_cam_lidar)[i, 0, 0]
+        value[:h, :w] = np.float32(20.0 + i) + 100 * np.arange(h, dtype=np.float32)[:, None] + grey[:h, :w] + t00 * w
+        hit = np.zeros((40, 40), bool)
+        hit[:h, :w] = grey[:h, :w] > 0.5
+        return value, hit
+
+    run = jax.jit(lambda cams, ims: vmap_by_size(per_camera, cams, ims))
+    for out in (run(cameras, images), vmap_by_size(per_camera, cameras, jnp.asarray(images))):
+        for i, (h, w) in enumerate(sizes):
+            value, hit = oracle(i, h, w)
+            np.testing.assert_allclose(np.asarray(out["value"][i]), value, rtol=1e-6, err_msg=f"camera {i}")
+            np.testing.assert_array_equal(np.asarray(out["hit"][i]), hit, err_msg=f"camera {i}")
 
 
 # ---- The stages one by one (no pipeline compiled): each with ``image_size`` on a 40 x 40 canvas

@@ -1,14 +1,21 @@
 """Several cameras from one sweep: the range image and normals once, the cameras vmapped.
 
-Cameras of different sizes share one padded (H, W) canvas; each keeps a traced
+Cameras of different sizes share one padded (H, W) canvas in the outputs; each keeps a traced
 ``image_size`` window, points outside it are not projected, and the output
-outside it is 0. Every stage uses the camera's own size, never the canvas's:
+outside it is 0. Inside the program the cameras are grouped by size (the static
+``RigCameras.sizes``): one vmap per group of equal-sized cameras on a canvas of
+exactly that size, so no camera computes the padding (the Argoverse 2 rig: six
+landscape cameras on 1550 x 2048 and the portrait one on 2048 x 1550, not seven
+on 2048 x 2048); the results are padded back onto the (C, H, W) canvas in camera
+order (:func:`vmap_by_size`). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
 the mask and seeds bit for bit, the depths to float32 rounding (the vmapped body
-is fused differently; tests/test_rig_sizes.py).
+is fused differently; tests/test_rig_sizes.py). On a real sweep that rounding can
+also move a projected point into the next pixel (a vmapped and an unbatched
+projection round u, v apart; docs/speed.md, "Grouped by size").
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
@@ -49,6 +56,10 @@ class RigCameras:
       K: (C, 3, 3) float32. T_cam_lidar: (C, 4, 4) float32.
       image_size: (C, 2) int32 (height, width) of each real image (<= canvas).
       height, width: static canvas size.
+      sizes: static tuple of C ``(height, width)`` int pairs, the values of ``image_size``
+        (:func:`stack_cameras` fills both): the rig programs run each group of equal-sized
+        cameras on a canvas of that size (:func:`vmap_by_size`). None: unknown, every camera
+        on the (height, width) canvas.
     """
 
     K: jax.Array
@@ -56,6 +67,7 @@ class RigCameras:
     image_size: jax.Array
     height: int = dataclasses.field(metadata=dict(static=True))
     width: int = dataclasses.field(metadata=dict(static=True))
+    sizes: tuple | None = dataclasses.field(default=None, metadata=dict(static=True))
 
     @property
     def count(self) -> int:
@@ -152,13 +164,54 @@ def stack_cameras(cameras) -> RigCameras:
     cameras = list(cameras)
     if not cameras:
         raise ValueError("stack_cameras: expected at least one camera, got none")
-    height = max(int(c.height) for c in cameras)
-    width = max(int(c.width) for c in cameras)
+    sizes = tuple((int(c.height), int(c.width)) for c in cameras)
     return RigCameras(
         K=jnp.asarray(np.stack([np.asarray(c.K, np.float32) for c in cameras])),
         T_cam_lidar=jnp.asarray(np.stack([np.asarray(c.T_cam_lidar, np.float32) for c in cameras])),
-        image_size=jnp.asarray(np.array([[c.height, c.width] for c in cameras], np.int32)),
-        height=height, width=width)
+        image_size=jnp.asarray(np.array(sizes, np.int32)),
+        height=max(h for h, _ in sizes), width=max(w for _, w in sizes), sizes=sizes)
+
+
+def size_groups(cameras: RigCameras) -> tuple:
+    """Static ``((height, width), camera indices)`` per distinct camera size, in order of first
+    appearance; without ``cameras.sizes`` one group: the canvas, every camera."""
+    if cameras.sizes is None:
+        return (((cameras.height, cameras.width), np.arange(cameras.count)),)
+    groups: dict = {}
+    for i, size in enumerate(cameras.sizes):
+        groups.setdefault(tuple(int(x) for x in size), []).append(i)
+    return tuple((size, np.asarray(idx)) for size, idx in groups.items())
+
+
+def _pad_to_canvas(x: jax.Array, height: int, width: int) -> jax.Array:
+    """(..., h, w) -> (..., height, width): ``x`` in the top-left corner, zeros (False) beyond."""
+    pad = [(0, 0, 0)] * (x.ndim - 2) + [(0, height - x.shape[-2], 0), (0, width - x.shape[-1], 0)]
+    return jax.lax.pad(x, jnp.zeros((), x.dtype), pad)
+
+
+def vmap_by_size(per_camera, cameras: RigCameras, images=None):
+    """Runs ``per_camera(K, T_cam_lidar, size, image, *, height, width)`` for every camera, one
+    vmap per size group (:func:`size_groups`) on a canvas of the group's size.
+
+    ``images``: None or (C, H, W[, 3]) on the rig's canvas; each group gets its top-left
+    (h, w) corner. Returns the pytree of ``per_camera``'s (..., h, w) arrays with a leading C
+    axis, in camera order, each padded onto the (H, W) canvas with zeros (False). One group
+    of the canvas's size (every same-size rig) is one vmap over the stacked cameras, as before
+    the grouping.
+    """
+    groups = size_groups(cameras)
+    if len(groups) == 1 and groups[0][0] == (cameras.height, cameras.width):
+        run = functools.partial(per_camera, height=cameras.height, width=cameras.width)
+        return jax.vmap(run)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
+    parts = [None] * cameras.count
+    for (h, w), idx in groups:
+        run = functools.partial(per_camera, height=h, width=w)
+        image = None if images is None else images[idx, :h, :w]
+        out = jax.vmap(run)(cameras.K[idx], cameras.T_cam_lidar[idx], cameras.image_size[idx], image)
+        for j, i in enumerate(idx):
+            parts[i] = jax.tree.map(lambda x, j=j: x[j], out)
+    return jax.tree.map(lambda *xs: jnp.stack([_pad_to_canvas(x, cameras.height, cameras.width) for x in xs]),
+                        *parts)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
@@ -169,16 +222,13 @@ def _complete_rig_stages(points, valid, cameras, images=None, *, config, lidar):
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
-    def per_camera(K, T, size, image=None):
+    def per_camera(K, T, size, image, *, height, width):
         if image is not None:
             image = _window_only(image, size)
-        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=cameras.height,
-                                         width=cameras.width, lidar=lidar, config=config, image_size=size,
-                                         image=image)
+        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=height, width=width,
+                                         lidar=lidar, config=config, image_size=size, image=image)
 
-    if images is None:
-        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
-    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
+    return vmap_by_size(per_camera, cameras, images)
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
@@ -199,7 +249,9 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
         ignored (the result is the paper's LiDAR-only SGM, bit for bit).
 
     Returns:
-      :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals).
+      :class:`Stages` with (C, H, W) fields ((C, 3, H, W) normals); beyond a camera's window
+      every field is 0 (False), ``depth`` and ``depth_raw`` always, the others when
+      ``cameras.sizes`` is known (:func:`stack_cameras`: the cameras run grouped by size).
 
     Raises:
       ValueError (at trace time) naming the field 'images': missing while

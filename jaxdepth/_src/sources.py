@@ -42,7 +42,7 @@ from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
 from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
-from jaxdepth._src.rig import RigCameras, _rig_images, _window_only
+from jaxdepth._src.rig import RigCameras, _rig_images, _window_only, vmap_by_size
 from jaxdepth._src.types import LidarSpec, Stages
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
@@ -469,7 +469,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     flat_normals = normals.reshape(-1, 3)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
-    def per_camera(K, T, size, image=None):
+    def per_camera(K, T, size, image, *, height, width):
         if image is not None:
             image = _window_only(image, size)
         cam_valid = flat_valid
@@ -478,12 +478,9 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
-                              height=cameras.height, width=cameras.width, beams=beams, config=config,
-                              image_size=size, image=image)
+                              height=height, width=width, beams=beams, config=config, image_size=size, image=image)
 
-    if images is None:
-        return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size)
-    return jax.vmap(per_camera)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
+    return vmap_by_size(per_camera, cameras, images)     # one vmap per camera size (rig.py)
 
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
