@@ -9,7 +9,8 @@ Summarise (prints the tables; ``--json`` writes them, default ``results/suite_pr
 
     python -m benchmarks.suite_profile /tmp/profile [--compile-cost] [--json [PATH]]
 
-Per test: wall seconds; CPU seconds of the test's process (``cpu_s``: user + system, every thread,
+Per test: wall seconds; whether it is marked ``slow`` (the summary adds up the quick subset,
+``-m "not slow"``, and the rest); CPU seconds of the test's process (``cpu_s``: user + system, every thread,
 XLA's compile threads included) and of the subprocesses it waited for (``child_cpu_s``: CLI runs,
 notebook kernels; not Ray's workers, which outlive the test), which other processes' load on a
 shared machine inflates far less than wall time; and the seconds JAX reports through ``jax.monitoring`` in that test's
@@ -122,7 +123,7 @@ def pytest_runtest_protocol(item, nextitem):
     yield
     record = {"id": item.nodeid, "worker": _state["worker"], "start": round(start, 3),
               "wall_s": round(time.time() - start, 3), "cpu_s": round(time.process_time() - cpu, 3),
-              "child_cpu_s": round(_child_cpu_s() - child, 3)}
+              "child_cpu_s": round(_child_cpu_s() - child, 3), "slow": item.get_closest_marker("slow") is not None}
     record.update({k: round(v, 3) for k, v in sorted(_state["sums"].items())})
     record["big_compiles"] = list(_state["big"])
     out.write(json.dumps(record) + "\n")
@@ -155,6 +156,13 @@ def summarise(records: list, *, top: int = 25) -> dict:
     totals.update(tests=len(records), has_cpu=any("cpu_s" in r for r in records),
                   compiles=int(sum(r.get("compile_n", 0) for r in records)),
                   cache_reads=int(sum(r.get("cache_read_n", 0) for r in records)))
+    # the quick subset (-m "not slow") and the rest; records of older profiles carry no marker
+    if any("slow" in r for r in records):
+        totals["subsets"] = {
+            name: {"tests": len(part), "cpu_s": round(sum(_cpu(r) for r in part), 1),
+                   "compile_s": round(sum(r.get("compile_s", 0.0) for r in part), 1)}
+            for name, part in (("quick", [r for r in records if not r.get("slow")]),
+                               ("slow", [r for r in records if r.get("slow")]))}
     workers = {}
     for r in records:
         w = workers.setdefault(r["worker"], {"tests": 0, "first_start": r["start"], "last_end": 0.0, "wall_s": 0.0})
@@ -223,6 +231,8 @@ def _print(summary: dict) -> None:
     print(f"{t['tests']} tests, {t['wall_s']:.0f} s of test time over all workers{cpu}: XLA compiling {t['compile_s']:.0f} s "
           f"({t['compiles']} compiles), tracing {t['trace_s']:.0f} s, lowering {t['lower_s']:.0f} s, "
           f"cache reads {t['cache_read_s']:.0f} s ({t['cache_reads']} programs read back)")
+    for name, part in t.get("subsets", {}).items():
+        print(f"  {name} tests: {part['tests']}, {part['cpu_s']:.0f} s of CPU, XLA compiling {part['compile_s']:.0f} s")
     for name, w in summary["workers"].items():
         print(f"  {name}: {w['tests']} tests, busy {w['busy_s']:.0f} s over a span of {w['span_s']:.0f} s")
     print("\nmodules (wall s, CPU s, compile s, tests)")

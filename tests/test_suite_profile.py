@@ -13,11 +13,13 @@ from conftest import REPO
 from benchmarks import suite_profile
 
 
-def _record(nodeid, worker, start, wall, compile_s=0.0, compile_n=0, big=(), cpu=None):
+def _record(nodeid, worker, start, wall, compile_s=0.0, compile_n=0, big=(), cpu=None, slow=None):
     record = {"id": nodeid, "worker": worker, "start": start, "wall_s": wall, "compile_s": compile_s,
               "compile_n": compile_n, "big_compiles": [list(b) for b in big]}
     if cpu is not None:  # (own, subprocesses'); records of older profiles have neither
         record["cpu_s"], record["child_cpu_s"] = cpu
+    if slow is not None:  # the slow marker; older profiles have none
+        record["slow"] = slow
     return record
 
 
@@ -41,6 +43,19 @@ def test_summary_totals_spans_and_orders_against_hand_sums():
     assert s["by_function"] == [{"function": "jit(f)", "compile_s": 3.5, "compiles": 2},
                                 {"function": "jit(g)", "compile_s": 3.5, "compiles": 1}]
     assert s["same_shapes_compiled_again"] == []  # records without shapes (older profiles) are read too
+    assert "subsets" not in s["totals"]  # no slow markers recorded: no split
+
+
+def test_quick_and_slow_subsets_add_up_to_the_totals():
+    records = [
+        _record("tests/a.py::t1", "gw0", 100.0, 4.0, 3.0, 2, cpu=(5.0, 1.0), slow=True),
+        _record("tests/a.py::t2", "gw0", 104.0, 1.0, 0.5, 1, cpu=(0.5, 0.0), slow=False),
+        _record("tests/b.py::t3", "gw1", 101.0, 6.0, 2.0, 3, cpu=(2.5, 0.0), slow=False),
+    ]
+    t = suite_profile.summarise(records)["totals"]
+    assert t["subsets"] == {"quick": {"tests": 2, "cpu_s": 3.0, "compile_s": 2.5},
+                            "slow": {"tests": 1, "cpu_s": 6.0, "compile_s": 3.0}}
+    assert sum(p["cpu_s"] for p in t["subsets"].values()) == t["cpu_s"] + t["child_cpu_s"]
 
 
 def test_same_function_and_shapes_compiled_twice_are_listed():
@@ -68,6 +83,8 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
         "import jax, jax.numpy as jnp\n"
         "def test_compiles():\n"
         "    assert float(jax.jit(lambda x: jnp.sin(x) * 3.0)(jnp.float32(1.0))) != 0.0\n"
+        "import pytest\n"
+        "@pytest.mark.slow\n"
         "def test_plain():\n"
         "    assert 1 + 1 == 2\n"
         "def test_subprocess():\n"
@@ -92,6 +109,7 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
     listed = {name: shapes for name, _, shapes in records["test_compiles"]["big_compiles"]}
     assert listed["jit(<lambda>)"] == "f32[]", listed
     assert records["test_plain"].get("compile_n", 0) == 0
+    assert records["test_plain"]["slow"] and not records["test_compiles"]["slow"]  # the marker, recorded
     assert all(r["worker"] == "main" and r["wall_s"] >= 0 for r in records.values())
     out = tmp_path / "summary.json"
     assert suite_profile.main([str(folder), "--json", str(out)]) == 0
