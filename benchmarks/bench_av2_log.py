@@ -1,0 +1,154 @@
+"""The Argoverse 2 job over a log of many sweeps, default options against ``--method nearest``, warm cache.
+
+Issue 38's first "Done when" figure: per sweep, ``jaxdepth complete LOG OUT`` (default options) at most
+2x the same job with ``--method nearest``. The shared log holds two real sweeps, so the benchmark builds,
+in a temporary folder, logs the job reads exactly as a real one: the shared calibration and
+``city_SE3_egovehicle.feather`` (symbolic links), and ``sensors/lidar/<ts>.feather`` links to the two
+real sweep files, alternately, under timestamps taken from the pose table's rows (the row nearest each
+multiple of 0.1 s from the first real sweep on, the LiDAR's 10 Hz). ``--camera-images`` (default on) also
+lays out ``sensors/cameras/<camera>/<ts>.jpg`` for the 7 ring cameras at the pose rows nearest every
+0.05 s (the cameras' 20 Hz) as empty files: the job reads only their names (the image timestamps,
+for camera-time depth, its default), never their pixels (no guidance by default); the shared log has no
+images. Nothing is written under /work/shared.
+
+Two logs: ``long`` with ``--sweeps`` sweeps (default 10) and ``short`` with the first 2 of them. Each
+run is a fresh process (:func:`benchmarks.bench_rig_coldstart._run`: wall and CPU seconds of the child)
+with one compile cache folder for the whole benchmark (the user's cache is never touched). A warm-up
+run of each method on the short log fills the cache (every run's 7 PNGs per sweep are counted); then ``--rounds`` interleaved rounds, each
+running default-long, default-short, nearest-long, nearest-short (a fresh output folder each). Per
+sweep = (long - short) / (sweeps - 2): start-up, cache load and the first sweep cancel. The ratio
+default / nearest is taken within each round, then the median. Writes benchmarks/results/av2_log.json.
+
+    python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import statistics
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from benchmarks._common import DATA, RESULTS, write_results
+from benchmarks.bench_rig_coldstart import _run
+
+LOG = DATA / "av2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+METHODS = {"default": [], "nearest": ["--method", "nearest"]}
+
+
+def pose_times(step_ns: int, count: int) -> np.ndarray:
+    """(count,) int64 timestamps of the pose table's rows nearest ``t0 + k step_ns``, ``t0`` the first real
+    sweep; distinct and increasing (asserted)."""
+    from jaxdepth.io.av2 import read_log
+    log = read_log(LOG)
+    t0 = log.sweeps[0]
+    rows = log.city_times
+    picked = np.array([rows[np.argmin(np.abs(rows - (t0 + k * step_ns)))] for k in range(count)], np.int64)
+    assert np.all(np.diff(picked) > 0), "pose table too sparse for the requested spacing"
+    return picked
+
+
+def build_log(folder: pathlib.Path, sweep_times: np.ndarray, image_times) -> pathlib.Path:
+    """A log folder under ``folder``: LOG's calibration and poses linked, sweep ``k`` a link to real sweep
+    ``k mod 2`` named ``<sweep_times[k]>.feather``; empty ``<ts>.jpg`` per ring camera for ``image_times``."""
+    from jaxdepth.io.av2 import RING_CAMERAS
+    real = sorted((LOG / "sensors" / "lidar").glob("*.feather"))
+    log = folder / LOG.name
+    (log / "sensors" / "lidar").mkdir(parents=True)
+    for entry in LOG.iterdir():
+        if entry.name != "sensors":
+            os.symlink(entry, log / entry.name)
+    for k, t in enumerate(sweep_times):
+        os.symlink(real[k % len(real)], log / "sensors" / "lidar" / f"{int(t)}.feather")
+    for cam in RING_CAMERAS if image_times is not None else ():
+        (log / "sensors" / "cameras" / cam).mkdir(parents=True)
+        for t in image_times:
+            (log / "sensors" / "cameras" / cam / f"{int(t)}.jpg").touch()
+    return log
+
+
+def one_round(tmp: pathlib.Path, logs: dict, cache: pathlib.Path, tag: str) -> dict:
+    """``{"<method>-<log>": (wall s, CPU s)}`` for every method and log, interleaved."""
+    times = {}
+    for method, flags in METHODS.items():
+        for name, log in logs.items():
+            out = tmp / f"{tag}-{method}-{name}"
+            times[f"{method}-{name}"] = _run(["complete", log, out, "-q", *flags], cache)
+            written = len(list(out.rglob("*.png")))
+            expected = 7 * len(list((log / "sensors" / "lidar").glob("*.feather")))
+            if written != expected:
+                raise SystemExit(f"{out}: {written} depth PNGs written, expected {expected} (7 cameras x sweeps)")
+            print(f"  {tag} {method} {name}: {times[f'{method}-{name}'][0]:.1f} s wall", flush=True)
+    return times
+
+
+def per_sweep(times: dict, sweeps: int) -> dict:
+    """Per-sweep wall and CPU seconds of each method from one round's long and short runs, and the ratio."""
+    out = {}
+    for method in METHODS:
+        long, short = times[f"{method}-long"], times[f"{method}-short"]
+        out[method] = {"wall_s": (long[0] - short[0]) / (sweeps - 2), "cpu_s": (long[1] - short[1]) / (sweeps - 2)}
+    out["ratio_wall"] = out["default"]["wall_s"] / out["nearest"]["wall_s"]
+    out["ratio_cpu"] = out["default"]["cpu_s"] / out["nearest"]["cpu_s"]
+    out["ratio_total_long"] = times["default-long"][0] / times["nearest-long"][0]
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sweeps", type=int, default=10, help="sweeps in the long log (>= 3)")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--no-camera-images", action="store_true", help="no image names: depth at LiDAR time")
+    ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "av2_log.json")
+    args = ap.parse_args(argv)
+    if not LOG.exists():
+        print(f"shared Argoverse 2 log missing: {LOG}", file=sys.stderr)
+        return 1
+    if args.sweeps < 3:
+        ap.error("--sweeps must be at least 3")
+    t0 = time.time()
+    sweep_times = pose_times(100_000_000, args.sweeps)
+    image_times = None if args.no_camera_images else pose_times(50_000_000, 2 * args.sweeps)
+    with tempfile.TemporaryDirectory(prefix="jaxdepth-av2log-") as tmp_name:
+        tmp = pathlib.Path(tmp_name)
+        logs = {"long": build_log(tmp / "long", sweep_times, image_times),
+                "short": build_log(tmp / "short", sweep_times[:2],
+                                   None if image_times is None else image_times[:4])}
+        cache = tmp / "cache"
+        for method, flags in METHODS.items():
+            wall, cpu = _run(["complete", logs["short"], tmp / f"warmup-{method}", "-q", *flags], cache)
+            print(f"warm-up {method} short: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
+        rounds = []
+        for r in range(args.rounds):
+            times = one_round(tmp, logs, cache, f"round{r}")
+            rounds.append({"runs": {k: {"wall_s": w, "cpu_s": c} for k, (w, c) in times.items()},
+                           "per_sweep": per_sweep(times, args.sweeps)})
+            print(f"round {r}: " + ", ".join(f"{m} {rounds[-1]['per_sweep'][m]['wall_s']:.2f} s/sweep"
+                                             for m in METHODS)
+                  + f", ratio {rounds[-1]['per_sweep']['ratio_wall']:.2f}", flush=True)
+    median = {m: {"wall_s": statistics.median(r["per_sweep"][m]["wall_s"] for r in rounds),
+                  "cpu_s": statistics.median(r["per_sweep"][m]["cpu_s"] for r in rounds)} for m in METHODS}
+    ratios = {k: statistics.median(r["per_sweep"][k] for r in rounds)
+              for k in ("ratio_wall", "ratio_cpu", "ratio_total_long")}
+    print(f"median per sweep: default {median['default']['wall_s']:.2f} s, nearest {median['nearest']['wall_s']:.2f} s;"
+          f" ratio {ratios['ratio_wall']:.2f} (per round "
+          + ", ".join(f"{r['per_sweep']['ratio_wall']:.2f}" for r in rounds) + ")")
+    doc = {"command": "python -m benchmarks.bench_av2_log " + " ".join(sys.argv[1:] if argv is None else argv),
+           "log": {"source": str(LOG.relative_to(DATA)), "sweeps": args.sweeps, "short_sweeps": 2,
+                   "sweep_timestamps_ns": sweep_times.tolist(), "camera_images": image_times is not None,
+                   "cameras": 7},
+           "method": "per sweep = (long log - 2-sweep log) / (sweeps - 2), fresh processes, shared warm cache;"
+                     " ratio default / nearest within each round, median",
+           "rounds": rounds, "median_per_sweep": median, "median_ratios": ratios,
+           "load_average": os.getloadavg()}
+    write_results(args.json, doc, None, t0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
