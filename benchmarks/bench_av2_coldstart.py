@@ -31,15 +31,16 @@ from benchmarks.bench_rig_coldstart import _run, medians, print_medians
 LOG = DATA / "av2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 
 
-def _log_of(folder: pathlib.Path, sweeps: list) -> pathlib.Path:
-    """A log folder of symbolic links: LOG's calibration and poses, the given lidar sweeps."""
+def _log_of(folder: pathlib.Path, sweeps: list, names: list | None = None) -> pathlib.Path:
+    """A log folder of symbolic links: LOG's calibration and poses, the given lidar sweeps (under
+    ``names``, default their own file names)."""
     log = folder / LOG.name
     (log / "sensors" / "lidar").mkdir(parents=True)
     for entry in LOG.iterdir():
         if entry.name != "sensors":
             os.symlink(entry, log / entry.name)
-    for sweep in sweeps:
-        os.symlink(sweep, log / "sensors" / "lidar" / sweep.name)
+    for sweep, name in zip(sweeps, names or [s.name for s in sweeps]):
+        os.symlink(sweep, log / "sensors" / "lidar" / name)
     return log
 
 

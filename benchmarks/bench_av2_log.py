@@ -35,9 +35,9 @@ import time
 import numpy as np
 
 from benchmarks._common import DATA, RESULTS, write_results
+from benchmarks.bench_av2_coldstart import LOG, _log_of
 from benchmarks.bench_rig_coldstart import _run
 
-LOG = DATA / "av2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 METHODS = {"default": [], "nearest": ["--method", "nearest"]}
 
 
@@ -58,13 +58,8 @@ def build_log(folder: pathlib.Path, sweep_times: np.ndarray, image_times) -> pat
     ``k mod 2`` named ``<sweep_times[k]>.feather``; empty ``<ts>.jpg`` per ring camera for ``image_times``."""
     from jaxdepth.io.av2 import RING_CAMERAS
     real = sorted((LOG / "sensors" / "lidar").glob("*.feather"))
-    log = folder / LOG.name
-    (log / "sensors" / "lidar").mkdir(parents=True)
-    for entry in LOG.iterdir():
-        if entry.name != "sensors":
-            os.symlink(entry, log / entry.name)
-    for k, t in enumerate(sweep_times):
-        os.symlink(real[k % len(real)], log / "sensors" / "lidar" / f"{int(t)}.feather")
+    log = _log_of(folder, [real[k % len(real)] for k in range(len(sweep_times))],
+                  [f"{int(t)}.feather" for t in sweep_times])
     for cam in RING_CAMERAS if image_times is not None else ():
         (log / "sensors" / "cameras" / cam).mkdir(parents=True)
         for t in image_times:
