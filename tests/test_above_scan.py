@@ -147,3 +147,14 @@ def test_top_line_keep_matches_the_per_pixel_oracle(points, cap, gap):
     np.testing.assert_array_equal(got, numpy_top_line_keep(reference, depth, beams=16, max_half_width_px=cap))
     np.testing.assert_array_equal(np.asarray(jax.jit(fn)(jnp.asarray(reference), jnp.asarray(depth))), got)
     assert 0 < got.mean() < 1 or (points == 0 and got.all())
+
+
+def test_reference_top_line_flag():
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--reference-top-line", "on"]))["reference_top_line"] is True
+    assert config_changes(p.parse_args(["--reference-top-line", "off"]))["reference_top_line"] is False
+    assert "reference_top_line" not in config_changes(p.parse_args([]))
+    assert jaxdepth.SGMConfig().reference_top_line is False
+    with pytest.raises(SystemExit):
+        p.parse_args(["--reference-top-line", "yes"])
