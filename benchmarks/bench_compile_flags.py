@@ -110,24 +110,12 @@ def _hlo_counts(text: str) -> dict:
 
 def child(program: str, runs: int, hlo: bool) -> dict:
     import jax
-    import jax.monitoring
     import numpy as np
 
+    from benchmarks.bench_coldstart_profile import record_compile_steps
+
     jax.config.update("jax_enable_compilation_cache", False)
-    events = []
-    names = {"/jax/core/compile/jaxpr_trace_duration": "trace",
-             "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
-             "/jax/core/compile/backend_compile_duration": "compile"}
-    last = {"cpu": _cpu()}
-
-    def on_duration(event, secs, **kwargs):
-        if event in names:
-            now = _cpu()
-            events.append({"step": names[event], "program": kwargs.get("fun_name", "?"), "wall_s": secs,
-                           "cpu_s": now - last["cpu"]})
-            last["cpu"] = now
-
-    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    events, last = record_compile_steps(time.perf_counter())
     call, fn, args = {"kitti": _kitti, "av2": _av2}[program]()
     last["cpu"] = _cpu()
     t0, c0 = time.perf_counter(), _cpu()
@@ -143,7 +131,7 @@ def child(program: str, runs: int, hlo: bool) -> dict:
     big = max((e for e in events if e["step"] == "compile"), key=lambda e: e["wall_s"])
     doc = {"first_call": first, "run_s": times, "run_median_s": statistics.median(times), "sha256": digest,
            "repeat_identical": bool(same), "main_program": big["program"],
-           "compile_wall_s": big["wall_s"], "compile_cpu_s": big["cpu_s"],
+           "compile_wall_s": big["wall_s"], "compile_cpu_s": big["cpu_s_since_previous_event"],
            "trace_wall_s": sum(e["wall_s"] for e in events if e["step"] == "trace"),
            "lower_wall_s": sum(e["wall_s"] for e in events if e["step"] == "lower"),
            "all_compiles_wall_s": sum(e["wall_s"] for e in events if e["step"] == "compile"),
@@ -222,7 +210,8 @@ def anatomy(program: str, depth: int, *, runs: int = 1) -> dict:
     rows = sorted(({"group": k, "kernels": n, "ir_bytes": b, "ir_share": b / total} for k, (n, b) in groups.items()),
                   key=lambda r: -r["ir_bytes"])
     return {"program": name, "kernels": sum(r["kernels"] for r in rows), "ir_bytes": total, "groups": rows,
-            "xla_phases_wall_s": doc.get("xla_phases_wall_s"), "compile_cpu_s_with_dump": doc.get("compile_cpu_s")}
+            "xla_phases_wall_s": doc.get("xla_phases_wall_s"), "compile_cpu_s_with_dump": doc.get("compile_cpu_s"),
+            "sha256": doc.get("sha256")}
 
 
 def main(argv=None) -> int:
