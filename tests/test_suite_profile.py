@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -114,3 +116,61 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
     out = tmp_path / "summary.json"
     assert suite_profile.main([str(folder), "--json", str(out)]) == 0
     assert json.loads(out.read_text())["totals"]["tests"] == 3
+
+
+def _sample(t, runnable, idle, load1=1.0, group=None):
+    sample = {"t": t, "idle": idle, "iowait": 0.0, "load1": load1, "runnable": runnable}
+    if group is not None:
+        sample["group_cpu_s"] = group
+    return sample
+
+
+def test_idle_core_seconds_tail_and_estimate_against_hand_sums():
+    # gw0 runs t1 over [100, 104); gw1 runs t2 over [100, 102) and then nothing (its tail)
+    records = [_record("tests/a.py::t1", "gw0", 100.0, 4.0, cpu=(4.0, 0.0)),
+               _record("tests/b.py::t2", "gw1", 100.0, 2.0, cpu=(1.0, 0.5))]
+    samples = [_sample(99.0, {"1": 1}, 10.0, group=0.0),           # [99, 100): collection, 1 short
+               _sample(100.0, {"1": 2, "2": 1}, 10.0, group=1.0),  # [100, 101): 3 runnable, none short
+               _sample(101.0, {"2": 1}, 10.5, 3.0, group=3.0),     # [101, 102): t2 waits on a child, 1 short
+               _sample(102.0, {"1": 1}, 11.5, group=4.0),          # [102, 104): gw1 done, 1 short each second
+               _sample(104.0, {}, 13.0, group=6.0)]
+    d = suite_profile.idle(records, samples, cores=2)
+    assert d["wall_s"] == 5.0 and d["first_test_after_s"] == 1.0
+    assert d["idle_core_s"] == 1 + 0 + 1 + 2
+    assert d["demand_s"] == {"1 runnable": 4.0, ">= 2 runnable": 1.0}
+    assert d["tail_s"] == 2.0 and d["worker_ends_s"] == {"gw0": 5.0, "gw1": 3.0}
+    assert d["cpu_s"] == 6.0 and d["cpu_source"] == "control group"
+    assert d["estimated_idle_wall_s"] == round(6.0 / (2 - 4 / 5), 1)
+    assert d["machine_idle_core_s"] == 3.0 and d["machine_load1"] == {"min": 1.0, "max": 3.0, "mean": 1.4}
+    charged = {r["test"]: r["idle_core_s"] for r in d["idle_by_test"]}
+    # [99, 100): nothing running (2 workers, none busy): 1 core-s between tests; [101, 102): t1 and t2
+    # share 1; [102, 104): t1 and gw1's "between tests" share 2
+    assert charged == {"(between tests)": 2.0, "tests/a.py::t1": 1.5, "tests/b.py::t2": 0.5}
+    assert sum(charged.values()) == d["idle_core_s"]
+    no_group = [{k: v for k, v in s.items() if k != "group_cpu_s"} for s in samples]
+    assert suite_profile.idle(records, no_group)["cpu_s"] == 5.5  # the tests' own CPU (and children's)
+
+
+@pytest.mark.slow  # three Python subprocesses (docs/testing.md)
+def test_run_processes_counts_runnable_threads_of_the_run_only(tmp_path):
+    """A busy child that carries the run's marker counts, a sleeping one and an unmarked busy one do not."""
+    spin = "import time\nprint(flush=True)\nt = time.time()\nwhile time.time() - t < 20: pass\n"
+    sleep = "import time\nprint(flush=True)\ntime.sleep(20)\n"
+    marked = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(tmp_path))
+    other = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(tmp_path / "another run"))
+    procs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE)
+             for code, env in ((spin, marked), (sleep, marked), (spin, other))]
+    try:
+        for proc in procs:  # each has started (Python's own start-up is runnable too)
+            proc.stdout.readline()
+        run = suite_profile._RunProcesses(str(tmp_path))
+        seen = collections.Counter()
+        for _ in range(20):  # the spinning child may be descheduled at one sample on a loaded machine
+            seen.update(run.runnable())
+            time.sleep(0.05)
+        assert seen[str(procs[0].pid)] >= 5, seen
+        assert str(procs[1].pid) not in seen and str(procs[2].pid) not in seen, seen
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
