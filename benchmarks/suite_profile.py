@@ -67,12 +67,15 @@ def signature(message: str) -> str:
 
 
 class _CompilingMessages(logging.Handler):
-    """Keeps the argument shapes of the program JAX lowered last (``jax_log_compiles``)."""
+    """Keeps the argument shapes of the program JAX lowered last (``jax_log_compiles``) and the
+    persistent-cache key of the program it is about to compile (its cache-miss message)."""
 
     def emit(self, record):
         message = record.getMessage()
         if message.startswith("Compiling "):
             _state["signature"] = signature(message)
+        elif message.startswith("PERSISTENT COMPILATION CACHE MISS"):
+            _state["key"] = record.args[1] if len(record.args or ()) > 1 else ""
 
 
 def _listener(event, duration, **kwargs):
@@ -84,8 +87,9 @@ def _listener(event, duration, **kwargs):
     if field == "compile_s":
         # the shapes belong to this compile only: a later one without a message of its own gets ""
         shapes, _state["signature"] = _state["signature"], ""
+        key, _state["key"] = _state.get("key", ""), ""
         if duration >= _state.get("min_s", BIG_COMPILE_S):
-            _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2), shapes])
+            _state["big"].append([str(kwargs.get("fun_name", "?")), round(duration, 2), shapes, key])
 
 
 def pytest_configure(config):
@@ -98,7 +102,22 @@ def pytest_configure(config):
     jax.monitoring.register_event_duration_secs_listener(_listener)
     # The argument shapes of each compile: JAX logs them (at WARNING) with jax_log_compiles on.
     jax.config.update("jax_log_compiles", True)
-    logging.getLogger("jax._src.interpreters.pxla").addHandler(_CompilingMessages())
+    handler = _CompilingMessages()
+    logging.getLogger("jax._src.interpreters.pxla").addHandler(handler)
+    # The persistent-cache key of each compiled program: JAX logs each cache miss at DEBUG. The logger is
+    # opened to DEBUG for this handler only: a filter hands it the records below the level that passed
+    # before and drops them, so no other handler sees more than it did.
+    compiler = logging.getLogger("jax._src.compiler")
+    passed = compiler.getEffectiveLevel()
+
+    def cache_misses_only(record):
+        if record.levelno >= passed:
+            return True
+        handler.emit(record)
+        return False
+
+    compiler.addFilter(cache_misses_only)
+    compiler.setLevel(min(passed, logging.DEBUG))
     os.makedirs(folder, exist_ok=True)
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     _state["worker"] = worker
@@ -279,20 +298,27 @@ def summarise(records: list, *, top: int = 25) -> dict:
                 "compile_s": round(r.get("compile_s", 0.0), 1), "big_compiles": r["big_compiles"]}
                for r in sorted(records, key=lambda r: -r["wall_s"])[:top]]
     funs = collections.defaultdict(lambda: [0.0, 0])
-    same = collections.defaultdict(list)
+    same, again = collections.defaultdict(list), collections.defaultdict(list)
     for r in records:
         for name, seconds, *shapes in r["big_compiles"]:
             funs[name][0] += seconds
             funs[name][1] += 1
             if shapes and shapes[0]:
                 same[(name, shapes[0])].append({"test": r["id"], "worker": r["worker"], "compile_s": seconds})
+            if len(shapes) > 1 and shapes[1]:  # the program's persistent-cache key (profiles since suite4)
+                again[shapes[1]].append({"function": name, "test": r["id"], "worker": r["worker"], "compile_s": seconds})
     by_function = [{"function": k, "compile_s": round(v[0], 1), "compiles": v[1]}
                    for k, v in sorted(funs.items(), key=lambda kv: -kv[1][0])[:top]]
     repeated = [{"function": name, "shapes": shapes, "compile_s": round(sum(c["compile_s"] for c in v), 1),
                  "compiles": v} for (name, shapes), v in same.items() if len(v) > 1]
     repeated = sorted(repeated, key=lambda d: -d["compile_s"])[:top]
+    # one program (one cache key) compiled twice: by two workers at once, before either had stored it
+    twice = [{"key": key, "function": v[0]["function"], "again_s": round(sum(c["compile_s"] for c in v[1:]), 1),
+              "compiles": v} for key, v in again.items() if len(v) > 1]
+    totals["compiled_again_s"] = round(sum(d["again_s"] for d in twice), 1)
     return {"totals": totals, "workers": workers, "by_module": by_module, "by_test": by_test,
-            "by_function": by_function, "same_shapes_compiled_again": repeated}
+            "by_function": by_function, "same_shapes_compiled_again": repeated,
+            "same_program_compiled_again": sorted(twice, key=lambda d: -d["again_s"])[:top]}
 
 
 def load_machine(folder) -> list:
@@ -420,6 +446,12 @@ def _print(summary: dict) -> None:
           "program compiled twice (by two workers at once, or after the compiled programs were dropped)")
     for f in summary["same_shapes_compiled_again"]:
         print(f"  {f['compile_s']:7.1f}  {f['function']} {f['shapes']}")
+        for c in f["compiles"]:
+            print(f"  {c['compile_s']:13.1f}  {c['worker']}  {c['test']}")
+    print(f"\none program (one persistent-cache key) compiled more than once: {t.get('compiled_again_s', 0):.0f} s "
+          "of compiling after the first (seconds after the first; then each compile)")
+    for f in summary.get("same_program_compiled_again", []):
+        print(f"  {f['again_s']:7.1f}  {f['function']} {f['key']}")
         for c in f["compiles"]:
             print(f"  {c['compile_s']:13.1f}  {c['worker']}  {c['test']}")
 

@@ -72,6 +72,23 @@ def test_same_function_and_shapes_compiled_twice_are_listed():
     assert [(c["test"], c["worker"]) for c in row["compiles"]] == [("tests/a.py::t1", "gw0"), ("tests/b.py::t2", "gw1")]
 
 
+def test_one_program_compiled_twice_is_found_by_its_cache_key():
+    records = [
+        _record("tests/a.py::t1", "gw0", 100.0, 4.0, big=[("jit(f)", 2.5, "f32[8]", "jit_f-k1"),
+                                                          ("jit(f)", 1.5, "f32[8]", "jit_f-k2")]),
+        _record("tests/b.py::t2", "gw1", 100.5, 4.0, big=[("jit(f)", 2.0, "f32[8]", "jit_f-k1"),
+                                                          ("jit(g)", 1.0, "f32[8]", "")]),  # cache off: no key
+        _record("tests/b.py::t3", "gw1", 104.5, 1.0, big=[("jit(f)", 0.5, "f32[8]", "jit_f-k1")]),
+    ]
+    s = suite_profile.summarise(records)
+    (row,) = s["same_program_compiled_again"]
+    assert (row["key"], row["function"], row["again_s"]) == ("jit_f-k1", "jit(f)", 2.5)  # 2.0 + 0.5 after the first
+    assert [c["test"] for c in row["compiles"]] == ["tests/a.py::t1", "tests/b.py::t2", "tests/b.py::t3"]
+    assert s["totals"]["compiled_again_s"] == 2.5
+    # the shapes table sees all four jit(f) f32[8] compiles (two programs), the key table only the one program
+    assert s["same_shapes_compiled_again"][0]["compile_s"] == 6.5
+
+
 def test_signature_reads_jax_compiling_messages():
     message = ("Compiling jit(_complete_depth) with global shapes and types (ShapedArray(float32[2,32,48]), "
                "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[])). Argument mapping: ...")
@@ -93,10 +110,9 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
         "    import subprocess, sys\n"
         "    subprocess.run([sys.executable, '-c', 'sum(range(2 * 10 ** 7))'], check=True)\n")
     folder = tmp_path / "profile"
-    env = dict(os.environ, JAXDEPTH_SUITE_PROFILE=str(folder), JAXDEPTH_SUITE_PROFILE_MIN_S="0",
-               JAX_ENABLE_COMPILATION_CACHE="false")
-    for name in [k for k in env if k.startswith("PYTEST_XDIST") or k == "JAX_COMPILATION_CACHE_DIR"]:
-        env.pop(name)  # a process of its own, not this session's xdist worker or compilation cache
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_XDIST")}  # not this session's worker
+    env.update(JAXDEPTH_SUITE_PROFILE=str(folder), JAXDEPTH_SUITE_PROFILE_MIN_S="0",
+               JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"))  # an empty cache of its own: every program compiles
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider",
                           "-p", "benchmarks.suite_profile", "--rootdir", str(tmp_path), "-c", os.devnull, str(tests)],
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
@@ -108,8 +124,11 @@ def test_plugin_writes_one_record_per_test_with_its_compiles(tmp_path):
     assert records["test_compiles"]["cpu_s"] > 0 and records["test_plain"]["child_cpu_s"] == 0
     assert records["test_subprocess"]["child_cpu_s"] > 0.2 > records["test_subprocess"]["cpu_s"]
     # every compile listed (MIN_S=0), each with its argument shapes: the lambda's one float32 scalar
-    listed = {name: shapes for name, _, shapes in records["test_compiles"]["big_compiles"]}
-    assert listed["jit(<lambda>)"] == "f32[]", listed
+    listed = {name: (shapes, key) for name, _, shapes, key in records["test_compiles"]["big_compiles"]}
+    assert listed["jit(<lambda>)"][0] == "f32[]", listed
+    # with its persistent-cache key (the cache-miss message JAX logs at DEBUG), one of the cache's file names
+    key = listed["jit(<lambda>)"][1]
+    assert key.startswith("jit__lambda") and any(p.name.startswith(key) for p in (tmp_path / "cache").iterdir()), key
     assert records["test_plain"].get("compile_n", 0) == 0
     assert records["test_plain"]["slow"] and not records["test_compiles"]["slow"]  # the marker, recorded
     assert all(r["worker"] == "main" and r["wall_s"] >= 0 for r in records.values())
