@@ -7,7 +7,7 @@ Record (from the repository root; one JSON line per test, one file per xdist wor
 Summarise (prints the tables; ``--json`` writes them, default ``results/suite_profile.json``;
 ``--compile-cost`` also times one compile of the 32 x 48 pipeline in this process)::
 
-    python -m benchmarks.suite_profile /tmp/profile [--compile-cost] [--json [PATH]]
+    python -m benchmarks.suite_profile /tmp/profile [--compile-cost] [--cores N] [--json [PATH]]
 
 Per test: wall seconds; whether it is marked ``slow`` (the summary adds up the quick subset,
 ``-m "not slow"``, and the rest); CPU seconds of the test's process (``cpu_s``: user + system, every thread,
@@ -16,12 +16,17 @@ notebook kernels; not Ray's workers, which outlive the test), which other proces
 shared machine inflates far less than wall time; and the seconds JAX reports through ``jax.monitoring`` in that test's
 process: XLA compiling (``backend_compile``), tracing, lowering to MLIR, reading the persistent
 compilation cache; and every single compile of at least 0.25 s (``JAXDEPTH_SUITE_PROFILE_MIN_S``)
-with its function's name and argument shapes (from JAX's ``jax_log_compiles`` messages, which the
-plugin turns on). Work in subprocesses (CLI runs, notebook kernels, Ray workers) shows as wall time
+with its function's name, argument shapes (from JAX's ``jax_log_compiles`` messages, which the
+plugin turns on) and persistent-cache key (from JAX's cache-miss message). The controller (or the only
+process) samples the machine every second into ``machine.jsonl``: ``/proc/stat``, the load average,
+its ``cpuacct`` control group, and the runnable threads of every process of the run (the environment
+holds the run's ``JAXDEPTH_SUITE_PROFILE``; Ray's daemons included). Work in subprocesses (CLI runs, notebook kernels, Ray workers) shows as wall time
 only. The summary gives the totals, each worker's span, the modules and tests that take longest, the
 functions whose compiles cost most, and the function names compiled more than once with the same
 argument shapes (other static options, another function of that name, or one program compiled twice:
-the first place to look for a compile to share). The plugin does nothing unless
+the first place to look for a compile to share), the programs (cache keys) compiled more than once, and
+the run's idle cores: the core-seconds its runnable threads left unused (``--cores``), charged to the
+tests running then, the tail, and an idle-machine wall estimate. The plugin does nothing unless
 ``JAXDEPTH_SUITE_PROFILE`` names a folder.
 """
 
