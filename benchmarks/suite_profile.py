@@ -480,8 +480,8 @@ def main(argv=None) -> int:
         return 1
     summary = summarise(records, top=args.top)
     _print(summary)
-    samples = load_machine(args.folder)
-    if len(samples) > 1:  # profiles from before the controller sampled the machine have none
+    samples = [sample for sample in load_machine(args.folder) if "runnable" in sample]
+    if len(samples) > 1:  # profiles from before the controller sampled the run's threads have none
         summary["idle"] = idle(records, samples, cores=args.cores, top=args.top)
         _print_idle(summary["idle"])
     if args.compile_cost:
