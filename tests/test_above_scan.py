@@ -3,13 +3,15 @@ the config field and its CLI flag; jit == eager, vmap == loop via _harness (stag
 ``background_above_scan``)."""
 
 import argparse
+import functools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth._src.above_scan import background_above_scan, top_line_keep
 from jaxdepth.options import add_config_options, config_changes
 
 
@@ -108,3 +110,51 @@ def test_config_field_and_cli_flag():
     assert config_changes(p.parse_args(["--above-scan", "background"]))["above_scan"] == "background"
     assert config_changes(p.parse_args(["--above-scan", "plane"]))["above_scan"] == "plane"
     assert jaxdepth.SGMConfig().replace(**config_changes(p.parse_args([]))) == jaxdepth.SGMConfig()
+
+
+def numpy_top_line_keep(reference, depth, *, beams, max_half_width_px, epsilon_m=1.0):
+    """Pixel by pixel: N the reference pixels, the window |du| < W L / N (capped); kept when some reference
+    pixel lies at or above the row in a window column, or no window column holds one, or the depth is not
+    nearer by more than epsilon than the farthest of the window columns' top reference pixels."""
+    H, W = reference.shape
+    n = int(reference.sum())
+    k_max = 0
+    while n > 0 and k_max + 1 < W * beams / n and k_max + 1 <= min(max_half_width_px, W - 1):
+        k_max += 1
+    out = np.zeros((H, W), bool)
+    for u in range(W):
+        cols = [c for c in range(u - k_max, u + k_max + 1) if 0 <= c < W and reference[:, c].any()]
+        far = max((depth[np.argmax(reference[:, c]), c] for c in cols), default=0.0)
+        for v in range(H):
+            out[v, u] = (not cols or any(reference[:v + 1, c].any() for c in cols)
+                         or depth[v, u] >= far - epsilon_m)
+    return out
+
+
+@pytest.mark.parametrize("points, cap, gap", [(200, 12, False), (400, 12, False), (200, 1, False),
+                                              (640, 12, False), (0, 12, False), (200, 12, True)])
+def test_top_line_keep_matches_the_per_pixel_oracle(points, cap, gap):
+    """The reference sweep's top scan line over the paper's window (|du| <= 3, 1, capped at 1, 0; no
+    reference pixel, or none within the window (``gap``: 16 empty columns): no line, every pixel of
+    those columns kept); above it only pixels not nearer than the window's farthest top reference pixel
+    by more than epsilon; jit equals eager."""
+    _, depth, reference, _ = above_scan_inputs(points + 1, points=max(points, 1))
+    reference = reference & (points > 0)
+    if gap:
+        reference[:, 12:28] = False
+    fn = functools.partial(top_line_keep, beams=16, max_half_width_px=cap)
+    got = np.asarray(fn(jnp.asarray(reference), jnp.asarray(depth)))
+    np.testing.assert_array_equal(got, numpy_top_line_keep(reference, depth, beams=16, max_half_width_px=cap))
+    np.testing.assert_array_equal(np.asarray(jax.jit(fn)(jnp.asarray(reference), jnp.asarray(depth))), got)
+    assert 0 < got.mean() < 1 or (points == 0 and got.all())
+
+
+def test_reference_top_line_flag():
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--reference-top-line", "on"]))["reference_top_line"] is True
+    assert config_changes(p.parse_args(["--reference-top-line", "off"]))["reference_top_line"] is False
+    assert "reference_top_line" not in config_changes(p.parse_args([]))
+    assert jaxdepth.SGMConfig().reference_top_line is False
+    with pytest.raises(SystemExit):
+        p.parse_args(["--reference-top-line", "yes"])

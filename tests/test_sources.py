@@ -12,8 +12,8 @@ import pytest
 import jaxdepth
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
-from jaxdepth._src.sources import (camera_witness, complete_sources, free_space_keep, free_space_margin,
-                                   make_sources, reference_view, source_keep_mask, source_normals)
+from jaxdepth._src.sources import (camera_witness, complete_sources, complete_sources_stages, free_space_keep,
+                                   free_space_margin, make_sources, reference_view, source_keep_mask, source_normals)
 from jaxdepth._src.poses import rotation_rpy
 from jaxdepth._src.scene import scene_arrays
 from jaxdepth._src.synthetic import make_street_scene
@@ -558,3 +558,38 @@ def test_complete_rig_job_with_a_sweeps_json(tmp_path):
     gt = sq.dense_depth
     m = gt > 0
     assert np.sqrt(np.mean((got[m] - gt[m]) ** 2)) < 5.0              # a sane depth map of the street
+
+
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+def test_older_sweeps_give_no_seed_above_the_reference_top_scan_line():
+    # A LiDAR whose top laser is at +2 deg (as KITTI's); a wall at 20 m, which the reference LiDAR at the
+    # origin scans up to 20 tan(2 deg) = 0.7 m and an older sweep's LiDAR 5 m behind up to 0.87 m, and a
+    # post at 8 m, scanned up to 0.28 m and 0.45 m: the older sweep's pixels of both lie above the
+    # reference sweep's top scan line in the cameras, the post's 12 m nearer than the wall's. With reference_top_line the kept pixels are
+    # Step 2's (the mask without it) less the older sweeps' pixels above the kept reference pixels' top
+    # line over the paper's window that are nearer than its farthest top pixel by more than epsilon: the
+    # per-pixel NumPy walk of tests/test_above_scan.py, L = 32 beams.
+    from test_above_scan import numpy_top_line_keep
+    spec = LidarSpec(beams=SPEC.beams, fov_up_deg=2.0, fov_down_deg=-25.0, columns=SPEC.columns)
+    scene = _street(cylinders=[[8.0, 1.0, 0.3, -1.7, 6.0]])
+    T_ref, T_old = _pose(), _pose((-5.0, 0.0, 0.0))
+    ref = _sweep(scene, T_ref, spec)
+    src = _sources([(ref, T_ref), (_sweep(scene, T_old, spec), T_old)], (0, 1), spec)
+    cams = stereo_cameras()
+    on = complete_sources_stages(src, jaxdepth.stack_cameras(cams), config=jaxdepth.SGMConfig(reference_top_line=True))
+    off = complete_sources_stages(src, jaxdepth.stack_cameras(cams))
+    removed = 0
+    for i, cam in enumerate(cams):
+        keep_on, keep_off = np.asarray(on.inlier_mask[i]), np.asarray(off.inlier_mask[i])
+        z_ref = np.asarray(jaxdepth.project_to_image(jnp.asarray(ref), jnp.ones(len(ref), bool), jnp.asarray(cam.K),
+                                                     jnp.asarray(cam.T_cam_lidar), height=cam.height,
+                                                     width=cam.width)[0])
+        sparse = np.asarray(off.sparse_depth[i, :cam.height, :cam.width])
+        is_ref = (z_ref > 0) & np.isclose(sparse, z_ref, rtol=1e-6, atol=0)     # the pixel's point is a reference one
+        keep_off, keep_on = keep_off[:cam.height, :cam.width], keep_on[:cam.height, :cam.width]
+        allowed = numpy_top_line_keep(keep_off & is_ref, sparse, beams=SPEC.beams, max_half_width_px=12)
+        np.testing.assert_array_equal(keep_on, keep_off & (is_ref | allowed))
+        gone = keep_off & ~keep_on
+        assert (sparse[gone] < 9.0).all(), "only the post's pixels go, never the wall's"
+        removed += int(gone.sum())
+    assert removed >= 2

@@ -90,7 +90,7 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
     if image_size is not None:      # the seeds of the canvas's padding columns are no part of the image
         seed_depth = jnp.where(jnp.arange(width)[None, :] < image_size[1], seed_depth, 0.0)
     cap = min(int(max_half_width_px), width - 1)
-    top = jnp.where(jnp.any(keep, axis=0), jnp.argmax(keep, axis=0), height).astype(jnp.int32)[None, :]
+    top = _top_line(keep)
     top_window, farthest = top, seed_depth
     for k in range(1, cap + 1):
         on = k <= k_max
@@ -99,3 +99,42 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
             farthest = jnp.where(on, jnp.maximum(farthest, _shift_columns(seed_depth, s, 0.0)), farthest)
     rows = jnp.arange(height, dtype=jnp.int32)[:, None]
     return jnp.where((rows < top_window) & (seed_depth > 0), farthest, depth_raw)
+
+
+def _top_line(mask: jax.Array) -> jax.Array:
+    """(1, W) int32: each column's first True row of an (H, W) mask (H where none)."""
+    return jnp.where(jnp.any(mask, axis=0), jnp.argmax(mask, axis=0), mask.shape[0]).astype(jnp.int32)[None, :]
+
+
+def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon_m: float = _DEFAULTS.epsilon_m,
+                  max_half_width_px: int = _DEFAULTS.outlier_max_half_width_px, image_width=None) -> jax.Array:
+    """(H, W) bool: the pixels an earlier sweep may seed, given the reference sweep's top scan line.
+
+    The top scan line over the paper's window: a pixel is at or below it when some pixel of
+    ``reference`` lies at or above its row in a column within ``|du| < W L / N`` of its own
+    (``N`` the reference pixels; the window of :func:`background_above_scan`). Where no column of
+    the window holds a reference pixel the reference sweep has no scan line there: every row counts
+    as below it. Above the line a pixel is kept when its depth is not nearer, by more than
+    ``epsilon_m`` (Algorithm 1's epsilon), than the farthest of the window columns' top reference
+    pixels: the same surface or a farther one continues upward; a nearer one is a near object's
+    top, seen only from an older origin, whose plane Step 4 would carry over the image above it.
+
+    Args:
+      reference: (H, W) bool, the kept pixels of the reference sweep's points.
+      depth: (H, W) float32 metres, every pixel's depth (the merged sparse image).
+      beams: L, the beams of the reference sweep's LiDARs.
+      epsilon_m: the depth margin, metres.
+      max_half_width_px: static cap on the window's half width, pixels.
+      image_width: optional traced int32 w, the image's width on a rig's canvas.
+    """
+    height, width = reference.shape
+    k_max = paper_half_width(reference, beams=beams, max_half_width_px=max_half_width_px, image_width=image_width)
+    top = _top_line(reference)
+    top_depth = jnp.take_along_axis(jnp.where(reference, depth, 0.0), jnp.minimum(top, height - 1), axis=0)
+    top_window, far = top, top_depth
+    for k in range(1, min(int(max_half_width_px), width - 1) + 1):
+        for s in (k, -k):
+            top_window = jnp.where(k <= k_max, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
+            far = jnp.where(k <= k_max, jnp.maximum(far, _shift_columns(top_depth, s, 0.0)), far)
+    top_window = jnp.where(top_window < height, top_window, 0)    # no reference pixel in the window: no line
+    return (jnp.arange(height, dtype=jnp.int32)[:, None] >= top_window) | (depth >= far - epsilon_m)

@@ -122,6 +122,12 @@ class SGMConfig:
         raster or rosette unit), the side of its free-space witness grid's square cells in mean
         point spacings of its own scan (``jaxdepth.batch.sources_job.scan_witness_spec``); 0: the
         rig's LidarSpec grid, as for every other source.
+      reference_top_line: in each camera image, the pixels of other sweeps' points that lie above the
+        reference sweep's top scan line (no kept reference-sweep pixel at or above their row in the
+        columns within the paper's window ``|du| < W L / N``) and nearer, by more than ``epsilon_m``,
+        than the farthest top reference pixel of those columns are no seeds
+        (:func:`~jaxdepth._src.above_scan.top_line_keep`). Off by default: it wins on the KITTI and
+        nuScenes twins and loses on the Argoverse 2 twin (docs/multi_source.md, rule 6).
     """
 
     outlier_removal: bool = True
@@ -151,6 +157,7 @@ class SGMConfig:
     free_space_neighbour_sweeps: int | None = 0
     occlusion_max_baseline_m: float = 1.0
     free_space_witness_cell: float = 2.0
+    reference_top_line: bool = False
 
     def __post_init__(self):
         if self.distance_metric not in DISTANCE_METRICS:

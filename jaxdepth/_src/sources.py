@@ -20,6 +20,10 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   own source's* origin as the viewpoint compared with the camera's; every
   pixel, whatever its source, is a neighbour ``j``. One pass over the image for
   all sources: each candidate carries its own origin.
+* Above the reference sweep's top scan line (``SGMConfig.reference_top_line``, off by default):
+  in each camera, the kept pixels of other sweeps' points above the reference sweep's kept top
+  scan line and nearer than its top pixels by more than epsilon are no seeds
+  (:func:`~jaxdepth._src.above_scan.top_line_keep`).
 * Steps 3 and 4 are the single-source ones on the merged, filtered image.
 
 With one source at the points' origin, :func:`complete_sources` equals
@@ -36,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.above_scan import top_line_keep
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
@@ -424,7 +429,7 @@ def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OC
 
 
 def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
-                   config, image_size=None, image=None) -> Stages:
+                   config, image_size=None, image=None, reference=None) -> Stages:
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
@@ -437,6 +442,11 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
     keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
                             pixel_shadow=pixel_shadow, image_size=image_size)
+    if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
+        own = keep & reference[jnp.maximum(pixel_source, 0)]
+        keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
+                                           max_half_width_px=config.outlier_max_half_width_px,
+                                           image_width=None if image_size is None else image_size[1]))
     stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
                             keep=keep, image_size=image_size)
     return clear_outside_window(stages, image_size)
@@ -467,6 +477,9 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
+    reference = None
+    if config.reference_top_line and any(sw != 0 for sw in sources.sweep):
+        reference = jnp.asarray(np.asarray(sources.sweep) == 0)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
     def per_camera(K, T, size, image, *, height, width):
@@ -478,7 +491,8 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
-                              height=height, width=width, beams=beams, config=config, image_size=size, image=image)
+                              height=height, width=width, beams=beams, config=config, image_size=size, image=image,
+                              reference=reference)
 
     return vmap_by_size(per_camera, cameras, images)     # one vmap per camera size (rig.py)
 
@@ -492,7 +506,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs).
       cameras: :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
       config: static :class:`SGMConfig`; its ``free_space_*`` and ``occlusion_max_baseline_m`` fields
-        set the free-space and occlusion rules (:func:`reference_view`, :func:`camera_witness`).
+        set the free-space and occlusion rules (:func:`reference_view`, :func:`camera_witness`);
+        ``reference_top_line`` drops other sweeps' near seeds above the reference sweep's top scan line.
       free_space: static; remove earlier sweeps' points that lie in another sweep's free space
         (:func:`free_space_keep`).
       beams: static L of Step 2's window bounds; default :func:`default_beams`.
