@@ -1,10 +1,11 @@
 """The projection gives a point the same pixel and depth bits in every program (issue 37).
 
 A rig's camera is projected under ``vmap``, its single-camera call unbatched. With a plain float32
-transform the two rounded ``R p + t`` apart (a batched and an unbatched matrix product) and XLA:CPU
-contracts ``a * b + c`` into an FMA at its default optimisation level depending on fusion: on the
-real Argoverse 2 sweep 8-11 % of the points got other z bits and 58-123 per camera another pixel
-(docs/multi_source.md). ``geometry.fixed_dot`` forms every product from 12-bit halves, so each
+transform the two rounded ``R p + t`` apart: for three or more cameras in a vmapped group XLA:CPU
+computes the batched product with another kernel than the unbatched one (two cameras round alike,
+hence no small test rig showed it), and it contracts ``a * b + c`` into an FMA at its default
+optimisation level depending on fusion. On the real Argoverse 2 sweep 8-11 % of the points got
+other z bits and 58-123 per camera another pixel (docs/multi_source.md). ``geometry.fixed_dot`` forms every product from 12-bit halves, so each
 product is exact and FMA or not gives the same result.
 
 Oracles: NumPy float32 evaluation of the same formula (NumPy does no FMA; with exact products the
