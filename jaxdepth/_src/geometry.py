@@ -158,9 +158,16 @@ def zbuffer_image(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, heig
     (:func:`camera_points`), so a caller that also needs each pixel's point gathers it from the
     same float32 values the z-buffer used.
     """
-    n = points_cam.shape[0]
     u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
-    ok = ok & valid.astype(bool)
+    return pixel_zbuffer(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size)
+
+
+def pixel_zbuffer(u: jax.Array, v: jax.Array, z: jax.Array, ok: jax.Array, *, height: int, width: int,
+                  valid_size: jax.Array | None = None):
+    """(H, W) depth and index images of (N,) points at pixel coordinates ``u``, ``v`` (rounded half to
+    even) with depth ``z``, where ``ok``; the nearest wins, then the smallest index (:func:`scatter_argmin`).
+    ``valid_size``: as :func:`project_to_image`. Returns ``(depth, index)`` as :func:`project_to_image`."""
+    n = u.shape[0]
     ui = jnp.round(u)
     vi = jnp.round(v)
     inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
