@@ -83,18 +83,13 @@ def _wrap(module, name: str, bucket: list) -> None:
     setattr(module, name, timed)
 
 
-def child(argv: list, ir_dir: str, report: str) -> int:
-    """Runs ``jaxdepth`` ``argv`` in this process and writes the profile to ``report`` (JSON)."""
-    t0, c0 = time.perf_counter(), _cpu()
-    import jaxdepth.cli as cli
-    t_cli, c_cli = time.perf_counter(), _cpu()
-    import jax
+def record_compile_steps(t0: float) -> tuple[list, dict]:
+    """Registers a ``jax.monitoring`` listener that appends every program's trace, lowering and XLA compile
+    (or cache load) to the returned list: step, program (JAX's ``fun_name``), wall seconds, the process CPU
+    seconds since the previous event (or since ``last["cpu"]``, the returned dict's entry, when a caller
+    resets it) and the time since ``t0`` (``time.perf_counter``)."""
     import jax.monitoring
-    t_jax, c_jax = time.perf_counter(), _cpu()
-    jax.config.update("jax_dump_ir_to", ir_dir)
-    jax.config.update("jax_dump_ir_modes", "stablehlo")
     events = []
-    counts = {}
     names = {"/jax/core/compile/jaxpr_trace_duration": "trace",
              "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
              "/jax/core/compile/backend_compile_duration": "compile"}
@@ -107,12 +102,28 @@ def child(argv: list, ir_dir: str, report: str) -> int:
                            "cpu_s_since_previous_event": now - last["cpu"], "at_s": time.perf_counter() - t0})
             last["cpu"] = now
 
+    jax.monitoring.register_event_duration_secs_listener(on_duration)
+    return events, last
+
+
+def child(argv: list, ir_dir: str, report: str) -> int:
+    """Runs ``jaxdepth`` ``argv`` in this process and writes the profile to ``report`` (JSON)."""
+    t0, c0 = time.perf_counter(), _cpu()
+    import jaxdepth.cli as cli
+    t_cli, c_cli = time.perf_counter(), _cpu()
+    import jax
+    import jax.monitoring
+    t_jax, c_jax = time.perf_counter(), _cpu()
+    jax.config.update("jax_dump_ir_to", ir_dir)
+    jax.config.update("jax_dump_ir_modes", "stablehlo")
+    events, _ = record_compile_steps(t0)
+    counts = {}
+
     def on_event(event, **kwargs):
         if event.startswith("/jax/compilation_cache/"):
             key = event.rsplit("/", 1)[1]
             counts[key] = counts.get(key, 0) + 1
 
-    jax.monitoring.register_event_duration_secs_listener(on_duration)
     jax.monitoring.register_event_listener(on_event)
     from jaxdepth.batch import av2_job, extras, nuscenes_job, rig_job, runner
     reads, writes = [], []

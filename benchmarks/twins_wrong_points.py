@@ -27,7 +27,9 @@ shadow, and the pixels they *spoil*: pixels of the Step-2-kept z-buffer whose po
 point (also per camera). Then, per camera, the SGM on the reference sweep alone (one sweep), on
 every sweep (the default) and on every sweep without the older sweeps' wrong points, with and
 without the free-space rules (:func:`sweep_loss`): which cameras carry the loss of extra sweeps and
-what perfect removal of older points would give back. A diagnosis: it reads the truth, and chooses
+what perfect removal of older points would give back. Last, the rules' own removals split by the truth
+(rules off, every sweep without the removed points the truth shows wrong, or right; rule 5's layers OR-ed
+over the rig's cameras) and the largest image region the wrong removals make worse (:func:`worst_region`). A diagnosis: it reads the truth, and chooses
 nothing.
 """
 
@@ -166,14 +168,17 @@ def wrong_per_camera(views, exact, *, tolerance_m: float = bench.TRUTH_TOLERANCE
     return out
 
 
-def sweep_loss(inp, exact, config, wrong, views) -> dict:
+def sweep_loss(inp, exact, config, wrong, views, removed=None) -> dict:
     """Per-camera SGM scores (RMSE / MAE mm) of the reference sweep alone (what one sweep gives: the same
     scores as the single-sweep path, docs/multi_source.md), every sweep (the default), and every sweep
     without the older sweeps' wrong points (an oracle of point removal that leaves the reference sweep
     alone), with and without the free-space rules: where extra sweeps lose, and what perfect removal
     of older points could give back. ``*_per_camera`` rows remove, for each camera's image, only the
     points wrong in that camera (one run per camera): the accuracy table's oracle removes a point
-    wrong in any camera from every camera, which opens holes where cameras overlap."""
+    wrong in any camera from every camera, which opens holes where cameras overlap. With ``removed``
+    ((N,) bool, the points rules 3 and 5 remove, :func:`rule_verdicts`), the rules' removals split by the
+    truth, rules off: every sweep, without the removed points the truth shows wrong, without the removed
+    points it shows right (what the rules' right and wrong verdicts each cost or gain)."""
     from jaxdepth.batch.sources_job import complete_cloud
     c = inp.cloud
     older = c.sweep[c.source] != 0
@@ -184,12 +189,45 @@ def sweep_loss(inp, exact, config, wrong, views) -> dict:
     runs = {"reference_sweep_alone": run(~older, True), "every_sweep": run(np.ones_like(older), True),
             "older_wrong_removed": run(~(older & wrong), True),
             "older_wrong_removed_no_rules": run(~(older & wrong), False)}
+    if removed is not None:
+        runs.update(every_sweep_no_rules=run(np.ones_like(older), False),
+                    rules_wrong_removals_no_rules=run(~(removed & wrong), False),
+                    rules_right_removals_no_rules=run(~(removed & ~wrong), False))
     per_cam = wrong_per_camera(views, exact)
     for name, base, only_older, rules in (("reference_wrong_removed_per_camera", ~older, False, True),
                                           ("older_wrong_removed_per_camera", True, True, True),
                                           ("every_wrong_removed_per_camera", True, False, False)):
         runs[name] = [run(base & ~(w & older if only_older else w), rules)[i] for i, w in enumerate(per_cam)]
-    return {name: bench.score(pred, exact) for name, pred in runs.items()}
+    scores = {name: bench.score(pred, exact) for name, pred in runs.items()}
+    if removed is not None:
+        scores["worst_region_of_wrong_removals"] = worst_region(runs["rules_wrong_removals_no_rules"],
+                                                                runs["every_sweep_no_rules"], exact)
+    return scores
+
+
+def worst_region(pred: list, base: list, exact: list, *, worse_m: float = 2.0) -> list:
+    """Per camera, the largest connected region (by added squared error) of pixels where ``pred``'s error
+    exceeds ``base``'s by more than ``worse_m`` in squared-error terms: its pixels, bounding box, share of
+    the camera's whole squared-error change, and the median exact, ``base`` and ``pred`` depth there (m).
+    Errors as the devkit's (a pixel without prediction counts its whole depth)."""
+    from scipy import ndimage
+    out = []
+    for p, b, e in zip(pred, base, exact):
+        t = e > 0
+        dse = np.where(t, np.where(p > 0, p - e, e) ** 2 - np.where(b > 0, b - e, e) ** 2, 0.0).astype(np.float64)
+        label, n = ndimage.label(dse > worse_m ** 2)
+        if n == 0:
+            out.append(None)
+            continue
+        sums = ndimage.sum(dse, label, np.arange(1, n + 1))
+        m = label == int(np.argmax(sums)) + 1
+        rows, cols = np.nonzero(m)
+        out.append({"pixels": int(m.sum()), "pixels_with_truth": int(t.sum()),
+                    "rows": [int(rows.min()), int(rows.max())], "cols": [int(cols.min()), int(cols.max())],
+                    "share_of_squared_error_change": float(sums.max() / dse.sum()),
+                    "median_exact_m": float(np.median(e[m])), "median_base_m": float(np.median(b[m])),
+                    "median_pred_m": float(np.median(p[m]))})
+    return out
 
 
 def main(argv=None) -> int:
@@ -225,7 +263,7 @@ def main(argv=None) -> int:
               "right_older_points_removed": int((~wrong & older & rules["removed"]).sum()),
               "right_older_points": int((~wrong & older).sum()), "classes": table,
               "cameras": [c.name for c in inp.rig.cameras], "pixels_spoiled_per_camera": spoiled_per_camera,
-              "scores": sweep_loss(inp, exact, config, wrong, views)}
+              "scores": sweep_loss(inp, exact, config, wrong, views, removed=rules["removed"])}
     print(f"{args.rig}, {args.sweeps} sweeps, seed {args.seed}, witness cell {args.witness_cell}: "
           f"{len(wrong)} points, {int(wrong.sum())} wrong; right older points removed "
           f"{result['right_older_points_removed']} of {result['right_older_points']}")
@@ -233,6 +271,9 @@ def main(argv=None) -> int:
         print(f"  {k:10s} " + "  ".join(f"{n} {v}" for n, v in row.items()))
     for name, row in zip(result["cameras"], spoiled_per_camera):
         print(f"  {name}: pixels spoiled " + "  ".join(f"{k} {v}" for k, v in row.items()))
+    for k, region in enumerate(result["scores"].pop("worst_region_of_wrong_removals", [])):
+        print(f"  {result['cameras'][k]}: worst region of the rules' wrong removals {region}")
+        result.setdefault("worst_region_of_wrong_removals", []).append(region)
     for name, sc in result["scores"].items():
         print(f"  {name:30s} {sc['rmse']:7.1f} / {sc['mae']:6.1f} | "
               + " ".join(f"{r['rmse']:.0f}/{r['mae']:.0f}" for r in sc["per_camera"]))
