@@ -7,17 +7,17 @@ command). The child registers ``jax.monitoring`` listeners before the command st
 for every jitted program, its trace (``jaxpr_trace_duration``), lowering (``jaxpr_to_mlir_module``) and
 backend compile / cache load (``backend_compile_duration``), each with the process CPU seconds spent
 meanwhile (``getrusage``: every thread, so reader threads running beside a compile count too), the
-persistent cache's hits and misses, and the size of each lowered module (StableHLO text written by
+persistent cache's hits and misses, the files in the cache folder afterwards (their bytes), and the size of each lowered module (StableHLO text written by
 ``jax_dump_ir_to``: lines and bytes; the dump itself costs a little of the lowering time). Reading
 (the job's loader) and PNG writes (``jaxdepth.batch.extras.write_outputs``) are timed by wrapping them.
 The import of ``jaxdepth.cli`` and of JAX is timed apart; the interpreter's own start is the
 parent's wall time minus the child's.
 
 Cases: ``av2`` (``complete LOG OUT --lidar-time``, the shared Argoverse 2 log cut to its first sweep:
-two VLP-32C, 7 ring cameras), ``kitti`` (``complete SRC OUT``, a one-frame depth-completion folder of
+two VLP-32C, 7 ring cameras), ``av2-nearest`` (the same with ``--method nearest``), ``kitti`` (``complete SRC OUT``, a one-frame depth-completion folder of
 the shared frame), ``nuscenes`` (``complete-rig SWEEP RIG OUT``, the shared sample, 6 cameras).
 
-    python -m benchmarks.bench_coldstart_profile [--cases av2 kitti nuscenes] [--warm]
+    python -m benchmarks.bench_coldstart_profile [--cases av2 av2-nearest kitti nuscenes] [--warm]
         [--json benchmarks/results/coldstart_profile.json]
 """
 
@@ -35,7 +35,7 @@ import time
 
 from benchmarks._common import DATA, RESULTS, write_results
 
-CASES = ("av2", "kitti", "nuscenes")
+CASES = ("av2", "av2-nearest", "kitti", "nuscenes")
 
 
 def _cpu() -> float:
@@ -45,12 +45,13 @@ def _cpu() -> float:
 
 def _command(case: str, tmp: pathlib.Path, out: pathlib.Path) -> list:
     """The ``jaxdepth`` arguments of ``case``, its inputs made in ``tmp`` (once)."""
-    if case == "av2":
+    if case in ("av2", "av2-nearest"):
         from benchmarks.bench_av2_coldstart import LOG, _log_of
         log = tmp / "one" / LOG.name
         if not log.exists():
             _log_of(tmp / "one", sorted((LOG / "sensors" / "lidar").glob("*.feather"))[:1])
-        return ["complete", str(log), str(out), "--lidar-time", "-q"]
+        method = ["--method", "nearest"] if case == "av2-nearest" else []
+        return ["complete", str(log), str(out), "--lidar-time", *method, "-q"]
     if case == "kitti":
         from benchmarks.bench_offline_job import build_folder
         src = tmp / "kitti_src"
@@ -186,6 +187,8 @@ def run_case(case: str, tmp: pathlib.Path, *, warm: bool) -> dict:
     doc["interpreter_start_wall_s"] = wall - sum(doc[k]["wall_s"] for k in ("import_cli", "import_jax", "command"))
     doc["summary"] = _summary(doc)
     doc["argv"] = argv
+    doc["cache_files_bytes"] = {str(f.relative_to(cache)): f.stat().st_size
+                                for f in sorted(cache.rglob("*")) if f.is_file()}
     return doc
 
 
@@ -194,7 +197,7 @@ def main(argv=None) -> int:
     if argv and argv[0] == "--child":
         return child(argv[4:], argv[1], argv[2])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
+    parser.add_argument("--cases", nargs="+", default=["av2", "kitti", "nuscenes"], choices=CASES)
     parser.add_argument("--warm", action="store_true", help="a cache filled by the same command first")
     parser.add_argument("--json", default=str(RESULTS / "coldstart_profile.json"))
     args = parser.parse_args(argv)

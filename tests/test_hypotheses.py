@@ -58,6 +58,29 @@ def test_column_neighbours_match_a_walk():
                     assert abs(depths[v, u] - (z if found else 0.0)) <= step / 2 + 1e-5
 
 
+
+@pytest.mark.parametrize("max_gap", [0, 3, 24, 60])
+def test_column_keys_equal_a_window_max(max_gap):
+    """The running max cut at ``max_gap`` equals the max over a window of ``max_gap + 1`` rows
+    (``lax.reduce_window``, the plain formulation) bit for bit, also for a window of a canvas (the
+    image's top rows kept, ``height`` traced) and a search range longer than the image."""
+    from jax import lax
+
+    from jaxdepth._src.hypotheses import _column_keys
+    rng = np.random.default_rng(max_gap)
+    kept = np.where(sparse_rows(H, W, rng, every=7), rng.uniform(0.5, 149, (H, W)), 0.0).astype(np.float32)
+    for height in (None, 29):
+        if height is not None:
+            kept[height:] = 0.0
+        up, down, bits, scale, top, last = _column_keys(jnp.asarray(kept), max_gap=max_gap, height=height)
+        rows = np.arange(H)[:, None]
+        level = np.clip(np.round(kept * np.float32(scale)), 1, int(top)).astype(np.int32)
+        for got, order, padding in ((up, rows, (max_gap, 0)), (down, int(last) - rows, (0, max_gap))):
+            key = jnp.asarray(np.where(kept > 0, (order << int(bits)) | level, -1).astype(np.int32))
+            want = lax.reduce_window(key, -1, lax.max, (max_gap + 1, 1), (1, 1), [padding, (0, 0)])
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+
+
 def numpy_hypothesis(z, n, gap, v, u, K, sign):
     """The paper's z' + Delta z from a seed ``gap`` rows above (sign -1) or below (+1), float64."""
     dv = sign * gap

@@ -80,22 +80,43 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
     last = h - 1 if height is None else jnp.asarray(height, jnp.int32) - 1
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
     level = jnp.clip(jnp.round(kept_depth * scale), 1, top).astype(jnp.int32)
+    kept = kept_depth > 0
+    # The row sits in the key's high bits, so the max over the rows up to v (from v on) is the key of
+    # the nearest kept row above (below); dropping those more than max_gap rows away gives the max
+    # over the window of max_gap + 1 rows, bit for bit.
+    up, down = _running_max_rows(jnp.where(kept, (rows << depth_bits) | level, -1),
+                                 jnp.where(kept, ((last - rows) << depth_bits) | level, -1))
     g = int(max_gap)
-
-    def nearest(order, padding):
-        key = jnp.where(kept_depth > 0, (order << depth_bits) | level, -1)
-        return lax.reduce_window(key, -1, lax.max, (g + 1, 1), (1, 1), [padding, (0, 0)])
-
-    up = nearest(rows, (g, 0))                    # above: the largest row wins
-    down = nearest(last - rows, (0, g))           # below: the smallest row wins
+    up = jnp.where(rows - (up >> depth_bits) <= g, up, -1)                 # above: the largest row wins
+    down = jnp.where(last - (down >> depth_bits) - rows <= g, down, -1)    # below: the smallest row wins
     return up, down, depth_bits, scale, top, last
+
+
+def _running_max_rows(forward: jax.Array, backward: jax.Array):
+    """(H, W) int32 running maxima along the rows: of ``forward`` from row 0 down, of ``backward``
+    from the last row up. One loop of in-place row updates: its cost is per pixel whatever the search
+    range (a ``lax.reduce_window`` over ``max_gap + 1`` rows reads each pixel ``max_gap + 1`` times,
+    and on XLA:CPU grew to ~25 ns per pixel at 1550 x 2048, 24 rows, against ~0.6 at 375 x 1242).
+    """
+    h, w = forward.shape
+    init = jnp.full((w,), -1, jnp.int32)
+
+    def step(i, state):
+        c_fwd, c_bwd, fwd, bwd = state
+        c_fwd = jnp.maximum(c_fwd, fwd[i])
+        c_bwd = jnp.maximum(c_bwd, bwd[h - 1 - i])
+        return (c_fwd, c_bwd, lax.dynamic_update_index_in_dim(fwd, c_fwd, i, 0),
+                lax.dynamic_update_index_in_dim(bwd, c_bwd, h - 1 - i, 0))
+
+    _, _, forward, backward = lax.fori_loop(0, h, step, (init, init, forward, backward))
+    return forward, backward
 
 
 def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=None):
     """The nearest kept LiDAR pixels straight above and below every pixel: their rows and depths.
 
-    A LiDAR pixel is its own neighbour (gap 0). Each direction is one
-    ``lax.reduce_window`` (max over ``max_gap + 1`` rows) of an int32 key that
+    A LiDAR pixel is its own neighbour (gap 0). Each direction is the max over
+    ``max_gap + 1`` rows (a running max down / up the rows, cut at ``max_gap``) of an int32 key that
     packs the row (high bits: the nearest row wins) over the depth quantised to
     ``256 m / 2**(31 - ceil(log2 H))`` (low bits; 0.06 mm for H = 352, 0.12 mm
     for H = 900). The depths returned are those quantised depths, within half a
