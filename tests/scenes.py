@@ -30,6 +30,40 @@ def lidar_to_camera(offset=(-0.3, 0.0, 0.3)) -> np.ndarray:
     return T.astype(np.float32)
 
 
+def turned_lidar_to_camera(offset=(-0.3, 0.0, 0.3), *, yaw_deg: float = 7.3, pitch_deg: float = 3.1,
+                           roll_deg: float = -2.2) -> np.ndarray:
+    """:func:`lidar_to_camera` turned by odd angles (LiDAR z, y, x axes): no rotation entry is 0 or
+    +-1, so the transform's products are not exact in float32 (the axis-aligned pose's are, which
+    hides any rounding difference between two ways of computing a projection)."""
+    from scipy.spatial.transform import Rotation
+    T = lidar_to_camera(offset).astype(np.float64)
+    turn = Rotation.from_euler("zyx", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
+    T[:3, :3] = T[:3, :3] @ turn.T
+    T[:3, 3] = T[:3, :3] @ np.asarray(offset, np.float64)
+    return T.astype(np.float32)
+
+
+def snap_to_pixel_edges(points: np.ndarray, camera: Camera, *, min_depth_m: float = 0.1) -> np.ndarray:
+    """(N, 3) float32 ``points`` with every one ``camera`` sees moved (float64) so that its pixel
+    coordinates are exactly ``(k + 0.5, m + 0.5)``: a rounding edge in u and v, where any float32
+    difference between two projections of it picks another pixel. At most half a pixel sideways;
+    points outside the image or behind the camera are kept."""
+    K = np.asarray(camera.K, np.float32).astype(np.float64)
+    T = np.asarray(camera.T_cam_lidar, np.float32).astype(np.float64)
+    p = np.asarray(points, np.float64) @ T[:3, :3].T + T[:3, 3]
+    z = p[:, 2]
+    front = z > min_depth_m
+    zs = np.where(front, z, 1.0)
+    v = K[1, 1] * p[:, 1] / zs + K[1, 2]
+    u = K[0, 0] * p[:, 0] / zs + K[0, 1] * p[:, 1] / zs + K[0, 2]
+    seen = front & (u > -0.5) & (u < camera.width - 0.5) & (v > -0.5) & (v < camera.height - 0.5)
+    u, v = np.floor(u) + 0.5, np.floor(v) + 0.5
+    y = (v - K[1, 2]) / K[1, 1] * zs
+    x = (u - K[0, 2] - K[0, 1] * y / zs) / K[0, 0] * zs
+    moved = (np.stack([x, y, z], 1) - T[:3, 3]) @ T[:3, :3]      # R^T (p - t)
+    return np.where(seen[:, None], moved, points).astype(np.float32)
+
+
 def small_camera(T_cam_lidar=None, h: int = 96, w: int = 160, f: float = 120.0) -> Camera:
     """An (h, w) pinhole camera of focal length ``f`` px, principal point 10 rows above the centre
     (the horizon in the upper half); ``T_cam_lidar`` defaults to :func:`lidar_to_camera`."""

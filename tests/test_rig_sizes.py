@@ -6,7 +6,9 @@ same K and pose: Step 2's window bounds (H / L, W L / N), the column bracket's H
 blur's border and the above-scan window are the camera's own, and the padding is never read.
 Oracle: :func:`jaxdepth.complete_points_stages` (one LiDAR) and
 :func:`jaxdepth.complete_sources` of a one-camera rig (several sources), at each camera's own
-size (the mask and seeds bit for bit, depths to float32 rounding). Plus jit == eager of the
+size (the mask and seeds bit for bit, depths to float32 rounding), on the street scene and on
+``edge_rig`` (points on rounding edges of three turned cameras: the scene where a batched and an
+unbatched float32 product put points into other pixels, issue 37). Plus jit == eager of the
 mixed-size rig, and the cameras grouped by size (one vmap per size on a canvas of that size) against
 the same program with every camera on the padded canvas (``RigCameras.sizes=None``): bit for bit
 inside each window, every field 0 (False) beyond it.
@@ -31,7 +33,7 @@ from jaxdepth._src.rig import size_groups, vmap_by_size
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 
 from _harness import assert_close, assert_tree_close, check_stage
-from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
+from scenes import SMALL_LIDAR, lidar_to_camera, small_camera, snap_to_pixel_edges, turned_lidar_to_camera
 
 LIDAR = SMALL_LIDAR
 FIELDS = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv", "residual", "depth_raw", "depth")
@@ -46,6 +48,22 @@ def mixed_rig():
             small_camera(lidar_to_camera((-0.5, 0.1, 0.2)), h=24, w=40, f=34.0)]
     frame = synthetic.make_street_scene(3, lidar=LIDAR, cameras=cams)
     return np.asarray(frame.points), np.asarray(frame.valid), cams
+
+
+@pytest.fixture(scope="module")
+def edge_rig(mixed_rig):
+    """``mixed_rig``'s points seen by three 24 x 40 cameras turned by odd angles (one vmapped group),
+    every point the middle camera sees moved onto a rounding edge of its pixel grid. A batched
+    product of three or more cameras' rotations rounds apart from the unbatched one (XLA:CPU picks
+    another kernel; two cameras, as in ``mixed_rig``, round alike), so a projection computed with
+    plain float32 products puts points into other pixels here (issue 37;
+    tests/test_projection_rounding.py)."""
+    points, valid, _ = mixed_rig
+    cams = [small_camera(turned_lidar_to_camera((-0.3, 0.2, 0.3), yaw_deg=14.1), h=24, w=40, f=30.0),
+            small_camera(turned_lidar_to_camera(), h=24, w=40, f=30.0),
+            small_camera(turned_lidar_to_camera((-0.5, 0.1, 0.2), yaw_deg=-11.9, pitch_deg=1.7), h=24, w=40,
+                         f=34.0)]
+    return snap_to_pixel_edges(points, cams[1]), valid, cams
 
 
 def _assert_own_size(rig, i, cam, single):
@@ -71,10 +89,12 @@ def _assert_own_size(rig, i, cam, single):
 
 
 @pytest.mark.slow  # whole pipeline programs of their own: the 40 x 40 rig and each camera size
-def test_rig_camera_equals_its_own_single_camera_call(mixed_rig):
-    points, valid, cams = mixed_rig
-    rig = complete_rig_stages(points, valid, stack_cameras(cams), lidar=LIDAR)
-    assert rig.depth.shape == (3, 40, 40)
+@pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
+def test_rig_camera_equals_its_own_single_camera_call(scene, request):
+    points, valid, cams = request.getfixturevalue(scene)
+    cameras = stack_cameras(cams)
+    rig = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
+    assert rig.depth.shape == (3, cameras.height, cameras.width) == (3, 40 if scene == "mixed_rig" else 24, 40)
     for i, cam in enumerate(cams):
         single = complete_points_stages(points, valid, cam, lidar=LIDAR)
         assert int(np.asarray(single.inlier_mask).sum()) > 20      # a real scene in every camera
@@ -82,8 +102,9 @@ def test_rig_camera_equals_its_own_single_camera_call(mixed_rig):
 
 
 @pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
-def test_sources_rig_camera_equals_its_own_single_camera_call(mixed_rig):
-    points, valid, cams = mixed_rig
+@pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
+def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
+    points, valid, cams = request.getfixturevalue(scene)
     # One source at the points' origin: complete_sources equals complete_rig (docs/multi_source.md),
     # through Step 2 per source (each pixel's own origin) and the free-space path's projection.
     sources = make_sources(points[None], valid[None], np.eye(4, dtype=np.float32)[None], lidars=(LIDAR,))

@@ -4,6 +4,16 @@ Conventions: ``p_cam = T_cam_lidar @ p_lidar``; the camera looks along +z with x
 right and y down; ``u`` is the column and ``v`` the row; a point projects to the
 pixel ``(round(fx x/z + s y/z + cx), round(fy y/z + cy))`` (pixel centres sit on
 integer coordinates, as in KITTI's ``velodyne_raw``).
+
+The projection (:func:`camera_points`, :func:`project_pixels`, hence :func:`project_to_image`)
+computes every product of two float32 numbers from their 12-bit halves (:func:`fixed_dot`), so
+each product is exact and a fused multiply-add gives the same float32 as a multiply then an add.
+XLA:CPU contracts ``a * b + c`` into an FMA at its default optimisation level (not at level 0),
+and whether it does depends on how the program is fused, which differs between a vmapped and an
+unbatched call (a (C, N, 3) x (C, 3, 3) batched product is not the (N, 3) x (3, 3) one either).
+With exact products the float32 result no longer depends on that: the pixel and depth of a point
+are the same bits in a rig's camera, in its single-camera call, at any optimisation level and in
+the NumPy oracle (``tests/test_projection_rounding.py``).
 """
 
 from __future__ import annotations
@@ -12,6 +22,10 @@ import functools
 
 import jax
 import jax.numpy as jnp
+from jax import lax
+
+#: int32 mask that clears the low 12 of a float32's 23 stored significand bits.
+_HIGH_HALF = -4096   # 0xFFFFF000
 
 
 def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill):
@@ -40,8 +54,68 @@ def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill):
     return best[:size], idx[:size]
 
 
+def split_halves(x: jax.Array):
+    """``x = hi + lo`` exactly, each part with at most 12 significant bits (float32).
+
+    ``hi`` is ``x`` with the low 12 stored significand bits cleared (an integer mask, so no
+    float rounding and no FMA is involved), ``lo = x - hi`` is exact. The product of two such
+    parts has at most 24 significant bits: exact in float32 (Dekker's product; barring
+    under- or overflow, far outside metres and pixels).
+    """
+    x = jnp.asarray(x, jnp.float32)
+    hi = lax.bitcast_convert_type(lax.bitcast_convert_type(x, jnp.int32) & jnp.int32(_HIGH_HALF), jnp.float32)
+    return hi, x - hi
+
+
+def fixed_dot(weights, values, offset=None) -> jax.Array:
+    """``offset + sum_k weights[k] * values[k]`` in float32 with every product exact.
+
+    Each product is formed from the 12-bit halves of its factors (:func:`split_halves`): four
+    exact products, summed in a fixed order (the high x high terms and ``offset``, then the
+    cross terms, then the low x low terms). Whether the compiler fuses a multiply and an add
+    into an FMA cannot change the result, so the same inputs give the same bits in every
+    program (vmapped or not, any fusion, any XLA optimisation level). About as accurate as a
+    plain float32 dot (a few ulps).
+
+    Args:
+      weights: sequence of K float32 scalars or arrays; values: sequence of K float32 arrays;
+        all broadcastable. offset: optional float32 scalar or array.
+
+    Returns:
+      float32 array of the broadcast shape.
+    """
+    high, cross, low = [], [], []
+    for w, x in zip(weights, values, strict=True):
+        wh, wl = split_halves(w)
+        xh, xl = split_halves(x)
+        high.append(wh * xh)
+        cross.append(wh * xl + wl * xh)
+        low.append(wl * xl)
+    total = functools.reduce(jnp.add, high)
+    if offset is not None:
+        total = total + jnp.asarray(offset, jnp.float32)
+    return total + (functools.reduce(jnp.add, cross) + functools.reduce(jnp.add, low))
+
+
+def camera_points(T: jax.Array, points: jax.Array, *, translate: bool = True) -> jax.Array:
+    """``R p + t`` of (N, 3) points by a (4, 4) rigid transform with :func:`fixed_dot` (exact products).
+
+    The projection's transform: the same bits under ``vmap`` as unbatched. ``translate=False``
+    rotates only (normals). Returns (N, 3) float32.
+    """
+    T = jnp.asarray(T, jnp.float32)
+    points = jnp.asarray(points, jnp.float32)
+    cols = (points[:, 0], points[:, 1], points[:, 2])
+    rows = [fixed_dot((T[i, 0], T[i, 1], T[i, 2]), cols, T[i, 3] if translate else None) for i in range(3)]
+    return jnp.stack(rows, axis=-1)
+
+
 def transform_points(T: jax.Array, points: jax.Array) -> jax.Array:
-    """Applies a (4, 4) rigid transform to (N, 3) points; returns (N, 3)."""
+    """Applies a (4, 4) rigid transform to (N, 3) points; returns (N, 3).
+
+    A plain float32 product (its rounding may differ between a vmapped and an unbatched call);
+    the projection uses :func:`camera_points`.
+    """
     T = jnp.asarray(T, jnp.float32)
     return points @ T[:3, :3].T + T[:3, 3]
 
@@ -58,6 +132,9 @@ def invert_rigid(T: jax.Array) -> jax.Array:
 def project_pixels(points_cam: jax.Array, K: jax.Array, *, min_depth_m: float = 0.1):
     """Pinhole projection of (N, 3) camera-frame points.
 
+    ``u = fx x/z + s y/z + cx`` and ``v = fy y/z + cy`` with :func:`fixed_dot` (exact products, the
+    same bits in every program).
+
     Returns:
       (u, v, z, in_front): u, v float32 pixel coordinates (not rounded), z float32
       metres, and a bool mask of points with finite coordinates and z > min_depth_m.
@@ -68,9 +145,41 @@ def project_pixels(points_cam: jax.Array, K: jax.Array, *, min_depth_m: float = 
     safe_z = jnp.where(in_front, z, 1.0)
     xs = jnp.where(in_front, x, 0.0) / safe_z
     ys = jnp.where(in_front, y, 0.0) / safe_z
-    u = K[0, 0] * xs + K[0, 1] * ys + K[0, 2]
-    v = K[1, 1] * ys + K[1, 2]
+    u = fixed_dot((K[0, 0], K[0, 1]), (xs, ys), K[0, 2])
+    v = fixed_dot((K[1, 1],), (ys,), K[1, 2])
     return u, v, jnp.where(in_front, z, 0.0), in_front
+
+
+def zbuffer_image(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, height: int, width: int,
+                  min_depth_m: float = 0.1, valid_size: jax.Array | None = None):
+    """The nearest-point z-buffer of (N, 3) camera-frame points: :func:`project_to_image` after the transform.
+
+    Args and returns as :func:`project_to_image`, with ``points_cam`` already in the camera frame
+    (:func:`camera_points`), so a caller that also needs each pixel's point gathers it from the
+    same float32 values the z-buffer used.
+    """
+    u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
+    return pixel_zbuffer(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size)
+
+
+def pixel_zbuffer(u: jax.Array, v: jax.Array, z: jax.Array, ok: jax.Array, *, height: int, width: int,
+                  valid_size: jax.Array | None = None):
+    """(H, W) depth and index images of (N,) points at pixel coordinates ``u``, ``v`` (rounded half to
+    even) with depth ``z``, where ``ok``; the nearest wins, then the smallest index (:func:`scatter_argmin`).
+    ``valid_size``: as :func:`project_to_image`. Returns ``(depth, index)`` as :func:`project_to_image`."""
+    n = u.shape[0]
+    ui = jnp.round(u)
+    vi = jnp.round(v)
+    inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
+    if valid_size is not None:
+        valid_size = jnp.asarray(valid_size)
+        inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
+    dump = height * width
+    flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
+    zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
+    depth = jnp.where(jnp.isfinite(zbuf), zbuf, 0.0).reshape(height, width)
+    index = jnp.where(idx == n, -1, idx).reshape(height, width)
+    return depth, index
 
 
 @functools.partial(jax.jit, static_argnames=("height", "width", "min_depth_m"))
@@ -93,24 +202,12 @@ def project_to_image(points: jax.Array, valid: jax.Array, K: jax.Array, T_cam_li
       (depth, index): depth (H, W) float32 metres with 0 = empty; index (H, W)
       int32, the point that won each pixel (smallest depth; among equal depths the
       smallest point index), -1 where empty. Scatter-min makes the result
-      independent of the order in which duplicates are applied.
+      independent of the order in which duplicates are applied. The transform and
+      the pixel coordinates use exact products (:func:`fixed_dot`): a camera's
+      result is the same bits under ``vmap`` (a rig) as in its own call.
     """
-    n = points.shape[0]
-    p = transform_points(T_cam_lidar, points.astype(jnp.float32))
-    u, v, z, ok = project_pixels(p, K, min_depth_m=min_depth_m)
-    ok = ok & valid.astype(bool)
-    ui = jnp.round(u)
-    vi = jnp.round(v)
-    inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
-    if valid_size is not None:
-        valid_size = jnp.asarray(valid_size)
-        inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
-    dump = height * width
-    flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
-    zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
-    depth = jnp.where(jnp.isfinite(zbuf), zbuf, 0.0).reshape(height, width)
-    index = jnp.where(idx == n, -1, idx).reshape(height, width)
-    return depth, index
+    p = camera_points(T_cam_lidar, points.astype(jnp.float32))
+    return zbuffer_image(p, valid, K, height=height, width=width, min_depth_m=min_depth_m, valid_size=valid_size)
 
 
 def pixel_grid(height: int, width: int):

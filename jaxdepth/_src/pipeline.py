@@ -32,7 +32,7 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed
 from jaxdepth._src.images import guidance_image
-from jaxdepth._src.geometry import project_to_image, transform_points
+from jaxdepth._src.geometry import camera_points, zbuffer_image
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.pixel_normals import pixel_normals
@@ -48,12 +48,6 @@ def _check_image_inputs(sparse_depth, K):
         raise ValueError(f"complete: field 'sparse_depth' expected shape (H, W), got {sparse_depth.shape}")
     if K.shape != (3, 3):
         raise ValueError(f"complete: field 'K' expected shape (3, 3), got {K.shape}")
-
-
-def _normals_to_camera(normals_lidar: jax.Array, T_cam_lidar: jax.Array) -> jax.Array:
-    """(N, 3) LiDAR-frame normals -> (3, N) camera-frame normals (rotation only)."""
-    R = jnp.asarray(T_cam_lidar, jnp.float32)[:3, :3]
-    return R @ normals_lidar.T
 
 
 def _gather_seeds(seed_field, normals, du, dv):
@@ -274,12 +268,19 @@ def project_with_normals(points, valid, normals, T, K, *, height: int, width: in
     Returns:
       sparse_depth (H, W) float32 (0 = empty); index (H, W) int32 of the point seen (-1 = none);
       points_cam and normals_cam (3, H, W) float32, 0 where no point is seen.
+
+    Points and normals are transformed once per point with exact products
+    (:func:`~jaxdepth._src.geometry.camera_points`), then gathered per pixel: the z-buffer and
+    ``points_cam`` read the same float32 values, the same bits in a rig's camera (``vmap``) as in
+    its single-camera call.
     """
-    sparse_depth, index = project_to_image(points, valid, K, T, height=height, width=width, valid_size=image_size)
+    p_cam = camera_points(T, points)
+    sparse_depth, index = zbuffer_image(p_cam, valid, K, height=height, width=width, valid_size=image_size)
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
-    points_cam = jnp.where(hit[None], transform_points(T, points[safe]).T.reshape(3, height, width), 0.0)
-    normals_cam = jnp.where(hit[None], _normals_to_camera(normals[safe], T).reshape(3, height, width), 0.0)
+    n_cam = camera_points(T, normals, translate=False)
+    points_cam = jnp.where(hit[None], p_cam[safe].T.reshape(3, height, width), 0.0)
+    normals_cam = jnp.where(hit[None], n_cam[safe].T.reshape(3, height, width), 0.0)
     return sparse_depth, index, points_cam, normals_cam
 
 

@@ -12,10 +12,13 @@ Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
-the mask and seeds bit for bit, the depths to float32 rounding (the vmapped body
-is fused differently; tests/test_rig_sizes.py). On a real sweep that rounding can
-also move a projected point into the next pixel (a vmapped and an unbatched
-projection round u, v apart; docs/speed.md, "Grouped by size").
+the z-buffer, the mask and the seeds bit for bit, the depths to float32 rounding
+(Step 4's vmapped body is fused differently; tests/test_rig_sizes.py). The projection
+forms every product exactly (:func:`~jaxdepth._src.geometry.fixed_dot`), so a point
+gets the same pixel and depth bits in the rig as in its own call (issue 37: with plain
+float32 products, XLA:CPU's batched rotation product for three or more cameras rounded
+z, u, v apart from the unbatched one, and on the Argoverse 2 sweep ``sparse_depth``
+differed on 1,700-4,600 px per camera; docs/speed.md, "Grouped by size").
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
