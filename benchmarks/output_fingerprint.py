@@ -222,7 +222,7 @@ def sweeps(tmp: pathlib.Path) -> dict:
         cam = sq.camera
         rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
                                                          np.asarray(cam.T_cam_lidar)),))
-        out.update(stages_digests(complete_cloud(cloud, rig, stages=True), f"synthetic.sweeps.{lidars}_lidars"))
+        out.update(stages_digests(complete_cloud(cloud, rig, stages=True), f"drive.sweeps.{lidars}_lidars"))
     return out
 
 
