@@ -14,6 +14,7 @@ Runs, in one process:
   and the API's ``complete_rig_stages``.
 * the synthetic street scene: ``jaxdepth demo`` and the API's ``make_street_scene``
   (with images), ``complete_points_stages`` and ``complete_rig_stages``.
+* the multi-source path on a synthetic drive (3 sweeps of one LiDAR, and of two): :func:`sweeps`.
 
 Each output is hashed as decoded array bytes (dtype and shape included). Same code,
 same hashes: a refactor that claims "no behaviour change" must leave the JSON unchanged.
@@ -204,6 +205,27 @@ def synthetic(tmp: pathlib.Path) -> dict:
     return out
 
 
+def sweeps(tmp: pathlib.Path) -> dict:
+    """The multi-source path (``complete_cloud``, as ``complete-rig`` with a sweeps JSON runs it) on the
+    synthetic drive of :func:`jaxdepth._src.synthetic_sequences.make_street_sequence`: 3 sweeps of one
+    LiDAR (rule 6 runs by default) and 3 sweeps of two LiDARs (it does not)."""
+    from jaxdepth._src.synthetic_sequences import make_street_sequence
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io.rig import Rig, RigCamera
+    from jaxdepth.io.sources import SourceCloud
+
+    out = {}
+    for lidars in (1, 2):
+        sq = make_street_sequence(0, sweeps=3, lidars=lidars, image_scale=0.25)
+        cloud = SourceCloud(points=sq.points, source=sq.source, T_ref_source=sq.T_ref_source, lidars=sq.lidars,
+                            sweep=sq.sweep, names=sq.names)
+        cam = sq.camera
+        rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
+                                                         np.asarray(cam.T_cam_lidar)),))
+        out.update(stages_digests(complete_cloud(cloud, rig, stages=True), f"drive.sweeps.{lidars}_lidars"))
+    return out
+
+
 def crop_K(K, *, top: int, left: int) -> np.ndarray:
     """Intrinsics of the image cropped at row ``top``, column ``left``."""
     K = np.array(K, np.float32)
@@ -225,7 +247,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = pathlib.Path(tmp_name)
         hashes = {}
-        for part in (kitti, nuscenes, synthetic):
+        for part in (kitti, nuscenes, synthetic, sweeps):
             hashes.update(part(tmp))
     hashes = dict(sorted(hashes.items()))
     for name, value in hashes.items():

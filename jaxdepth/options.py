@@ -46,11 +46,11 @@ def _sweeps_count(text: str):
     return value
 
 
-def _on_off(text: str) -> bool:
-    """--reference-top-line: on or off."""
-    if text not in ("on", "off"):
-        raise argparse.ArgumentTypeError(f"expected 'on' or 'off', got {text!r}")
-    return text == "on"
+def _top_line_mode(text: str) -> str:
+    """--reference-top-line: auto, on or off."""
+    if text not in ("auto", "on", "off"):
+        raise argparse.ArgumentTypeError(f"expected 'auto', 'on' or 'off', got {text!r}")
+    return text
 
 
 #: The multi-source options (docs/multi_source.md): flag -> (SGMConfig field, type, metavar, what it sets).
@@ -69,9 +69,9 @@ _SOURCES_OPTIONS = {
     "--witness-cell": ("free_space_witness_cell", float, "K", "free-space grid of a scan without laser rows or "
                        "stated spec whose own grid it fills too sparsely (a rosette): cells of K mean point "
                        "spacings (default 2.0; 0: the rig's LiDAR spec)"),
-    "--reference-top-line": ("reference_top_line", _on_off, "on|off", "other sweeps' points above the reference "
-                             "sweep's top scan line in a camera and nearer than its top pixels by more than "
-                             "epsilon are no seeds (default off)"),
+    "--reference-top-line": ("reference_top_line", _top_line_mode, "auto|on|off", "other sweeps' points above "
+                             "the reference sweep's top scan line in a camera and nearer than its top pixels by more "
+                             "than epsilon are no seeds (default auto: on for one LiDAR scanned in laser rows)"),
 }
 
 

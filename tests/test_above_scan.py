@@ -152,9 +152,11 @@ def test_top_line_keep_matches_the_per_pixel_oracle(points, cap, gap):
 def test_reference_top_line_flag():
     p = argparse.ArgumentParser()
     add_config_options(p)
-    assert config_changes(p.parse_args(["--reference-top-line", "on"]))["reference_top_line"] is True
-    assert config_changes(p.parse_args(["--reference-top-line", "off"]))["reference_top_line"] is False
+    for mode in ("auto", "on", "off"):
+        assert config_changes(p.parse_args(["--reference-top-line", mode]))["reference_top_line"] == mode
     assert "reference_top_line" not in config_changes(p.parse_args([]))
-    assert jaxdepth.SGMConfig().reference_top_line is False
+    assert jaxdepth.SGMConfig().reference_top_line == "auto"
     with pytest.raises(SystemExit):
         p.parse_args(["--reference-top-line", "yes"])
+    with pytest.raises(ValueError, match="reference_top_line"):
+        jaxdepth.SGMConfig(reference_top_line=True)

@@ -7,7 +7,7 @@ the flags users compile with. It recomputes the synthetic street's outputs of
 with and without guidance, the stereo ``complete_rig_stages`` and a rig of two camera sizes: no shared
 data needed) and compares
 their SHA-256 with the recorded file, the same file ``python -m benchmarks.output_fingerprint --check``
-compares all 98 outputs with.
+compares all 116 outputs with.
 """
 
 from __future__ import annotations

@@ -576,8 +576,8 @@ def test_older_sweeps_give_no_seed_above_the_reference_top_scan_line():
     ref = _sweep(scene, T_ref, spec)
     src = _sources([(ref, T_ref), (_sweep(scene, T_old, spec), T_old)], (0, 1), spec)
     cams = stereo_cameras()
-    on = complete_sources_stages(src, jaxdepth.stack_cameras(cams), config=jaxdepth.SGMConfig(reference_top_line=True))
-    off = complete_sources_stages(src, jaxdepth.stack_cameras(cams))
+    on = complete_sources_stages(src, jaxdepth.stack_cameras(cams), config=jaxdepth.SGMConfig(reference_top_line="on"))
+    off = complete_sources_stages(src, jaxdepth.stack_cameras(cams), config=jaxdepth.SGMConfig(reference_top_line="off"))
     removed = 0
     for i, cam in enumerate(cams):
         keep_on, keep_off = np.asarray(on.inlier_mask[i]), np.asarray(off.inlier_mask[i])
@@ -593,3 +593,25 @@ def test_older_sweeps_give_no_seed_above_the_reference_top_scan_line():
         assert (sparse[gone] < 9.0).all(), "only the post's pixels go, never the wall's"
         removed += int(gone.sum())
     assert removed >= 2
+
+
+def test_rule_6_runs_by_default_for_one_reference_scan_filling_its_rows():
+    # "auto" (the default) decides from the static sources alone: never with one sweep; on for ONE
+    # reference-sweep source whose free-space grid is its own spec; off with two reference LiDARs or
+    # when the reference source has a witness grid of its own (a rosette-like scan); "on"/"off" force it.
+    from jaxdepth._src.sources import make_sources, top_line_applies
+    other = LidarSpec(beams=8, fov_up_deg=10.0, fov_down_deg=-10.0, columns=64)
+
+    def sources(sweep, witnesses=None):
+        n = len(sweep)
+        return make_sources(np.zeros((n, 4, 3)), np.ones((n, 4), bool), np.tile(np.eye(4), (n, 1, 1)),
+                            lidars=(SPEC,) * n, sweep=sweep, witnesses=witnesses)
+
+    one_lidar = sources((0, -1, -2))
+    assert top_line_applies(one_lidar) and top_line_applies(one_lidar, "auto")
+    assert not top_line_applies(one_lidar, "off")
+    assert not top_line_applies(sources((0,)), "auto") and not top_line_applies(sources((0,)), "on")
+    assert not top_line_applies(sources((0, 0, -1, -1)))                       # two reference LiDARs
+    assert top_line_applies(sources((0, 0, -1, -1)), "on")
+    assert not top_line_applies(sources((0, -1), witnesses=(other, other)))   # a grid of its own
+    assert top_line_applies(sources((0, -1), witnesses=(SPEC, other)))        # the reference fills its rows

@@ -14,6 +14,8 @@ DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
 #: Step 4's choices above the top scan line (``SGMConfig.above_scan``).
 ABOVE_SCAN = ("plane", "background")
+#: When rule 6 of the multi-source path runs (``SGMConfig.reference_top_line``).
+REFERENCE_TOP_LINE = ("auto", "on", "off")
 
 
 # (field, note) of the float options that must be >= 0
@@ -126,8 +128,13 @@ class SGMConfig:
         reference sweep's top scan line (no kept reference-sweep pixel at or above their row in the
         columns within the paper's window ``|du| < W L / N``) and nearer, by more than ``epsilon_m``,
         than the farthest top reference pixel of those columns are no seeds
-        (:func:`~jaxdepth._src.above_scan.top_line_keep`). Off by default: it wins on the KITTI and
-        nuScenes twins and loses on the Argoverse 2 twin (docs/multi_source.md, rule 6).
+        (:func:`~jaxdepth._src.above_scan.top_line_keep`). ``"auto"`` (default): on where the
+        reference sweep is ONE source whose scan fills its own range-image rows (a spinning LiDAR, or a
+        merged raster scan dense enough for its spec's grid: its top row is a scan line), off for
+        several reference-sweep LiDARs and for a scan too sparse for that grid (a rosette, which gets
+        a free-space grid of its own); ``"on"`` / ``"off"`` force it. Chosen on the twins: it wins on
+        the KITTI, nuScenes and raster twins and loses on the Argoverse 2 (two LiDARs) and rosette
+        twins (docs/multi_source.md, rule 6). One sweep is never affected.
     """
 
     outlier_removal: bool = True
@@ -157,7 +164,7 @@ class SGMConfig:
     free_space_neighbour_sweeps: int | None = 0
     occlusion_max_baseline_m: float = 1.0
     free_space_witness_cell: float = 2.0
-    reference_top_line: bool = False
+    reference_top_line: str = "auto"
 
     def __post_init__(self):
         if self.distance_metric not in DISTANCE_METRICS:
@@ -169,6 +176,9 @@ class SGMConfig:
                 f"SGMConfig: field 'outlier_test' expected one of {_OUTLIER_TESTS}, got {self.outlier_test!r}")
         if self.above_scan not in ABOVE_SCAN:
             raise ValueError(f"SGMConfig: field 'above_scan' expected one of {ABOVE_SCAN}, got {self.above_scan!r}")
+        if self.reference_top_line not in REFERENCE_TOP_LINE:
+            raise ValueError(f"SGMConfig: field 'reference_top_line' expected one of {REFERENCE_TOP_LINE}, "
+                             f"got {self.reference_top_line!r}")
         for name, note in _NON_NEGATIVE_FIELDS:  # `not >= 0` also refuses NaN
             value = getattr(self, name)
             if not value >= 0:

@@ -20,7 +20,8 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   own source's* origin as the viewpoint compared with the camera's; every
   pixel, whatever its source, is a neighbour ``j``. One pass over the image for
   all sources: each candidate carries its own origin.
-* Above the reference sweep's top scan line (``SGMConfig.reference_top_line``, off by default):
+* Above the reference sweep's top scan line (``SGMConfig.reference_top_line``; by default for one
+  reference-sweep scan that fills its range-image rows, :func:`top_line_applies`):
   in each camera, the kept pixels of other sweeps' points above the reference sweep's kept top
   scan line and nearer than its top pixels by more than epsilon are no seeds
   (:func:`~jaxdepth._src.above_scan.top_line_keep`).
@@ -428,6 +429,23 @@ def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OC
     return rank, dist[rank] <= max_baseline_m
 
 
+def top_line_applies(sources: Sources, mode: str = DEFAULT_CONFIG.reference_top_line) -> bool:
+    """Whether rule 6 (``SGMConfig.reference_top_line``) runs on ``sources`` (static: from the sweeps and specs).
+
+    Never with one sweep. ``"auto"``: when the reference sweep is one source whose free-space grid is its
+    own :class:`LidarSpec` (a spinning LiDAR, or a scan that fills that grid's rows), so that its top row is a
+    scan line; not with several reference-sweep LiDARs, nor for a scan too sparse for its spec's grid (a
+    rosette: :attr:`Sources.witnesses` gives it a grid of its own point spacing).
+    """
+    if mode == "off" or all(sw == 0 for sw in sources.sweep):
+        return False
+    if mode == "on":
+        return True
+    ref = [i for i, sw in enumerate(sources.sweep) if sw == 0]
+    grids = sources.lidars if sources.witnesses is None else sources.witnesses
+    return len(ref) == 1 and grids[ref[0]] == sources.lidars[ref[0]]
+
+
 def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
                    config, image_size=None, image=None, reference=None) -> Stages:
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
@@ -478,7 +496,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
     reference = None
-    if config.reference_top_line and any(sw != 0 for sw in sources.sweep):
+    if top_line_applies(sources, config.reference_top_line):
         reference = jnp.asarray(np.asarray(sources.sweep) == 0)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
