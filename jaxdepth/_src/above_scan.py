@@ -89,14 +89,8 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
                              image_width=None if image_size is None else image_size[1])
     if image_size is not None:      # the seeds of the canvas's padding columns are no part of the image
         seed_depth = jnp.where(jnp.arange(width)[None, :] < image_size[1], seed_depth, 0.0)
-    cap = min(int(max_half_width_px), width - 1)
-    top = _top_line(keep)
-    top_window, farthest = top, seed_depth
-    for k in range(1, cap + 1):
-        on = k <= k_max
-        for s in (k, -k):
-            top_window = jnp.where(on, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
-            farthest = jnp.where(on, jnp.maximum(farthest, _shift_columns(seed_depth, s, 0.0)), farthest)
+    top_window, farthest = _window_top_and_farthest(_top_line(keep), seed_depth, height=height, k_max=k_max,
+                                                    max_half_width_px=max_half_width_px)
     rows = jnp.arange(height, dtype=jnp.int32)[:, None]
     return jnp.where((rows < top_window) & (seed_depth > 0), farthest, depth_raw)
 
@@ -104,6 +98,20 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
 def _top_line(mask: jax.Array) -> jax.Array:
     """(1, W) int32: each column's first True row of an (H, W) mask (H where none)."""
     return jnp.where(jnp.any(mask, axis=0), jnp.argmax(mask, axis=0), mask.shape[0]).astype(jnp.int32)[None, :]
+
+
+def _window_top_and_farthest(top: jax.Array, depth: jax.Array, *, height: int, k_max, max_half_width_px: int):
+    """Over the columns within ``|du| <= k_max`` of each column (the paper's window; ``k_max`` traced,
+    at most the static ``max_half_width_px``): the highest top-line row of ``top`` ((1, W) int32, ``height``
+    where a column has none) and the largest ``depth`` ((1, W) or (H, W) float32 metres, 0 = none).
+    Returns ``(top_window, farthest)``, shaped as ``top`` and ``depth``."""
+    top_window, farthest = top, depth
+    for k in range(1, min(int(max_half_width_px), top.shape[1] - 1) + 1):
+        on = k <= k_max
+        for s in (k, -k):
+            top_window = jnp.where(on, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
+            farthest = jnp.where(on, jnp.maximum(farthest, _shift_columns(depth, s, 0.0)), farthest)
+    return top_window, farthest
 
 
 def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon_m: float = _DEFAULTS.epsilon_m,
@@ -127,14 +135,11 @@ def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon
       max_half_width_px: static cap on the window's half width, pixels.
       image_width: optional traced int32 w, the image's width on a rig's canvas.
     """
-    height, width = reference.shape
+    height = reference.shape[0]
     k_max = paper_half_width(reference, beams=beams, max_half_width_px=max_half_width_px, image_width=image_width)
     top = _top_line(reference)
     top_depth = jnp.take_along_axis(jnp.where(reference, depth, 0.0), jnp.minimum(top, height - 1), axis=0)
-    top_window, far = top, top_depth
-    for k in range(1, min(int(max_half_width_px), width - 1) + 1):
-        for s in (k, -k):
-            top_window = jnp.where(k <= k_max, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
-            far = jnp.where(k <= k_max, jnp.maximum(far, _shift_columns(top_depth, s, 0.0)), far)
+    top_window, far = _window_top_and_farthest(top, top_depth, height=height, k_max=k_max,
+                                               max_half_width_px=max_half_width_px)
     top_window = jnp.where(top_window < height, top_window, 0)    # no reference pixel in the window: no line
     return (jnp.arange(height, dtype=jnp.int32)[:, None] >= top_window) | (depth >= far - epsilon_m)
