@@ -182,6 +182,7 @@ def test_run_processes_counts_runnable_threads_of_the_run_only(tmp_path):
     try:
         for proc in procs:  # each has started (Python's own start-up is runnable too)
             proc.stdout.readline()
+        time.sleep(0.5)  # the sleeping child, runnable between its print and time.sleep, is asleep by now
         run = suite_profile._RunProcesses(str(tmp_path))
         seen = collections.Counter()
         for _ in range(20):  # the spinning child may be descheduled at one sample on a loaded machine
