@@ -14,6 +14,11 @@ import jaxdepth
 from jaxdepth._src.above_scan import background_above_scan, top_line_keep
 from jaxdepth.options import add_config_options, config_changes
 
+#: The stage, compiled: these tests check values (the oracle, analytic cases); jit == eager is the stage
+#: table's row. Called plainly, each new shape runs op by op and compiles ~100 primitives (3.4 s of CPU
+#: per test against one compile).
+_above_scan = jax.jit(background_above_scan, static_argnames=("beams", "max_half_width_px"))
+
 
 def numpy_above_scan(depth_raw, seed_depth, keep, valid, *, beams, max_half_width_px):
     """Pixel by pixel: N, the window |du| < W L / N, the top kept row of each window column, the farthest seed."""
@@ -48,7 +53,7 @@ def above_scan_inputs(seed: int, *, H: int = 24, W: int = 40, points: int = 200)
 def test_matches_the_per_pixel_oracle(points, cap):
     """Window from N at run time (|du| <= 3, 1, capped at 1, 0): the library equals the walk exactly."""
     depth_raw, seed_depth, keep, valid = above_scan_inputs(points, points=points)
-    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+    got = np.asarray(_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
                                            jnp.asarray(valid), beams=16, max_half_width_px=cap))
     want = numpy_above_scan(depth_raw, seed_depth, keep, valid, beams=16, max_half_width_px=cap)
     np.testing.assert_array_equal(got, want)
@@ -69,7 +74,7 @@ def test_thin_post_gives_way_to_the_wall_above_the_scan():
     valid = keep.copy()  # N = 96: W L / N = 2.67, |du| <= 2
     seed_depth = np.broadcast_to(scene, (H, W)).astype(np.float32)
     depth_raw = seed_depth * 1.1  # the plane's extrapolation, whatever it was
-    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+    got = np.asarray(_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
                                            jnp.asarray(valid), beams=beams))
     np.testing.assert_array_equal(got[12:], depth_raw[12:])
     np.testing.assert_array_equal(got[:12, 10], 20.0)
@@ -87,7 +92,7 @@ def test_a_column_without_points_is_not_open_to_the_top():
     seed_depth = np.full((H, W), 10.0, np.float32)
     seed_depth[:, 5] = 3.0
     depth_raw = seed_depth + 0.5
-    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+    got = np.asarray(_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
                                            jnp.asarray(keep), beams=16))  # N = 96: W L / N = 4, |du| <= 3
     np.testing.assert_array_equal(got[8:], depth_raw[8:])
     np.testing.assert_array_equal(got[:8], 10.0)
@@ -97,7 +102,7 @@ def test_no_seed_stays_empty():
     depth_raw, seed_depth, keep, valid = above_scan_inputs(7)
     seed_depth[:4] = 0.0
     depth_raw[:4] = 0.0
-    got = np.asarray(background_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
+    got = np.asarray(_above_scan(jnp.asarray(depth_raw), jnp.asarray(seed_depth), jnp.asarray(keep),
                                            jnp.asarray(valid), beams=16))
     assert (got[:4] == 0).all()
 

@@ -109,8 +109,9 @@ def test_matches_dijkstra_when_converged(seed, weight, grey):
 
 @pytest.mark.parametrize("sweeps", [1, 2, 3])
 def test_sweeps_are_exact_over_alternating_runs(sweeps):
-    """s sweeps = the shortest path with at most 2 s alternating runs (H first)."""
-    keep, img = _scene(4, h=9, w=10, density=0.05)
+    """s sweeps = the shortest path with at most 2 s alternating runs (H first). (A grey 12 x 12 scene: the
+    maze test's programs; each of the three limits still leaves paths the next one shortens.)"""
+    keep, img = _scene(4, h=12, w=12, density=0.03, grey=True)
     weight = 30.0
     res = geodesic_seed(keep, img, color_weight=weight, sweeps=sweeps)
     ref = _dijkstra(list(zip(*np.nonzero(keep))), img, weight, runs=2 * sweeps)
@@ -157,7 +158,7 @@ def test_step_costs_with_noise_floor_match_numpy():
 @pytest.mark.xdist_group("geodesic_noise_floor")  # the cases share their programs: one worker compiles their shared program once
 @pytest.mark.parametrize("seed,weight,grey", [(0, 20.0, False), (2, 10.0, True), (3, 50.0, False)])
 def test_noise_floor_matches_dijkstra_when_converged(seed, weight, grey):
-    keep, img = _scene(seed, h=14, w=15, grey=grey)
+    keep, img = _scene(seed, grey=grey)  # the converged tests' scenes: the plain run below is their program
     _, _, sample = _sampled_steps(img)
     floor = np.sort(sample)[(len(sample) - 1) // 2]
     res = geodesic_seed(keep, img, color_weight=weight, sweeps=8, noise_floor=1.0)
@@ -175,8 +176,8 @@ def test_noise_floor_matches_dijkstra_when_converged(seed, weight, grey):
 
 def test_noise_floor_zero_is_the_plain_cost():
     keep, img = _scene(5)
-    a = geodesic_seed(keep, img, color_weight=9.0, sweeps=2)
-    b = geodesic_seed(keep, img, color_weight=9.0, sweeps=2, noise_floor=0.0)
+    a = geodesic_seed(keep, img, color_weight=9.0, sweeps=8)  # the converged tests' program
+    b = geodesic_seed(keep, img, color_weight=9.0, sweeps=8, noise_floor=0.0)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
 
@@ -233,18 +234,18 @@ def test_zero_weight_is_exact_l1(shape, density):
 
 
 def test_no_seed_and_all_seeds():
-    img = np.random.default_rng(0).random((5, 6)).astype(np.float32)
-    empty = geodesic_seed(np.zeros((5, 6), bool), img, color_weight=2.0, sweeps=2)
+    img = np.random.default_rng(0).random((8, 9, 3)).astype(np.float32)  # 8 x 9 x 3, 2 sweeps: one program (below)
+    empty = geodesic_seed(np.zeros((8, 9), bool), img, color_weight=2.0, sweeps=2)
     assert not bool(empty.has_seed) and np.all(np.isinf(empty.distance))
     assert not np.any(empty.du) and not np.any(empty.dv)
-    full = geodesic_seed(np.ones((5, 6), bool), img, color_weight=2.0, sweeps=2)
+    full = geodesic_seed(np.ones((8, 9), bool), img, color_weight=2.0, sweeps=2)
     assert bool(full.has_seed) and not np.any(full.distance) and not np.any(full.du) and not np.any(full.dv)
 
 
 def test_traced_weight_equals_static_weight():
     """jit == eager, vmap == loop and the Dijkstra oracle with a static weight: row geodesic_seed of
     tests/stage_table.py. Here: a traced weight gives the same bits."""
-    keep, img = _scene(5, h=6, w=7)
+    keep, img = _scene(5, h=8, w=9)  # the vmap test's per-frame program
     jitted = geodesic_seed(keep, img, color_weight=7.0, sweeps=2)
     traced = jax.jit(lambda k, i, cw: geodesic_seed(k, i, color_weight=cw, sweeps=2))(keep, img, 7.0)
     for got, want in zip(traced, jitted):
@@ -405,10 +406,10 @@ def test_complete_points_guided():
 
 
 def test_non_finite_colours_still_give_real_seeds():
-    keep, img = _scene(6, h=7, w=8)
+    keep, img = _scene(6, h=8, w=9)  # the vmap test's per-frame program
     img[3, :, 0] = np.nan
     img[:, 4, 1] = np.inf
-    res = geodesic_seed(keep, img, color_weight=2.0, sweeps=1)
+    res = geodesic_seed(keep, img, color_weight=2.0, sweeps=2)
     v, u = np.indices(keep.shape)
     assert keep[v + np.asarray(res.dv), u + np.asarray(res.du)].all()
     assert np.all(np.isfinite(res.distance))
