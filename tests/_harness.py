@@ -7,7 +7,8 @@
 2. **jit == eager**: ``jax.jit`` of the function equals the function run op by
    op under ``jax.disable_jit()`` (the library's own ``jit`` is disabled too);
 3. **vmap == loop**: ``jax.vmap`` over the stacked inputs equals a Python loop
-   of the plain calls;
+   of the plain calls (a plain function's vmap runs inside ``jax.jit``: one compiled
+   program, as a library jit's vmap is, not every batched primitive compiled op by op);
 4. **no retrace**: a new input of the same shape (and a fresh, equal copy of
    every static option) reuses the compiled function. This catches static
    options that hash by identity, inputs whose dtype or weak type drifts, and
@@ -175,7 +176,10 @@ def check_stage(fn: Callable, inputs: Sequence[tuple], *, static: dict | None = 
     assert len(traces) == expected, f"retraced: {len(traces) - expected} new traces for {len(inputs)} inputs of one shape"
     if vmap:
         stacked = jax.tree.map(jnp.asarray, _stack(inputs, in_axes))
-        batched = jax.vmap(functools.partial(fn, **static), in_axes=in_axes)(*stacked)
+        batched_fn = jax.vmap(functools.partial(fn, **static), in_axes=in_axes)
+        if not library_jit:  # a library jit's vmap already is one program (a jit around it would compile a second)
+            batched_fn = jax.jit(batched_fn)
+        batched = batched_fn(*stacked)
         for n, out in enumerate(plain):
             assert_tree_close(jax.tree.map(lambda x: np.asarray(x)[n], batched), out, ulps=ulps, scale=scale,
                               err_msg=f"input {n}: vmap != loop")

@@ -1,6 +1,7 @@
 """Column bracket and blended hypotheses (Step 4b, beyond the paper): a brute-force NumPy
 oracle, exactness on analytic planes, the bound on a wrong normal, jit / vmap via _harness."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -9,6 +10,10 @@ import jaxdepth
 from jaxdepth._src.hypotheses import column_hypotheses, column_neighbours
 from jaxdepth._src.residual import plane_residual
 
+
+#: column_neighbours compiled: these tests check its values; called plainly, each image shape would run
+#: op by op and compile every primitive (its jit == eager is the column_hypotheses rows' of the stage table).
+_column_neighbours = jax.jit(column_neighbours, static_argnames="max_gap")
 
 K = np.array([[300.0, 0.0, 31.5], [0.0, 280.0, 20.2], [0.0, 0.0, 1.0]], np.float32)
 H, W = 40, 64
@@ -47,7 +52,7 @@ def test_column_neighbours_match_a_walk():
     rng = np.random.default_rng(0)
     for h in (H, 352):
         kept = np.where(sparse_rows(h, W, rng), rng.uniform(0.5, 149, (h, W)), 0.0).astype(np.float32)
-        row_up, z_up, row_dn, z_dn = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), max_gap=7))
+        row_up, z_up, row_dn, z_dn = (np.asarray(a) for a in _column_neighbours(jnp.asarray(kept), max_gap=7))
         step = 256.0 / 2 ** (31 - int(np.ceil(np.log2(h))))
         for rows, depths, direction in ((row_up, z_up, -1), (row_dn, z_dn, 1)):
             for v in range(h):
@@ -201,7 +206,7 @@ def test_bracket_bounds_quantisation_is_below_a_fifth_of_a_millimetre():
     rng = np.random.default_rng(8)
     for h in (40, 352, 900):
         kept = np.where(rng.random((h, 16)) < 0.2, rng.uniform(0.5, 149.0, (h, 16)), 0.0).astype(np.float32)
-        row_up, z_up_q, row_dn, z_dn_q = (np.asarray(a) for a in column_neighbours(jnp.asarray(kept), max_gap=6))
+        row_up, z_up_q, row_dn, z_dn_q = (np.asarray(a) for a in _column_neighbours(jnp.asarray(kept), max_gap=6))
         lo, hi, found = np.minimum(z_up_q, z_dn_q), np.maximum(z_up_q, z_dn_q), (row_up >= 0) & (row_dn >= 0)
         walks = [np.array([[numpy_neighbour(kept, v, u, step) for u in range(16)] for v in range(h)])
                  for step in (-1, 1)]
