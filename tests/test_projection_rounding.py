@@ -151,7 +151,7 @@ def test_fixed_dot_matches_numpy_and_float64():
         scale = np.abs(w[i].astype(np.float64))[:, None] * np.abs(x[i]) + abs(t[i])
         assert_close(got, exact, ulps=4, scale=scale.sum(0), err_msg="fixed_dot against float64")
     # differentiable as the plain dot: d/dx_k = w_k, d/dw_k = x_k, d/dt = 1 (the split's integer mask has no tangent)
-    gw, gx, gt = jax.grad(lambda w, x, t: dot(w, x, t).sum(), argnums=(0, 1, 2))(w[0], x[0], t[0])
+    gw, gx, gt = jax.jit(jax.grad(lambda w, x, t: dot(w, x, t).sum(), argnums=(0, 1, 2)))(w[0], x[0], t[0])  # one program
     np.testing.assert_allclose(np.asarray(gx), np.broadcast_to(w[0][:, None], x[0].shape), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(gw), x[0].astype(np.float64).sum(1), rtol=1e-5)
     assert float(gt) == x.shape[-1]
