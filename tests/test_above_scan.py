@@ -136,6 +136,7 @@ def numpy_top_line_keep(reference, depth, *, beams, max_half_width_px, epsilon_m
     return out
 
 
+@pytest.mark.xdist_group("above_scan_top_line")  # the cases' op-by-op runs compile the same ~125 primitives: one worker
 @pytest.mark.parametrize("points, cap, gap", [(200, 12, False), (400, 12, False), (200, 1, False),
                                               (640, 12, False), (0, 12, False), (200, 12, True)])
 def test_top_line_keep_matches_the_per_pixel_oracle(points, cap, gap):
