@@ -444,16 +444,17 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
     valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
     window = jnp.where(jnp.any(reference), reference, valid)
     eps = jnp.asarray(config.epsilon_m, jnp.float32)
-    keep = valid
-    for s in sweeps:
+
+    def one_sweep(s):           # one compiled pass, mapped over the sweeps
         mine = valid & (pixel_sweep == s)
         image = jnp.where(reference | mine, sparse_depth, 0.0)
         own = _keep_mask(image, K, jnp.eye(4, dtype=jnp.float32), points_cam, eps, mine, beams=beams,
                          half_width=half_width, half_height=half_height, test=config.outlier_test, origins=origins,
                          nearer=None if nearer is None else nearer & mine, image_size=image_size,
                          window_pixels=window)
-        keep = keep & (own | ~mine)
-    return keep
+        return own | ~mine
+
+    return valid & jnp.all(jax.lax.map(one_sweep, jnp.asarray(sweeps, jnp.int32)), axis=0)
 
 
 def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OCCLUSION_MAX_BASELINE_M):
