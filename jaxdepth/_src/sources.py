@@ -19,7 +19,9 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   z-buffer of all sources' points, where each pixel's point is tested with *its
   own source's* origin as the viewpoint compared with the camera's; every
   pixel, whatever its source, is a neighbour ``j``. One pass over the image for
-  all sources: each candidate carries its own origin.
+  all sources: each candidate carries its own origin. For a scan without scan lines
+  (``SGMConfig.outlier_sweeps``, :func:`per_sweep_applies`) each sweep is also judged
+  alone against the reference sweep with one sweep's window (:func:`sweep_keep_mask`).
 * Above the reference sweep's top scan line (``SGMConfig.reference_top_line``; by default for one
   reference-sweep scan that fills its range-image rows, :func:`top_line_applies`):
   in each camera, the kept pixels of other sweeps' points above the reference sweep's kept top
