@@ -200,6 +200,44 @@ class Program:
         return exported, trees[-1]
 
 
+@functools.lru_cache(maxsize=16)
+def _stages_program(kind: str, statics: tuple) -> Program:
+    """The :class:`Program` of the rig (``kind`` "rig") or multi-source ("sources") pipeline, its static
+    options ``statics`` ((name, value), ...) bound."""
+    import jax
+
+    from jaxdepth._src import rig, sources
+    inner = {"rig": rig._complete_rig_stages, "sources": sources._complete_sources_stages}[kind]
+    options = dict(statics)
+
+    def program(*args):
+        return inner(*args, **options)
+
+    program.__name__ = program.__qualname__ = f"_complete_{kind}_stages"   # the compile cache entry's name
+    return Program(jax.jit(program), name=f"complete_{kind}_stages", statics=statics)
+
+
+def rig_stages(points, valid, cameras, *, config, lidar, images=None):
+    """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes) through the program cache."""
+    if program_folder() is None:
+        from jaxdepth._src.rig import complete_rig_stages
+        return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images)
+    return _stages_program("rig", (("config", config), ("lidar", lidar)))(points, valid, cameras, images)
+
+
+def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: int | None = None, images=None,
+                   occlusion: bool = True):
+    """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes) through the program
+    cache."""
+    from jaxdepth._src.sources import complete_sources_stages, default_beams
+    if program_folder() is None:
+        return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                                       images=images, occlusion=occlusion)
+    beams = default_beams(sources) if beams is None else int(beams)
+    statics = (("config", config), ("free_space", bool(free_space)), ("beams", beams), ("occlusion", bool(occlusion)))
+    return _stages_program("sources", statics)(sources, cameras, images)
+
+
 def _read_entry(path: pathlib.Path, key: str, signature: tuple):
     """``(exported, out_tree)`` from ``path``, or None (missing, or unusable: logged, then rewritten)."""
     try:
@@ -230,5 +268,5 @@ def _write_entry(path: pathlib.Path, data: bytes) -> None:
         log.info("program cache: not stored (%s)", err)
 
 
-__all__ = ["Program", "program_key", "program_folder", "source_hash", "encode_entry", "decode_entry", "MAX_BYTES",
+__all__ = ["Program", "rig_stages", "sources_stages", "program_key", "program_folder", "source_hash", "encode_entry", "decode_entry", "MAX_BYTES",
            "FORMAT"]
