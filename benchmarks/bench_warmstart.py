@@ -96,28 +96,27 @@ def run_case(case: str, tmp: pathlib.Path, rounds: int) -> dict:
     return doc
 
 
+def _report(case: str, doc: dict) -> None:
+    s = doc["summary"]
+    print(f"{case}: warm CPU median off {s['warm_cpu_s_median']['off']:.2f} s, on "
+          f"{s['warm_cpu_s_median']['on']:.2f} s; outputs identical: {doc['outputs_identical']}", flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--json", default=str(RESULTS / "warmstart.json"))
     args = parser.parse_args(argv)
-    t0 = time.time()
-    out = {}
+    started, cases = time.time(), {}
     with tempfile.TemporaryDirectory(prefix="jaxdepth-warmstart-") as tmp:
         for case in args.cases:
-            out[case] = run_case(case, pathlib.Path(tmp), args.rounds)
-            s = out[case]["summary"]
-            print(f"{case}: warm CPU median off {s['warm_cpu_s_median']['off']:.2f} s, on "
-                  f"{s['warm_cpu_s_median']['on']:.2f} s; outputs identical: {out[case]['outputs_identical']}",
-                  flush=True)
-    try:
-        load = os.getloadavg()
-    except OSError:
-        load = None
+            cases[case] = run_case(case, pathlib.Path(tmp), args.rounds)
+            _report(case, cases[case])
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
     write_results(args.json, {"what": "warm start, program cache off / on, fresh processes", "rounds": args.rounds,
-                              "load_average": load, "cases": out}, None, t0)
-    return 0 if all(doc["outputs_identical"] for doc in out.values()) else 1
+                              "load_average": load, "cases": cases}, None, started)
+    return 0 if all(doc["outputs_identical"] for doc in cases.values()) else 1
 
 
 if __name__ == "__main__":
