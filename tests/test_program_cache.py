@@ -135,6 +135,17 @@ def test_a_corrupt_entry_is_ignored_and_rewritten(cache_on, exports, caplog, dam
     assert _same(Program(fn, name="toy")(*args), out) and exports == ["toy", "toy"]
 
 
+def test_a_program_that_cannot_be_exported_runs_as_plain_jit(cache_on, monkeypatch):
+    def refuse(self, *args):
+        raise RuntimeError("not exportable")
+
+    monkeypatch.setattr(Program, "_export", refuse)
+    fn = _counted([])
+    args = _inputs()
+    assert _same(Program(fn, name="toy")(*args), fn(*args))
+    assert not list(cache_on.glob("*.jaxprog"))
+
+
 def test_off_without_the_compile_cache(tmp_path, monkeypatch):
     monkeypatch.setattr(devices, "compile_cache_folder", lambda: str(tmp_path))
     monkeypatch.setenv("JAXDEPTH_COMPILE_CACHE", "0")

@@ -173,7 +173,12 @@ class Program:
         path = folder / f"{self.name}-{key[:32]}{_SUFFIX}"
         loaded = _read_entry(path, key, signature)
         if loaded is None:
-            exported, out_tree = self._export(treedef, leaves)
+            try:
+                exported, out_tree = self._export(treedef, leaves)
+            except Exception as err:  # not exportable (or a trace error, which the plain call raises again)
+                log.info("program cache: %s not stored (%s: %s); traced on every start", self.name,
+                         type(err).__name__, err)
+                return lambda *flat: self.jitted(*jax.tree_util.tree_unflatten(treedef, flat))
             _write_entry(path, encode_entry(key, exported, out_tree))
         else:
             exported, out_tree = loaded
