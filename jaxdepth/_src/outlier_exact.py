@@ -31,6 +31,8 @@ from jaxdepth._src.geometry import backproject
 
 #: Candidate slots tested per loop step.
 CHUNK = 512
+#: Column offsets per side of a block of the window walked at once (B = 2 G + 1 columns).
+_GROUP = 4
 #: Smallest parallax move that counts, pixels: below it a crossing is float rounding.
 _MIN_MOVE_PX = 1e-3
 _PIB = "promise_in_bounds"
@@ -153,12 +155,15 @@ def _view(ex: ExactTest, flat, row, col):
         jnp.where(d > 0, d, jnp.float32(jnp.inf))
 
 
-def _window_words(ex: ExactTest, row, col):
-    """The column words of each candidate's window, masked to its rows: a list over the words
-    covering rows ``row - hh .. row + hh`` of (n, 2 hw + 1) uint32, with each word's first row
-    (n, 1) int32, and the window's columns (1, 2 hw + 1) offsets and (n, 2 hw + 1) indices."""
+def _window_words(ex: ExactTest, row, col, start=None, block=None):
+    """The column words of a block of each candidate's window columns, masked to its rows: a list over
+    the words covering rows ``row - hh .. row + hh`` of (n, B) uint32, with each word's first row
+    (n, 1) int32, and the block's columns: (1, B) offsets ``start .. start + B - 1`` and (n, B) indices.
+    Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
     n_words, width = ex.columns.shape
-    du = jnp.arange(-ex.hw, ex.hw + 1, dtype=jnp.int32)[None, :]
+    start = -ex.hw if start is None else start
+    block = 2 * ex.hw + 1 if block is None else block
+    du = start + jnp.arange(block, dtype=jnp.int32)[None, :]
     col_q = col[:, None] + du
     in_cols = (jnp.abs(du) <= ex.k_max) & (col_q >= 0) & (col_q < width)
     col_q = jnp.clip(col_q, 0, width - 1)
@@ -190,17 +195,34 @@ def _test_chunk(c, keep, *, ex: ExactTest):
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
     nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]
     view_p, z_p = _view(ex, flat_p[:, None], row[:, None], col[:, None])
-    words, bases, du, col_q = _window_words(ex, row, col)
+    group = max(min(ex.hw, _GROUP), 0)
+    block = 2 * group + 1
+    n_blocks = jnp.maximum((2 * ex.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
+    removed = jax.lax.fori_loop(0, n_blocks, functools.partial(
+        _column_block, ex=ex, row=row, col=col, view_p=view_p, z_p=z_p, nearer_p=nearer_p, group=group),
+        jnp.zeros((CHUNK,), bool))
+    flat = jnp.where(slot < ex.count, flat_p, height * width)
+    return keep.at[flat].set(~removed, mode="drop")
+
+
+def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):
+    """Conditions 1 and 2 of a chunk of candidates against the points of one block of B = 2 G + 1 window
+    columns, starting at du = -k + b B (clipped to the static window: a clipped block overlaps the
+    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated."""
+    width = ex.depth.shape[1]
+    block = 2 * group + 1
+    start = jnp.clip(b * block - ex.k_max, -ex.hw, ex.hw - 2 * group)
+    words, bases, du, col_q = _window_words(ex, row, col, start, block)
     counts = [jax.lax.population_count(w).astype(jnp.int32) for w in words]
     total = functools.reduce(jnp.add, counts)
 
     def point(m, removed):
         # The m-th point (in row order) of each window column: its word, then its bit.
-        word, rank, base, start = words[0], jnp.full_like(total, m), bases[0], jnp.zeros_like(total)
-        for w, n, b in zip(words, counts, bases):
-            here = (m >= start) & (m < start + n)
-            word, rank, base = jnp.where(here, w, word), jnp.where(here, m - start, rank), jnp.where(here, b, base)
-            start = start + n
+        word, rank, base, before = words[0], jnp.full_like(total, m), bases[0], jnp.zeros_like(total)
+        for w, n, first_row in zip(words, counts, bases):
+            here = (m >= before) & (m < before + n)
+            word, rank = jnp.where(here, w, word), jnp.where(here, m - before, rank)
+            base, before = jnp.where(here, first_row, base), before + n
         present = m < total
         row_q = base + nth_set_bit(word, jnp.where(present, rank, 0))
         flat_q = jnp.where(present, row_q * width + col_q, 0)
@@ -214,9 +236,7 @@ def _test_chunk(c, keep, *, ex: ExactTest):
             hit = hit & (jnp.abs(dv) <= ex.h_max)
         return removed | jnp.any(hit, axis=1)
 
-    removed = jax.lax.fori_loop(0, jnp.max(total), point, jnp.zeros((CHUNK,), bool))
-    flat = jnp.where(slot < ex.count, flat_p, height * width)
-    return keep.at[flat].set(~removed, mode="drop")
+    return jax.lax.fori_loop(0, jnp.max(total), point, removed)
 
 
 def exact_test(valid: jax.Array, ex: ExactTest) -> jax.Array:
