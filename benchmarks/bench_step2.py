@@ -110,11 +110,10 @@ def _info(args, beams, hw, hh, origins):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", default=None, help="another outliers.py to time against (masks must agree)")
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=str(RESULTS / "step2.json"))
-    args = parser.parse_args(argv)
-    t0 = time.time()
+    args, t0 = parser.parse_args(argv), time.time()
     if not AV2_LOG.exists():
         print(f"bench_step2: {AV2_LOG} not found (shared data)", file=sys.stderr)
         return 1

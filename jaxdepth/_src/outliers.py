@@ -84,6 +84,7 @@ import numpy as np
 
 from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
 from jaxdepth._src.xla_tuning import stage, switch_widest
 
