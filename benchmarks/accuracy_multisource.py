@@ -529,6 +529,10 @@ def main(argv=None) -> int:
         if not args.skip_speed:
             doc["speed"] = speed_av2(config)
             doc["speed_step2"] = speed_step2_av2(config)
+        else:  # keep the speed sections of an earlier run (this script wrote them)
+            prev = out / "accuracy_av2.json"
+            prev = json.loads(prev.read_text()) if prev.exists() else {}
+            doc.update({k: prev[k] for k in ("speed", "speed_step2") if k in prev})
         write(out / "accuracy_av2.json", doc)
         for p, r in rows.items():
             print(p, json.dumps({n: (round(m["rmse"], 1), round(m["mae"], 1)) for n, m in r["mean"].items()}))

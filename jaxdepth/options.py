@@ -53,6 +53,13 @@ def _top_line_mode(text: str) -> str:
     return text
 
 
+def _outlier_sweeps_mode(text: str) -> str:
+    """--outlier-sweeps: auto, each or merged."""
+    if text not in ("auto", "each", "merged"):
+        raise argparse.ArgumentTypeError(f"expected 'auto', 'each' or 'merged', got {text!r}")
+    return text
+
+
 #: The multi-source options (docs/multi_source.md): flag -> (SGMConfig field, type, metavar, what it sets).
 #: Unset flags keep the config's default.
 _SOURCES_OPTIONS = {
@@ -72,6 +79,9 @@ _SOURCES_OPTIONS = {
     "--reference-top-line": ("reference_top_line", _top_line_mode, "auto|on|off", "other sweeps' points above "
                              "the reference sweep's top scan line in a camera and nearer than its top pixels by more "
                              "than epsilon are no seeds (default auto: on for one LiDAR scanned in laser rows)"),
+    "--outlier-sweeps": ("outlier_sweeps", _outlier_sweeps_mode, "auto|each|merged", "Step 2 also judges each sweep "
+                         "against the reference sweep with one sweep's window (default auto: for a scan without scan "
+                         "lines, a rosette)"),
 }
 
 

@@ -78,6 +78,17 @@ def stereo_street(seed: int = 1):
     return synthetic.make_street_scene(seed, lidar=SMALL_LIDAR, cameras=cams), cams
 
 
+def mixed_size_rig():
+    """(points, valid, cameras): the street of :data:`SMALL_LIDAR` (seed 3) and three cameras of two sizes,
+    24 x 40, 40 x 24 (portrait) and 24 x 40 (a 40 x 40 canvas): the padded-canvas rig of
+    tests/test_rig_sizes.py and tests/test_rig.py (one compiled rig program for both)."""
+    cams = [small_camera(h=24, w=40, f=30.0),
+            small_camera(lidar_to_camera((0.2, 0.0, 0.5)), h=40, w=24, f=30.0),
+            small_camera(lidar_to_camera((-0.5, 0.1, 0.2)), h=24, w=40, f=34.0)]
+    frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=cams)
+    return np.asarray(frame.points), np.asarray(frame.valid), cams
+
+
 def kitti_street(seed: int = 0):
     """(frame, camera): the synthetic street seen by :data:`SMALL_LIDAR` and the KITTI-like camera at 1/4 scale."""
     cams = synthetic.rig_cameras("kitti", image_scale=0.25)

@@ -117,10 +117,13 @@ def test_hidden_point_scores_uncovered_equal_metrics_at_kept_targets():
     full, _ = project_to_image(points, jnp.asarray(valid), jnp.asarray(K), jnp.asarray(T), height=48, width=64)
     covered = np.asarray(covered_targets(gt, full, half_height_px=h))
     assert int(scores["covered_pixels"][0]) == int(covered.sum()) > 0
-    plain = jaxdepth.complete_rig_stages(points, jnp.asarray(valid & ~hidden), cams, lidar=lidar,
-                                         config=jaxdepth.SGMConfig(outlier_removal=False))
+    # the nearest fill: every pixel takes the depth of its city-block nearest input pixel (the public
+    # stages on the input's z-buffer; no pipeline program of its own)
+    sparse, _ = project_to_image(points, jnp.asarray(valid & ~hidden), jnp.asarray(K), jnp.asarray(T),
+                                 height=48, width=64)
+    seeds = jaxdepth.nearest_seed(sparse > 0, metric="l1")
     kept = jnp.where(jnp.asarray(covered), 0.0, gt)
-    want = jaxdepth.depth_metrics(plain.seed_depth[0], kept)
+    want = jaxdepth.depth_metrics(jaxdepth.gather_at_seed(sparse, seeds.du, seeds.dv), kept)
     for key in ("rmse", "mae"):
         np.testing.assert_allclose(float(scores["uncovered"]["nearest"][key][0]), float(want[key]), rtol=1e-5)
     # the covered targets are far-plane points behind the square

@@ -10,7 +10,7 @@ import pytest
 import jaxdepth
 from jaxdepth import Camera, complete_points_stages, complete_rig_stages, project_to_image, stack_cameras
 
-from scenes import SMALL_LIDAR, stereo_street
+from scenes import SMALL_LIDAR, mixed_size_rig, stereo_street
 
 LIDAR = SMALL_LIDAR
 
@@ -31,24 +31,26 @@ def test_rig_equals_loop_over_cameras(stereo):
         np.testing.assert_allclose(np.asarray(rig.depth[i]), np.asarray(single.depth), rtol=1e-5, atol=1e-4)
 
 
-@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
-def test_cameras_of_different_sizes_share_a_padded_canvas(stereo):
-    frame, cams = stereo
-    big = cams[0]
-    small = Camera(K=cams[1].K, T_cam_lidar=cams[1].T_cam_lidar, height=big.height - 16, width=big.width - 40)
-    rig = stack_cameras([big, small])
-    assert (rig.height, rig.width) == (big.height, big.width)
-    np.testing.assert_array_equal(np.asarray(rig.image_size), [[big.height, big.width], [small.height, small.width]])
-    out = complete_rig_stages(frame.points, frame.valid, rig, lidar=LIDAR)  # the program of the test above
-    # the small camera's own z-buffer (the public projection: no completion compiled at its size)
-    own, _ = project_to_image(frame.points, frame.valid, small.K, small.T_cam_lidar, height=small.height,
-                              width=small.width)
-    sparse = np.asarray(out.sparse_depth[1])
-    np.testing.assert_array_equal(sparse[:small.height, :small.width], np.asarray(own))
-    assert not sparse[small.height:].any() and not sparse[:, small.width:].any()
-    depth = np.asarray(out.depth[1])
-    assert not depth[small.height:].any() and not depth[:, small.width:].any()
-    assert np.all(depth[:small.height, :small.width] > 0)
+@pytest.mark.slow  # the mixed-size rig's program (tests/test_rig_sizes.py compiles it too: one program)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # one worker compiles the mixed-size rig's program for both modules
+def test_cameras_of_different_sizes_share_a_padded_canvas():
+    """Two landscape cameras and a portrait one on one canvas (the largest height and width): each
+    camera's z-buffer is its own (the public projection at its size: no completion compiled at its
+    size) in its window, and nothing is written beyond it. tests/test_rig_sizes.py checks the whole
+    stages against each camera's single-camera call."""
+    points, valid, cams = mixed_size_rig()
+    rig = stack_cameras(cams)
+    assert (rig.height, rig.width) == (max(c.height for c in cams), max(c.width for c in cams)) == (40, 40)
+    np.testing.assert_array_equal(np.asarray(rig.image_size), [[c.height, c.width] for c in cams])
+    out = complete_rig_stages(points, valid, rig, lidar=LIDAR)
+    for i, cam in enumerate(cams):
+        own, _ = project_to_image(points, valid, cam.K, cam.T_cam_lidar, height=cam.height, width=cam.width)
+        sparse = np.asarray(out.sparse_depth[i])
+        np.testing.assert_array_equal(sparse[:cam.height, :cam.width], np.asarray(own), err_msg=f"camera {i}")
+        assert not sparse[cam.height:].any() and not sparse[:, cam.width:].any()
+        depth = np.asarray(out.depth[i])
+        assert not depth[cam.height:].any() and not depth[:, cam.width:].any()
+        assert np.all(depth[:cam.height, :cam.width] > 0)
 
 
 @pytest.mark.slow  # real nuScenes sweep, six 225 x 400 cameras: programs of their own

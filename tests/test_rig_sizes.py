@@ -28,12 +28,11 @@ from jaxdepth import complete_points_stages, complete_rig_stages, outlier_keep_m
 from jaxdepth._src.above_scan import background_above_scan
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src import synthetic
 from jaxdepth._src.rig import size_groups, vmap_by_size
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 
 from _harness import assert_close, assert_tree_close, check_stage
-from scenes import SMALL_LIDAR, lidar_to_camera, small_camera, snap_to_pixel_edges, turned_lidar_to_camera
+from scenes import SMALL_LIDAR, mixed_size_rig, small_camera, snap_to_pixel_edges, turned_lidar_to_camera
 
 LIDAR = SMALL_LIDAR
 FIELDS = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv", "residual", "depth_raw", "depth")
@@ -43,11 +42,7 @@ EXACT = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv")
 @pytest.fixture(scope="module")
 def mixed_rig():
     """(points, valid, cameras): two landscape 24 x 40 cameras and one portrait 40 x 24 (canvas 40 x 40)."""
-    cams = [small_camera(h=24, w=40, f=30.0),
-            small_camera(lidar_to_camera((0.2, 0.0, 0.5)), h=40, w=24, f=30.0),
-            small_camera(lidar_to_camera((-0.5, 0.1, 0.2)), h=24, w=40, f=34.0)]
-    frame = synthetic.make_street_scene(3, lidar=LIDAR, cameras=cams)
-    return np.asarray(frame.points), np.asarray(frame.valid), cams
+    return mixed_size_rig()
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +84,7 @@ def _assert_own_size(rig, i, cam, single):
 
 
 @pytest.mark.slow  # whole pipeline programs of their own: the 40 x 40 rig and each camera size
+@pytest.mark.xdist_group("rig_mixed_sizes")  # the mixed rig's program is tests/test_rig.py's too: one worker
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
@@ -101,13 +97,28 @@ def test_rig_camera_equals_its_own_single_camera_call(scene, request):
         _assert_own_size(rig, i, cam, single)
 
 
+def _two_sweeps(points, valid, *, second_valid):
+    """Sources of two sweeps of ``LIDAR``: the points at the origin (sweep 0) and the same points 0.3 m
+    further along x (sweep 1), valid where ``second_valid``. One static layout, so the tests below share
+    one several-sources program per camera set."""
+    shift = np.eye(4, dtype=np.float32)
+    shift[0, 3] = 0.3
+    return make_sources(np.stack([points, points + shift[:3, 3]]), np.stack([valid, second_valid]),
+                        np.stack([np.eye(4, dtype=np.float32), shift]), lidars=(LIDAR, LIDAR), sweep=(0, 1))
+
+
 @pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
     # One source at the points' origin: complete_sources equals complete_rig (docs/multi_source.md),
-    # through Step 2 per source (each pixel's own origin) and the free-space path's projection.
-    sources = make_sources(points[None], valid[None], np.eye(4, dtype=np.float32)[None], lidars=(LIDAR,))
+    # through Step 2 per source (each pixel's own origin) and the free-space path's projection. On the
+    # mixed rig with an earlier sweep that has no valid point (it removes and adds nothing): the
+    # two-sweep program of test_sources_grouped_by_size_equals_one_canvas, not one of its own.
+    if scene == "mixed_rig":
+        sources = _two_sweeps(points, valid, second_valid=np.zeros_like(valid))
+    else:
+        sources = make_sources(points[None], valid[None], np.eye(4, dtype=np.float32)[None], lidars=(LIDAR,))
     rig = complete_sources_stages(sources, stack_cameras(cams))
     for i, cam in enumerate(cams):
         _assert_own_size(rig, i, cam, complete_points_stages(points, valid, cam, lidar=LIDAR))
@@ -151,10 +162,7 @@ def test_sources_grouped_by_size_equals_one_canvas(mixed_rig):
     points, valid, cams = mixed_rig
     # Two sources of two sweeps (the second the first moved by 0.3 m): the free-space and occlusion
     # verdicts (once per sweep, outside the camera groups) reach every group.
-    shift = np.eye(4, dtype=np.float32)
-    shift[0, 3] = 0.3
-    sources = make_sources(np.stack([points, points + shift[:3, 3]]), np.stack([valid, valid]),
-                           np.stack([np.eye(4, dtype=np.float32), shift]), lidars=(LIDAR, LIDAR), sweep=(0, 1))
+    sources = _two_sweeps(points, valid, second_valid=valid)
     cameras = stack_cameras(cams)
     _assert_grouped_equals_one_canvas(complete_sources_stages(sources, cameras),
                                       complete_sources_stages(sources, dataclasses.replace(cameras, sizes=None)), cams)

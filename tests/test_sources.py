@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import functools
 
 import jax
@@ -165,6 +166,87 @@ def test_source_keep_mask_shadow_pixels_also_fall_to_a_nearer_pixel():
     extra = ~_nearer_oracle(depth, shadow, beams=32)
     assert (extra & want).any()                            # the shadow rule removes something more
     np.testing.assert_array_equal(got, want & ~extra)
+
+
+def _per_sweep_oracle(depth, pixel_sweep, points_cam, K, origins, *, beams, eps=1.0, tol=1e-6):
+    """Brute force, float64: sweep s's pixels judged by the footprint form of Algorithm 1 (as
+    ``test_outliers.footprint_double_loop``) from their own origin against the reference sweep's pixels and
+    sweep s's own (the reference: its own alone), with the window and cells of N = the reference's pixels.
+    Returns (keep, unsure: a decision within ``tol`` of a threshold)."""
+    from jaxdepth._src.config import DEFAULT_CONFIG as D
+    height, width = depth.shape
+    valid = depth > 0
+    n = int((valid & (pixel_sweep == 0)).sum()) or int(valid.sum())
+    cell_u, cell_v = width * beams / n, height / beams
+    vs, us = np.nonzero(valid)
+    p, z, sw = points_cam[:, vs, us].astype(np.float64), depth[vs, us].astype(np.float64), pixel_sweep[vs, us]
+    K = K.astype(np.float64)
+    bu, bv = (K[0, 0] * p[0] + K[0, 1] * p[1]) / p[2] + K[0, 2], K[1, 1] * p[1] / p[2] + K[1, 2]
+    keep, unsure = valid.copy(), np.zeros_like(valid)
+    for i in range(len(vs)):
+        q = p - origins[i][:, None]
+        ok = q[2] > 1e-3
+        qz = np.where(ok, q[2], 1.0)
+        au, av = (K[0, 0] * q[0] + K[0, 1] * q[1]) / qz + K[0, 2], K[1, 1] * q[1] / qz + K[1, 2]
+        du, dv = np.abs(us - us[i]), np.abs(vs - vs[i])
+        js = np.nonzero(((sw == 0) | (sw == sw[i])) & (du < cell_u) & (du <= D.outlier_max_half_width_px)
+                        & (dv < cell_v) & (dv <= D.outlier_max_half_height_px) & (np.arange(len(vs)) != i)
+                        & ok & ok[i] & (z[i] > z + eps))[0]
+        ra = np.stack([(au[i] - au[js]) / cell_u, (av[i] - av[js]) / cell_v])
+        rb = np.stack([(bu[i] - bu[js]) / cell_u, (bv[i] - bv[js]) / cell_v])
+        m = rb - ra
+        mm = np.sum(m * m, 0)
+        margins = np.stack([-np.sum(ra * m, 0), np.sum(rb * m, 0), mm - 4 * (ra[0] * m[1] - ra[1] * m[0]) ** 2])
+        margins = np.where(mm * cell_u * cell_v > 1e-6, margins, -1.0)
+        scale = np.maximum(mm, 1e-300)
+        if np.all(margins > tol * scale, 0).any():
+            keep[vs[i], us[i]] = False
+        elif np.all(margins > -tol * scale, 0).any():
+            unsure[vs[i], us[i]] = True
+    return keep, unsure
+
+
+@pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
+def test_each_sweep_is_also_judged_with_one_sweeps_window():
+    """outlier_sweeps="each": the merged pass (one pass per origin, as above) AND, per sweep, Algorithm 1 against the
+    reference sweep's pixels and the sweep's own with N = the reference's pixels (brute-force oracle); "merged" and
+    one sweep: the merged pass alone."""
+    depth, pixel_source, points_cam, K, T3, hit, safe, want = _three_origins()
+    sweep = (0, -1, -2)
+    per, unsure = _per_sweep_oracle(depth, np.asarray(sweep)[np.maximum(pixel_source, 0)], points_cam, K,
+                                    T3[np.maximum(pixel_source, 0), :3, 3][hit], beams=32)
+    assert (hit & ~per & (pixel_source == 0)).any() and (want & ~per & ~unsure).any()   # each pass removes
+    got = np.asarray(source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32, source_sweep=sweep))
+    sure = ~unsure
+    np.testing.assert_array_equal(got[sure], (want & per)[sure])
+    assert unsure.sum() <= 2
+    for kw in (dict(source_sweep=(0, 0, 0)), {}):
+        np.testing.assert_array_equal(np.asarray(source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32,
+                                                                  **kw)), want)
+
+
+def test_each_sweep_is_judged_alone_for_a_scan_without_scan_lines():
+    """outlier_sweeps="auto" runs the per-sweep passes where a reference source has a witness grid of its own
+    (a rosette), not for a LiDAR on its spec's grid; "each" / "merged" force it; one sweep never."""
+    from jaxdepth._src.sources import per_sweep_applies
+    pts, valid = np.zeros((2, 4, 3), np.float32), np.ones((2, 4), bool)
+    own = LidarSpec(beams=96, fov_up_deg=35.0, fov_down_deg=-35.0, columns=512)
+
+    def src(sweep, witnesses=None):
+        return make_sources(pts, valid, np.stack([np.eye(4)] * 2), lidars=(SPEC, SPEC), sweep=sweep,
+                            witnesses=witnesses)
+    rosette, spinning = src((0, -1), (own, own)), src((0, -1))
+    assert per_sweep_applies(rosette) and not per_sweep_applies(spinning)
+    assert per_sweep_applies(spinning, "each") and not per_sweep_applies(rosette, "merged")
+    assert not any(per_sweep_applies(src((0, 0), (own, own)), m) for m in ("auto", "each"))
+    assert jaxdepth.SGMConfig().outlier_sweeps == "auto"
+    from jaxdepth.options import add_config_options, config_changes
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--outlier-sweeps", "each"]))["outlier_sweeps"] == "each"
+    assert "outlier_sweeps" not in config_changes(p.parse_args([]))
+    with pytest.raises(ValueError, match="outlier_sweeps"):
+        jaxdepth.SGMConfig(outlier_sweeps="all")
 
 
 @pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs

@@ -16,6 +16,8 @@ _OUTLIER_TESTS = ("footprint", "paper")
 ABOVE_SCAN = ("plane", "background")
 #: When rule 6 of the multi-source path runs (``SGMConfig.reference_top_line``).
 REFERENCE_TOP_LINE = ("auto", "on", "off")
+#: Step 2 with several sweeps (``SGMConfig.outlier_sweeps``).
+OUTLIER_SWEEPS = ("auto", "each", "merged")
 
 
 # (field, note) of the float options that must be >= 0
@@ -135,6 +137,18 @@ class SGMConfig:
         a free-space grid of its own); ``"on"`` / ``"off"`` force it. Chosen on the twins: it wins on
         the KITTI, nuScenes and raster twins and loses on the Argoverse 2 (two LiDARs) and rosette
         twins (docs/multi_source.md, rule 6). One sweep is never affected.
+      outlier_sweeps: Step 2 with several sweeps. ``"each"``: besides the pass over the merged image,
+        each sweep's pixels are also judged as the one-sweep path judges one sweep: Algorithm 1 on the
+        image of the reference sweep's pixels and that sweep's, removing only that sweep's, with one
+        sweep's window (``N`` of ``W L / N``: the reference sweep's pixels, as ``L`` counts one sweep's
+        beams); the reference sweep on its own pixels alone. ``"merged"``: the merged pass alone, whose
+        ``N`` counts every sweep's pixels (``S`` sweeps make its window ``S`` times narrower while
+        ``H / L`` stays). ``"auto"`` (default): ``"each"`` where a reference-sweep source is a scan
+        without scan lines, too sparse for its spec's grid (a rosette: it gets a free-space grid of
+        its own point spacing, :attr:`Sources.witnesses`), whose extra sweeps fill the image in two
+        dimensions; ``"merged"`` for LiDARs scanning in lines, whose extra sweeps re-sample the same
+        lines (:func:`~jaxdepth._src.sources.per_sweep_applies`). Chosen on the twins
+        (docs/multi_source.md, "Step 2 per sweep"). One sweep is never affected.
     """
 
     outlier_removal: bool = True
@@ -165,6 +179,7 @@ class SGMConfig:
     occlusion_max_baseline_m: float = 1.0
     free_space_witness_cell: float = 2.0
     reference_top_line: str = "auto"
+    outlier_sweeps: str = "auto"
 
     def __post_init__(self):
         if self.distance_metric not in DISTANCE_METRICS:
@@ -179,6 +194,9 @@ class SGMConfig:
         if self.reference_top_line not in REFERENCE_TOP_LINE:
             raise ValueError(f"SGMConfig: field 'reference_top_line' expected one of {REFERENCE_TOP_LINE}, "
                              f"got {self.reference_top_line!r}")
+        if self.outlier_sweeps not in OUTLIER_SWEEPS:
+            raise ValueError(f"SGMConfig: field 'outlier_sweeps' expected one of {OUTLIER_SWEEPS}, "
+                             f"got {self.outlier_sweeps!r}")
         for name, note in _NON_NEGATIVE_FIELDS:  # `not >= 0` also refuses NaN
             value = getattr(self, name)
             if not value >= 0:

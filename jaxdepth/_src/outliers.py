@@ -349,7 +349,7 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
-               half_height, test="footprint", origins=None, nearer=None, image_size=None):
+               half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -363,7 +363,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
-    Returns the (H, W) bool keep mask.
+    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). Returns the keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -376,7 +376,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         t = origins.astype(jnp.float32)
         # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
         t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
-    bounds = _bounds(valid, beams=beams, half_width=half_width, half_height=half_height, image_size=image_size)
+    bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
+                     half_height=half_height, image_size=image_size)
     words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
                        footprint=test == "footprint", t_front=t_front)
     if candidates is not None:

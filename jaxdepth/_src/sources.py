@@ -19,7 +19,9 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   z-buffer of all sources' points, where each pixel's point is tested with *its
   own source's* origin as the viewpoint compared with the camera's; every
   pixel, whatever its source, is a neighbour ``j``. One pass over the image for
-  all sources: each candidate carries its own origin.
+  all sources: each candidate carries its own origin. For a scan without scan lines
+  (``SGMConfig.outlier_sweeps``, :func:`per_sweep_applies`) each sweep is also judged
+  alone against the reference sweep with one sweep's window (:func:`sweep_keep_mask`).
 * Above the reference sweep's top scan line (``SGMConfig.reference_top_line``; by default for one
   reference-sweep scan that fills its range-image rows, :func:`top_line_applies`):
   in each camera, the kept pixels of other sweeps' points above the reference sweep's kept top
@@ -369,7 +371,8 @@ def free_space_keep(sources: Sources, **options) -> jax.Array:
 
 
 def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
-                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None, image_size=None) -> jax.Array:
+                     config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None, image_size=None,
+                     source_sweep=None) -> jax.Array:
     """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
 
     Args:
@@ -386,6 +389,9 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
         LiDAR saw something in front of it, and so, next to it, does the camera).
       image_size: optional traced (2,) int32 (h, w): the image is the top-left window of a
         rig's canvas; the window bounds are the image's own (as :func:`~jaxdepth.outlier_keep_mask`).
+      source_sweep: optional static tuple of S ints, each source's sweep (0 = reference): given, with
+        several sweeps, each sweep's pixels are also judged as on the one-sweep path
+        (:func:`sweep_keep_mask`; :func:`per_sweep_applies` decides when, from ``config.outlier_sweeps``).
 
     Algorithm 1 tests each pixel's point with that point's own source origin as the
     viewpoint compared with the camera's; every pixel of the image is a possible occluder
@@ -403,9 +409,54 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     safe = jnp.clip(pixel_source, 0, n_src - 1)
     origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
     nearer = None if pixel_shadow is None else valid & pixel_shadow
-    return valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
+    keep = valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
                               image_size=image_size)
+    if source_sweep is None or len(set(source_sweep)) < 2:
+        return keep
+    pixel_sweep = jnp.asarray(np.asarray(source_sweep, np.int32))[safe]
+    return keep & sweep_keep_mask(sparse_depth, valid & (pixel_sweep == 0), pixel_sweep, points_cam, K, origins,
+                                  sweeps=tuple(sorted(set(source_sweep))), beams=int(beams), half_width=hw,
+                                  half_height=hh, config=config, nearer=nearer, image_size=image_size)
+
+
+def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins, *, sweeps, beams: int,
+                    half_width: int, half_height: int, config: SGMConfig = DEFAULT_CONFIG, nearer=None,
+                    image_size=None) -> jax.Array:
+    """Step 2 per sweep (``SGMConfig.outlier_sweeps="each"``): (H, W) bool, False where a sweep's own pass removes.
+
+    Each sweep ``s`` of ``sweeps`` is judged as the one-sweep path judges one sweep: Algorithm 1 on the image of
+    the ``reference`` pixels and sweep ``s``'s (the reference sweep: its own pixels alone), removing only sweep
+    ``s``'s pixels, with the window of ONE sweep: ``N`` of ``|du| < W L / N`` counts the reference pixels (where
+    the image holds none, every pixel), as ``L`` counts one sweep's beams. An older origin's view over a near
+    object's top is then tested against the reference sweep's points of that object one point spacing of a
+    sweep away (the merged image's ``N`` counts every sweep: its window is ``S`` times narrower, often a single
+    column), and an older sweep's ghost, which the merged pass sees as an occluder, removes none of the
+    reference sweep's points here.
+
+    Args:
+      sparse_depth: (H, W) float32 merged z-buffer (0 = empty). reference: (H, W) bool, the reference sweep's
+        pixels. pixel_sweep: (H, W) int32 sweep of each pixel's point. points_cam: (3, H, W) float32.
+      K: (3, 3). origins: (3, H, W) float32 each pixel's LiDAR origin in the camera frame.
+      sweeps: static tuple of the sweep numbers present. beams, half_width, half_height: static, as
+        :func:`source_keep_mask`'s window. config: ``epsilon_m``, ``outlier_test``.
+      nearer: optional (H, W) bool, pixels removed by condition 2 alone (rule 4's shadow).
+      image_size: optional traced (2,) int32 (h, w), the image on a rig's canvas.
+    """
+    valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
+    window = jnp.where(jnp.any(reference), reference, valid)
+    eps = jnp.asarray(config.epsilon_m, jnp.float32)
+
+    def one_sweep(s):           # one compiled pass, mapped over the sweeps
+        mine = valid & (pixel_sweep == s)
+        image = jnp.where(reference | mine, sparse_depth, 0.0)
+        own = _keep_mask(image, K, jnp.eye(4, dtype=jnp.float32), points_cam, eps, mine, beams=beams,
+                         half_width=half_width, half_height=half_height, test=config.outlier_test, origins=origins,
+                         nearer=None if nearer is None else nearer & mine, image_size=image_size,
+                         window_pixels=window)
+        return own | ~mine
+
+    return valid & jnp.all(jax.lax.map(one_sweep, jnp.asarray(sweeps, jnp.int32)), axis=0)
 
 
 def camera_witness(T_cam_ref, T_ref_source, *, sweep, max_baseline_m: float = OCCLUSION_MAX_BASELINE_M):
@@ -446,8 +497,22 @@ def top_line_applies(sources: Sources, mode: str = DEFAULT_CONFIG.reference_top_
     return len(ref) == 1 and grids[ref[0]] == sources.lidars[ref[0]]
 
 
+def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweeps) -> bool:
+    """Whether Step 2 also judges each sweep alone (``SGMConfig.outlier_sweeps``; static: from the sweeps and specs).
+
+    Never with one sweep. ``"auto"``: when a reference-sweep source is a scan too sparse for its spec's grid (a
+    rosette: :attr:`Sources.witnesses` gives it a grid of its own point spacing), whose sweeps fill the image in
+    two dimensions; not for LiDARs scanning in lines (spinning, raster), whose sweeps re-sample the same lines.
+    """
+    if mode == "merged" or all(sw == 0 for sw in sources.sweep):
+        return False
+    if mode == "each" or sources.witnesses is None:
+        return mode == "each"
+    return any(sources.witnesses[i] != sources.lidars[i] for i, sw in enumerate(sources.sweep) if sw == 0)
+
+
 def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
-                   config, image_size=None, image=None, reference=None) -> Stages:
+                   config, image_size=None, image=None, reference=None, sweep=None) -> Stages:
     """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
@@ -459,7 +524,7 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
     keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
-                            pixel_shadow=pixel_shadow, image_size=image_size)
+                            pixel_shadow=pixel_shadow, image_size=image_size, source_sweep=sweep)
     if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
         own = keep & reference[jnp.maximum(pixel_source, 0)]
         keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
@@ -499,6 +564,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
     if top_line_applies(sources, config.reference_top_line):
         reference = jnp.asarray(np.asarray(sources.sweep) == 0)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
+    sweep = sources.sweep if per_sweep_applies(sources, config.outlier_sweeps) else None
 
     def per_camera(K, T, size, image, *, height, width):
         if image is not None:
@@ -510,7 +576,7 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
                               height=height, width=width, beams=beams, config=config, image_size=size, image=image,
-                              reference=reference)
+                              reference=reference, sweep=sweep)
 
     return vmap_by_size(per_camera, cameras, images)     # one vmap per camera size (rig.py)
 

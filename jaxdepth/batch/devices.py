@@ -88,7 +88,8 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     once (Ray workers, parallel runs) share the folder; JAX writes entries in place, so one
     read while another process writes it fails, and JAX warns ("Error reading persistent
     compilation cache entry": the truncated entry does not decompress) and compiles that
-    program again.
+    program again. The jobs' traced programs go to its ``programs`` subfolder
+    (:mod:`jaxdepth.batch.program_cache`, capped apart), so a warm start skips tracing too.
     """
     import os
     if not enabled or os.environ.get("JAXDEPTH_COMPILE_CACHE", "1") == "0":

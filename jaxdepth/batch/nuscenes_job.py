@@ -79,11 +79,12 @@ def _depth_fn(config, lidar):
     import jax
 
     from jaxdepth._src.rig import complete_rig_stages
+    from jaxdepth.batch.program_cache import Program
 
     def depth(points, valid, cameras, images=None):
         return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth
 
-    return jax.jit(depth)
+    return Program(jax.jit(depth), name="nuscenes_depth", statics=(config, lidar))
 
 
 @functools.lru_cache(maxsize=8)
@@ -94,13 +95,14 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
 
     from jaxdepth._src.rig import complete_rig_stages
     from jaxdepth._src.validity import rig_validity_and_distance
+    from jaxdepth.batch.program_cache import Program
 
     def depth(points, valid, cameras, images=None):
         stages = complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images)
         return (stages.depth,) + rig_validity_and_distance(stages, cameras, lidar=lidar, metric=config.distance_metric,
                                                            max_seed_distance_px=max_seed_distance_px)
 
-    return jax.jit(depth)
+    return Program(jax.jit(depth), name="nuscenes_depth_validity", statics=(config, lidar, max_seed_distance_px))
 
 
 def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=None) -> list:

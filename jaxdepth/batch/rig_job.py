@@ -140,8 +140,8 @@ def rig_stages(prepared: PreparedSweep, *, images=None):
         stages = complete_cloud(prepared.points, rig, config=config, images=images, stages=True)
     else:
         padded, valid = prepared.points
-        stages = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar,
-                                              images=images)
+        from jaxdepth.batch.program_cache import rig_stages as complete_rig_stages   # warm: no trace
+        stages = complete_rig_stages(padded, valid, cameras, config=config, lidar=rig.lidar, images=images)
     return stages, cameras
 
 

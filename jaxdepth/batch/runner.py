@@ -32,7 +32,7 @@ from typing import Callable, Iterable, Sequence
 
 import jax
 import numpy as np
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
@@ -140,7 +140,9 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
                                            max_seed_distance_px=max_seed_distance_px)
 
     return _batched(one, arity=4 if guided else 3, batch_size=batch_size, strategy=strategy, devices=devices,
-                    out_specs=_out_specs(max_seed_distance_px), first_shape=(batch_size, height, width))
+                    out_specs=_out_specs(max_seed_distance_px), first_shape=(batch_size, height, width),
+                    program=("batched_completion", (batch_size, height, width, method, config, lidar, strategy,
+                                                    devices, max_seed_distance_px)))
 
 
 def is_guided(config: SGMConfig) -> bool:
@@ -196,17 +198,22 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
                                            max_seed_distance_px=max_seed_distance_px)
 
     return _batched(one, arity=5 if guided else 4, batch_size=batch_size, strategy=strategy, devices=devices,
-                    out_specs=_out_specs(max_seed_distance_px))
+                    out_specs=_out_specs(max_seed_distance_px),
+                    program=("batched_sweep_completion", (batch_size, points, height, width, config, lidar, strategy,
+                                                          devices, max_seed_distance_px)))
 
 
 def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devices: int, out_specs,
-             first_shape: tuple | None = None) -> Callable:
+             first_shape: tuple | None = None, program: tuple | None = None) -> Callable:
     """``one`` (a single frame's arrays -> output) over a leading batch axis of every argument.
 
     "loop": one jitted frame at a time, dispatched round-robin to ``devices`` local devices
     (the bytes of per-frame calls); "map" / "vmap": ``lax.map`` / ``vmap`` inside one jit, the
     batch sharded over the devices with ``shard_map`` when ``devices > 1``. ``first_shape``:
     the shape the loop strategy requires of the first argument (clear error otherwise).
+    ``program``: ``(name, statics)`` of the "map" / "vmap" program, which then runs through the
+    on-disk program cache (:class:`jaxdepth.batch.program_cache.Program`: a warm start skips tracing;
+    the same bytes).
     """
     if strategy == "loop":
         single = jax.jit(one)
@@ -236,7 +243,15 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
             return fn(*args)
         return per_device(*args)
 
-    return jax.jit(sharded)
+    if program is None:
+        return jax.jit(sharded)
+    from jaxdepth.batch.program_cache import Program
+
+    def in_shardings(exported):      # the batch axis over the devices, as shard_map splits it
+        mesh = Mesh(np.array(jax.local_devices()[:exported.nr_devices]), ("batch",))
+        return (NamedSharding(mesh, PartitionSpec("batch")),) * len(exported.in_avals)
+
+    return Program(jax.jit(sharded), name=program[0], statics=program[1], in_shardings=in_shardings)
 
 
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,

@@ -240,7 +240,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     import jaxdepth
-    from jaxdepth._src.sources import complete_sources_stages
+    from jaxdepth.batch.program_cache import rig_stages, sources_stages
     if neighbour_sweeps != "default":
         config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
@@ -251,19 +251,19 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
                                        min_cells=config.free_space_min_cells)
         fitted = fit_to_window(sources, index, window)
     if fitted is not None:
-        out = complete_sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images, occlusion=occlusion)
+        out = sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
+                             images=images, occlusion=occlusion)
     elif _single_origin(cloud):
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-        out = jaxdepth.complete_rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
+        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
     else:
         if sources is None:         # not built for the window above
             sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
                                        min_cells=config.free_space_min_cells)
-        out = complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                      images=images, occlusion=occlusion)
+        out = sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
+                             images=images, occlusion=occlusion)
     return out if stages else np.asarray(out.depth)
 
 
