@@ -53,15 +53,20 @@ leaves.
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
    ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals).
-3. Exact test (:func:`_exact_test`), per chunk of candidate slots: gather the window's depths (and
-   points), recompute the LiDAR view, and evaluate conditions 1 and 2 in
-   float32 for every offset; removed candidates are cleared in the mask. The
+3. Exact test (:mod:`jaxdepth._src.outlier_exact`), per chunk of candidate slots: walk the points
+   of each candidate's window (pixels with depth packed down the columns into words, visited rank
+   by rank), gather their depths (and points) from the image, recompute the LiDAR view, and
+   evaluate conditions 1 and 2 in float32; removed candidates are cleared in the mask. Every
+   (candidate, point) pair gets the float32 operations of a dense sweep over the window, so the
    ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
+
+The prefilter's keys are computed on the image and padded as uint16 (``_ZNONE``); nothing is
+padded in float32.
 
 Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
 time; the horizontal prefilter pass is compiled for each small ``k`` and chosen
 by ``lax.switch`` (under ``vmap``, the batch's largest ``k``: a wider window
-only adds candidates), and the exact test loops over column blocks up to ``k``.
+only adds candidates), and the exact test masks its window columns to ``|du| <= k``.
 Every dense pass is one fusion, fenced (``staging.stage``) so that shifted
 reads hit buffers instead of re-running the producer.
 """
@@ -79,57 +84,9 @@ import numpy as np
 
 from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.fastmath import pseudo_angle
-from jaxdepth._src.geometry import backproject
+from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
+from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
 from jaxdepth._src.xla_tuning import stage, switch_widest
-
-
-def _camera_points(depth: jax.Array, K: jax.Array, points_cam, v: jax.Array, u: jax.Array):
-    """Camera-frame (x, y, z) of points, metres, three arrays of ``depth``'s shape.
-
-    ``points_cam`` None: each pixel's point back-projected from its centre
-    ``(u, v)`` (float32 columns and rows broadcastable to ``depth``) at
-    ``depth`` (:func:`~jaxdepth._src.geometry.backproject`); otherwise the given
-    camera-frame points, a (3, ...) array or three arrays of ``depth``'s shape.
-    """
-    if points_cam is None:
-        return backproject(depth, K, v, u)
-    return points_cam[0], points_cam[1], points_cam[2]
-
-
-def _lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
-    """Order keys (h, g) of points seen from the LiDAR origin ``t`` (camera axes), "paper" form.
-
-    ``h`` orders ``atan2(q_x, q_z)`` and ``g`` orders ``atan2(q_y, q_z)`` for
-    ``q = p_cam - t`` (:func:`~jaxdepth._src.fastmath.pseudo_angle`, float32 of
-    ``depth``'s shape). Arguments as :func:`_camera_points`; ``t``: (3,) float32
-    LiDAR origin in the camera frame, metres.
-    """
-    px, py, pz = _camera_points(depth, K, points_cam, v, u)
-    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
-    return pseudo_angle(qx, qz), pseudo_angle(qy, qz)
-
-
-def _lidar_view(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
-    """Where each point is seen from the LiDAR origin and from the camera, pixels ("footprint" form).
-
-    ``(a_u, a_v)``: the pixel of a camera with the same orientation and
-    intrinsics placed at the LiDAR origin ``t``; ``(b_u, b_v)``: the point's own
-    camera pixel, exact (sub-pixel) for given ``points_cam``, the pixel centre
-    (u, v) for back-projected pixels. ``ok`` is False where the point is not in
-    front of the LiDAR's virtual camera (q_z <= 1 mm). Arguments as
-    :func:`_lidar_angles`; every output is float32 (``ok`` bool) of ``depth``'s shape.
-    """
-    px, py, pz = _camera_points(depth, K, points_cam, v, u)
-    if points_cam is None:
-        b_u, b_v = u, v
-    else:
-        inv_p = 1.0 / jnp.where(pz > 0, pz, 1.0)
-        b_u, b_v = K[0, 0] * px * inv_p + K[0, 1] * py * inv_p + K[0, 2], K[1, 1] * py * inv_p + K[1, 2]
-    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
-    ok = qz > 1e-3
-    inv = 1.0 / jnp.where(ok, qz, 1.0)
-    return K[0, 0] * qx * inv + K[0, 1] * qy * inv + K[0, 2], K[1, 1] * qy * inv + K[1, 2], b_u, b_v, ok
 
 
 #: Condition-1 forms of the exact test (static option ``test``).
@@ -152,10 +109,6 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
 #: Widest horizontal half window with its own compiled prefilter pass; wider
 #: run-time windows use the static cap (a superset: more candidates, same mask).
 _STATIC_K = 8
-#: Candidate slots tested per loop step.
-_CHUNK = 512
-#: Column offsets per side tested per step of the exact test (|du| in (j G, (j + 1) G]).
-_GROUP = 4
 
 
 def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
@@ -201,8 +154,8 @@ def _z_key(z, part):
                      ).astype(jnp.uint16)
 
 
-def _prefilter_fields(depth_c, t_z, *points_c, footprint):
-    """Per-pixel inputs of the prefilter on the padded canvas (one fenced stage).
+def _prefilter_fields(depth, t_z, *points, footprint):
+    """Per-pixel inputs of the prefilter on the image (one fenced stage).
 
     A pixel takes part when it has depth and, for the footprint form, lies in
     front of the LiDAR's virtual camera (camera depth above ``t_z``, the LiDAR
@@ -210,32 +163,38 @@ def _prefilter_fields(depth_c, t_z, *points_c, footprint):
     takes part for some origin takes part, a superset). Returns
     uint16 keys (see :data:`_ZQ`): the depth key, then (footprint form, raw
     path) the key of the point's own camera depth Z; and, footprint form, the
-    inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima.
+    inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima. ``depth``: (H, W) float32;
+    ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z is their z, sliced here,
+    inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads them as it reads them.
     """
-    ok = (depth_c > 0) & jnp.isfinite(depth_c)
+    ok = (depth > 0) & jnp.isfinite(depth)
     if not footprint:
-        return (_z_key(depth_c, ok),)
-    big_z = points_c[2] if points_c else depth_c
-    ok = ok & (big_z - t_z > 1e-3) & jnp.isfinite(big_z)
-    z_key = _z_key(depth_c, ok)
-    big_key = z_key if not points_c else _z_key(big_z, ok)
+        return (_z_key(depth, ok),)
+    z = points[0][2] if points else depth
+    ok = ok & (z - t_z > 1e-3) & jnp.isfinite(z)
+    z_key = _z_key(depth, ok)
+    big_key = z_key if not points else _z_key(z, ok)
     inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
-    return (z_key, inverted) if not points_c else (z_key, inverted, big_key)
+    return (z_key, inverted) if not points else (z_key, inverted, big_key)
 
 
-def _prefilter_rows(*keys, height, hh, hv, footprint):
-    """Column (vertical) minima of the prefilter keys: the depth key over the window's 2 hh + 1 rows
-    and over the small box's 2 hv + 1 rows, then (footprint form) the inverted Z key and (raw path)
-    the Z key over 2 hh + 1 rows."""
-    z_key = keys[0]
-    rows = [_sliding_min(z_key, 2 * hh + 1, axis=0)]
+def _prefilter_rows(*keys, hh, hv, hw, footprint):
+    """Column (vertical) minima of the (H, W) prefilter keys: the depth key over the window's 2 hh + 1
+    rows and over the small box's 2 hv + 1 rows, then (footprint form) the inverted Z key and (raw
+    path) the Z key over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE``
+    (the pad fuses into the minima: no padded copy of the keys is stored)."""
+    def rows_min(key, half):
+        padded = jnp.pad(key, ((half, half), (hw, hw)), constant_values=np.uint16(_ZNONE))
+        return _sliding_min(padded, 2 * half + 1, axis=0)
+
+    rows = [rows_min(keys[0], hh)]
     if footprint:
-        rows.append(_sliding_min(z_key[hh - hv:hh + hv + height], 2 * hv + 1, axis=0))
-        rows += [_sliding_min(k, 2 * hh + 1, axis=0) for k in keys[1:]]
+        rows.append(rows_min(keys[0], hv))
+        rows += [rows_min(k, hh) for k in keys[1:]]
     return tuple(rows)
 
 
-def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, cell_v_run, move_coef, *, height,
+def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height,
                      width, hh, hw, cell_v, footprint):
     """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
@@ -258,13 +217,14 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, ce
     removed by a nearer pixel inside the box of normalised half size r; on
     smooth surfaces, where inverse depth varies little within a window, most
     points take that small box. ``rows`` holds the column minima of
-    :func:`_prefilter_rows`. ``move_coef`` holds (c_u, c_v, t_z): three scalars, or three (H, W)
-    maps when each pixel has its own LiDAR origin. ``cell_v_run``: the image's traced H / L (the
+    :func:`_prefilter_rows`. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W) depth,
+    or the (3, H, W) points (sliced here, inside the fusion: a slice as a switch operand is a copy).
+    The move coefficients (c_u, c_v, t_z) come from K and ``t``, the (3,) LiDAR origin or (3, H, W) each
+    pixel's own (then per-pixel maps, computed inside the fusion rather than stored). ``cell_v_run``: the image's traced H / L (the
     static ``cell_v``, the canvas's, is at least it: it only sizes the small box, a superset).
     """
     cols = lambda a, half: a[:, hw - half:hw + half + width]
-    centre = lambda a: a[hh:hh + height, hw:hw + width]
-    key = centre(z_key_c).astype(jnp.int32)
+    key = z_key.astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
 
     def nearer_in(min_rows, half):
@@ -274,7 +234,7 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, ce
     cand = (key < _ZNONE) & nearer_in(rows[0], k)
     if footprint:
         hu, _ = _small_box(k, capped, cell_v, hh)
-        c_u, c_v, t_z = move_coef[0], move_coef[1], move_coef[2]
+        c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
         z_lo_key = rows[0] if len(rows) == 3 else rows[3]
         z_lo = _sliding_min(cols(z_lo_key, k), 2 * k + 1, axis=1).astype(jnp.float32) / np.float32(_ZQ)
         z_hi_key = np.float32(_ZSAT) - _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1).astype(jnp.float32)
@@ -282,8 +242,7 @@ def _prefilter_words(k, capped, rows, z_key_c, depth_c, big_z_c, eps, cell_u, ce
         w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
         reach_hi = (z_hi_key + 1.0) / np.float32(_ZQ) - t_z
         w_lo = jnp.where(z_hi_key < _ZSAT, 1.0 / jnp.maximum(reach_hi, 1e-3), 0.0)
-        big_z = centre(big_z_c)
-        reach = big_z - t_z
+        reach = z_stack[-1] - t_z
         w = 1.0 / jnp.where(reach > 1e-3, reach, 1.0)
         spread = jnp.maximum(w_hi - w, w - w_lo)
         v = jnp.arange(height, dtype=jnp.float32)[:, None]
@@ -315,36 +274,6 @@ def _compact(words: jax.Array):
     return count, locate
 
 
-#: Smallest parallax move that counts, pixels: below it a crossing is float rounding.
-_MIN_MOVE_PX = 1e-3
-
-
-def _condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
-    """Condition 1 between centre points p and window points q at pixel offset (du, dv) = q - p.
-
-    ``view_*`` are what ``_lidar_angles`` ("paper") or :func:`_lidar_view`
-    ("footprint") return.
-    """
-    if test == "nearer":        # condition 2 alone (points already known to sit in a LiDAR's shadow)
-        return jnp.ones_like(view_q[0], bool)
-    if test == "paper":
-        (h_p, g_p), (h_q, g_q) = view_p, view_q
-        return (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
-                | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
-    (au_p, av_p, bu_p, bv_p, ok_p), (au_q, av_q, bu_q, bv_q, ok_q) = view_p, view_q
-    # Offsets of p from q in cells (W L / N by H / L pixels): seen from the
-    # LiDAR (ra), on the image (rb), and p's move relative to q between them (m).
-    ra_u, ra_v = (au_p - au_q) / cell_u, (av_p - av_q) / cell_v
-    rb_u, rb_v = (bu_p - bu_q) / cell_u, (bv_p - bv_q) / cell_v
-    m_u, m_v = rb_u - ra_u, rb_v - ra_v
-    m2 = m_u * m_u + m_v * m_v
-    passes = (ra_u * m_u + ra_v * m_v < 0) & (rb_u * m_u + rb_v * m_v > 0)
-    cross = ra_u * m_v - ra_v * m_u
-    through_cell = 4.0 * cross * cross < m2
-    moved = m2 * (cell_u * cell_v) > _MIN_MOVE_PX ** 2
-    return ok_p & ok_q & moved & passes & through_cell
-
-
 class _Bounds(NamedTuple):
     """The paper's neighbourhood S(i) of one image, known at run time (traced scalars)."""
 
@@ -353,13 +282,6 @@ class _Bounds(NamedTuple):
     cell_u: jax.Array    # float32 W L / N, pixels (the horizontal point spacing)
     cell_v: jax.Array    # float32 H / L, pixels (the vertical point spacing)
     h_max: jax.Array | None = None   # int32 largest |dv| in S(i) of a window of a canvas (None: the static one)
-
-
-class _Canvas(NamedTuple):
-    """The image padded by the window (``hh`` rows, ``hw`` columns each side), one pad per channel."""
-
-    depth: jax.Array          # (H + 2 hh, W + 2 hw) float32 metres, 0 where empty or outside
-    points: tuple | None      # three such float32 camera-frame x, y, z canvases, or None
 
 
 def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None) -> _Bounds:
@@ -390,27 +312,13 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     return _Bounds(n_points, k_max, cell_u, cell_v, h_max)
 
 
-def _pad_canvas(depth: jax.Array, points, token, *, hh: int, hw: int) -> _Canvas:
-    """(H, W) depth (and (3, H, W) points) padded by the window, as one fenced stage.
-
-    Empty (non-finite or non-positive) depths become 0. One pad per channel: a
-    pad of the (3, H, W) stack runs slower on XLA:CPU.
-    """
-    def pad_depth(depth, *pts):
-        pad = ((hh, hh), (hw, hw))
-        ok = (depth > 0) & jnp.isfinite(depth)
-        return (jnp.pad(jnp.where(ok, depth, 0.0), pad),) + tuple(jnp.pad(p[i], pad) for p in pts for i in range(3))
-
-    canvas = stage(pad_depth, (depth,) if points is None else (depth, points), token)
-    return _Canvas(canvas[0], canvas[1:] if len(canvas) > 1 else None)
-
-
-def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
+def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
                t_front=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
-      canvas: :class:`_Canvas` of the image. K: (3, 3) float32. t: (3,) float32
+      depth: (H, W) float32 metres. points: optional (3, H, W) float32 camera-frame points (raw
+        path; their z is the camera depth Z of each pixel's point; None: Z is ``depth``). K: (3, 3) float32. t: (3,) float32
         LiDAR origin in the camera frame, metres, or (3, H, W): each pixel's own
         LiDAR origin (several sources). t_front: float32 scalar, at most every
         candidate's origin z (default ``t[2]``). eps: float32 condition-2
@@ -425,120 +333,18 @@ def _prefilter(canvas: _Canvas, K, t, eps, bounds: _Bounds, *, beams: int, hh: i
       compiled for each small run-time half window k (see
       :func:`_prefilter_words`) and picked by ``switch_widest``.
     """
-    height = canvas.depth.shape[0] - 2 * hh
-    width = canvas.depth.shape[1] - 2 * hw
-    points_c = canvas.points
+    height, width = depth.shape
     _, hv = _small_box(0, True, height / beams, hh)
     t_front = t[2] if t_front is None else t_front
     keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
-                 (canvas.depth, t_front) + (() if points_c is None else tuple(points_c)), bounds.n_points)
-    rows = stage(functools.partial(_prefilter_rows, height=height, hh=hh, hv=hv, footprint=footprint), keys,
+                 (depth, t_front) + (() if points is None else (points,)), bounds.n_points)
+    rows = stage(functools.partial(_prefilter_rows, hh=hh, hv=hv, hw=hw, footprint=footprint), keys,
                  bounds.n_points)
-    # Parallax-move coefficients (c_u, c_v, t_z), scalars or per-pixel maps; see _prefilter_words.
-    move_coef = jnp.stack([K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]])
     widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
     branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
                                   cell_v=height / beams, footprint=footprint) for k in widths]
-    big_z_c = canvas.depth if points_c is None else points_c[2]
-    return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0], canvas.depth,
-                         big_z_c, eps, bounds.cell_u, bounds.cell_v, move_coef)
-
-
-class _ExactTest(NamedTuple):
-    """Everything phase 3 reads (traced arrays) and its static options."""
-
-    canvas: _Canvas
-    K: jax.Array
-    t: jax.Array              # (3,) LiDAR origin, or (3, H, W) each pixel's own (camera frame)
-    eps: jax.Array
-    bounds: _Bounds
-    count: jax.Array          # int32 number of candidates
-    locate: object            # slot -> (row, column) of a candidate (see _compact)
-    hh: int
-    hw: int
-    test: str
-    nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
-
-
-def _view_at(ex: _ExactTest, row, col, window_of):
-    """LiDAR view (``_lidar_angles`` or ``_lidar_view``) of the pixels ``window_of`` picks from the
-    padded canvases at canvas rows ``row`` and columns ``col`` (int32), and their z (inf where empty)."""
-    canvas = ex.canvas
-    d = window_of(canvas.depth)
-    v = (row - ex.hh).astype(jnp.float32)
-    u = (col - ex.hw).astype(jnp.float32)
-    p = None if canvas.points is None else jnp.stack([window_of(canvas.points[i]) for i in range(3)])
-    view_fn = _lidar_view if ex.test == "footprint" else _lidar_angles
-    return view_fn(d, ex.K, ex.t, p, v, u), jnp.where(d > 0, d, jnp.float32(jnp.inf))
-
-
-def _column_block(b, removed, *, ex: _ExactTest, row, col, view_p, z_p, nearer_p=None):
-    """Conditions 1 and 2 of a chunk of candidates against one block of window columns.
-
-    Window blocks have B = 2 G + 1 columns, gathered as (2 hh + 1, B) slices
-    of the padded canvases. Block b starts at du = -k + b B, clipped so that it
-    stays on the canvas (a clipped block overlaps the previous one: harmless).
-    ``removed``: (_CHUNK,) bool, updated with the candidates some window pixel removes.
-    ``nearer_p``: optional (_CHUNK, 1, 1) bool, candidates that condition 2 alone removes.
-    """
-    hh, hw = ex.hh, ex.hw
-    group = max(min(hw, _GROUP), 0)
-    block = 2 * group + 1
-    dv = jnp.arange(-hh, hh + 1, dtype=jnp.int32)[None, :, None]
-    du_in_block = jnp.arange(block, dtype=jnp.int32)[None, None, :]
-    slices = jax.lax.GatherDimensionNumbers(offset_dims=(1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
-    start = jnp.clip(b * block - ex.bounds.k_max, -hw, hw - 2 * group)
-    col0 = col + hw + start
-    du = start + du_in_block
-    r_p, c_p = (row + hh)[:, None, None], (col + hw)[:, None, None]
-
-    def window(canvas_):
-        starts = jnp.stack([row, col0], axis=-1)
-        return jax.lax.gather(canvas_, starts, slices, (2 * hh + 1, block), mode="promise_in_bounds")
-
-    view_q, z_q = _view_at(ex, r_p + dv, c_p + du, window)
-    flip = _condition_1(ex.test, view_p, view_q, du, dv, ex.bounds.cell_u, ex.bounds.cell_v)
-    if nearer_p is not None:
-        flip = flip | nearer_p
-    hit = flip & (z_p > z_q + ex.eps) & (jnp.abs(du) <= ex.bounds.k_max)
-    if ex.bounds.h_max is not None:     # a window of a canvas: the image's own |dv| < h / L
-        hit = hit & (jnp.abs(dv) <= ex.bounds.h_max)
-    return removed | jnp.any(hit, axis=(1, 2))
-
-
-def _test_chunk(c, keep, *, ex: _ExactTest):
-    """Exact test of the candidate slots ``c _CHUNK ...`` (int32 chunk index ``c``); clears the removed
-    ones in ``keep``, the (H W,) bool mask."""
-    height = ex.canvas.depth.shape[0] - 2 * ex.hh
-    width = ex.canvas.depth.shape[1] - 2 * ex.hw
-    slot = c * _CHUNK + jnp.arange(_CHUNK, dtype=jnp.int32)
-    row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
-    r_p, c_p = (row + ex.hh)[:, None, None], (col + ex.hw)[:, None, None]
-    if ex.t.ndim == 3:          # each candidate's own LiDAR origin, broadcast over its window
-        ex = ex._replace(t=ex.t.at[:, row, col].get(mode="promise_in_bounds")[:, :, None, None])
-    nearer_p = None if ex.nearer is None else ex.nearer.at[row, col].get(mode="promise_in_bounds")[:, None, None]
-    view_p, z_p = _view_at(ex, r_p, c_p, lambda a: a.at[r_p, c_p].get(mode="promise_in_bounds"))
-    block = 2 * max(min(ex.hw, _GROUP), 0) + 1
-    n_blocks = jnp.maximum((2 * ex.bounds.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
-    removed = jax.lax.fori_loop(0, n_blocks, functools.partial(_column_block, ex=ex, row=row, col=col,
-                                                                view_p=view_p, z_p=z_p, nearer_p=nearer_p),
-                                jnp.zeros((_CHUNK,), bool))
-    flat = jnp.where(slot < ex.count, row * width + col, height * width)
-    return keep.at[flat].set(~removed, mode="drop")
-
-
-def _exact_test(valid: jax.Array, ex: _ExactTest) -> jax.Array:
-    """Phase 3: the paper's conditions at every candidate, per chunk of ``_CHUNK`` slots.
-
-    Gathers each candidate's window of depths (and points) from the padded
-    canvases, recomputes the LiDAR view, and evaluates conditions 1 and 2 in
-    float32 for every offset with ``|du| <= k_max``. Returns the (H, W) bool
-    keep mask: ``valid`` with the removed candidates cleared.
-    """
-    height, width = valid.shape
-    n_chunks = (ex.count + _CHUNK - 1) // _CHUNK
-    keep = jax.lax.fori_loop(0, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
-    return keep.reshape(height, width)
+    return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0],
+                         depth[None] if points is None else points, eps, bounds.cell_u, bounds.cell_v, K, t)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
@@ -572,8 +378,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size)
-    canvas = _pad_canvas(depth, points, bounds.n_points, hh=half_height, hw=half_width)
-    words = _prefilter(canvas, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
+    words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
                        footprint=test == "footprint", t_front=t_front)
     if candidates is not None:
         words = words & pack_bits(candidates)
@@ -581,9 +386,10 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         nearer = nearer & valid
         words = words | pack_bits(nearer)
     count, locate = _compact(words)
-    ex = _ExactTest(canvas, K, t, eps, bounds, count, locate, hh=half_height, hw=half_width, test=test,
-                    nearer=nearer)
-    return _exact_test(valid, ex)
+    ex = ExactTest(depth, points, pack_columns(valid), K, t,
+                   eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
+                   hw=half_width, test=test, nearer=nearer)
+    return exact_test(valid, ex)
 
 
 def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array, *, beams: int,

@@ -1,0 +1,161 @@
+"""Step 2 (the outlier mask) alone, ns per pixel, on KITTI and Argoverse 2 geometry, against a baseline.
+
+Cases: the KITTI frame (352 x 1216, image input); the Argoverse 2 front camera cropped at the same
+focal length to 375 x 1242, 900 x 1600 and the whole 1550 x 2048 (the sweep's two VLP-32C as one
+64-beam source, points given: as ``bench_stage_sizes``); two cameras of the rig path (each pixel's own
+LiDAR origin, ``sources.source_keep_mask``'s call): a landscape 1550 x 2048 and the portrait 2048 x 1550.
+Each case reports its window half sizes, the run-time half width ``k``, the points, the prefilter's
+candidates and the exact test's chunks. ``--baseline FILE``: another version of
+``jaxdepth/_src/outliers.py`` (e.g. ``git show main:jaxdepth/_src/outliers.py > /tmp/outliers_main.py``),
+loaded beside this one; both run in interleaved rounds in one process, their masks must be equal, and
+the ratio this / baseline is taken within each round (median).
+
+    python -m benchmarks.bench_step2 [--repeats 5] [--baseline FILE] [--out benchmarks/results/step2.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from benchmarks._common import RESULTS, load_frames, write_results
+from benchmarks.bench_rigs import AV2_LOG
+
+
+def _inputs():
+    """``{case: (args, beams, origins?)}``: the (depth, K, T, points[, origins]) of each case."""
+    import jax.numpy as jnp
+
+    import jaxdepth
+    from benchmarks.bench_stage_sizes import SIZES, _crop
+    from jaxdepth._src import sources as S
+    from jaxdepth._src.normals import point_normals
+    from jaxdepth._src.pipeline import project_with_normals
+    from jaxdepth._src.types import LidarSpec
+    from jaxdepth.batch.sources_job import cloud_sources
+    from jaxdepth.io import av2, pad_points
+    config = jaxdepth.SGMConfig()
+    s, _, K, T = load_frames()["image_02"]
+    cases = {"KITTI 352x1216 (image)": ((jnp.asarray(s), jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32),
+                                         None), 64, False)}
+    log = av2.read_log(AV2_LOG)
+    rig, cloud = av2.read_rig(log), av2.read_cloud(log)
+    sources, _ = cloud_sources(cloud, fallback=rig.lidar)
+    spec = sources.lidars[0]
+    merged = LidarSpec(beams=2 * spec.beams, fov_up_deg=spec.fov_up_deg, fov_down_deg=spec.fov_down_deg,
+                       columns=spec.columns)
+    points, valid = (jnp.asarray(a) for a in pad_points(cloud.points))
+    normals = point_normals(points, valid, lidar=merged, smoothing=config.normal_smoothing,
+                            fill_max_gap=config.range_fill_max_gap)
+    front = next(c for c in rig.cameras if c.height < c.width).as_camera()
+    for h, w in SIZES:
+        cam = _crop(front, points, valid, h, w)
+        depth, _, pc, _ = project_with_normals(points, valid, normals, cam.T_cam_lidar, cam.K, height=h, width=w)
+        cases[f"AV2 crop {h}x{w}"] = ((depth, cam.K, cam.T_cam_lidar, pc), merged.beams, False)
+    n_src, per = sources.points.shape[:2]
+    src_normals = S.source_normals(sources, smoothing=config.normal_smoothing,
+                                   fill_max_gap=config.range_fill_max_gap).reshape(-1, 3)
+    source_id = jnp.repeat(jnp.arange(n_src, dtype=jnp.int32), per)
+    portrait = next(c for c in rig.cameras if c.height > c.width)
+    for label, c in (("landscape", rig.cameras[1] if rig.cameras[0] is portrait else rig.cameras[0]),
+                     ("portrait", portrait)):
+        cam = c.as_camera()
+        depth, index, pc, _ = project_with_normals(sources.points.reshape(-1, 3), sources.valid.reshape(-1),
+                                                   src_normals, cam.T_cam_lidar, cam.K, height=cam.height,
+                                                   width=cam.width)
+        hit = index >= 0
+        pixel_source = jnp.where(hit, source_id[jnp.where(hit, index, 0).reshape(-1)].reshape(index.shape), 0)
+        T_cs = jnp.einsum("ij,sjk->sik", cam.T_cam_lidar, sources.T_ref_source)
+        origins = jnp.stack([T_cs[:, k, 3][pixel_source] for k in range(3)])
+        cases[f"AV2 rig {label} {cam.height}x{cam.width} (per-pixel origins)"] = (
+            (depth, cam.K, T_cs[0], pc, origins), S.default_beams(sources), True)
+    return cases
+
+
+def _fns(module, args, beams, origins):
+    import jax
+    import jax.numpy as jnp
+
+    from jaxdepth._src.outliers import window_half_sizes
+    h, w = args[0].shape
+    hw, hh = window_half_sizes(h, w, beams=beams, max_half_width_px=12, max_half_height_px=24)
+    opts = dict(beams=beams, half_width=hw, half_height=hh)
+    if origins:
+        f = jax.jit(lambda s, K, T, p, o: module._keep_mask(s, K, T, p, jnp.float32(1.0), origins=o, **opts))
+    else:
+        f = jax.jit(lambda s, K, T, p: module._keep_mask(s, K, T, p, jnp.float32(1.0), **opts))
+    return (lambda: f(*args)), dict(half_width=hw, half_height=hh)
+
+
+def _info(args, beams, hw, hh, origins):
+    """k, points, candidates and chunks of a case (this version's phases)."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src import outliers as O
+    from jaxdepth._src.outlier_exact import CHUNK
+    depth, K, T, p = args[:4]
+    valid = (depth > 0) & jnp.isfinite(depth)
+    bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
+    t = args[4] if origins else T[:3, 3]
+    words = O._prefilter(depth, p, K, t, jnp.float32(1.0), bounds, beams=beams, hh=hh, hw=hw, footprint=True,
+                         t_front=jnp.min(t[2]) if origins else None)
+    count = int(O._compact(words)[0])
+    return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", default=None, help="another outliers.py to time against (masks must agree)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--out", default=str(RESULTS / "step2.json"))
+    args, t0 = parser.parse_args(argv), time.time()
+    if not AV2_LOG.exists():
+        print(f"bench_step2: {AV2_LOG} not found (shared data)", file=sys.stderr)
+        return 1
+    import jax
+
+    from jaxdepth._src import outliers
+    versions = {"this": outliers}
+    if args.baseline:
+        spec = importlib.util.spec_from_file_location("outliers_baseline", args.baseline)
+        versions["baseline"] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(versions["baseline"])
+    fns, info, px = {}, {}, {}
+    for case, (case_args, beams, origins) in _inputs().items():
+        masks = []
+        for name, module in versions.items():
+            fns[(case, name)], sizes = _fns(module, case_args, beams, origins)
+            masks.append(np.asarray(fns[(case, name)]()))
+        if any((m != masks[0]).any() for m in masks[1:]):
+            print(f"bench_step2: {case}: the masks differ from the baseline's", file=sys.stderr)
+            return 1
+        info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"], origins))
+        px[case] = int(case_args[0].size)
+        print(case, info[case], flush=True)
+    runs = {key: [] for key in fns}
+    for _ in range(args.repeats):
+        for key, fn in fns.items():
+            t = time.perf_counter()
+            jax.block_until_ready(fn())
+            runs[key].append(time.perf_counter() - t)
+    ns_per_px = {f"{case} | {name}": statistics.median(v) / px[case] * 1e9 for (case, name), v in runs.items()}
+    ratio = {case: statistics.median(a / b for a, b in zip(runs[(case, "this")], runs[(case, "baseline")]))
+             for case in info} if args.baseline else {}
+    for case in info:
+        print(f"{case:55s} " + "  ".join(f"{n} {ns_per_px[f'{case} | {n}']:6.1f} ns/px" for n in versions)
+              + (f"  this/baseline {ratio[case]:.2f}" if ratio else ""))
+    doc = {"what": "Step 2 alone (outliers._keep_mask), ns per pixel, medians of interleaved rounds, one process",
+           "baseline": args.baseline, "repeats": args.repeats, "cases": info, "ns_per_px_median": ns_per_px,
+           "ratio_this_to_baseline": ratio,
+           "runs_s": {f"{case} | {name}": v for (case, name), v in runs.items()}}
+    write_results(args.out, doc, None, t0)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

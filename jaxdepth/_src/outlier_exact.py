@@ -1,0 +1,250 @@
+"""Step 2, phase 3: Algorithm 1's exact test at the candidates, visiting only the window's points.
+
+Contract: candidates (pixels with depth, listed by :mod:`jaxdepth._src.outliers`' prefilter and
+compaction) in, the (H, W) keep mask out; a candidate is cleared when some pixel ``j`` with depth
+in its window ``|du| <= k_max, |dv| <= hh`` meets conditions 1 and 2 (the forms and their
+derivation: :mod:`jaxdepth._src.outliers`).
+
+A LiDAR image is sparse (KITTI 4 %, an Argoverse 2 camera 0.5 % of its pixels), so a window of
+``(2 hh + 1) x (2 k + 1)`` pixels (49 x 15 on the Argoverse 2 cameras) holds a handful of points.
+Each candidate therefore walks the points of its window column by column: the pixels with depth
+are packed down the columns into uint32 words (:func:`pack_columns`); for every column offset the
+two or three words that cover rows ``v - hh .. v + hh`` are masked to those rows, and a loop over
+ranks ``m = 0, 1, ...`` up to the chunk's largest count visits the ``m``-th point of every
+candidate's window column at once (:func:`~jaxdepth._src.compaction.nth_set_bit`), gathering its
+depth (and point) from the image itself: no padded canvas. Each (candidate, point) pair is tested
+with the same float32 operations as a dense sweep over the window would use, and empty pixels never
+pass condition 2, so the mask is the same, bit for bit.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxdepth._src.compaction import WORD_BITS, nth_set_bit
+from jaxdepth._src.fastmath import pseudo_angle
+from jaxdepth._src.geometry import backproject
+
+#: Candidate slots tested per loop step.
+CHUNK = 512
+#: Column offsets per side of a block of the window walked at once (B = 2 G + 1 columns).
+_GROUP = 4
+#: Smallest parallax move that counts, pixels: below it a crossing is float rounding.
+_MIN_MOVE_PX = 1e-3
+_PIB = "promise_in_bounds"
+
+
+def _camera_points(depth: jax.Array, K: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Camera-frame (x, y, z) of points, metres, three arrays of ``depth``'s shape.
+
+    ``points_cam`` None: each pixel's point back-projected from its centre
+    ``(u, v)`` (float32 columns and rows broadcastable to ``depth``) at
+    ``depth`` (:func:`~jaxdepth._src.geometry.backproject`); otherwise the given
+    camera-frame points, a (3, ...) array or three arrays of ``depth``'s shape.
+    """
+    if points_cam is None:
+        return backproject(depth, K, v, u)
+    return points_cam[0], points_cam[1], points_cam[2]
+
+
+def lidar_angles(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Order keys (h, g) of points seen from the LiDAR origin ``t`` (camera axes), "paper" form.
+
+    ``h`` orders ``atan2(q_x, q_z)`` and ``g`` orders ``atan2(q_y, q_z)`` for
+    ``q = p_cam - t`` (:func:`~jaxdepth._src.fastmath.pseudo_angle`, float32 of
+    ``depth``'s shape). Arguments as :func:`_camera_points`; ``t``: (3, ...) float32
+    LiDAR origin in the camera frame, metres.
+    """
+    px, py, pz = _camera_points(depth, K, points_cam, v, u)
+    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
+    return pseudo_angle(qx, qz), pseudo_angle(qy, qz)
+
+
+def lidar_view(depth: jax.Array, K: jax.Array, t: jax.Array, points_cam, v: jax.Array, u: jax.Array):
+    """Where each point is seen from the LiDAR origin and from the camera, pixels ("footprint" form).
+
+    ``(a_u, a_v)``: the pixel of a camera with the same orientation and
+    intrinsics placed at the LiDAR origin ``t``; ``(b_u, b_v)``: the point's own
+    camera pixel, exact (sub-pixel) for given ``points_cam``, the pixel centre
+    (u, v) for back-projected pixels. ``ok`` is False where the point is not in
+    front of the LiDAR's virtual camera (q_z <= 1 mm). Arguments as
+    :func:`lidar_angles`; every output is float32 (``ok`` bool) of ``depth``'s shape.
+    """
+    px, py, pz = _camera_points(depth, K, points_cam, v, u)
+    if points_cam is None:
+        b_u, b_v = u, v
+    else:
+        inv_p = 1.0 / jnp.where(pz > 0, pz, 1.0)
+        b_u, b_v = K[0, 0] * px * inv_p + K[0, 1] * py * inv_p + K[0, 2], K[1, 1] * py * inv_p + K[1, 2]
+    qx, qy, qz = px - t[0], py - t[1], pz - t[2]
+    ok = qz > 1e-3
+    inv = 1.0 / jnp.where(ok, qz, 1.0)
+    return K[0, 0] * qx * inv + K[0, 1] * qy * inv + K[0, 2], K[1, 1] * qy * inv + K[1, 2], b_u, b_v, ok
+
+
+def condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
+    """Condition 1 between centre points p and window points q at pixel offset (du, dv) = q - p.
+
+    ``view_*`` are what :func:`lidar_angles` ("paper") or :func:`lidar_view`
+    ("footprint") return; "nearer": always True (condition 2 alone).
+    """
+    if test == "nearer":        # condition 2 alone (points already known to sit in a LiDAR's shadow)
+        return jnp.ones_like(view_q[0], bool)
+    if test == "paper":
+        (h_p, g_p), (h_q, g_q) = view_p, view_q
+        return (jnp.where(du > 0, h_p > h_q, (du < 0) & (h_p < h_q))
+                | jnp.where(dv > 0, g_p > g_q, (dv < 0) & (g_p < g_q)))
+    (au_p, av_p, bu_p, bv_p, ok_p), (au_q, av_q, bu_q, bv_q, ok_q) = view_p, view_q
+    # Offsets of p from q in cells (W L / N by H / L pixels): seen from the
+    # LiDAR (ra), on the image (rb), and p's move relative to q between them (m).
+    ra_u, ra_v = (au_p - au_q) / cell_u, (av_p - av_q) / cell_v
+    rb_u, rb_v = (bu_p - bu_q) / cell_u, (bv_p - bv_q) / cell_v
+    m_u, m_v = rb_u - ra_u, rb_v - ra_v
+    m2 = m_u * m_u + m_v * m_v
+    passes = (ra_u * m_u + ra_v * m_v < 0) & (rb_u * m_u + rb_v * m_v > 0)
+    cross = ra_u * m_v - ra_v * m_u
+    through_cell = 4.0 * cross * cross < m2
+    moved = m2 * (cell_u * cell_v) > _MIN_MOVE_PX ** 2
+    return ok_p & ok_q & moved & passes & through_cell
+
+
+def pack_columns(valid: jax.Array) -> jax.Array:
+    """(H, W) bool -> (ceil(H / 32), W) uint32: bit b of word m in column c is ``valid[32 m + b, c]``."""
+    height, width = valid.shape
+    n_words = -(-height // WORD_BITS)
+    bits = jnp.pad(valid, ((0, n_words * WORD_BITS - height), (0, 0))).reshape(n_words, WORD_BITS, width)
+    packed = jnp.zeros((n_words, width), jnp.uint32)
+    for i in range(WORD_BITS):
+        packed = packed | (bits[:, i, :].astype(jnp.uint32) << i)
+    return packed
+
+
+class ExactTest(NamedTuple):
+    """Everything phase 3 reads (traced arrays) and its static options."""
+
+    depth: jax.Array          # (H, W) float32 metres; read only where ``columns`` has a bit
+    points: jax.Array | None  # (3, H, W) float32 camera-frame x, y, z, or None (back-projected)
+    columns: jax.Array        # (ceil(H / 32), W) uint32: pixels with depth packed down the columns
+    K: jax.Array
+    t: jax.Array              # (3,) LiDAR origin, or (3, H, W) each pixel's own (camera frame)
+    eps: jax.Array
+    k_max: jax.Array          # int32 largest |du| in S(i)
+    cell_u: jax.Array
+    cell_v: jax.Array
+    h_max: jax.Array | None   # int32 largest |dv| of a window of a canvas (None: hh)
+    count: jax.Array          # int32 number of candidates
+    locate: object            # slot -> (row, column) of a candidate
+    hh: int
+    hw: int
+    test: str
+    nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
+
+
+def _view(ex: ExactTest, flat, row, col):
+    """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
+    z (inf where empty)."""
+    d = ex.depth.reshape(-1).at[flat].get(mode=_PIB)
+    # One gather of the three channels: slicing them apart first would copy each (3 passes over the image).
+    p = None if ex.points is None else ex.points.reshape(3, -1).at[:, flat].get(mode=_PIB)
+    view_fn = lidar_view if ex.test == "footprint" else lidar_angles
+    return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
+        jnp.where(d > 0, d, jnp.float32(jnp.inf))
+
+
+def _window_words(ex: ExactTest, row, col, start=None, block=None):
+    """The column words of a block of each candidate's window columns, masked to its rows: a list over
+    the words covering rows ``row - hh .. row + hh`` of (n, B) uint32, with each word's first row
+    (n, 1) int32, and the block's columns: (1, B) offsets ``start .. start + B - 1`` and (n, B) indices.
+    Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
+    n_words, width = ex.columns.shape
+    start = -ex.hw if start is None else start
+    block = 2 * ex.hw + 1 if block is None else block
+    du = start + jnp.arange(block, dtype=jnp.int32)[None, :]
+    col_q = col[:, None] + du
+    in_cols = (jnp.abs(du) <= ex.k_max) & (col_q >= 0) & (col_q < width)
+    col_q = jnp.clip(col_q, 0, width - 1)
+    top, bottom = (row - ex.hh)[:, None], (row + ex.hh + 1)[:, None]
+    first = jnp.floor_divide(top, WORD_BITS)
+
+    def below(n):  # uint32 with the lowest n bits set, n in [0, 32]
+        return jnp.where(n >= WORD_BITS, jnp.uint32(0xFFFFFFFF), (jnp.uint32(1) << n.astype(jnp.uint32)) - 1)
+
+    words, bases = [], []
+    for j in range(-(-(2 * ex.hh + 1) // WORD_BITS) + 1):
+        m = first + j
+        base = m * WORD_BITS
+        word = ex.columns.at[jnp.clip(m, 0, n_words - 1), col_q].get(mode=_PIB)
+        keep = below(jnp.clip(bottom - base, 0, WORD_BITS)) & ~below(jnp.clip(top - base, 0, WORD_BITS))
+        words.append(jnp.where(in_cols & (m >= 0) & (m < n_words), word & keep, jnp.uint32(0)))
+        bases.append(base)
+    return words, bases, du, col_q
+
+
+def _test_chunk(c, keep, *, ex: ExactTest):
+    """Exact test of the candidate slots ``c CHUNK ...`` (int32 chunk index ``c``); clears the removed
+    ones in ``keep``, the (H W,) bool mask."""
+    height, width = ex.depth.shape
+    slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
+    row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
+    flat_p = row * width + col
+    if ex.t.ndim == 3:          # each candidate's own LiDAR origin, shared by its window
+        ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
+    nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]
+    view_p, z_p = _view(ex, flat_p[:, None], row[:, None], col[:, None])
+    group = max(min(ex.hw, _GROUP), 0)
+    block = 2 * group + 1
+    n_blocks = jnp.maximum((2 * ex.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
+    removed = jax.lax.fori_loop(0, n_blocks, functools.partial(
+        _column_block, ex=ex, row=row, col=col, view_p=view_p, z_p=z_p, nearer_p=nearer_p, group=group),
+        jnp.zeros((CHUNK,), bool))
+    flat = jnp.where(slot < ex.count, flat_p, height * width)
+    return keep.at[flat].set(~removed, mode="drop")
+
+
+def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):
+    """Conditions 1 and 2 of a chunk of candidates against the points of one block of B = 2 G + 1 window
+    columns, starting at du = -k + b B (clipped to the static window: a clipped block overlaps the
+    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated."""
+    width = ex.depth.shape[1]
+    block = 2 * group + 1
+    start = jnp.clip(b * block - ex.k_max, -ex.hw, ex.hw - 2 * group)
+    words, bases, du, col_q = _window_words(ex, row, col, start, block)
+    counts = [jax.lax.population_count(w).astype(jnp.int32) for w in words]
+    total = functools.reduce(jnp.add, counts)
+
+    def point(m, removed):
+        # The m-th point (in row order) of each window column: its word, then its bit.
+        word, rank, base, before = words[0], jnp.full_like(total, m), bases[0], jnp.zeros_like(total)
+        for w, n, first_row in zip(words, counts, bases):
+            here = (m >= before) & (m < before + n)
+            word, rank = jnp.where(here, w, word), jnp.where(here, m - before, rank)
+            base, before = jnp.where(here, first_row, base), before + n
+        present = m < total
+        row_q = base + nth_set_bit(word, jnp.where(present, rank, 0))
+        flat_q = jnp.where(present, row_q * width + col_q, 0)
+        view_q, z_q = _view(ex, flat_q, row_q, col_q)
+        dv = row_q - row[:, None]
+        flip = condition_1(ex.test, view_p, view_q, du, dv, ex.cell_u, ex.cell_v)
+        if nearer_p is not None:
+            flip = flip | nearer_p
+        hit = present & flip & (z_p > z_q + ex.eps)
+        if ex.h_max is not None:     # a window of a canvas: the image's own |dv| < h / L
+            hit = hit & (jnp.abs(dv) <= ex.h_max)
+        return removed | jnp.any(hit, axis=1)
+
+    return jax.lax.fori_loop(0, jnp.max(total), point, removed)
+
+
+def exact_test(valid: jax.Array, ex: ExactTest) -> jax.Array:
+    """Phase 3: the paper's conditions at every candidate, per chunk of :data:`CHUNK` slots.
+
+    Returns the (H, W) bool keep mask: ``valid`` with the removed candidates cleared.
+    """
+    height, width = valid.shape
+    n_chunks = (ex.count + CHUNK - 1) // CHUNK
+    keep = jax.lax.fori_loop(0, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
+    return keep.reshape(height, width)
