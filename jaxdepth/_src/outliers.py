@@ -86,7 +86,7 @@ from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
-from jaxdepth._src.xla_tuning import stage, switch_widest
+from jaxdepth._src.xla_tuning import stage
 
 
 #: Condition-1 forms of the exact test (static option ``test``).
@@ -104,11 +104,6 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     half_height = min(int(max_half_height_px), math.ceil(height / beams) - 1, height - 1)
     half_width = min(int(max_half_width_px), width - 1)
     return max(half_width, 0), max(half_height, 0)
-
-
-#: Widest horizontal half window with its own compiled prefilter pass; wider
-#: run-time windows use the static cap (a superset: more candidates, same mask).
-_STATIC_K = 8
 
 
 def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
@@ -134,12 +129,27 @@ _SMALL_RADIUS = 0.6
 def _small_box(k: int, capped: bool, cell_v: float, hh: int) -> tuple[int, int]:
     """Static half sizes (columns, rows) of a box holding every offset with |du| < r W L / N and |dv| < r H / L.
 
-    In the branch for half window k < cap, W L / N <= k + 1; the capped branch
-    may have any W L / N, so it keeps its full width.
+    For a run-time half window k < cap, W L / N <= k + 1; at the cap (``capped``),
+    W L / N may be anything, so the box keeps the full width.
     """
     hu = k if capped else min(k, math.ceil(_SMALL_RADIUS * (k + 1)) - 1)
     hv = min(hh, max(math.ceil(_SMALL_RADIUS * cell_v) - 1, 0))
     return max(hu, 0), hv
+
+
+def _window_min(padded: jax.Array, k: jax.Array, *, hw: int, width: int) -> jax.Array:
+    """``out[:, u] = min(padded[:, hw + u - k .. hw + u + k])``, the run-time half window ``k`` as data.
+
+    ``padded``: (..., H, W + 2 hw) with ``width = W``; ``k``: int32 scalar in [0, hw] (under ``vmap``, one
+    per member). One pass: the 2 hw + 1 columns of the static cap are read as hw mirrored pairs, each
+    taken when its offset is within k (a minimum is exact in any order, so this equals the minimum over
+    exactly those columns). Compiled once for every k (no branch per window width).
+    """
+    out = padded[..., hw:hw + width]
+    for d in range(1, hw + 1):
+        pair = jnp.minimum(padded[..., hw - d:hw - d + width], padded[..., hw + d:hw + d + width])
+        out = jnp.where(d <= k, jnp.minimum(out, pair), out)
+    return out
 
 
 #: Depth keys of the prefilter: uint16 ``floor(z * _ZQ)`` (1/256 m steps, as KITTI's PNGs), saturating
@@ -194,9 +204,12 @@ def _prefilter_rows(*keys, hh, hv, hw, footprint):
     return tuple(rows)
 
 
-def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height,
+def _prefilter_words(k, hu, rows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height,
                      width, hh, hw, cell_v, footprint):
-    """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
+    """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
+
+    ``k``: int32 in [0, hw]; ``hu``: int32, the small box's half width for k (:func:`_small_box`),
+    both data: one program for every k (:func:`_window_min`).
 
     Every form of condition 1 needs condition 2: a pixel more than ``eps``
     nearer in the window, ``z_i > min_window(z) + eps``, tested on uint16 keys
@@ -223,21 +236,20 @@ def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K
     pixel's own (then per-pixel maps, computed inside the fusion rather than stored). ``cell_v_run``: the image's traced H / L (the
     static ``cell_v``, the canvas's, is at least it: it only sizes the small box, a superset).
     """
-    cols = lambda a, half: a[:, hw - half:hw + half + width]
+    window_min = functools.partial(_window_min, hw=hw, width=width)
     key = z_key.astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
 
     def nearer_in(min_rows, half):
-        low = _sliding_min(cols(min_rows, half), 2 * half + 1, axis=1).astype(jnp.int32)
+        low = window_min(min_rows, half).astype(jnp.int32)
         return (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
 
     cand = (key < _ZNONE) & nearer_in(rows[0], k)
     if footprint:
-        hu, _ = _small_box(k, capped, cell_v, hh)
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
         z_lo_key = rows[0] if len(rows) == 3 else rows[3]
-        z_lo = _sliding_min(cols(z_lo_key, k), 2 * k + 1, axis=1).astype(jnp.float32) / np.float32(_ZQ)
-        z_hi_key = np.float32(_ZSAT) - _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1).astype(jnp.float32)
+        z_lo = window_min(z_lo_key, k).astype(jnp.float32) / np.float32(_ZQ)
+        z_hi_key = np.float32(_ZSAT) - window_min(rows[2], k).astype(jnp.float32)
         reach_lo = z_lo - t_z
         w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
         reach_hi = (z_hi_key + 1.0) / np.float32(_ZQ) - t_z
@@ -248,7 +260,7 @@ def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K
         v = jnp.arange(height, dtype=jnp.float32)[:, None]
         u = jnp.arange(width, dtype=jnp.float32)[None, :]
         # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
-        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1)
+        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1).astype(jnp.float32)
         d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
         reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v_run + 1e-3) ** 2 + 0.25
         small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
@@ -329,22 +341,22 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
     Returns:
       (H, ceil(W / 32)) uint32 words: bit i of word m in row v is the pixel
       ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Dense
-      passes over the canvas, each a fenced stage; the horizontal pass is
-      compiled for each small run-time half window k (see
-      :func:`_prefilter_words`) and picked by ``switch_widest``.
+      passes over the canvas, the first two each a fenced stage; the horizontal pass takes the
+      run-time half window k and its small box as data (:func:`_prefilter_words`): one program
+      for every k.
     """
     height, width = depth.shape
     _, hv = _small_box(0, True, height / beams, hh)
+    k = bounds.k_max
+    hu = jnp.asarray([_small_box(j, j == hw, height / beams, hh)[0] for j in range(hw + 1)], jnp.int32)[k]
     t_front = t[2] if t_front is None else t_front
     keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
                  (depth, t_front) + (() if points is None else (points,)), bounds.n_points)
     rows = stage(functools.partial(_prefilter_rows, hh=hh, hv=hv, hw=hw, footprint=footprint), keys,
                  bounds.n_points)
-    widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
-    branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
-                                  cell_v=height / beams, footprint=footprint) for k in widths]
-    return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0],
-                         depth[None] if points is None else points, eps, bounds.cell_u, bounds.cell_v, K, t)
+    return _prefilter_words(k, hu, rows, keys[0], depth[None] if points is None else points, eps, bounds.cell_u,
+                            bounds.cell_v, K, t, height=height, width=width, hh=hh, hw=hw, cell_v=height / beams,
+                            footprint=footprint)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
