@@ -543,6 +543,7 @@ def main(argv=None) -> int:
     args.t_start = t_start
     args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     try:
+        devices.keep_freed_memory()      # before JAX's threads start: their buffers reuse freed pages
         devices.quiet_jax_start()
         devices.use_compile_cache(args.compile_cache)
         code = int(args.func(args) or 0)
