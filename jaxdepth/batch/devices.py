@@ -160,11 +160,12 @@ def keep_freed_memory(enabled: bool = True) -> bool:
     the call. glibc serves a block over 32 MB by ``mmap`` and returns it by ``munmap`` on ``free``
     (and a thread's own arena falls back to ``mmap`` for any block larger than its 64 MB heap), so
     every call of a large program faults its buffers' pages in anew: on one Argoverse 2 sweep (7
-    cameras, 22 Mpx) ~615,000 page faults (2.5 GB zeroed by the kernel) and ~1.3 s of CPU of the
-    sweep's ~4 s (docs/speed.md, "The job's memory"). Set here: one malloc arena for every thread, no
-    ``mmap`` for large blocks and no trimming of the heap's top, so the heap grows to the run's peak
-    once and later calls reuse its pages (no faults in the Argoverse 2 job from the fourth sweep
-    on). Cost: the process keeps its peak heap (the Argoverse 2 job: 5.6 GB resident against 4.3 GB).
+    cameras, 22 Mpx) ~615,000 page faults (2.5 GB zeroed by the kernel), ~35 % of the job's CPU per
+    sweep (docs/speed.md, "The job's memory"). Set here: one malloc arena for every thread, no ``mmap``
+    for large blocks and no trimming of the heap's top (threshold -1; with 2**31 - 1 the top the
+    Argoverse 2 program frees, over 2 GB, was still trimmed and faulted in again), so the heap grows to
+    the run's peak once and later calls reuse its pages (no faults from the job's third sweep on, bar
+    a few). Cost: the process keeps its peak heap resident (the Argoverse 2 sweeps: 4.3 GB, as without).
     The outputs are the same bytes (where a buffer lives decides no value).
 
     Process-wide, for the command line's jobs (never called by library code); call it before JAX
@@ -183,7 +184,7 @@ def keep_freed_memory(enabled: bool = True) -> bool:
     except (ValueError, OSError, AttributeError):   # no confstr name, no C library handle, no mallopt
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    settings = ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, 2**31 - 1))
+    settings = ((_M_ARENA_MAX, 1), (_M_MMAP_MAX, 0), (_M_TRIM_THRESHOLD, -1))
     return all([mallopt(param, value) == 1 for param, value in settings])
 
 
