@@ -543,7 +543,8 @@ def main(argv=None) -> int:
     args.t_start = t_start
     args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     try:
-        devices.keep_freed_memory()      # before JAX's threads start: their buffers reuse freed pages
+        if program:   # the jaxdepth process itself (not a test or script calling main): before JAX's threads start
+            devices.keep_freed_memory()
         devices.quiet_jax_start()
         devices.use_compile_cache(args.compile_cache)
         code = int(args.func(args) or 0)

@@ -168,8 +168,9 @@ def keep_freed_memory(enabled: bool = True) -> bool:
     a few). Cost: the process keeps its peak heap resident (the Argoverse 2 sweeps: 4.3 GB, as without).
     The outputs are the same bytes (where a buffer lives decides no value).
 
-    Process-wide, for the command line's jobs (never called by library code); call it before JAX
-    starts its threads (a thread keeps the arena it already has). Does nothing (returns False) when
+    Process-wide: the ``jaxdepth`` process calls it (``cli.main(argv)`` from tests or scripts does not,
+    nor does library code), before JAX starts its threads (a thread keeps the arena it already has),
+    so a long test session does not keep every worker's peak heap. Does nothing (returns False) when
     ``enabled`` is False, when ``JAXDEPTH_KEEP_MEMORY=0``, or when the C library is not glibc.
     Returns True when glibc accepted the three settings.
     """
