@@ -103,6 +103,7 @@ def _two_sweeps(points, valid, *, second_valid):
 
 
 @pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # the edge rig's one-source program is tests/test_sources.py's too
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
@@ -153,6 +154,7 @@ def test_rig_grouped_by_size_equals_one_canvas(mixed_rig):
 
 
 @pytest.mark.slow  # the several-sources program with every camera on the canvas
+@pytest.mark.xdist_group("rig_mixed_sizes")  # its two-sweep program is the mixed rig's several-sources test's
 def test_sources_grouped_by_size_equals_one_canvas(mixed_rig):
     points, valid, cams = mixed_rig
     # Two sources of two sweeps (the second the first moved by 0.3 m): the free-space and occlusion

@@ -250,6 +250,7 @@ def test_each_sweep_is_judged_alone_for_a_scan_without_scan_lines():
 
 
 @pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs (test_rig_sizes' edge rig)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_one_source_at_the_origin_equals_complete_rig():
     # scenes.edge_size_rig: three turned cameras in one vmapped group, points on pixel rounding edges (where
     # a projection rounding apart would show); its complete_rig and one-source programs are
@@ -457,7 +458,8 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
             (int(a) if a.dtype != bool else bool(a)) for a in (np.asarray(x) for x in jt(T_cams[i])))
 
 
-@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+@pytest.mark.slow  # the one-source program of the test above (test_rig_sizes' edge rig)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
     # One sweep: the option changes nothing (bit-identical; the edge rig's sweep and cameras, the program
     # of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by the
