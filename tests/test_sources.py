@@ -252,9 +252,7 @@ def test_each_sweep_is_judged_alone_for_a_scan_without_scan_lines():
 @pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_one_source_at_the_origin_equals_complete_rig():
-    # scenes.edge_size_rig: three turned cameras in one vmapped group, points on pixel rounding edges (where
-    # a projection rounding apart would show); its complete_rig and one-source programs are
-    # tests/test_rig_sizes.py's
+    # scenes.edge_size_rig: three turned cameras, points on pixel rounding edges (test_rig_sizes' programs)
     points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
@@ -461,9 +459,8 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
 @pytest.mark.slow  # the one-source program of the test above (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical; the edge rig's sweep and cameras, the program
-    # of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by the
-    # occlusion rule is an earlier sweep's.
+    # One sweep: the option changes nothing (bit-identical; the edge rig, the test above's program). Two
+    # sweeps: every point removed by the occlusion rule is an earlier sweep's.
     points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
     one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
