@@ -32,7 +32,7 @@ from jaxdepth._src.rig import size_groups, vmap_by_size
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 
 from _harness import assert_close, assert_tree_close, check_stage
-from scenes import SMALL_LIDAR, mixed_size_rig, small_camera, snap_to_pixel_edges, turned_lidar_to_camera
+from scenes import SMALL_LIDAR, edge_size_rig, mixed_size_rig, small_camera
 
 LIDAR = SMALL_LIDAR
 FIELDS = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv", "residual", "depth_raw", "depth")
@@ -46,19 +46,14 @@ def mixed_rig():
 
 
 @pytest.fixture(scope="module")
-def edge_rig(mixed_rig):
-    """``mixed_rig``'s points seen by three 24 x 40 cameras turned by odd angles (one vmapped group),
-    every point the middle camera sees moved onto a rounding edge of its pixel grid. A batched
-    product of three or more cameras' rotations rounds apart from the unbatched one (XLA:CPU picks
-    another kernel; two cameras, as in ``mixed_rig``, round alike), so a projection computed with
-    plain float32 products puts points into other pixels here (issue 37;
+def edge_rig():
+    """(points, valid, cameras): ``mixed_rig``'s points seen by three 24 x 40 cameras turned by odd angles
+    (one vmapped group), every point the middle camera sees moved onto a rounding edge of its pixel grid
+    (``scenes.edge_size_rig``). A batched product of three or more cameras' rotations rounds apart from
+    the unbatched one (XLA:CPU picks another kernel; two cameras, as in ``mixed_rig``, round alike), so a
+    projection computed with plain float32 products puts points into other pixels here (issue 37;
     tests/test_projection_rounding.py)."""
-    points, valid, _ = mixed_rig
-    cams = [small_camera(turned_lidar_to_camera((-0.3, 0.2, 0.3), yaw_deg=14.1), h=24, w=40, f=30.0),
-            small_camera(turned_lidar_to_camera(), h=24, w=40, f=30.0),
-            small_camera(turned_lidar_to_camera((-0.5, 0.1, 0.2), yaw_deg=-11.9, pitch_deg=1.7), h=24, w=40,
-                         f=34.0)]
-    return snap_to_pixel_edges(points, cams[1]), valid, cams
+    return edge_size_rig()
 
 
 def _assert_own_size(rig, i, cam, single):
@@ -108,6 +103,7 @@ def _two_sweeps(points, valid, *, second_valid):
 
 
 @pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # the edge rig's one-source program is tests/test_sources.py's too
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
@@ -158,6 +154,7 @@ def test_rig_grouped_by_size_equals_one_canvas(mixed_rig):
 
 
 @pytest.mark.slow  # the several-sources program with every camera on the canvas
+@pytest.mark.xdist_group("rig_mixed_sizes")  # its two-sweep program is the mixed rig's several-sources test's
 def test_sources_grouped_by_size_equals_one_canvas(mixed_rig):
     points, valid, cams = mixed_rig
     # Two sources of two sweeps (the second the first moved by 0.3 m): the free-space and occlusion
