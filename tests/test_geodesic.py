@@ -129,26 +129,32 @@ def _sampled_steps(img, stride=4):
     return dh, dv, sample[np.isfinite(sample)]
 
 
+#: One compiled program per shape (called plainly, each new shape compiles every primitive op by op); the
+#: library runs both inside geodesic_seed's jit.
+_median_step_difference = jax.jit(median_step_difference)
+_step_costs = jax.jit(step_costs, static_argnames=("noise_floor",))
+
+
 @pytest.mark.parametrize("shape,nan_rows", [((40, 57), ()), ((9, 30), (0, 4)), ((3, 3), ()), ((64, 33), (8, 9, 10))])
 def test_median_step_difference_is_the_sampled_median(shape, nan_rows):
     img = np.random.default_rng(shape[0]).random(shape + (3,)).astype(np.float32)
     img[list(nan_rows)] = np.nan   # a rig canvas' padding: left out, not counted
     dh, dv, sample = _sampled_steps(img)
-    got = float(median_step_difference(*(jnp.asarray(d, jnp.float32) for d in (dh, dv))))
+    got = float(_median_step_difference(*(jnp.asarray(d, jnp.float32) for d in (dh, dv))))
     lower_median = np.sort(sample)[(len(sample) - 1) // 2]
     assert abs(got - lower_median) <= sample.max() / 2**12 + 1e-6
 
 
 def test_median_step_difference_without_finite_steps_is_zero():
     nan = jnp.full((4, 5), jnp.nan)
-    assert float(median_step_difference(nan, nan)) == 0.0
+    assert float(_median_step_difference(nan, nan)) == 0.0
 
 
 def test_step_costs_with_noise_floor_match_numpy():
     keep, img = _scene(8, h=20, w=23)
     dh, dv, sample = _sampled_steps(img)
     floor = 1.5 * np.sort(sample)[(len(sample) - 1) // 2]
-    got_h, got_v = step_costs(img, 7.0, noise_floor=1.5)
+    got_h, got_v = _step_costs(img, 7.0, noise_floor=1.5)
     tol = 7.0 * 1.5 * sample.max() / 2**12 + 1e-5   # the bisected median's resolution, times weight and floor
     np.testing.assert_allclose(got_h, 1.0 + 7.0 * np.maximum(dh - floor, 0.0), atol=tol)
     np.testing.assert_allclose(got_v, 1.0 + 7.0 * np.maximum(dv - floor, 0.0), atol=tol)

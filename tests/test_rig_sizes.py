@@ -250,20 +250,24 @@ def test_blur_mirrors_at_the_cameras_own_border():
 
 
 def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
+    """Each camera's window of the canvas equals Algorithm 1 on the camera's own image (the footprint double
+    loop of test_outliers, float64, the default caps; no second keep-mask program per camera size), and the
+    canvas beyond it is False."""
+    from test_outliers import _assert_matches_footprint, footprint_double_loop
+    from jaxdepth._src.config import DEFAULT_CONFIG as D
     points, valid, cams = mixed_rig
-    inputs, removed = [], 0
+    inputs, wants, removed = [], [], 0
     for cam in cams:
         sparse, _ = project_to_image(points, valid, cam.K, cam.T_cam_lidar, height=cam.height, width=cam.width)
         size = (cam.height, cam.width)
         inputs.append((_embed(np.asarray(sparse), size), np.asarray(cam.K), np.asarray(cam.T_cam_lidar),
                        np.array(size, np.int32)))
-        removed += int((np.asarray(sparse) > 0).sum() - np.asarray(outlier_keep_mask(sparse, cam.K, cam.T_cam_lidar,
-                                                                                     beams=LIDAR.beams)).sum())
+        wants.append(footprint_double_loop(np.asarray(sparse), np.asarray(cam.K), np.asarray(cam.T_cam_lidar),
+                                           beams=LIDAR.beams, epsilon_m=D.epsilon_m,
+                                           max_half_width_px=D.outlier_max_half_width_px,
+                                           max_half_height_px=D.outlier_max_half_height_px))
+        removed += int(((np.asarray(sparse) > 0) & ~wants[-1][0]).sum())
     assert removed > 0      # the scene has outliers to remove
-
-    def oracle(canvas, K, T, size):
-        h, w = size
-        return _embed(np.asarray(outlier_keep_mask(canvas[:h, :w], K, T, beams=LIDAR.beams)), size)
 
     # The library's own program (stage_table._OneLibraryJit): a jit around the call would compile the keep
     # mask a second time. Beyond the window the canvas holds no depth, so the mask is False there already.
@@ -271,7 +275,10 @@ def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
     from jaxdepth._src import outliers
     keep_mask = _OneLibraryJit(lambda c, K, T, s: outlier_keep_mask(c, K, T, beams=LIDAR.beams, image_size=s),
                                outliers._keep_mask)
-    check_stage(keep_mask, inputs, oracle=oracle, eager_inputs=1)
+    outs = check_stage(keep_mask, inputs, eager_inputs=1)
+    for out, (_, _, _, (h, w)), (want, unsure) in zip(outs, inputs, wants):
+        _assert_matches_footprint(out[:h, :w], want, unsure)
+        assert not out[h:].any() and not out[:, w:].any()
 
 
 def test_column_bracket_uses_the_cameras_own_window():

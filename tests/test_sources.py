@@ -449,7 +449,7 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
         assert (int(rank), bool(ok)) == (want, usable)
     T_cams = np.stack([_pose((-x, 0.0, 0.0)) for x in (0.3, 1.0, 3.0)]).astype(np.float32)
     loop = [tuple(np.asarray(a) for a in camera_witness(T, Ts, sweep=sweep)) for T in T_cams]
-    vm = jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep))(T_cams)
+    vm = jax.jit(jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep)))(T_cams)   # one program, not op by op
     jt = jax.jit(lambda T: camera_witness(T, Ts, sweep=sweep))
     for i, (r, ok) in enumerate(loop):
         assert (int(vm[0][i]), bool(vm[1][i])) == (int(r), bool(ok)) == tuple(
@@ -563,7 +563,7 @@ def test_free_space_vmap_and_jit_equal_eager():
     eager = np.asarray(free_space_keep(src))
     np.testing.assert_array_equal(np.asarray(_keep(src)), eager)
     batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), src)
-    np.testing.assert_array_equal(np.asarray(jax.vmap(free_space_keep)(batch))[1], eager)
+    np.testing.assert_array_equal(np.asarray(jax.jit(jax.vmap(free_space_keep))(batch))[1], eager)  # one program
     assert (~eager[1] & np.asarray(src.valid[1])).sum() > 20
 
 
