@@ -19,7 +19,11 @@ running default-long, default-short, nearest-long, nearest-short (a fresh output
 sweep = (long - short) / (sweeps - 2): start-up, cache load and the first sweep cancel. The ratio
 default / nearest is taken within each round, then the median. Writes benchmarks/results/av2_log.json.
 
-    python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--json PATH]
+``--release-memory`` adds both jobs with ``JAXDEPTH_KEEP_MEMORY=0`` (glibc's default malloc: the process
+before :func:`jaxdepth.batch.devices.keep_freed_memory`) to every round, with their ratios.
+
+    python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--release-memory]
+                                       [--json PATH]
 """
 
 from __future__ import annotations
@@ -39,6 +43,17 @@ from benchmarks.bench_av2_coldstart import LOG, _log_of
 from benchmarks.bench_rig_coldstart import _run
 
 METHODS = {"default": [], "nearest": ["--method", "nearest"]}
+#: ``--release-memory``: the same two jobs with glibc's default malloc (``JAXDEPTH_KEEP_MEMORY=0``, no
+#: :func:`jaxdepth.batch.devices.keep_freed_memory`), in the same rounds: the before of that change.
+RELEASE = {"JAXDEPTH_KEEP_MEMORY": "0"}
+
+
+def variants(release: bool) -> dict:
+    """``{name: (flags, environment)}`` of the runs of one round."""
+    out = {name: (flags, {}) for name, flags in METHODS.items()}
+    if release:
+        out.update({f"{name}-release": (flags, RELEASE) for name, flags in METHODS.items()})
+    return out
 
 
 def pose_times(step_ns: int, count: int) -> np.ndarray:
@@ -67,13 +82,14 @@ def build_log(folder: pathlib.Path, sweep_times: np.ndarray, image_times) -> pat
     return log
 
 
-def one_round(tmp: pathlib.Path, logs: dict, cache: pathlib.Path, tag: str) -> dict:
-    """``{"<method>-<log>": (wall s, CPU s)}`` for every method and log, interleaved."""
+def one_round(tmp: pathlib.Path, logs: dict, cache: pathlib.Path, tag: str, runs: dict) -> dict:
+    """``{"<variant>-<log>": (wall s, CPU s)}`` for every variant of ``runs`` (:func:`variants`) and log,
+    interleaved."""
     times = {}
-    for method, flags in METHODS.items():
+    for method, (flags, env) in runs.items():
         for name, log in logs.items():
             out = tmp / f"{tag}-{method}-{name}"
-            times[f"{method}-{name}"] = _run(["complete", log, out, "-q", *flags], cache)
+            times[f"{method}-{name}"] = _run(["complete", log, out, "-q", *flags], cache, env)
             written = len(list(out.rglob("*.png")))
             expected = 7 * len(list((log / "sensors" / "lidar").glob("*.feather")))
             if written != expected:
@@ -82,15 +98,23 @@ def one_round(tmp: pathlib.Path, logs: dict, cache: pathlib.Path, tag: str) -> d
     return times
 
 
-def per_sweep(times: dict, sweeps: int) -> dict:
-    """Per-sweep wall and CPU seconds of each method from one round's long and short runs, and the ratio."""
+def per_sweep(times: dict, sweeps: int, runs=METHODS) -> dict:
+    """Per-sweep wall and CPU seconds of each variant from one round's long and short runs, and the ratios
+    (default / nearest; with the release variants also default-release / nearest-release and each
+    method kept / released)."""
     out = {}
-    for method in METHODS:
+    for method in runs:
         long, short = times[f"{method}-long"], times[f"{method}-short"]
         out[method] = {"wall_s": (long[0] - short[0]) / (sweeps - 2), "cpu_s": (long[1] - short[1]) / (sweeps - 2)}
     out["ratio_wall"] = out["default"]["wall_s"] / out["nearest"]["wall_s"]
     out["ratio_cpu"] = out["default"]["cpu_s"] / out["nearest"]["cpu_s"]
     out["ratio_total_long"] = times["default-long"][0] / times["nearest-long"][0]
+    if "default-release" in runs:
+        out["release_ratio_wall"] = out["default-release"]["wall_s"] / out["nearest-release"]["wall_s"]
+        out["release_ratio_cpu"] = out["default-release"]["cpu_s"] / out["nearest-release"]["cpu_s"]
+        for method in METHODS:
+            out[f"{method}_kept_over_release_wall"] = out[method]["wall_s"] / out[f"{method}-release"]["wall_s"]
+            out[f"{method}_kept_over_release_cpu"] = out[method]["cpu_s"] / out[f"{method}-release"]["cpu_s"]
     return out
 
 
@@ -99,6 +123,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sweeps", type=int, default=10, help="sweeps in the long log (>= 3)")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--no-camera-images", action="store_true", help="no image names: depth at LiDAR time")
+    ap.add_argument("--release-memory", action="store_true",
+                    help="also both jobs with JAXDEPTH_KEEP_MEMORY=0 (glibc's default malloc), same rounds")
     ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "av2_log.json")
     args = ap.parse_args(argv)
     if not LOG.exists():
@@ -115,21 +141,22 @@ def main(argv=None) -> int:
                 "short": build_log(tmp / "short", sweep_times[:2],
                                    None if image_times is None else image_times[:4])}
         cache = tmp / "cache"
+        runs = variants(args.release_memory)
         for method, flags in METHODS.items():
             wall, cpu = _run(["complete", logs["short"], tmp / f"warmup-{method}", "-q", *flags], cache)
             print(f"warm-up {method} short: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
         rounds = []
         for r in range(args.rounds):
-            times = one_round(tmp, logs, cache, f"round{r}")
+            times = one_round(tmp, logs, cache, f"round{r}", runs)
             rounds.append({"runs": {k: {"wall_s": w, "cpu_s": c} for k, (w, c) in times.items()},
-                           "per_sweep": per_sweep(times, args.sweeps)})
+                           "per_sweep": per_sweep(times, args.sweeps, runs)})
             print(f"round {r}: " + ", ".join(f"{m} {rounds[-1]['per_sweep'][m]['wall_s']:.2f} s/sweep"
-                                             for m in METHODS)
+                                             for m in runs)
                   + f", ratio {rounds[-1]['per_sweep']['ratio_wall']:.2f}", flush=True)
     median = {m: {"wall_s": statistics.median(r["per_sweep"][m]["wall_s"] for r in rounds),
-                  "cpu_s": statistics.median(r["per_sweep"][m]["cpu_s"] for r in rounds)} for m in METHODS}
+                  "cpu_s": statistics.median(r["per_sweep"][m]["cpu_s"] for r in rounds)} for m in runs}
     ratios = {k: statistics.median(r["per_sweep"][k] for r in rounds)
-              for k in ("ratio_wall", "ratio_cpu", "ratio_total_long")}
+              for k, v in rounds[0]["per_sweep"].items() if k not in runs}
     print(f"median per sweep: default {median['default']['wall_s']:.2f} s, nearest {median['nearest']['wall_s']:.2f} s;"
           f" ratio {ratios['ratio_wall']:.2f} (per round "
           + ", ".join(f"{r['per_sweep']['ratio_wall']:.2f}" for r in rounds) + ")")

@@ -46,10 +46,11 @@ def _cpu_children() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _run(args, cache: pathlib.Path) -> tuple[float, float]:
-    """(wall s, CPU s) of one ``jaxdepth`` process with its compile cache under ``cache``."""
+def _run(args, cache: pathlib.Path, extra_env: dict | None = None) -> tuple[float, float]:
+    """(wall s, CPU s) of one ``jaxdepth`` process with its compile cache under ``cache`` (``extra_env``: more
+    environment variables)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "JAXDEPTH_COMPILE"))}
-    env["XDG_CACHE_HOME"] = str(cache)
+    env.update(extra_env or {}, XDG_CACHE_HOME=str(cache))
     cpu, start = _cpu_children(), time.perf_counter()
     result = subprocess.run([sys.executable, "-m", "jaxdepth.cli", *map(str, args)], env=env,
                             capture_output=True, text=True)

@@ -543,6 +543,8 @@ def main(argv=None) -> int:
     args.t_start = t_start
     args.command_line = ["jaxdepth"] + [str(a) for a in (sys.argv[1:] if argv is None else argv)]
     try:
+        if program:   # the jaxdepth process itself (not a test or script calling main): before JAX's threads start
+            devices.keep_freed_memory()
         devices.quiet_jax_start()
         devices.use_compile_cache(args.compile_cache)
         code = int(args.func(args) or 0)

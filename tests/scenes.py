@@ -89,6 +89,21 @@ def mixed_size_rig():
     return np.asarray(frame.points), np.asarray(frame.valid), cams
 
 
+def edge_size_rig():
+    """(points, valid, cameras): :func:`mixed_size_rig`'s points seen by three 24 x 40 cameras turned by odd
+    angles (one vmapped group), every point the middle camera sees moved onto a rounding edge of its pixel
+    grid (:func:`snap_to_pixel_edges`): ``edge_rig`` of tests/test_rig_sizes.py. A batched product of three
+    or more cameras' rotations rounds apart from the unbatched one, so a projection computed with plain
+    float32 products puts points into other pixels here (issue 37; tests/test_projection_rounding.py).
+    Its one-source rig and ``complete_sources`` programs also serve tests/test_sources.py."""
+    points, valid, _ = mixed_size_rig()
+    cams = [small_camera(turned_lidar_to_camera((-0.3, 0.2, 0.3), yaw_deg=14.1), h=24, w=40, f=30.0),
+            small_camera(turned_lidar_to_camera(), h=24, w=40, f=30.0),
+            small_camera(turned_lidar_to_camera((-0.5, 0.1, 0.2), yaw_deg=-11.9, pitch_deg=1.7), h=24, w=40,
+                         f=34.0)]
+    return snap_to_pixel_edges(points, cams[1]), valid, cams
+
+
 def kitti_street(seed: int = 0):
     """(frame, camera): the synthetic street seen by :data:`SMALL_LIDAR` and the KITTI-like camera at 1/4 scale."""
     cams = synthetic.rig_cameras("kitti", image_scale=0.25)

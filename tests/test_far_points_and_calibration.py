@@ -105,32 +105,34 @@ def _walled_pixel(sparse):
     raise AssertionError("no walled pixel")
 
 
-@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md): the KITTI rig at 375 x 1242
+@pytest.mark.slow  # a whole pipeline program: the KITTI sweep through the benchmark crop (docs/testing.md)
 def test_one_far_point_changes_only_its_own_neighbourhood():
     """The KITTI sweep with and without one added point. Beyond the range limit (1e6, 1e30 m): the
-    output does not change at all (before: 7,621 pixels of 150 m). At 250 m behind a wall:
-    Algorithm 1 removes it, nothing changes. At 250 m in the open sky: it changes only pixels within
-    the validity limit (16 px) plus the smoothing radius of its own pixel, among the pixels the
-    LiDAR supports (docs/validity.md); beyond them the nearest-seed fill extends any seed."""
-    import jax
-
+    output does not change at all (before: 7,621 pixels of 150 m on the full frame). At 250 m behind
+    a wall: Algorithm 1 removes it, nothing changes. At 250 m in the open sky: it changes only pixels
+    within the validity limit (16 px) plus the smoothing radius of its own pixel, among the pixels the
+    LiDAR supports (docs/validity.md); beyond them the nearest-seed fill extends any seed. Camera 2's
+    benchmark crop and the 131,072-point bucket: the complete_points_stages program of
+    test_extras_cli's and test_kitti_datasets' sweep oracles and notebook 01 (the crop keeps rows of
+    open sky above the top beam)."""
     import jaxdepth
     from jaxdepth._src.validity import validity_and_distance
     from jaxdepth.io.points import pad_points
     from jaxdepth.io.rig import rig_from_kitti_raw
     from jaxdepth.io.sweep_frame import prepare_sweep
     frame = require_shared("kitti", "drive_0001_frame05")
-    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt", cameras=(2,))
-    cams = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
+    rig = rig_from_kitti_raw(frame / "calib_cam_to_cam.txt", frame / "calib_velo_to_cam.txt", cameras=(2,),
+                             crop=True)
+    camera = rig.cameras[0].as_camera()
     config = jaxdepth.SGMConfig()
-    run = jax.jit(lambda p, v: jaxdepth.complete_rig_stages(p, v, cams, config=config, lidar=rig.lidar))
     base_points = _kitti_records()[:, :3]
 
     def complete(extra_point):
         points = np.concatenate([base_points, np.asarray([extra_point], np.float32)])
         padded, valid = pad_points(prepare_sweep(points, rig, estimate=False).points)
-        stages = jax.tree.map(lambda a: a[0], run(padded, valid))
-        keep = np.asarray(validity_and_distance(stages, cams.K[0], cams.T_cam_lidar[0], lidar=rig.lidar)[0])
+        assert len(padded) == 131072
+        stages = jaxdepth.complete_points_stages(padded, valid, camera, config=config, lidar=rig.lidar)
+        keep = np.asarray(validity_and_distance(stages, camera.K, camera.T_cam_lidar, lidar=rig.lidar)[0])
         return np.asarray(stages.depth), np.asarray(stages.sparse_depth), keep
 
     base, sparse, base_valid = complete((np.nan, np.nan, np.nan))  # a missing return: same bucket

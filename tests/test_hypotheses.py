@@ -14,6 +14,11 @@ from jaxdepth._src.residual import plane_residual
 #: column_neighbours compiled: these tests check its values; called plainly, each image shape would run
 #: op by op and compile every primitive (its jit == eager is the column_hypotheses rows' of the stage table).
 _column_neighbours = jax.jit(column_neighbours, static_argnames="max_gap")
+#: Value tests call the stages through one jit each (called plainly, each primitive compiles op by op);
+#: jit == eager is the stage table's rows.
+_plane_residual = jax.jit(plane_residual, static_argnames=("min_abs_denom", "max_residual_ratio"))
+_column_hypotheses = jax.jit(column_hypotheses, static_argnames=("window_px", "blend", "materialise",
+                                                                 "min_abs_denom", "max_residual_ratio"))
 
 K = np.array([[300.0, 0.0, 31.5], [0.0, 280.0, 20.2], [0.0, 0.0, 1.0]], np.float32)
 H, W = 40, 64
@@ -139,9 +144,9 @@ def test_plane_stays_exact(normal, blend):
     dv = np.broadcast_to((seed_row - v)[:, None], (H, W)).astype(np.int32)
     seed = depth[seed_row][:, :]
     normals = np.broadcast_to(n[:, None, None], (3, H, W)).astype(np.float32)
-    raw = seed + np.asarray(plane_residual(jnp.float32(seed), jnp.asarray(normals), jnp.zeros((H, W), jnp.int32),
+    raw = seed + np.asarray(_plane_residual(jnp.float32(seed), jnp.asarray(normals), jnp.zeros((H, W), jnp.int32),
                                            jnp.asarray(dv), K, min_abs_denom=1e-6, max_residual_ratio=10.0))
-    out = column_hypotheses(jnp.float32(raw), jnp.asarray(kept), jnp.abs(jnp.float32(dv)), jnp.asarray(normals), K,
+    out = _column_hypotheses(jnp.float32(raw), jnp.asarray(kept), jnp.abs(jnp.float32(dv)), jnp.asarray(normals), K,
                             window_px=4.0, blend=blend, min_abs_denom=1e-6, max_residual_ratio=10.0)
     inner = (v >= rows[0]) & (v <= rows[-1])
     np.testing.assert_allclose(np.asarray(out)[inner], depth[inner], rtol=3e-5)
@@ -159,12 +164,12 @@ def test_wrong_normal_is_bounded_by_the_scan_lines():
     dv = np.broadcast_to((seed_row - v)[:, None], (H, W)).astype(np.int32)
     wrong = np.broadcast_to((np.array([0.0, -0.97, -0.2431]))[:, None, None], (3, H, W)).astype(np.float32)
     seed = np.full((H, W), 10.0, np.float32)
-    raw = seed + np.asarray(plane_residual(jnp.asarray(seed), jnp.asarray(wrong), jnp.zeros((H, W), jnp.int32),
+    raw = seed + np.asarray(_plane_residual(jnp.asarray(seed), jnp.asarray(wrong), jnp.zeros((H, W), jnp.int32),
                                            jnp.asarray(dv), K))
     inner = (v >= rows[0]) & (v <= rows[-1])
     assert np.abs(raw - depth)[inner].max() > 0.3
     for blend in (False, True):
-        out = column_hypotheses(jnp.asarray(raw, jnp.float32), jnp.asarray(kept), jnp.abs(jnp.float32(dv)),
+        out = _column_hypotheses(jnp.asarray(raw, jnp.float32), jnp.asarray(kept), jnp.abs(jnp.float32(dv)),
                                 jnp.asarray(wrong), K, window_px=6.0, blend=blend)
         np.testing.assert_allclose(np.asarray(out)[inner], 10.0, rtol=1e-6)
 
@@ -176,7 +181,7 @@ def test_window_limits_the_bracket():
     raw = np.full((H, W), 20.0, np.float32)
     dist = np.ones((H, W), np.float32)
     normals = np.zeros((3, H, W), np.float32)
-    out = np.asarray(column_hypotheses(jnp.asarray(raw), jnp.asarray(kept), jnp.asarray(dist),
+    out = np.asarray(_column_hypotheses(jnp.asarray(raw), jnp.asarray(kept), jnp.asarray(dist),
                                        jnp.asarray(normals), K, window_px=4.0))
     np.testing.assert_allclose(out, numpy_bracket(raw, kept, 4.0), rtol=0, atol=1e-5)   # bounds quantised
     np.testing.assert_allclose(out[kept > 0], 5.0, atol=1e-5)   # a LiDAR pixel is its own bracket

@@ -5,6 +5,8 @@ test (conditions 1 and 2) is checked against the paper's double loops in tests/t
 
 from __future__ import annotations
 
+import functools
+
 import hypothesis
 import hypothesis.strategies as st
 import jax
@@ -36,18 +38,30 @@ def test_pack_columns_matches_numpy(seed, height, density):
     np.testing.assert_array_equal(np.asarray(jax.jit(pack_columns)(jnp.asarray(valid))), want)
 
 
+@functools.partial(jax.jit, static_argnames=("hh", "hw"))
+def _window_words_jit(valid, row, col, k_max, *, hh, hw):
+    """``_window_words`` of a footprint ExactTest on ``valid``, and each word's set bits: one compiled program
+    per (shape, hh, hw) (called plainly, every primitive of each new window shape compiles op by op)."""
+    ex = ExactTest(jnp.zeros(valid.shape), None, pack_columns(valid), jnp.eye(3), jnp.zeros(3),
+                   jnp.float32(1.0), k_max, jnp.float32(1.0), jnp.float32(1.0), None,
+                   jnp.int32(row.shape[0]), None, hh=hh, hw=hw, test="footprint")
+    words, bases, du, col_q = _window_words(ex, row, col)
+    return words, bases, col_q, [jax.lax.population_count(w) for w in words]
+
+
+_nth_set_bit = jax.jit(nth_set_bit)
+
+
 def _walk(valid, row, col, *, hh, hw, k_max):
     """{(candidate, row_q, col_q)} visited by the rank loop of the exact test (all ranks at once)."""
-    ex = ExactTest(jnp.zeros(valid.shape), None, pack_columns(jnp.asarray(valid)), jnp.eye(3), jnp.zeros(3),
-                   jnp.float32(1.0), jnp.int32(k_max), jnp.float32(1.0), jnp.float32(1.0), None,
-                   jnp.int32(len(row)), None, hh=hh, hw=hw, test="footprint")
-    words, bases, du, col_q = _window_words(ex, jnp.asarray(row, jnp.int32), jnp.asarray(col, jnp.int32))
-    counts = [np.asarray(jax.lax.population_count(w)) for w in words]
+    words, bases, col_q, counts = _window_words_jit(jnp.asarray(valid), jnp.asarray(row, jnp.int32),
+                                                    jnp.asarray(col, jnp.int32), jnp.int32(k_max), hh=hh, hw=hw)
+    counts = [np.asarray(n) for n in counts]
     words, bases, col_q = [np.asarray(w) for w in words], [np.asarray(b) for b in bases], np.asarray(col_q)
     seen = set()
     for j, (w, n, b) in enumerate(zip(words, counts, bases)):
         for rank in range(32):
-            bit = np.asarray(nth_set_bit(jnp.asarray(w), jnp.full(w.shape, rank, jnp.int32)))
+            bit = np.asarray(_nth_set_bit(jnp.asarray(w), jnp.full(w.shape, rank, jnp.int32)))
             for i, d in zip(*np.nonzero(rank < n)):
                 seen.add((int(i), int(b[i, 0] + bit[i, d]), int(col_q[i, d])))
     return seen

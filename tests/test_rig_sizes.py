@@ -32,7 +32,7 @@ from jaxdepth._src.rig import size_groups, vmap_by_size
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 
 from _harness import assert_close, assert_tree_close, check_stage
-from scenes import SMALL_LIDAR, mixed_size_rig, small_camera, snap_to_pixel_edges, turned_lidar_to_camera
+from scenes import SMALL_LIDAR, edge_size_rig, mixed_size_rig, small_camera
 
 LIDAR = SMALL_LIDAR
 FIELDS = ("sparse_depth", "inlier_mask", "seed_depth", "du", "dv", "residual", "depth_raw", "depth")
@@ -46,19 +46,14 @@ def mixed_rig():
 
 
 @pytest.fixture(scope="module")
-def edge_rig(mixed_rig):
-    """``mixed_rig``'s points seen by three 24 x 40 cameras turned by odd angles (one vmapped group),
-    every point the middle camera sees moved onto a rounding edge of its pixel grid. A batched
-    product of three or more cameras' rotations rounds apart from the unbatched one (XLA:CPU picks
-    another kernel; two cameras, as in ``mixed_rig``, round alike), so a projection computed with
-    plain float32 products puts points into other pixels here (issue 37;
+def edge_rig():
+    """(points, valid, cameras): ``mixed_rig``'s points seen by three 24 x 40 cameras turned by odd angles
+    (one vmapped group), every point the middle camera sees moved onto a rounding edge of its pixel grid
+    (``scenes.edge_size_rig``). A batched product of three or more cameras' rotations rounds apart from
+    the unbatched one (XLA:CPU picks another kernel; two cameras, as in ``mixed_rig``, round alike), so a
+    projection computed with plain float32 products puts points into other pixels here (issue 37;
     tests/test_projection_rounding.py)."""
-    points, valid, _ = mixed_rig
-    cams = [small_camera(turned_lidar_to_camera((-0.3, 0.2, 0.3), yaw_deg=14.1), h=24, w=40, f=30.0),
-            small_camera(turned_lidar_to_camera(), h=24, w=40, f=30.0),
-            small_camera(turned_lidar_to_camera((-0.5, 0.1, 0.2), yaw_deg=-11.9, pitch_deg=1.7), h=24, w=40,
-                         f=34.0)]
-    return snap_to_pixel_edges(points, cams[1]), valid, cams
+    return edge_size_rig()
 
 
 def _assert_own_size(rig, i, cam, single):
@@ -108,6 +103,7 @@ def _two_sweeps(points, valid, *, second_valid):
 
 
 @pytest.mark.slow  # the several-sources rig's program (the single calls are those of the test above)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # the edge rig's one-source program is tests/test_sources.py's too
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
@@ -158,6 +154,7 @@ def test_rig_grouped_by_size_equals_one_canvas(mixed_rig):
 
 
 @pytest.mark.slow  # the several-sources program with every camera on the canvas
+@pytest.mark.xdist_group("rig_mixed_sizes")  # its two-sweep program is the mixed rig's several-sources test's
 def test_sources_grouped_by_size_equals_one_canvas(mixed_rig):
     points, valid, cams = mixed_rig
     # Two sources of two sweeps (the second the first moved by 0.3 m): the free-space and occlusion
@@ -253,20 +250,24 @@ def test_blur_mirrors_at_the_cameras_own_border():
 
 
 def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
+    """Each camera's window of the canvas equals Algorithm 1 on the camera's own image (the footprint double
+    loop of test_outliers, float64, the default caps; no second keep-mask program per camera size), and the
+    canvas beyond it is False."""
+    from test_outliers import _assert_matches_footprint, footprint_double_loop
+    from jaxdepth._src.config import DEFAULT_CONFIG as D
     points, valid, cams = mixed_rig
-    inputs, removed = [], 0
+    inputs, wants, removed = [], [], 0
     for cam in cams:
         sparse, _ = project_to_image(points, valid, cam.K, cam.T_cam_lidar, height=cam.height, width=cam.width)
         size = (cam.height, cam.width)
         inputs.append((_embed(np.asarray(sparse), size), np.asarray(cam.K), np.asarray(cam.T_cam_lidar),
                        np.array(size, np.int32)))
-        removed += int((np.asarray(sparse) > 0).sum() - np.asarray(outlier_keep_mask(sparse, cam.K, cam.T_cam_lidar,
-                                                                                     beams=LIDAR.beams)).sum())
+        wants.append(footprint_double_loop(np.asarray(sparse), np.asarray(cam.K), np.asarray(cam.T_cam_lidar),
+                                           beams=LIDAR.beams, epsilon_m=D.epsilon_m,
+                                           max_half_width_px=D.outlier_max_half_width_px,
+                                           max_half_height_px=D.outlier_max_half_height_px))
+        removed += int(((np.asarray(sparse) > 0) & ~wants[-1][0]).sum())
     assert removed > 0      # the scene has outliers to remove
-
-    def oracle(canvas, K, T, size):
-        h, w = size
-        return _embed(np.asarray(outlier_keep_mask(canvas[:h, :w], K, T, beams=LIDAR.beams)), size)
 
     # The library's own program (stage_table._OneLibraryJit): a jit around the call would compile the keep
     # mask a second time. Beyond the window the canvas holds no depth, so the mask is False there already.
@@ -274,7 +275,10 @@ def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
     from jaxdepth._src import outliers
     keep_mask = _OneLibraryJit(lambda c, K, T, s: outlier_keep_mask(c, K, T, beams=LIDAR.beams, image_size=s),
                                outliers._keep_mask)
-    check_stage(keep_mask, inputs, oracle=oracle, eager_inputs=1)
+    outs = check_stage(keep_mask, inputs, eager_inputs=1)
+    for out, (_, _, _, (h, w)), (want, unsure) in zip(outs, inputs, wants):
+        _assert_matches_footprint(out[:h, :w], want, unsure)
+        assert not out[h:].any() and not out[:, w:].any()
 
 
 def test_column_bracket_uses_the_cameras_own_window():

@@ -21,7 +21,7 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
-from scenes import SMALL_LIDAR, stereo_cameras, stereo_street, tiny_street_frames
+from scenes import SMALL_LIDAR, edge_size_rig, stereo_cameras
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
 WALL_X = 20.0
@@ -249,11 +249,11 @@ def test_each_sweep_is_judged_alone_for_a_scan_without_scan_lines():
         jaxdepth.SGMConfig(outlier_sweeps="all")
 
 
-@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs
+@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs (test_rig_sizes' edge rig)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_one_source_at_the_origin_equals_complete_rig():
-    # the shared small stereo street: complete_rig is tests/test_rig.py's program
-    frame, cameras = stereo_street()
-    points, valid = np.asarray(frame.points), np.asarray(frame.valid)
+    # scenes.edge_size_rig: three turned cameras, points on pixel rounding edges (test_rig_sizes' programs)
+    points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
@@ -449,20 +449,20 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
         assert (int(rank), bool(ok)) == (want, usable)
     T_cams = np.stack([_pose((-x, 0.0, 0.0)) for x in (0.3, 1.0, 3.0)]).astype(np.float32)
     loop = [tuple(np.asarray(a) for a in camera_witness(T, Ts, sweep=sweep)) for T in T_cams]
-    vm = jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep))(T_cams)
+    vm = jax.jit(jax.vmap(lambda T: camera_witness(T, Ts, sweep=sweep)))(T_cams)   # one program, not op by op
     jt = jax.jit(lambda T: camera_witness(T, Ts, sweep=sweep))
     for i, (r, ok) in enumerate(loop):
         assert (int(vm[0][i]), bool(vm[1][i])) == (int(r), bool(ok)) == tuple(
             (int(a) if a.dtype != bool else bool(a)) for a in (np.asarray(x) for x in jt(T_cams[i])))
 
 
-@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+@pytest.mark.slow  # the one-source program of the test above (test_rig_sizes' edge rig)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical; a SMALL_LIDAR sweep and the stereo cameras, the
-    # program of test_one_source_at_the_origin_equals_complete_rig). Two sweeps: every point removed by
-    # the occlusion rule is an earlier sweep's.
-    (points, valid, _), = tiny_street_frames((0,))
-    cams = jaxdepth.stack_cameras(stereo_cameras())
+    # One sweep: the option changes nothing (bit-identical; the edge rig, the test above's program). Two
+    # sweeps: every point removed by the occlusion rule is an earlier sweep's.
+    points, valid, cameras = edge_size_rig()
+    cams = jaxdepth.stack_cameras(cameras)
     one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
     np.testing.assert_array_equal(np.asarray(complete_sources(one, cams, occlusion=True)),
                                   np.asarray(complete_sources(one, cams, occlusion=False)))
@@ -563,7 +563,7 @@ def test_free_space_vmap_and_jit_equal_eager():
     eager = np.asarray(free_space_keep(src))
     np.testing.assert_array_equal(np.asarray(_keep(src)), eager)
     batch = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), src)
-    np.testing.assert_array_equal(np.asarray(jax.vmap(free_space_keep)(batch))[1], eager)
+    np.testing.assert_array_equal(np.asarray(jax.jit(jax.vmap(free_space_keep))(batch))[1], eager)  # one program
     assert (~eager[1] & np.asarray(src.valid[1])).sum() > 20
 
 

@@ -42,6 +42,9 @@ FORMAT = b"jaxdepth-program-1\n"
 #: Size cap of the programs folder (trimmed once per process, oldest entries first).
 MAX_BYTES = 256 << 20
 _SUFFIX = ".jaxprog"
+#: ``JAXDEPTH_*`` variables that decide no program (this cache's switch; the host allocator's,
+#: :func:`jaxdepth.batch.devices.keep_freed_memory`): left out of the key.
+_NOT_PROGRAM = ("JAXDEPTH_PROGRAM_CACHE", "JAXDEPTH_KEEP_MEMORY")
 #: JAX options that only concern caches, logs and dumps: left out of the key.
 _OPTION_WORDS = ("cache", "dump", "log", "traceback", "pprint")
 
@@ -64,7 +67,7 @@ def _environment() -> str:
     options = sorted((name, repr(value)) for name, value in jax.config.values.items()
                      if not any(word in name for word in _OPTION_WORDS))
     env = sorted((name, value) for name, value in os.environ.items()
-                 if name == "XLA_FLAGS" or (name.startswith("JAXDEPTH_") and name != "JAXDEPTH_PROGRAM_CACHE"))
+                 if name == "XLA_FLAGS" or (name.startswith("JAXDEPTH_") and name not in _NOT_PROGRAM))
     return repr((jax.__version__, jaxlib.__version__, jax.default_backend(), len(jax.devices()), env, options))
 
 
