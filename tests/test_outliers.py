@@ -380,7 +380,7 @@ def test_equals_frozen_dense_sweep_kitti(kitti):
 
 
 @pytest.mark.parametrize("seed, shape, beams, density, caps", [
-    (1, (96, 160), 32, 0.02, (12, 24)),   # k = 12 > _STATIC_K: the static-cap prefilter (the scenes' programs)
+    (1, (96, 160), 32, 0.02, (12, 24)),   # k = 12, the cap: the capped small box (the scenes' programs)
     (2, (8, 70), 8, 0.3, (12, 24)),       # half height 0; width not a multiple of 32
     (3, (96, 160), 32, 0.3, (12, 24)),    # > _CHUNK removals: several chunks (the analytic scenes' programs)
     (4, (60, 90), 16, 0.1, (3, 2)),       # small caps
@@ -397,7 +397,7 @@ def test_equals_frozen_dense_sweep_configurations(seed, shape, beams, density, c
     n = int((depth > 0).sum())
     half_width, _ = window_half_sizes(*shape, beams=beams, max_half_width_px=caps[0], max_half_height_px=caps[1])
     k = min((shape[1] * beams - 1) // n, half_width)
-    assert k > (outliers_module._STATIC_K if seed == 1 else 0)
+    assert k == half_width if seed == 1 else k > 0
     points = np.stack([rng.normal(0, 3, shape), rng.normal(0, 1, shape), depth]).astype(np.float32)
     points[:, 1, 1] = np.nan                 # a valid pixel with a NaN point: no comparison holds
     points[0, 2, 3] = np.inf
@@ -650,3 +650,23 @@ def test_vmap_over_epsilon_only_equals_loop():
         for i, e in enumerate(eps):
             np.testing.assert_array_equal(batched[i], np.asarray(fn(jnp.float32(e))))
         assert (batched[0] != batched[-1]).any()
+
+
+def test_window_min_with_the_half_width_as_data_equals_scipy_minimum_filter():
+    """The prefilter's horizontal window minimum, one jitted program for every run-time half width k
+    (0, the cap and random ones; also under vmap, one k per member), against scipy.ndimage."""
+    import scipy.ndimage
+
+    rng = np.random.default_rng(7)
+    hw, height, width = 12, 5, 37
+    padded = rng.integers(0, 65536, (3, height, width + 2 * hw), dtype=np.uint16)
+    padded[:, :, :3] = 0                      # the minimum sits at the pad's edge for some windows
+    fn = jax.jit(lambda a, k: outliers_module._window_min(a, k, hw=hw, width=width))
+    ks = [0, hw, *rng.integers(0, hw + 1, 4).tolist()]
+    for k in ks:
+        want = scipy.ndimage.minimum_filter1d(padded, size=2 * k + 1, axis=2)[:, :, hw:hw + width]
+        np.testing.assert_array_equal(np.asarray(fn(padded, jnp.int32(k))), want, err_msg=f"k={k}")
+    assert fn._cache_size() == 1
+    batched = np.asarray(jax.vmap(fn)(padded, jnp.asarray(ks[:3], jnp.int32)))
+    for i, k in enumerate(ks[:3]):
+        np.testing.assert_array_equal(batched[i], np.asarray(fn(padded[i], jnp.int32(k))))

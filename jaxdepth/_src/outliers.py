@@ -43,7 +43,7 @@ Implementation: an exact prefilter, then the full test at the candidates it
 leaves.
 
 1. Prefilter (dense, :func:`_prefilter`). Both forms need condition 2: a pixel more than epsilon
-   nearer in the window (separable window minimum of depth, doubling passes).
+   nearer in the window (separable window minimum of depth: rows by doubling, columns by k).
    The footprint form also needs ``|rb|^2 < |m|^2 + 1/4``; the parallax move
    ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
    ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
@@ -64,11 +64,12 @@ The prefilter's keys are computed on the image and padded as uint16 (``_ZNONE``)
 padded in float32.
 
 Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
-time; the horizontal prefilter pass is compiled for each small ``k`` and chosen
-by ``lax.switch`` (under ``vmap``, the batch's largest ``k``: a wider window
-only adds candidates), and the exact test masks its window columns to ``|du| <= k``.
-Every dense pass is one fusion, fenced (``staging.stage``) so that shifted
-reads hit buffers instead of re-running the producer.
+time; the horizontal prefilter pass takes ``k`` (and its small box) as data, reading
+the static cap's columns and keeping those within ``k`` (:func:`_window_min`: one
+compiled pass for every ``k``, under ``vmap`` each member its own), and the exact
+test masks its window columns to ``|du| <= k``. The field and row passes are each
+one fusion, fenced (``staging.stage``) so that shifted reads hit buffers instead of
+re-running the producer.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
-from jaxdepth._src.xla_tuning import stage, switch_widest
+from jaxdepth._src.xla_tuning import stage
 
 
 #: Condition-1 forms of the exact test (static option ``test``).
@@ -104,11 +105,6 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     half_height = min(int(max_half_height_px), math.ceil(height / beams) - 1, height - 1)
     half_width = min(int(max_half_width_px), width - 1)
     return max(half_width, 0), max(half_height, 0)
-
-
-#: Widest horizontal half window with its own compiled prefilter pass; wider
-#: run-time windows use the static cap (a superset: more candidates, same mask).
-_STATIC_K = 8
 
 
 def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
@@ -134,12 +130,27 @@ _SMALL_RADIUS = 0.6
 def _small_box(k: int, capped: bool, cell_v: float, hh: int) -> tuple[int, int]:
     """Static half sizes (columns, rows) of a box holding every offset with |du| < r W L / N and |dv| < r H / L.
 
-    In the branch for half window k < cap, W L / N <= k + 1; the capped branch
-    may have any W L / N, so it keeps its full width.
+    For a run-time half window k < cap, W L / N <= k + 1; at the cap (``capped``),
+    W L / N may be anything, so the box keeps the full width.
     """
     hu = k if capped else min(k, math.ceil(_SMALL_RADIUS * (k + 1)) - 1)
     hv = min(hh, max(math.ceil(_SMALL_RADIUS * cell_v) - 1, 0))
     return max(hu, 0), hv
+
+
+def _window_min(padded: jax.Array, k: jax.Array, *, hw: int, width: int) -> jax.Array:
+    """``out[:, u] = min(padded[:, hw + u - k .. hw + u + k])``, the run-time half window ``k`` as data.
+
+    ``padded``: (..., H, W + 2 hw) with ``width = W``; ``k``: int32 scalar in [0, hw] (under ``vmap``, one
+    per member). One pass: the 2 hw + 1 columns of the static cap are read as hw mirrored pairs, each
+    taken when its offset is within k (a minimum is exact in any order, so this equals the minimum over
+    exactly those columns). Compiled once for every k (no branch per window width).
+    """
+    out = padded[..., hw:hw + width]
+    for d in range(1, hw + 1):
+        pair = jnp.minimum(padded[..., hw - d:hw - d + width], padded[..., hw + d:hw + d + width])
+        out = jnp.where(d <= k, jnp.minimum(out, pair), out)
+    return out
 
 
 #: Depth keys of the prefilter: uint16 ``floor(z * _ZQ)`` (1/256 m steps, as KITTI's PNGs), saturating
@@ -194,9 +205,18 @@ def _prefilter_rows(*keys, hh, hv, hw, footprint):
     return tuple(rows)
 
 
-def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height,
-                     width, hh, hw, cell_v, footprint):
-    """Candidate mask for horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
+def _prefilter_columns(k, hu, rows, *, hw, width):
+    """Row (horizontal) minima of :func:`_prefilter_rows`' column minima, (H, W) uint16 each: the depth
+    key's over the run-time half window ``k`` and over the small box's ``hu`` (footprint form), then the
+    others' over ``k`` (:func:`_window_min`; ``k``, ``hu``: int32 data)."""
+    return tuple(_window_min(r, hu if i == 1 else k, hw=hw, width=width) for i, r in enumerate(rows))
+
+
+def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height, width, hh, footprint):
+    """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
+
+    ``k``: int32, the half window; ``lows``: the window minima of :func:`_prefilter_columns` (the small
+    box's, sized for k, second). One program for every k.
 
     Every form of condition 1 needs condition 2: a pixel more than ``eps``
     nearer in the window, ``z_i > min_window(z) + eps``, tested on uint16 keys
@@ -216,28 +236,24 @@ def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K
     outwards). A point whose bound D_i gives D_i^2 + 1/4 < r^2 can only be
     removed by a nearer pixel inside the box of normalised half size r; on
     smooth surfaces, where inverse depth varies little within a window, most
-    points take that small box. ``rows`` holds the column minima of
-    :func:`_prefilter_rows`. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W) depth,
-    or the (3, H, W) points (sliced here, inside the fusion: a slice as a switch operand is a copy).
+    points take that small box. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W)
+    depth, or the (3, H, W) points (sliced here, inside the fusion: a slice as an operand is a copy).
     The move coefficients (c_u, c_v, t_z) come from K and ``t``, the (3,) LiDAR origin or (3, H, W) each
     pixel's own (then per-pixel maps, computed inside the fusion rather than stored). ``cell_v_run``: the image's traced H / L (the
-    static ``cell_v``, the canvas's, is at least it: it only sizes the small box, a superset).
+    static H / L of the canvas, at least it, sized the small box: a superset).
     """
-    cols = lambda a, half: a[:, hw - half:hw + half + width]
     key = z_key.astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
 
-    def nearer_in(min_rows, half):
-        low = _sliding_min(cols(min_rows, half), 2 * half + 1, axis=1).astype(jnp.int32)
+    def nearer_in(low):
+        low = low.astype(jnp.int32)
         return (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
 
-    cand = (key < _ZNONE) & nearer_in(rows[0], k)
+    cand = (key < _ZNONE) & nearer_in(lows[0])
     if footprint:
-        hu, _ = _small_box(k, capped, cell_v, hh)
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
-        z_lo_key = rows[0] if len(rows) == 3 else rows[3]
-        z_lo = _sliding_min(cols(z_lo_key, k), 2 * k + 1, axis=1).astype(jnp.float32) / np.float32(_ZQ)
-        z_hi_key = np.float32(_ZSAT) - _sliding_min(cols(rows[2], k), 2 * k + 1, axis=1).astype(jnp.float32)
+        z_lo = lows[0 if len(lows) == 3 else 3].astype(jnp.float32) / np.float32(_ZQ)
+        z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
         reach_lo = z_lo - t_z
         w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
         reach_hi = (z_hi_key + 1.0) / np.float32(_ZQ) - t_z
@@ -248,11 +264,11 @@ def _prefilter_words(k, capped, rows, z_key, z_stack, eps, cell_u, cell_v_run, K
         v = jnp.arange(height, dtype=jnp.float32)[:, None]
         u = jnp.arange(width, dtype=jnp.float32)[None, :]
         # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
-        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1)
+        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1).astype(jnp.float32)
         d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
         reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v_run + 1e-3) ** 2 + 0.25
         small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
-        cand = cand & (~small | nearer_in(rows[1], hu))
+        cand = cand & (~small | nearer_in(lows[1]))
     return pack_bits(cand)
 
 
@@ -329,22 +345,23 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
     Returns:
       (H, ceil(W / 32)) uint32 words: bit i of word m in row v is the pixel
       ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Dense
-      passes over the canvas, each a fenced stage; the horizontal pass is
-      compiled for each small run-time half window k (see
-      :func:`_prefilter_words`) and picked by ``switch_widest``.
+      passes over the canvas, each a fenced stage; the horizontal minima take the
+      run-time half window k and its small box as data (:func:`_prefilter_columns`): one
+      program for every k.
     """
     height, width = depth.shape
     _, hv = _small_box(0, True, height / beams, hh)
+    k = bounds.k_max
+    hu = jnp.asarray([_small_box(j, j == hw, height / beams, hh)[0] for j in range(hw + 1)], jnp.int32)[k]
     t_front = t[2] if t_front is None else t_front
     keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
                  (depth, t_front) + (() if points is None else (points,)), bounds.n_points)
     rows = stage(functools.partial(_prefilter_rows, hh=hh, hv=hv, hw=hw, footprint=footprint), keys,
                  bounds.n_points)
-    widths = list(range(min(hw, _STATIC_K) + 1)) + ([hw] if hw > _STATIC_K else [])
-    branches = [functools.partial(_prefilter_words, k, k == hw, height=height, width=width, hh=hh, hw=hw,
-                                  cell_v=height / beams, footprint=footprint) for k in widths]
-    return switch_widest(jnp.minimum(bounds.k_max, len(widths) - 1), branches, rows, keys[0],
-                         depth[None] if points is None else points, eps, bounds.cell_u, bounds.cell_v, K, t)
+    lows = stage(functools.partial(_prefilter_columns, hw=hw, width=width), (k, hu, rows), bounds.n_points)
+    words = functools.partial(_prefilter_words, height=height, width=width, hh=hh, footprint=footprint)
+    return stage(words, (k, lows, keys[0], depth[None] if points is None else points, eps, bounds.cell_u,
+                         bounds.cell_v, K, t), bounds.n_points)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
@@ -453,9 +470,9 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
     Condition 2 always uses ``sparse_depth`` as z, also when ``points_cam`` is
     given.
 
-    Under ``vmap`` the prefilter uses the widest window of the batch (a wider
-    window only adds candidates) and the candidate loops run to the largest
-    count and bound in the batch: same result per member, a little more work.
+    Under ``vmap`` each member's prefilter uses its own window, and the
+    candidate loops run to the largest count and bound in the batch: same
+    result per member, a little more work.
 
     Speed: benchmarks/bench_outliers.py times both forms against the frozen
     dense sweep in one process (results in benchmarks/results/outliers.json).
