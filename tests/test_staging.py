@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.xla_tuning import cond_all, fence, stage, switch_widest
+from jaxdepth._src.xla_tuning import cond_all, fence, stage
 
 
 def test_fence_and_stage_are_identities_under_jit_and_vmap():
@@ -20,21 +20,6 @@ def test_fence_and_stage_are_identities_under_jit_and_vmap():
     np.testing.assert_allclose(grad, 2 * x)
 
 
-def test_switch_widest_is_switch_alone_and_takes_the_largest_index_in_a_batch():
-    branches = [lambda a, i=i: (a + i, jnp.int32(i)) for i in range(3)]
-    x = jnp.ones((4,))
-    for i in range(3):
-        got, which = jax.jit(lambda j, a: switch_widest(j, branches, a))(jnp.int32(i), x)
-        want, want_which = jax.lax.switch(i, branches, x)
-        np.testing.assert_array_equal(got, want)
-        assert int(which) == int(want_which) == i
-    idx = jnp.array([0, 2, 1], jnp.int32)
-    xs = jnp.stack([x, 2 * x, 3 * x])
-    got, which = jax.vmap(lambda i, a: switch_widest(i, branches, a))(idx, xs)
-    np.testing.assert_array_equal(which, [2, 2, 2])
-    np.testing.assert_array_equal(got, xs + 2)
-
-
 def test_cond_all_takes_the_fast_branch_only_when_every_member_may():
     fast = lambda a: (a * 2.0, jnp.int32(1))
     slow = lambda a: (a + a, jnp.int32(0))
@@ -46,11 +31,12 @@ def test_cond_all_takes_the_fast_branch_only_when_every_member_may():
     np.testing.assert_array_equal(out, xs * 2.0)
 
 
-def test_switch_widest_broadcasts_unbatched_pytree_operands():
+def test_cond_all_broadcasts_unbatched_pytree_operands():
     """An unbatched tuple operand next to a batched one (a vmap over a parameter only)."""
-    branches = [lambda pair, s: pair[0] * s + pair[1], lambda pair, s: pair[0] * s + pair[1] + 0.0]
+    fast = lambda pair, s: pair[0] * s + pair[1]
+    slow = lambda pair, s: pair[0] * s + pair[1] + 0.0
     pair = (jnp.arange(3.0), jnp.ones(3))
     scales = jnp.array([1.0, 2.0, 3.0, 4.0])
-    got = jax.vmap(lambda s: switch_widest(jnp.int32(1), branches, pair, s))(scales)
+    got = jax.vmap(lambda s: cond_all(s > 2.0, fast, slow, pair, s))(scales)
     want = jnp.stack([pair[0] * s + pair[1] for s in scales])
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

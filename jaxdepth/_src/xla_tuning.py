@@ -34,9 +34,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   gathers and scatters; a ``custom_vmap`` gives the batch the widest bounds instead (callers
   make extra rows harmless). Plain: the bounds themselves.
 
-:func:`cond_all` and :func:`switch_widest` are not backend tuning: they choose a cheaper branch
-that gives the same result, and keep that choice a conditional under ``vmap`` on every
-backend (a batched ``lax.cond`` runs both branches). They are here because they share the
+:func:`cond_all` is not backend tuning: it chooses a cheaper branch
+that gives the same result, and keeps that choice a conditional under ``vmap`` on every
+backend (a batched ``lax.cond`` runs both branches). It is here because it shares the
 ``custom_vmap`` steering of :func:`stage`.
 
 Both modes give the same results: bit for bit where only materialisation, scheduling or
@@ -221,20 +221,6 @@ def cond_all(pred, true_fn, false_fn, *operands):
                     single=lambda p, ops: jax.lax.cond(p, true_fn, false_fn, *ops),
                     batched=lambda p, ops: cond_all(p, jax.vmap(true_fn), jax.vmap(false_fn), *ops),
                     tangent_fn=lambda p: (lambda ops: jax.lax.cond(p, true_fn, false_fn, *ops)))
-
-
-def switch_widest(index, branches, *operands):
-    """``lax.switch(index, branches, *operands)`` that stays a switch under ``vmap``.
-
-    A batched ``index`` is reduced with ``max``: the whole batch takes the
-    branch of its largest index. Use it only for branches that are valid for
-    any index at least the true one (e.g. wider windows that give the same
-    result with more work), so the choice never changes the output.
-    Operands may be pytrees (tuples of arrays).
-    """
-    return _steered(index, tuple(operands), reduce=jnp.max,
-                    single=lambda i, ops: jax.lax.switch(i, branches, *ops),
-                    batched=lambda i, ops: switch_widest(i, [jax.vmap(fn) for fn in branches], *ops))
 
 
 def pack_pair(a: jax.Array, b: jax.Array):
