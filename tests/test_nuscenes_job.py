@@ -539,6 +539,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
     assert (engine, local_engine) == ("ray", "local") and args == local_args == (str(root), tmp_path / "o")
     assert (ray_options.pop("address"), ray_options.pop("batch_size")) == ("HEAD:6379", 3)
     local_options.pop("io_threads")
+    assert local_options.pop("method") == "sgm"  # the baselines run on the local engine only
     for options in (ray_options, local_options):
         options.pop("on_progress")
         options["tables"] = options["tables"].version
