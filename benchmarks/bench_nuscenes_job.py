@@ -16,7 +16,17 @@ Per sweep = the run's wall (``time.perf_counter``) and process CPU (``time.proce
 seconds / samples; the ratio default / nearest is taken within each round, then the median. Every run
 must write 6 PNGs per sample. Writes benchmarks/results/nuscenes_job.json.
 
+``--parts N``: instead, where one sample's time goes (``--sweeps 1``), each part timed apart with
+``block_until_ready`` before the clock, N times after a warm-up call each, medians: reading
+(:func:`jaxdepth.batch.nuscenes_job._load`: tables, the sweep file, ``prepare_sweep``, padding), the
+projection of the six cameras alone (``project_to_image`` vmapped), the job's nearest fill
+(:func:`jaxdepth.batch.cloud_runner.baseline_depth`: projection + fill, on the host), the job's SGM
+program without outlier removal (projection, Step 1, Steps 3-4) and with it (the default: + Step 2),
+the depth's copy to the host and the six PNG writes. Step 2 = default - without removal; Steps 1 and
+3-4 = without removal - projection. Writes benchmarks/results/nuscenes_job_parts.json.
+
     python -m benchmarks.bench_nuscenes_job [--samples 10] [--sweeps 1] [--rounds 3] [--ip-basic] [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --parts 5 [--json PATH]
 """
 
 from __future__ import annotations
@@ -120,14 +130,80 @@ def run_once(root: pathlib.Path, out: pathlib.Path, *, method: str, sweeps: int,
     return wall, cpu
 
 
+def _part(fn, repeats: int) -> dict:
+    """Median wall and process-CPU seconds of ``fn()`` over ``repeats`` calls after one warm-up call, and
+    the last result."""
+    import jax
+    out = jax.block_until_ready(fn())
+    walls, cpus = [], []
+    for _ in range(repeats):
+        cpu, start = time.process_time(), time.perf_counter()
+        out = jax.block_until_ready(fn())
+        walls.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - cpu)
+    return {"wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus), "result": out}
+
+
+def parts(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
+    """``{part: {"wall_s", "cpu_s"}}`` of one sample of the dataroot (module docstring, ``--parts``)."""
+    import functools
+
+    import jax
+
+    import jaxdepth
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.geometry import project_to_image
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.cloud_runner import baseline_depth
+    from jaxdepth.batch.extras import NONE, write_outputs
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+
+    tables = nusc.load_tables(root, VERSION)
+    job = nuscenes_job.plan(tables, out, overwrite=True, summary=RunSummary(), notify=lambda *a: None)[0]
+    rec = {"read": _part(lambda: nuscenes_job._load(tables, job, sweeps=1, ego_motion=True), repeats)}
+    padded, valid, rig, _, _ = rec["read"]["result"]
+    cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
+    project = jax.jit(jax.vmap(functools.partial(project_to_image, height=cameras.height, width=cameras.width),
+                               in_axes=(None, None, 0, 0)))
+    rec["projection"] = _part(lambda: project(padded, valid, cameras.K, cameras.T_cam_lidar)[0], repeats)
+    config = SGMConfig()
+    rec["nearest_fill"] = _part(lambda: baseline_depth(padded, valid, rig, method="nearest", config=config), repeats)
+    no_removal = nuscenes_job._depth_fn(config.replace(outlier_removal=False), rig.lidar)
+    rec["sgm_no_removal"] = _part(lambda: no_removal(padded, valid, cameras), repeats)
+    rec["sgm"] = _part(lambda: nuscenes_job._depth_fn(config, rig.lidar)(padded, valid, cameras), repeats)
+    device_depth = rec["sgm"]["result"]
+    rec["to_host"] = _part(lambda: np.asarray(device_depth + 0.0), repeats)   # a fresh device array each call
+    depth = rec["to_host"]["result"]
+
+    def pngs():
+        for i, c in enumerate(rig.cameras):
+            write_outputs(out / f"{c.name}.png", depth[i, :c.height, :c.width], extras=NONE, overwrite=True)
+    out.mkdir(parents=True, exist_ok=True)
+    rec["pngs"] = _part(pngs, repeats)
+    times = {k: {"wall_s": v["wall_s"], "cpu_s": v["cpu_s"]} for k, v in rec.items()}
+    for key in ("wall_s", "cpu_s"):
+        times.setdefault("derived", {})[key] = {
+            "step2": times["sgm"][key] - times["sgm_no_removal"][key],
+            "steps_1_3_4": times["sgm_no_removal"][key] - times["projection"][key],
+            "fill_after_projection": times["nearest_fill"][key] - times["projection"][key],
+            "default_sample": times["read"][key] + times["sgm"][key] + times["to_host"][key] + times["pngs"][key],
+            "nearest_sample": times["read"][key] + times["nearest_fill"][key] + times["pngs"][key]}
+    return times
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10, help="samples (one key-frame sweep each), >= 8")
     ap.add_argument("--sweeps", type=int, default=1, help="sweeps per sample (the job's --sweeps)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--ip-basic", action="store_true", help="also --method ip-basic in every round")
-    ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "nuscenes_job.json")
+    ap.add_argument("--parts", type=int, default=0, metavar="N",
+                    help="instead: one sample's parts, N timed calls each (module docstring)")
+    ap.add_argument("--json", type=pathlib.Path, default=None,
+                    help="default: results/nuscenes_job.json (--parts: results/nuscenes_job_parts.json)")
     args = ap.parse_args(argv)
+    args.json = args.json or RESULTS / ("nuscenes_job_parts.json" if args.parts else "nuscenes_job.json")
     if not SAMPLE.exists():
         print(f"shared nuScenes sample missing: {SAMPLE}", file=sys.stderr)
         return 1
@@ -137,6 +213,19 @@ def main(argv=None) -> int:
     devices.quiet_jax_start()
     devices.keep_freed_memory()
     t0 = time.time()
+    if args.parts:
+        with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscparts-") as tmp_name:
+            tmp = pathlib.Path(tmp_name)
+            build_dataroot(tmp / "data", 8, 1)
+            times = parts(tmp / "data", tmp / "out", args.parts)
+        for k, v in times.items():
+            print(k, json.dumps(v))
+        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
+               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
+               "method": "one process, each part after a warm-up call, median of --parts calls, block_until_ready",
+               "parts": times, "load_average": os.getloadavg()}
+        write_results(args.json, doc, None, t0)
+        return 0
     methods = ["sgm", "nearest"] + (["ip-basic"] if args.ip_basic else [])
     rounds, first = [], {}
     with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscjob-") as tmp_name:
