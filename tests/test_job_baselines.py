@@ -186,3 +186,42 @@ def test_complete_rig_sweeps_json_baselines(tmp_path, capsys):
     assert cli.main(["complete-rig", str(tmp_path / "list.txt"), str(rig_path), str(listed), "--method", "nearest",
                      "-q"]) == 0
     assert (listed / "sweeps" / "cam.png").read_bytes() == (tmp_path / "nearest" / "cam.png").read_bytes()
+
+
+@pytest.mark.slow  # a job run: the small nearest programs of two cameras (docs/testing.md)
+def test_complete_rig_one_sweep_nearest_each_camera_at_its_size(tmp_path, capsys):
+    """One LiDAR sweep (the wall of tests/helpers.py), two cameras of different sizes turned 15 degrees left
+    and 8 down (so that the depth changes from seed to seed along rows and columns): ``--method nearest
+    --distance l2`` fills each camera at its own size with the depth of a Euclidean-nearest sparse pixel
+    (SciPy's exact ``distance_transform_edt`` distances); the --preview extra works, --validity is refused."""
+    from scipy.ndimage import distance_transform_edt
+    from scipy.spatial.transform import Rotation
+
+    from helpers import WALL_CAMERAS, LEVEL, wall_sweep, write_wall_rig
+    from jaxdepth import cli
+
+    sweep, rig = tmp_path / "sweep.npy", tmp_path / "rig.json"
+    wall_sweep(sweep)
+    T = np.asarray(LEVEL, np.float64)
+    T[:3, :3] = Rotation.from_euler("yx", [-15.0, -8.0], degrees=True).as_matrix() @ T[:3, :3]
+    write_wall_rig(rig, T_cam_lidar={name: T.tolist() for name in WALL_CAMERAS})
+    out = tmp_path / "out"
+    assert cli.main(["complete-rig", str(sweep), str(rig), str(out), "--no-estimate", "--method", "nearest",
+                     "--distance", "l2", "--preview", "-q"]) == 0
+    points = np.load(sweep)[:, :3]
+    for name, (w, h, K) in WALL_CAMERAS.items():
+        sparse = zbuffer(points, K, T, h, w)
+        assert np.ptp(sparse[sparse > 0]) > 1.0 and (sparse > 0).mean() > 0.05
+        got = read_depth_png(out / f"{name}.png")
+        assert got.shape == (h, w) and (out / f"{name}_preview.png").exists()
+        dist = distance_transform_edt(sparse <= 0)
+        sv, su = np.nonzero(sparse)
+        v, u = np.mgrid[0:h, 0:w]
+        d2 = (v.reshape(-1, 1) - sv) ** 2 + (u.reshape(-1, 1) - su) ** 2        # (pixels, seeds), brute force
+        np.testing.assert_allclose(np.sqrt(d2.min(axis=1)), dist.ravel())       # SciPy = brute force
+        at = d2 == d2.min(axis=1, keepdims=True)
+        ok = np.any(at & (np.abs(got.reshape(-1, 1) - sparse[sv, su]) <= Q + 1e-6), axis=1)
+        assert ok.mean() > 0.99, ok.mean()
+    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "v"), "--no-estimate", "--method",
+                     "nearest", "--validity", "-q"]) == 2
+    assert "need --method sgm" in capsys.readouterr().err
