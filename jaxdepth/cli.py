@@ -18,7 +18,7 @@ from jaxdepth.cli_common import (add_force_option as _add_force_option,
                                   add_overwrite_and_force_options as _add_overwrite_and_force_options,
                                   config_from as _config_from, extras_from as _extras_from,
                                   extras_usage as _extras_usage, guidance_usage as _guidance_usage,
-                                  progress as _progress)
+                                  progress as _progress, settle_rig_baseline_removal as _settle_rig_baseline_removal)
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 
@@ -170,7 +170,7 @@ def _cmd_complete_av2(args) -> int:
     """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
     from jaxdepth.batch.av2_job import cli_usage, find_logs, run_av2
 
-    usage = cli_usage(args)
+    usage = cli_usage(args) or _settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -198,7 +198,7 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     if scan is None or scan.layout != "kitti-raw":
         raise InputError(f"{args.src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
                          "(--nusc-version)")
-    usage = _multi_source_usage(args, "--sweeps")
+    usage = _multi_source_usage(args, "--sweeps") or _settle_rig_baseline_removal(args)
     if usage is None and args.sweeps < 0:
         usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
     if usage:
@@ -343,6 +343,7 @@ def _cmd_complete_nuscenes(args) -> int:
         usage = f"--sweeps with --nusc-version expected an integer >= 1 (sweeps per sample), got {args.sweeps}"
     elif (args.sweeps or 1) > 1 and _extras_from(args).needs_seeds:
         usage = "--validity, --seed-distance and --zero-invalid need --sweeps 1 with --nusc-version"
+    usage = usage or _settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2

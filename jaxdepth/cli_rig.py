@@ -12,7 +12,7 @@ import sys
 
 from jaxdepth.batch import devices
 from jaxdepth.cli_common import (add_method_options, add_overwrite_and_force_options, config_from, extras_from,
-                                 extras_usage, guidance_usage, progress)
+                                 extras_usage, guidance_usage, progress, settle_rig_baseline_removal)
 
 
 def _reporter(args):
@@ -33,7 +33,7 @@ def cmd_complete_rig(args) -> int:
     from jaxdepth.batch.rig_job import run_rig_job
     from jaxdepth.io.sweep_list import list_sweeps
 
-    usage = extras_usage(args) or guidance_usage(args)
+    usage = extras_usage(args) or guidance_usage(args) or settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2

@@ -181,6 +181,11 @@ def test_complete_rig_sweeps_json_baselines(tmp_path, capsys):
         check_baseline(method, read_depth_png(out / "cam.png"), sparse)
     assert cli.main(["complete-rig", str(sweeps), str(rig_path), str(tmp_path / "nearest"), "-q"]) == 1
     assert "method" in capsys.readouterr().err
+    from jaxdepth.batch import run_record
+    assert run_record.read_record(tmp_path / "nearest")["settings"]["outlier_removal"] is False   # what ran
+    assert cli.main(["complete-rig", str(sweeps), str(rig_path), str(tmp_path / "refused"), "--method", "nearest",
+                     "--outlier-removal", "-q"]) == 2
+    assert "drop --outlier-removal" in capsys.readouterr().err and not (tmp_path / "refused").exists()
     (tmp_path / "list.txt").write_text(f"{sweeps}\n")
     listed = tmp_path / "listed"
     assert cli.main(["complete-rig", str(tmp_path / "list.txt"), str(rig_path), str(listed), "--method", "nearest",
