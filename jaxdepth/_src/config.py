@@ -159,7 +159,8 @@ class SGMConfig:
         samples of its surface, so a wrong removal costs little, while the paper form removes
         background points seen over a near object's top edge that the footprint form keeps
         (docs/multi_source.md, "Older sweeps by the paper form"). Not the default: it wins on the
-        nuScenes twin and loses on the KITTI twin and real Argoverse 2. One sweep is never affected.
+        nuScenes twin and loses on the KITTI, raster and rosette twins and real Argoverse 2. One sweep
+        is never affected.
     """
 
     outlier_removal: bool = True
