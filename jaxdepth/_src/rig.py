@@ -20,6 +20,16 @@ float32 products, XLA:CPU's batched rotation product for three or more cameras r
 z, u, v apart from the unbatched one, and on the Argoverse 2 sweep ``sparse_depth``
 differed on 1,700-4,600 px per camera; docs/speed.md, "Grouped by size").
 
+The pipeline runs as three programs, each its own ``jit``, called one after another
+(:func:`run_rig_stages`): :func:`rig_stage_projection` (Step 1 and each camera's z-buffer,
+a :class:`CameraView` per camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail`
+(Steps 3-4, the canvas). Each stage computes what it computed inside one program, so the
+results are the same bytes; XLA, which fuses a producer into each of its consumers, then
+generates each stage's code once, and the three compile several times faster than one
+program of the whole pipeline (docs/speed.md, "Stage programs"). The multi-source pipeline
+(:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
+(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves each stage from disk.
+
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
 colour: each camera's image sits in the top-left corner of the canvas, inside its
@@ -379,8 +389,11 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
       ``cameras.sizes`` is known (:func:`stack_cameras`: the cameras run grouped by size).
 
     Raises:
-      ValueError (at trace time) naming the field 'images': missing while
+      ValueError (before any stage runs) naming the field 'images': missing while
       guided, a shape other than the canvas's, a dtype other than uint8 or float.
+
+    Runs three jitted stage programs (:func:`run_rig_stages`), not one; call it outside ``jit``
+    to keep them apart (inside a ``jit`` they become one program again, the same bytes).
     """
     return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 

@@ -29,6 +29,11 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   (:func:`~jaxdepth._src.above_scan.top_line_keep`).
 * Steps 3 and 4 are the single-source ones on the merged, filtered image.
 
+As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline runs as three programs
+(:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion,
+each camera's z-buffer with each pixel's source), :func:`sources_stage_keep` (Step 2 and the top-line rule)
+and :func:`sources_stage_tail` (Steps 3-4); the same bytes as one program, compiled several times faster.
+
 With one source at the points' origin, :func:`complete_sources` equals
 :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
 """
