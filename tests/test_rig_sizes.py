@@ -335,24 +335,23 @@ def test_above_scan_window_is_the_cameras_own():
 @pytest.mark.xdist_group("rig_mixed_sizes")  # the stage programs are the tests' above
 @pytest.mark.parametrize("pipeline", ["rig", "sources"])
 def test_stage_programs_equal_the_one_program(pipeline, mixed_rig):
-    """The pipeline as three jitted stage programs called one after another (the library's path) against the
-    same stages traced into one ``jit`` (XLA then fuses across the stage boundaries): every field bit for bit,
-    on the two-size rig; the two-sweep sources with free space and occlusion (each pixel's source and shadow
-    cross the boundaries)."""
+    """The pipeline as three jitted stage programs called one after another (``run_*_stages`` outside a jit)
+    against the library's one program, the same stages traced into one ``jit`` (XLA then fuses across the
+    stage boundaries): every field bit for bit, on the two-size rig; the two-sweep sources with free space and
+    occlusion (each pixel's source and shadow cross the boundaries)."""
     from jaxdepth._src.rig import run_rig_stages
     from jaxdepth._src.sources import default_beams, run_sources_stages
     from jaxdepth._src.config import DEFAULT_CONFIG
     points, valid, cams = mixed_rig
     cameras = stack_cameras(cams)
     if pipeline == "rig":
-        split = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
-        one = jax.jit(lambda p, v, c: run_rig_stages(p, v, c, config=DEFAULT_CONFIG, lidar=LIDAR))(points, valid,
-                                                                                                  cameras)
+        split = run_rig_stages(points, valid, cameras, config=DEFAULT_CONFIG, lidar=LIDAR)
+        one = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
     else:
         sources = _two_sweeps(points, valid, second_valid=valid)
-        split = complete_sources_stages(sources, cameras)
-        one = jax.jit(lambda s, c: run_sources_stages(s, c, config=DEFAULT_CONFIG, free_space=True,
-                                                      beams=default_beams(s)))(sources, cameras)
+        split = run_sources_stages(sources, cameras, config=DEFAULT_CONFIG, free_space=True,
+                                   beams=default_beams(sources))
+        one = complete_sources_stages(sources, cameras)
     assert int(np.asarray(split.inlier_mask).sum()) > 60
     for name in split._fields:
         np.testing.assert_array_equal(np.asarray(getattr(split, name)), np.asarray(getattr(one, name)), err_msg=name)

@@ -20,15 +20,14 @@ float32 products, XLA:CPU's batched rotation product for three or more cameras r
 z, u, v apart from the unbatched one, and on the Argoverse 2 sweep ``sparse_depth``
 differed on 1,700-4,600 px per camera; docs/speed.md, "Grouped by size").
 
-The pipeline runs as three programs, each its own ``jit``, called one after another
-(:func:`run_rig_stages`): :func:`rig_stage_projection` (Step 1 and each camera's z-buffer,
-a :class:`CameraView` per camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail`
-(Steps 3-4, the canvas). Each stage computes what it computed inside one program, so the
-results are the same bytes; XLA, which fuses a producer into each of its consumers, then
-generates each stage's code once, and the three compile several times faster than one
-program of the whole pipeline (docs/speed.md, "Stage programs"). The multi-source pipeline
-(:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
-(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves each stage from disk.
+The pipeline is written as three stages, each a ``jit`` of its own (:func:`run_rig_stages`):
+:func:`rig_stage_projection` (Step 1 and each camera's z-buffer, a :class:`CameraView` per
+camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail` (Steps 3-4, the canvas).
+Called one after another they are three programs with the one program's bytes; measured, they
+compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stage programs"),
+so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`. The multi-source
+pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
+(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
@@ -353,17 +352,25 @@ def rig_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None,
 
 def run_rig_stages(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec,
                    call=call_stage) -> Stages:
-    """:func:`complete_rig_stages` as three programs, called one after another through ``call``
-    (:func:`call_stage`): :func:`rig_stage_projection`, :func:`rig_stage_keep`, :func:`rig_stage_tail`.
+    """:func:`complete_rig_stages` as three stage programs called through ``call`` (:func:`call_stage`):
+    :func:`rig_stage_projection`, :func:`rig_stage_keep`, :func:`rig_stage_tail`.
 
-    Separate programs give the one program's bytes (each stage computes what it computed inside it) and
-    compile several times faster: XLA fuses a producer into each of its consumers, so one program of the
-    whole pipeline generates the producers' code again in every consumer (docs/speed.md, "Stage programs").
+    Called outside ``jit`` they are three programs, the same bytes as one (tests/test_rig_sizes.py), but
+    measured no faster to compile and 13-31 % slower to run than one (docs/speed.md, "Stage programs"), so
+    the library runs them inside one ``jit``, :func:`rig_program`.
     """
     check_images(images, cameras, config, where="complete_rig")
     views = call(rig_stage_projection, points, valid, cameras, config=config, lidar=lidar)
     keeps = call(rig_stage_keep, views, cameras, config=config, beams=lidar.beams)
     return call(rig_stage_tail, views, keeps, cameras, images, config=config, beams=lidar.beams)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+    """:func:`complete_rig_stages`' program: the three stages of :func:`run_rig_stages` traced into one ``jit``
+    (the same bytes as the stages called one after another, and as fast or faster to compile and run:
+    docs/speed.md, "Stage programs")."""
+    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
@@ -392,10 +399,9 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
       ValueError (before any stage runs) naming the field 'images': missing while
       guided, a shape other than the canvas's, a dtype other than uint8 or float.
 
-    Runs three jitted stage programs (:func:`run_rig_stages`), not one; call it outside ``jit``
-    to keep them apart (inside a ``jit`` they become one program again, the same bytes).
+    One program, :func:`rig_program` (the stages of :func:`run_rig_stages` in one ``jit``).
     """
-    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
+    return rig_program(points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,

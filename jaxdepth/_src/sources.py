@@ -29,10 +29,10 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   (:func:`~jaxdepth._src.above_scan.top_line_keep`).
 * Steps 3 and 4 are the single-source ones on the merged, filtered image.
 
-As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline runs as three programs
+As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is written as three stages
 (:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion,
 each camera's z-buffer with each pixel's source), :func:`sources_stage_keep` (Step 2 and the top-line rule)
-and :func:`sources_stage_tail` (Steps 3-4); the same bytes as one program, compiled several times faster.
+and :func:`sources_stage_tail` (Steps 3-4), run in one ``jit``, :func:`sources_program`.
 
 With one source at the points' origin, :func:`complete_sources` equals
 :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
@@ -622,14 +622,23 @@ def sources_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=N
 
 def run_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
                        beams: int, occlusion: bool = True, call=call_stage) -> Stages:
-    """:func:`complete_sources_stages` (``beams`` given) as three programs called one after another through
-    ``call``: :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail`
-    (see :func:`~jaxdepth._src.rig.run_rig_stages`)."""
+    """:func:`complete_sources_stages` (``beams`` given) as three stage programs called through ``call``:
+    :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail` (see
+    :func:`~jaxdepth._src.rig.run_rig_stages`; the library runs them in one ``jit``, :func:`sources_program`)."""
     check_images(images, cameras, config, where="complete_sources")
     views = call(sources_stage_projection, sources, cameras, config=config, free_space=free_space,
                  occlusion=occlusion)
     keeps = call(sources_stage_keep, views, sources, cameras, config=config, beams=beams)
     return call(sources_stage_tail, views, keeps, cameras, images, config=config, beams=beams)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
+def sources_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
+                    beams: int, occlusion: bool = True) -> Stages:
+    """:func:`complete_sources_stages`' program: the stages of :func:`run_sources_stages` in one ``jit``
+    (see :func:`~jaxdepth._src.rig.rig_program`)."""
+    return run_sources_stages(sources, cameras, images, config=config, free_space=free_space, beams=beams,
+                              occlusion=occlusion)
 
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
@@ -656,8 +665,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       image (free-space points never reach the image).
     """
     beams = default_beams(sources) if beams is None else int(beams)
-    return run_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                              occlusion=bool(occlusion))
+    return sources_program(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
+                           occlusion=bool(occlusion))
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,

@@ -210,9 +210,9 @@ class Program:
 
 @functools.lru_cache(maxsize=32)
 def _stages_program(stage: Callable, statics: tuple) -> Program:
-    """The :class:`Program` of one stage program of the rig or multi-source pipeline (a public ``jit`` of
-    :mod:`jaxdepth._src.rig` / :mod:`jaxdepth._src.sources`, e.g. ``rig_stage_projection``), its static
-    options ``statics`` ((name, value), ...) bound; named after the stage (entry and compile cache names)."""
+    """The :class:`Program` of a public ``jit`` of :mod:`jaxdepth._src.rig` / :mod:`jaxdepth._src.sources`
+    (``rig_program``, ``sources_program``, or one of their stage programs, e.g. ``rig_stage_projection``),
+    its static options ``statics`` ((name, value), ...) bound; named after it (entry and compile cache names)."""
     import jax
 
     options = dict(statics)
@@ -225,31 +225,32 @@ def _stages_program(stage: Callable, statics: tuple) -> Program:
 
 
 def cached_stage(stage: Callable, *args, **statics):
-    """Calls a stage program through its :class:`Program` (the ``call`` of ``run_rig_stages`` /
-    ``run_sources_stages``): ``stage(*args, **statics)``, the same bytes, a warm start without tracing."""
+    """Calls a public program of ``_src`` through its :class:`Program`: ``stage(*args, **statics)``, the same
+    bytes, a warm start without tracing (also a ``call`` for ``run_rig_stages`` / ``run_sources_stages``, which
+    then stores each stage program apart)."""
     return _stages_program(stage, tuple(sorted(statics.items())))(*args)
 
 
 def rig_stages(points, valid, cameras, *, config, lidar, images=None):
-    """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes), each of its stage programs
-    (:func:`jaxdepth._src.rig.run_rig_stages`) through the program cache."""
-    from jaxdepth._src.rig import complete_rig_stages, run_rig_stages
+    """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes): its program
+    (:func:`jaxdepth._src.rig.rig_program`) through the program cache."""
+    from jaxdepth._src.rig import complete_rig_stages, rig_program
     if program_folder() is None:
         return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images)
-    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar, call=cached_stage)
+    return cached_stage(rig_program, points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: int | None = None, images=None,
                    occlusion: bool = True):
-    """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes), each of its stage
-    programs (:func:`jaxdepth._src.sources.run_sources_stages`) through the program cache."""
-    from jaxdepth._src.sources import complete_sources_stages, default_beams, run_sources_stages
+    """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes): its program
+    (:func:`jaxdepth._src.sources.sources_program`) through the program cache."""
+    from jaxdepth._src.sources import complete_sources_stages, default_beams, sources_program
     if program_folder() is None:
         return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
                                        images=images, occlusion=occlusion)
     beams = default_beams(sources) if beams is None else int(beams)
-    return run_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                              occlusion=bool(occlusion), call=cached_stage)
+    return cached_stage(sources_program, sources, cameras, images, config=config, free_space=bool(free_space),
+                        beams=beams, occlusion=bool(occlusion))
 
 
 def _read_entry(path: pathlib.Path, key: str, signature: tuple):
