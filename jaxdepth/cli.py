@@ -18,7 +18,7 @@ from jaxdepth.cli_common import (add_force_option as _add_force_option,
                                   add_overwrite_and_force_options as _add_overwrite_and_force_options,
                                   config_from as _config_from, extras_from as _extras_from,
                                   extras_usage as _extras_usage, guidance_usage as _guidance_usage,
-                                  progress as _progress)
+                                  progress as _progress, settle_rig_baseline_removal as _settle_rig_baseline_removal)
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
 from jaxdepth.io.errors import JaxdepthError
 
@@ -156,8 +156,6 @@ def _complete_own_job(args) -> int | None:
 
 def _multi_source_usage(args, what: str) -> str | None:
     """Why the options given cannot be used with a multi-source job (None: they can)."""
-    if args.method != "sgm":
-        return f"{what} runs the multi-source SGM path: --method sgm only"
     if args.guidance_weight > 0:
         return f"{what}: --guidance-weight is not supported (no camera images are read)"
     extras = _extras_from(args)
@@ -172,7 +170,7 @@ def _cmd_complete_av2(args) -> int:
     """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
     from jaxdepth.batch.av2_job import cli_usage, find_logs, run_av2
 
-    usage = cli_usage(args)
+    usage = cli_usage(args) or _settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -200,7 +198,7 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
     if scan is None or scan.layout != "kitti-raw":
         raise InputError(f"{args.src}: --sweeps applies to KITTI raw drives, Argoverse 2 logs and nuScenes "
                          "(--nusc-version)")
-    usage = _multi_source_usage(args, "--sweeps")
+    usage = _multi_source_usage(args, "--sweeps") or _settle_rig_baseline_removal(args)
     if usage is None and args.sweeps < 0:
         usage = f"--sweeps expected an integer >= 0 (neighbours on each side), got {args.sweeps}"
     if usage:
@@ -215,7 +213,8 @@ def _cmd_complete_kitti_sweeps(args, scan) -> int:
         progress.update(name, f"failed: {message}")
     summary = run_kitti_raw_sweeps(scan.jobs, sweeps=args.sweeps, config=_config_from(args),
                                    overwrite=args.overwrite, png_compression=args.png_compression,
-                                   io_threads=devices.io_threads(), on_progress=progress.update, force=args.force)
+                                   io_threads=devices.io_threads(), on_progress=progress.update, force=args.force,
+                                   method=args.method)
     progress.close()
     summary.failed[:0] = scan.failed
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
@@ -255,8 +254,9 @@ def _discover_dataset(src: pathlib.Path, dst: pathlib.Path, args):
     for option, given in (("--intrinsics", args.intrinsics), ("--extrinsic", args.extrinsic)):
         if given is not None:
             raise InputError(f"{src}: {option} does not apply to a {scan.layout} folder (its calibration is used)")
-    if scan.jobs and scan.jobs[0].image_size is not None and args.method != "sgm":
-        raise InputError(f"{src}: LiDAR sweeps complete with --method sgm only, got {args.method}")
+    if scan.jobs and scan.jobs[0].image_size is not None and args.method != "sgm" and not args.sweeps:
+        raise InputError(f"{src}: LiDAR sweeps complete with --method sgm only, got {args.method} (the baselines "
+                         "run with --sweeps N > 0)")
     if not args.quiet:
         print(f"found {scan.summary}", file=sys.stderr)
     return scan
@@ -312,8 +312,8 @@ def _add_nuscenes_options(parser) -> None:
     """The nuScenes options of ``jaxdepth complete`` (no JAX import)."""
     group = parser.add_argument_group(
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
-                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (method sgm; --engine local "
-                    "or ray, same bytes; --batch-size and --cpu-devices have no effect on the local engine: one "
+                    "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (--engine local "
+                    "or ray, same bytes; --method nearest / ip-basic: the baselines of the same points, local engine; --batch-size and --cpu-devices have no effect on the local engine: one "
                     "sample's cameras are one batch; on Ray --batch-size is samples per actor call); with "
                     "--guidance-weight W > 0 every sample's camera JPEGs (samples/CAM_*/...) are read for "
                     "image-guided seeds, and a missing or bad image fails its sample")
@@ -337,12 +337,13 @@ def _cmd_complete_nuscenes(args) -> int:
     elif getattr(args, "image_dir", None) is not None:
         usage = ("--image-dir cannot be used with --nusc-version: with --guidance-weight each camera's image is the "
                  "JPEG its sample_data row names in the dataroot")
-    elif args.method != "sgm":
-        usage = "--nusc-version runs the multi-camera SGM path: --method sgm only"
+    elif args.method != "sgm" and args.engine != "local":
+        usage = f"--nusc-version with --method {args.method}: --engine local only"
     elif args.sweeps is not None and args.sweeps < 1:
         usage = f"--sweeps with --nusc-version expected an integer >= 1 (sweeps per sample), got {args.sweeps}"
     elif (args.sweeps or 1) > 1 and _extras_from(args).needs_seeds:
         usage = "--validity, --seed-distance and --zero-invalid need --sweeps 1 with --nusc-version"
+    usage = usage or _settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -367,7 +368,7 @@ def _cmd_complete_nuscenes(args) -> int:
         summary = scale.run_nuscenes_ray(args.src, dst, batch_size=args.batch_size, address=args.ray_address,
                                          **options)
     else:
-        summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), **options)
+        summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), method=args.method, **options)
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="samples")
 

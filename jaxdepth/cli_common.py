@@ -15,7 +15,8 @@ def add_method_options(p: argparse.ArgumentParser, *, methods=("sgm", "nearest",
     p.add_argument("--method", choices=methods, default="sgm", help="completion method (default: sgm)")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--outlier-removal", dest="outlier_removal", action="store_true", default=None,
-                       help="run the paper's outlier removal in front of the method (default for every method)")
+                       help="run the paper's outlier removal in front of the method (default for every method; "
+                            "the rig and multi-source jobs' baselines fill every projected point without it)")
     group.add_argument("--no-outlier-removal", dest="outlier_removal", action="store_false",
                        help="skip outlier removal")
     add_config_options(p)
@@ -41,6 +42,19 @@ def config_from(args):
     if getattr(args, "guidance_noise_floor", None) is not None:
         changes["guidance_noise_floor"] = args.guidance_noise_floor
     return SGMConfig(**changes)
+
+
+def settle_rig_baseline_removal(args) -> str | None:
+    """The rig and multi-source jobs' baselines (``--method nearest`` / ``ip-basic``) fill every projected
+    point without outlier removal: an explicit ``--outlier-removal`` is refused (the returned message), else
+    ``args.outlier_removal`` is set False so that the run record says what ran. None: settled."""
+    if getattr(args, "method", "sgm") == "sgm":
+        return None
+    if args.outlier_removal:
+        return (f"--method {args.method} on a rig or multi-source job fills every projected point without "
+                "outlier removal: drop --outlier-removal")
+    args.outlier_removal = False
+    return None
 
 
 def guidance_usage(args) -> str | None:

@@ -12,7 +12,7 @@ import sys
 
 from jaxdepth.batch import devices
 from jaxdepth.cli_common import (add_method_options, add_overwrite_and_force_options, config_from, extras_from,
-                                 extras_usage, guidance_usage, progress)
+                                 extras_usage, guidance_usage, progress, settle_rig_baseline_removal)
 
 
 def _reporter(args):
@@ -33,7 +33,7 @@ def cmd_complete_rig(args) -> int:
     from jaxdepth.batch.rig_job import run_rig_job
     from jaxdepth.io.sweep_list import list_sweeps
 
-    usage = extras_usage(args) or guidance_usage(args)
+    usage = extras_usage(args) or guidance_usage(args) or settle_rig_baseline_removal(args)
     if usage:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
@@ -53,7 +53,7 @@ def cmd_complete_rig(args) -> int:
         summary = run_rig_job(args.points, args.rig, args.out_dir, config=config_from(args),
                               extras=extras_from(args), point_columns=args.point_columns,
                               estimate=not args.no_estimate, image_dir=args.image_dir, overwrite=args.overwrite,
-                              report=_reporter(args), force=args.force, record=record)
+                              report=_reporter(args), force=args.force, record=record, method=args.method)
     finally:
         job_progress.close()
     return summary.exit_code
@@ -69,7 +69,8 @@ def _complete_rig_sweeps(args, sweeps, record) -> int:
         summary = run_rig_sweeps(sweeps, args.rig, args.out_dir, config=config_from(args), extras=extras_from(args),
                                  point_columns=args.point_columns, estimate=not args.no_estimate,
                                  overwrite=args.overwrite, report=_reporter(args), force=args.force, record=record,
-                                 io_threads=devices.io_threads(), on_progress=job_progress.update)
+                                 io_threads=devices.io_threads(), on_progress=job_progress.update,
+                                 method=args.method)
     finally:
         job_progress.close()
     return report_summary(summary, quiet=args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
@@ -114,9 +115,10 @@ def _warmup_usage(args) -> str | None:
     return None
 
 
-def _add_sweep_options(p) -> None:
-    """The options ``complete-rig`` and ``warmup`` share (each is part of the compiled program)."""
-    add_method_options(p, methods=("sgm",))
+def _add_sweep_options(p, *, methods=("sgm",)) -> None:
+    """The options ``complete-rig`` and ``warmup`` share (each is part of the compiled program); ``warmup``
+    compiles the SGM's program only."""
+    add_method_options(p, methods=methods)
     p.add_argument("-q", "--quiet", action="store_true")
     from jaxdepth.batch import extras as extras_cli
     extras_cli.add_cli_options(p)
@@ -143,7 +145,7 @@ def register(sub) -> None:
                         "or colour, each the camera's width x height; all grey or all colour); default: each "
                         "camera's \"image\" field in the rig JSON (relative to the JSON's folder)")
     add_overwrite_and_force_options(p)
-    _add_sweep_options(p)
+    _add_sweep_options(p, methods=("sgm", "nearest", "ip-basic"))
     p.set_defaults(func=cmd_complete_rig)
 
     w = sub.add_parser("warmup", help="compile a rig's complete-rig program (or an Argoverse 2 job's) into the "

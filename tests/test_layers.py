@@ -8,6 +8,7 @@ inside functions: a function-level import is still a dependency, only a deferred
 from __future__ import annotations
 
 import ast
+import functools
 import pathlib
 
 import pytest
@@ -52,7 +53,8 @@ def _resolve(module: str, path: pathlib.Path, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
-def _imports(module: str) -> list[tuple[str, str | None, int]]:
+@functools.cache  # parsed when a test first asks (not while collecting), once per process
+def _imports(module: str) -> tuple[tuple[str, str | None, int], ...]:
     """(imported jaxdepth module, imported name or None, line) of every import in ``module``."""
     path = MODULES[module]
     found = []
@@ -69,7 +71,7 @@ def _imports(module: str) -> list[tuple[str, str | None, int]]:
                     found.append((sub, None, node.lineno))
                 else:
                     found.append((target, alias.name, node.lineno))
-    return found
+    return tuple(found)
 
 
 def _owner(module: str) -> str:
@@ -90,14 +92,18 @@ def _package(module: str) -> str:
     return module if MODULES[module].name == "__init__.py" else module.rpartition(".")[0]
 
 
-GRAPH = {m: sorted({_owner(t) for t, _, _ in _imports(m)} - {m, ""}) for m in MODULES}
+@functools.cache
+def _graph() -> dict[str, list[str]]:
+    """module -> the jaxdepth modules it imports (built on first use: collecting needs only MODULES)."""
+    return {m: sorted({_owner(t) for t, _, _ in _imports(m)} - {m, ""}) for m in MODULES}
 
 
 def test_the_graph_sees_known_edges():
     # the oracle itself: edges that exist must be found (top level and inside functions)
-    assert "jaxdepth._src.pipeline" in GRAPH["jaxdepth._src.rig"]
-    assert "jaxdepth.io.errors" in GRAPH["jaxdepth.cli"]
-    assert any(t.startswith("jaxdepth.batch") for t in GRAPH["jaxdepth.cli"])
+    graph = _graph()
+    assert "jaxdepth._src.pipeline" in graph["jaxdepth._src.rig"]
+    assert "jaxdepth.io.errors" in graph["jaxdepth.cli"]
+    assert any(t.startswith("jaxdepth.batch") for t in graph["jaxdepth.cli"])
     assert len(MODULES) > 40
 
 
@@ -142,7 +148,7 @@ def test_no_import_cycle_between_modules():
     # submodule -> own package __init__ is left out (a submodule importing its package's
     # __init__ is its own package's business), every other edge counts.
     graph = {m: [t for t in targets if not (MODULES[t].name == "__init__.py" and m.startswith(t + "."))]
-             for m, targets in GRAPH.items()}
+             for m, targets in _graph().items()}
     assert _cycles(graph) == []
 
 

@@ -470,6 +470,8 @@ def test_kitti_sweep_every_point_and_ground(kitti):
 # ----------------------------------------------------------------------------- image input (pixel_normals)
 
 PIX_LIDAR = SMALL_LIDAR
+#: points of the pixel oracle's point_normals program (every pixel of a 96 x 160 frame; smaller frames pad)
+PIX_ORACLE_POINTS = 96 * 160
 
 
 def _pix_camera(f=120.0, h=96, w=160):
@@ -496,7 +498,9 @@ def pixel_oracle(depth, K, T, lidar, **options):
 
     With KITTI's LiDAR and the default options the pixels with depth, in order, padded to the sweeps'
     SIZE, run through ``_point_normals`` (the KITTI sweep tests' program): a point's normal depends only
-    on the valid points and their order (ties go to the smaller index), not on invalid padding."""
+    on the valid points and their order (ties go to the smaller index), not on invalid padding. Other
+    frames pad every pixel's point to at least ``PIX_ORACLE_POINTS`` (96 x 160): the 48 x 80 and 96 x 160
+    frames with the default options share one ``point_normals`` program."""
     pts = _pixel_oracle_points(depth, K, T)
     valid = np.asarray(depth > 0).reshape(-1)
     if lidar == LIDAR and not options:
@@ -505,7 +509,8 @@ def pixel_oracle(depth, K, T, lidar, **options):
         n = np.zeros((valid.size, 3), np.float32)
         n[listed] = np.asarray(_point_normals(p, v))[: len(listed)]
     else:
-        n = N.point_normals(pts, jnp.asarray(valid), lidar=lidar, **options)
+        p, v = padded(np.asarray(pts), valid, max(valid.size, PIX_ORACLE_POINTS))
+        n = np.asarray(N.point_normals(p, v, lidar=lidar, **options))[: valid.size]
     R = np.asarray(T, np.float64)[:3, :3]
     return (R @ np.asarray(n, np.float64).T).reshape(3, *depth.shape), np.asarray(pts)
 

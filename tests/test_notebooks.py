@@ -29,9 +29,10 @@ import pytest
 from conftest import PRODUCTION_FLAGS_ENV, REPO, require_shared
 
 nbformat = pytest.importorskip("nbformat")
-nbclient = pytest.importorskip("nbclient")
-pytest.importorskip("ipykernel")
-pytest.importorskip("matplotlib")
+# The kernel's packages are looked up, not imported, while collecting: only the notebook runs (slow) use them.
+for _package in ("nbclient", "ipykernel", "matplotlib"):
+    if importlib.util.find_spec(_package) is None:
+        pytest.skip(f"could not import {_package!r}", allow_module_level=True)
 
 NOTEBOOKS = REPO / "notebooks"
 KERNEL = "jaxdepth-tests"
@@ -216,6 +217,7 @@ def test_notebook_runs(name, kernel_dir, monkeypatch):
     nb = _read(name)
     for cell in _code_cells(nb):                     # run from a clean slate, not on top of the stored outputs
         cell.outputs, cell.execution_count = [], None
+    import nbclient
     client = nbclient.NotebookClient(nb, kernel_name=KERNEL, timeout=600,
                                      resources={"metadata": {"path": str(NOTEBOOKS)}})
     client.execute(env=env)          # raises CellExecutionError with the cell's traceback on any error

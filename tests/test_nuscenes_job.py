@@ -457,7 +457,9 @@ def test_command_line(dataroot, tmp_path, capsys):
         assert len(list((dst / VERSION).rglob("*.png"))) == 18
     finally:
         fixed.unlink()
-    assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "--method", "nearest"]) == 2
+    # the baselines run here too (tests/test_job_baselines.py); the run record refuses to mix them with sgm
+    assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "--method", "nearest"]) == 1
+    assert "method: sgm -> nearest" in capsys.readouterr().err
     assert cli.main(["complete", str(root), str(dst), "--nusc-version", VERSION, "--extrinsic", "T.txt"]) == 2
     capsys.readouterr()
     assert cli.main(["complete", str(root), str(dst), "--nusc-version", "v1.0-trainval"]) == 1
@@ -539,6 +541,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
     assert (engine, local_engine) == ("ray", "local") and args == local_args == (str(root), tmp_path / "o")
     assert (ray_options.pop("address"), ray_options.pop("batch_size")) == ("HEAD:6379", 3)
     local_options.pop("io_threads")
+    assert local_options.pop("method") == "sgm"  # the baselines run on the local engine only
     for options in (ray_options, local_options):
         options.pop("on_progress")
         options["tables"] = options["tables"].version

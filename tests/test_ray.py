@@ -16,12 +16,9 @@ import sys
 import numpy as np
 import pytest
 
-ray = pytest.importorskip("ray")
-pytest.importorskip("ray.data")
-
-from jaxdepth.batch import runner, scale  # noqa: E402
-from jaxdepth._src import presets  # noqa: E402
-from jaxdepth.io.depth_png import read_depth_png, write_depth_png  # noqa: E402
+from jaxdepth.batch import runner, scale
+from jaxdepth._src import presets
+from jaxdepth.io.depth_png import read_depth_png, write_depth_png
 
 # Ray starts its processes with fork+exec after JAX is up (harmless), and Ray Data reads its own
 # deprecated settings when it copies its context.
@@ -29,6 +26,19 @@ pytestmark = [pytest.mark.slow,  # Ray clusters and subprocesses
               pytest.mark.xdist_group("ray"),  # one local cluster at a time, on one worker
               pytest.mark.filterwarnings("ignore:os.fork\\(\\) was called:RuntimeWarning"),
               pytest.mark.filterwarnings("ignore::DeprecationWarning:ray.data.context")]
+
+#: Ray itself, imported by ``_import_ray`` when the module's first test runs, not while collecting: importing
+#: ``ray`` and ``ray.data`` (pandas, pyarrow) costs each collecting process about 1.3 s of CPU, and the quick
+#: subset collects this module without running a test of it.
+ray = None
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _import_ray():
+    global ray
+    ray = pytest.importorskip("ray")
+    pytest.importorskip("ray.data")
+
 
 METHOD = "nearest"  # the fastest method: the engines, not the algorithm, are under test
 #: One frame per batch, at the frame's own 375 x 1242: the local runner's oracle run is then the nearest

@@ -46,13 +46,12 @@ from typing import Callable
 
 import numpy as np
 
-from jaxdepth.batch.cloud_runner import CloudJob, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, run_cloud_jobs
 
 log = logging.getLogger("jaxdepth")
 
 #: Depth at each camera image's timestamp, or at the LiDAR sweep's.
 TIMES = ("camera", "lidar")
-METHODS = ("sgm", "nearest", "ip-basic")
 #: Folders below the given root searched for logs (root/sensor/<split>/<log>).
 SEARCH_DEPTH = 3
 
@@ -193,43 +192,13 @@ def _load(job, *, tables: dict, cameras, force: bool):
     return cloud, rig
 
 
-@functools.lru_cache(maxsize=8)
-def _baseline_fn(method: str, metric: str, height: int, width: int):
-    """jit: (points (B, 3), valid (B,), K (C, 3, 3), T (C, 4, 4)) -> (C, height, width) baseline depth."""
-    import jax
-
-    from jaxdepth._src.distance import gather_at_seed, nearest_seed
-    from jaxdepth._src.geometry import project_to_image
-    from jaxdepth._src.ip_basic import ip_basic
-
-    def one(points, valid, K, T):
-        sparse = project_to_image(points, valid, K, T, height=height, width=width)[0]
-        if method == "ip-basic":
-            return ip_basic(sparse)
-        seeds = nearest_seed(sparse > 0, metric=metric)
-        return gather_at_seed(sparse, seeds.du, seeds.dv)
-
-    return jax.jit(jax.vmap(one, in_axes=(None, None, 0, 0)))
-
-
 def baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
     """(C, H_max, W_max) float32 depth of a baseline (``"nearest"`` or ``"ip-basic"``) for every camera of
-    ``rig``: all of ``cloud``'s points projected, no removal, each camera at its own size (one compiled
-    function per size), placed in the top-left corner of the largest camera's canvas."""
+    ``rig`` from all of ``cloud``'s points (:func:`jaxdepth.batch.cloud_runner.baseline_depth`)."""
+    from jaxdepth.batch.cloud_runner import baseline_depth as baseline_of_points
     from jaxdepth.io import pad_points
 
-    if method not in ("nearest", "ip-basic"):
-        raise ValueError(f"baseline_depth: field 'method' expected 'nearest' or 'ip-basic', got {method!r}")
-    padded, valid = pad_points(cloud.points)
-    cams = rig.cameras
-    out = np.zeros((len(cams), max(c.height for c in cams), max(c.width for c in cams)), np.float32)
-    sizes = sorted({(c.height, c.width) for c in cams})
-    for h, w in sizes:
-        idx = [i for i, c in enumerate(cams) if (c.height, c.width) == (h, w)]
-        K = np.stack([np.asarray(cams[i].K, np.float32) for i in idx])
-        T = np.stack([np.asarray(cams[i].T_cam_lidar, np.float32) for i in idx])
-        out[idx, :h, :w] = np.asarray(_baseline_fn(method, config.distance_metric, h, w)(padded, valid, K, T))
-    return out
+    return baseline_of_points(*pad_points(cloud.points), rig, method=method, config=config)
 
 
 @functools.lru_cache(maxsize=8)
@@ -245,13 +214,11 @@ def _validity_fn(lidar, metric: str, max_seed_distance_px):
 def completion(*, method: str, config, extras) -> Callable:
     """``complete(cloud, rig) -> (depth, valid, distance)`` of :func:`run_cloud_jobs` for ``method``;
     the validity mask and seed distance (``extras.needs_seeds``, SGM only) use the rig's LiDAR spec."""
-    from jaxdepth.batch.cloud_runner import complete_sources
+    from jaxdepth.batch.cloud_runner import cloud_completion
     from jaxdepth.batch.sources_job import complete_cloud
 
-    if method != "sgm":
-        return lambda cloud, rig: (baseline_depth(cloud, rig, method=method, config=config), None, None)
-    if not extras.needs_seeds:
-        return lambda cloud, rig: (complete_sources(cloud, rig, config=config), None, None)
+    if method != "sgm" or not extras.needs_seeds:
+        return cloud_completion(method, config=config)
 
     def with_validity(cloud, rig):
         import jaxdepth

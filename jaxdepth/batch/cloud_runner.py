@@ -6,12 +6,18 @@ job's ``load`` returns the frame's cloud and rig), :func:`complete_sources` comp
 camera of the rig, and writer threads write one KITTI depth PNG per camera, atomically. A
 frame that cannot be read or completed is reported and the rest carries on; a frame is
 recorded done once all its PNGs are in place.
+
+The baselines of every multi-source job (``--method nearest`` / ``ip-basic``, :func:`baseline_depth`):
+every point of the frame (all sources merged, as the SGM receives them) projected into each camera
+with the z-buffer (nearest point per pixel, no outlier removal), then filled by
+:func:`jaxdepth._src.methods.complete_with`'s nearest fill or IP_Basic.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
+import functools
 import pathlib
 from typing import Callable
 
@@ -19,6 +25,8 @@ import numpy as np
 
 #: Frames loaded ahead of the device.
 READ_AHEAD = 2
+#: The methods of the multi-source jobs: the SGM and the two baselines (:func:`baseline_depth`).
+METHODS = ("sgm", "nearest", "ip-basic")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +53,61 @@ def complete_sources(cloud, rig, *, config, images=None, window: tuple | None = 
     from jaxdepth.batch.sources_job import complete_cloud
 
     return complete_cloud(cloud, rig, config=config, free_space=True, images=images, window=window)
+
+
+@functools.lru_cache(maxsize=8)
+def _baseline_fn(method: str, metric: str, height: int, width: int):
+    """jit: (points (B, 3), valid (B,), K (C, 3, 3), T (C, 4, 4)) -> (C, height, width) baseline depth."""
+    import jax
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.geometry import project_to_image
+    from jaxdepth._src.methods import METHODS as FILLS
+    from jaxdepth._src.presets import KITTI_HDL64
+
+    config = SGMConfig(distance_metric=metric, outlier_removal=False)
+
+    def one(points, valid, K, T):
+        sparse = project_to_image(points, valid, K, T, height=height, width=width)[0]
+        return FILLS[method](sparse, K, T, config=config, lidar=KITTI_HDL64)  # the spec: read by outlier removal only
+
+    return jax.jit(jax.vmap(one, in_axes=(None, None, 0, 0)))
+
+
+def baseline_depth(points, valid, rig, *, method: str, config) -> np.ndarray:
+    """(C, H_max, W_max) float32 depth of a baseline (``"nearest"`` or ``"ip-basic"``) for every camera of ``rig``.
+
+    ``points`` (B, 3) float32 in the rig's reference frame (``rig.cameras[i].T_cam_lidar`` maps them into
+    camera ``i``) with ``valid`` (B,) bool, e.g. :func:`jaxdepth.io.pad_points` of a cloud's points: all of
+    them projected (nearest point per pixel), no outlier removal, filled by the nearest LiDAR pixel in
+    ``config.distance_metric`` or by IP_Basic; each camera at its own size (one compiled function per
+    size and point bucket), placed in the top-left corner of the largest camera's canvas.
+    """
+    if method not in METHODS[1:]:
+        raise ValueError(f"baseline_depth: field 'method' expected 'nearest' or 'ip-basic', got {method!r}")
+    cams = rig.cameras
+    out = np.zeros((len(cams), max(c.height for c in cams), max(c.width for c in cams)), np.float32)
+    for h, w in sorted({(c.height, c.width) for c in cams}):
+        idx = [i for i, c in enumerate(cams) if (c.height, c.width) == (h, w)]
+        K = np.stack([np.asarray(cams[i].K, np.float32) for i in idx])
+        T = np.stack([np.asarray(cams[i].T_cam_lidar, np.float32) for i in idx])
+        out[idx, :h, :w] = np.asarray(_baseline_fn(method, config.distance_metric, h, w)(points, valid, K, T))
+    return out
+
+
+def cloud_completion(method: str, *, config, window: tuple | None = None) -> Callable:
+    """``complete(cloud, rig) -> (depth, None, None)`` of :func:`run_cloud_jobs` for ``method``: the SGM
+    (:func:`complete_sources`, ``window`` as there) or a baseline of the cloud's points (:func:`baseline_depth`)."""
+    if method not in METHODS:
+        raise ValueError(f"cloud_completion: field 'method' expected one of {METHODS}, got {method!r}")
+    if method == "sgm":
+        return lambda cloud, rig: (complete_sources(cloud, rig, config=config, window=window), None, None)
+
+    def baseline(cloud, rig):
+        from jaxdepth.io import pad_points
+        return (baseline_depth(*pad_points(cloud.points), rig, method=method, config=config), None, None)
+
+    return baseline
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
@@ -101,4 +164,4 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
             f.result()
 
 
-__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs"]
+__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_completion", "METHODS"]

@@ -5,7 +5,9 @@ and camera, same outputs ``DST/<drive>/proj_depth/<name>/image_0X/<frame>.png``,
 extrinsics and benchmark crop) and completes each sweep once for all its cameras, with up to
 ``N`` neighbouring sweeps on each side moved into its Velodyne frame by the OXTS poses
 (:func:`jaxdepth.io.kitti_oxts.read_drive_cloud`; each sweep one source). ``N = 0`` is not
-this job: the plain KITTI raw path completes single sweeps.
+this job: the plain KITTI raw path completes single sweeps. ``method``: the SGM (default) or a
+baseline, ``"nearest"`` / ``"ip-basic"``, of the same merged points
+(:func:`jaxdepth.batch.cloud_runner.baseline_depth`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import pathlib
 import time
 from typing import Callable
 
-from jaxdepth.batch.cloud_runner import CloudJob, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, cloud_completion, run_cloud_jobs
 
 
 def plan(jobs, *, overwrite: bool, summary, notify) -> list:
@@ -84,16 +86,10 @@ def window(sweeps: int) -> tuple:
     return (0,) + tuple(o for k in range(1, sweeps + 1) for o in (-k, k))
 
 
-def _complete(cloud, rig, *, config, window: tuple):
-    """A frame's depth in the run's one program: frames near a drive's ends (fewer neighbours) are spread
-    over the full window with empty sources (:func:`jaxdepth.batch.sources_job.fit_to_window`)."""
-    from jaxdepth.batch.cloud_runner import complete_sources
-    return complete_sources(cloud, rig, config=config, window=window), None, None
-
-
 def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = False,
                          png_compression: int | None = None, io_threads: int = 2,
-                         on_progress: Callable[[str, str], None] | None = None, force: bool = False):
+                         on_progress: Callable[[str, str], None] | None = None, force: bool = False,
+                         method: str = "sgm"):
     """Completes the KITTI raw sweep ``jobs`` (from :func:`~jaxdepth.io.kitti_datasets.kitti_raw_jobs`) with
     ``sweeps`` neighbours on each side.
 
@@ -101,6 +97,9 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
       :class:`jaxdepth.batch.runner.RunSummary` over ``<drive>/<frame>`` names (a sweep whose
       neighbours, OXTS packets or calibration cannot be read is reported failed, the rest completes).
       ``force``: complete sweeps that fail the plausibility checks (logged) instead of failing them.
+      ``method``: ``"sgm"`` (default; frames near a drive's ends, with fewer neighbours, are spread over the
+      full window with empty sources, :func:`jaxdepth.batch.sources_job.fit_to_window`: one program per run),
+      ``"nearest"`` or ``"ip-basic"`` (the merged points, module docstring).
     """
     from jaxdepth._src.config import SGMConfig
     from jaxdepth.batch.runner import RunSummary
@@ -109,6 +108,8 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
 
     if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
         raise ValueError(f"run_kitti_raw_sweeps: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
+    if method not in METHODS:
+        raise ValueError(f"run_kitti_raw_sweeps: field 'method' expected one of {METHODS}, got {method!r}")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     summary = RunSummary(started_at=time.perf_counter())
@@ -118,7 +119,7 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
         make_output_folders(p for job in todo for _, p in job.outputs)
         run_cloud_jobs(todo, functools.partial(_load, sweeps=sweeps, force=force), summary, notify, config=config,
                        png_compression=png_compression, io_threads=io_threads,
-                       complete=functools.partial(_complete, config=config, window=window(sweeps)))
+                       complete=cloud_completion(method, config=config, window=window(sweeps)))
     return summary
 
 

@@ -15,6 +15,13 @@ sample_data token, ``<dst>/<version>/<CHANNEL>/<sample_data_token>.png``
 outputs all exist is skipped (resume) unless ``overwrite``; a bad sample is
 reported and the rest completes.
 
+Methods: ``"sgm"`` (default) and the baselines ``"nearest"`` / ``"ip-basic"``
+(:func:`jaxdepth.batch.cloud_runner.baseline_depth`): every point the SGM would receive
+(the prepared key-frame sweep, or all ``sweeps`` merged in the key frame's LiDAR frame)
+projected into each camera, nearest point per pixel, no outlier removal, then the nearest
+LiDAR pixel's depth in the run's distance metric, or IP_Basic; same outputs, resume and
+progress. The seed-based extra outputs and image guidance need the SGM.
+
 Image-guided seeds (``config.guidance_weight > 0``, issue 16): each sample's
 key-frame camera JPEGs (the camera sample_data rows' ``filename``) are read with
 its sweep (:func:`jaxdepth.io.rig_images.read_rig_images`: 8-bit colour, the
@@ -203,7 +210,7 @@ def _load(tables, job: _SampleJob, *, sweeps: int, ego_motion: bool, guided: boo
 def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bool = True, config=None,
                  overwrite: bool = False, png_compression: int | None = None, devices: int = 1,
                  io_threads: int = 2, on_progress: Callable[[str, str], None] | None = None, tables=None,
-                 extras=None, force: bool = False):
+                 extras=None, force: bool = False, method: str = "sgm"):
     """Completes every sample of ``<dataroot>/<version>`` into ``<dst>/<version>/<CHANNEL>/<token>.png``.
 
     Args:
@@ -229,12 +236,13 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         uses the nuScenes HDL-32E field of view.
       force: complete sweeps that fail the plausibility checks of :mod:`jaxdepth.io.plausibility`
         (each is logged; default False: such a sample fails with the file named).
+      method: ``"sgm"`` (default), ``"nearest"`` or ``"ip-basic"`` (the baselines, module docstring).
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over sample tokens (never raises for a bad sample).
 
     Raises:
-      InputError: the version folder or one of its tables is missing or malformed.
+      InputError: the version folder or one of its tables is missing or malformed. ValueError: bad options.
     """
     import jax
 
@@ -250,6 +258,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         raise ValueError(f"run_nuscenes: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
     if sweeps > 1 and extras.needs_seeds:
         raise ValueError("run_nuscenes: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
+    _check_method(method, config, extras, "run_nuscenes")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     dst = pathlib.Path(dst)
@@ -264,8 +273,21 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
     complete_samples(tables, todo, summary, notify, sweeps=sweeps, ego_motion=ego_motion, config=config,
                      extras=extras, overwrite=overwrite, png_compression=png_compression,
-                     targets=jax.local_devices()[:devices], io_threads=io_threads, force=force)
+                     targets=jax.local_devices()[:devices], io_threads=io_threads, force=force, method=method)
     return summary
+
+
+def _check_method(method: str, config, extras, where: str) -> None:
+    """ValueError naming ``where`` for a method that is none of the job's, or a baseline with options that
+    need the SGM's seeds (validity, seed distance, zero-invalid) or image-guided seeds."""
+    from jaxdepth.batch.cloud_runner import METHODS
+    from jaxdepth.batch.runner import is_guided
+
+    if method not in METHODS:
+        raise ValueError(f"{where}: field 'method' expected one of {METHODS}, got {method!r}")
+    if method != "sgm" and (extras.needs_seeds or (config is not None and is_guided(config))):
+        raise ValueError(f"{where}: validity, seed distance, zero-invalid and image guidance need method 'sgm', "
+                         f"got {method!r}")
 
 
 def make_folders(todo) -> None:
@@ -277,18 +299,20 @@ def make_folders(todo) -> None:
 
 def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: bool, config, extras,
                      overwrite: bool, png_compression: int, targets=None, io_threads: int = 2,
-                     force: bool = False) -> None:
+                     force: bool = False, method: str = "sgm") -> None:
     """Completes the planned samples ``todo`` (from :func:`plan`; output folders exist) into their
     PNGs, recording each token in ``summary`` as done or failed (never raises for a bad sample).
 
     The per-sample path of both engines: :func:`run_nuscenes` calls it on the whole plan, and each
     actor of :func:`jaxdepth.batch.scale.run_nuscenes_ray` on its batch of samples, so both write the
     same bytes. ``targets``: devices dealt samples round robin (default: the first local device).
+    ``method``: as :func:`run_nuscenes` (a baseline runs on the host's default device).
     """
     import jax
 
     if sweeps > 1 and extras.needs_seeds:
         raise ValueError("nuScenes job: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
+    _check_method(method, config, extras, "nuScenes job")
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.batch.cloud_runner import complete_sources
     from jaxdepth.batch.runner import is_guided, read_ahead
@@ -306,6 +330,10 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
                 run.fail(job.token, message)
                 continue
             padded, valid, rig, inputs, images = loaded
+            if method != "sgm":
+                _baseline(run, writers, job, rig, (padded, valid) if inputs.cloud is None else inputs.cloud,
+                          method=method, config=config)
+                continue
             if inputs.cloud is not None:  # several sweeps: one source each
                 try:
                     out = complete_sources(inputs.cloud, rig, config=config, images=images,
@@ -329,6 +357,23 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             if len(run.in_flight) > len(targets):
                 run.collect(writers)
         run.finish(writers)
+
+
+def _baseline(run, writers, job, rig, points, *, method: str, config) -> None:
+    """A baseline of one sample (``points``: the padded ``(points, valid)`` of one sweep, or the sweeps'
+    SourceCloud), handed to the writers; a failure costs the sample."""
+    from jaxdepth.batch.cloud_runner import baseline_depth
+    from jaxdepth.io import pad_points
+    from jaxdepth.io.errors import JaxdepthError
+
+    padded, valid = points if isinstance(points, tuple) else pad_points(points.points)
+    try:
+        out = baseline_depth(padded, valid, rig, method=method, config=config)
+    except (JaxdepthError, ValueError) as err:
+        run.fail(job.token, f"completion failed: {err}")
+        return
+    run.in_flight.append((job, rig, out))
+    run.collect(writers)
 
 
 class _SampleRun:

@@ -3,7 +3,8 @@
 Reads the sweep and the rig (and, when guided, the camera images), checks the sweep
 against its LiDAR (:func:`jaxdepth.io.prepare_sweep`) and applies its trust policy
 (outlier removal off when the sweep's beam angles cannot be trusted), completes
-every camera in one call (:func:`jaxdepth.complete_rig_stages`) and writes
+every camera in one call (:func:`jaxdepth.complete_rig_stages`; or a baseline, ``method``
+``"nearest"`` / ``"ip-basic"``, of the same points: :func:`rig_results`) and writes
 ``<out_dir>/<camera name>.png`` per camera (plus the extra outputs asked for),
 atomically, skipping finished outputs unless ``overwrite``.
 
@@ -158,6 +159,26 @@ def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.
     return depth, valid, distance
 
 
+def rig_results(prepared: PreparedSweep, extras: extra_outputs.ExtraOutputs, *, method: str = "sgm", images=None):
+    """``(depth, valid, distance, seen)`` of a :class:`PreparedSweep` by ``method``: the three (C, H, W) NumPy
+    arrays of :func:`rig_outputs` and ``seen`` (C,), the sparse pixels of each camera (0: no point projects
+    into it). ``"sgm"``: :func:`rig_stages`; ``"nearest"`` / ``"ip-basic"``: the baselines of the same points
+    (every LiDAR and sweep merged, :func:`jaxdepth.batch.cloud_runner.baseline_depth`), ``seen`` counted on
+    the filled depth (a fill has depth where some point projects), ``valid`` and ``distance`` None."""
+    if method == "sgm":
+        stages, cameras = rig_stages(prepared, images=images)
+        seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
+        return (*rig_outputs(prepared, stages, cameras, extras), seen)
+    from jaxdepth.batch.cloud_runner import baseline_depth
+    from jaxdepth.io import pad_points
+    if extras.needs_seeds or images is not None:
+        raise ValueError(f"complete-rig: validity, seed distance, zero-invalid and image guidance need method "
+                         f"'sgm', got {method!r}")
+    padded, valid = pad_points(prepared.points.points) if prepared.multi else prepared.points
+    depth = baseline_depth(padded, valid, prepared.rig, method=method, config=prepared.config)
+    return depth, None, None, np.count_nonzero(depth, axis=(1, 2))
+
+
 def empty_camera_message(camera_name: str, rig_path) -> str:
     """The warning for a camera into which no point of the sweep projects."""
     return (f"{camera_name}: no LiDAR point projects into this camera; its depth image is all zero "
@@ -176,7 +197,7 @@ def point_columns_of(rig, points_path, point_columns, *, multi: bool):
 def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                 point_columns: int | None = None, estimate: bool = True, image_dir=None, overwrite: bool = False,
                 report: Callable[[str, str], None] = _ignore, force: bool = False,
-                record: dict | None = None) -> RigJobSummary:
+                record: dict | None = None, method: str = "sgm") -> RigJobSummary:
     """Completes the sweep ``points_path`` for every camera of the rig JSON ``rig_path`` into ``out_dir``.
 
     Args:
@@ -201,6 +222,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
       record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
         are added to its settings), checked against ``out_dir``'s and written before any
         computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
+      method: ``"sgm"`` (default), or the baselines ``"nearest"`` / ``"ip-basic"`` of the same checked points
+        (every LiDAR and sweep merged, no outlier removal: :func:`rig_results`).
 
     Raises:
       JaxdepthError: unreadable or invalid inputs, unwritable outputs.
@@ -225,10 +248,8 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     prepared = prepare_rig_sweep(points_path, rig, config=config, multi=multi, columns=columns,
                                  point_columns=point_columns, estimate=estimate, force=force, report=report,
                                  rig_path=rig_path)
-    stages, cameras = rig_stages(prepared, images=images)
+    depth, valid, distance, seen = rig_results(prepared, extras, method=method, images=images)
     rig = prepared.rig
-    depth, valid, distance = rig_outputs(prepared, stages, cameras, extras)
-    seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
     summary = RigJobSummary()
     for i, camera in enumerate(rig.cameras):
         if seen[i] == 0:

@@ -89,7 +89,8 @@ def _jobs(sweeps, rig, out_dir: pathlib.Path, *, extras, overwrite: bool, summar
 def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs,
                    point_columns: int | None = None, estimate: bool = True, overwrite: bool = False,
                    report: Callable[[str, str], None] = _ignore, force: bool = False, record: dict | None = None,
-                   io_threads: int = 2, on_progress: Callable[[str, str], None] = _notify_nothing):
+                   io_threads: int = 2, on_progress: Callable[[str, str], None] = _notify_nothing,
+                   method: str = "sgm"):
     """Completes every sweep of ``sweeps`` for every camera of the rig JSON ``rig_path`` (module docs).
 
     Args:
@@ -105,6 +106,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         one entry per output before any computation; None: no record.
       io_threads: reader threads, and as many writer threads.
       on_progress: ``on_progress(sweep path, "done" | "skipped" | "failed: <message>")``, from any thread.
+      method: ``"sgm"`` (default), ``"nearest"`` or ``"ip-basic"`` (:func:`jaxdepth.batch.rig_job.rig_results`).
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over sweeps (failed: ``(sweep path, message)``).
@@ -156,9 +158,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         if programs and key not in programs:
             report("note", f"{loaded.stem}: compiles another program ({_key_text(key)})")
         programs.add(key)
-        stages, cameras = rig_job.rig_stages(loaded.prepared)
-        outputs = rig_job.rig_outputs(loaded.prepared, stages, cameras, extras)
-        seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
+        *outputs, seen = rig_job.rig_results(loaded.prepared, extras, method=method)
         for i, camera in enumerate(checked_rig.cameras):
             if seen[i] == 0:
                 report("warning", f"{loaded.stem}: " + rig_job.empty_camera_message(camera.name, rig_path))

@@ -1,0 +1,263 @@
+"""The nuScenes job over many samples, default options against ``--method nearest``, one process, warm.
+
+Issue 38's second "Done when" figure: nuScenes, 6 cameras, per sweep at most 2x the same job with
+``--method nearest``. The shared sample holds one sweep, so the benchmark builds, in a temporary
+folder, a v1.0-mini table set the job reads exactly as a real one: ``--samples`` samples (default 10)
+0.5 s apart, each key-frame ``LIDAR_TOP`` file a symbolic link to the shared sweep, the six cameras at
+their full 1600 x 900 with the shared calibration, the LiDAR and the cameras at one ego pose (the
+cameras 30 ms before the LiDAR, so ego-motion compensation runs as on real data); with ``--sweeps S``
+each sample also gets ``S - 1`` earlier sweeps (links to the same file) 0.4 m behind each other, the
+multi-source path. Camera images are not read (no guidance). Nothing is written under /work/shared.
+
+One process (:func:`jaxdepth.batch.nuscenes_job.run_nuscenes`, the function ``jaxdepth complete
+--nusc-version`` runs): a warm-up run of each method compiles its programs; then ``--rounds``
+interleaved rounds, each running default then nearest (then ``--ip-basic``) into fresh output folders.
+Per sweep = the run's wall (``time.perf_counter``) and process CPU (``time.process_time``, every thread)
+seconds / samples; the ratio default / nearest is taken within each round, then the median. Every run
+must write 6 PNGs per sample. Writes benchmarks/results/nuscenes_job.json.
+
+``--parts N``: instead, where one sample's time goes (``--sweeps 1``), each part timed apart with
+``block_until_ready`` before the clock, N times after a warm-up call each, medians: reading
+(:func:`jaxdepth.batch.nuscenes_job._load`: tables, the sweep file, ``prepare_sweep``, padding), the
+projection of the six cameras alone (``project_to_image`` vmapped), the job's nearest fill
+(:func:`jaxdepth.batch.cloud_runner.baseline_depth`: projection + fill, on the host), the job's SGM
+program without outlier removal (projection, Step 1, Steps 3-4) and with it (the default: + Step 2),
+the depth's copy to the host and the six PNG writes. Step 2 = default - without removal; Steps 1 and
+3-4 = without removal - projection. Writes benchmarks/results/nuscenes_job_parts.json.
+
+    python -m benchmarks.bench_nuscenes_job [--samples 10] [--sweeps 1] [--rounds 3] [--ip-basic] [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --parts 5 [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import statistics
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from benchmarks._common import DATA, RESULTS, write_results
+
+SAMPLE = DATA / "nuscenes" / "sample"
+VERSION = "v1.0-mini"
+CAMERA_LEAD_US = 30_000   # each camera fires this long before its sample's LiDAR
+SAMPLE_STEP_US = 500_000  # samples 0.5 s apart (2 Hz key frames)
+SWEEP_STEP_US = 50_000    # earlier sweeps 50 ms apart (20 Hz)
+SWEEP_BACK_M = 0.4        # ... each this far behind the next
+
+
+def _wxyz(R) -> list:
+    from scipy.spatial.transform import Rotation
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, np.float64)).as_quat()
+    return [float(w), float(x), float(y), float(z)]
+
+
+def _pose(T, forward_m: float = 0.0) -> dict:
+    T = np.asarray(T, np.float64)
+    return {"rotation": _wxyz(T[:3, :3]), "translation": (T[:3, 3] + T[:3, 0] * forward_m).tolist()}
+
+
+def build_dataroot(root: pathlib.Path, samples: int, sweeps: int) -> None:
+    """The table set of the module docstring under ``root`` (``root/v1.0-mini/*.json``, ``samples/``,
+    ``sweeps/``): LiDAR files are links to the shared sweep."""
+    calib = json.loads((SAMPLE / "calibration.json").read_text())
+    lidar_file = SAMPLE / calib["lidar_path"]
+    for sub in ("samples", "sweeps"):
+        (root / sub / "LIDAR_TOP").mkdir(parents=True)
+    sensor = [{"token": "sensor_lidar", "channel": "LIDAR_TOP", "modality": "lidar"}]
+    cs = [{"token": "cs_lidar", "sensor_token": "sensor_lidar", "camera_intrinsic": [],
+           **_pose(calib["lidar2ego"])}]
+    for ch, cam in calib["cameras"].items():
+        sensor.append({"token": f"sensor_{ch}", "channel": ch, "modality": "camera"})
+        cs.append({"token": f"cs_{ch}", "sensor_token": f"sensor_{ch}", "camera_intrinsic": cam["cam2img"],
+                   **_pose(cam["cam2ego"])})
+    t0 = int(round(calib["timestamp"] * 1e6))
+    ego, sample, sample_data = [], [], []
+
+    def add(token, sample_token, ts, pose, cs_token, filename, key, w=0, h=0, prev=""):
+        ego.append({"token": f"ep_{token}", "timestamp": ts, **pose})
+        sample_data.append({"token": token, "sample_token": sample_token, "ego_pose_token": f"ep_{token}",
+                            "calibrated_sensor_token": cs_token, "timestamp": ts, "fileformat": "",
+                            "is_key_frame": key, "height": h, "width": w, "filename": filename, "prev": prev,
+                            "next": ""})
+
+    for i in range(samples):
+        name, ts = f"s{i:03d}", t0 + i * SAMPLE_STEP_US
+        sample.append({"token": name, "timestamp": ts, "scene_token": "scene0", "prev": "", "next": ""})
+        prev = ""
+        for k in range(sweeps - 1, 0, -1):            # the earliest first: each links to the one before
+            token = f"lidar_{name}_prev{k}"
+            (root / "sweeps" / "LIDAR_TOP" / f"{token}.pcd.bin").symlink_to(lidar_file)
+            add(token, name, ts - k * SWEEP_STEP_US, _pose(calib["ego2global"], -k * SWEEP_BACK_M), "cs_lidar",
+                f"sweeps/LIDAR_TOP/{token}.pcd.bin", False, prev=prev)
+            prev = token
+        (root / "samples" / "LIDAR_TOP" / f"{name}.pcd.bin").symlink_to(lidar_file)
+        add(f"lidar_{name}", name, ts, _pose(calib["ego2global"]), "cs_lidar", f"samples/LIDAR_TOP/{name}.pcd.bin",
+            True, prev=prev)
+        for ch in calib["cameras"]:
+            add(f"{ch}_{name}", name, ts - CAMERA_LEAD_US, _pose(calib["ego2global"]), f"cs_{ch}",
+                f"samples/{ch}/{name}.jpg", True, 1600, 900)
+    tables = {"sensor": sensor, "calibrated_sensor": cs, "ego_pose": ego, "sample": sample,
+              "sample_data": sample_data,
+              "scene": [{"token": "scene0", "log_token": "log0", "nbr_samples": samples, "first_sample_token": "s000",
+                         "last_sample_token": sample[-1]["token"], "name": "scene-0001", "description": ""}],
+              "log": [{"token": "log0", "logfile": "n015-2018-07-24-11-22-45+0800", "vehicle": "n015",
+                       "date_captured": "2018-07-24", "location": "singapore-onenorth"}]}
+    for empty in ("category", "attribute", "visibility", "instance", "sample_annotation", "map"):
+        tables[empty] = []
+    (root / VERSION).mkdir()
+    for name, records in tables.items():
+        (root / VERSION / f"{name}.json").write_text(json.dumps(records))
+
+
+def run_once(root: pathlib.Path, out: pathlib.Path, *, method: str, sweeps: int, samples: int) -> tuple:
+    """(wall s, process CPU s) of one :func:`run_nuscenes` over the dataroot; every camera written."""
+    from jaxdepth.batch import devices
+    from jaxdepth.batch.nuscenes_job import run_nuscenes
+
+    cpu, start = time.process_time(), time.perf_counter()
+    summary = run_nuscenes(root, out, version=VERSION, sweeps=sweeps, method=method, io_threads=devices.io_threads())
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    written = len(list(out.rglob("*.png")))
+    if summary.failed or written != 6 * samples:
+        raise SystemExit(f"{method}: {written} PNGs written (expected {6 * samples}), failed: {summary.failed[:2]}")
+    return wall, cpu
+
+
+def _part(fn, repeats: int) -> dict:
+    """Median wall and process-CPU seconds of ``fn()`` over ``repeats`` calls after one warm-up call, and
+    the last result."""
+    import jax
+    out = jax.block_until_ready(fn())
+    walls, cpus = [], []
+    for _ in range(repeats):
+        cpu, start = time.process_time(), time.perf_counter()
+        out = jax.block_until_ready(fn())
+        walls.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - cpu)
+    return {"wall_s": statistics.median(walls), "cpu_s": statistics.median(cpus), "result": out}
+
+
+def parts(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
+    """``{part: {"wall_s", "cpu_s"}}`` of one sample of the dataroot (module docstring, ``--parts``)."""
+    import functools
+
+    import jax
+
+    import jaxdepth
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.geometry import project_to_image
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.cloud_runner import baseline_depth
+    from jaxdepth.batch.extras import NONE, write_outputs
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+
+    tables = nusc.load_tables(root, VERSION)
+    job = nuscenes_job.plan(tables, out, overwrite=True, summary=RunSummary(), notify=lambda *a: None)[0]
+    rec = {"read": _part(lambda: nuscenes_job._load(tables, job, sweeps=1, ego_motion=True), repeats)}
+    padded, valid, rig, _, _ = rec["read"]["result"]
+    cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
+    project = jax.jit(jax.vmap(functools.partial(project_to_image, height=cameras.height, width=cameras.width),
+                               in_axes=(None, None, 0, 0)))
+    rec["projection"] = _part(lambda: project(padded, valid, cameras.K, cameras.T_cam_lidar)[0], repeats)
+    config = SGMConfig()
+    rec["nearest_fill"] = _part(lambda: baseline_depth(padded, valid, rig, method="nearest", config=config), repeats)
+    no_removal = nuscenes_job._depth_fn(config.replace(outlier_removal=False), rig.lidar)
+    rec["sgm_no_removal"] = _part(lambda: no_removal(padded, valid, cameras), repeats)
+    rec["sgm"] = _part(lambda: nuscenes_job._depth_fn(config, rig.lidar)(padded, valid, cameras), repeats)
+    device_depth = rec["sgm"]["result"]
+    rec["to_host"] = _part(lambda: np.asarray(device_depth + 0.0), repeats)   # a fresh device array each call
+    depth = rec["to_host"]["result"]
+
+    def pngs():
+        for i, c in enumerate(rig.cameras):
+            write_outputs(out / f"{c.name}.png", depth[i, :c.height, :c.width], extras=NONE, overwrite=True)
+    out.mkdir(parents=True, exist_ok=True)
+    rec["pngs"] = _part(pngs, repeats)
+    times = {k: {"wall_s": v["wall_s"], "cpu_s": v["cpu_s"]} for k, v in rec.items()}
+    for key in ("wall_s", "cpu_s"):
+        times.setdefault("derived", {})[key] = {
+            "step2": times["sgm"][key] - times["sgm_no_removal"][key],
+            "steps_1_3_4": times["sgm_no_removal"][key] - times["projection"][key],
+            "fill_after_projection": times["nearest_fill"][key] - times["projection"][key],
+            "default_sample": times["read"][key] + times["sgm"][key] + times["to_host"][key] + times["pngs"][key],
+            "nearest_sample": times["read"][key] + times["nearest_fill"][key] + times["pngs"][key]}
+    return times
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=10, help="samples (one key-frame sweep each), >= 8")
+    ap.add_argument("--sweeps", type=int, default=1, help="sweeps per sample (the job's --sweeps)")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--ip-basic", action="store_true", help="also --method ip-basic in every round")
+    ap.add_argument("--parts", type=int, default=0, metavar="N",
+                    help="instead: one sample's parts, N timed calls each (module docstring)")
+    ap.add_argument("--json", type=pathlib.Path, default=None,
+                    help="default: results/nuscenes_job.json (--parts: results/nuscenes_job_parts.json)")
+    args = ap.parse_args(argv)
+    args.json = args.json or RESULTS / ("nuscenes_job_parts.json" if args.parts else "nuscenes_job.json")
+    if not SAMPLE.exists():
+        print(f"shared nuScenes sample missing: {SAMPLE}", file=sys.stderr)
+        return 1
+    if args.samples < 8:
+        ap.error("--samples must be at least 8")
+    from jaxdepth.batch import devices
+    devices.quiet_jax_start()
+    devices.keep_freed_memory()
+    t0 = time.time()
+    if args.parts:
+        with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscparts-") as tmp_name:
+            tmp = pathlib.Path(tmp_name)
+            build_dataroot(tmp / "data", 8, 1)
+            times = parts(tmp / "data", tmp / "out", args.parts)
+        for k, v in times.items():
+            print(k, json.dumps(v))
+        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
+               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
+               "method": "one process, each part after a warm-up call, median of --parts calls, block_until_ready",
+               "parts": times, "load_average": os.getloadavg()}
+        write_results(args.json, doc, None, t0)
+        return 0
+    methods = ["sgm", "nearest"] + (["ip-basic"] if args.ip_basic else [])
+    rounds, first = [], {}
+    with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscjob-") as tmp_name:
+        tmp = pathlib.Path(tmp_name)
+        build_dataroot(tmp / "data", args.samples, args.sweeps)
+        for method in methods:   # compiles each method's programs (and the first calls' set-up)
+            first[method] = run_once(tmp / "data", tmp / f"warmup-{method}", method=method, sweeps=args.sweeps,
+                                     samples=args.samples)
+            print(f"warm-up {method}: {first[method][0]:.1f} s wall", flush=True)
+        for r in range(args.rounds):
+            times = {m: run_once(tmp / "data", tmp / f"r{r}-{m}", method=m, sweeps=args.sweeps, samples=args.samples)
+                     for m in methods}
+            per = {m: {"wall_s": w / args.samples, "cpu_s": c / args.samples} for m, (w, c) in times.items()}
+            per["ratio_wall"] = per["sgm"]["wall_s"] / per["nearest"]["wall_s"]
+            per["ratio_cpu"] = per["sgm"]["cpu_s"] / per["nearest"]["cpu_s"]
+            rounds.append(per)
+            print(f"round {r}: " + ", ".join(f"{m} {per[m]['wall_s']:.3f} s/sweep" for m in methods)
+                  + f", ratio {per['ratio_wall']:.2f} (CPU {per['ratio_cpu']:.2f})", flush=True)
+    median = {m: {k: statistics.median(r[m][k] for r in rounds) for k in ("wall_s", "cpu_s")} for m in methods}
+    ratios = {k: statistics.median(r[k] for r in rounds) for k in ("ratio_wall", "ratio_cpu")}
+    print(f"median per sweep: sgm {median['sgm']['wall_s']:.3f} s, nearest {median['nearest']['wall_s']:.3f} s; "
+          f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU")
+    doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
+           "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": args.samples, "sweeps": args.sweeps,
+                    "cameras": 6, "camera_size": [1600, 900]},
+           "method": "one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
+                     "over samples; ratio default (sgm) / nearest within each round, median",
+           "warmup_runs": {m: {"wall_s": w, "cpu_s": c} for m, (w, c) in first.items()},
+           "rounds": rounds, "median_per_sweep": median, "median_ratios": ratios, "load_average": os.getloadavg()}
+    write_results(args.json, doc, None, t0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
