@@ -13,7 +13,8 @@ fresh child process with JAX's persistent cache off:
 Programs: ``kitti`` (``jax.jit(complete)`` on camera 2 of the shared KITTI frame, 352 x 1216: what
 ``jaxdepth complete`` compiles per frame size, without the runner's batch axis) and ``av2``
 (``jaxdepth.batch.sources_job.complete_cloud`` on the shared Argoverse 2 log's first sweep at LiDAR
-time: two VLP-32C, 7 ring cameras, the program ``jaxdepth complete LOG OUT --lidar-time`` compiles).
+time: two VLP-32C, 7 ring cameras, the program ``jaxdepth complete LOG OUT --lidar-time`` compiles) and
+``tiny`` (``jax.jit(complete)`` on a 32 x 48 crop of the KITTI frame: the test suite's size).
 Ratios are against the ``default`` row of the same run (the machine is shared: compare only within one
 run, read the CPU column).
 
@@ -21,10 +22,15 @@ run, read the CPU column).
         [--hlo] [--json benchmarks/results/compile_flags.json]
     python -m benchmarks.bench_compile_flags --anatomy 3 [--programs kitti av2]
         --json benchmarks/results/compile_anatomy.json
+    python -m benchmarks.bench_compile_flags --trees this=. main=/work/main [--rounds 3] [--programs kitti]
+        --json benchmarks/results/compile_trees.json
 
 ``--anatomy DEPTH`` instead dumps the default compile (``--xla_dump_to``) and groups the program's
 kernels (XLA:CPU compiles each fusion as an LLVM module of its own) by the first DEPTH parts of their
-HLO ``op_name``: where the code that LLVM compiles comes from.
+HLO ``op_name``: where the code that LLVM compiles comes from. ``--trees NAME=PATH ...`` instead compiles
+each program with the default options against each checkout's ``jaxdepth`` (linked, with these benchmarks,
+into a folder first on the child's path), checkouts interleaved over ``--rounds``: a code change's compile
+cost against a baseline.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 from benchmarks._common import DATA, RESULTS, write_results
@@ -67,7 +74,7 @@ SETS = {
     "no_misched": "--xla_backend_extra_options=-enable-misched=false,-enable-post-misched=false",
     "no_unroll_slp": "--xla_backend_extra_options=xla_cpu_disable_loop_unrolling,xla_cpu_disable_slp_vectorizer",
 }
-PROGRAMS = ("kitti", "av2")
+PROGRAMS = ("kitti", "av2", "tiny")
 AV2_LOG = DATA / "av2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 
 
@@ -83,6 +90,21 @@ def _kitti():
     import jaxdepth
     from benchmarks._common import load_frame
     sparse, K, T, _ = load_frame()
+    fn = jax.jit(jaxdepth.complete)
+    return (lambda: fn(sparse, K, T)), fn, (sparse, K, T)
+
+
+def _tiny():
+    """(call, jitted, args): ``jax.jit(complete)`` on a 32 x 48 crop of the shared frame (the test suite's size)."""
+    import jax
+
+    import jaxdepth
+    from benchmarks._common import load_frame
+    sparse, K, T, _ = load_frame()
+    K = K.copy()
+    K[0, 2] -= 584
+    K[1, 2] -= 300
+    sparse = sparse[300:332, 584:632].copy()
     fn = jax.jit(jaxdepth.complete)
     return (lambda: fn(sparse, K, T)), fn, (sparse, K, T)
 
@@ -116,7 +138,7 @@ def child(program: str, runs: int, hlo: bool) -> dict:
 
     jax.config.update("jax_enable_compilation_cache", False)
     events, last = record_compile_steps(time.perf_counter())
-    call, fn, args = {"kitti": _kitti, "av2": _av2}[program]()
+    call, fn, args = {"kitti": _kitti, "av2": _av2, "tiny": _tiny}[program]()
     last["cpu"] = _cpu()
     t0, c0 = time.perf_counter(), _cpu()
     out = jax.block_until_ready(call())
@@ -163,15 +185,20 @@ def _xla_phases(stderr: str, module: str) -> dict:
     return out
 
 
-def run_one(program: str, flags: str, *, runs: int, hlo: bool) -> dict:
+def run_one(program: str, flags: str, *, runs: int, hlo: bool, tree: str | None = None) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "JAXDEPTH_COMPILE"))}
     env["XLA_FLAGS"] = flags
+    if tree:    # that checkout's jaxdepth, this checkout's benchmarks: both linked into one folder, first on the path
+        folder = tempfile.mkdtemp(prefix="jaxdepth-tree-")
+        os.symlink(os.path.join(tree, "jaxdepth"), os.path.join(folder, "jaxdepth"))
+        os.symlink(os.path.dirname(os.path.abspath(__file__)), os.path.join(folder, "benchmarks"))
+        env["PYTHONPATH"] = tree = folder
     env["TF_CPP_MIN_LOG_LEVEL"] = "0"               # XLA's own timers of its two phases (wall seconds)
     env["TF_CPP_VMODULE"] = "cpu_compiler=1"
     u0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "benchmarks.bench_compile_flags", "--child", program, str(runs),
-                           "1" if hlo else "0"], env=env, capture_output=True, text=True)
+                           "1" if hlo else "0"], env=env, capture_output=True, text=True, cwd=tree)
     wall = time.perf_counter() - start
     u1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
@@ -214,20 +241,53 @@ def anatomy(program: str, depth: int, *, runs: int = 1) -> dict:
             "sha256": doc.get("sha256")}
 
 
+def compare_trees(args) -> int:
+    """The default compile of each program in each checkout, a fresh process per compile, checkouts
+    interleaved (order alternating by round); medians of the compile CPU seconds and run seconds."""
+    t0, trees = time.time(), dict(item.split("=", 1) for item in args.trees)
+    out = {}
+    for program in args.programs:
+        rows = out.setdefault(program, {name: [] for name in trees})
+        for r in range(args.rounds):
+            for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
+                doc = run_one(program, "", runs=args.runs, hlo=False, tree=os.path.abspath(trees[name]))
+                rows[name].append(doc)
+                print(f"{program} {name} round {r}: " + (f"failed: {doc['error']}" if "error" in doc else
+                      f"compile {doc['compile_cpu_s']:.1f} s CPU, run {doc['run_median_s'] * 1e3:.0f} ms, "
+                      f"sha256 {doc['sha256'][:12]}"), flush=True)
+    medians = {p: {name: {k: statistics.median(d[k] for d in docs if "error" not in d)
+                          for k in ("compile_cpu_s", "compile_wall_s", "trace_wall_s", "run_median_s")}
+                   | {"sha256": sorted({d.get("sha256") for d in docs})}
+                   for name, docs in rows.items()} for p, rows in out.items()}
+    for p, m in medians.items():
+        print(p, {name: {k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}
+                  for name, row in m.items()})
+    write_results(args.json, {"what": "default compile per checkout (fresh process each, persistent cache off), "
+                                      "medians over interleaved rounds", "trees": trees, "medians": medians,
+                              "rounds": out}, None, t0)
+    return 0
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "--child":
         print(json.dumps(child(argv[1], int(argv[2]), argv[3] == "1")))
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--programs", nargs="+", default=list(PROGRAMS), choices=PROGRAMS)
+    parser.add_argument("--programs", nargs="+", default=["kitti", "av2"], choices=PROGRAMS)
     parser.add_argument("--sets", nargs="+", default=list(SETS), choices=list(SETS))
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--hlo", action="store_true", help="count the optimised HLO (kitti only; one more compile)")
     parser.add_argument("--anatomy", type=int, metavar="DEPTH", default=0,
                         help="instead: the default compile's kernels by op_name prefix of DEPTH parts")
+    parser.add_argument("--trees", nargs="+", metavar="NAME=PATH", default=None,
+                        help="instead: the default compile of each checkout (e.g. this=. main=/work/main), "
+                             "interleaved over --rounds")
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--json", default=str(RESULTS / "compile_flags.json"))
     args = parser.parse_args(argv)
+    if args.trees:
+        return compare_trees(args)
     t0 = time.time()
     if args.anatomy:
         out = {p: anatomy(p, args.anatomy) for p in args.programs}

@@ -329,3 +329,29 @@ def test_above_scan_window_is_the_cameras_own():
 
     check_stage(lambda d, s, k, v, n: _inside(background_above_scan(d, s, k, v, beams=16, image_size=n), n), inputs,
                 oracle=oracle, oracle_ulps=0, eager_inputs=1)
+
+
+@pytest.mark.slow  # one whole program of each pipeline beside its three stage programs (docs/testing.md)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # the stage programs are the tests' above
+@pytest.mark.parametrize("pipeline", ["rig", "sources"])
+def test_stage_programs_equal_the_one_program(pipeline, mixed_rig):
+    """The pipeline as three jitted stage programs called one after another (``run_*_stages`` outside a jit)
+    against the library's one program, the same stages traced into one ``jit`` (XLA then fuses across the
+    stage boundaries): every field bit for bit, on the two-size rig; the two-sweep sources with free space and
+    occlusion (each pixel's source and shadow cross the boundaries)."""
+    from jaxdepth._src.rig import run_rig_stages
+    from jaxdepth._src.sources import default_beams, run_sources_stages
+    from jaxdepth._src.config import DEFAULT_CONFIG
+    points, valid, cams = mixed_rig
+    cameras = stack_cameras(cams)
+    if pipeline == "rig":
+        split = run_rig_stages(points, valid, cameras, config=DEFAULT_CONFIG, lidar=LIDAR)
+        one = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
+    else:
+        sources = _two_sweeps(points, valid, second_valid=valid)
+        split = run_sources_stages(sources, cameras, config=DEFAULT_CONFIG, free_space=True,
+                                   beams=default_beams(sources))
+        one = complete_sources_stages(sources, cameras)
+    assert int(np.asarray(split.inlier_mask).sum()) > 60
+    for name in split._fields:
+        np.testing.assert_array_equal(np.asarray(getattr(split, name)), np.asarray(getattr(one, name)), err_msg=name)

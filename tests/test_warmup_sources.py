@@ -24,7 +24,7 @@ from jaxdepth.io.sweep_frame import FOV_GRID_DEG, source_spec
 from helpers import wall_sweep, warm_then_run, write_wall_rig
 
 #: The multi-source rig program (its persistent-cache entries start with this name).
-PROGRAM = "jit__complete_sources_stages"
+PROGRAM = "jit_sources_program"
 SPEC = LidarSpec(beams=16, fov_up_deg=5.0, fov_down_deg=-10.0, columns=720)
 TWO_LIDARS = [{"name": "left", "T_points_lidar": np.eye(4).tolist(), "beams": 16, "fov_up_deg": 5.0,
                "fov_down_deg": -10.0},

@@ -94,6 +94,9 @@ def test_helpers_reduce_to_the_plain_computation():
             np.testing.assert_array_equal(xla_tuning.after(a, jnp.int32([7])), a)
             first, stop = xla_tuning.shared_loop_bounds(jnp.int32(2), jnp.int32(5))
             assert (int(first), int(stop)) == (2, 5)
+            for mask in (jnp.zeros((3, 40), bool), jnp.zeros((3, 40), bool).at[2, 39].set(True), jnp.ones(5, bool),
+                         jnp.zeros((0,), bool)):
+                assert bool(xla_tuning.any_true(mask)) == bool(np.any(np.asarray(mask)))
 
 
 @pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],

@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxdepth import SGMConfig, complete_rig, depth_metrics, hidden_point_mask, hidden_point_scores, project_to_image
 from jaxdepth._src.metrics import mean_metrics
-from jaxdepth._src.rig import _complete_rig_stages, stack_cameras
+from jaxdepth._src.rig import complete_rig_stages, stack_cameras
 from jaxdepth.io import pad_points, prepare_sweep, read_points, rig_from_nuscenes_calibration
 from jaxdepth.io.rig_images import read_rig_images
 
@@ -44,7 +44,7 @@ KEYS = ("rmse", "mae", "irmse", "imae")
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
 def _scores(points, given, hidden, cameras, images, *, config, lidar):
-    stages = _complete_rig_stages(points, given, cameras, images, config=config, lidar=lidar)
+    stages = complete_rig_stages(points, given, cameras, config=config, lidar=lidar, images=images)
 
     def gt_for(K, T, size):
         return project_to_image(points, hidden, K, T, height=cameras.height, width=cameras.width,

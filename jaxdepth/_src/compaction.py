@@ -172,13 +172,15 @@ def word_locator(words: jax.Array):
 
     def locate(slot):
         get = lambda a, i: a.at[i].get(mode="promise_in_bounds")
-        pos = jnp.zeros_like(slot)  # number of words ending at or before slot
-        step = 1 << (n_words.bit_length() - 1)
-        while step:
-            nxt = pos + step
+        top = n_words.bit_length() - 1
+
+        def halve(i, pos):  # one step of the search, step 2^(top - i): one small loop body to compile
+            nxt = pos + (jnp.int32(1) << (top - i))
             ok = (nxt <= n_words) & (get(word_end, jnp.minimum(nxt, n_words) - 1) <= slot)
-            pos = jnp.where(ok, nxt, pos)
-            step >>= 1
+            return jnp.where(ok, nxt, pos)
+
+        # pos: number of words ending at or before slot
+        pos = jax.lax.fori_loop(0, top + 1, halve, jnp.zeros_like(slot))
         w = jnp.minimum(pos, n_words - 1)
         rank = slot - get(word_end, w) + get(popc, w)  # wanted set bit, 0-based
         return w * WORD_BITS + nth_set_bit(get(words, w), rank)

@@ -41,7 +41,7 @@ from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
 from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
 from jaxdepth._src.range_image import RangeImage, angles_xyz, cell_centres, check_lidar, row_col
-from jaxdepth._src.xla_tuning import cond_all, stage
+from jaxdepth._src.xla_tuning import any_true, cond_all, stage
 from jaxdepth._src.types import LidarSpec
 
 
@@ -289,7 +289,7 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
         # Every point must lie at least `margin` columns inside the window:
         # then the neighbour search and the smoothing never reach its edges
         # and the window gives exactly the whole image's normals.
-        fits = (total <= capacity) & ~jnp.any(pts.edge)
+        fits = (total <= capacity) & ~any_true(pts.edge)  # (a bool any: a large kernel)
 
     def listed(pix, col0, R, depth, K, T, *pts):
         token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)

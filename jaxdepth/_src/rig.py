@@ -20,6 +20,15 @@ float32 products, XLA:CPU's batched rotation product for three or more cameras r
 z, u, v apart from the unbatched one, and on the Argoverse 2 sweep ``sparse_depth``
 differed on 1,700-4,600 px per camera; docs/speed.md, "Grouped by size").
 
+The pipeline is written as three stages, each a ``jit`` of its own (:func:`run_rig_stages`):
+:func:`rig_stage_projection` (Step 1 and each camera's z-buffer, a :class:`CameraView` per
+camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail` (Steps 3-4, the canvas).
+Called one after another they are three programs with the one program's bytes; measured, they
+compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stage programs"),
+so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`. The multi-source
+pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
+(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
+
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
 colour: each camera's image sits in the top-left corner of the canvas, inside its
@@ -36,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +56,8 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.pipeline import camera_stages_from_points
+from jaxdepth._src.outliers import keep_mask_for_config
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
 from jaxdepth._src.types import LidarSpec, Stages
 
 
@@ -192,6 +203,52 @@ def _pad_to_canvas(x: jax.Array, height: int, width: int) -> jax.Array:
     return jax.lax.pad(x, jnp.zeros((), x.dtype), pad)
 
 
+def _group_inputs(cameras: RigCameras, images, idx, h: int, w: int, whole: bool):
+    """A size group's (K, T, image_size, image): every camera as stacked when ``whole``."""
+    if whole:
+        return cameras.K, cameras.T_cam_lidar, cameras.image_size, images
+    image = None if images is None else images[idx, :h, :w]
+    return cameras.K[idx], cameras.T_cam_lidar[idx], cameras.image_size[idx], image
+
+
+def _whole_canvas(cameras: RigCameras, groups) -> bool:
+    return len(groups) == 1 and groups[0][0] == (cameras.height, cameras.width)
+
+
+def map_by_size(per_camera, cameras: RigCameras, images=None, per_group=None) -> tuple:
+    """Runs ``per_camera(K, T_cam_lidar, size, image[, extra], *, height, width)`` for every camera, one
+    vmap per size group (:func:`size_groups`) on a canvas of the group's size; the results stay per group.
+
+    ``images``: None or (C, H, W[, 3]) on the rig's canvas; each group gets its top-left (h, w) corner.
+    ``per_group``: None, or one pytree per group with a leading axis of the group's cameras (an earlier
+    call's result), passed as ``extra``. Returns a tuple with one pytree per group, each leaf with a
+    leading axis of the group's cameras (in the group's order) and trailing (h, w) axes;
+    :func:`to_canvas` puts them back on the canvas in camera order.
+    """
+    groups = size_groups(cameras)
+    whole = _whole_canvas(cameras, groups)
+    out = []
+    for g, ((h, w), idx) in enumerate(groups):
+        run = functools.partial(per_camera, height=h, width=w)
+        extra = () if per_group is None else (per_group[g],)
+        out.append(jax.vmap(run)(*_group_inputs(cameras, images, idx, h, w, whole), *extra))
+    return tuple(out)
+
+
+def to_canvas(parts: tuple, cameras: RigCameras):
+    """:func:`map_by_size`'s per-group results as one pytree with a leading C axis, in camera order,
+    each (..., h, w) leaf padded onto the (H, W) canvas with zeros (False)."""
+    groups = size_groups(cameras)
+    if _whole_canvas(cameras, groups):
+        return parts[0]
+    slots = [None] * cameras.count
+    for ((h, w), idx), out in zip(groups, parts):
+        for j, i in enumerate(idx):
+            slots[i] = jax.tree.map(lambda x, j=j: x[j], out)
+    return jax.tree.map(lambda *xs: jnp.stack([_pad_to_canvas(x, cameras.height, cameras.width) for x in xs]),
+                        *slots)
+
+
 def vmap_by_size(per_camera, cameras: RigCameras, images=None):
     """Runs ``per_camera(K, T_cam_lidar, size, image, *, height, width)`` for every camera, one
     vmap per size group (:func:`size_groups`) on a canvas of the group's size.
@@ -200,38 +257,120 @@ def vmap_by_size(per_camera, cameras: RigCameras, images=None):
     (h, w) corner. Returns the pytree of ``per_camera``'s (..., h, w) arrays with a leading C
     axis, in camera order, each padded onto the (H, W) canvas with zeros (False). One group
     of the canvas's size (every same-size rig) is one vmap over the stacked cameras, as before
-    the grouping.
+    the grouping. (:func:`to_canvas` of :func:`map_by_size`.)
     """
-    groups = size_groups(cameras)
-    if len(groups) == 1 and groups[0][0] == (cameras.height, cameras.width):
-        run = functools.partial(per_camera, height=cameras.height, width=cameras.width)
-        return jax.vmap(run)(cameras.K, cameras.T_cam_lidar, cameras.image_size, images)
-    parts = [None] * cameras.count
-    for (h, w), idx in groups:
-        run = functools.partial(per_camera, height=h, width=w)
-        image = None if images is None else images[idx, :h, :w]
-        out = jax.vmap(run)(cameras.K[idx], cameras.T_cam_lidar[idx], cameras.image_size[idx], image)
-        for j, i in enumerate(idx):
-            parts[i] = jax.tree.map(lambda x, j=j: x[j], out)
-    return jax.tree.map(lambda *xs: jnp.stack([_pad_to_canvas(x, cameras.height, cameras.width) for x in xs]),
-                        *parts)
+    return to_canvas(map_by_size(per_camera, cameras, images), cameras)
+
+
+class CameraView(NamedTuple):
+    """One camera's projected sweep: the stage programs' hand-over from the projection to Steps 2-4.
+
+    Fields (h, w) of the camera's size group: ``sparse_depth`` float32 z-buffer (0 = empty),
+    ``points_cam`` and ``normals_cam`` (3, h, w) float32 (0 where empty); with several sources
+    (:mod:`~jaxdepth._src.sources`) also ``pixel_source`` int32 (-1 = empty) and ``pixel_shadow``
+    bool or None; None for a single sweep.
+    """
+
+    sparse_depth: jax.Array
+    points_cam: jax.Array
+    normals_cam: jax.Array
+    pixel_source: jax.Array | None = None
+    pixel_shadow: jax.Array | None = None
+
+
+def call_stage(stage, *args, **statics):
+    """How :func:`run_rig_stages` calls a stage program by default: ``stage(*args, **statics)`` (its ``jit``);
+    :mod:`jaxdepth.batch.program_cache` passes one that serves each stage from its on-disk cache."""
+    return stage(*args, **statics)
+
+
+def check_images(images, cameras: RigCameras, config: SGMConfig, *, where: str) -> None:
+    """Raises the ValueError :func:`_rig_images` would (naming the field 'images'), before any stage runs."""
+    jax.eval_shape(lambda im: _rig_images(im, cameras, guided=config.guidance_weight > 0, where=where), images)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "lidar"))
-def _complete_rig_stages(points, valid, cameras, images=None, *, config, lidar):
-    images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_rig")
+def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfig, lidar: LidarSpec) -> tuple:
+    """Stage program 1 of :func:`complete_rig_stages`: Step 1 (the sweep's normals) and each camera's projection.
+
+    Args: (N, 3) points, (N,) valid, cameras, config and lidar as :func:`complete_rig_stages`.
+    Returns: :func:`map_by_size`'s tuple of :class:`CameraView` per size group.
+    """
     points = jnp.asarray(points, jnp.float32)
     valid = jnp.asarray(valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
     points = jnp.where(valid[:, None], points, 0.0)
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
+
     def per_camera(K, T, size, image, *, height, width):
+        K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
+        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K,
+                                                                        height=height, width=width, image_size=size)
+        return CameraView(sparse_depth, points_cam, normals_cam)
+
+    return map_by_size(per_camera, cameras)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "beams"))
+def rig_stage_keep(views: tuple, cameras: RigCameras, *, config: SGMConfig, beams: int) -> tuple:
+    """Stage program 2 of :func:`complete_rig_stages`: Step 2, one (h, w) bool keep mask per camera, per size
+    group (``views``: :func:`rig_stage_projection`'s; ``beams``: the LiDAR's L)."""
+    def per_camera(K, T, size, image, view, *, height, width):
+        return keep_mask_for_config(view.sparse_depth, jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32),
+                                    beams=beams, config=config, points_cam=view.points_cam, image_size=size)
+
+    return map_by_size(per_camera, cameras, None, views)
+
+
+def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig, beams: int,
+                 where: str) -> Stages:
+    """Steps 3-4 of every camera from its :class:`CameraView` and Step 2 mask (per size group), on the canvas.
+
+    ``images``: as :func:`complete_rig_stages` (checked here, ``where`` names the entry point in errors).
+    Returns :class:`Stages` with a leading C axis, 0 (False) beyond each camera's window (:func:`to_canvas`).
+    """
+    images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where=where)
+
+    def per_camera(K, T, size, image, view_keep, *, height, width):
+        view, keep = view_keep
         if image is not None:
             image = _window_only(image, size)
-        return camera_stages_from_points(points, valid, normals_lidar, K, T, height=height, width=width,
-                                         lidar=lidar, config=config, image_size=size, image=image)
+        stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
+                                jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
+                                image_size=size)
+        return clear_outside_window(stages, size)
 
-    return vmap_by_size(per_camera, cameras, images)
+    return to_canvas(map_by_size(per_camera, cameras, images, tuple(zip(views, keeps))), cameras)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "beams"))
+def rig_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig,
+                   beams: int) -> Stages:
+    """Stage program 3 of :func:`complete_rig_stages`: Steps 3-4 on the canvas (:func:`camera_tails`)."""
+    return camera_tails(views, keeps, cameras, images, config=config, beams=beams, where="complete_rig")
+
+
+def run_rig_stages(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec,
+                   call=call_stage) -> Stages:
+    """:func:`complete_rig_stages` as three stage programs called through ``call`` (:func:`call_stage`):
+    :func:`rig_stage_projection`, :func:`rig_stage_keep`, :func:`rig_stage_tail`.
+
+    Called outside ``jit`` they are three programs, the same bytes as one (tests/test_rig_sizes.py), but
+    measured no faster to compile and 13-31 % slower to run than one (docs/speed.md, "Stage programs"), so
+    the library runs them inside one ``jit``, :func:`rig_program`.
+    """
+    check_images(images, cameras, config, where="complete_rig")
+    views = call(rig_stage_projection, points, valid, cameras, config=config, lidar=lidar)
+    keeps = call(rig_stage_keep, views, cameras, config=config, beams=lidar.beams)
+    return call(rig_stage_tail, views, keeps, cameras, images, config=config, beams=lidar.beams)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+    """:func:`complete_rig_stages`' program: the three stages of :func:`run_rig_stages` traced into one ``jit``
+    (the same bytes as the stages called one after another, and as fast or faster to compile and run:
+    docs/speed.md, "Stage programs")."""
+    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
@@ -257,11 +396,12 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
       ``cameras.sizes`` is known (:func:`stack_cameras`: the cameras run grouped by size).
 
     Raises:
-      ValueError (at trace time) naming the field 'images': missing while
+      ValueError (before any stage runs) naming the field 'images': missing while
       guided, a shape other than the canvas's, a dtype other than uint8 or float.
+
+    One program, :func:`rig_program` (the stages of :func:`run_rig_stages` in one ``jit``).
     """
-    # One call form for every caller: jit keys its cache on which keywords were passed.
-    return _complete_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
+    return rig_program(points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,

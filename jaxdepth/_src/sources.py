@@ -29,6 +29,11 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   (:func:`~jaxdepth._src.above_scan.top_line_keep`).
 * Steps 3 and 4 are the single-source ones on the merged, filtered image.
 
+As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is written as three stages
+(:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion,
+each camera's z-buffer with each pixel's source), :func:`sources_stage_keep` (Step 2 and the top-line rule)
+and :func:`sources_stage_tail` (Steps 3-4), run in one ``jit``, :func:`sources_program`.
+
 With one source at the points' origin, :func:`complete_sources` equals
 :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
 """
@@ -48,9 +53,9 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
+from jaxdepth._src.pipeline import project_with_normals
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
-from jaxdepth._src.rig import RigCameras, _rig_images, _window_only, vmap_by_size
+from jaxdepth._src.rig import CameraView, RigCameras, call_stage, camera_tails, check_images, map_by_size
 from jaxdepth._src.types import LidarSpec, Stages
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
@@ -519,9 +524,10 @@ def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweep
     return any(sources.witnesses[i] != sources.lidars[i] for i, sw in enumerate(sources.sweep) if sw == 0)
 
 
-def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T_cam_ref, *, height, width, beams,
-                   config, image_size=None, image=None, reference=None, sweep=None, all_sweep=None) -> Stages:
-    """Steps 1 (projection) to 4 for one camera from all sources' (N, 3) points and normals."""
+def _camera_view(points, valid, normals, source_id, shadow, K, T_cam_ref, *, height, width,
+                 image_size=None) -> CameraView:
+    """Step 1's projection for one camera from all sources' (N, 3) points and normals, with each pixel's source
+    (and whether its point lies in a reference LiDAR's shadow)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
@@ -529,18 +535,27 @@ def _camera_stages(points, valid, normals, source_id, shadow, T_ref_source, K, T
     hit = index >= 0
     safe = jnp.where(hit, index, 0).reshape(-1)
     pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
-    T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
-    keep = source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, beams=beams, config=config,
-                            pixel_shadow=pixel_shadow, image_size=image_size, source_sweep=sweep, all_sweep=all_sweep)
+    return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow)
+
+
+def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config, image_size=None, reference=None,
+                 sweep=None, all_sweep=None) -> jax.Array:
+    """Step 2 for one camera's :class:`CameraView`: the sources' mask (:func:`source_keep_mask`) and the top-line
+    rule (``reference``: (S,) bool, the reference sweep's sources)."""
+    K = jnp.asarray(K, jnp.float32)
+    T = jnp.asarray(T_cam_ref, jnp.float32)
+    sparse_depth, pixel_source = view.sparse_depth, view.pixel_source
+    T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
+    keep = source_keep_mask(sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams, config=config,
+                            pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep,
+                            all_sweep=all_sweep)
     if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
         own = keep & reference[jnp.maximum(pixel_source, 0)]
         keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
                                            max_half_width_px=config.outlier_max_half_width_px,
                                            image_width=None if image_size is None else image_size[1]))
-    stages = _complete_tail(sparse_depth, normals_cam, points_cam, K, T, beams=beams, config=config, image=image,
-                            keep=keep, image_size=image_size)
-    return clear_outside_window(stages, image_size)
+    return keep
 
 
 def default_beams(sources: Sources) -> int:
@@ -548,10 +563,15 @@ def default_beams(sources: Sources) -> int:
     return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
-def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config, free_space, beams,
-                             occlusion=True):
-    images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where="complete_sources")
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "occlusion"))
+def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: SGMConfig, free_space: bool,
+                             occlusion: bool = True) -> tuple:
+    """Stage program 1 of :func:`complete_sources_stages`: Step 1 per source, the free-space and occlusion
+    rules, and each camera's projection of all sources.
+
+    Returns: :func:`~jaxdepth._src.rig.map_by_size`'s tuple of :class:`~jaxdepth._src.rig.CameraView`
+    (with ``pixel_source``, and ``pixel_shadow`` when free space is tested) per size group.
+    """
     s, p = sources.points.shape[:2]
     points = jnp.asarray(sources.points, jnp.float32)
     valid = jnp.asarray(sources.valid, bool) & jnp.all(jnp.isfinite(points), axis=-1)
@@ -568,26 +588,66 @@ def _complete_sources_stages(sources: Sources, cameras: RigCameras, images=None,
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
-    reference = None
-    if top_line_applies(sources, config.reference_top_line):
-        reference = jnp.asarray(np.asarray(sources.sweep) == 0)
     source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
-    sweep = sources.sweep if per_sweep_applies(sources, config.outlier_sweeps) else None
 
     def per_camera(K, T, size, image, *, height, width):
-        if image is not None:
-            image = _window_only(image, size)
         cam_valid = flat_valid
         if hidden is not None:       # other sweeps' points hidden from the LiDAR next to this camera
             rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
-        return _camera_stages(flat_points, cam_valid, flat_normals, source_id, shadow, sources.T_ref_source, K, T,
-                              height=height, width=width, beams=beams, config=config, image_size=size, image=image,
-                              reference=reference, sweep=sweep,
-                              all_sweep=tuple(int(x) for x in sources.sweep))
+        return _camera_view(flat_points, cam_valid, flat_normals, source_id, shadow, K, T, height=height, width=width,
+                            image_size=size)
 
-    return vmap_by_size(per_camera, cameras, images)     # one vmap per camera size (rig.py)
+    return map_by_size(per_camera, cameras)     # one vmap per camera size (rig.py)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "beams"))
+def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, config: SGMConfig,
+                       beams: int) -> tuple:
+    """Stage program 2 of :func:`complete_sources_stages`: Step 2 per source (:func:`source_keep_mask`, the
+    per-sweep pass, the top-line rule), one (h, w) bool mask per camera, per size group (``views``:
+    :func:`sources_stage_projection`'s; ``sources``: its statics and ``T_ref_source`` are used)."""
+    reference = None
+    if top_line_applies(sources, config.reference_top_line):
+        reference = jnp.asarray(np.asarray(sources.sweep) == 0)
+    sweep = sources.sweep if per_sweep_applies(sources, config.outlier_sweeps) else None
+    T_ref_source = jnp.asarray(sources.T_ref_source, jnp.float32)
+
+    def per_camera(K, T, size, image, view, *, height, width):
+        return _camera_keep(view, T_ref_source, K, T, beams=beams, config=config, image_size=size,
+                            reference=reference, sweep=sweep, all_sweep=tuple(int(x) for x in sources.sweep))
+
+    return map_by_size(per_camera, cameras, None, views)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "beams"))
+def sources_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig,
+                       beams: int) -> Stages:
+    """Stage program 3 of :func:`complete_sources_stages`: Steps 3-4 on the canvas
+    (:func:`~jaxdepth._src.rig.camera_tails`)."""
+    return camera_tails(views, keeps, cameras, images, config=config, beams=beams, where="complete_sources")
+
+
+def run_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
+                       beams: int, occlusion: bool = True, call=call_stage) -> Stages:
+    """:func:`complete_sources_stages` (``beams`` given) as three stage programs called through ``call``:
+    :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail` (see
+    :func:`~jaxdepth._src.rig.run_rig_stages`; the library runs them in one ``jit``, :func:`sources_program`)."""
+    check_images(images, cameras, config, where="complete_sources")
+    views = call(sources_stage_projection, sources, cameras, config=config, free_space=free_space,
+                 occlusion=occlusion)
+    keeps = call(sources_stage_keep, views, sources, cameras, config=config, beams=beams)
+    return call(sources_stage_tail, views, keeps, cameras, images, config=config, beams=beams)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
+def sources_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
+                    beams: int, occlusion: bool = True) -> Stages:
+    """:func:`complete_sources_stages`' program: the stages of :func:`run_sources_stages` in one ``jit``
+    (see :func:`~jaxdepth._src.rig.rig_program`)."""
+    return run_sources_stages(sources, cameras, images, config=config, free_space=free_space, beams=beams,
+                              occlusion=occlusion)
 
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
@@ -614,8 +674,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       image (free-space points never reach the image).
     """
     beams = default_beams(sources) if beams is None else int(beams)
-    return _complete_sources_stages(sources, cameras, images, config=config, free_space=bool(free_space),
-                                    beams=beams, occlusion=bool(occlusion))
+    return sources_program(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
+                           occlusion=bool(occlusion))
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,

@@ -33,6 +33,8 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   (``vmap``) gets a batched counter, which turns every row read and row write in its body into
   gathers and scatters; a ``custom_vmap`` gives the batch the widest bounds instead (callers
   make extra rows harmless). Plain: the bounds themselves.
+* **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
+  maximum of the same mask is a small one. Plain: ``jnp.any``.
 
 :func:`cond_all` is not backend tuning: it chooses a cheaper branch
 that gives the same result, and keeps that choice a conditional under ``vmap`` on every
@@ -255,6 +257,18 @@ def after(value: jax.Array, result: jax.Array) -> jax.Array:
     if not enabled():
         return value
     return jnp.where(jnp.ravel(result)[0] > _INT32_MIN, value, jnp.zeros((), value.dtype))
+
+
+def any_true(mask: jax.Array) -> jax.Array:
+    """``jnp.any(mask)`` of a bool array (any shape), as an int32 max (tricks on); the same bool scalar.
+
+    XLA:CPU splits a long bool reduction into a 32-wide ``reduce-window`` whose kernel is about
+    200 kB of LLVM IR (on 26,752 entries: ~5 % of the KITTI program's code, ~0.4 s of its compile);
+    the int32 maximum compiles to about 30 kB.
+    """
+    if not enabled():
+        return jnp.any(mask)
+    return jnp.max(mask.astype(jnp.int32), initial=0) > 0
 
 
 @custom_batching.custom_vmap

@@ -208,42 +208,49 @@ class Program:
         return exported, trees[-1]
 
 
-@functools.lru_cache(maxsize=16)
-def _stages_program(kind: str, statics: tuple) -> Program:
-    """The :class:`Program` of the rig (``kind`` "rig") or multi-source ("sources") pipeline, its static
-    options ``statics`` ((name, value), ...) bound."""
+@functools.lru_cache(maxsize=32)
+def _stages_program(stage: Callable, statics: tuple) -> Program:
+    """The :class:`Program` of a public ``jit`` of :mod:`jaxdepth._src.rig` / :mod:`jaxdepth._src.sources`
+    (``rig_program``, ``sources_program``, or one of their stage programs, e.g. ``rig_stage_projection``),
+    its static options ``statics`` ((name, value), ...) bound; named after it (entry and compile cache names)."""
     import jax
 
-    from jaxdepth._src import rig, sources
-    inner = {"rig": rig._complete_rig_stages, "sources": sources._complete_sources_stages}[kind]
     options = dict(statics)
 
     def program(*args):
-        return inner(*args, **options)
+        return stage(*args, **options)
 
-    program.__name__ = program.__qualname__ = f"_complete_{kind}_stages"   # the compile cache entry's name
-    return Program(jax.jit(program), name=f"complete_{kind}_stages", statics=statics)
+    program.__name__ = program.__qualname__ = stage.__name__   # the compile cache entry's name
+    return Program(jax.jit(program), name=stage.__name__, statics=statics)
+
+
+def cached_stage(stage: Callable, *args, **statics):
+    """Calls a public program of ``_src`` through its :class:`Program`: ``stage(*args, **statics)``, the same
+    bytes, a warm start without tracing (also a ``call`` for ``run_rig_stages`` / ``run_sources_stages``, which
+    then stores each stage program apart)."""
+    return _stages_program(stage, tuple(sorted(statics.items())))(*args)
 
 
 def rig_stages(points, valid, cameras, *, config, lidar, images=None):
-    """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes) through the program cache."""
+    """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes): its program
+    (:func:`jaxdepth._src.rig.rig_program`) through the program cache."""
+    from jaxdepth._src.rig import complete_rig_stages, rig_program
     if program_folder() is None:
-        from jaxdepth._src.rig import complete_rig_stages
         return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images)
-    return _stages_program("rig", (("config", config), ("lidar", lidar)))(points, valid, cameras, images)
+    return cached_stage(rig_program, points, valid, cameras, images, config=config, lidar=lidar)
 
 
 def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: int | None = None, images=None,
                    occlusion: bool = True):
-    """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes) through the program
-    cache."""
-    from jaxdepth._src.sources import complete_sources_stages, default_beams
+    """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes): its program
+    (:func:`jaxdepth._src.sources.sources_program`) through the program cache."""
+    from jaxdepth._src.sources import complete_sources_stages, default_beams, sources_program
     if program_folder() is None:
         return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
                                        images=images, occlusion=occlusion)
     beams = default_beams(sources) if beams is None else int(beams)
-    statics = (("config", config), ("free_space", bool(free_space)), ("beams", beams), ("occlusion", bool(occlusion)))
-    return _stages_program("sources", statics)(sources, cameras, images)
+    return cached_stage(sources_program, sources, cameras, images, config=config, free_space=bool(free_space),
+                        beams=beams, occlusion=bool(occlusion))
 
 
 def _read_entry(path: pathlib.Path, key: str, signature: tuple):
@@ -276,5 +283,5 @@ def _write_entry(path: pathlib.Path, data: bytes) -> None:
         log.info("program cache: not stored (%s)", err)
 
 
-__all__ = ["Program", "rig_stages", "sources_stages", "program_key", "program_folder", "source_hash", "encode_entry", "decode_entry", "MAX_BYTES",
+__all__ = ["Program", "rig_stages", "sources_stages", "cached_stage", "program_key", "program_folder", "source_hash", "encode_entry", "decode_entry", "MAX_BYTES",
            "FORMAT"]
