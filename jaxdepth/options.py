@@ -53,6 +53,13 @@ def _top_line_mode(text: str) -> str:
     return text
 
 
+def _older_sweeps_test(text: str) -> str:
+    """--older-sweeps-test: footprint or paper."""
+    if text not in ("footprint", "paper"):
+        raise argparse.ArgumentTypeError(f"expected 'footprint' or 'paper', got {text!r}")
+    return text
+
+
 def _outlier_sweeps_mode(text: str) -> str:
     """--outlier-sweeps: auto, each or merged."""
     if text not in ("auto", "each", "merged"):
@@ -82,6 +89,9 @@ _SOURCES_OPTIONS = {
     "--outlier-sweeps": ("outlier_sweeps", _outlier_sweeps_mode, "auto|each|merged", "Step 2 also judges each sweep "
                          "against the reference sweep with one sweep's window (default auto: for a scan without scan "
                          "lines, a rosette)"),
+    "--older-sweeps-test": ("older_sweeps_test", _older_sweeps_test, "footprint|paper", "condition 1 of Step 2 "
+                            "for the older sweeps' points: paper also judges them by the paper's axis-aligned "
+                            "flips (default footprint: as every point)"),
 }
 
 

@@ -377,7 +377,7 @@ def free_space_keep(sources: Sources, **options) -> jax.Array:
 
 def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
                      config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None, image_size=None,
-                     source_sweep=None) -> jax.Array:
+                     source_sweep=None, all_sweep=None) -> jax.Array:
     """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
 
     Args:
@@ -397,6 +397,9 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
       source_sweep: optional static tuple of S ints, each source's sweep (0 = reference): given, with
         several sweeps, each sweep's pixels are also judged as on the one-sweep path
         (:func:`sweep_keep_mask`; :func:`per_sweep_applies` decides when, from ``config.outlier_sweeps``).
+      all_sweep: optional static tuple of S ints, each source's sweep (0 = reference), for
+        ``config.older_sweeps_test="paper"``: with several sweeps, the older sweeps' pixels are also judged by
+        the paper form of condition 1 (same window, origins and epsilon; the reference sweep's are not).
 
     Algorithm 1 tests each pixel's point with that point's own source origin as the
     viewpoint compared with the camera's; every pixel of the image is a possible occluder
@@ -417,6 +420,11 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     keep = valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
                               image_size=image_size)
+    if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
+            and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
+        older = valid & (jnp.asarray(np.asarray(all_sweep, np.int32))[safe] != 0)
+        keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, older, beams=int(beams),
+                                 half_width=hw, half_height=hh, test="paper", origins=origins, image_size=image_size)
     if source_sweep is None or len(set(source_sweep)) < 2:
         return keep
     pixel_sweep = jnp.asarray(np.asarray(source_sweep, np.int32))[safe]
@@ -532,7 +540,7 @@ def _camera_view(points, valid, normals, source_id, shadow, K, T_cam_ref, *, hei
 
 
 def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config, image_size=None, reference=None,
-                 sweep=None) -> jax.Array:
+                 sweep=None, all_sweep=None) -> jax.Array:
     """Step 2 for one camera's :class:`CameraView`: the sources' mask (:func:`source_keep_mask`) and the top-line
     rule (``reference``: (S,) bool, the reference sweep's sources)."""
     K = jnp.asarray(K, jnp.float32)
@@ -540,7 +548,8 @@ def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config,
     sparse_depth, pixel_source = view.sparse_depth, view.pixel_source
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
     keep = source_keep_mask(sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams, config=config,
-                            pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep)
+                            pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep,
+                            all_sweep=all_sweep)
     if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
         own = keep & reference[jnp.maximum(pixel_source, 0)]
         keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
@@ -607,7 +616,7 @@ def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, c
 
     def per_camera(K, T, size, image, view, *, height, width):
         return _camera_keep(view, T_ref_source, K, T, beams=beams, config=config, image_size=size,
-                            reference=reference, sweep=sweep)
+                            reference=reference, sweep=sweep, all_sweep=tuple(int(x) for x in sources.sweep))
 
     return map_by_size(per_camera, cameras, None, views)
 
