@@ -285,7 +285,8 @@ def gather_channels(values: jax.Array, index: jax.Array) -> jax.Array:
 
     One 1-D gather per channel from the channel with a 0 appended at slot N (where the empty pixels
     point): no (H W, C) intermediate and no transpose, which cost ~3x more on 3 Mpx cameras
-    (docs/speed.md, "The projection's gather"). The same values as ``where(index >= 0, values[index].T, 0)``.
+    (docs/speed.md, "The rig profile now, and the projection's gather"). The same values, bit for
+    bit, as ``where(index >= 0, values[index].T, 0)``.
     """
     n, c = values.shape
     slot = jnp.where(index >= 0, index, n)
