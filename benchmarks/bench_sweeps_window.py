@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     compiles = []
 
     def on_duration(event, secs, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration" and "complete" in str(kwargs.get("fun_name")):
+        if event == "/jax/core/compile/backend_compile_duration" and "_program" in str(kwargs.get("fun_name")):
             compiles.append((kwargs.get("fun_name"), secs))
 
     jax.monitoring.register_event_duration_secs_listener(on_duration)

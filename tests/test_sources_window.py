@@ -103,7 +103,7 @@ _COMPILES = []
 
 
 def _on_compile(event, secs, **kwargs):
-    if event == "/jax/core/compile/backend_compile_duration" and "complete" in str(kwargs.get("fun_name", "")):
+    if event == "/jax/core/compile/backend_compile_duration" and "_program" in str(kwargs.get("fun_name", "")):
         _COMPILES.append(kwargs.get("fun_name"))
 
 
