@@ -26,7 +26,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from jaxdepth._src import geometry
-from jaxdepth._src.pipeline import project_with_normals
+from jaxdepth._src.pipeline import gather_channels, project_with_normals
 
 from _harness import assert_close, check_stage
 
@@ -206,3 +206,33 @@ def test_project_with_normals_vmapped_equals_single_call(edge_rig):
         hit = np.asarray(single[1]) >= 0
         np.testing.assert_array_equal(np.asarray(single[2])[2][hit], np.asarray(single[0])[hit],
                                       err_msg=f"camera {c}: the pixel's point is the z-buffer's depth")
+
+
+def _np_gathered(values, index):
+    """Oracle of ``gather_channels``: the (H W, C) row gather, transposed, 0 where the index is -1."""
+    values, index = np.asarray(values), np.asarray(index)
+    rows = values[np.where(index >= 0, index, 0)]                      # (H, W, C)
+    return np.where((index >= 0)[None], np.moveaxis(rows, -1, 0), 0).astype(values.dtype)
+
+
+def test_gather_channels_matches_the_row_gather():
+    """The projection's per-pixel gather (1-D gathers from a column with a 0 slot) == the row gather, bit for
+    bit, with -1 (empty) pixels, repeated and first / last indices; jit == eager, vmap == loop."""
+    rng = np.random.default_rng(3)
+    n = 50
+
+    def case(seed):
+        r = np.random.default_rng(seed)
+        values = r.normal(size=(n, 3)).astype(np.float32)
+        values[0] = -0.0                                         # a -0.0 point stays -0.0, empty pixels +0.0
+        index = r.integers(-1, n, size=(6, 7)).astype(np.int32)
+        index[0, :3] = (-1, 0, n - 1)
+        return values, index
+
+    inputs = [case(int(s)) for s in rng.integers(0, 2**31, 3)]
+    outs = check_stage(gather_channels, inputs, oracle=_np_gathered, oracle_ulps=0, ulps=0)
+    for (values, index), out in zip(inputs, outs):
+        got = np.asarray(out)
+        want = _np_gathered(values, index)
+        assert got.tobytes() == want.tobytes()                  # bits: signed zeros included
+        assert np.all(np.signbit(got[:, index < 0]) == 0)

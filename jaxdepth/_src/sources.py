@@ -524,18 +524,18 @@ def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweep
     return any(sources.witnesses[i] != sources.lidars[i] for i, sw in enumerate(sources.sweep) if sw == 0)
 
 
-def _camera_view(points, valid, normals, source_id, shadow, K, T_cam_ref, *, height, width,
+def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, *, height, width,
                  image_size=None) -> CameraView:
-    """Step 1's projection for one camera from all sources' (N, 3) points and normals, with each pixel's source
-    (and whether its point lies in a reference LiDAR's shadow)."""
+    """Step 1's projection for one camera from all sources' (N, 3) points and normals (``per_source`` points a
+    source, sources one after another), with each pixel's source (and whether its point lies in a reference
+    LiDAR's shadow)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
                                                                         width=width, image_size=image_size)
     hit = index >= 0
-    safe = jnp.where(hit, index, 0).reshape(-1)
-    pixel_source = jnp.where(hit, source_id[safe].reshape(height, width), -1)
-    pixel_shadow = None if shadow is None else hit & shadow[safe].reshape(height, width)
+    pixel_source = jnp.where(hit, index // per_source, -1)     # the point's source, without a gather
+    pixel_shadow = None if shadow is None else hit & shadow[jnp.where(hit, index, 0)]
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow)
 
 
@@ -588,7 +588,6 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
     flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
     flat_normals = normals.reshape(-1, 3)
-    source_id = jnp.repeat(jnp.arange(s, dtype=jnp.int32), p)
 
     def per_camera(K, T, size, image, *, height, width):
         cam_valid = flat_valid
@@ -596,7 +595,7 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
             rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
-        return _camera_view(flat_points, cam_valid, flat_normals, source_id, shadow, K, T, height=height, width=width,
+        return _camera_view(flat_points, cam_valid, flat_normals, p, shadow, K, T, height=height, width=width,
                             image_size=size)
 
     return map_by_size(per_camera, cameras)     # one vmap per camera size (rig.py)
