@@ -46,7 +46,7 @@ from typing import Callable
 
 import numpy as np
 
-from jaxdepth.batch.cloud_runner import METHODS, CloudJob, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, cloud_baseline_depth, run_cloud_jobs
 
 log = logging.getLogger("jaxdepth")
 
@@ -192,13 +192,8 @@ def _load(job, *, tables: dict, cameras, force: bool):
     return cloud, rig
 
 
-def baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
-    """(C, H_max, W_max) float32 depth of a baseline (``"nearest"`` or ``"ip-basic"``) for every camera of
-    ``rig`` from all of ``cloud``'s points (:func:`jaxdepth.batch.cloud_runner.baseline_depth`)."""
-    from jaxdepth.batch.cloud_runner import baseline_depth as baseline_of_points
-    from jaxdepth.io import pad_points
-
-    return baseline_of_points(*pad_points(cloud.points), rig, method=method, config=config)
+#: The job's baseline of a sweep's cloud (``--method nearest`` / ``ip-basic``), the one every multi-source job runs.
+baseline_depth = cloud_baseline_depth
 
 
 @functools.lru_cache(maxsize=8)

@@ -95,6 +95,13 @@ def baseline_depth(points, valid, rig, *, method: str, config) -> np.ndarray:
     return out
 
 
+def cloud_baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
+    """:func:`baseline_depth` of every point of ``cloud`` (a :class:`~jaxdepth.io.SourceCloud`, all its
+    sources merged), padded to its point bucket (:func:`jaxdepth.io.pad_points`)."""
+    from jaxdepth.io import pad_points
+    return baseline_depth(*pad_points(cloud.points), rig, method=method, config=config)
+
+
 def cloud_completion(method: str, *, config, window: tuple | None = None) -> Callable:
     """``complete(cloud, rig) -> (depth, None, None)`` of :func:`run_cloud_jobs` for ``method``: the SGM
     (:func:`complete_sources`, ``window`` as there) or a baseline of the cloud's points (:func:`baseline_depth`)."""
@@ -103,11 +110,7 @@ def cloud_completion(method: str, *, config, window: tuple | None = None) -> Cal
     if method == "sgm":
         return lambda cloud, rig: (complete_sources(cloud, rig, config=config, window=window), None, None)
 
-    def baseline(cloud, rig):
-        from jaxdepth.io import pad_points
-        return (baseline_depth(*pad_points(cloud.points), rig, method=method, config=config), None, None)
-
-    return baseline
+    return lambda cloud, rig: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
@@ -164,4 +167,5 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
             f.result()
 
 
-__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_completion", "METHODS"]
+__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_baseline_depth", "cloud_completion",
+           "METHODS"]

@@ -362,13 +362,12 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
 def _baseline(run, writers, job, rig, points, *, method: str, config) -> None:
     """A baseline of one sample (``points``: the padded ``(points, valid)`` of one sweep, or the sweeps'
     SourceCloud), handed to the writers; a failure costs the sample."""
-    from jaxdepth.batch.cloud_runner import baseline_depth
-    from jaxdepth.io import pad_points
+    from jaxdepth.batch.cloud_runner import baseline_depth, cloud_baseline_depth
     from jaxdepth.io.errors import JaxdepthError
 
-    padded, valid = points if isinstance(points, tuple) else pad_points(points.points)
     try:
-        out = baseline_depth(padded, valid, rig, method=method, config=config)
+        out = (baseline_depth(*points, rig, method=method, config=config) if isinstance(points, tuple)
+               else cloud_baseline_depth(points, rig, method=method, config=config))
     except (JaxdepthError, ValueError) as err:
         run.fail(job.token, f"completion failed: {err}")
         return
