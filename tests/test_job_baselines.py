@@ -230,3 +230,36 @@ def test_complete_rig_one_sweep_nearest_each_camera_at_its_size(tmp_path, capsys
     assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "v"), "--no-estimate", "--method",
                      "nearest", "--validity", "-q"]) == 2
     assert "need --method sgm" in capsys.readouterr().err
+
+
+SEEDS = dict(validity=True)
+
+
+@pytest.mark.parametrize("call", ["run_jobs", "run_jobs_ray", "run_av2", "run_nuscenes", "complete_samples",
+                                  "rig_results"])
+def test_every_job_refuses_a_baseline_with_seed_options_in_one_wording(call, tmp_path):
+    """Each job's library entry point refuses ``method="nearest"`` with an extra that needs the SGM's seeds
+    before it reads anything, naming itself, in the one wording of ``runner.check_sgm_only``; the
+    multi-source jobs also refuse a method that is none of theirs."""
+    from jaxdepth.batch import av2_job, nuscenes_job, rig_job, runner, scale
+    from jaxdepth.batch.extras import ExtraOutputs
+
+    extras = ExtraOutputs(**SEEDS)
+    calls = {
+        "run_jobs": lambda m: runner.run_jobs([], method=m, extras=extras),
+        "run_jobs_ray": lambda m: scale.run_jobs_ray([], method=m, extras=extras),
+        "run_av2": lambda m: av2_job.run_av2(tmp_path / "missing", tmp_path, method=m, extras=extras),
+        "run_nuscenes": lambda m: nuscenes_job.run_nuscenes(tmp_path / "missing", tmp_path, version="v1.0-mini",
+                                                            method=m, extras=extras),
+        "complete_samples": lambda m: nuscenes_job.complete_samples(
+            None, [], None, None, sweeps=1, ego_motion=True, config=None, extras=extras, overwrite=False,
+            png_compression=1, method=m),
+        "rig_results": lambda m: rig_job.rig_results(None, extras, method=m),
+    }
+    with pytest.raises(ValueError, match=r"^\S.*: validity, seed distance, zero-invalid and image guidance need "
+                                         r"method 'sgm', got 'nearest'$"):
+        calls[call]("nearest")
+    if call not in ("run_jobs", "run_jobs_ray"):  # the KITTI runners take complete_with's methods
+        with pytest.raises(ValueError, match=r"field 'method' expected one of \('sgm', 'nearest', 'ip-basic'\), "
+                                             r"got 'bogus'"):
+            calls[call]("bogus")

@@ -46,7 +46,7 @@ from typing import Callable
 
 import numpy as np
 
-from jaxdepth.batch.cloud_runner import METHODS, CloudJob, cloud_baseline_depth, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, check_method, cloud_baseline_depth, run_cloud_jobs
 
 log = logging.getLogger("jaxdepth")
 
@@ -232,10 +232,7 @@ def _check_options(sweeps, cameras, time, method, extras) -> None:
         raise ValueError(f"run_av2: field 'cameras' expected distinct camera names, got {cameras!r}")
     if time not in TIMES:
         raise ValueError(f"run_av2: field 'time' expected one of {TIMES}, got {time!r}")
-    if method not in METHODS:
-        raise ValueError(f"run_av2: field 'method' expected one of {METHODS}, got {method!r}")
-    if method != "sgm" and extras.needs_seeds:
-        raise ValueError(f"run_av2: validity, seed distance and zero-invalid need method 'sgm', got {method!r}")
+    check_method(method, where="run_av2", extras=extras)
 
 
 def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite: bool = False,

@@ -29,6 +29,16 @@ READ_AHEAD = 2
 METHODS = ("sgm", "nearest", "ip-basic")
 
 
+def check_method(method: str, *, where: str, extras, config=None, guided: bool = False) -> None:
+    """ValueError naming ``where`` for a ``method`` that is none of :data:`METHODS`, or a baseline with options
+    that need the SGM (:func:`jaxdepth.batch.runner.check_sgm_only`; guided: ``guided`` or a guided ``config``)."""
+    from jaxdepth.batch.runner import check_sgm_only, is_guided
+
+    if method not in METHODS:
+        raise ValueError(f"{where}: field 'method' expected one of {METHODS}, got {method!r}")
+    check_sgm_only(method, where=where, extras=extras, guided=guided or (config is not None and is_guided(config)))
+
+
 @dataclasses.dataclass(frozen=True)
 class CloudJob:
     """One frame: its name (progress, failures), ``outputs`` ((camera name, PNG path), ...) still to write,

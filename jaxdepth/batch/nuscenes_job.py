@@ -66,6 +66,8 @@ from typing import Callable
 
 import numpy as np
 
+from jaxdepth.batch.cloud_runner import check_method
+
 log = logging.getLogger("jaxdepth")
 
 #: Samples loaded ahead of the device.
@@ -258,7 +260,7 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
         raise ValueError(f"run_nuscenes: field 'sweeps' expected an integer >= 1, got {sweeps!r}")
     if sweeps > 1 and extras.needs_seeds:
         raise ValueError("run_nuscenes: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
-    _check_method(method, config, extras, "run_nuscenes")
+    check_method(method, where="run_nuscenes", extras=extras, config=config)
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     dst = pathlib.Path(dst)
@@ -275,19 +277,6 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
                      extras=extras, overwrite=overwrite, png_compression=png_compression,
                      targets=jax.local_devices()[:devices], io_threads=io_threads, force=force, method=method)
     return summary
-
-
-def _check_method(method: str, config, extras, where: str) -> None:
-    """ValueError naming ``where`` for a method that is none of the job's, or a baseline with options that
-    need the SGM's seeds (validity, seed distance, zero-invalid) or image-guided seeds."""
-    from jaxdepth.batch.cloud_runner import METHODS
-    from jaxdepth.batch.runner import is_guided
-
-    if method not in METHODS:
-        raise ValueError(f"{where}: field 'method' expected one of {METHODS}, got {method!r}")
-    if method != "sgm" and (extras.needs_seeds or (config is not None and is_guided(config))):
-        raise ValueError(f"{where}: validity, seed distance, zero-invalid and image guidance need method 'sgm', "
-                         f"got {method!r}")
 
 
 def make_folders(todo) -> None:
@@ -312,7 +301,7 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
 
     if sweeps > 1 and extras.needs_seeds:
         raise ValueError("nuScenes job: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
-    _check_method(method, config, extras, "nuScenes job")
+    check_method(method, where="nuScenes job", extras=extras, config=config)
     from jaxdepth._src.rig import stack_cameras
     from jaxdepth.batch.cloud_runner import complete_sources
     from jaxdepth.batch.runner import is_guided, read_ahead

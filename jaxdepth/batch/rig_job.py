@@ -169,10 +169,8 @@ def rig_results(prepared: PreparedSweep, extras: extra_outputs.ExtraOutputs, *, 
         stages, cameras = rig_stages(prepared, images=images)
         seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
         return (*rig_outputs(prepared, stages, cameras, extras), seen)
-    from jaxdepth.batch.cloud_runner import baseline_depth, cloud_baseline_depth
-    if extras.needs_seeds or images is not None:
-        raise ValueError(f"complete-rig: validity, seed distance, zero-invalid and image guidance need method "
-                         f"'sgm', got {method!r}")
+    from jaxdepth.batch.cloud_runner import baseline_depth, check_method, cloud_baseline_depth
+    check_method(method, where="complete-rig", extras=extras, guided=images is not None)
     options = dict(method=method, config=prepared.config)
     depth = (cloud_baseline_depth(prepared.points, prepared.rig, **options) if prepared.multi
              else baseline_depth(*prepared.points, prepared.rig, **options))

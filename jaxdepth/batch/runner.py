@@ -150,6 +150,15 @@ def is_guided(config: SGMConfig) -> bool:
     return config.guidance_weight > 0
 
 
+def check_sgm_only(method: str, *, where: str, extras=None, guided: bool = False) -> None:
+    """ValueError naming ``where`` when a baseline ``method`` (not "sgm") comes with options that need the SGM's
+    seeds (``extras``: validity, seed distance, zero-invalid) or with image-guided seeds (``guided``).
+    The one wording of every job's check (the KITTI runners, the multi-source jobs, ``complete-rig``)."""
+    if method != "sgm" and ((extras is not None and extras.needs_seeds) or guided):
+        raise ValueError(f"{where}: validity, seed distance, zero-invalid and image guidance need method 'sgm', "
+                         f"got {method!r}")
+
+
 def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px):
     """Validity and seed distance; ``max_seed_distance_px`` pixels or ``"sensor"`` (the camera's own limit)."""
     from jaxdepth._src.validity import validity_and_distance
@@ -506,10 +515,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     extras = extra_outputs.NONE if extras is None else extras
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
-    if method != "sgm" and is_guided(config):
-        raise ValueError(f"run_jobs: image-guided seeds (guidance_weight > 0) need method 'sgm', got {method!r}")
-    if method != "sgm" and extras.needs_seeds:
-        raise ValueError(f"run_jobs: --validity, --seed-distance and --zero-invalid need method 'sgm', got {method!r}")
+    check_sgm_only(method, where="run_jobs", extras=extras, guided=is_guided(config))
     summary = RunSummary(started_at=time.perf_counter())
     notify = on_progress or (lambda name, status: None)
     todo = pending_jobs(jobs, overwrite=overwrite, summary=summary, notify=notify, extras=extras)

@@ -473,7 +473,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
       ray.exceptions.RayError: the cluster failed beyond the retries above
         (bad frames never raise).
     """
-    from jaxdepth.batch.runner import RunSummary, is_guided
+    from jaxdepth.batch.runner import RunSummary, check_sgm_only, is_guided
 
     if int(batch_size) < 1:
         raise ValueError(f"run_jobs_ray: field 'batch_size' expected >= 1, got {batch_size}")
@@ -485,11 +485,7 @@ def run_jobs_ray(jobs: Sequence, *, method: str = "sgm", config: SGMConfig = SGM
         raise ValueError(f"run_jobs_ray: field 'jobs' expected distinct output paths, got {dup!r} twice")
     if method != "sgm" and any(job.image_size is not None for job in jobs):
         raise ValueError(f"run_jobs_ray: sweep jobs (image_size set) complete with method 'sgm' only, got {method!r}")
-    if method != "sgm" and extras is not None and extras.needs_seeds:
-        raise ValueError(f"run_jobs_ray: validity / seed-distance / zero-invalid extras need method 'sgm', "
-                         f"got {method!r}")
-    if method != "sgm" and is_guided(config):
-        raise ValueError(f"run_jobs_ray: image-guided seeds (guidance_weight > 0) need method 'sgm', got {method!r}")
+    check_sgm_only(method, where="run_jobs_ray", extras=extras, guided=is_guided(config))
     ray, ray_data = _import_ray()
 
     summary = RunSummary()
