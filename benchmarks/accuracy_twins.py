@@ -417,7 +417,12 @@ def summary(cases: list) -> dict:
 
 def targets_check(table: dict) -> dict:
     """The issue's targets per rig: default SGM vs city-block fill (>= 10 % in RMSE and MAE, 1 and 5
-    sweeps), 5 sweeps vs 1 (>= 5 %, or half the oracle bound where that is below 5 %)."""
+    sweeps), 5 sweeps vs 1 (>= 5 %, or half the oracle bound where that is below 5 %).
+
+    Two bounds: ``oracle_gain_5_vs_1_pct``, the truth-filtered 5 sweeps against the default SGM on 1 sweep
+    (``met``), and ``oracle_like_for_like_5_vs_1_pct``, the truth-filtered 5 sweeps against the truth-filtered
+    1 sweep (``met_like_for_like``): the first also credits 5 sweeps with removing the reference sweep's own
+    wrong points, which 1 sweep would gain as much from (docs/multi_source.md, "At full camera size")."""
     def gain(a, b, k):
         return 100.0 * (1.0 - a[k] / b[k])
     out = {}
@@ -430,9 +435,17 @@ def targets_check(table: dict) -> dict:
             if "oracle_truth_filtered" in rows["5"]:
                 r["oracle_gain_5_vs_1_pct"] = {k: gain(rows["5"]["oracle_truth_filtered"], rows["1"]["sgm"], k)
                                                for k in KEYS}
-            bound = r.get("oracle_gain_5_vs_1_pct", {})
-            need = {k: min(5.0, 0.5 * bound[k]) if k in bound else 5.0 for k in KEYS}
-            met = met and all(r["gain_5_vs_1_pct"][k] >= need[k] for k in KEYS)
+            if "oracle_truth_filtered" in rows["1"] and "oracle_truth_filtered" in rows["5"]:
+                r["oracle_like_for_like_5_vs_1_pct"] = {
+                    k: gain(rows["5"]["oracle_truth_filtered"], rows["1"]["oracle_truth_filtered"], k) for k in KEYS}
+
+            def reached(bound):
+                need = {k: min(5.0, 0.5 * bound[k]) if k in bound else 5.0 for k in KEYS}
+                return all(r["gain_5_vs_1_pct"][k] >= need[k] for k in KEYS)
+            like = r.get("oracle_like_for_like_5_vs_1_pct")
+            met_like = met and like is not None and reached(like)
+            met = met and reached(r.get("oracle_gain_5_vs_1_pct", {}))
+            r["met_like_for_like"] = bool(met_like)
         r["met"] = bool(met)
         out[rig] = r
     return out
@@ -557,13 +570,14 @@ def markdown(doc: dict) -> str:
             cells.append("-" if orc is None else f"{orc['rmse']:.0f} / {orc['mae']:.0f}")
             lines.append(f"| {rig} | {label[rig]} | {n} | " + " | ".join(cells) + " |")
     lines += ["", "| twin | camera scale | SGM vs city block, 1 sweep | 5 sweeps | 5 sweeps vs 1 | "
-              "oracle bound 5 vs 1 | met |", "|---|---|---|---|---|---|---|"]
+              "oracle bound 5 vs 1 | met | like-for-like bound | met |", "|---|---|---|---|---|---|---|---|---|"]
     for rig, t in doc["targets"].items():
         def pct(d):
             return "-" if d is None else f"{d['rmse']:+.1f} / {d['mae']:+.1f} %"
         vs = t["sgm_vs_nearest_pct"]
         lines.append(f"| {rig} | {label[rig]} | {pct(vs.get('1'))} | {pct(vs.get('5'))} | {pct(t.get('gain_5_vs_1_pct'))} | "
-                     f"{pct(t.get('oracle_gain_5_vs_1_pct'))} | {'yes' if t['met'] else 'no'} |")
+                     f"{pct(t.get('oracle_gain_5_vs_1_pct'))} | {'yes' if t['met'] else 'no'} | "
+                     f"{pct(t.get('oracle_like_for_like_5_vs_1_pct'))} | {'yes' if t.get('met_like_for_like') else 'no'} |")
     agree = doc["agreement"]
     if not agree["rmse"]:                               # no hold-out (--no-hold-out): no agreement table
         return "\n".join(lines)
