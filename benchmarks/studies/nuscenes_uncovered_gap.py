@@ -1,7 +1,7 @@
 """Where the SGM's ``uncovered`` MAE trails the city-block fill on nuScenes (issue 37 (b)).
 
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_uncovered_gap \
-        [--seeds 0 1 2 3 4] [--twin-seeds 0] [--twin-scale 1] [--skip-twin] \
+        [--seeds 0 1 2 3 4] [--twin-seeds 0 1] [--twin-scale 1] [--skip-twin] \
         [--json benchmarks/results/nuscenes_uncovered_gap.json]
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_uncovered_gap --kitti-only \
         --json benchmarks/results/nuscenes_uncovered_gap_kitti.json
@@ -263,7 +263,7 @@ def kitti_frame() -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
-    parser.add_argument("--twin-seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--twin-seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--twin-scale", type=float, default=1.0)
     parser.add_argument("--skip-twin", action="store_true")
     parser.add_argument("--skip-real", action="store_true")
