@@ -113,3 +113,29 @@ def test_traced_sigma_rejects_bad_arguments():
         gaussian_blur_traced(img, np.ones(2, np.float32), radius_px=1)
     with pytest.raises(ValueError, match=r"\(H, W\)"):
         gaussian_blur_traced(np.zeros((2, 5, 5), np.float32), 1.0, radius_px=1)
+
+
+@pytest.mark.parametrize("radius", [1, 3, 4])
+def test_window_padding_is_numpy_reflect_of_the_window(radius):
+    """The window's padding (a select among static shifts) holds, bit for bit, NumPy's reflect-101 padding of
+    the window (``np.pad(mode="reflect")`` where it reflects once, the folded index beyond), for every
+    window size from 2 to the canvas's on both axes, and under ``vmap`` with each window's own size."""
+    from jaxdepth._src.smoothing import _reflect101_index, _reflect101_pad_window
+
+    rng = np.random.default_rng(radius)
+    canvas = rng.uniform(-1, 1, (9, 7)).astype(np.float32)
+    pad = jax.jit(_reflect101_pad_window, static_argnums=(1, 2))
+    for axis in (0, 1):
+        length = canvas.shape[axis]
+        sizes = np.arange(2, length + 1, dtype=np.int32)
+        batched = jax.vmap(lambda n, axis=axis: _reflect101_pad_window(canvas, radius, axis, n))(sizes)
+        for n, got_batched in zip(sizes, np.asarray(batched)):
+            window = np.take(canvas, np.arange(n), axis=axis)
+            want = np.take(window, _reflect101_index(int(n), radius), axis=axis)
+            if radius < n:
+                widths = [(0, 0), (0, 0)]
+                widths[axis] = (radius, radius)
+                np.testing.assert_array_equal(want, np.pad(window, widths, mode="reflect"))
+            for got in (np.asarray(pad(canvas, radius, axis, n)), got_batched):
+                got = np.take(got, np.arange(n + 2 * radius), axis=axis)
+                np.testing.assert_array_equal(got, want, err_msg=f"axis {axis}, window {n}")

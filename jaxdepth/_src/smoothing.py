@@ -43,17 +43,30 @@ def _reflect101_pad(image: jax.Array, radius: int, axis: int) -> jax.Array:
 
 
 def _reflect101_pad_window(image: jax.Array, radius: int, axis: int, n) -> jax.Array:
-    """:func:`_reflect101_pad` of the first ``n`` (traced int32) entries of ``axis``: the image is
-    a window of a canvas, mirrored at its own edge (index ``n - 1``), never read beyond it.
+    """:func:`_reflect101_pad` of the first ``n`` (traced int32, ``n >= 2``) entries of ``axis``: the image
+    is a window of a canvas, mirrored at its own edge (index ``n - 1``), never read beyond it.
 
     Returns the canvas's length + 2 ``radius`` along ``axis``; the first ``n + 2 radius`` entries
-    are those of :func:`_reflect101_pad` of the window (one row / column gather).
+    are those of :func:`_reflect101_pad` of the window, the rest any value. Entry ``i`` (from
+    ``-radius``) is the window's entry ``i - s`` with ``s = i - reflect(i)``, even and within
+    ``[-2 radius, 2 radius]`` for every ``i < n + radius`` and every ``n >= 2``: a select among
+    ``2 radius + 1`` static shifts, elementwise. (A gather, the form before, ran the blur's taps inside
+    XLA:CPU's gather kernel, ~2x the tail's blur time on a rig's 3 Mpx cameras under ``vmap``, and
+    rounded them unlike every other kernel: docs/speed.md, "The rig's tail".)
     """
-    idx = jnp.arange(-radius, image.shape[axis] + radius, dtype=jnp.int32)
+    length = image.shape[axis]
+    i = jnp.arange(-radius, length + radius, dtype=jnp.int32)
     period = jnp.maximum(2 * n - 2, 1)
-    idx = jnp.abs(idx) % period
-    idx = jnp.where(idx >= n, period - idx, idx)
-    return jnp.take(image, idx, axis=axis, mode="clip")      # idx is in [0, n), n <= the length
+    idx = jnp.abs(i) % period
+    shift = (i - jnp.where(idx >= n, period - idx, idx)).reshape((-1,) + (1,) * (image.ndim - 1 - axis))
+    pad = [(0, 0, 0)] * image.ndim
+    pad[axis] = (3 * radius, 3 * radius, 0)
+    ext = jax.lax.pad(image, jnp.zeros((), image.dtype), pad)          # ext[k + 3 radius] = image[k]
+    out = None
+    for s in range(-2 * radius, 2 * radius + 1, 2):
+        part = jax.lax.slice_in_dim(ext, 2 * radius - s, 2 * radius - s + length + 2 * radius, axis=axis)
+        out = part if out is None else jnp.where(shift == s, part, out)
+    return out
 
 
 def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
