@@ -57,6 +57,8 @@ class Row:
     check: Callable | None = None  # check(outputs, inputs): a further property of the plain outputs
     covers: tuple = ()  # the public names this row checks (default: fn's name)
     slow: bool = False  # marked slow (docs/testing.md): left out of the quick subset
+    # rows (and tests) that compile the same programs or op-by-op primitives: one xdist worker, not both at once
+    group: str | None = None
 
     def names(self) -> tuple:
         return self.covers or (self.fn.__name__,)
@@ -214,10 +216,10 @@ def _outlier_rows():
         kind = "raw" if raw else "image"
         rows.append(Row(f"outlier_keep_mask-paper-{kind}", _keep_mask, functools.partial(_outlier_frames, raw),
                         static=dict(_OUTLIER_STATIC, test="paper"), oracle=_paper_loop, check=_removes_something,
-                        covers=("outlier_keep_mask",)))
+                        covers=("outlier_keep_mask",), group="outliers_24x40"))
         rows.append(Row(f"outlier_keep_mask-footprint-{kind}", _keep_mask, functools.partial(_outlier_frames, raw),
                         static=dict(_OUTLIER_STATIC, test="footprint"), check=_footprint_check,
-                        covers=("outlier_keep_mask",)))
+                        covers=("outlier_keep_mask",), group="outliers_24x40"))
     return rows
 
 
@@ -533,7 +535,7 @@ def _rows() -> list[Row]:
         # step 3
         *[Row(f"nearest_seed-{metric}", nearest_seed, _seed_masks, static=dict(metric=metric),
               oracle=_seed_distance_oracle, select=lambda r: r.distance, oracle_ulps=4, ulps=0,
-              check=functools.partial(_seeds_check, metric))
+              check=functools.partial(_seeds_check, metric), group="distance")  # test_distance's (16, 21) programs
           for metric in ("l1", "l2")],
         *[Row(f"gather_at_seed-{len(ch)}ch", gather_at_seed, functools.partial(_gather_inputs, ch),
               oracle=_gather_oracle, oracle_ulps=0, ulps=0) for ch in ((), (2,))],
@@ -547,18 +549,18 @@ def _rows() -> list[Row]:
             oracle_ulps=8 / 0.05, ulps=8 / 0.05),
         *[Row(f"column_hypotheses-{'blend' if blend else 'bracket'}", column_hypotheses, _hypotheses_inputs,
               static=dict(window_px=7.0, blend=blend), oracle=_hypotheses_oracle, oracle_ulps=64,
-              in_axes=(0, 0, 0, 0, None), check=_hypotheses_check) for blend in (False, True)],
+              in_axes=(0, 0, 0, 0, None), check=_hypotheses_check, group="stage_hypotheses") for blend in (False, True)],
         Row("background_above_scan", background_above_scan, _above_scan_inputs, static=dict(beams=16),
             oracle=_above_scan_oracle, oracle_ulps=0, ulps=0),
         Row("gaussian_blur", gaussian_blur, lambda: [(x,) for x in _blur_images(3, 80)],
-            static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur, oracle_ulps=15, oracle_scale=80.0),
+            static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur, oracle_ulps=15, oracle_scale=80.0, group="stage_blur"),
         # one compiled function for every sigma (0 included), batched over images and sigmas ...
         Row("gaussian_blur_traced", gaussian_blur_traced, lambda: list(zip(_blur_images(4, 10), _SIGMAS)),
-            static=dict(radius_px=3), oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0),
+            static=dict(radius_px=3), oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0, group="stage_blur"),
         # ... and over sigma alone with a shared image
         Row("gaussian_blur_traced-shared-image", gaussian_blur_traced,
             lambda: [(_blur_images(4, 10)[0], s) for s in _SIGMAS], static=dict(radius_px=3), in_axes=(None, 0),
-            oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0),
+            oracle=_scipy_blur, oracle_ulps=15, oracle_scale=10.0, group="stage_blur"),
         # the pipeline from a sweep (eager on one input: the one op-by-op run of a whole pipeline; its
         # exact point positions and 3-D outlier test have no plain composition to compare against)
         Row("complete_points", _OneLibraryJit(complete_points, pipeline._complete_points_depth), lambda: tiny_street_frames((0, 1, 2)), static=dict(lidar=SMALL_LIDAR),

@@ -205,6 +205,7 @@ def test_folder_with_outputs_but_no_record_is_refused(tmp_path, capsys):
     assert code == 1 and "no jaxdepth_run.json" in _one_line_error(err)
 
 
+@pytest.mark.xdist_group("eval_full_frame")  # the 375 x 1242 depth_metrics program: one worker
 def test_eval_prints_the_predictions_recorded_settings(tmp_path, capsys):
     from jaxdepth.batch import run_record
     from jaxdepth._src.config import SGMConfig
@@ -239,6 +240,7 @@ def eval_sides(tmp_path):
     return folders
 
 
+@pytest.mark.xdist_group("eval_full_frame")  # the 375 x 1242 depth_metrics program: one worker
 def test_eval_with_swapped_folders_is_refused_and_suggests_the_swap(capsys, eval_sides):
     code, out, err = _run(capsys, "eval", eval_sides["gt"], eval_sides["completion"])
     line = _one_line_error(err)

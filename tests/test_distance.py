@@ -23,6 +23,9 @@ from jaxdepth._src.distance import NearestSeed, gather_at_seed, nearest_seed
 
 
 METRICS = ("l1", "l2")
+# One worker for the module: its tests share each (shape, metric) program (across two workers, two tests of
+# one program once compiled it at the same time; docs/testing.md, "Compiled programs").
+pytestmark = pytest.mark.xdist_group("distance")
 EPS = float(np.finfo(np.float32).eps)
 
 

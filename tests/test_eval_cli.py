@@ -16,6 +16,9 @@ import jaxdepth
 from jaxdepth import cli
 from jaxdepth.io import read_depth_png, write_depth_png
 
+# One worker for the module: its tests score frames of a few sizes, each a depth_metrics program of its own.
+pytestmark = pytest.mark.xdist_group("eval_cli")
+
 KEYS = ("rmse", "mae", "irmse", "imae")
 
 

@@ -353,6 +353,7 @@ def test_pipeline_guided_seeds_and_vmap():
     np.testing.assert_allclose(batched, np.stack(loop), rtol=1e-5, atol=1e-4)
 
 
+@pytest.mark.xdist_group("geodesic_bad_image")  # the cases render one frame: one worker compiles it once
 @pytest.mark.parametrize("image,match", [
     (None, r"'image' expected an \(H, W\) or \(H, W, 3\) camera image because config.guidance_weight > 0, got None"),
     (np.zeros((10, 20, 3), np.uint8), r"'image' expected shape \(32, 48\) \(grey\) or \(32, 48, 3\).*got \(10, 20, 3\)"),

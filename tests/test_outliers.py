@@ -188,6 +188,7 @@ def _kitti_window(kitti, cam, r0, c0):
 
 
 # ----------------------------------------------------------------------------- oracle tests
+@pytest.mark.xdist_group("outliers_24x40")  # the stage table's 24 x 40 CAPS keep-mask programs: one worker
 @hypothesis.settings(**SETTINGS)
 @hypothesis.given(seed=st.integers(0, 2**31 - 1), density=st.sampled_from([0.04, 0.1, 0.25]))
 def test_matches_paper_double_loop_random(seed, density):
@@ -204,6 +205,7 @@ def test_matches_paper_double_loop_random(seed, density):
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.xdist_group("outliers_24x40")  # the stage table's 24 x 40 CAPS keep-mask programs: one worker
 @hypothesis.settings(**SETTINGS)
 @hypothesis.given(seed=st.integers(0, 2**31 - 1))
 def test_matches_paper_double_loop_points_cam(seed):
@@ -219,6 +221,7 @@ def test_matches_paper_double_loop_points_cam(seed):
     np.testing.assert_array_equal(got, paper_double_loop(depth, K, T, points_cam=points, **kw))
 
 
+@pytest.mark.xdist_group("outliers_scene")  # the analytic scenes' keep-mask program: one worker
 @pytest.mark.parametrize("r0, c0", [(110, 150), (100, 880)])   # 96 x 320 with removals, two 96 x 160 windows
 def test_matches_paper_double_loop_kitti_crop(kitti, r0, c0):
     """Real KITTI points against the double loop, in windows of the analytic scenes' size, beams and caps
@@ -242,6 +245,7 @@ def _assert_matches_footprint(got, want, unsure):
     assert unsure.sum() <= 2
 
 
+@pytest.mark.xdist_group("outliers_24x40")  # the stage table's 24 x 40 CAPS keep-mask programs: one worker
 @hypothesis.settings(**SETTINGS)
 @hypothesis.given(seed=st.integers(0, 2**31 - 1), density=st.sampled_from([0.04, 0.1, 0.25]), raw=st.booleans())
 def test_matches_footprint_double_loop_random(seed, density, raw):
@@ -274,6 +278,7 @@ def test_matches_footprint_double_loop_odd_shape():
     assert removed > 0
 
 
+@pytest.mark.xdist_group("outliers_24x40")  # the stage table's 24 x 40 CAPS keep-mask programs: one worker
 @pytest.mark.parametrize("seed, far, t_z", [(0, 400.0, 0.0), (1, 300.0, 1.2), (2, 40.0, 2.5), (3, 260.0, -1.0)])
 def test_footprint_prefilter_edge_depths(seed, far, t_z):
     """The prefilter keys saturate at 256 m and the parallax bound divides by Z - t_z: depths past
@@ -560,6 +565,7 @@ def test_empty_and_single_point():
     assert not np.asarray(outlier_keep_mask(bad, K, T, beams=6, **CAPS)).any()
 
 
+@pytest.mark.xdist_group("outliers_scene")  # its 96 x 160 keep-mask programs are the scene tests': one worker
 @hypothesis.settings(**SETTINGS)
 @hypothesis.given(seed=st.integers(0, 2**31 - 1), raw=st.booleans())
 def test_no_parallax_removes_nothing(seed, raw):
@@ -638,6 +644,7 @@ def test_options_are_keyword_only():
         outlier_keep_mask(np.zeros((4, 4), np.float32), np.eye(3), np.eye(4), 4)  # beams positional
 
 
+@pytest.mark.xdist_group("outliers_24x40")  # the stage table's 24 x 40 CAPS keep-mask programs: one worker
 def test_vmap_over_epsilon_only_equals_loop():
     """A parameter sweep: epsilon batched, the image shared (unbatched operands inside the kernel)."""
     rng = np.random.default_rng(12)

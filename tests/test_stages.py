@@ -38,8 +38,11 @@ NO_ROW = {
 }
 
 
-@pytest.mark.parametrize("row", [pytest.param(row, id=row.name, marks=[pytest.mark.slow] if row.slow else [])
-                                 for row in ROWS])
+def _marks(row) -> list:
+    return ([pytest.mark.slow] if row.slow else []) + ([pytest.mark.xdist_group(row.group)] if row.group else [])
+
+
+@pytest.mark.parametrize("row", [pytest.param(row, id=row.name, marks=_marks(row)) for row in ROWS])
 def test_stage(row):
     inputs = row.inputs()
     outs = check_stage(row.fn, inputs, static=row.static, oracle=row.oracle, select=row.select,

@@ -24,6 +24,9 @@ from jaxdepth._src import geometry, synthetic
 from jaxdepth._src.presets import KITTI_HDL64
 from jaxdepth._src.types import Camera, LidarSpec
 
+# One worker for the module: its tests share the scene's render and ray programs (on two workers, two tests
+# compiled one at the same time).
+pytestmark = pytest.mark.xdist_group("synthetic")
 SETTINGS = dict(deadline=None, max_examples=8, derandomize=True)
 N_RAYS = 512
 _cast = jax.jit(synthetic.cast_rays)
