@@ -10,10 +10,11 @@ gather of before (``views_row_gather``: each pixel's (3,) row gathered, transpos
 are compared byte for byte). ``--rounds`` interleaved rounds after a first call each (compile apart);
 medians per variant in ns per real pixel (22.2 Mpx on Argoverse 2, 8.6 Mpx on nuScenes) and per-round
 ratios to ``views_row_gather``; the projection stage and the one program also compiled with that gather of before
-(``*_row_gather``, the same bytes checked). The process keeps freed memory as the ``jaxdepth`` command does
+(``*_row_gather``, the same bytes checked). ``--baseline FILE``: Step 2 (``keep``) and the one program also
+compiled with another ``outliers.py``'s ``_keep_mask`` (``*_baseline``; per-round ratios, the same bytes checked). The process keeps freed memory as the ``jaxdepth`` command does
 (``keep_freed_memory``), so no run pays page faults the job does not.
 
-    python -m benchmarks.bench_rig_stage_profile [--cases av2 nuscenes] [--rounds 5]
+    python -m benchmarks.bench_rig_stage_profile [--cases av2 nuscenes] [--rounds 5] [--baseline FILE]
         [--json benchmarks/results/rig_stage_profile.json]
 """
 
@@ -85,26 +86,49 @@ def _row_gather_channels(values, index):
     return jnp.where(hit[None], rows.T.reshape(values.shape[1], *index.shape), 0.0)
 
 
-def _compiled_with_row_gather(fns: dict, names) -> dict:
-    """``{name + "_row_gather": (executable, args)}``: the programs ``names`` compiled with
-    ``pipeline.gather_channels`` swapped for the row gather of before (JAX's caches cleared around, so
-    neither variant reuses the other's traces)."""
+def _compiled_with(fns: dict, names, suffix: str, swaps) -> dict:
+    """``{name + suffix: (executable, args)}``: the programs ``names`` compiled with each ``(module, attribute,
+    value)`` of ``swaps`` set (JAX's caches cleared around, so neither variant reuses the other's traces)."""
     import jax
-
-    from jaxdepth._src import pipeline
-    kept = pipeline.gather_channels
+    kept = [(m, a, getattr(m, a)) for m, a, _ in swaps]
     jax.clear_caches()
-    pipeline.gather_channels = _row_gather_channels
+    for m, a, v in swaps:
+        setattr(m, a, v)
     try:
-        out = {f"{n}_row_gather": (fns[n][0].lower(*fns[n][1]).compile(), fns[n][1]) for n in names}
+        out = {f"{n}{suffix}": (fns[n][0].lower(*fns[n][1]).compile(), fns[n][1]) for n in names}
     finally:
-        pipeline.gather_channels = kept
+        for m, a, v in kept:
+            setattr(m, a, v)
         jax.clear_caches()
     return out
 
 
-def _programs(case: str) -> tuple:
-    """``({name: (jitted fn, args)}, real pixels)`` of a case."""
+def _compiled_with_row_gather(fns: dict, names) -> dict:
+    """The programs ``names`` compiled with ``pipeline.gather_channels`` swapped for the row gather of before."""
+    from jaxdepth._src import pipeline
+    return _compiled_with(fns, names, "_row_gather", [(pipeline, "gather_channels", _row_gather_channels)])
+
+
+def _compiled_with_baseline(fns: dict, names, path: str) -> dict:
+    """The programs ``names`` compiled with Step 2's ``_keep_mask`` from another ``outliers.py`` (``path``, e.g.
+    main's), as ``sources`` and ``outliers`` call it (options it does not take are dropped)."""
+    import importlib.util
+    import inspect
+
+    from jaxdepth._src import outliers, sources
+    spec = importlib.util.spec_from_file_location("outliers_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    takes = inspect.signature(module._keep_mask).parameters
+
+    def keep_mask(*args, **options):
+        return module._keep_mask(*args, **{k: v for k, v in options.items() if k in takes})
+    return _compiled_with(fns, names, "_baseline", [(outliers, "_keep_mask", keep_mask),
+                                                    (sources, "_keep_mask", keep_mask)])
+
+
+def _programs(case: str, baseline=None) -> tuple:
+    """``({name: (jitted fn, args)}, real pixels)`` of a case (``baseline``: see :func:`_compiled_with_baseline`)."""
     import jax
 
     from benchmarks.bench_stage_programs import _case_inputs
@@ -115,6 +139,8 @@ def _programs(case: str) -> tuple:
     fns = {"projection": (jitted[0], args[0]), "keep": (jitted[1], args[1](views)),
            "tail": (jitted[2], args[2]((views, keeps))), "one_program": (one, one_args)}
     fns.update(_compiled_with_row_gather(fns, ("projection", "one_program")))
+    if baseline:
+        fns.update(_compiled_with_baseline(fns, ("keep", "one_program"), baseline))
     cameras = one_args[-1]
     if case == "av2":
         fns.update({f"projection.{k}": v for k, v in _projection_parts(*one_args, statics[0]["config"]).items()})
@@ -134,9 +160,9 @@ def _same(f, g) -> bool:
                for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
 
 
-def run_case(case: str, rounds: int) -> dict:
+def run_case(case: str, rounds: int, baseline=None) -> dict:
     import jax
-    fns, pixels = _programs(case)
+    fns, pixels = _programs(case, baseline)
     first = {}
     for name, (fn, args) in fns.items():
         t = time.perf_counter()
@@ -157,6 +183,12 @@ def run_case(case: str, rounds: int) -> dict:
             base = runs[f"{name}_row_gather"]
             out[f"{name}_over_row_gather_per_round"] = [a / b for a, b in zip(runs[name], base)]
     out["one_program_identical_to_row_gather"] = _same(fns["one_program"], fns["one_program_row_gather"])
+    if baseline:
+        for name in ("keep", "one_program"):
+            out[f"{name}_over_baseline_per_round"] = [a / b for a, b in zip(runs[name], runs[f"{name}_baseline"])]
+            out[f"{name}_identical_to_baseline"] = _same(fns[name], fns[f"{name}_baseline"])
+        print(case, "keep / baseline", [round(x, 2) for x in out["keep_over_baseline_per_round"]], "identical",
+              out["keep_identical_to_baseline"], out["one_program_identical_to_baseline"])
     print(case, {k: round(v, 1) for k, v in ns.items()}, "identical", out["views_identical_to_row_gather"],
           out["one_program_identical_to_row_gather"])
     return out
@@ -168,13 +200,15 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", nargs="+", default=["av2", "nuscenes"], choices=("av2", "nuscenes"))
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--json", default=str(RESULTS / "rig_stage_profile.json"))
+    parser.add_argument("--baseline", default=None,
+                        help="another outliers.py: Step 2 and the one program also compiled with its _keep_mask")
     args = parser.parse_args(argv)
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command
     t0 = time.time()
-    cases = {case: run_case(case, args.rounds) for case in args.cases}
+    cases = {case: run_case(case, args.rounds, args.baseline) for case in args.cases}
     write_results(args.json, {"what": "rig pipelines: each stage program and the projection's parts, ns/px, one "
-                                      "process", "load_average": os.getloadavg(), "cases": cases}, None, t0)
+                                      "process", "load_average": os.getloadavg(), "baseline": args.baseline, "cases": cases}, None, t0)
     return 0
 
 

@@ -107,20 +107,27 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     return max(half_width, 0), max(half_height, 0)
 
 
-def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
-    """``out[i] = min(x[i:i + size])`` along ``axis`` (length shrinks by ``size - 1``).
+def _sliding_mins(x: jax.Array, halves: tuple, axis: int) -> tuple:
+    """``out[i] = min(x[i + h0 - h:i + h0 + h + 1])`` along ``axis`` for each half size ``h`` of ``halves``
+    (``h0 = halves[0]``, the largest: ``x`` is padded by ``h0``; each output's length shrinks by ``2 h0``).
 
     Doubling: minima over 1, 2, 4, ... elements, then two overlapping runs of
-    the largest power of two cover the window (about log2(size) passes instead
-    of ``size``).
+    the largest power of two within a window cover it (about log2(size) passes instead
+    of ``size``); the smaller windows reuse the larger one's runs.
     """
-    n = x.shape[axis] - size + 1
+    h0 = halves[0]
+    n = x.shape[axis] - 2 * h0
     take = lambda a, start, length: jax.lax.slice_in_dim(a, start, start + length, axis=axis)
-    run, width = x, 1
-    while 2 * width <= size:
-        run = jnp.minimum(take(run, 0, run.shape[axis] - width), take(run, width, run.shape[axis] - width))
+    runs, width = {1: x}, 1
+    while 2 * width <= 2 * h0 + 1:
+        run = runs[width]
+        runs[2 * width] = jnp.minimum(take(run, 0, run.shape[axis] - width), take(run, width, run.shape[axis] - width))
         width *= 2
-    return jnp.minimum(take(run, 0, n), take(run, size - width, n))
+    out = []
+    for h in halves:
+        size, w = 2 * h + 1, 1 << (2 * h + 1).bit_length() - 1
+        out.append(jnp.minimum(take(runs[w], h0 - h, n), take(runs[w], h0 - h + size - w, n)))
+    return tuple(out)
 
 
 #: Normalised radius of the footprint prefilter's small box (see _prefilter_words).
@@ -170,13 +177,15 @@ def _prefilter_fields(depth, t_z, *points, footprint):
 
     A pixel takes part when it has depth and, for the footprint form, lies in
     front of the LiDAR's virtual camera (camera depth above ``t_z``, the LiDAR
-    origin's; with per-pixel origins, the nearest of them: every pixel that
+    origin's; with per-pixel origins, at most the nearest of them: every pixel that
     takes part for some origin takes part, a superset). Returns
-    uint16 keys (see :data:`_ZQ`): the depth key, then (footprint form, raw
-    path) the key of the point's own camera depth Z; and, footprint form, the
-    inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima. ``depth``: (H, W) float32;
-    ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z is their z, sliced here,
-    inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads them as it reads them.
+    uint16 keys (see :data:`_ZQ`): the depth key; then, footprint form, the inverted keys
+    ``_ZSAT - key`` of the point's own camera depth Z, whose minima give Z's maxima; and (raw path)
+    the neighbour key ``min(depth key, Z key)``, whose window minima stand for both the depth's and Z's
+    (a lower minimum only adds candidates; where depth is Z, as from a z-buffer, it is the depth key).
+    ``depth``: (H, W) float32; ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z
+    is their z, sliced here, inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads
+    them as it reads them.
     """
     ok = (depth > 0) & jnp.isfinite(depth)
     if not footprint:
@@ -186,23 +195,22 @@ def _prefilter_fields(depth, t_z, *points, footprint):
     z_key = _z_key(depth, ok)
     big_key = z_key if not points else _z_key(z, ok)
     inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
-    return (z_key, inverted) if not points else (z_key, inverted, big_key)
+    return (z_key, inverted) if not points else (z_key, inverted, jnp.minimum(z_key, big_key))
 
 
 def _prefilter_rows(*keys, hh, hv, hw, footprint):
-    """Column (vertical) minima of the (H, W) prefilter keys: the depth key over the window's 2 hh + 1
-    rows and over the small box's 2 hv + 1 rows, then (footprint form) the inverted Z key and (raw
-    path) the Z key over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE``
-    (the pad fuses into the minima: no padded copy of the keys is stored)."""
-    def rows_min(key, half):
-        padded = jnp.pad(key, ((half, half), (hw, hw)), constant_values=np.uint16(_ZNONE))
-        return _sliding_min(padded, 2 * half + 1, axis=0)
+    """Column (vertical) minima of the (H, W) prefilter keys: the neighbour key (the last of three, else
+    the depth key) over the window's 2 hh + 1 rows and (footprint form) over the small box's 2 hv + 1
+    rows, both from one padded read and one doubling (:func:`_sliding_mins`), then the inverted Z key
+    over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE`` (the pad fuses into
+    the minima: no padded copy of the keys is stored)."""
+    def pad(key):
+        return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
 
-    rows = [rows_min(keys[0], hh)]
-    if footprint:
-        rows.append(rows_min(keys[0], hv))
-        rows += [rows_min(k, hh) for k in keys[1:]]
-    return tuple(rows)
+    neighbour = keys[2] if len(keys) == 3 else keys[0]
+    if not footprint:
+        return _sliding_mins(pad(neighbour), (hh,), axis=0)
+    return _sliding_mins(pad(neighbour), (hh, hv), axis=0) + _sliding_mins(pad(keys[1]), (hh,), axis=0)
 
 
 def _prefilter_columns(k, hu, rows, *, hw, width):
@@ -252,7 +260,7 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, 
     cand = (key < _ZNONE) & nearer_in(lows[0])
     if footprint:
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
-        z_lo = lows[0 if len(lows) == 3 else 3].astype(jnp.float32) / np.float32(_ZQ)
+        z_lo = lows[0].astype(jnp.float32) / np.float32(_ZQ)       # the neighbour key's: at most Z's
         z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
         reach_lo = z_lo - t_z
         w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
@@ -366,7 +374,8 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
-               half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None):
+               half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None,
+               origin_front=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -380,7 +389,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
-    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). Returns the keep mask.
+    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``origin_front``: optional
+    float32 scalar at most every z of ``origins`` (e.g. the smallest of the sources' origins; default: the
+    minimum over ``origins``, a pass over the image; a lower bound only adds candidates). Returns the keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -392,7 +403,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     else:
         t = origins.astype(jnp.float32)
         # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
-        t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
+        t_front = jnp.float32(-jnp.inf) if nearer is not None else \
+            jnp.min(t[2]) if origin_front is None else jnp.asarray(origin_front, jnp.float32)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size)
     words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,

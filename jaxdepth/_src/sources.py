@@ -416,26 +416,29 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     n_src = T_cam_sources.shape[0]
     safe = jnp.clip(pixel_source, 0, n_src - 1)
     origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
+    front = jnp.min(T_cam_sources[:, 2, 3])     # at most every pixel's origin z, without a pass over the image
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     keep = valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
-                              image_size=image_size)
+                              image_size=image_size, origin_front=front)
     if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
             and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
         older = valid & (jnp.asarray(np.asarray(all_sweep, np.int32))[safe] != 0)
         keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, older, beams=int(beams),
-                                 half_width=hw, half_height=hh, test="paper", origins=origins, image_size=image_size)
+                                 half_width=hw, half_height=hh, test="paper", origins=origins, image_size=image_size,
+                                 origin_front=front)
     if source_sweep is None or len(set(source_sweep)) < 2:
         return keep
     pixel_sweep = jnp.asarray(np.asarray(source_sweep, np.int32))[safe]
     return keep & sweep_keep_mask(sparse_depth, valid & (pixel_sweep == 0), pixel_sweep, points_cam, K, origins,
                                   sweeps=tuple(sorted(set(source_sweep))), beams=int(beams), half_width=hw,
-                                  half_height=hh, config=config, nearer=nearer, image_size=image_size)
+                                  half_height=hh, config=config, nearer=nearer, image_size=image_size,
+                                  origin_front=front)
 
 
 def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins, *, sweeps, beams: int,
                     half_width: int, half_height: int, config: SGMConfig = DEFAULT_CONFIG, nearer=None,
-                    image_size=None) -> jax.Array:
+                    image_size=None, origin_front=None) -> jax.Array:
     """Step 2 per sweep (``SGMConfig.outlier_sweeps="each"``): (H, W) bool, False where a sweep's own pass removes.
 
     Each sweep ``s`` of ``sweeps`` is judged as the one-sweep path judges one sweep: Algorithm 1 on the image of
@@ -455,6 +458,7 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
         :func:`source_keep_mask`'s window. config: ``epsilon_m``, ``outlier_test``.
       nearer: optional (H, W) bool, pixels removed by condition 2 alone (rule 4's shadow).
       image_size: optional traced (2,) int32 (h, w), the image on a rig's canvas.
+      origin_front: optional float32 scalar at most every z of ``origins`` (``outliers._keep_mask``'s).
     """
     valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
     window = jnp.where(jnp.any(reference), reference, valid)
@@ -466,7 +470,7 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
         own = _keep_mask(image, K, jnp.eye(4, dtype=jnp.float32), points_cam, eps, mine, beams=beams,
                          half_width=half_width, half_height=half_height, test=config.outlier_test, origins=origins,
                          nearer=None if nearer is None else nearer & mine, image_size=image_size,
-                         window_pixels=window)
+                         window_pixels=window, origin_front=origin_front)
         return own | ~mine
 
     return valid & jnp.all(jax.lax.map(one_sweep, jnp.asarray(sweeps, jnp.int32)), axis=0)
