@@ -111,9 +111,12 @@ def _compiled_with_row_gather(fns: dict, names) -> dict:
 
 def _compiled_with_baseline(fns: dict, names, path: str) -> dict:
     """The programs ``names`` compiled with Step 2's ``_keep_mask`` from another ``outliers.py`` (``path``, e.g.
-    main's), as ``sources`` and ``outliers`` call it (options it does not take are dropped)."""
+    main's), as ``sources`` and ``outliers`` call it (options it does not take are dropped; origins given as the
+    sources' table and each pixel's source become the (3, H, W) maps of before)."""
     import importlib.util
     import inspect
+
+    import jax.numpy as jnp
 
     from jaxdepth._src import outliers, sources
     spec = importlib.util.spec_from_file_location("outliers_baseline", path)
@@ -122,6 +125,8 @@ def _compiled_with_baseline(fns: dict, names, path: str) -> dict:
     takes = inspect.signature(module._keep_mask).parameters
 
     def keep_mask(*args, **options):
+        if options.get("pixel_source") is not None and "pixel_source" not in takes:     # the (3, H, W) origin maps
+            options["origins"] = jnp.moveaxis(options["origins"][options["pixel_source"]], -1, 0)
         return module._keep_mask(*args, **{k: v for k, v in options.items() if k in takes})
     return _compiled_with(fns, names, "_baseline", [(outliers, "_keep_mask", keep_mask),
                                                     (sources, "_keep_mask", keep_mask)])

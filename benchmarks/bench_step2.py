@@ -32,7 +32,8 @@ from benchmarks.bench_rigs import AV2_LOG
 
 
 def _inputs():
-    """``{case: (args, beams, origins?)}``: the (depth, K, T, points[, origins, nearest origin z]) of each case."""
+    """``{case: (args, beams, origins?)}``: the (depth, K, T, points[, (3, H, W) origins, (S, 3) origins, pixel
+    source]) of each case."""
     import jax.numpy as jnp
 
     import jaxdepth
@@ -77,7 +78,7 @@ def _inputs():
         T_cs = jnp.einsum("ij,sjk->sik", cam.T_cam_lidar, sources.T_ref_source)
         origins = jnp.stack([T_cs[:, k, 3][pixel_source] for k in range(3)])
         cases[f"AV2 rig {label} {cam.height}x{cam.width} (per-pixel origins)"] = (
-            (depth, cam.K, T_cs[0], pc, origins, jnp.min(T_cs[:, 2, 3])), S.default_beams(sources), True)
+            (depth, cam.K, T_cs[0], pc, origins, T_cs[:, :3, 3], pixel_source), S.default_beams(sources), True)
     return cases
 
 
@@ -89,10 +90,13 @@ def _fns(module, args, beams, origins):
     h, w = args[0].shape
     hw, hh = window_half_sizes(h, w, beams=beams, max_half_width_px=12, max_half_height_px=24)
     opts = dict(beams=beams, half_width=hw, half_height=hh)
-    if origins:     # as sources.source_keep_mask calls it (the sources' nearest origin z, where taken)
-        takes = "origin_front" in inspect.signature(module._keep_mask).parameters
-        f = jax.jit(lambda s, K, T, p, o, front: module._keep_mask(
-            s, K, T, p, jnp.float32(1.0), origins=o, **opts, **(dict(origin_front=front) if takes else {})))
+    if origins:     # as sources.source_keep_mask calls it (the sources' origins and each pixel's source, where taken)
+        if "pixel_source" in inspect.signature(module._keep_mask).parameters:
+            f = jax.jit(lambda s, K, T, p, o, table, src: module._keep_mask(
+                s, K, T, p, jnp.float32(1.0), origins=table, pixel_source=src, **opts))
+        else:
+            f = jax.jit(lambda s, K, T, p, o, table, src: module._keep_mask(s, K, T, p, jnp.float32(1.0), origins=o,
+                                                                            **opts))
     else:
         f = jax.jit(lambda s, K, T, p: module._keep_mask(s, K, T, p, jnp.float32(1.0), **opts))
     return (lambda: f(*args)), dict(half_width=hw, half_height=hh)
@@ -107,9 +111,9 @@ def _info(args, beams, hw, hh, origins):
     depth, K, T, p = args[:4]
     valid = (depth > 0) & jnp.isfinite(depth)
     bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
-    t = args[4] if origins else T[:3, 3]
+    t = args[5] if origins else T[:3, 3]
     words = O._prefilter(depth, p, K, t, jnp.float32(1.0), bounds, beams=beams, hh=hh, hw=hw, footprint=True,
-                         t_front=args[5] if origins else None)
+                         t_front=jnp.min(t[:, 2]) if origins else None, source=args[6] if origins else None)
     count = int(O._compact(words)[0])
     return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
 

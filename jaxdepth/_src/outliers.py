@@ -220,7 +220,8 @@ def _prefilter_columns(k, hu, rows, *, hw, width):
     return tuple(_window_min(r, hu if i == 1 else k, hw=hw, width=width) for i, r in enumerate(rows))
 
 
-def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height, width, hh, footprint):
+def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *source, height, width, hh,
+                     footprint):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
     ``k``: int32, the half window; ``lows``: the window minima of :func:`_prefilter_columns` (the small
@@ -247,7 +248,9 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, 
     points take that small box. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W)
     depth, or the (3, H, W) points (sliced here, inside the fusion: a slice as an operand is a copy).
     The move coefficients (c_u, c_v, t_z) come from K and ``t``, the (3,) LiDAR origin or (3, H, W) each
-    pixel's own (then per-pixel maps, computed inside the fusion rather than stored). ``cell_v_run``: the image's traced H / L (the
+    pixel's own (then per-pixel maps, computed inside the fusion rather than stored); with ``source`` (an
+    (H, W) int32 index into it), ``t`` is the (S, 3) table of the sources' origins and each pixel's is read
+    here, inside the fusion. ``cell_v_run``: the image's traced H / L (the
     static H / L of the canvas, at least it, sized the small box: a superset).
     """
     key = z_key.astype(jnp.int32)
@@ -259,6 +262,8 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, 
 
     cand = (key < _ZNONE) & nearer_in(lows[0])
     if footprint:
+        if source:
+            t = tuple(jnp.take(t[:, c], source[0], mode="clip") for c in range(3))
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
         z_lo = lows[0].astype(jnp.float32) / np.float32(_ZQ)       # the neighbour key's: at most Z's
         z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
@@ -337,14 +342,15 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
 
 
 def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
-               t_front=None):
+               t_front=None, source=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
       depth: (H, W) float32 metres. points: optional (3, H, W) float32 camera-frame points (raw
         path; their z is the camera depth Z of each pixel's point; None: Z is ``depth``). K: (3, 3) float32. t: (3,) float32
         LiDAR origin in the camera frame, metres, or (3, H, W): each pixel's own
-        LiDAR origin (several sources). t_front: float32 scalar, at most every
+        LiDAR origin (several sources); with ``source``, (H, W) int32, ``t`` is the (S, 3) table
+        of the sources' origins, pixel i's ``t[source[i]]``. t_front: float32 scalar, at most every
         candidate's origin z (default ``t[2]``). eps: float32 condition-2
         margin, metres. bounds: :class:`_Bounds`.
       beams, hh, hw: static L and window half sizes (rows, columns).
@@ -369,13 +375,13 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
     lows = stage(functools.partial(_prefilter_columns, hw=hw, width=width), (k, hu, rows), bounds.n_points)
     words = functools.partial(_prefilter_words, height=height, width=width, hh=hh, footprint=footprint)
     return stage(words, (k, lows, keys[0], depth[None] if points is None else points, eps, bounds.cell_u,
-                         bounds.cell_v, K, t), bounds.n_points)
+                         bounds.cell_v, K, t) + (() if source is None else (source,)), bounds.n_points)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
                half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None,
-               origin_front=None):
+               pixel_source=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -389,9 +395,11 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
-    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``origin_front``: optional
-    float32 scalar at most every z of ``origins`` (e.g. the smallest of the sources' origins; default: the
-    minimum over ``origins``, a pass over the image; a lower bound only adds candidates). Returns the keep mask.
+    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
+    (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
+    ``origins[pixel_source[i]]``, read where used (no (3, H, W) map is stored; the prefilter's front bound
+    is the nearest source's, a pass fewer over the image: a lower bound only adds candidates). Returns the
+    keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -404,11 +412,11 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         t = origins.astype(jnp.float32)
         # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
         t_front = jnp.float32(-jnp.inf) if nearer is not None else \
-            jnp.min(t[2]) if origin_front is None else jnp.asarray(origin_front, jnp.float32)
+            jnp.min(t[2]) if pixel_source is None else jnp.min(t[:, 2])
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size)
     words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
-                       footprint=test == "footprint", t_front=t_front)
+                       footprint=test == "footprint", t_front=t_front, source=pixel_source)
     if candidates is not None:
         words = words & pack_bits(candidates)
     if nearer is not None:      # the footprint prefilter does not bound them: all are tested
@@ -417,7 +425,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     count, locate = _compact(words)
     ex = ExactTest(depth, points, pack_columns(valid), K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
-                   hw=half_width, test=test, nearer=nearer)
+                   hw=half_width, test=test, nearer=nearer, source=pixel_source)
     return exact_test(valid, ex)
 
 
