@@ -48,7 +48,10 @@ leaves.
    ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
    ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
    on a smooth surface need only look for a nearer pixel in a small box
-   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass.
+   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass. The prefilter
+   only has to keep every removed pixel (a superset), so it may bound loosely where that saves
+   a pass: one neighbour key ``min(depth, Z)`` for both minima, the nearest source's origin as
+   the front of all; the exact test decides.
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
