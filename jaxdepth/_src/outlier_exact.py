@@ -192,7 +192,7 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     flat_p = row * width + col
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
         src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
-        ex = ex._replace(t=jnp.stack([jnp.take(ex.t[:, c], src, mode="clip") for c in range(3)])[:, :, None])
+        ex = ex._replace(t=jnp.stack([jnp.take(ex.t[:, a], src, mode="clip") for a in range(3)])[:, :, None])
     elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
     nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]
