@@ -8,15 +8,19 @@ Each case reports its window half sizes, the run-time half width ``k``, the poin
 candidates and the exact test's chunks. ``--baseline FILE``: another version of
 ``jaxdepth/_src/outliers.py`` (e.g. ``git show main:jaxdepth/_src/outliers.py > /tmp/outliers_main.py``),
 loaded beside this one; both run in interleaved rounds in one process, their masks must be equal, and
-the ratio this / baseline is taken within each round (median).
+the ratio this / baseline is taken within each round (median), of wall and of process CPU time
+(the CPU figures hold up better on a loaded machine). ``--cases``: only the cases whose names start so.
 
-    python -m benchmarks.bench_step2 [--repeats 5] [--baseline FILE] [--out benchmarks/results/step2.json]
+    python -m benchmarks.bench_step2 [--repeats 5] [--baseline FILE] [--cases "AV2 rig" ...]
+        [--out benchmarks/results/step2.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import inspect
+import os
 import statistics
 import sys
 import time
@@ -28,7 +32,8 @@ from benchmarks.bench_rigs import AV2_LOG
 
 
 def _inputs():
-    """``{case: (args, beams, origins?)}``: the (depth, K, T, points[, origins]) of each case."""
+    """``{case: (args, beams, origins?)}``: the (depth, K, T, points[, (3, H, W) origins, (S, 3) origins, pixel
+    source]) of each case."""
     import jax.numpy as jnp
 
     import jaxdepth
@@ -73,7 +78,7 @@ def _inputs():
         T_cs = jnp.einsum("ij,sjk->sik", cam.T_cam_lidar, sources.T_ref_source)
         origins = jnp.stack([T_cs[:, k, 3][pixel_source] for k in range(3)])
         cases[f"AV2 rig {label} {cam.height}x{cam.width} (per-pixel origins)"] = (
-            (depth, cam.K, T_cs[0], pc, origins), S.default_beams(sources), True)
+            (depth, cam.K, T_cs[0], pc, origins, T_cs[:, :3, 3], pixel_source), S.default_beams(sources), True)
     return cases
 
 
@@ -85,8 +90,13 @@ def _fns(module, args, beams, origins):
     h, w = args[0].shape
     hw, hh = window_half_sizes(h, w, beams=beams, max_half_width_px=12, max_half_height_px=24)
     opts = dict(beams=beams, half_width=hw, half_height=hh)
-    if origins:
-        f = jax.jit(lambda s, K, T, p, o: module._keep_mask(s, K, T, p, jnp.float32(1.0), origins=o, **opts))
+    if origins:     # as sources.source_keep_mask calls it (the sources' origins and each pixel's source, where taken)
+        if "pixel_source" in inspect.signature(module._keep_mask).parameters:
+            f = jax.jit(lambda s, K, T, p, o, table, src: module._keep_mask(
+                s, K, T, p, jnp.float32(1.0), origins=table, pixel_source=src, **opts))
+        else:
+            f = jax.jit(lambda s, K, T, p, o, table, src: module._keep_mask(s, K, T, p, jnp.float32(1.0), origins=o,
+                                                                            **opts))
     else:
         f = jax.jit(lambda s, K, T, p: module._keep_mask(s, K, T, p, jnp.float32(1.0), **opts))
     return (lambda: f(*args)), dict(half_width=hw, half_height=hh)
@@ -101,9 +111,9 @@ def _info(args, beams, hw, hh, origins):
     depth, K, T, p = args[:4]
     valid = (depth > 0) & jnp.isfinite(depth)
     bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
-    t = args[4] if origins else T[:3, 3]
+    t = args[5] if origins else T[:3, 3]
     words = O._prefilter(depth, p, K, t, jnp.float32(1.0), bounds, beams=beams, hh=hh, hw=hw, footprint=True,
-                         t_front=jnp.min(t[2]) if origins else None)
+                         t_front=jnp.min(t[:, 2]) if origins else None, source=args[6] if origins else None)
     count = int(O._compact(words)[0])
     return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
 
@@ -113,6 +123,7 @@ def main(argv=None) -> int:
     parser.add_argument("--baseline", default=None, help="another outliers.py to time against (masks must agree)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=str(RESULTS / "step2.json"))
+    parser.add_argument("--cases", nargs="*", default=None, help="only the cases whose names start so")
     args, t0 = parser.parse_args(argv), time.time()
     if not AV2_LOG.exists():
         print(f"bench_step2: {AV2_LOG} not found (shared data)", file=sys.stderr)
@@ -127,6 +138,8 @@ def main(argv=None) -> int:
         spec.loader.exec_module(versions["baseline"])
     fns, info, px = {}, {}, {}
     for case, (case_args, beams, origins) in _inputs().items():
+        if args.cases and not any(case.startswith(c) for c in args.cases):
+            continue
         masks = []
         for name, module in versions.items():
             fns[(case, name)], sizes = _fns(module, case_args, beams, origins)
@@ -137,22 +150,26 @@ def main(argv=None) -> int:
         info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"], origins))
         px[case] = int(case_args[0].size)
         print(case, info[case], flush=True)
-    runs = {key: [] for key in fns}
+    runs, cpu = {key: [] for key in fns}, {key: [] for key in fns}
     for _ in range(args.repeats):
         for key, fn in fns.items():
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn())
             runs[key].append(time.perf_counter() - t)
+            cpu[key].append(time.process_time() - c)
     ns_per_px = {f"{case} | {name}": statistics.median(v) / px[case] * 1e9 for (case, name), v in runs.items()}
-    ratio = {case: statistics.median(a / b for a, b in zip(runs[(case, "this")], runs[(case, "baseline")]))
-             for case in info} if args.baseline else {}
+    cpu_ns_per_px = {f"{case} | {name}": statistics.median(v) / px[case] * 1e9 for (case, name), v in cpu.items()}
+    ratio, cpu_ratio = ({case: statistics.median(a / b for a, b in zip(r[(case, "this")], r[(case, "baseline")]))
+                         for case in info} if args.baseline else {} for r in (runs, cpu))
     for case in info:
-        print(f"{case:55s} " + "  ".join(f"{n} {ns_per_px[f'{case} | {n}']:6.1f} ns/px" for n in versions)
-              + (f"  this/baseline {ratio[case]:.2f}" if ratio else ""))
+        print(f"{case:55s} " + "  ".join(f"{n} {ns_per_px[f'{case} | {n}']:6.1f} ns/px "
+                                         f"(CPU {cpu_ns_per_px[f'{case} | {n}']:5.1f})" for n in versions)
+              + (f"  this/baseline {ratio[case]:.2f} (CPU {cpu_ratio[case]:.2f})" if ratio else ""))
     doc = {"what": "Step 2 alone (outliers._keep_mask), ns per pixel, medians of interleaved rounds, one process",
            "baseline": args.baseline, "repeats": args.repeats, "cases": info, "ns_per_px_median": ns_per_px,
-           "ratio_this_to_baseline": ratio,
-           "runs_s": {f"{case} | {name}": v for (case, name), v in runs.items()}}
+           "ratio_this_to_baseline": ratio, "cpu_ns_per_px_median": cpu_ns_per_px, "cpu_ratio_this_to_baseline": cpu_ratio,
+           "load_average": os.getloadavg(), "runs_s": {f"{case} | {name}": v for (case, name), v in runs.items()},
+           "runs_cpu_s": {f"{case} | {name}": v for (case, name), v in cpu.items()}}
     write_results(args.out, doc, None, t0)
     return 0
 

@@ -140,6 +140,24 @@ def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
     np.testing.assert_array_equal(np.asarray(got), want)
 
 
+@pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
+def test_keep_mask_origins_as_table_equal_origin_maps():
+    """Each pixel's origin as the sources' (S, 3) table and the pixel's source (what ``source_keep_mask`` passes)
+    gives the mask of the (3, H, W) map of each pixel's origin, bit for bit, with and without shadow pixels."""
+    from jaxdepth._src.outliers import _keep_mask, window_half_sizes
+    depth, _, points_cam, K, T3, hit, safe, want = _three_origins()
+    table = T3[:, :3, 3]
+    maps = np.moveaxis(table[safe % 3 * hit], -1, 0)
+    src = (safe % 3 * hit).astype(np.int32)
+    hw, hh = window_half_sizes(*depth.shape, beams=32, max_half_width_px=12, max_half_height_px=24)
+    opts = dict(beams=32, half_width=hw, half_height=hh)
+    for nearer in (None, hit & (safe % 7 == 0)):
+        a = _keep_mask(depth, K, T3[0], points_cam, 1.0, origins=maps, nearer=nearer, **opts)
+        b = _keep_mask(depth, K, T3[0], points_cam, 1.0, origins=table, pixel_source=src, nearer=nearer, **opts)
+        assert (hit & ~np.asarray(a)).any()
+        np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
+
+
 def _nearer_oracle(depth, candidates, *, beams, eps=1.0):
     """Brute-force condition 2 alone: a candidate is removed when a pixel of S(i) is nearer by more than eps."""
     from jaxdepth._src.config import DEFAULT_CONFIG

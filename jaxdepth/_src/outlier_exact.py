@@ -130,7 +130,7 @@ class ExactTest(NamedTuple):
     points: jax.Array | None  # (3, H, W) float32 camera-frame x, y, z, or None (back-projected)
     columns: jax.Array        # (ceil(H / 32), W) uint32: pixels with depth packed down the columns
     K: jax.Array
-    t: jax.Array              # (3,) LiDAR origin, or (3, H, W) each pixel's own (camera frame)
+    t: jax.Array              # (3,) LiDAR origin, (3, H, W) each pixel's own, or (S, 3) with ``source`` (camera frame)
     eps: jax.Array
     k_max: jax.Array          # int32 largest |du| in S(i)
     cell_u: jax.Array
@@ -142,6 +142,7 @@ class ExactTest(NamedTuple):
     hw: int
     test: str
     nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
+    source: jax.Array | None = None   # (H, W) int32: each pixel's row of ``t``, then the (S, 3) origins (or None)
 
 
 def _view(ex: ExactTest, flat, row, col):
@@ -189,7 +190,10 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
     row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
     flat_p = row * width + col
-    if ex.t.ndim == 3:          # each candidate's own LiDAR origin, shared by its window
+    if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
+        src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
+        ex = ex._replace(t=jnp.stack([jnp.take(ex.t[:, a], src, mode="clip") for a in range(3)])[:, :, None])
+    elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
     nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]
     view_p, z_p = _view(ex, flat_p[:, None], row[:, None], col[:, None])

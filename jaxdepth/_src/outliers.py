@@ -48,7 +48,10 @@ leaves.
    ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
    ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
    on a smooth surface need only look for a nearer pixel in a small box
-   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass.
+   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass. The prefilter
+   only has to keep every removed pixel (a superset), so it may bound loosely where that saves
+   a pass: one neighbour key ``min(depth, Z)`` for both minima, the nearest source's origin as
+   the front of all; the exact test decides.
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
@@ -107,20 +110,27 @@ def window_half_sizes(height: int, width: int, *, beams: int, max_half_width_px:
     return max(half_width, 0), max(half_height, 0)
 
 
-def _sliding_min(x: jax.Array, size: int, axis: int) -> jax.Array:
-    """``out[i] = min(x[i:i + size])`` along ``axis`` (length shrinks by ``size - 1``).
+def _sliding_mins(x: jax.Array, halves: tuple, axis: int) -> tuple:
+    """``out[i] = min(x[i + h0 - h:i + h0 + h + 1])`` along ``axis`` for each half size ``h`` of ``halves``
+    (``h0 = halves[0]``, the largest: ``x`` is padded by ``h0``; each output's length shrinks by ``2 h0``).
 
     Doubling: minima over 1, 2, 4, ... elements, then two overlapping runs of
-    the largest power of two cover the window (about log2(size) passes instead
-    of ``size``).
+    the largest power of two within a window cover it (about log2(size) passes instead
+    of ``size``); the smaller windows reuse the larger one's runs.
     """
-    n = x.shape[axis] - size + 1
+    h0 = halves[0]
+    n = x.shape[axis] - 2 * h0
     take = lambda a, start, length: jax.lax.slice_in_dim(a, start, start + length, axis=axis)
-    run, width = x, 1
-    while 2 * width <= size:
-        run = jnp.minimum(take(run, 0, run.shape[axis] - width), take(run, width, run.shape[axis] - width))
+    runs, width = {1: x}, 1
+    while 2 * width <= 2 * h0 + 1:
+        run = runs[width]
+        runs[2 * width] = jnp.minimum(take(run, 0, run.shape[axis] - width), take(run, width, run.shape[axis] - width))
         width *= 2
-    return jnp.minimum(take(run, 0, n), take(run, size - width, n))
+    out = []
+    for h in halves:
+        size, w = 2 * h + 1, 1 << (2 * h + 1).bit_length() - 1
+        out.append(jnp.minimum(take(runs[w], h0 - h, n), take(runs[w], h0 - h + size - w, n)))
+    return tuple(out)
 
 
 #: Normalised radius of the footprint prefilter's small box (see _prefilter_words).
@@ -170,13 +180,15 @@ def _prefilter_fields(depth, t_z, *points, footprint):
 
     A pixel takes part when it has depth and, for the footprint form, lies in
     front of the LiDAR's virtual camera (camera depth above ``t_z``, the LiDAR
-    origin's; with per-pixel origins, the nearest of them: every pixel that
+    origin's; with per-pixel origins, at most the nearest of them: every pixel that
     takes part for some origin takes part, a superset). Returns
-    uint16 keys (see :data:`_ZQ`): the depth key, then (footprint form, raw
-    path) the key of the point's own camera depth Z; and, footprint form, the
-    inverted keys ``_ZSAT - key`` of Z, whose minima give Z's maxima. ``depth``: (H, W) float32;
-    ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z is their z, sliced here,
-    inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads them as it reads them.
+    uint16 keys (see :data:`_ZQ`): the depth key; then, footprint form, the inverted keys
+    ``_ZSAT - key`` of the point's own camera depth Z, whose minima give Z's maxima; and (raw path)
+    the neighbour key ``min(depth key, Z key)``, whose window minima stand for both the depth's and Z's
+    (a lower minimum only adds candidates; where depth is Z, as from a z-buffer, it is the depth key).
+    ``depth``: (H, W) float32; ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z
+    is their z, sliced here, inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads
+    them as it reads them.
     """
     ok = (depth > 0) & jnp.isfinite(depth)
     if not footprint:
@@ -186,23 +198,22 @@ def _prefilter_fields(depth, t_z, *points, footprint):
     z_key = _z_key(depth, ok)
     big_key = z_key if not points else _z_key(z, ok)
     inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
-    return (z_key, inverted) if not points else (z_key, inverted, big_key)
+    return (z_key, inverted) if not points else (z_key, inverted, jnp.minimum(z_key, big_key))
 
 
 def _prefilter_rows(*keys, hh, hv, hw, footprint):
-    """Column (vertical) minima of the (H, W) prefilter keys: the depth key over the window's 2 hh + 1
-    rows and over the small box's 2 hv + 1 rows, then (footprint form) the inverted Z key and (raw
-    path) the Z key over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE``
-    (the pad fuses into the minima: no padded copy of the keys is stored)."""
-    def rows_min(key, half):
-        padded = jnp.pad(key, ((half, half), (hw, hw)), constant_values=np.uint16(_ZNONE))
-        return _sliding_min(padded, 2 * half + 1, axis=0)
+    """Column (vertical) minima of the (H, W) prefilter keys: the neighbour key (the last of three, else
+    the depth key) over the window's 2 hh + 1 rows and (footprint form) over the small box's 2 hv + 1
+    rows, both from one padded read and one doubling (:func:`_sliding_mins`), then the inverted Z key
+    over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE`` (the pad fuses into
+    the minima: no padded copy of the keys is stored)."""
+    def pad(key):
+        return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
 
-    rows = [rows_min(keys[0], hh)]
-    if footprint:
-        rows.append(rows_min(keys[0], hv))
-        rows += [rows_min(k, hh) for k in keys[1:]]
-    return tuple(rows)
+    neighbour = keys[2] if len(keys) == 3 else keys[0]
+    if not footprint:
+        return _sliding_mins(pad(neighbour), (hh,), axis=0)
+    return _sliding_mins(pad(neighbour), (hh, hv), axis=0) + _sliding_mins(pad(keys[1]), (hh,), axis=0)
 
 
 def _prefilter_columns(k, hu, rows, *, hw, width):
@@ -212,7 +223,8 @@ def _prefilter_columns(k, hu, rows, *, hw, width):
     return tuple(_window_min(r, hu if i == 1 else k, hw=hw, width=width) for i, r in enumerate(rows))
 
 
-def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, height, width, hh, footprint):
+def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *source, height, width, hh,
+                     footprint):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
     ``k``: int32, the half window; ``lows``: the window minima of :func:`_prefilter_columns` (the small
@@ -239,7 +251,9 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, 
     points take that small box. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W)
     depth, or the (3, H, W) points (sliced here, inside the fusion: a slice as an operand is a copy).
     The move coefficients (c_u, c_v, t_z) come from K and ``t``, the (3,) LiDAR origin or (3, H, W) each
-    pixel's own (then per-pixel maps, computed inside the fusion rather than stored). ``cell_v_run``: the image's traced H / L (the
+    pixel's own (then per-pixel maps, computed inside the fusion rather than stored); with ``source`` (an
+    (H, W) int32 index into it), ``t`` is the (S, 3) table of the sources' origins and each pixel's is read
+    here, inside the fusion. ``cell_v_run``: the image's traced H / L (the
     static H / L of the canvas, at least it, sized the small box: a superset).
     """
     key = z_key.astype(jnp.int32)
@@ -251,8 +265,10 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *, 
 
     cand = (key < _ZNONE) & nearer_in(lows[0])
     if footprint:
+        if source:
+            t = tuple(jnp.take(t[:, c], source[0], mode="clip") for c in range(3))
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
-        z_lo = lows[0 if len(lows) == 3 else 3].astype(jnp.float32) / np.float32(_ZQ)
+        z_lo = lows[0].astype(jnp.float32) / np.float32(_ZQ)       # the neighbour key's: at most Z's
         z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
         reach_lo = z_lo - t_z
         w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
@@ -329,14 +345,15 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
 
 
 def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
-               t_front=None):
+               t_front=None, source=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
       depth: (H, W) float32 metres. points: optional (3, H, W) float32 camera-frame points (raw
         path; their z is the camera depth Z of each pixel's point; None: Z is ``depth``). K: (3, 3) float32. t: (3,) float32
         LiDAR origin in the camera frame, metres, or (3, H, W): each pixel's own
-        LiDAR origin (several sources). t_front: float32 scalar, at most every
+        LiDAR origin (several sources); with ``source``, (H, W) int32, ``t`` is the (S, 3) table
+        of the sources' origins, pixel i's ``t[source[i]]``. t_front: float32 scalar, at most every
         candidate's origin z (default ``t[2]``). eps: float32 condition-2
         margin, metres. bounds: :class:`_Bounds`.
       beams, hh, hw: static L and window half sizes (rows, columns).
@@ -361,12 +378,13 @@ def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int
     lows = stage(functools.partial(_prefilter_columns, hw=hw, width=width), (k, hu, rows), bounds.n_points)
     words = functools.partial(_prefilter_words, height=height, width=width, hh=hh, footprint=footprint)
     return stage(words, (k, lows, keys[0], depth[None] if points is None else points, eps, bounds.cell_u,
-                         bounds.cell_v, K, t), bounds.n_points)
+                         bounds.cell_v, K, t) + (() if source is None else (source,)), bounds.n_points)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
-               half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None):
+               half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None,
+               pixel_source=None):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -380,7 +398,11 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     ``nearer``: optional (H, W) bool, pixels removed by condition 2 alone (a nearer pixel in
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
-    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). Returns the keep mask.
+    ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
+    (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
+    ``origins[pixel_source[i]]``, read where used (no (3, H, W) map is stored; the prefilter's front bound
+    is the nearest source's, a pass fewer over the image: a lower bound only adds candidates). Returns the
+    keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
     points = None if points_cam is None else points_cam.astype(jnp.float32)
@@ -392,11 +414,12 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     else:
         t = origins.astype(jnp.float32)
         # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
-        t_front = jnp.min(t[2]) if nearer is None else jnp.float32(-jnp.inf)
+        t_front = jnp.float32(-jnp.inf) if nearer is not None else \
+            jnp.min(t[2]) if pixel_source is None else jnp.min(t[:, 2])
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size)
     words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
-                       footprint=test == "footprint", t_front=t_front)
+                       footprint=test == "footprint", t_front=t_front, source=pixel_source)
     if candidates is not None:
         words = words & pack_bits(candidates)
     if nearer is not None:      # the footprint prefilter does not bound them: all are tested
@@ -405,7 +428,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     count, locate = _compact(words)
     ex = ExactTest(depth, points, pack_columns(valid), K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
-                   hw=half_width, test=test, nearer=nearer)
+                   hw=half_width, test=test, nearer=nearer, source=pixel_source)
     return exact_test(valid, ex)
 
 

@@ -415,27 +415,29 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     eps = jnp.asarray(config.epsilon_m, jnp.float32)
     n_src = T_cam_sources.shape[0]
     safe = jnp.clip(pixel_source, 0, n_src - 1)
-    origins = jnp.stack([T_cam_sources[:, c, 3][safe] for c in range(3)])      # (3, H, W): each pixel's origin
+    origins = T_cam_sources[:, :3, 3]       # (S, 3): pixel i's origin is origins[safe[i]], read where used
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     keep = valid & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                               half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
-                              image_size=image_size)
+                              image_size=image_size, pixel_source=safe)
     if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
             and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
         older = valid & (jnp.asarray(np.asarray(all_sweep, np.int32))[safe] != 0)
         keep = keep & _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, older, beams=int(beams),
-                                 half_width=hw, half_height=hh, test="paper", origins=origins, image_size=image_size)
+                                 half_width=hw, half_height=hh, test="paper", origins=origins, image_size=image_size,
+                                 pixel_source=safe)
     if source_sweep is None or len(set(source_sweep)) < 2:
         return keep
     pixel_sweep = jnp.asarray(np.asarray(source_sweep, np.int32))[safe]
     return keep & sweep_keep_mask(sparse_depth, valid & (pixel_sweep == 0), pixel_sweep, points_cam, K, origins,
                                   sweeps=tuple(sorted(set(source_sweep))), beams=int(beams), half_width=hw,
-                                  half_height=hh, config=config, nearer=nearer, image_size=image_size)
+                                  half_height=hh, config=config, nearer=nearer, image_size=image_size,
+                                  pixel_source=safe)
 
 
 def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins, *, sweeps, beams: int,
                     half_width: int, half_height: int, config: SGMConfig = DEFAULT_CONFIG, nearer=None,
-                    image_size=None) -> jax.Array:
+                    image_size=None, pixel_source=None) -> jax.Array:
     """Step 2 per sweep (``SGMConfig.outlier_sweeps="each"``): (H, W) bool, False where a sweep's own pass removes.
 
     Each sweep ``s`` of ``sweeps`` is judged as the one-sweep path judges one sweep: Algorithm 1 on the image of
@@ -450,11 +452,14 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
     Args:
       sparse_depth: (H, W) float32 merged z-buffer (0 = empty). reference: (H, W) bool, the reference sweep's
         pixels. pixel_sweep: (H, W) int32 sweep of each pixel's point. points_cam: (3, H, W) float32.
-      K: (3, 3). origins: (3, H, W) float32 each pixel's LiDAR origin in the camera frame.
+      K: (3, 3). origins: (3, H, W) float32 each pixel's LiDAR origin in the camera frame, or with ``pixel_source``
+        the (S, 3) sources' origins.
       sweeps: static tuple of the sweep numbers present. beams, half_width, half_height: static, as
         :func:`source_keep_mask`'s window. config: ``epsilon_m``, ``outlier_test``.
       nearer: optional (H, W) bool, pixels removed by condition 2 alone (rule 4's shadow).
       image_size: optional traced (2,) int32 (h, w), the image on a rig's canvas.
+      pixel_source: optional (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins,
+        pixel i's ``origins[pixel_source[i]]`` (``outliers._keep_mask``'s).
     """
     valid = (sparse_depth > 0) & jnp.isfinite(sparse_depth)
     window = jnp.where(jnp.any(reference), reference, valid)
@@ -466,7 +471,7 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
         own = _keep_mask(image, K, jnp.eye(4, dtype=jnp.float32), points_cam, eps, mine, beams=beams,
                          half_width=half_width, half_height=half_height, test=config.outlier_test, origins=origins,
                          nearer=None if nearer is None else nearer & mine, image_size=image_size,
-                         window_pixels=window)
+                         window_pixels=window, pixel_source=pixel_source)
         return own | ~mine
 
     return valid & jnp.all(jax.lax.map(one_sweep, jnp.asarray(sweeps, jnp.int32)), axis=0)
