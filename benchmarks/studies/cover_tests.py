@@ -13,7 +13,9 @@ z-buffer ``full`` and the targets, never a prediction), and each variant is scor
 - ``wrong_dropped``: the share of wrong targets (off the exact depth by > max(1 m, 5 %)) it drops,
 - ``right_dropped``: the share of the other targets it drops,
 - the pair-ranking agreement with ``exact_dense`` (as accuracy_twins' agreement table: the share of
-  method pairs, tied pairs under the exact depth left out, that its score ranks as the exact depth does).
+  method pairs, tied pairs under the exact depth left out, that its score ranks as the exact depth does),
+- ``agree_kept``: the same against the exact depth at the very pixels the variant keeps (only the
+  targets' own error can then flip a pair; where a run recorded it).
 
 Variants (h = ``hidden-eval``'s half height, the scan-line spacing in rows rounded up; a point
 "nearer" when nearer than the target by more than max(1 m, 5 %)): ``all`` (no test: ``hidden_all``);
@@ -146,6 +148,8 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
                                    "right_dropped": (d_all - d_wrong) / max(n - n_wrong, 1),
                                    "wrong_left_share": (n_wrong - d_wrong) / max(n - d_all, 1)}
             draw["scores"][v] = {m: score(preds[m], truth) for m in METHODS}
+            kept = [np.where(t > 0, e, 0.0).astype(np.float32) for t, e in zip(truth, exact)]
+            draw["scores"][f"exact_kept/{v}"] = {m: score(preds[m], kept) for m in METHODS}
         case["held_out"].append(draw)
     return case
 
@@ -161,18 +165,22 @@ def summarise(cases: list) -> dict:
         for v in VARIANTS:
             r = {k: float(np.mean([d["variants"][v][k] for d in mine]))
                  for k in ("wrong_dropped", "right_dropped", "dropped_share", "wrong_left_share")}
-            for metric in ("rmse", "mae"):
+            for metric, ref_key, name in [(m, r, n) for r, n in (("exact_dense", "agree"), ("exact_kept", "agree_kept"))
+                                          for m in ("rmse", "mae")]:
+                if any(f"exact_kept/{v}" not in d["scores"] for d in mine) and ref_key == "exact_kept":
+                    continue
                 agree = pairs = 0
                 for d in mine:
-                    ref, got = d["scores"]["exact_dense"], d["scores"][v]
+                    ref = d["scores"]["exact_dense" if ref_key == "exact_dense" else f"exact_kept/{v}"]
+                    got = d["scores"][v]
                     for i, a in enumerate(METHODS):
                         for b in METHODS[i + 1:]:
                             s = _sign(ref[a][metric], ref[b][metric])
                             if s:
                                 pairs += 1
                                 agree += int(_sign(got[a][metric], got[b][metric]) == s)
-                r[f"agree_{metric}_pct"] = 100.0 * agree / max(pairs, 1)
-                r["pairs"] = pairs
+                r[f"{name}_{metric}_pct"] = 100.0 * agree / max(pairs, 1)
+                r["pairs" if name == "agree" else "pairs_kept"] = pairs
             row[v] = r
         out[key] = row
     return out
