@@ -54,9 +54,9 @@ def load_frame():
     return sparse, K, presets.KITTI_T_CAM2_LIDAR, "random 4 % sparse 352x1216 (shared data missing)"
 
 
-def write_results(path, doc: dict, config, t0: float) -> None:
+def write_results(path, doc: dict, config, t0: float, *, indent: int | None = 2) -> None:
     """``doc`` plus the config (none for a tool that runs no configuration), run time and environment,
-    atomically as JSON at ``path``."""
+    atomically as JSON at ``path`` (``indent=None``: one line, for results of many per-target records)."""
     import jax
 
     from jaxdepth.io.atomic import atomic_write_bytes
@@ -66,4 +66,4 @@ def write_results(path, doc: dict, config, t0: float) -> None:
            "environment": {"jax": jax.__version__, "python": platform.python_version(), "cpu_count": os.cpu_count()}}
     out = pathlib.Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out, (json.dumps(doc, indent=2) + "\n").encode())
+    atomic_write_bytes(out, (json.dumps(doc, indent=indent) + "\n").encode())

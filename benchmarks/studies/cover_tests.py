@@ -227,7 +227,7 @@ def main(argv=None) -> int:
         doc["merged_from"] = merged_from
     print("cells: wrong dropped / right dropped ; agreement RMSE / MAE")
     print(table(doc["summary"]))
-    write_results(args.json, doc, config, t0)
+    write_results(args.json, doc, config, t0, indent=None)   # per-target records: 1.5 MB on one line
     return 0
 
 
