@@ -180,12 +180,12 @@ def _wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
     ``seam``: added to the left pad and subtracted from the right one (``2 pi``
     unwraps azimuths across the seam). The one padding of this module.
     """
-    left, right = a[:, a.shape[1] - k:], a[:, :k]
+    cols = a.shape[1]
+    a = a[:, np.concatenate([np.arange(cols - k, cols), np.arange(cols), np.arange(k)])]
     if seam is not None:
-        left, right = left + seam, right - seam
-    a = jnp.concatenate([left, a, right], axis=1)
-    rows = jnp.full((k, a.shape[1]), fill, a.dtype)
-    return jnp.concatenate([rows, a, rows], axis=0)
+        j = np.arange(cols + 2 * k)
+        a = jnp.where(j < k, a + seam, jnp.where(j >= cols + k, a - seam, a))
+    return jnp.pad(a, ((k, k), (0, 0)), constant_values=fill)
 
 
 def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
