@@ -3,8 +3,10 @@
     PYTHONPATH=. python -m benchmarks.studies.wrap_pad [--rounds 40] [--compiles 3]
         [--json benchmarks/results/wrap_pad.json]
 
-``xla_tuning.wrap_pad`` pads each range-image channel of :mod:`jaxdepth._src.normals` before the neighbour search (four arrays) and
-before the smoothing's box sums (two): columns wrap around 360 degrees, rows take a fill value.
+``xla_tuning.wrap_pad`` pads the four range-image channels of :mod:`jaxdepth._src.normals` before the
+neighbour search: columns wrap around 360 degrees, rows take a fill value. (The smoothing's box-sum
+pads of computed normals stay ``wrap_pad_slices`` in both forms here: as a gather they changed last
+bits at the test suite's compile flags; ``results/wrap_pad_allpads.json`` measured them gathered too.)
 Two forms, in one process on the shared KITTI frame's ``pixel_normals`` (Step 1 of ``complete``:
 the listed branch that the frame takes and the dense fallback, each with its own cell-normal chain):
 

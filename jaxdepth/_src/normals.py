@@ -122,7 +122,7 @@ import numpy as np
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
-from jaxdepth._src.xla_tuning import stage, take_pair, wrap_pad
+from jaxdepth._src.xla_tuning import stage, take_pair, wrap_pad, wrap_pad_slices
 from jaxdepth._src.types import LidarSpec
 
 #: Neighbour angle offsets below this (radians) are not used for differences.
@@ -185,7 +185,7 @@ def _box_sums(arrays, half: int, token):
     """(2 half + 1)^2 box sums; columns wrap, rows outside the image count as 0."""
     if half == 0:
         return tuple(arrays)
-    padded = stage(lambda *a: tuple(wrap_pad(x, half, 0.0) for x in a), arrays, token)
+    padded = stage(lambda *a: tuple(wrap_pad_slices(x, half, 0.0) for x in a), arrays, token)
     horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
     return _column_box_sums(horiz, half)
 
@@ -451,7 +451,7 @@ def _smoothed_cells(slopes, smoothing: int, token):
 
     def weighted_padded(meas, e_th, e_ph, ab, full):
         nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
-        return tuple(wrap_pad(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
+        return tuple(wrap_pad_slices(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
 
     def vertical(*horiz):
         sxy, sz = _column_box_sums(horiz, half)

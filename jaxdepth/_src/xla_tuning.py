@@ -35,7 +35,7 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   make extra rows harmless). Plain: the bounds themselves.
 * **Wrap padding as one gather** (:func:`wrap_pad`). XLA:CPU compiles each slice feeding a
   concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
-  Plain: slices and concatenates.
+  Plain: slices and concatenates (:func:`wrap_pad_slices`).
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -283,8 +283,9 @@ def wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
     across the seam). Tricks on: one ``take`` with static column indices (the seam through ``where``
     on the pad columns) and ``jnp.pad`` for the rows, which XLA:CPU compiles as one kernel per array;
     the plain form's two column slices (or the seam's adds) and concatenate were three (docs/speed.md,
-    "The wrap padding as one kernel"). The same values; the plain form keeps its own fusion (and last
-    bits downstream) as before.
+    "The wrap padding as one kernel"). The same values. Only for arrays that are buffers (stage
+    operands): a gather of computed values pulls their maths into its kernel, which at the test
+    suite's compile flags gave other last bits (the smoothing's pads use :func:`wrap_pad_slices`).
     """
     if not enabled():
         return wrap_pad_slices(a, k, fill, seam=seam)
@@ -297,7 +298,8 @@ def wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
 
 
 def wrap_pad_slices(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
-    """:func:`wrap_pad`'s plain form: the last and first ``k`` columns as two slices, one concatenate."""
+    """:func:`wrap_pad`'s plain form: the last and first ``k`` columns as two slices, one concatenate
+    (in both modes for computed arrays, see :func:`wrap_pad`)."""
     left, right = a[:, a.shape[1] - k:], a[:, :k]
     if seam is not None:
         left, right = left + seam, right - seam
