@@ -122,7 +122,7 @@ import numpy as np
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
-from jaxdepth._src.xla_tuning import stage, take_pair
+from jaxdepth._src.xla_tuning import stage, take_pair, wrap_pad, wrap_pad_slices
 from jaxdepth._src.types import LidarSpec
 
 #: Neighbour angle offsets below this (radians) are not used for differences.
@@ -174,20 +174,6 @@ def _safe_div(num, den, ok):
 # consumer, which is much slower than reading a buffer at an offset.
 
 
-def _wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
-    """(L, C) -> (L + 2k, C + 2k): columns wrap around 360 degrees, rows take ``fill``.
-
-    ``seam``: added to the left pad and subtracted from the right one (``2 pi``
-    unwraps azimuths across the seam). The one padding of this module.
-    """
-    left, right = a[:, a.shape[1] - k:], a[:, :k]
-    if seam is not None:
-        left, right = left + seam, right - seam
-    a = jnp.concatenate([left, a, right], axis=1)
-    rows = jnp.full((k, a.shape[1]), fill, a.dtype)
-    return jnp.concatenate([rows, a, rows], axis=0)
-
-
 def _at(padded: jax.Array, k: int, di: int, dj: int) -> jax.Array:
     """View of a ``_pad``-ed array: out[i, j] = a[i + di, (j + dj) mod C] (fill outside rows)."""
     rows = padded.shape[0] - 2 * k
@@ -199,7 +185,7 @@ def _box_sums(arrays, half: int, token):
     """(2 half + 1)^2 box sums; columns wrap, rows outside the image count as 0."""
     if half == 0:
         return tuple(arrays)
-    padded = stage(lambda *a: tuple(_wrap_pad(x, half, 0.0) for x in a), arrays, token)
+    padded = stage(lambda *a: tuple(wrap_pad_slices(x, half, 0.0) for x in a), arrays, token)
     horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
     return _column_box_sums(horiz, half)
 
@@ -391,8 +377,8 @@ def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
     def pad(meas, r, th, ph):
         # Columns wrap; azimuths in the pads are unwrapped (left of column 0
         # lie azimuths just above +pi, right of the last column just below -pi).
-        return (_wrap_pad(meas, k, False), _wrap_pad(r, k, 0.0), _wrap_pad(th, k, 0.0, seam=2 * PI),
-                _wrap_pad(ph, k, 0.0))
+        return (wrap_pad(meas, k, False), wrap_pad(r, k, 0.0), wrap_pad(th, k, 0.0, seam=2 * PI),
+                wrap_pad(ph, k, 0.0))
 
     padded = stage(pad, (meas, r, th, ph), token)
     # Complex numbers carry two float32 channels through one fusion (XLA:CPU
@@ -465,7 +451,7 @@ def _smoothed_cells(slopes, smoothing: int, token):
 
     def weighted_padded(meas, e_th, e_ph, ab, full):
         nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
-        return tuple(_wrap_pad(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
+        return tuple(wrap_pad_slices(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
 
     def vertical(*horiz):
         sxy, sz = _column_box_sums(horiz, half)

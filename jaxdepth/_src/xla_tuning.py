@@ -33,6 +33,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   (``vmap``) gets a batched counter, which turns every row read and row write in its body into
   gathers and scatters; a ``custom_vmap`` gives the batch the widest bounds instead (callers
   make extra rows harmless). Plain: the bounds themselves.
+* **Wrap padding as one gather** (:func:`wrap_pad`). XLA:CPU compiles each slice feeding a
+  concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
+  Plain: slices and concatenates (:func:`wrap_pad_slices`).
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -53,6 +56,7 @@ import os
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import custom_batching
 
 #: XLA flags the test suite compiles under (tests/conftest.py adds them to ``XLA_FLAGS`` before JAX
@@ -269,6 +273,39 @@ def any_true(mask: jax.Array) -> jax.Array:
     if not enabled():
         return jnp.any(mask)
     return jnp.max(mask.astype(jnp.int32), initial=0) > 0
+
+
+def wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
+    """(L, C) -> (L + 2k, C + 2k): columns wrap around 360 degrees, rows take ``fill`` (the range-image
+    padding of :mod:`~jaxdepth._src.normals`).
+
+    ``seam``: added to the left pad and subtracted from the right one (``2 pi`` unwraps azimuths
+    across the seam). Tricks on: one ``take`` with static column indices (the seam through ``where``
+    on the pad columns) and ``jnp.pad`` for the rows, which XLA:CPU compiles as one kernel per array;
+    the plain form's two column slices (or the seam's adds) and concatenate were three (docs/speed.md,
+    "The wrap padding as one kernel"). The same values. Only for arrays that are buffers (stage
+    operands): a gather of computed values pulls their maths into its kernel, which at the test
+    suite's compile flags gave other last bits (the smoothing's pads use :func:`wrap_pad_slices`).
+    """
+    if not enabled():
+        return wrap_pad_slices(a, k, fill, seam=seam)
+    cols = a.shape[1]
+    a = a[:, np.concatenate([np.arange(cols - k, cols), np.arange(cols), np.arange(k)])]
+    if seam is not None:
+        j = np.arange(cols + 2 * k)
+        a = jnp.where(j < k, a + seam, jnp.where(j >= cols + k, a - seam, a))
+    return jnp.pad(a, ((k, k), (0, 0)), constant_values=fill)
+
+
+def wrap_pad_slices(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
+    """:func:`wrap_pad`'s plain form: the last and first ``k`` columns as two slices, one concatenate
+    (in both modes for computed arrays, see :func:`wrap_pad`)."""
+    left, right = a[:, a.shape[1] - k:], a[:, :k]
+    if seam is not None:
+        left, right = left + seam, right - seam
+    a = jnp.concatenate([left, a, right], axis=1)
+    rows = jnp.full((k, a.shape[1]), fill, a.dtype)
+    return jnp.concatenate([rows, a, rows], axis=0)
 
 
 @custom_batching.custom_vmap
