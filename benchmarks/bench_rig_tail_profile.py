@@ -4,18 +4,20 @@ For each case (the Argoverse 2 sweep through :func:`jaxdepth._src.sources.source
 sample through :func:`jaxdepth._src.rig.rig_stage_tail`, inputs as ``bench_stage_programs`` builds them):
 
 1. **Kernels**: one run of the compiled tail under ``jax.profiler`` (a Perfetto trace), as the library has
-   it (``library``) and with the candidate below (``blur_select``); each XLA:CPU kernel's time, summed over
-   its calls (loop bodies run once a step), with the JAX operation it comes from (the HLO's ``op_name``),
-   the largest first, in ms and ns per real pixel.
+   it (``library``) and with the former form below (``blur_gather``); each XLA:CPU kernel's time, summed
+   over its calls (loop bodies run once a step), with the JAX operation it comes from (the HLO's
+   ``op_name``), the largest first, in ms and ns per real pixel.
 2. **Blur window forms** (``--rounds`` interleaved rounds after a first call each): ``library`` (the
-   window's reflect-101 padding a row / column gather, :func:`jaxdepth._src.smoothing.
-   _reflect101_pad_window`) against ``blur_select`` (that padding a select among the 2 r + 1 static shifts,
-   elementwise; defined here, swapped in, JAX's caches cleared) and ``blur_static`` (the blur's static
-   canvas padding, ``image_size`` not passed to the blur: right only because every size group's canvas
-   is its cameras' size). Medians in ns per real pixel, per-round ratios to ``library``, and how many
-   ``depth`` values differ from ``library`` (count, largest difference in float32 ulps): the padding moves
-   the same values, but the gather's kernel holds the vertical taps, and XLA:CPU rounds them there unlike
-   in a loop kernel (multiply-adds contracted in other places). Not kept for that (docs/speed.md).
+   window's reflect-101 padding a select among the 2 r + 1 static shifts, elementwise,
+   :func:`jaxdepth._src.smoothing._reflect101_pad_window`) against ``blur_gather`` (that padding a row /
+   column gather, the form before; defined here, swapped in, JAX's caches cleared) and ``blur_static``
+   (the blur's static canvas padding, ``image_size`` not passed to the blur: right only because every size
+   group's canvas is its cameras' size). Medians in ns per real pixel, per-round ratios to ``library``, and
+   how many ``depth`` values differ from ``library`` (count, largest difference in float32 ulps): the
+   padding moves the same values, but the gather's kernel holds the vertical taps, and XLA:CPU rounds them
+   there unlike in a loop kernel, and unlike from machine to machine (docs/speed.md, "The rig's tail").
+   ``results/rig_tail_profile.json`` was written before the select form was the library's: there
+   ``library`` is the gather and ``blur_select`` the select form.
 
     python -m benchmarks.bench_rig_tail_profile [--cases av2 nuscenes] [--rounds 3] [--top 25]
         [--json benchmarks/results/rig_tail_profile.json]
@@ -40,27 +42,15 @@ import numpy as np
 from benchmarks._common import RESULTS, write_results
 
 
-def _select_pad_window(image, radius: int, axis: int, n):
-    """The window's reflect-101 padding as a select among static shifts (the candidate; see the module docs).
-
-    Entry ``i`` (from ``-radius``) is the window's entry ``i - s``, ``s = i - reflect(i)``: even and within
-    ``[-2 radius, 2 radius]`` for every ``i < n + radius`` and every window size ``n >= 2``.
-    """
-    import jax
+def _gather_pad_window(image, radius: int, axis: int, n):
+    """The window's reflect-101 padding as one row / column gather: the library's form before the select
+    among static shifts (main before ad6b88c), kept here as the baseline."""
     import jax.numpy as jnp
-    length = image.shape[axis]
-    i = jnp.arange(-radius, length + radius, dtype=jnp.int32)
+    idx = jnp.arange(-radius, image.shape[axis] + radius, dtype=jnp.int32)
     period = jnp.maximum(2 * n - 2, 1)
-    idx = jnp.abs(i) % period
-    shift = (i - jnp.where(idx >= n, period - idx, idx)).reshape((-1,) + (1,) * (image.ndim - 1 - axis))
-    pad = [(0, 0, 0)] * image.ndim
-    pad[axis] = (3 * radius, 3 * radius, 0)
-    ext = jax.lax.pad(image, jnp.zeros((), image.dtype), pad)          # ext[k + 3 radius] = image[k]
-    out = None
-    for s in range(-2 * radius, 2 * radius + 1, 2):
-        part = jax.lax.slice_in_dim(ext, 2 * radius - s, 2 * radius - s + length + 2 * radius, axis=axis)
-        out = part if out is None else jnp.where(shift == s, part, out)
-    return out
+    idx = jnp.abs(idx) % period
+    idx = jnp.where(idx >= n, period - idx, idx)
+    return jnp.take(image, idx, axis=axis, mode="clip")      # idx is in [0, n), n <= the length
 
 
 def _tail(case: str):
@@ -84,8 +74,8 @@ def _compiled_variant(fn, args, variant: str):
     from jaxdepth._src import smoothing
     kept_pad, kept_blur = smoothing._reflect101_pad_window, smoothing.gaussian_blur
     jax.clear_caches()
-    if variant == "blur_select":
-        smoothing._reflect101_pad_window = _select_pad_window
+    if variant == "blur_gather":
+        smoothing._reflect101_pad_window = _gather_pad_window
     elif variant == "blur_static":
         smoothing.gaussian_blur = lambda image, *, image_size=None, **kw: kept_blur(image, **kw)
     try:
@@ -132,9 +122,9 @@ def _ulps(a: np.ndarray, b: np.ndarray) -> int:
 def run_case(case: str, rounds: int, top: int) -> dict:
     import jax
     fn, args, pixels = _tail(case)
-    variants = {v: _compiled_variant(fn, args, v) for v in ("library", "blur_select", "blur_static")}
+    variants = {v: _compiled_variant(fn, args, v) for v in ("library", "blur_gather", "blur_static")}
     out = {"pixels": pixels, "kernels": {}, "depth_differs": {}}
-    for name in ("library", "blur_select"):
+    for name in ("library", "blur_gather"):
         out["kernels"][name] = _kernels(variants[name], args, pixels, top)
         for k in out["kernels"][name][:10]:
             print(case, name, f"{k['ms']:8.1f} ms {k['calls']:5d}x {k['kernel']:34s} {k['op'][:80]}", flush=True)
