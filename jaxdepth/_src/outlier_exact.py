@@ -183,6 +183,13 @@ def _window_words(ex: ExactTest, row, col, start=None, block=None):
     return words, bases, du, col_q
 
 
+def origins_of(table, source):
+    """Each pixel's LiDAR origin from the sources' (S, 3) ``table`` and the int32 ``source`` index (any
+    shape): a tuple of three float arrays of ``source``'s shape (x, y, z), one ``take`` per axis (an index
+    out of range is clipped)."""
+    return tuple(jnp.take(table[:, a], source, mode="clip") for a in range(3))
+
+
 def _test_chunk(c, keep, *, ex: ExactTest):
     """Exact test of the candidate slots ``c CHUNK ...`` (int32 chunk index ``c``); clears the removed
     ones in ``keep``, the (H W,) bool mask."""
@@ -192,7 +199,7 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     flat_p = row * width + col
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
         src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
-        ex = ex._replace(t=jnp.stack([jnp.take(ex.t[:, a], src, mode="clip") for a in range(3)])[:, :, None])
+        ex = ex._replace(t=jnp.stack(origins_of(ex.t, src))[:, :, None])
     elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
     nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]

@@ -89,7 +89,7 @@ import numpy as np
 from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
-from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
+from jaxdepth._src.outlier_exact import ExactTest, exact_test, origins_of, pack_columns
 from jaxdepth._src.xla_tuning import stage
 
 
@@ -266,7 +266,7 @@ def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *so
     cand = (key < _ZNONE) & nearer_in(lows[0])
     if footprint:
         if source:
-            t = tuple(jnp.take(t[:, c], source[0], mode="clip") for c in range(3))
+            t = origins_of(t, source[0])
         c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
         z_lo = lows[0].astype(jnp.float32) / np.float32(_ZQ)       # the neighbour key's: at most Z's
         z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
