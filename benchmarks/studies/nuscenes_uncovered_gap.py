@@ -235,7 +235,9 @@ def real_sample(seeds, config) -> dict:
     return analyse(points, ring_column(extra, 5), rig, seeds, config)
 
 
-def twin(scene_seed: int, seeds, scale: float, config) -> dict:
+def twin_input(scene_seed: int, scale: float) -> tuple:
+    """(the user's input, each camera's exact depth) of the nuScenes twin, 1 sweep: its point file and rig
+    JSON read back as ``complete-rig`` reads them (the single-sweep path)."""
     from benchmarks.accuracy_twins import exact_truth, read_user_input
     from jaxdepth.research.twins import make_twin, write_twin
     tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale)
@@ -243,7 +245,11 @@ def twin(scene_seed: int, seeds, scale: float, config) -> dict:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps"][0], paths["rig"])
     assert not inp.multi, "the nuScenes twin at 1 sweep takes the single-sweep path"
-    exact = exact_truth(tw, inp.rig)
+    return inp, exact_truth(tw, inp.rig)
+
+
+def twin(scene_seed: int, seeds, scale: float, config) -> dict:
+    inp, exact = twin_input(scene_seed, scale)
     return analyse(inp.cloud.points, inp.cloud.ring, inp.rig, seeds, config, exact)
 
 
