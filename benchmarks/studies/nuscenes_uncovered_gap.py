@@ -86,10 +86,12 @@ def _finish(depth: np.ndarray, stages, keep: np.ndarray) -> np.ndarray:
     return np.clip(depth, cfg.min_depth_m, cfg.max_depth_m)
 
 
-def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None) -> dict:
+def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, extra=None) -> dict:
     """Per target pixel of one draw (every camera): the columns the splits read.
 
     Follows :func:`jaxdepth.research.cli.hidden_eval` (one draw) step by step, keeping the stages.
+    ``extra``: optional function of (the SGM's (C, H, W) stages, the (C, H, W) target mask) giving more
+    columns ({name: (n,) array}).
     """
     import jax
 
@@ -137,6 +139,8 @@ def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None) -> 
         for i, e in enumerate(exact):
             ex[i, :e.shape[0], :e.shape[1]] = e
         out["exact"] = ex[keep]
+    if extra is not None:
+        out.update(extra(sgm, keep))
     return out
 
 
