@@ -142,6 +142,44 @@ def edge_band(stages, depths: dict, exact: list, rig) -> dict:
     return out
 
 
+def _column_seed(kept: np.ndarray, *, upward: bool) -> np.ndarray:
+    """(C, H, W): the nearest kept LiDAR depth at or above (``upward``; else at or below) each pixel in its
+    column, 0 where there is none."""
+    a = kept if upward else kept[:, ::-1]
+    out = np.zeros_like(a)
+    current = np.zeros((a.shape[0], a.shape[2]), a.dtype)
+    for v in range(a.shape[1]):
+        current = np.where(a[:, v] > 0, a[:, v], current)
+        out[:, v] = current
+    return out if upward else out[:, ::-1]
+
+
+def side_choice(scene_seed: int, scale: float) -> dict:
+    """In the edge band (:func:`edge_pixels`, 7 x 7) at pixels with a kept LiDAR pixel straight above and below
+    in their column: how often each simple choice of side is within max(1 m, 5 %) of the exact depth (the
+    SGM's ``depth_raw``; its seed's depth; the column seed above, below, the nearer or farther of the two);
+    also where those two column seeds lie on different surfaces."""
+    from benchmarks.accuracy_twins import single_path
+    from benchmarks.studies.nuscenes_uncovered_gap import twin_input
+    inp, exact = twin_input(scene_seed, scale)
+    st = single_path(inp.cloud.points, inp.cloud.ring, inp.rig, SGMConfig(), stages=True)[0]
+    raw = np.asarray(st.depth_raw)
+    kept = np.where(np.asarray(st.inlier_mask), np.asarray(st.sparse_depth), 0.0)
+    above, below = _column_seed(kept, upward=True), _column_seed(kept, upward=False)
+    ex = np.zeros_like(raw)
+    for i, e in enumerate(exact):
+        ex[i, :e.shape[0], :e.shape[1]] = e
+    both = edge_pixels(raw, 7) & (ex > 0) & (above > 0) & (below > 0)
+    split = both & (np.abs(above - below) > np.maximum(1.0, 0.05 * np.minimum(above, below)))
+    choices = {"depth_raw": raw, "seed_depth": np.asarray(st.seed_depth), "column_above": above,
+               "column_below": below, "column_nearer_depth": np.minimum(above, below),
+               "column_farther_depth": np.maximum(above, below)}
+    right = {k: np.abs(d - ex) <= np.maximum(1.0, 0.05 * ex) for k, d in choices.items()}
+    return {"scene_seed": scene_seed, "band_pixels_with_both": int(both.sum()), "split": int(split.sum()),
+            "right_share": {k: float(r[both].mean()) for k, r in right.items()},
+            "right_share_split": {k: float(r[split].mean()) for k, r in right.items()}}
+
+
 def twin_case(scene_seed: int, hidden_seed: int, scale: float) -> dict:
     from benchmarks.accuracy_twins import (
         cover_half_height,
@@ -218,9 +256,21 @@ def main(argv=None) -> int:
     parser.add_argument("--real-check", nargs="*", type=int, default=None, metavar="SEED",
                         help="only the real nuScenes sample's uncovered score of every rule (draws SEED, default "
                              "0-4), to the JSON's real_check (kept: the twin's cases)")
+    parser.add_argument("--side-choice", action="store_true",
+                        help="only the edge band's side choices on the twin (--twin-seeds), to the JSON's side_choice")
     parser.add_argument("--json", default=str(RESULTS / "step4_edge_rules.json"))
     args = parser.parse_args(argv)
     t0 = time.time()
+    if args.side_choice:
+        import json
+        import pathlib
+        doc = json.loads(pathlib.Path(args.json).read_text())
+        if "real_check" in doc:                 # the seconds of the run before (the real check's)
+            doc["real_check"].setdefault("seconds", doc.get("seconds"))
+        doc["side_choice"] = [side_choice(seed, args.scale) for seed in args.twin_seeds]
+        print(json.dumps(doc["side_choice"], indent=1))
+        write_results(args.json, {k: v for k, v in doc.items() if k not in ("config", "environment")}, SGMConfig(), t0)
+        return 0
     if args.real_check is not None:
         import json
         import pathlib
