@@ -2,6 +2,8 @@
 
     PYTHONPATH=. python -m benchmarks.studies.step4_edge_rules [--twin-seeds 0 1] [--scale 1] \
         [--hidden-seed 0] [--json benchmarks/results/step4_edge_rules.json]
+    PYTHONPATH=. python -m benchmarks.studies.step4_edge_rules --real-check     # then: the real sample
+    PYTHONPATH=. python -m benchmarks.studies.step4_edge_rules --side-choice    # then: the edge band's sides
 
 The candidates a Step 4 change could be, written as post-processing of the SGM's own ``depth_raw``
 (Step 4a and the column bracket; kept LiDAR pixels then keep their depth and the clip is Step 4's,
@@ -26,7 +28,9 @@ Each is scored on the nuScenes twin (1 sweep, the single-sweep path a user's poi
 the exact depth of every pixel (``exact_dense``: the rule's criterion) and, on one hold-out draw
 (``hidden-eval``'s 20 %), against the exact depth at the held-out pixels and the two ``hidden-eval``
 protocols. A rule becomes a default only if it wins ``exact_dense`` in RMSE and in MAE (docs/evaluation.md);
-nothing is read from a real set.
+nothing here is chosen on a real set. ``--real-check`` adds the real nuScenes sample's ``uncovered`` score of
+every rule (:func:`real_check`) and ``--side-choice`` the edge band's side choices (:func:`side_choice`) to the
+JSON the first run wrote.
 """
 
 from __future__ import annotations
