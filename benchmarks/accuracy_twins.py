@@ -160,9 +160,10 @@ def read_user_input(points_path, rig_path) -> UserInput:
     return UserInput(rig, cloud, False, str(points_path))
 
 
-def single_path(points, ring, rig, config: SGMConfig, *, force_removal: bool = False):
+def single_path(points, ring, rig, config: SGMConfig, *, force_removal: bool = False, stages: bool = False):
     """(C, H_max, W_max) depth and the prepared frame: ``complete-rig``'s single-sweep path
-    (``force_removal``: keep the configured removal where the sweep check would turn it off)."""
+    (``force_removal``: keep the configured removal where the sweep check would turn it off; ``stages``:
+    every (C, H_max, W_max) :class:`~jaxdepth.Stages` field instead of the depth)."""
     import jaxdepth
     from jaxdepth.io import pad_points, prepare_sweep
     frame = prepare_sweep(points, rig, ring=ring)
@@ -171,7 +172,7 @@ def single_path(points, ring, rig, config: SGMConfig, *, force_removal: bool = F
     padded, valid = pad_points(frame.points)
     cams = jaxdepth.stack_cameras([c.as_camera() for c in frame.rig.cameras])
     out = jaxdepth.complete_rig_stages(padded, valid, cams, config=config, lidar=frame.rig.lidar)
-    return np.asarray(out.depth), frame
+    return (out if stages else np.asarray(out.depth)), frame
 
 
 def one_cloud_rig(rig):

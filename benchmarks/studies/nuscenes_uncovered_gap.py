@@ -86,10 +86,12 @@ def _finish(depth: np.ndarray, stages, keep: np.ndarray) -> np.ndarray:
     return np.clip(depth, cfg.min_depth_m, cfg.max_depth_m)
 
 
-def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None) -> dict:
+def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, extra=None) -> dict:
     """Per target pixel of one draw (every camera): the columns the splits read.
 
     Follows :func:`jaxdepth.research.cli.hidden_eval` (one draw) step by step, keeping the stages.
+    ``extra``: optional function of (the SGM's (C, H, W) stages, the (C, H, W) target mask) giving more
+    columns ({name: (n,) array}).
     """
     import jax
 
@@ -137,6 +139,8 @@ def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None) -> 
         for i, e in enumerate(exact):
             ex[i, :e.shape[0], :e.shape[1]] = e
         out["exact"] = ex[keep]
+    if extra is not None:
+        out.update(extra(sgm, keep))
     return out
 
 
@@ -235,7 +239,9 @@ def real_sample(seeds, config) -> dict:
     return analyse(points, ring_column(extra, 5), rig, seeds, config)
 
 
-def twin(scene_seed: int, seeds, scale: float, config) -> dict:
+def twin_input(scene_seed: int, scale: float) -> tuple:
+    """(the user's input, each camera's exact depth) of the nuScenes twin, 1 sweep: its point file and rig
+    JSON read back as ``complete-rig`` reads them (the single-sweep path)."""
     from benchmarks.accuracy_twins import exact_truth, read_user_input
     from jaxdepth.research.twins import make_twin, write_twin
     tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale)
@@ -243,7 +249,11 @@ def twin(scene_seed: int, seeds, scale: float, config) -> dict:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps"][0], paths["rig"])
     assert not inp.multi, "the nuScenes twin at 1 sweep takes the single-sweep path"
-    exact = exact_truth(tw, inp.rig)
+    return inp, exact_truth(tw, inp.rig)
+
+
+def twin(scene_seed: int, seeds, scale: float, config) -> dict:
+    inp, exact = twin_input(scene_seed, scale)
     return analyse(inp.cloud.points, inp.cloud.ring, inp.rig, seeds, config, exact)
 
 
