@@ -24,7 +24,9 @@ stage with three complex outputs, the binning in a second). The range image is
 built on a window of columns around the camera's central ray when every point
 fits inside it with the margin of the neighbour search and smoothing (and keeps
 that margin from the 360-degree seam, where the window's azimuths jump), which
-gives the whole image's normals exactly.
+gives the whole image's normals exactly. The dense fallback runs its whole range image through
+window-sized cell-normal code (:func:`~jaxdepth._src.normals.cell_normals_tiled`), which shares the
+listed path's compiled kernels.
 """
 
 from __future__ import annotations
@@ -226,7 +228,11 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
     whole image's normals exactly. Otherwise (more than ``max_points`` pixels
     with depth, points outside the window, or points near the 360-degree seam
     inside it: a camera facing backwards) a dense path takes every pixel as a
-    point slot and uses the whole range image: same result, slower.
+    point slot and uses the whole range image: same result, slower. Its cell
+    normals are computed on windows of ``window_columns`` columns
+    (:func:`~jaxdepth._src.normals.cell_normals_tiled`: the whole image's
+    values), so that XLA:CPU compiles the cell-normal kernels once for both
+    paths (docs/speed.md, "The dense fallback on the listed path's kernels").
 
     Args:
       sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
