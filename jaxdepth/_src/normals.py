@@ -445,7 +445,7 @@ def cell_normals_tiled(ri: RangeImage, smoothing: int, fill_max_gap: int, tile_c
     n_rows, n_cols = ri.r.shape
     token = ri.index[0, 0]
 
-    def tiled(arrays, k, fn, seams):
+    def tiled(arrays, k, fn, seams, dtypes):
         # Window i: image columns s - k ... s + tile - k - 1 (mod C), of which s ... s + tile - 2k - 1 are kept.
         step = tile_cols - 2 * k
         j = np.arange(tile_cols)
@@ -461,16 +461,18 @@ def cell_normals_tiled(ri: RangeImage, smoothing: int, fill_max_gap: int, tile_c
             return tuple(jax.lax.dynamic_update_slice_in_dim(a, o[:, k:tile_cols - k], s, axis=1)
                          for a, o in zip(acc, outs))
 
-        shapes = jax.eval_shape(fn, tuple(a[:, :tile_cols] for a in arrays), jnp.int32(0))
-        init = tuple(jnp.zeros((n_rows, n_cols), a.dtype) for a in shapes)
+        init = tuple(jnp.zeros((n_rows, n_cols), dtype) for dtype in dtypes)  # (fn's outputs; no extra trace)
         return jax.lax.fori_loop(0, -(-n_cols // step), body, init)
 
     def window_slopes(win, col0):
         idx, r, th, ph = win
         return _slopes(RangeImage(r=r, theta=th, phi=ph, index=idx, cell=ri.cell), fill_max_gap, (col0, n_cols))
 
-    slopes = tiled((ri.index, ri.r, ri.theta, ri.phi), 1 + fill_max_gap, window_slopes, (None, None, 2 * PI, None))
-    return tiled(slopes, smoothing, lambda win, _: _smoothed_cells(win, smoothing, token), (None,) * len(slopes))
+    c64, f32 = jnp.complex64, jnp.float32
+    slopes = tiled((ri.index, ri.r, ri.theta, ri.phi), 1 + fill_max_gap, window_slopes, (None, None, 2 * PI, None),
+                   (bool, c64, c64, c64, f32))  # meas, e_th, e_ph, ab, full
+    return tiled(slopes, smoothing, lambda win, _: _smoothed_cells(win, smoothing, token), (None,) * len(slopes),
+                 (c64, f32))  # complex(nx, ny), nz
 
 
 def _smoothed_cells(slopes, smoothing: int, token):
