@@ -149,6 +149,7 @@ def main(argv=None) -> int:
     t0 = time.time()
     doc = timing(args.rounds, args.compiles) if args.timing else cases()
     doc["seconds"] = time.time() - t0
+    doc["load_average_at_end"] = list(__import__("os").getloadavg())
     print(json.dumps(doc, indent=1))
     if args.json:
         from jaxdepth.io.atomic import atomic_write_bytes
