@@ -337,28 +337,6 @@ def test_sparse_isolated_points_face_the_sensor():
     np.testing.assert_allclose(np.linalg.norm(full, axis=0), 1.0, atol=1e-5)
 
 
-def test_cell_normals_tiled_equal_whole_image():
-    """cell_normals_tiled (the dense fallback of pixel_normals: column windows, the seam's azimuths
-    unwrapped as the whole image's padding does) gives the whole image's cell normals bit for bit: an
-    irregular ground and wall all around the 16 x 64 sensor (across the 360-degree seam), windows that
-    do and do not divide the columns, several smoothing / gap options."""
-    rng = np.random.default_rng(3)
-    elev = np.radians([-4.0, -5.5, -7.0, -9.0, -10.5, -13.0, -14.5, -17.0, -19.0, 5.0, 2.0])
-    azim = np.pi - (np.arange(97) + 0.5) * 2 * np.pi / 97
-    azim = azim[None, :] + rng.uniform(-0.3, 0.3, (len(elev), 97)) * 2 * np.pi / SMALL.columns
-    (gp, gh), (wp, wh) = cast_plane(*ground(0), elev, azim, max_range=30), cast_plane(*wall(12), elev, azim)
-    p, v = padded(np.concatenate([gp.reshape(-1, 3), wp.reshape(-1, 3)]),
-                  np.concatenate([gh.reshape(-1), wh.reshape(-1)]), 4096)
-    ri = RI.range_image(p, v, lidar=SMALL)
-    assert np.asarray(ri.index >= 0)[:, [0, 1, 62, 63]].any()  # measured cells on both sides of the seam
-    whole = jax.jit(N.cell_normals, static_argnums=(1, 2))
-    tiled = jax.jit(N.cell_normals_tiled, static_argnums=(1, 2, 3))
-    for smoothing, gap, tile in [(1, 2, 24), (1, 2, 16), (0, 0, 20), (2, 1, 40)]:
-        want, got = whole(ri, smoothing, gap), tiled(ri, smoothing, gap, tile)
-        for a, b in zip(got, want):
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-
-
 def test_losers_read_their_cell_normal():
     normal, d = wall(30)
     elev, azim = ideal_angles(SMALL)

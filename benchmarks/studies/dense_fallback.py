@@ -4,7 +4,7 @@
     python benchmarks/studies/dense_fallback.py --compare A.json B.json
     PYTHONPATH=. python benchmarks/studies/dense_fallback.py --timing [--rounds 15] [--compiles 3] --json OUT.json
 
-Branch cold4 computes the fallback's cell normals on column windows of the listed path's width
+Branch cold4 computed the fallback's cell normals on column windows of the listed path's width
 (:func:`jaxdepth._src.normals.cell_normals_tiled`, so that the fallback shares the listed path's
 kernels) instead of on the whole range image. This runs ``pixel_normals`` (each case its own compile,
 persistent cache off) on the shared KITTI frame's camera 2 through both paths and hashes the (3, H, W)
@@ -14,7 +14,7 @@ camera's window across the range image's 360-degree seam), a depth at every pixe
 backwards), other smoothing / gap options, and ``complete`` on the turned frame. Run it with each
 checkout's ``jaxdepth`` first on ``PYTHONPATH`` (the script itself from either), then ``--compare``.
 
-``--timing`` (this checkout only): the fallback's two forms in one process on the dense depth (the
+``--timing`` (branch cold4's code only; main kept the whole-image fallback): the fallback's two forms in one process on the dense depth (the
 whole range image, traced with ``cell_normals_tiled`` swapped for ``cell_normals``, against the
 windows), the KITTI frame turned by 180 degrees and the frame as it is (the listed path, which both
 forms share; also through ``jit(complete)``): ``pixel_normals`` alone, compile CPU seconds (``--compiles`` alternating compiles of each
@@ -80,6 +80,10 @@ def timing(rounds: int, compiles: int) -> dict:
     from jaxdepth._src import normals as N
     from jaxdepth._src import pixel_normals as PN
     from jaxdepth._src.presets import KITTI_HDL64
+
+    if not hasattr(PN, "cell_normals_tiled"):
+        raise SystemExit("dense_fallback.py --timing: this checkout has no pixel_normals.cell_normals_tiled "
+                         "(the windowed fallback was not taken; its code is on branch cold4)")
 
     def cpu():
         u = resource.getrusage(resource.RUSAGE_SELF)

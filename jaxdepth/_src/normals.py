@@ -429,52 +429,6 @@ def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None)
     return _smoothed_cells(_slopes(ri, fill_max_gap, window), smoothing, ri.index[0, 0])
 
 
-def cell_normals_tiled(ri: RangeImage, smoothing: int, fill_max_gap: int, tile_cols: int):
-    """:func:`cell_normals` of a whole range image (``window=None``), computed on (L, ``tile_cols``) windows.
-
-    Two ``fori_loop`` passes over column windows: the slopes (:func:`_slopes`; each window's columns
-    taken as the whole image's padding gives them: wrapped, azimuths unwrapped by 2 pi across the
-    seam), then the smoothing (:func:`_smoothed_cells` on windows of the stitched slopes, wrapped). A
-    window's cells within ``1 + fill_max_gap`` (``smoothing``) columns of its edges are discarded, so
-    every kept cell reads exactly the values the whole image gives it: the same bytes as
-    ``cell_normals(ri, smoothing, fill_max_gap)``. Its kernels are those of a window-sized
-    :func:`cell_normals` call (XLA:CPU compiles identical kernels once):
-    :func:`jaxdepth._src.pixel_normals.pixel_normals` runs its dense fallback this way so that it shares
-    them with its listed path. Requires ``tile_cols > 2 max(1 + fill_max_gap, smoothing)``.
-    """
-    n_rows, n_cols = ri.r.shape
-    token = ri.index[0, 0]
-
-    def tiled(arrays, k, fn, seams, dtypes):
-        # Window i: image columns s - k ... s + tile - k - 1 (mod C), of which s ... s + tile - 2k - 1 are kept.
-        step = tile_cols - 2 * k
-        j = np.arange(tile_cols)
-
-        def body(i, acc):
-            s = jnp.minimum(i * step, n_cols + 2 * k - tile_cols)
-            col = s - k + j
-            win = tuple(a.at[:, jnp.mod(col, n_cols)].get(mode="promise_in_bounds") for a in arrays)
-            # (as the whole image's padding: seam added left of column 0, subtracted right of the last)
-            win = tuple(a if d is None else jnp.where(col < 0, a + d, jnp.where(col >= n_cols, a - d, a))
-                        for a, d in zip(win, seams))
-            outs = fn(win, jnp.mod(s - k, n_cols).astype(jnp.int32))
-            return tuple(jax.lax.dynamic_update_slice_in_dim(a, o[:, k:tile_cols - k], s, axis=1)
-                         for a, o in zip(acc, outs))
-
-        init = tuple(jnp.zeros((n_rows, n_cols), dtype) for dtype in dtypes)  # (fn's outputs; no extra trace)
-        return jax.lax.fori_loop(0, -(-n_cols // step), body, init)
-
-    def window_slopes(win, col0):
-        idx, r, th, ph = win
-        return _slopes(RangeImage(r=r, theta=th, phi=ph, index=idx, cell=ri.cell), fill_max_gap, (col0, n_cols))
-
-    c64, f32 = jnp.complex64, jnp.float32
-    slopes = tiled((ri.index, ri.r, ri.theta, ri.phi), 1 + fill_max_gap, window_slopes, (None, None, 2 * PI, None),
-                   (bool, c64, c64, c64, f32))  # meas, e_th, e_ph, ab, full
-    return tiled(slopes, smoothing, lambda win, _: _smoothed_cells(win, smoothing, token), (None,) * len(slopes),
-                 (c64, f32))  # complex(nx, ny), nz
-
-
 def _smoothed_cells(slopes, smoothing: int, token):
     """The one normal smoothing: the weighted box mean of the measured cells' raw normals.
 

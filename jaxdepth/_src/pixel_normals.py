@@ -24,9 +24,7 @@ stage with three complex outputs, the binning in a second). The range image is
 built on a window of columns around the camera's central ray when every point
 fits inside it with the margin of the neighbour search and smoothing (and keeps
 that margin from the 360-degree seam, where the window's azimuths jump), which
-gives the whole image's normals exactly. The dense fallback runs its whole range image through
-window-sized cell-normal code (:func:`~jaxdepth._src.normals.cell_normals_tiled`), which shares the
-listed path's compiled kernels.
+gives the whole image's normals exactly.
 """
 
 from __future__ import annotations
@@ -41,7 +39,7 @@ from jaxdepth._src.compaction import compact_indices
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
-from jaxdepth._src.normals import cell_normals, cell_normals_tiled, check_options, normals_at_points
+from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
 from jaxdepth._src.range_image import RangeImage, angles_xyz, cell_centres, check_lidar, row_col
 from jaxdepth._src.xla_tuning import any_true, cond_all, stage
 from jaxdepth._src.types import LidarSpec
@@ -125,16 +123,14 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
 
 
 def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpec, window_cols: int,
-                             smoothing: int, fill_max_gap: int, identity: bool, tile_cols: int | None = None):
+                             smoothing: int, fill_max_gap: int, identity: bool):
     """Camera-frame (3, H, W) normals of the listed pixels (from :func:`_pixel_points`), zeros elsewhere.
 
     Every point's cell must lie in the window ``col0 .. col0 + window_cols - 1``
     (mod C) at least ``max(1 + fill_max_gap, smoothing)`` columns from its edges
     (unless the window is the whole image): then the neighbour search and the
     smoothing never reach the edges and the result equals that of the whole
-    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter). ``tile_cols``
-    (whole image only): the cell normals are computed on windows of that width
-    (:func:`~jaxdepth._src.normals.cell_normals_tiled`: the same values, the listed path's kernels).
+    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter).
     """
     slot, key = pts.slot, pts.key
     ok = key != jnp.iinfo(jnp.int32).max
@@ -164,10 +160,7 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
     r_img, th_img, ph_img, index = stage(per_cell, (idx, pts.thph, pts.zr, col0), token)
     ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
     # Points only sit in measured cells, so the filling of empty cells is skipped.
-    if tile_cols is None:
-        nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
-    else:
-        nxy, nz = cell_normals_tiled(ri, smoothing, fill_max_gap, tile_cols)
+    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
     xyz = (jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr))
     px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
     n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
@@ -228,11 +221,7 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
     whole image's normals exactly. Otherwise (more than ``max_points`` pixels
     with depth, points outside the window, or points near the 360-degree seam
     inside it: a camera facing backwards) a dense path takes every pixel as a
-    point slot and uses the whole range image: same result, slower. Its cell
-    normals are computed on windows of ``window_columns`` columns
-    (:func:`~jaxdepth._src.normals.cell_normals_tiled`: the whole image's
-    values), so that XLA:CPU compiles the cell-normal kernels once for both
-    paths (docs/speed.md, "The dense fallback on the listed path's kernels").
+    point slot and uses the whole range image: same result, slower.
 
     Args:
       sparse_depth: (H, W) float camera depth z, metres; 0 (or any value that
@@ -274,14 +263,14 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
     options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
     margin = max(1 + fill_max_gap, smoothing)
 
-    def dense(depth, K, T, tile_cols=None):
+    def dense(depth, K, T):
         # Every pixel is a point slot and the whole range image is used (as
         # fast as the listed path only when most pixels have depth).
         token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)  # (a branch may not close over tracers)
         pix = jnp.arange(n_pix, dtype=jnp.int32)
         pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=n_cols, margin=0)
         return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=n_cols,
-                                        identity=True, tile_cols=tile_cols, **options)
+                                        identity=True, **options)
 
     capacity = -(-n_pix // 16) if max_points is None else int(max_points)
     capacity = min(max(capacity, 1), n_pix)
@@ -308,7 +297,6 @@ def pixel_normals(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array,
                                         identity=False, **options)
 
     def fallback(pix, col0, R, depth, K, T, *pts):
-        # The whole range image's cell normals on windows of the listed path's width: its kernels.
-        return dense(depth, K, T, tile_cols=wc if 2 * margin < wc < n_cols else None)
+        return dense(depth, K, T)
 
     return cond_all(fits, listed, fallback, pix, col0, R, depth, K, T, *pts)
