@@ -148,6 +148,23 @@ def test_integer_metres_are_refused_and_real_metres_pass():
     assert "decimetres" in depth_scale_problem(np.rint(metres * 10) / 256)
 
 
+def test_whole_metre_check_follows_the_png_units_exactly():
+    """Whole metres are flagged iff every value rounds to a multiple of 256 PNG units (analytic cases)."""
+    from jaxdepth.io.plausibility import depth_scale_problem
+    whole = np.tile(np.arange(1.0, 61.0), (10, 1))          # 1..60 m, 60 distinct values
+    flagged = lambda d: "multiple of 256" in (depth_scale_problem(d) or "")  # noqa: E731
+    assert flagged(whole) and flagged(whole.astype(np.float32))
+    assert flagged(whole + 1 / 1024)                        # a quarter unit: rounds back to the multiple
+    one_unit = whole.copy()
+    one_unit[3, 7] += 1 / 256                               # one PNG unit off a whole metre
+    assert not flagged(one_unit) and not flagged(one_unit.astype(np.float32))
+    with_gaps = whole.copy()
+    with_gaps[0, :4] = [np.nan, np.inf, -5.0, 0.0]          # not depths: ignored
+    assert flagged(with_gaps)
+    with np.errstate(over="ignore"):
+        assert not flagged(np.full((10, 60), 1e306))        # 256 x the value overflows: never whole
+
+
 # ------------------------------------------------------------------ run records
 
 
