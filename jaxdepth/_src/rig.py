@@ -306,9 +306,9 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
 
     def per_camera(K, T, size, image, *, height, width):
         K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
-        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K,
+        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, apart=True,
                                                                         height=height, width=width, image_size=size)
-        return CameraView(sparse_depth, tuple(points_cam), tuple(normals_cam))
+        return CameraView(sparse_depth, points_cam, normals_cam)
 
     return map_by_size(per_camera, cameras)
 

@@ -537,11 +537,11 @@ def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, 
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
-                                                                        width=width, image_size=image_size)
+                                                                        width=width, image_size=image_size, apart=True)
     hit = index >= 0
     pixel_source = jnp.where(hit, index // per_source, -1)     # the point's source, without a gather
     pixel_shadow = None if shadow is None else hit & shadow[jnp.where(hit, index, 0)]
-    return CameraView(sparse_depth, tuple(points_cam), tuple(normals_cam), pixel_source, pixel_shadow)
+    return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow)
 
 
 def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config, image_size=None, reference=None,
