@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, fence, pack_pair, unpack_pair
+from jaxdepth._src.xla_tuning import after, fence, pack_pair, stage, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -280,8 +280,11 @@ def project_with_normals(points, valid, normals, T, K, *, height: int, width: in
     p_cam = camera_points(T, points)
     sparse_depth, index = zbuffer_image(p_cam, valid, K, height=height, width=width, valid_size=image_size)
     n_cam = camera_points(T, normals, translate=False)
-    gather = channels_at if apart else gather_channels
-    return sparse_depth, index, gather(p_cam, index), gather(n_cam, index)
+    if not apart:
+        return sparse_depth, index, gather_channels(p_cam, index), gather_channels(n_cam, index)
+    # A stage: unstacked, each channel's gather would otherwise be fused into (and re-run by) every consumer.
+    channels = stage(lambda p, n, i: channels_at(p, i) + channels_at(n, i), (p_cam, n_cam, index), index[0, 0])
+    return sparse_depth, index, channels[:3], channels[3:]
 
 
 def channels_at(values: jax.Array, index: jax.Array) -> tuple:
