@@ -388,7 +388,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
-    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam or None, traced float32
+    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam (or its three channels) or None, traced float32
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
     ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
     pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
