@@ -677,3 +677,29 @@ def test_window_min_with_the_half_width_as_data_equals_scipy_minimum_filter():
     batched = np.asarray(jax.vmap(fn)(padded, jnp.asarray(ks[:3], jnp.int32)))
     for i, k in enumerate(ks[:3]):
         np.testing.assert_array_equal(batched[i], np.asarray(fn(padded[i], jnp.int32(k))))
+
+
+@pytest.mark.xdist_group("outliers_24x40")
+def test_points_as_three_channels_give_the_same_mask():
+    """``points_cam`` as three (H, W) channels (the rig views' form) == the (3, H, W) array, bit for bit, both
+    tests, one camera and vmapped over cameras; and the footprint double loop's mask where it is sure."""
+    shape = (24, 40)
+    rng = np.random.default_rng(11)
+    cams = [_camera(rng, *shape) for _ in range(3)]
+    depths = [_random_sparse(rng, *shape, 0.25) for _ in range(3)]
+    points = [_points_near_pixels(rng, K, d) for (K, _), d in zip(cams, depths)]
+    for test in ("footprint", "paper"):
+        kw = dict(beams=6, epsilon_m=1.0, test=test, **CAPS)
+
+        def run(depth, K, T, p, apart):
+            return outlier_keep_mask(depth, K, T, points_cam=tuple(p) if apart else p, **kw)
+
+        stacked = [np.asarray(run(d, K, T, p, False)) for (K, T), d, p in zip(cams, depths, points)]
+        args = [np.stack(x).astype(np.float32) for x in zip(*[(d, K, T, p) for (K, T), d, p in zip(cams, depths, points)])]
+        batched = np.asarray(jax.jit(jax.vmap(lambda d, K, T, p: run(d, K, T, p, True)))(*args))
+        for c, ((K, T), d, p) in enumerate(zip(cams, depths, points)):
+            np.testing.assert_array_equal(np.asarray(run(d, K, T, p, True)), stacked[c], err_msg=f"{test} camera {c}")
+            np.testing.assert_array_equal(batched[c], stacked[c], err_msg=f"{test} camera {c}, vmapped")
+            if test == "footprint":
+                _assert_matches_footprint(stacked[c], *footprint_double_loop(d, K, T, points_cam=p, beams=6,
+                                                                             epsilon_m=1.0, **CAPS))

@@ -208,6 +208,25 @@ def test_project_with_normals_vmapped_equals_single_call(edge_rig):
                                       err_msg=f"camera {c}: the pixel's point is the z-buffer's depth")
 
 
+def test_project_with_normals_apart_equals_stacked(edge_rig):
+    """``apart=True`` (the rig views: three (H, W) channels each, gathered in one stage) == the stacked
+    (3, H, W) channels, bit for bit, one camera and vmapped."""
+    points, valid, Ks, Ts = edge_rig
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+    size = jnp.array([H, W], jnp.int32)
+
+    def run(K, T, apart):
+        return project_with_normals(points, valid, normals, T, K, height=H, width=W, image_size=size, apart=apart)
+
+    stacked = jax.jit(jax.vmap(lambda K, T: run(K, T, False)))(Ks, Ts)
+    apart = jax.jit(jax.vmap(lambda K, T: run(K, T, True)))(Ks, Ts)
+    for k in (2, 3):
+        assert isinstance(apart[k], tuple) and len(apart[k]) == 3
+        assert np.asarray(jnp.stack(apart[k], axis=1)).tobytes() == np.asarray(stacked[k]).tobytes()
+    one = run(Ks[0], Ts[0], True)
+    assert np.asarray(jnp.stack(one[2])).tobytes() == np.asarray(stacked[2][0]).tobytes()
+
+
 def _np_gathered(values, index):
     """Oracle of ``gather_channels``: the (H W, C) row gather, transposed, 0 where the index is -1."""
     values, index = np.asarray(values), np.asarray(index)

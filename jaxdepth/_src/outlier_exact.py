@@ -127,7 +127,7 @@ class ExactTest(NamedTuple):
     """Everything phase 3 reads (traced arrays) and its static options."""
 
     depth: jax.Array          # (H, W) float32 metres; read only where ``columns`` has a bit
-    points: jax.Array | None  # (3, H, W) float32 camera-frame x, y, z, or None (back-projected)
+    points: object            # (3, H, W) float32 camera-frame x, y, z, three (H, W) channels, or None (back-projected)
     columns: jax.Array        # (ceil(H / 32), W) uint32: pixels with depth packed down the columns
     K: jax.Array
     t: jax.Array              # (3,) LiDAR origin, (3, H, W) each pixel's own, or (S, 3) with ``source`` (camera frame)
@@ -149,8 +149,12 @@ def _view(ex: ExactTest, flat, row, col):
     """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
     z (inf where empty)."""
     d = ex.depth.reshape(-1).at[flat].get(mode=_PIB)
-    # One gather of the three channels: slicing them apart first would copy each (3 passes over the image).
-    p = None if ex.points is None else ex.points.reshape(3, -1).at[:, flat].get(mode=_PIB)
+    # One gather of the three channels: slicing them apart first would copy each (3 passes over the image);
+    # channels given apart (rigs' views) are gathered one by one.
+    if isinstance(ex.points, tuple):
+        p = tuple(channel.reshape(-1).at[flat].get(mode=_PIB) for channel in ex.points)
+    else:
+        p = None if ex.points is None else ex.points.reshape(3, -1).at[:, flat].get(mode=_PIB)
     view_fn = lidar_view if ex.test == "footprint" else lidar_angles
     return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
         jnp.where(d > 0, d, jnp.float32(jnp.inf))

@@ -388,7 +388,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
-    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam or None, traced float32
+    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam (or its three channels) or None, traced float32
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
     ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
     pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
@@ -405,7 +405,10 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
-    points = None if points_cam is None else points_cam.astype(jnp.float32)
+    if isinstance(points_cam, (tuple, list)):        # three channels apart (rigs' views): kept apart
+        points = tuple(jnp.asarray(channel, jnp.float32) for channel in points_cam)
+    else:
+        points = None if points_cam is None else points_cam.astype(jnp.float32)
     K = K.astype(jnp.float32)
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
@@ -457,7 +460,8 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
         metres, of the LiDAR point that won each pixel (raw sweep input). When
         None, each pixel's point is back-projected from its centre through
         ``K`` (image-only input: angles then carry the +-0.5 px rounding of
-        the projection).
+        the projection). Also three (H, W) channels (x, y, z), kept apart (a
+        rig's view: no stacked copy); the same mask.
       test: static form of condition 1: "footprint" (default) or "paper" (see
         the module docstring).
       image_size: optional traced (2,) int32 (h, w): the image is the top-left
@@ -509,7 +513,13 @@ def outlier_keep_mask(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Ar
     T_cam_lidar = jnp.asarray(T_cam_lidar)
     if T_cam_lidar.shape != (4, 4):
         raise ValueError(f"outlier_keep_mask: field 'T_cam_lidar' expected shape (4, 4), got {T_cam_lidar.shape}")
-    if points_cam is not None:
+    if isinstance(points_cam, (tuple, list)):
+        points_cam = tuple(jnp.asarray(channel) for channel in points_cam)
+        if len(points_cam) != 3 or any(channel.shape != sparse_depth.shape for channel in points_cam):
+            raise ValueError(
+                f"outlier_keep_mask: field 'points_cam' expected three channels of shape {sparse_depth.shape}, "
+                f"got {[channel.shape for channel in points_cam]}")
+    elif points_cam is not None:
         points_cam = jnp.asarray(points_cam)
         if points_cam.shape != (3, *sparse_depth.shape):
             raise ValueError(

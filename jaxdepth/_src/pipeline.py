@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, fence, pack_pair, unpack_pair
+from jaxdepth._src.xla_tuning import after, fence, pack_pair, stage, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -257,17 +257,20 @@ def camera_stages_from_points(points, valid, normals_lidar, K, T_cam_lidar, *, h
     return clear_outside_window(stages, image_size)
 
 
-def project_with_normals(points, valid, normals, T, K, *, height: int, width: int, image_size=None):
+def project_with_normals(points, valid, normals, T, K, *, height: int, width: int, image_size=None,
+                         apart: bool = False):
     """The camera's z-buffer of a sweep, with each hit pixel's point and normal in the camera frame.
 
     Args:
       points: (N, 3) float32 points; valid: (N,) bool; normals: (N, 3) unit normals, same frame.
       T: (4, 4) float32 points' frame -> camera; K: (3, 3) float32.
       image_size: optional traced (2,) height, width of a window of the canvas (rigs).
+      apart: static; points_cam and normals_cam as three (H, W) channels each, not stacked
+        (rigs: under ``vmap`` the stack is a (3, C, H, W) buffer that the cameras' stages would transpose).
 
     Returns:
       sparse_depth (H, W) float32 (0 = empty); index (H, W) int32 of the point seen (-1 = none);
-      points_cam and normals_cam (3, H, W) float32, 0 where no point is seen.
+      points_cam and normals_cam (3, H, W) float32, 0 where no point is seen (tuples of (H, W) with ``apart``).
 
     Points and normals are transformed once per point with exact products
     (:func:`~jaxdepth._src.geometry.camera_points`), then gathered per pixel: the z-buffer and
@@ -277,7 +280,19 @@ def project_with_normals(points, valid, normals, T, K, *, height: int, width: in
     p_cam = camera_points(T, points)
     sparse_depth, index = zbuffer_image(p_cam, valid, K, height=height, width=width, valid_size=image_size)
     n_cam = camera_points(T, normals, translate=False)
-    return sparse_depth, index, gather_channels(p_cam, index), gather_channels(n_cam, index)
+    if not apart:
+        return sparse_depth, index, gather_channels(p_cam, index), gather_channels(n_cam, index)
+    # A stage: unstacked, each channel's gather would otherwise be fused into (and re-run by) every consumer.
+    channels = stage(lambda p, n, i: channels_at(p, i) + channels_at(n, i), (p_cam, n_cam, index), index[0, 0])
+    return sparse_depth, index, channels[:3], channels[3:]
+
+
+def channels_at(values: jax.Array, index: jax.Array) -> tuple:
+    """:func:`gather_channels` as a tuple of C (H, W) channels, not stacked."""
+    n, c = values.shape
+    slot = jnp.where(index >= 0, index, n)
+    zero = jnp.zeros((1,), values.dtype)
+    return tuple(jnp.concatenate([values[:, k], zero])[slot] for k in range(c))
 
 
 def gather_channels(values: jax.Array, index: jax.Array) -> jax.Array:
@@ -288,10 +303,7 @@ def gather_channels(values: jax.Array, index: jax.Array) -> jax.Array:
     (docs/speed.md, "The rig profile now, and the projection's gather"). The same values, bit for
     bit, as ``where(index >= 0, values[index].T, 0)``.
     """
-    n, c = values.shape
-    slot = jnp.where(index >= 0, index, n)
-    zero = jnp.zeros((1,), values.dtype)
-    return jnp.stack([jnp.concatenate([values[:, k], zero])[slot] for k in range(c)])
+    return jnp.stack(channels_at(values, index))
 
 
 def clear_outside_window(stages: Stages, image_size) -> Stages:

@@ -266,14 +266,16 @@ class CameraView(NamedTuple):
     """One camera's projected sweep: the stage programs' hand-over from the projection to Steps 2-4.
 
     Fields (h, w) of the camera's size group: ``sparse_depth`` float32 z-buffer (0 = empty),
-    ``points_cam`` and ``normals_cam`` (3, h, w) float32 (0 where empty); with several sources
+    ``points_cam`` and ``normals_cam`` three (h, w) float32 channels each, x, y, z (0 where empty;
+    apart, not a (3, h, w) array: under ``vmap`` a stacked (C, 3, h, w) channel array cost transposes
+    and copies between the stages, docs/speed.md, "The rig's channels apart"); with several sources
     (:mod:`~jaxdepth._src.sources`) also ``pixel_source`` int32 (-1 = empty) and ``pixel_shadow``
     bool or None; None for a single sweep.
     """
 
     sparse_depth: jax.Array
-    points_cam: jax.Array
-    normals_cam: jax.Array
+    points_cam: tuple
+    normals_cam: tuple
     pixel_source: jax.Array | None = None
     pixel_shadow: jax.Array | None = None
 
@@ -304,7 +306,7 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
 
     def per_camera(K, T, size, image, *, height, width):
         K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
-        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K,
+        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, apart=True,
                                                                         height=height, width=width, image_size=size)
         return CameraView(sparse_depth, points_cam, normals_cam)
 
@@ -338,7 +340,7 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
         stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
                                 jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
                                 image_size=size)
-        return clear_outside_window(stages, size)
+        return clear_outside_window(stages._replace(normals=jnp.stack(view.normals_cam)), size)
 
     return to_canvas(map_by_size(per_camera, cameras, images, tuple(zip(views, keeps))), cameras)
 

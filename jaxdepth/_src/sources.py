@@ -383,7 +383,7 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     Args:
       sparse_depth: (H, W) float32 z-buffer of all sources' points (0 = empty).
       pixel_source: (H, W) int32 source of each pixel's point (any value where empty).
-      points_cam: (3, H, W) float32 camera-frame coordinates of each pixel's point.
+      points_cam: (3, H, W) float32 camera-frame coordinates of each pixel's point (or three (H, W) channels).
       K: (3, 3). T_cam_sources: (S, 4, 4) pose of each source's LiDAR in the camera frame
         (only the translations, the LiDARs' origins, are used).
       beams: static L of the window bounds (H / L, W L / N): the beams of one sweep of the rig.
@@ -451,7 +451,7 @@ def sweep_keep_mask(sparse_depth, reference, pixel_sweep, points_cam, K, origins
 
     Args:
       sparse_depth: (H, W) float32 merged z-buffer (0 = empty). reference: (H, W) bool, the reference sweep's
-        pixels. pixel_sweep: (H, W) int32 sweep of each pixel's point. points_cam: (3, H, W) float32.
+        pixels. pixel_sweep: (H, W) int32 sweep of each pixel's point. points_cam: (3, H, W) float32 (or three (H, W) channels).
       K: (3, 3). origins: (3, H, W) float32 each pixel's LiDAR origin in the camera frame, or with ``pixel_source``
         the (S, 3) sources' origins.
       sweeps: static tuple of the sweep numbers present. beams, half_width, half_height: static, as
@@ -537,7 +537,7 @@ def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, 
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
-                                                                        width=width, image_size=image_size)
+                                                                        width=width, image_size=image_size, apart=True)
     hit = index >= 0
     pixel_source = jnp.where(hit, index // per_source, -1)     # the point's source, without a gather
     pixel_shadow = None if shadow is None else hit & shadow[jnp.where(hit, index, 0)]
