@@ -86,6 +86,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     stage then uses the camera's own size (Step 2's window bounds, the column
     bracket's h / L, the blur's border), so inside the window the result is that
     of the (h, w) image alone (tests/test_rig.py); outside it, any value.
+    ``normals_cam`` and ``points_cam``: (3, H, W), or three (H, W) channels each (a rig's views,
+    :func:`project_with_normals` with ``apart``); ``Stages.normals`` is (3, H, W) either way.
     """
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
@@ -121,7 +123,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
-    return Stages(sparse_depth=sparse_depth, normals=normals_cam, inlier_mask=keep, seed_depth=seed_depth,
+    normals = jnp.stack(normals_cam) if isinstance(normals_cam, tuple) else normals_cam
+    return Stages(sparse_depth=sparse_depth, normals=normals, inlier_mask=keep, seed_depth=seed_depth,
                   du=du, dv=dv, residual=residual, depth_raw=depth_raw, depth=depth)
 
 

@@ -340,7 +340,7 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
         stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
                                 jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
                                 image_size=size)
-        return clear_outside_window(stages._replace(normals=jnp.stack(view.normals_cam)), size)
+        return clear_outside_window(stages, size)
 
     return to_canvas(map_by_size(per_camera, cameras, images, tuple(zip(views, keeps))), cameras)
 
