@@ -153,6 +153,27 @@ def test_encode_rounding_and_clipping():
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32])
+def test_encode_in_range_fast_path_equals_the_clip_formula(dtype, caplog):
+    # Every value in range takes the two-reduction path; the oracle is the documented formula in float64.
+    rng = np.random.default_rng(7)
+    depth = rng.uniform(0.0, 255.99, (37, 53))
+    depth[rng.random(depth.shape) < 0.3] = 0.0
+    depth.flat[:6] = [-0.0, 0.5 / 256, 1.5 / 256, 65535.49 / 256, 255.5, -0.49 / 256]  # halves: to even
+    depth = depth.astype(dtype) if dtype != np.int32 else np.floor(np.abs(depth)).astype(dtype)
+    oracle = np.clip(np.rint(depth.astype(np.float64) * 256.0), 0, 65535).astype(np.uint16)
+    with caplog.at_level("WARNING", logger="jaxdepth"):
+        got = encode_depth_uint16(depth)
+    assert got.dtype == np.uint16 and not caplog.records  # nothing clipped: no warning
+    np.testing.assert_array_equal(got, oracle)
+    over = depth.astype(np.float64)
+    over[0, 0] = 65535.5 / 256       # rounds to 65536: the checked path, clipped and logged
+    with caplog.at_level("WARNING", logger="jaxdepth"):
+        got = encode_depth_uint16(over)
+    assert got[0, 0] == 65535 and "clipped 0 negative depths to 0 (empty) and 1 depths" in caplog.text
+    np.testing.assert_array_equal(got.ravel()[1:], oracle.ravel()[1:])
+
+
 def test_encode_rejects_nan_and_bad_shapes():
     with pytest.raises(ValueError, match=r"'depth_m' expected no NaN .*got 1 NaN pixels"):
         encode_depth_uint16(np.array([[1.0, np.nan]], np.float32))

@@ -665,3 +665,19 @@ def test_force_reaches_the_sweep_reader_on_both_engines(dataroot, tmp_path, monk
     assert cli.main(argv + ["--force", "--overwrite", "--engine", "ray"]) == 0
     assert cli.main(argv + ["--overwrite"]) == 0
     assert [k["force"] for k in calls] == [True, True, False]
+
+
+def test_job_stacks_the_rig_cameras_as_as_camera_does():
+    # The job stacks the RigCameras' NumPy K and T (no jax.Array read back, which would wait for the
+    # sample in flight): the same RigCameras as from their as_camera() pytrees, bit for bit.
+    from jaxdepth._src import presets
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.io.rig import RigCamera
+    T = np.asarray(presets.KITTI_T_CAM2_LIDAR, np.float64).copy()
+    cams = [RigCamera("a", 1600, 900, np.array([[1266.4, 0, 816.3], [0, 1266.4, 491.5], [0, 0, 1]]), T),
+            RigCamera("b", 900, 1600, np.array([[809.2, 0, 449.7], [0, 809.2, 801.1], [0, 0, 1]]), T[[0, 1, 2, 3]])]
+    got, want = stack_cameras(cams), stack_cameras([c.as_camera() for c in cams])
+    for field in ("K", "T_cam_lidar", "image_size"):
+        a, b = np.asarray(getattr(got, field)), np.asarray(getattr(want, field))
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), field
+    assert (got.height, got.width, got.sizes) == (want.height, want.width, want.sizes) == (1600, 1600, ((900, 1600), (1600, 900)))

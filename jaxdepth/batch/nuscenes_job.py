@@ -333,7 +333,9 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
                 run.in_flight.append((job, rig, out))
                 run.collect(writers)
                 continue
-            cameras = stack_cameras([c.as_camera() for c in rig.cameras])
+            # From the RigCameras' NumPy K and T (the values as_camera's would hold): a jax.Array read back
+            # here would wait for the sample in flight, and the next sample could not be dispatched before.
+            cameras = stack_cameras(rig.cameras)
             args = (padded, valid, cameras) + (() if images is None else (images,))
             try:
                 fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
