@@ -105,18 +105,16 @@ def _fns(module, args, beams, origins):
     return (lambda: f(*args)), dict(half_width=hw, half_height=hh)
 
 
-def _info(args, beams, hw, hh, origins):
+def _info(args, beams, hw, hh):
     """k, points, candidates and chunks of a case (this version's phases)."""
     import jax.numpy as jnp
 
     from jaxdepth._src import outliers as O
     from jaxdepth._src.outlier_exact import CHUNK
-    depth, K, T, p = args[:4]
+    depth = args[0]
     valid = (depth > 0) & jnp.isfinite(depth)
     bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
-    t = args[5] if origins else T[:3, 3]
-    words = O._prefilter(depth, p, K, t, jnp.float32(1.0), bounds, beams=beams, hh=hh, hw=hw, footprint=True,
-                         t_front=jnp.min(t[:, 2]) if origins else None, source=args[6] if origins else None)
+    words = O._prefilter(depth, jnp.float32(1.0), bounds, hh=hh, hw=hw)
     count = int(O._compact(words)[0])
     return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
 
@@ -141,7 +139,6 @@ def main(argv=None) -> int:
         versions["baseline"] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(versions["baseline"])
     elif args.checkout:
-        import importlib
         import pathlib
         import tempfile
 
@@ -160,7 +157,7 @@ def main(argv=None) -> int:
         if any((m != masks[0]).any() for m in masks[1:]):
             print(f"bench_step2: {case}: the masks differ from the baseline's", file=sys.stderr)
             return 1
-        info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"], origins))
+        info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"]))
         px[case] = int(case_args[0].size)
         print(case, info[case], flush=True)
     runs, cpu = {key: [] for key in fns}, {key: [] for key in fns}
