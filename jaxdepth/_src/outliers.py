@@ -157,17 +157,17 @@ def _z_key(z, part):
                      ).astype(jnp.uint16)
 
 
-def _prefilter_key(depth):
+def _prefilter_key(depth, *, hh, hw):
     """The uint16 depth key (see :data:`_ZQ`) of each pixel of the (H, W) float32 ``depth``, ``_ZNONE``
-    where it has none (one fenced stage; :func:`_prefilter_rows` pads it as it reads it)."""
-    return _z_key(depth, (depth > 0) & jnp.isfinite(depth))
+    where it has none, padded by ``_ZNONE``: (H + 2 hh, W + 2 hw) (one fenced stage)."""
+    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth))
+    return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
 
 
-def _prefilter_rows(key, *, hh, hw):
-    """Column (vertical) minima of the (H, W) depth key over the window's 2 hh + 1 rows (doubling,
-    :func:`_sliding_mins`): (H, W + 2 hw), the key read as padded by ``_ZNONE`` (the pad fuses into the
-    minima: no padded copy of the key is stored)."""
-    return _sliding_mins(jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE)), (hh,), axis=0)[0]
+def _prefilter_rows(padded, *, hh):
+    """Column (vertical) minima of the padded depth key over the window's 2 hh + 1 rows (doubling,
+    :func:`_sliding_mins`): (H, W + 2 hw)."""
+    return _sliding_mins(padded, (hh,), axis=0)[0]
 
 
 def _prefilter_words(k, low, key, eps, *, hw, width):
@@ -255,11 +255,11 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
     """
-    width = depth.shape[1]
-    key = stage(lambda d: (_prefilter_key(d),), (depth,), bounds.n_points)[0]
-    low = stage(lambda x: (_prefilter_rows(x, hh=hh, hw=hw),), (key,), bounds.n_points)[0]
-    return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x, e, hw=hw, width=width), (bounds.k_max, low, key, eps),
-                 bounds.n_points)
+    height, width = depth.shape
+    padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
+    low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
+    return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
+                 (bounds.k_max, low, padded, eps), bounds.n_points)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
