@@ -164,8 +164,7 @@ def _window_words(ex: ExactTest, row, col, start=None, block=None):
     """The column words of a block of each candidate's window columns, masked to its rows: (J, B, n) uint32,
     the J words covering rows ``row - hh .. row + hh``, with each word's first row (J, 1, n) int32, and
     the block's columns: (B, 1) offsets ``start .. start + B - 1`` and (B, n) indices. The candidates are
-    the minor axis (see :func:`_test_chunk`)
-    Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
+    the minor axis (see :func:`_column_block`). Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
     n_words, width = ex.columns.shape
     start = -ex.hw if start is None else start
     block = 2 * ex.hw + 1 if block is None else block
@@ -222,7 +221,13 @@ def _test_chunk(c, keep, *, ex: ExactTest):
 def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):
     """Conditions 1 and 2 of a chunk of candidates against the points of one block of B = 2 G + 1 window
     columns, starting at du = -k + b B (clipped to the static window: a clipped block overlaps the
-    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated."""
+    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated.
+
+    Every (point, candidate) array is (B, CHUNK), the candidates on the minor axis, and the hits are carried
+    as such through the rank loop and reduced over the columns once after it: XLA:CPU then vectorises the
+    fused pair test over the candidates (laid out (CHUNK, B), it looped over the B columns of each
+    candidate in scalar code: ~8x the time per rank step on the KITTI frame; docs/speed.md, "Step 2's cost").
+    """
     width = ex.depth.shape[1]
     block = 2 * group + 1
     start = jnp.clip(b * block - ex.k_max, -ex.hw, ex.hw - 2 * group)
