@@ -9,9 +9,12 @@ candidates and the exact test's chunks. ``--baseline FILE``: another version of
 ``jaxdepth/_src/outliers.py`` (e.g. ``git show main:jaxdepth/_src/outliers.py > /tmp/outliers_main.py``),
 loaded beside this one; both run in interleaved rounds in one process, their masks must be equal, and
 the ratio this / baseline is taken within each round (median), of wall and of process CPU time
-(the CPU figures hold up better on a loaded machine). ``--cases``: only the cases whose names start so.
+(the CPU figures hold up better on a loaded machine). ``--checkout PATH``: instead, another checkout's whole
+library (``PATH/jaxdepth`` copied as the package ``jaxdepth_base``, as ``bench_rig_against_checkout`` does),
+so that its ``outlier_exact.py`` and ``compaction.py`` are the baseline's too. ``--cases``: only the cases
+whose names start so.
 
-    python -m benchmarks.bench_step2 [--repeats 5] [--baseline FILE] [--cases "AV2 rig" ...]
+    python -m benchmarks.bench_step2 [--repeats 5] [--baseline FILE | --checkout PATH] [--cases "AV2 rig" ...]
         [--out benchmarks/results/step2.json]
 """
 
@@ -102,18 +105,16 @@ def _fns(module, args, beams, origins):
     return (lambda: f(*args)), dict(half_width=hw, half_height=hh)
 
 
-def _info(args, beams, hw, hh, origins):
+def _info(args, beams, hw, hh):
     """k, points, candidates and chunks of a case (this version's phases)."""
     import jax.numpy as jnp
 
     from jaxdepth._src import outliers as O
     from jaxdepth._src.outlier_exact import CHUNK
-    depth, K, T, p = args[:4]
+    depth = args[0]
     valid = (depth > 0) & jnp.isfinite(depth)
     bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
-    t = args[5] if origins else T[:3, 3]
-    words = O._prefilter(depth, p, K, t, jnp.float32(1.0), bounds, beams=beams, hh=hh, hw=hw, footprint=True,
-                         t_front=jnp.min(t[:, 2]) if origins else None, source=args[6] if origins else None)
+    words = O._prefilter(depth, jnp.float32(1.0), bounds, hh=hh, hw=hw)
     count = int(O._compact(words)[0])
     return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
 
@@ -121,6 +122,7 @@ def _info(args, beams, hw, hh, origins):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--baseline", default=None, help="another outliers.py to time against (masks must agree)")
+    parser.add_argument("--checkout", default=None, help="another checkout whose whole library is the baseline")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=str(RESULTS / "step2.json"))
     parser.add_argument("--cases", nargs="*", default=None, help="only the cases whose names start so")
@@ -136,6 +138,14 @@ def main(argv=None) -> int:
         spec = importlib.util.spec_from_file_location("outliers_baseline", args.baseline)
         versions["baseline"] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(versions["baseline"])
+    elif args.checkout:
+        import pathlib
+        import tempfile
+
+        from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
+        folder = tempfile.TemporaryDirectory(prefix="bench_step2_")     # removed when main returns
+        _copy_as_base(pathlib.Path(args.checkout), pathlib.Path(folder.name))
+        versions["baseline"] = importlib.import_module(f"{BASE}._src.outliers")
     fns, info, px = {}, {}, {}
     for case, (case_args, beams, origins) in _inputs().items():
         if args.cases and not any(case.startswith(c) for c in args.cases):
@@ -147,12 +157,12 @@ def main(argv=None) -> int:
         if any((m != masks[0]).any() for m in masks[1:]):
             print(f"bench_step2: {case}: the masks differ from the baseline's", file=sys.stderr)
             return 1
-        info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"], origins))
+        info[case] = dict(sizes, **_info(case_args, beams, sizes["half_width"], sizes["half_height"]))
         px[case] = int(case_args[0].size)
         print(case, info[case], flush=True)
     runs, cpu = {key: [] for key in fns}, {key: [] for key in fns}
-    for _ in range(args.repeats):
-        for key, fn in fns.items():
+    for r in range(args.repeats):
+        for key, fn in (list(fns.items()) if r % 2 == 0 else list(fns.items())[::-1]):   # order alternating
             t, c = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn())
             runs[key].append(time.perf_counter() - t)
@@ -160,13 +170,13 @@ def main(argv=None) -> int:
     ns_per_px = {f"{case} | {name}": statistics.median(v) / px[case] * 1e9 for (case, name), v in runs.items()}
     cpu_ns_per_px = {f"{case} | {name}": statistics.median(v) / px[case] * 1e9 for (case, name), v in cpu.items()}
     ratio, cpu_ratio = ({case: statistics.median(a / b for a, b in zip(r[(case, "this")], r[(case, "baseline")]))
-                         for case in info} if args.baseline else {} for r in (runs, cpu))
+                         for case in info} if len(versions) > 1 else {} for r in (runs, cpu))
     for case in info:
         print(f"{case:55s} " + "  ".join(f"{n} {ns_per_px[f'{case} | {n}']:6.1f} ns/px "
                                          f"(CPU {cpu_ns_per_px[f'{case} | {n}']:5.1f})" for n in versions)
               + (f"  this/baseline {ratio[case]:.2f} (CPU {cpu_ratio[case]:.2f})" if ratio else ""))
     doc = {"what": "Step 2 alone (outliers._keep_mask), ns per pixel, medians of interleaved rounds, one process",
-           "baseline": args.baseline, "repeats": args.repeats, "cases": info, "ns_per_px_median": ns_per_px,
+           "baseline": args.baseline or args.checkout, "repeats": args.repeats, "cases": info, "ns_per_px_median": ns_per_px,
            "ratio_this_to_baseline": ratio, "cpu_ns_per_px_median": cpu_ns_per_px, "cpu_ratio_this_to_baseline": cpu_ratio,
            "load_average": os.getloadavg(), "runs_s": {f"{case} | {name}": v for (case, name), v in runs.items()},
            "runs_cpu_s": {f"{case} | {name}": v for (case, name), v in cpu.items()}}

@@ -62,8 +62,8 @@ def _walk(valid, row, col, *, hh, hw, k_max):
     for j, (w, n, b) in enumerate(zip(words, counts, bases)):
         for rank in range(32):
             bit = np.asarray(_nth_set_bit(jnp.asarray(w), jnp.full(w.shape, rank, jnp.int32)))
-            for i, d in zip(*np.nonzero(rank < n)):
-                seen.add((int(i), int(b[i, 0] + bit[i, d]), int(col_q[i, d])))
+            for d, i in zip(*np.nonzero(rank < n)):     # (B, n): the candidates on the minor axis
+                seen.add((int(i), int(b[0, i] + bit[d, i]), int(col_q[d, i])))
     return seen
 
 

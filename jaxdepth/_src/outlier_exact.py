@@ -161,18 +161,18 @@ def _view(ex: ExactTest, flat, row, col):
 
 
 def _window_words(ex: ExactTest, row, col, start=None, block=None):
-    """The column words of a block of each candidate's window columns, masked to its rows: (J, n, B) uint32,
-    the J words covering rows ``row - hh .. row + hh``, with each word's first row (J, n, 1) int32, and
-    the block's columns: (1, B) offsets ``start .. start + B - 1`` and (n, B) indices.
-    Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
+    """The column words of a block of each candidate's window columns, masked to its rows: (J, B, n) uint32,
+    the J words covering rows ``row - hh .. row + hh``, with each word's first row (J, 1, n) int32, and
+    the block's columns: (B, 1) offsets ``start .. start + B - 1`` and (B, n) indices. The candidates are
+    the minor axis (see :func:`_column_block`). Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
     n_words, width = ex.columns.shape
     start = -ex.hw if start is None else start
     block = 2 * ex.hw + 1 if block is None else block
-    du = start + jnp.arange(block, dtype=jnp.int32)[None, :]
-    col_q = col[:, None] + du
+    du = start + jnp.arange(block, dtype=jnp.int32)[:, None]
+    col_q = col[None, :] + du
     in_cols = (jnp.abs(du) <= ex.k_max) & (col_q >= 0) & (col_q < width)
     col_q = jnp.clip(col_q, 0, width - 1)
-    top, bottom = (row - ex.hh)[:, None], (row + ex.hh + 1)[:, None]
+    top, bottom = (row - ex.hh)[None, :], (row + ex.hh + 1)[None, :]
     first = jnp.floor_divide(top, WORD_BITS)
 
     def below(n):  # uint32 with the lowest n bits set, n in [0, 32]
@@ -203,11 +203,11 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     flat_p = row * width + col
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
         src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
-        ex = ex._replace(t=jnp.stack(origins_of(ex.t, src))[:, :, None])
+        ex = ex._replace(t=jnp.stack(origins_of(ex.t, src))[:, None, :])
     elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
-        ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, :, None])
-    nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[:, None]
-    view_p, z_p = _view(ex, flat_p[:, None], row[:, None], col[:, None])
+        ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, None, :])
+    nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[None, :]
+    view_p, z_p = _view(ex, flat_p[None, :], row[None, :], col[None, :])
     group = max(min(ex.hw, _GROUP), 0)
     block = 2 * group + 1
     n_blocks = jnp.maximum((2 * ex.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
@@ -221,7 +221,13 @@ def _test_chunk(c, keep, *, ex: ExactTest):
 def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):
     """Conditions 1 and 2 of a chunk of candidates against the points of one block of B = 2 G + 1 window
     columns, starting at du = -k + b B (clipped to the static window: a clipped block overlaps the
-    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated."""
+    previous one, harmless), visited rank by rank; ``removed``: (CHUNK,) bool, updated.
+
+    Every (point, candidate) array is (B, CHUNK), the candidates on the minor axis, and the hits are carried
+    as such through the rank loop and reduced over the columns once after it: XLA:CPU then vectorises the
+    fused pair test over the candidates (laid out (CHUNK, B), it looped over the B columns of each
+    candidate in scalar code: ~8x the time per rank step on the KITTI frame; docs/speed.md, "Step 2's cost").
+    """
     width = ex.depth.shape[1]
     block = 2 * group + 1
     start = jnp.clip(b * block - ex.k_max, -ex.hw, ex.hw - 2 * group)
@@ -240,16 +246,17 @@ def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p,
         row_q = base + nth_set_bit(word, jnp.where(present, rank, 0))
         flat_q = jnp.where(present, row_q * width + col_q, 0)
         view_q, z_q = _view(ex, flat_q, row_q, col_q)
-        dv = row_q - row[:, None]
+        dv = row_q - row[None, :]
         flip = condition_1(ex.test, view_p, view_q, du, dv, ex.cell_u, ex.cell_v)
         if nearer_p is not None:
             flip = flip | nearer_p
         hit = present & flip & (z_p > z_q + ex.eps)
         if ex.h_max is not None:     # a window of a canvas: the image's own |dv| < h / L
             hit = hit & (jnp.abs(dv) <= ex.h_max)
-        return removed | jnp.any(hit, axis=1)
+        return removed | hit
 
-    return jax.lax.fori_loop(0, jnp.max(total), point, removed)
+    hits = jax.lax.fori_loop(0, jnp.max(total), point, jnp.zeros(total.shape, bool))
+    return removed | jnp.any(hits, axis=0)
 
 
 def exact_test(valid: jax.Array, ex: ExactTest) -> jax.Array:

@@ -42,16 +42,13 @@ Condition 1, two forms (static option ``test``):
 Implementation: an exact prefilter, then the full test at the candidates it
 leaves.
 
-1. Prefilter (dense, :func:`_prefilter`). Both forms need condition 2: a pixel more than epsilon
-   nearer in the window (separable window minimum of depth: rows by doubling, columns by k).
-   The footprint form also needs ``|rb|^2 < |m|^2 + 1/4``; the parallax move
-   ``b - a`` of a point is exactly ``(c - t_z b) / (Z - t_z)`` per axis, so
-   ``|m|`` is bounded from the window extrema of ``1 / (Z - t_z)``, and a point
-   on a smooth surface need only look for a nearer pixel in a small box
-   (:func:`_prefilter_words`). On the KITTI frame ~1.5k of 18.9k points pass. The prefilter
-   only has to keep every removed pixel (a superset), so it may bound loosely where that saves
-   a pass: one neighbour key ``min(depth, Z)`` for both minima, the nearest source's origin as
-   the front of all; the exact test decides.
+1. Prefilter (dense, :func:`_prefilter`): condition 2, which both forms need: a pixel more than
+   epsilon nearer in the window (separable window minimum of uint16 depth keys: rows by doubling,
+   columns by k). On the KITTI frame ~4.7k of 18.9k points pass. The prefilter only has to keep
+   every removed pixel (a superset); the exact test decides. (Earlier versions also bounded the
+   footprint form's parallax here, from window extrema of ``1 / (Z - t_z)``: ~1.5k candidates on
+   the KITTI frame, but three more keys' minima and a float pass over every pixel cost more than
+   the exact test spends on the extra candidates; docs/speed.md, "Step 2's cost (branch step2cut)".)
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
@@ -63,14 +60,14 @@ leaves.
    (candidate, point) pair gets the float32 operations of a dense sweep over the window, so the
    ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
 
-The prefilter's keys are computed on the image and padded as uint16 (``_ZNONE``); nothing is
+The prefilter's key is computed on the image and padded as uint16 (``_ZNONE``); nothing is
 padded in float32.
 
 Run-time bounds: ``|du| <= k`` with ``k = (W L - 1) // N`` is known only at run
-time; the horizontal prefilter pass takes ``k`` (and its small box) as data, reading
+time; the horizontal prefilter pass takes ``k`` as data, reading
 the static cap's columns and keeping those within ``k`` (:func:`_window_min`: one
 compiled pass for every ``k``, under ``vmap`` each member its own), and the exact
-test masks its window columns to ``|du| <= k``. The field and row passes are each
+test masks its window columns to ``|du| <= k``. The key, row and column passes are each
 one fusion, fenced (``staging.stage``) so that shifted reads hit buffers instead of
 re-running the producer.
 """
@@ -89,7 +86,7 @@ import numpy as np
 from jaxdepth._src.compaction import pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
-from jaxdepth._src.outlier_exact import ExactTest, exact_test, origins_of, pack_columns
+from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
 from jaxdepth._src.xla_tuning import stage
 
 
@@ -133,21 +130,6 @@ def _sliding_mins(x: jax.Array, halves: tuple, axis: int) -> tuple:
     return tuple(out)
 
 
-#: Normalised radius of the footprint prefilter's small box (see _prefilter_words).
-_SMALL_RADIUS = 0.6
-
-
-def _small_box(k: int, capped: bool, cell_v: float, hh: int) -> tuple[int, int]:
-    """Static half sizes (columns, rows) of a box holding every offset with |du| < r W L / N and |dv| < r H / L.
-
-    For a run-time half window k < cap, W L / N <= k + 1; at the cap (``capped``),
-    W L / N may be anything, so the box keeps the full width.
-    """
-    hu = k if capped else min(k, math.ceil(_SMALL_RADIUS * (k + 1)) - 1)
-    hv = min(hh, max(math.ceil(_SMALL_RADIUS * cell_v) - 1, 0))
-    return max(hu, 0), hv
-
-
 def _window_min(padded: jax.Array, k: jax.Array, *, hw: int, width: int) -> jax.Array:
     """``out[:, u] = min(padded[:, hw + u - k .. hw + u + k])``, the run-time half window ``k`` as data.
 
@@ -175,116 +157,32 @@ def _z_key(z, part):
                      ).astype(jnp.uint16)
 
 
-def _prefilter_fields(depth, t_z, *points, footprint):
-    """Per-pixel inputs of the prefilter on the image (one fenced stage).
-
-    A pixel takes part when it has depth and, for the footprint form, lies in
-    front of the LiDAR's virtual camera (camera depth above ``t_z``, the LiDAR
-    origin's; with per-pixel origins, at most the nearest of them: every pixel that
-    takes part for some origin takes part, a superset). Returns
-    uint16 keys (see :data:`_ZQ`): the depth key; then, footprint form, the inverted keys
-    ``_ZSAT - key`` of the point's own camera depth Z, whose minima give Z's maxima; and (raw path)
-    the neighbour key ``min(depth key, Z key)``, whose window minima stand for both the depth's and Z's
-    (a lower minimum only adds candidates; where depth is Z, as from a z-buffer, it is the depth key).
-    ``depth``: (H, W) float32; ``points``: optional (3, H, W) float32 camera-frame points (raw path: Z
-    is their z, sliced here, inside the fusion). The keys are not padded: :func:`_prefilter_rows` pads
-    them as it reads them.
-    """
-    ok = (depth > 0) & jnp.isfinite(depth)
-    if not footprint:
-        return (_z_key(depth, ok),)
-    z = points[0][2] if points else depth
-    ok = ok & (z - t_z > 1e-3) & jnp.isfinite(z)
-    z_key = _z_key(depth, ok)
-    big_key = z_key if not points else _z_key(z, ok)
-    inverted = jnp.where(ok, np.uint16(_ZSAT) - big_key, np.uint16(_ZNONE))
-    return (z_key, inverted) if not points else (z_key, inverted, jnp.minimum(z_key, big_key))
+def _prefilter_key(depth, *, hh, hw):
+    """The uint16 depth key (see :data:`_ZQ`) of each pixel of the (H, W) float32 ``depth``, ``_ZNONE``
+    where it has none, padded by ``_ZNONE``: (H + 2 hh, W + 2 hw) (one fenced stage)."""
+    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth))
+    return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
 
 
-def _prefilter_rows(*keys, hh, hv, hw, footprint):
-    """Column (vertical) minima of the (H, W) prefilter keys: the neighbour key (the last of three, else
-    the depth key) over the window's 2 hh + 1 rows and (footprint form) over the small box's 2 hv + 1
-    rows, both from one padded read and one doubling (:func:`_sliding_mins`), then the inverted Z key
-    over 2 hh + 1 rows; each (H, W + 2 hw), the keys read as padded by ``_ZNONE`` (the pad fuses into
-    the minima: no padded copy of the keys is stored)."""
-    def pad(key):
-        return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
-
-    neighbour = keys[2] if len(keys) == 3 else keys[0]
-    if not footprint:
-        return _sliding_mins(pad(neighbour), (hh,), axis=0)
-    return _sliding_mins(pad(neighbour), (hh, hv), axis=0) + _sliding_mins(pad(keys[1]), (hh,), axis=0)
+def _prefilter_rows(padded, *, hh):
+    """Column (vertical) minima of the padded depth key over the window's 2 hh + 1 rows (doubling,
+    :func:`_sliding_mins`): (H, W + 2 hw)."""
+    return _sliding_mins(padded, (hh,), axis=0)[0]
 
 
-def _prefilter_columns(k, hu, rows, *, hw, width):
-    """Row (horizontal) minima of :func:`_prefilter_rows`' column minima, (H, W) uint16 each: the depth
-    key's over the run-time half window ``k`` and over the small box's ``hu`` (footprint form), then the
-    others' over ``k`` (:func:`_window_min`; ``k``, ``hu``: int32 data)."""
-    return tuple(_window_min(r, hu if i == 1 else k, hw=hw, width=width) for i, r in enumerate(rows))
-
-
-def _prefilter_words(k, lows, z_key, z_stack, eps, cell_u, cell_v_run, K, t, *source, height, width, hh,
-                     footprint):
+def _prefilter_words(k, low, key, eps, *, hw, width):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
-    ``k``: int32, the half window; ``lows``: the window minima of :func:`_prefilter_columns` (the small
-    box's, sized for k, second). One program for every k.
-
-    Every form of condition 1 needs condition 2: a pixel more than ``eps``
-    nearer in the window, ``z_i > min_window(z) + eps``, tested on uint16 keys
-    ``floor(z * 256)``: ``key_i >= min key + floor(256 eps)`` follows from it
-    (a superset; a saturated key always passes).
-
-    The footprint form needs more. A crossing of j's cell means
-    0 < rb.m < |m|^2 and |rb x m| < |m| / 2, so |rb|^2 < |m|^2 + 1/4 (offsets
-    in cells; m = the difference of the two points' parallax moves b - a). The
-    move of a point at camera depth Z seen at pixel b is exactly
-    ``(c - t_z b) / (Z - t_z)`` per axis (c_u = f_u t_x + s t_y + t_z c_x,
-    c_v = f_v t_y + t_z c_y), so with w = 1 / (Z - t_z)
-
-        |m_u| <= |c_u - t_z b_u,i| |w_i - w_j| + |t_z| w_j |b_u,i - b_u,j|,
-
-    bounded over the window from the window extrema of Z (their keys, rounded
-    outwards). A point whose bound D_i gives D_i^2 + 1/4 < r^2 can only be
-    removed by a nearer pixel inside the box of normalised half size r; on
-    smooth surfaces, where inverse depth varies little within a window, most
-    points take that small box. ``z_stack[-1]`` is each pixel's camera depth Z: ``z_stack`` is (1, H, W)
-    depth, or the (3, H, W) points (sliced here, inside the fusion: a slice as an operand is a copy).
-    The move coefficients (c_u, c_v, t_z) come from K and ``t``, the (3,) LiDAR origin or (3, H, W) each
-    pixel's own (then per-pixel maps, computed inside the fusion rather than stored); with ``source`` (an
-    (H, W) int32 index into it), ``t`` is the (S, 3) table of the sources' origins and each pixel's is read
-    here, inside the fusion. ``cell_v_run``: the image's traced H / L (the
-    static H / L of the canvas, at least it, sized the small box: a superset).
+    ``low``: the row minima of :func:`_prefilter_rows`; their minima over columns ``|du| <= k``
+    (:func:`_window_min`, ``k`` int32 data: one program for every k) give each pixel's window minimum.
+    Both forms of condition 1 need condition 2: a pixel more than ``eps`` nearer in the window,
+    ``z_i > min_window(z) + eps``, tested on uint16 keys ``floor(z * 256)``: ``key_i >= min key +
+    floor(256 eps)`` follows from it (a superset; a saturated key always passes).
     """
-    key = z_key.astype(jnp.int32)
+    low = _window_min(low, k, hw=hw, width=width).astype(jnp.int32)
+    key = key.astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
-
-    def nearer_in(low):
-        low = low.astype(jnp.int32)
-        return (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
-
-    cand = (key < _ZNONE) & nearer_in(lows[0])
-    if footprint:
-        if source:
-            t = origins_of(t, source[0])
-        c_u, c_v, t_z = K[0, 0] * t[0] + K[0, 1] * t[1] + t[2] * K[0, 2], K[1, 1] * t[1] + t[2] * K[1, 2], t[2]
-        z_lo = lows[0].astype(jnp.float32) / np.float32(_ZQ)       # the neighbour key's: at most Z's
-        z_hi_key = np.float32(_ZSAT) - lows[2].astype(jnp.float32)
-        reach_lo = z_lo - t_z
-        w_hi = jnp.where(reach_lo > 1e-3, 1.0 / jnp.where(reach_lo > 1e-3, reach_lo, 1.0), np.float32(np.inf))
-        reach_hi = (z_hi_key + 1.0) / np.float32(_ZQ) - t_z
-        w_lo = jnp.where(z_hi_key < _ZSAT, 1.0 / jnp.maximum(reach_hi, 1e-3), 0.0)
-        reach = z_stack[-1] - t_z
-        w = 1.0 / jnp.where(reach > 1e-3, reach, 1.0)
-        spread = jnp.maximum(w_hi - w, w - w_lo)
-        v = jnp.arange(height, dtype=jnp.float32)[:, None]
-        u = jnp.arange(width, dtype=jnp.float32)[None, :]
-        # |b - pixel centre| <= 1/2 on the raw-sweep path: +1/2 on |c - t_z b|, +1 on |b_i - b_j|.
-        d_u = (jnp.abs(c_u - t_z * u) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (k + 1).astype(jnp.float32)
-        d_v = (jnp.abs(c_v - t_z * v) + 0.5 * jnp.abs(t_z)) * spread + jnp.abs(t_z) * w_hi * (hh + 1)
-        reach2 = (1.001 * d_u / cell_u + 1e-3) ** 2 + (1.001 * d_v / cell_v_run + 1e-3) ** 2 + 0.25
-        small = reach2 < _SMALL_RADIUS ** 2       # False for NaN / inf bounds
-        cand = cand & (~small | nearer_in(lows[1]))
+    cand = (key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
     return pack_bits(cand)
 
 
@@ -344,41 +242,24 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     return _Bounds(n_points, k_max, cell_u, cell_v, h_max)
 
 
-def _prefilter(depth, points, K, t, eps, bounds: _Bounds, *, beams: int, hh: int, hw: int, footprint: bool,
-               t_front=None, source=None):
+def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
-      depth: (H, W) float32 metres. points: optional (3, H, W) float32 camera-frame points (raw
-        path; their z is the camera depth Z of each pixel's point; None: Z is ``depth``). K: (3, 3) float32. t: (3,) float32
-        LiDAR origin in the camera frame, metres, or (3, H, W): each pixel's own
-        LiDAR origin (several sources); with ``source``, (H, W) int32, ``t`` is the (S, 3) table
-        of the sources' origins, pixel i's ``t[source[i]]``. t_front: float32 scalar, at most every
-        candidate's origin z (default ``t[2]``). eps: float32 condition-2
-        margin, metres. bounds: :class:`_Bounds`.
-      beams, hh, hw: static L and window half sizes (rows, columns).
-      footprint: static; True for the "footprint" form of condition 1.
+      depth: (H, W) float32 metres. eps: float32 condition-2 margin, metres. bounds: :class:`_Bounds`.
+      hh, hw: static window half sizes (rows, columns).
 
     Returns:
       (H, ceil(W / 32)) uint32 words: bit i of word m in row v is the pixel
-      ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Dense
-      passes over the canvas, each a fenced stage; the horizontal minima take the
-      run-time half window k and its small box as data (:func:`_prefilter_columns`): one
-      program for every k.
+      ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Three dense
+      passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
+      stage; the column minima take the run-time half window k as data: one program for every k.
     """
     height, width = depth.shape
-    _, hv = _small_box(0, True, height / beams, hh)
-    k = bounds.k_max
-    hu = jnp.asarray([_small_box(j, j == hw, height / beams, hh)[0] for j in range(hw + 1)], jnp.int32)[k]
-    t_front = t[2] if t_front is None else t_front
-    keys = stage(functools.partial(_prefilter_fields, footprint=footprint),
-                 (depth, t_front) + (() if points is None else (points,)), bounds.n_points)
-    rows = stage(functools.partial(_prefilter_rows, hh=hh, hv=hv, hw=hw, footprint=footprint), keys,
-                 bounds.n_points)
-    lows = stage(functools.partial(_prefilter_columns, hw=hw, width=width), (k, hu, rows), bounds.n_points)
-    words = functools.partial(_prefilter_words, height=height, width=width, hh=hh, footprint=footprint)
-    return stage(words, (k, lows, keys[0], depth[None] if points is None else points, eps, bounds.cell_u,
-                         bounds.cell_v, K, t) + (() if source is None else (source,)), bounds.n_points)
+    padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
+    low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
+    return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
+                 (bounds.k_max, low, padded, eps), bounds.n_points)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
@@ -400,8 +281,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
     ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
     (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
-    ``origins[pixel_source[i]]``, read where used (no (3, H, W) map is stored; the prefilter's front bound
-    is the nearest source's, a pass fewer over the image: a lower bound only adds candidates). Returns the
+    ``origins[pixel_source[i]]``, read where used by the exact test (no (3, H, W) map is stored). Returns the
     keep mask.
     """
     depth = sparse_depth.astype(jnp.float32)
@@ -412,20 +292,13 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     K = K.astype(jnp.float32)
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
-    if origins is None:
-        t, t_front = T_cam_lidar.astype(jnp.float32)[:3, 3], None
-    else:
-        t = origins.astype(jnp.float32)
-        # Pixels removed by condition 2 alone need every pixel with depth as a neighbour.
-        t_front = jnp.float32(-jnp.inf) if nearer is not None else \
-            jnp.min(t[2]) if pixel_source is None else jnp.min(t[:, 2])
+    t = T_cam_lidar.astype(jnp.float32)[:3, 3] if origins is None else origins.astype(jnp.float32)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size)
-    words = _prefilter(depth, points, K, t, eps, bounds, beams=beams, hh=half_height, hw=half_width,
-                       footprint=test == "footprint", t_front=t_front, source=pixel_source)
+    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
     if candidates is not None:
         words = words & pack_bits(candidates)
-    if nearer is not None:      # the footprint prefilter does not bound them: all are tested
+    if nearer is not None:      # tested even outside ``candidates`` (the prefilter's condition 2 keeps them)
         nearer = nearer & valid
         words = words | pack_bits(nearer)
     count, locate = _compact(words)
