@@ -6,8 +6,11 @@
    SciPy, brute-force NumPy or an analytic answer);
 2. **jit == eager**: ``jax.jit`` of the function equals the function run op by
    op under ``jax.disable_jit()`` (the library's own ``jit`` is disabled too);
+   the one op-by-op run: a plain call outside ``jit`` would be a second one
+   (``jax.numpy``'s own small jits compiled besides the primitives) that sees
+   nothing the eager run does not (Python on concrete values);
 3. **vmap == loop**: ``jax.vmap`` over the stacked inputs equals a Python loop
-   of the plain calls (a plain function's vmap runs inside ``jax.jit``: one compiled
+   of the per-input calls (a plain function's vmap runs inside ``jax.jit``: one compiled
    program, as a library jit's vmap is, not every batched primitive compiled op by op);
 4. **no retrace**: a new input of the same shape (and a fresh, equal copy of
    every static option) reuses the compiled function. This catches static
@@ -135,7 +138,7 @@ def check_stage(fn: Callable, inputs: Sequence[tuple], *, static: dict | None = 
         op-by-op runs of a whole pipeline take seconds per input.
 
     Returns:
-      The plain (loop) outputs, one per input, for further checks by the caller.
+      The per-input (loop) outputs, one per input, for further checks by the caller.
     """
     assert len(inputs) >= 2, "check_stage needs two inputs of one shape (the retrace check)"
     static = dict(static or {})
@@ -160,9 +163,9 @@ def check_stage(fn: Callable, inputs: Sequence[tuple], *, static: dict | None = 
             if n > 0:
                 traces.extend([1] * (_top_level_traces[0] - before))
         else:
-            out = fn(*args, **static)
-            fast = jitted(*args, **copy.deepcopy(static))
-            assert_tree_close(out, fast, ulps=ulps, scale=scale, err_msg=f"input {n}: plain call != jit")
+            # no plain call outside jit: a second op-by-op run beside the eager one below, checking nothing
+            # more and compiling its own programs (docs/testing.md); the oracle and the loop take the jit's
+            out = fast = jitted(*args, **copy.deepcopy(static))
         plain.append(jax.tree.map(np.asarray, out))
         if eager_inputs is None or n < eager_inputs:
             with jax.disable_jit():

@@ -145,22 +145,26 @@ def check_plane(normal, d, angles, tol_deg, margin=4):
 # ----------------------------------------------------------------------------- analytic planes
 
 
+@pytest.mark.xdist_group("normals_sweep")  # the 131,072-point _point_normals program: one worker compiles it once
 @pytest.mark.parametrize("yaw", [0, 20, 40, 60, 90, -90, 180, 215])
 def test_vertical_wall_matches_analytic_normal(yaw):
     # 180 and 215 put the wall behind the sensor, across the +-pi seam of the image.
     check_plane(*wall(yaw), ideal_angles(LIDAR), tol_deg=1.0)
 
 
+@pytest.mark.xdist_group("normals_sweep")  # the 131,072-point _point_normals program: one worker compiles it once
 @pytest.mark.parametrize("pitch,roll", [(0, 0), (4, 0), (-6, 0), (10, 0), (3, 5)])
 def test_ground_plane_matches_analytic_normal(pitch, roll):
     check_plane(*ground(pitch, roll), ideal_angles(LIDAR), tol_deg=1.0)
 
 
+@pytest.mark.xdist_group("normals_sweep")  # the 131,072-point _point_normals program: one worker compiles it once
 @pytest.mark.parametrize("plane", [wall(40), wall(-120, 12.0), ground(5), ground(-3, 4)])
 def test_irregular_beams_and_jitter(plane):
     check_plane(*plane, irregular_angles(LIDAR), tol_deg=2.0)
 
 
+@pytest.mark.xdist_group("normals_sweep")  # the 131,072-point _point_normals program: one worker compiles it once
 def test_paper_sign_convention_would_fail():
     """The paper's printed R (1, r_theta / (r cos phi), r_phi / r)^T is far off a yawed wall:
     rebuilding it from our own (correct) normal shows the sign matters."""
@@ -453,6 +457,7 @@ def test_options_are_keyword_only():
 # ----------------------------------------------------------------------------- real data
 
 
+@pytest.mark.xdist_group("normals_sweep")  # the 131,072-point _point_normals program: one worker compiles it once
 def test_kitti_sweep_every_point_and_ground(kitti):
     pts = kitti.scan
     p, v = padded(pts, np.ones(len(pts), bool), SIZE)
@@ -610,7 +615,7 @@ def test_pixel_normals_bad_inputs_raise():
 
 
 @pytest.mark.slow  # KITTI-size program (the frozen-oracle test below runs the same one)
-@pytest.mark.xdist_group("normals_kitti")  # one worker compiles the KITTI-size pixel_normals once
+@pytest.mark.xdist_group("normals_sweep")  # the KITTI-size pixel_normals and _point_normals: one worker
 def test_pixel_normals_kitti_frame(kitti):
     depth, K, T = kitti.sparse[2], kitti.K[2], kitti.T_cam_lidar[2]
     got = PN.pixel_normals(depth, K, T, lidar=KITTI_HDL64)  # listed path (18.9k points, capacity 26.8k)
@@ -619,7 +624,7 @@ def test_pixel_normals_kitti_frame(kitti):
 
 
 @pytest.mark.slow  # frozen oracle
-@pytest.mark.xdist_group("normals_kitti")  # one worker compiles the KITTI-size pixel_normals once
+@pytest.mark.xdist_group("normals_sweep")  # the KITTI-size pixel_normals and _point_normals: one worker
 def test_kitti_equal_to_reference_version(kitti):
     """pixel_normals on the KITTI frame and point_normals on its sweep equal the version
     before the speed-up (tests/oracles/normals_58cfbac.py; measured: max difference 1.8e-7,

@@ -8,6 +8,10 @@ import pytest
 
 from jaxdepth._src.residual import plane_residual
 
+#: Value tests call the stage through one jit (called plainly, each shape compiles every primitive op by op);
+#: jit == eager, vmap == loop and no retrace are the stage table's plane_residual row.
+_plane_residual = jax.jit(plane_residual, static_argnames=("min_abs_denom", "max_residual_ratio"))
+
 
 K = np.array([[500.0, 0.0, 63.5], [0.0, 480.0, 40.2], [0.0, 0.0, 1.0]], np.float32)
 H, W = 80, 128
@@ -35,8 +39,8 @@ def test_plane_completes_exactly(normal):
     du, dv = su - u, sv - v
     seed_depth = depth[sv, su]
     seed_normal = np.broadcast_to(n[:, None, None], (3, H, W))
-    dz = plane_residual(jnp.float32(seed_depth), jnp.float32(seed_normal), jnp.int32(du), jnp.int32(dv),
-                        K, min_abs_denom=1e-6, max_residual_ratio=10.0)
+    dz = _plane_residual(jnp.float32(seed_depth), jnp.float32(seed_normal), jnp.int32(du), jnp.int32(dv),
+                         K, min_abs_denom=1e-6, max_residual_ratio=10.0)
     completed = seed_depth + np.asarray(dz, np.float64)
     np.testing.assert_allclose(completed, depth, rtol=2e-5)
     if abs(n[0]) + abs(n[1]) > 0:  # tilted: the residual is a real correction, seeds alone are wrong
@@ -58,16 +62,16 @@ def test_guards_keep_values_and_gradients_finite():
     value = jax.jit(total)(seed_depth)
     grad = jax.jit(jax.grad(total))(seed_depth)   # compiled once (op by op: every primitive of the backward pass)
     assert np.isfinite(value) and np.all(np.isfinite(grad))
-    zero_normal = plane_residual(seed_depth, jnp.zeros((3, 4, 5)), du, dv, Kg)
+    zero_normal = _plane_residual(seed_depth, jnp.zeros((3, 4, 5)), du, dv, Kg)
     assert np.all(zero_normal == 0)
-    no_seed = plane_residual(jnp.zeros((4, 5)), grazing, du, dv, Kg)
+    no_seed = _plane_residual(jnp.zeros((4, 5)), grazing, du, dv, Kg)
     assert np.all(no_seed == 0)
 
 
 def test_residual_clipped_to_ratio():
     n = jnp.zeros((3, 4, 5)).at[0].set(0.99).at[2].set(-0.14)
-    dz = plane_residual(jnp.full((4, 5), 10.0), n, jnp.full((4, 5), 50, jnp.int32), jnp.zeros((4, 5), jnp.int32),
-                        jnp.array([[100.0, 0, 2.0], [0, 100.0, 2.0], [0, 0, 1]]), max_residual_ratio=0.25)
+    dz = _plane_residual(jnp.full((4, 5), 10.0), n, jnp.full((4, 5), 50, jnp.int32), jnp.zeros((4, 5), jnp.int32),
+                         jnp.array([[100.0, 0, 2.0], [0, 100.0, 2.0], [0, 0, 1]]), max_residual_ratio=0.25)
     assert float(jnp.abs(dz).max()) <= 2.5 + 1e-6
 
 

@@ -246,7 +246,7 @@ def test_blur_mirrors_at_the_cameras_own_border():
         return _embed(cv2.GaussianBlur(canvas[:h, :w], (7, 7), 1.4, borderType=cv2.BORDER_REFLECT_101), size)
 
     check_stage(lambda c, s: _inside(gaussian_blur(c, sigma_px=1.4, radius_px=3, image_size=s), s), inputs,
-                oracle=oracle, oracle_ulps=8, eager_inputs=1)
+                oracle=oracle, oracle_ulps=8)
 
 
 def test_outlier_window_bounds_are_the_cameras_own(mixed_rig):
@@ -308,7 +308,7 @@ def test_column_bracket_uses_the_cameras_own_window():
         return _embed(np.asarray(bracket(raw[:h, :w], kept[:h, :w], dist[:h, :w], normals[:, :h, :w], K,
                                          window_px=h / beams, blend=True)), size)
 
-    check_stage(run, inputs, oracle=oracle, eager_inputs=1)      # the blend: jit and eager round apart
+    check_stage(run, inputs, oracle=oracle)
 
 
 def test_above_scan_window_is_the_cameras_own():
@@ -328,7 +328,7 @@ def test_above_scan_window_is_the_cameras_own():
                                        beams=16, max_half_width_px=12), size)
 
     check_stage(lambda d, s, k, v, n: _inside(background_above_scan(d, s, k, v, beams=16, image_size=n), n), inputs,
-                oracle=oracle, oracle_ulps=0, eager_inputs=1)
+                oracle=oracle, oracle_ulps=0)
 
 
 @pytest.mark.slow  # one whole program of each pipeline beside its three stage programs (docs/testing.md)

@@ -128,7 +128,8 @@ def test_window_padding_is_numpy_reflect_of_the_window(radius):
     for axis in (0, 1):
         length = canvas.shape[axis]
         sizes = np.arange(2, length + 1, dtype=np.int32)
-        batched = jax.vmap(lambda n, axis=axis: _reflect101_pad_window(canvas, radius, axis, n))(sizes)
+        # one program (a vmap outside jit would compile every batched primitive op by op)
+        batched = jax.jit(jax.vmap(lambda n, axis=axis: _reflect101_pad_window(canvas, radius, axis, n)))(sizes)
         for n, got_batched in zip(sizes, np.asarray(batched)):
             window = np.take(canvas, np.arange(n), axis=axis)
             want = np.take(window, _reflect101_index(int(n), radius), axis=axis)

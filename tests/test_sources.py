@@ -150,10 +150,13 @@ def test_keep_mask_origins_as_table_equal_origin_maps():
     maps = np.moveaxis(table[safe % 3 * hit], -1, 0)
     src = (safe % 3 * hit).astype(np.int32)
     hw, hh = window_half_sizes(*depth.shape, beams=32, max_half_width_px=12, max_half_height_px=24)
+    # epsilon as source_keep_mask passes it (a float32 array: a Python float is weakly typed, another program),
+    # so the table form's two programs are the ones the tests above and below compile through source_keep_mask
     opts = dict(beams=32, half_width=hw, half_height=hh)
+    eps = jnp.float32(1.0)
     for nearer in (None, hit & (safe % 7 == 0)):
-        a = _keep_mask(depth, K, T3[0], points_cam, 1.0, origins=maps, nearer=nearer, **opts)
-        b = _keep_mask(depth, K, T3[0], points_cam, 1.0, origins=table, pixel_source=src, nearer=nearer, **opts)
+        a = _keep_mask(depth, K, T3[0], points_cam, eps, origins=maps, nearer=nearer, **opts)
+        b = _keep_mask(depth, K, T3[0], points_cam, eps, origins=table, pixel_source=src, nearer=nearer, **opts)
         assert (hit & ~np.asarray(a)).any()
         np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
 
