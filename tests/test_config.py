@@ -30,3 +30,13 @@ def test_zero_is_accepted(field):
 def test_seed_horizontal_cost_is_refused_where_it_has_no_meaning(changes):
     with pytest.raises(ValueError, match="field 'seed_horizontal_cost' expected an integer >= 1"):
         SGMConfig(**changes)
+
+
+def test_seed_horizontal_cost_cli_flag():
+    import argparse
+
+    from jaxdepth.options import add_config_options, config_changes
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--seed-horizontal-cost", "3"]))["seed_horizontal_cost"] == 3
+    assert "seed_horizontal_cost" not in config_changes(p.parse_args([]))
