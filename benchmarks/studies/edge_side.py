@@ -17,6 +17,7 @@ below-right, own row and column included: the nearest of the four is the nearest
   (the choice across the gap between scan lines; within a row the nearer side, as now);
 - ``aniso_hP_vQ``: the smallest ``P |du| + Q |dv|`` (a seed on the own scan line against one across the
   gap between scan lines: ``Q < P`` reaches across the gap sooner);
+- ``cost_P``: ``SGMConfig(seed_horizontal_cost=P)``, the library's option (``aniso_hP_v1`` up to the tie order);
 - ``combo_hP_vQ_gG``: the smallest ``(P |du| + Q |dv|) * z**G`` (both at once);
 - ``up`` / ``down``: always the nearest seed above / below (where there is one), only for the oracle.
 
@@ -73,13 +74,13 @@ def quadrant_seeds(keep: jax.Array, *, h_weight: int = 1, v_weight: int = 1) -> 
     """The nearest kept pixel of each quadrant under ``h_weight |du| + v_weight |dv|``.
 
     Returns four (distance (H, W) int32, du, dv) for above-left, below-left, above-right, below-right
-    (own row and column included); distance ``>= 2**20`` where the quadrant has none. Ties: the smaller
+    (own row and column included); distance ``>= 2**18`` where the quadrant has none. Ties: the smaller
     seed row, as the library's key.
     """
     h, w = keep.shape
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
     rb = max(h - 1, 1).bit_length()
-    big = 1 << 20
+    big = 1 << 18
     out = []
     for left in (True, False):
         hd = _row_side(keep.T, left=left).T                                     # (H, W)
@@ -106,7 +107,7 @@ def _choose(cands: list, score) -> Seeds:
     """The candidate of the smallest ``score(distance, du, dv)`` (ties: the first); 0 offsets if none."""
     best_s, best_du, best_dv, found = None, None, None, None
     for dist, du, dv in cands:
-        valid = dist < (1 << 20)
+        valid = dist < (1 << 18)
         s = score(dist, du, dv)
         s = jnp.where(valid, s, jnp.iinfo(s.dtype).max if jnp.issubdtype(s.dtype, jnp.integer) else jnp.inf)
         if best_s is None:
@@ -152,7 +153,7 @@ def rule_seeds(rule: str, keep: jax.Array, kept_depth: jax.Array) -> Seeds:
         pair = (al, ar) if rule == "up" else (bl, br)
         first = _choose(list(pair), pixel)
         other = _choose([bl, br] if rule == "up" else [al, ar], pixel)
-        has = jnp.minimum(pair[0][0], pair[1][0]) < (1 << 20)
+        has = jnp.minimum(pair[0][0], pair[1][0]) < (1 << 18)
         return Seeds(jnp.where(has, first.du, other.du), jnp.where(has, first.dv, other.dv))
     kind, g = rule.split("_g")
     gamma = float(g)
@@ -164,10 +165,10 @@ def rule_seeds(rule: str, keep: jax.Array, kept_depth: jax.Array) -> Seeds:
     if kind == "metric":
         return _choose([al, ar, bl, br], metric)
     up, down = _choose([al, ar], pixel), _choose([bl, br], pixel)
-    has_up = jnp.minimum(al[0], ar[0]) < (1 << 20)
-    has_dn = jnp.minimum(bl[0], br[0]) < (1 << 20)
+    has_up = jnp.minimum(al[0], ar[0]) < (1 << 18)
+    has_dn = jnp.minimum(bl[0], br[0]) < (1 << 18)
     d_up, d_dn = (jnp.abs(s.du) + jnp.abs(s.dv) for s in (up, down))
-    cands = [(jnp.where(has_up, d_up, 1 << 20), up.du, up.dv), (jnp.where(has_dn, d_dn, 1 << 20), down.du, down.dv)]
+    cands = [(jnp.where(has_up, d_up, 1 << 18), up.du, up.dv), (jnp.where(has_dn, d_dn, 1 << 18), down.du, down.dv)]
     return _choose(cands, metric)
 
 
@@ -203,11 +204,10 @@ def twin_input(rig_name: str, sweeps: int, seed: int, scale: float):
     return inp, exact_truth(tw, inp.rig)
 
 
-def run_sgm(inp) -> list:
-    """The default SGM's depth per camera, on the path ``complete-rig`` takes for this input."""
+def run_sgm(inp, config: SGMConfig = SGMConfig()) -> list:
+    """The SGM's depth per camera (default: the default SGM), on the path ``complete-rig`` takes for this input."""
     from benchmarks.accuracy_twins import crops, single_path
     from jaxdepth.batch.sources_job import complete_cloud
-    config = SGMConfig()
     if inp.multi:
         return crops(complete_cloud(inp.cloud, inp.rig, config=config), inp.rig)
     return crops(single_path(inp.cloud.points, inp.cloud.ring, inp.rig, config)[0], inp.rig)
@@ -224,8 +224,11 @@ def case(rig_name: str, sweeps: int, seed: int, scale: float, rules) -> dict:
     depths = {}
     for rule in rules:
         t = time.time()
-        with seed_rule(rule):
-            depths[rule] = run_sgm(inp)
+        if rule.startswith("cost_"):          # the library's option itself, no patch
+            depths[rule] = run_sgm(inp, SGMConfig(seed_horizontal_cost=int(rule[5:])))
+        else:
+            with seed_rule(rule):
+                depths[rule] = run_sgm(inp)
         out["exact_dense"][rule] = strip(score(depths[rule], exact))
         print(f"  {rig_name} {sweeps} {rule:14s} {out['exact_dense'][rule]['rmse']:8.1f} / "
               f"{out['exact_dense'][rule]['mae']:6.1f} ({time.time() - t:.0f} s)", flush=True)
@@ -239,21 +242,15 @@ def case(rig_name: str, sweeps: int, seed: int, scale: float, rules) -> dict:
     return out
 
 
-def real_check(costs, seeds, *, av2_seeds) -> dict:
+def real_check(costs, seeds, *, av2_seeds, rules=(), kitti_only=False) -> dict:
     """A check, never a choice: each ``seed_horizontal_cost`` on the real sets. The KITTI frame's dense ground
     truth (cameras 2 and 3, devkit means); ``hidden-eval`` on the nuScenes sample (draws ``seeds``) and on the
     Argoverse 2 log's first sweep with both LiDARs (``complete-rig``'s multi-source path, draws ``av2_seeds``):
     all targets and ``uncovered``, the SGM and the city-block fill (RMSE / MAE, mm)."""
     import glob
 
-    import jaxdepth
     from benchmarks._common import DATA, load_frames
-    from jaxdepth._src.metrics import depth_metrics, mean_metrics
-    from jaxdepth.batch.sources_job import complete_cloud
     from jaxdepth.io import av2, read_points, rig_from_nuscenes_calibration
-    from jaxdepth.io.points import ring_column
-    from jaxdepth.research.cli import hidden_eval, hidden_eval_cloud
-    rm = lambda m: {"rmse": float(m["rmse"]), "mae": float(m["mae"])}  # noqa: E731
     frames = load_frames()
     nus = DATA / "nuscenes" / "sample"
     nus_rig = rig_from_nuscenes_calibration(nus / "calibration.json")
@@ -261,22 +258,37 @@ def real_check(costs, seeds, *, av2_seeds) -> dict:
     log = av2.read_log(DATA / "av2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede")
     av2_rig, av2_cloud = av2.read_rig(log), av2.read_cloud(log)
     out = {}
-    for c in costs:
+    variants = [(str(c), SGMConfig(seed_horizontal_cost=c), None) for c in costs]
+    variants += [(r, SGMConfig(), r) for r in rules]
+    for name, config, rule in variants:
         t = time.time()
-        config = SGMConfig(seed_horizontal_cost=c)
-        kitti = [depth_metrics(jaxdepth.complete(sparse, K, T, config=config), gt)
-                 for sparse, gt, K, T in frames.values()]
-        row = {"kitti_frame_gt": rm(mean_metrics(kitti))}
-        res = hidden_eval(points, nus_rig, seeds=seeds, config=config, ring=ring_column(extra, 5))
-        row["nuscenes"] = {p: {m: rm(res[key][m]) for m in ("sgm", "nearest")}
-                           for p, key in (("all", "mean"), ("uncovered", "mean_uncovered"))}
-        if av2_seeds:
-            res = hidden_eval_cloud(av2_cloud, av2_rig, complete_cloud=complete_cloud, seeds=av2_seeds, config=config)
-            row["av2"] = {p: {m: rm(res[key][m]) for m in ("sgm", "nearest")}
-                          for p, key in (("all", "mean"), ("uncovered", "mean_uncovered"))}
-        out[str(c)] = row
-        print(f"  cost {c} ({time.time() - t:.0f} s): {row}", flush=True)
+        with seed_rule(rule) if rule else contextlib.nullcontext():
+            row = _real_row(config, frames, points, extra, nus_rig, av2_rig, av2_cloud, seeds,
+                            av2_seeds=[] if kitti_only else av2_seeds, kitti_only=kitti_only)
+        out[name] = row
+        print(f"  {name} ({time.time() - t:.0f} s): {row}", flush=True)
     return out
+
+
+def _real_row(config, frames, points, extra, nus_rig, av2_rig, av2_cloud, seeds, *, av2_seeds, kitti_only):
+    import jaxdepth
+    from jaxdepth._src.metrics import depth_metrics, mean_metrics
+    from jaxdepth.batch.sources_job import complete_cloud
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.research.cli import hidden_eval, hidden_eval_cloud
+    rm = lambda m: {"rmse": float(m["rmse"]), "mae": float(m["mae"])}  # noqa: E731
+    kitti = [depth_metrics(jaxdepth.complete(sparse, K, T, config=config), gt) for sparse, gt, K, T in frames.values()]
+    row = {"kitti_frame_gt": rm(mean_metrics(kitti))}
+    if kitti_only:
+        return row
+    res = hidden_eval(points, nus_rig, seeds=seeds, config=config, ring=ring_column(extra, 5))
+    row["nuscenes"] = {p: {m: rm(res[key][m]) for m in ("sgm", "nearest")}
+                       for p, key in (("all", "mean"), ("uncovered", "mean_uncovered"))}
+    if av2_seeds:
+        res = hidden_eval_cloud(av2_cloud, av2_rig, complete_cloud=complete_cloud, seeds=av2_seeds, config=config)
+        row["av2"] = {p: {m: rm(res[key][m]) for m in ("sgm", "nearest")}
+                      for p, key in (("all", "mean"), ("uncovered", "mean_uncovered"))}
+    return row
 
 
 def speed(costs, *, rounds: int, scale: float) -> dict:
@@ -322,9 +334,11 @@ def main(argv=None) -> int:
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--rules", nargs="+", default=list(RULES))
     parser.add_argument("--json", default=str(RESULTS / "edge_side.json"))
-    parser.add_argument("--real-check", nargs="+", type=int, default=None, metavar="COST",
+    parser.add_argument("--real-check", nargs="*", type=int, default=None, metavar="COST",
                         help="only the real sets' check of these seed_horizontal_cost values (to the JSON's real_check)")
     parser.add_argument("--real-seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--real-rules", nargs="*", default=[], help="seed rules (patched) for --real-check too")
+    parser.add_argument("--kitti-only", action="store_true", help="--real-check: only the KITTI frame")
     parser.add_argument("--av2-seeds", nargs="*", type=int, default=[0, 1])
     parser.add_argument("--speed", nargs="+", type=int, default=None, metavar="COST",
                         help="only the rig path's run time per seed_horizontal_cost (to the JSON's speed)")
@@ -348,7 +362,9 @@ def main(argv=None) -> int:
         doc = json.loads(path.read_text()) if path.exists() else {}
         doc["real_check"] = {"costs": args.real_check, "nuscenes_seeds": args.real_seeds,
                              "av2_seeds": args.av2_seeds,
-                             "rows": real_check(args.real_check, args.real_seeds, av2_seeds=args.av2_seeds)}
+                             "rules": args.real_rules, "kitti_only": args.kitti_only,
+                             "rows": real_check(args.real_check, args.real_seeds, av2_seeds=args.av2_seeds,
+                                                rules=args.real_rules, kitti_only=args.kitti_only)}
         write_results(args.json, {k: v for k, v in doc.items() if k not in ("config", "seconds", "environment")},
                       SGMConfig(), t0)
         return 0
