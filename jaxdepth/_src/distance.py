@@ -382,9 +382,11 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
 
     Raises:
       ValueError (at trace time): a metric other than ``"l1"``/``"l2"``, a mask
-      that is not 2-D bool with H, W >= 1, or a shape too large for the int32
-      keys: ``"l1"`` needs ``(2 H + W + 1) * 2**(ceil(log2 H) + 1) < 2**31``
-      (e.g. 8192 x 8192 fits), ``"l2"`` needs ``H, W <= 32768``.
+      that is not 2-D bool with H, W >= 1, a ``horizontal_cost`` that is not an
+      integer >= 1 (or not 1 with ``"l2"``), or a shape too large for the int32
+      keys: ``"l1"`` needs ``(c (H + W) + H + 1) * 2**(ceil(log2 H) + 1) < 2**31``
+      with c = ``horizontal_cost`` (e.g. 8192 x 8192 fits at c = 1), ``"l2"``
+      needs ``H, W <= 32768``.
 
     Examples:
       Two seeds in a row of four pixels; each empty pixel points at the nearer one:
