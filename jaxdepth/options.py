@@ -30,6 +30,10 @@ def add_config_options(p: argparse.ArgumentParser) -> None:
                    help="Step 4 above the top scan line: plane (the nearest seed's plane, as in the paper) or "
                         "background (the farthest seed within one LiDAR point spacing, |du| < W L / N, no plane); "
                         "default: SGMConfig's")
+    p.add_argument("--seed-horizontal-cost", dest="seed_horizontal_cost", type=int, metavar="C",
+                   default=argparse.SUPPRESS,
+                   help="Step 3 (l1, unguided): a seed's horizontal offset costs C times its vertical offset "
+                        "(1: the paper's city block); default: SGMConfig's")
     add_sources_options(p)
 
 
@@ -105,8 +109,9 @@ def add_sources_options(p: argparse.ArgumentParser) -> None:
 def config_changes(args) -> dict:
     """SGMConfig fields set by :func:`add_config_options`' arguments."""
     changes = {"distance_metric": args.distance, **_HYPOTHESES[args.hypotheses]}
-    if hasattr(args, "above_scan"):
-        changes["above_scan"] = args.above_scan
+    for field in ("above_scan", "seed_horizontal_cost"):
+        if hasattr(args, field):
+            changes[field] = getattr(args, field)
     if getattr(args, "epsilon", None) is not None:
         changes["epsilon_m"] = args.epsilon
     changes.update({f: getattr(args, f) for f, *_ in _SOURCES_OPTIONS.values() if hasattr(args, f)})

@@ -83,7 +83,7 @@ CONFIG_FIELD_OF_OPTION = {"metric": "distance_metric", "min_abs_denom": "min_abs
                           "max_half_width_px": "outlier_max_half_width_px",
                           "max_half_height_px": "outlier_max_half_height_px",
                           "smoothing": "normal_smoothing", "fill_max_gap": "range_fill_max_gap",
-                          "test": "outlier_test"}
+                          "test": "outlier_test", "horizontal_cost": "seed_horizontal_cost"}
 
 
 def test_stage_defaults_are_the_config_defaults():

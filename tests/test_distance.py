@@ -167,6 +167,25 @@ def test_tie_rule_symmetric_seeds(metric):
     assert (int(res.du[3, 2]), int(res.dv[3, 2])) == (0, -2)
 
 
+@pytest.mark.parametrize("cost,shape,density,seed", [(2, (7, 9), 0.1, 5), (3, (16, 21), 0.03, 6),
+                                                      (3, (23, 1), 0.1, 7), (4, (1, 17), 0.1, 8)])
+def test_horizontal_cost_against_brute_force(cost, shape, density, seed):
+    """``horizontal_cost`` c: the seed minimising c |du| + |dv|, ties in raster order (exhaustive NumPy search)."""
+    mask = _random_mask(shape, density, seed)
+    mask[seed % shape[0], (3 * seed) % shape[1]] = True
+    res = nearest_seed(jnp.asarray(mask), metric="l1", horizontal_cost=cost)
+    sv, su = np.nonzero(mask)
+    v, u = np.indices(shape)
+    dv, du = sv[None, None, :] - v[..., None], su[None, None, :] - u[..., None]
+    weighted = cost * np.abs(du) + np.abs(dv)
+    best = np.argmin(weighted, axis=-1)[..., None]
+    np.testing.assert_array_equal(np.asarray(res.distance), np.take_along_axis(weighted, best, -1)[..., 0])
+    np.testing.assert_array_equal(np.asarray(res.du), np.take_along_axis(du, best, -1)[..., 0])
+    np.testing.assert_array_equal(np.asarray(res.dv), np.take_along_axis(dv, best, -1)[..., 0])
+    with pytest.raises(ValueError, match=r"'horizontal_cost' expected an integer >= 1"):
+        nearest_seed(jnp.asarray(mask), metric="l2", horizontal_cost=cost)
+
+
 def _oracle_or_inf(mask, *, metric):
     """The OpenCV / SciPy distance; +inf everywhere without seeds (they return large finite values)."""
     mask = np.asarray(mask)

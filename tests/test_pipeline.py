@@ -69,6 +69,20 @@ def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
     assert np.all(np.asarray(stages.du)[keep] == 0) and np.all(np.asarray(stages.dv)[keep] == 0)
 
 
+@pytest.mark.slow  # a pipeline program of its own (docs/testing.md)
+def test_seed_horizontal_cost_takes_the_weighted_seed():
+    """SGMConfig.seed_horizontal_cost: Step 3's offsets are nearest_seed's with that horizontal cost on the
+    Step 2 mask (the brute-force-checked transform of tests/test_distance.py), and they differ from city block."""
+    frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=[small_camera(lidar_to_camera())])
+    config = POINTS_CONFIG.replace(seed_horizontal_cost=3)
+    stages = complete_points_stages(frame.points, frame.valid, frame.cameras[0], lidar=SMALL_LIDAR, config=config)
+    seeds = nearest_seed(stages.inlier_mask, horizontal_cost=3)
+    np.testing.assert_array_equal(np.asarray(stages.du), np.asarray(seeds.du))
+    np.testing.assert_array_equal(np.asarray(stages.dv), np.asarray(seeds.dv))
+    city = nearest_seed(stages.inlier_mask)
+    assert np.any(np.asarray(city.du) != np.asarray(seeds.du))
+
+
 # jit == eager, vmap == loop and no retrace of complete_points, complete and complete_stages (against the
 # plain composition of the stage functions) are rows of tests/stage_table.py.
 

@@ -54,6 +54,13 @@ class SGMConfig:
         transform, as the authors' code does. l1 is the faster transform and, on
         held-out KITTI frames, also the more accurate (benchmarks/results:
         distance.json, accuracy_kitti_l2.json).
+      seed_horizontal_cost: beyond the paper; an integer >= 1, "l1" and unguided only.
+        Step 3's seed minimises ``seed_horizontal_cost |du| + |dv|``: one pixel of
+        horizontal offset costs that many pixels of vertical offset. 1 (the default)
+        is the paper's city block. Larger values take a seed straight above or below,
+        across the gap between two scan lines, over one far to the side on a nearer
+        line, which moves where a depth edge between scan lines falls
+        (benchmarks/studies/edge_side.py, docs/evaluation.md).
       normal_smoothing: half width of the box filter that smooths normals on
         the range image (0 disables). The paper fills and smooths normals so
         every point has one.
@@ -169,6 +176,7 @@ class SGMConfig:
     outlier_max_half_width_px: int = 12
     outlier_max_half_height_px: int = 24
     distance_metric: str = "l1"
+    seed_horizontal_cost: int = 1
     normal_smoothing: int = 1
     range_fill_max_gap: int = 2
     min_abs_denom: float = 0.01
@@ -230,6 +238,11 @@ class SGMConfig:
                 or self.guidance_sweeps < 1:
             raise ValueError(
                 f"SGMConfig: field 'guidance_sweeps' expected an integer >= 1, got {self.guidance_sweeps!r}")
+        c = self.seed_horizontal_cost
+        if isinstance(c, bool) or int(c) != c or c < 1 or (c != 1 and (self.distance_metric != "l1"
+                                                                       or self.guidance_weight > 0)):
+            raise ValueError("SGMConfig: field 'seed_horizontal_cost' expected an integer >= 1 (1 unless "
+                             f"distance_metric 'l1' and guidance_weight 0), got {c!r}")
         if self.blend_hypotheses and not self.column_bracket:
             raise ValueError("SGMConfig: field 'blend_hypotheses' expected with column_bracket=True "
                              "(the blend keeps only hypotheses inside the bracket), got column_bracket=False")

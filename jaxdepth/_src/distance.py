@@ -94,9 +94,13 @@ def _bits(n: int) -> int:
     return max(n - 1, 0).bit_length()
 
 
-def _check(seed_mask: jax.Array, metric: str) -> None:
+def _check(seed_mask: jax.Array, metric: str, horizontal_cost: int = 1) -> None:
     if metric not in DISTANCE_METRICS:
         raise ValueError(f"nearest_seed: field 'metric' expected one of {DISTANCE_METRICS}, got {metric!r}")
+    if isinstance(horizontal_cost, bool) or int(horizontal_cost) != horizontal_cost or horizontal_cost < 1 \
+            or (metric != "l1" and horizontal_cost != 1):
+        raise ValueError(f"nearest_seed: field 'horizontal_cost' expected an integer >= 1 (1 unless metric "
+                         f"'l1'), got {horizontal_cost!r} with metric {metric!r}")
     if seed_mask.ndim != 2:
         raise ValueError(
             f"nearest_seed: field 'seed_mask' expected shape (H, W), got shape {tuple(seed_mask.shape)}")
@@ -107,10 +111,11 @@ def _check(seed_mask: jax.Array, metric: str) -> None:
         raise ValueError(f"nearest_seed: field 'seed_mask' expected H >= 1 and W >= 1, got shape {(h, w)}")
     if metric == "l1":
         cb = _bits(h) + 1
-        if (2 * h + w + 1) << cb > _INT32_MAX:
+        c = int(horizontal_cost)
+        if (c * (h + w) + h + 1) << cb > _INT32_MAX:
             raise ValueError(
-                f"nearest_seed: seed_mask shape {(h, w)} too large for metric 'l1': the packed "
-                f"key needs (2 H + W + 1) * 2**{cb} <= 2**31 - 1, got {(2 * h + w + 1) << cb}")
+                f"nearest_seed: seed_mask shape {(h, w)} too large for metric 'l1' (horizontal_cost {c}): the "
+                f"packed key needs (c (H + W) + H + 1) * 2**{cb} <= 2**31 - 1, got {(c * (h + w) + h + 1) << cb}")
     elif h > _L2_MAX_SIDE or w > _L2_MAX_SIDE:
         raise ValueError(
             f"nearest_seed: seed_mask shape {(h, w)} too large for metric 'l2': expected "
@@ -153,23 +158,26 @@ def _row_pass(seed_mask: jax.Array) -> jax.Array:
     return buf
 
 
-def _l1_column_pass(row_key_t: jax.Array, far: int) -> tuple[jax.Array, int]:
+def _l1_column_pass(row_key_t: jax.Array, far: int, horizontal_cost: int = 1) -> tuple[jax.Array, int]:
     """Exact 1-D L1 transform along every column of the row-pass result.
 
     Args:
       row_key_t: (W, H) row-pass result.
-      far: ``H + W``, larger than any finite distance.
+      far: ``horizontal_cost * (H + W)``, larger than any finite distance.
+      horizontal_cost: static int, the cost of one column of ``|du|`` (one row of ``|dv|`` costs 1).
 
     Returns:
       (key, cb): key (H, W) int32 ``(distance << cb) | (seed_row << 1) | right``
-      and the static shift ``cb``; ``distance >= far`` only for an empty mask.
+      (distance ``horizontal_cost |du| + |dv|``) and the static shift ``cb``;
+      ``distance >= far`` only for an empty mask.
     """
     w, h = row_key_t.shape
     cb = _bits(h) + 1
     step = 1 << cb
     hk = row_key_t.T.astype(jnp.int32)
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    key = (jnp.minimum(hk >> 1, far) << cb) | (rows << 1) | (hk & 1)
+    g = hk >> 1 if horizontal_cost == 1 else horizontal_cost * (hk >> 1)
+    key = (jnp.minimum(g, far) << cb) | (rows << 1) | (hk & 1)
     init = jnp.full((w,), far << cb, jnp.int32)
 
     def forward(i, state):
@@ -340,8 +348,9 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, top[0][0] >= 0
 
 
-@functools.partial(jax.jit, static_argnames="metric")
-def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_metric) -> NearestSeed:
+@functools.partial(jax.jit, static_argnames=("metric", "horizontal_cost"))
+def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_metric,
+                 horizontal_cost: int = DEFAULT_CONFIG.seed_horizontal_cost) -> NearestSeed:
     """Nearest seed and its distance for every pixel (exact distance transform).
 
     Args:
@@ -349,6 +358,9 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
       metric: static; ``"l1"`` (city block, ``|du| + |dv|``) or ``"l2"``
         (Euclidean, ``sqrt(du**2 + dv**2)``).  Both are exact.  Default:
         ``SGMConfig().distance_metric`` (``"l1"``).
+      horizontal_cost: static int >= 1, ``"l1"`` only: the seed minimises
+        ``horizontal_cost |du| + |dv|`` (``SGMConfig.seed_horizontal_cost``; 1 = city
+        block). ``distance`` is then that weighted cost.
 
     Returns:
       :class:`NearestSeed`: ``distance`` (H, W) float32 pixels; ``du``, ``dv``
@@ -370,9 +382,11 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
 
     Raises:
       ValueError (at trace time): a metric other than ``"l1"``/``"l2"``, a mask
-      that is not 2-D bool with H, W >= 1, or a shape too large for the int32
-      keys: ``"l1"`` needs ``(2 H + W + 1) * 2**(ceil(log2 H) + 1) < 2**31``
-      (e.g. 8192 x 8192 fits), ``"l2"`` needs ``H, W <= 32768``.
+      that is not 2-D bool with H, W >= 1, a ``horizontal_cost`` that is not an
+      integer >= 1 (or not 1 with ``"l2"``), or a shape too large for the int32
+      keys: ``"l1"`` needs ``(c (H + W) + H + 1) * 2**(ceil(log2 H) + 1) < 2**31``
+      with c = ``horizontal_cost`` (e.g. 8192 x 8192 fits at c = 1), ``"l2"``
+      needs ``H, W <= 32768``.
 
     Examples:
       Two seeds in a row of four pixels; each empty pixel points at the nearer one:
@@ -385,17 +399,19 @@ def nearest_seed(seed_mask: jax.Array, *, metric: str = DEFAULT_CONFIG.distance_
       >>> seeds.du
       Array([[ 0, -1,  1,  0]], dtype=int32)
     """
-    _check(seed_mask, metric)
+    _check(seed_mask, metric, horizontal_cost)
     h, w = seed_mask.shape
     far = h + w
     row_key_t = _row_pass(seed_mask)
     v = jnp.arange(h, dtype=jnp.int32)[:, None]
     if metric == "l1":
-        key, cb = _l1_column_pass(row_key_t, far)
-        has_seed = key[0, 0] < (far << cb)
+        key, cb = _l1_column_pass(row_key_t, horizontal_cost * far, horizontal_cost)
+        has_seed = key[0, 0] < ((horizontal_cost * far) << cb)
         dist = key >> cb
         dv = ((key >> 1) & ((1 << (cb - 1)) - 1)) - v
         abs_du = dist - jnp.abs(dv)
+        if horizontal_cost != 1:
+            abs_du = abs_du // horizontal_cost
         du = jnp.where((key & 1) == 1, abs_du, -abs_du)
         distance = dist.astype(jnp.float32)
     else:

@@ -72,7 +72,7 @@ def _seeds(keep, image, config: SGMConfig):
                              "point takes none (use complete / complete_points with image=, or guidance_weight=0)")
         return geodesic_seed(keep, image, color_weight=config.guidance_weight, sweeps=config.guidance_sweeps,
                              noise_floor=config.guidance_noise_floor)
-    return nearest_seed(keep, metric=config.distance_metric)
+    return nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
 
 
 def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, beams: int,
