@@ -361,3 +361,27 @@ def test_stage_programs_equal_the_one_program(pipeline, mixed_rig):
     for name in split._fields:
         np.testing.assert_array_equal(np.asarray(getattr(split, name)), np.asarray(getattr(one, name)), err_msg=name)
     assert np.asarray(depth).tobytes() == np.asarray(one.depth).tobytes()
+
+
+@pytest.mark.slow  # two whole programs of each pipeline, in a subprocess (docs/testing.md)
+@pytest.mark.production_flags  # the depth-only program fuses the tail otherwise: at level 0 some depths move 1 ulp
+@pytest.mark.parametrize("pipeline", ["rig", "sources"])
+def test_depth_programs_equal_the_stages_programs_depth(pipeline, mixed_rig):
+    """The jobs' depth-only programs (``rig_depth_program`` / ``sources_depth_program``: no other field written,
+    none put onto the canvas) against the ``Stages`` programs' ``depth``, bit for bit, on the two-size rig (the
+    canvas) and the two-sweep sources with free space and occlusion."""
+    from jaxdepth._src.config import DEFAULT_CONFIG
+    from jaxdepth._src.rig import rig_depth_program
+    from jaxdepth._src.sources import default_beams, sources_depth_program
+    points, valid, cams = mixed_rig
+    cameras = stack_cameras(cams)
+    if pipeline == "rig":
+        want = complete_rig_stages(points, valid, cameras, lidar=LIDAR).depth
+        got = rig_depth_program(points, valid, cameras, config=DEFAULT_CONFIG, lidar=LIDAR)
+    else:
+        sources = _two_sweeps(points, valid, second_valid=valid)
+        want = complete_sources_stages(sources, cameras).depth
+        got = sources_depth_program(sources, cameras, config=DEFAULT_CONFIG, free_space=True,
+                                    beams=default_beams(sources))
+    assert np.count_nonzero(np.asarray(want)) > 1000
+    assert np.asarray(got).tobytes() == np.asarray(want).tobytes()
