@@ -19,11 +19,15 @@ running default-long, default-short, nearest-long, nearest-short (a fresh output
 sweep = (long - short) / (sweeps - 2): start-up, cache load and the first sweep cancel. The ratio
 default / nearest is taken within each round, then the median. Writes benchmarks/results/av2_log.json.
 
+``--checkout PATH`` adds the default job with another checkout's code (``PYTHONPATH`` on it; e.g. main's, a
+``git worktree add --detach``) to every round, ``default-base``, and the ratios this / that per round: the two
+codes' jobs interleaved, not in two runs minutes apart at another load.
+
 ``--release-memory`` adds both jobs with ``JAXDEPTH_KEEP_MEMORY=0`` (glibc's default malloc: the process
 before :func:`jaxdepth.batch.devices.keep_freed_memory`) to every round, with their ratios.
 
     python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--release-memory]
-                                       [--json PATH]
+                                       [--checkout PATH] [--json PATH]
 """
 
 from __future__ import annotations
@@ -48,11 +52,14 @@ METHODS = {"default": [], "nearest": ["--method", "nearest"]}
 RELEASE = {"JAXDEPTH_KEEP_MEMORY": "0"}
 
 
-def variants(release: bool) -> dict:
-    """``{name: (flags, environment)}`` of the runs of one round."""
+def variants(release: bool, checkout: pathlib.Path | None = None) -> dict:
+    """``{name: (flags, environment)}`` of the runs of one round (``checkout``: also ``default-base``, the
+    default job with that checkout's code first on ``PYTHONPATH``)."""
     out = {name: (flags, {}) for name, flags in METHODS.items()}
     if release:
         out.update({f"{name}-release": (flags, RELEASE) for name, flags in METHODS.items()})
+    if checkout is not None:
+        out["default-base"] = ([], {"PYTHONPATH": str(checkout.resolve())})
     return out
 
 
@@ -109,6 +116,10 @@ def per_sweep(times: dict, sweeps: int, runs=METHODS) -> dict:
     out["ratio_wall"] = out["default"]["wall_s"] / out["nearest"]["wall_s"]
     out["ratio_cpu"] = out["default"]["cpu_s"] / out["nearest"]["cpu_s"]
     out["ratio_total_long"] = times["default-long"][0] / times["nearest-long"][0]
+    if "default-base" in runs:
+        out["default_over_base_cpu"] = out["default"]["cpu_s"] / out["default-base"]["cpu_s"]
+        out["default_over_base_wall"] = out["default"]["wall_s"] / out["default-base"]["wall_s"]
+        out["base_ratio_cpu"] = out["default-base"]["cpu_s"] / out["nearest"]["cpu_s"]
     if "default-release" in runs:
         out["release_ratio_wall"] = out["default-release"]["wall_s"] / out["nearest-release"]["wall_s"]
         out["release_ratio_cpu"] = out["default-release"]["cpu_s"] / out["nearest-release"]["cpu_s"]
@@ -125,8 +136,13 @@ def main(argv=None) -> int:
     ap.add_argument("--no-camera-images", action="store_true", help="no image names: depth at LiDAR time")
     ap.add_argument("--release-memory", action="store_true",
                     help="also both jobs with JAXDEPTH_KEEP_MEMORY=0 (glibc's default malloc), same rounds")
+    ap.add_argument("--checkout", type=pathlib.Path, default=None,
+                    help="also the default job with this checkout's code (PYTHONPATH), same rounds")
     ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "av2_log.json")
     args = ap.parse_args(argv)
+    args.json = args.json.resolve()
+    if args.checkout is not None:
+        args.checkout = args.checkout.resolve()
     if not LOG.exists():
         print(f"shared Argoverse 2 log missing: {LOG}", file=sys.stderr)
         return 1
@@ -141,9 +157,14 @@ def main(argv=None) -> int:
                 "short": build_log(tmp / "short", sweep_times[:2],
                                    None if image_times is None else image_times[:4])}
         cache = tmp / "cache"
-        runs = variants(args.release_memory)
-        for method, flags in METHODS.items():
-            wall, cpu = _run(["complete", logs["short"], tmp / f"warmup-{method}", "-q", *flags], cache)
+        # The jobs run in `tmp`: `python -m` puts the working directory first on sys.path, ahead of
+        # PYTHONPATH, so from a checkout's folder `default-base` would import that checkout's jaxdepth.
+        here = os.getcwd()
+        os.chdir(tmp)
+        runs = variants(args.release_memory, args.checkout)
+        for method, (flags, env) in {**{m: (f, {}) for m, f in METHODS.items()},
+                                     **{k: v for k, v in runs.items() if k == "default-base"}}.items():
+            wall, cpu = _run(["complete", logs["short"], tmp / f"warmup-{method}", "-q", *flags], cache, env)
             print(f"warm-up {method} short: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
         rounds = []
         for r in range(args.rounds):
@@ -153,6 +174,7 @@ def main(argv=None) -> int:
             print(f"round {r}: " + ", ".join(f"{m} {rounds[-1]['per_sweep'][m]['wall_s']:.2f} s/sweep"
                                              for m in runs)
                   + f", ratio {rounds[-1]['per_sweep']['ratio_wall']:.2f}", flush=True)
+        os.chdir(here)
     median = {m: {"wall_s": statistics.median(r["per_sweep"][m]["wall_s"] for r in rounds),
                   "cpu_s": statistics.median(r["per_sweep"][m]["cpu_s"] for r in rounds)} for m in runs}
     ratios = {k: statistics.median(r["per_sweep"][k] for r in rounds)

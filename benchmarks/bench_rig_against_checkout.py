@@ -6,9 +6,11 @@ inputs as ``bench_stage_programs`` builds them. The other checkout's ``jaxdepth`
 temporary folder as ``jaxdepth_base`` (its imports renamed), so that both libraries run in this process:
 each program compiled apart, every output leaf compared byte for byte, then ``--rounds`` rounds timing
 both (the order alternating), process CPU and wall ns per real pixel, per-round ratios this / base.
+``--this-depth-only``: this library's program returns ``depth`` alone, the other's its ``Stages`` (the Argoverse 2
+job's program before and after it ran a depth-only program, branch rigtail5); outputs compared on ``depth``.
 
     python -m benchmarks.bench_rig_against_checkout --checkout /path/to/main [--cases av2 nuscenes]
-        [--rounds 5] [--depth-only] [--json benchmarks/results/rig_against_checkout.json]
+        [--rounds 5] [--depth-only | --this-depth-only] [--json benchmarks/results/rig_against_checkout.json]
 """
 
 from __future__ import annotations
@@ -74,10 +76,13 @@ def _program(package: str, case: str, depth_only: bool):
     return jax.jit(fn).lower(*args).compile(), args, pixels
 
 
-def run_case(case: str, rounds: int, depth_only: bool) -> dict:
+def run_case(case: str, rounds: int, depth_only: bool, this_depth_only: bool = False) -> dict:
     import jax
-    programs = {"base": _program(BASE, case, depth_only), "this": _program("jaxdepth", case, depth_only)}
+    programs = {"base": _program(BASE, case, depth_only),
+                "this": _program("jaxdepth", case, depth_only or this_depth_only)}
     leaves = {k: jax.tree.leaves(jax.device_get(exe(*args))) for k, (exe, args, _) in programs.items()}
+    if this_depth_only and not depth_only:
+        leaves["base"] = [jax.device_get(programs["base"][0](*programs["base"][1])).depth]
     identical = all(np.asarray(a).tobytes() == np.asarray(b).tobytes() for a, b in zip(leaves["base"], leaves["this"]))
     del leaves
     pixels = programs["this"][2]
@@ -91,7 +96,7 @@ def run_case(case: str, rounds: int, depth_only: bool) -> dict:
             wall[name].append((time.perf_counter() - t) * 1e9 / pixels)
         print(case, r, {k: round(v[-1], 1) for k, v in cpu.items()}, "CPU ns/px", os.getloadavg(), flush=True)
     ratios = [a / b for a, b in zip(cpu["this"], cpu["base"])]
-    out = {"pixels": pixels, "depth_only": depth_only, "identical": identical, "cpu_ns_px": cpu, "wall_ns_px": wall,
+    out = {"pixels": pixels, "depth_only": depth_only, "this_depth_only": this_depth_only, "identical": identical, "cpu_ns_px": cpu, "wall_ns_px": wall,
            "cpu_ns_px_median": {k: statistics.median(v) for k, v in cpu.items()},
            "wall_ns_px_median": {k: statistics.median(v) for k, v in wall.items()},
            "cpu_this_over_base_per_round": ratios, "cpu_this_over_base": statistics.median(ratios)}
@@ -105,6 +110,8 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", nargs="+", default=["av2", "nuscenes"], choices=("av2", "nuscenes"))
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--depth-only", action="store_true", help="programs returning depth alone (the nuScenes job's)")
+    parser.add_argument("--this-depth-only", action="store_true",
+                        help="this library's program returns depth alone, the other's its Stages (outputs: depth)")
     parser.add_argument("--json", default=str(RESULTS / "rig_against_checkout.json"))
     args = parser.parse_args(argv)
     from jaxdepth.batch.devices import keep_freed_memory
@@ -112,7 +119,7 @@ def main(argv=None) -> int:
     t0 = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         _copy_as_base(args.checkout.resolve(), pathlib.Path(tmp))
-        cases = {case: run_case(case, args.rounds, args.depth_only) for case in args.cases}
+        cases = {case: run_case(case, args.rounds, args.depth_only, args.this_depth_only) for case in args.cases}
     write_results(args.json, {"what": "rig programs, this library against another checkout's, one process, "
                                       "interleaved rounds, ns per real pixel", "checkout": str(args.checkout),
                               "load_average": os.getloadavg(), "cases": cases}, None, t0)

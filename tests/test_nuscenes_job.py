@@ -419,7 +419,7 @@ def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
         jax.monitoring.unregister_event_duration_listener(on_compile)
     assert sorted(summary.done) == ["s1", "s2"]
     # s1 (the scene's first sample: one sweep) runs s2's program, its one source in a window of two
-    assert compiled in ([], ["jit(sources_program)"]), compiled     # [] when compiled earlier in the session
+    assert compiled in ([], ["jit(sources_depth_program)"]), compiled     # [] when compiled earlier in the session
     t = nusc.load_tables(root, VERSION)
     changed = 0
     for sample, count in (("s1", 1), ("s2", 2)):

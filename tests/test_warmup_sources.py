@@ -25,6 +25,8 @@ from helpers import wall_sweep, warm_then_run, write_wall_rig
 
 #: The multi-source rig program (its persistent-cache entries start with this name).
 PROGRAM = "jit_sources_program"
+#: Its depth-only program, what the Argoverse 2 job runs (the job writes depth alone).
+DEPTH_PROGRAM = "jit_sources_depth_program"
 SPEC = LidarSpec(beams=16, fov_up_deg=5.0, fov_down_deg=-10.0, columns=720)
 TWO_LIDARS = [{"name": "left", "T_points_lidar": np.eye(4).tolist(), "beams": 16, "fov_up_deg": 5.0,
                "fov_down_deg": -10.0},
@@ -153,7 +155,7 @@ def test_warmup_av2_serves_every_sweep_of_the_log(tmp_path):
     log = write_log(tmp_path / "synthetic-log")
     warmed, added, warm = warm_then_run(tmp_path / "xla", ["--av2", log, "--cameras", CAMERA],
                                           ["complete", log, tmp_path / "out", "--cameras", CAMERA, "-q"],
-                                          program=PROGRAM)
+                                          program=DEPTH_PROGRAM)
     assert "compiled for synthetic-log/" in warm.stdout
     assert warmed and not added
     assert len(list((tmp_path / "out" / "synthetic-log" / CAMERA).glob("*.png"))) == 2

@@ -25,7 +25,8 @@ The pipeline is written as three stages, each a ``jit`` of its own (:func:`run_r
 camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail` (Steps 3-4, the canvas).
 Called one after another they are three programs with the one program's bytes; measured, they
 compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stage programs"),
-so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`. The multi-source
+so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs, which write depth alone,
+run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
 pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
 (:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
 
@@ -373,6 +374,15 @@ def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMC
     (the same bytes as the stages called one after another, and as fast or faster to compile and run:
     docs/speed.md, "Stage programs")."""
     return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+def rig_depth_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig,
+                      lidar: LidarSpec) -> jax.Array:
+    """:func:`rig_program`'s (C, H, W) ``depth`` alone (the jobs' program): the other fields are never written
+    out, nor put onto the canvas (on the Argoverse 2 sweep 0.8-0.9x the stages program's CPU, the same depth
+    bytes: docs/speed.md, "The jobs' depth programs")."""
+    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar).depth
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,

@@ -654,6 +654,14 @@ def sources_program(sources: Sources, cameras: RigCameras, images=None, *, confi
                               occlusion=occlusion)
 
 
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
+def sources_depth_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig,
+                          free_space: bool, beams: int, occlusion: bool = True) -> jax.Array:
+    """:func:`sources_program`'s ``depth`` alone (see :func:`~jaxdepth._src.rig.rig_depth_program`)."""
+    return run_sources_stages(sources, cameras, images, config=config, free_space=free_space, beams=beams,
+                              occlusion=occlusion).depth
+
+
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                             free_space: bool = True, beams: int | None = None,
                             images: jax.Array | None = None, occlusion: bool = True) -> Stages:

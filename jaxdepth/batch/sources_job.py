@@ -252,19 +252,19 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         fitted = fit_to_window(sources, index, window)
     if fitted is not None:
         out = sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion)
+                             images=images, occlusion=occlusion, depth_only=not stages)
     elif _single_origin(cloud):
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images)
+        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images, depth_only=not stages)
     else:
         if sources is None:         # not built for the window above
             sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
                                        min_cells=config.free_space_min_cells)
         out = sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion)
-    return out if stages else np.asarray(out.depth)
+                             images=images, occlusion=occlusion, depth_only=not stages)
+    return out if stages else np.asarray(out)
 
 
 def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: bool = True):
