@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from benchmarks._common import RESULTS, load_frame, write_results
+from benchmarks.bench_end_to_end import wall_and_cpu_ms
 from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
 
 
@@ -46,12 +47,6 @@ def _program(package: str, stage: str, d, k, t):
     methods = importlib.import_module(f"{package}._src.methods")
     return lambda: methods.complete_with(d, k, t, method="sgm", config=config,
                                          lidar=presets.KITTI_HDL64).block_until_ready()
-
-
-def _wall_and_cpu(fn):
-    wall, cpu = time.perf_counter(), time.process_time()
-    fn()
-    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def main(argv=None) -> int:
@@ -82,7 +77,7 @@ def main(argv=None) -> int:
     wall, cpu = {n: [] for n in names}, {n: [] for n in names}
     for r in range(args.rounds):
         for n in names[r % 3:] + names[:r % 3]:       # the order rotating
-            w, c = _wall_and_cpu(calls[n])
+            w, c = (ms / 1e3 for ms in wall_and_cpu_ms(calls[n]))
             wall[n].append(w)
             cpu[n].append(c)
     med = lambda v: statistics.median(v) * 1e3
