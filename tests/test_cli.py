@@ -275,6 +275,33 @@ def test_compile_cache_stays_on_when_the_folder_cannot_be_trimmed(tmp_path, monk
         jax.config.update("jax_compilation_cache_dir", before)
 
 
+@pytest.mark.parametrize("user_value", [None, "2.5"])
+def test_compile_cache_keeps_fast_compiles_unless_the_user_sets_a_threshold(tmp_path, monkeypatch, user_value):
+    """JAX keeps only programs that took over 1 s to compile; the CLI's cache keeps every one, so
+    that a fast compile (the nearest fill's, 0.9-1.4 s on 2-core machines) is stored on every
+    machine. A threshold the user sets in JAX's own variable is left alone."""
+    import jax
+
+    from jaxdepth.batch import devices
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("JAXDEPTH_COMPILE_CACHE", raising=False)
+    if user_value is None:
+        monkeypatch.delenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", raising=False)
+    else:
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", user_value)
+    before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_compilation_cache_dir", None)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)  # JAX's default
+    try:
+        assert devices.use_compile_cache(True) == tmp_path / "jaxdepth" / "xla"
+        expected = 0.0 if user_value is None else 1.0  # JAX itself reads the variable at import
+        assert jax.config.jax_persistent_cache_min_compile_time_secs == expected
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+
+
 @pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_png_compression_option_changes_size_not_values_and_summary_has_timings(tmp_path, frames, capsys):
     """Issue 14: --png-compression 0-9; the decoded depth is the same at every level; the summary

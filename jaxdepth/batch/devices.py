@@ -81,7 +81,9 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
 
     The folder is ``$XDG_CACHE_HOME/jaxdepth/xla`` (default ``~/.cache/jaxdepth/xla``),
     capped at 1 GiB (at the start of each run the entries written longest ago are
-    deleted beyond that, see :func:`trim_compile_cache`). Left off when
+    deleted beyond that, see :func:`trim_compile_cache`). Every program the run compiles is
+    kept, however fast it compiled (JAX's default keeps only those over 1 s; a set
+    ``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`` is respected). Left off when
     ``enabled`` is False (``--no-compile-cache``), when ``JAXDEPTH_COMPILE_CACHE=0``, when
     JAX already has a cache folder (``JAX_COMPILATION_CACHE_DIR``), or when the folder
     cannot be created or written. Returns the folder in use, or None. Processes running at
@@ -112,6 +114,10 @@ def use_compile_cache(enabled: bool = True) -> pathlib.Path | None:
     except OSError as err:  # e.g. a folder that cannot be listed: the cache still works
         log.info("compile cache not trimmed: %s (%s)", folder, err.strerror or err)
     jax.config.update("jax_compilation_cache_dir", str(folder))
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        # JAX stores only programs that took over 1 s to compile; whether a small one (the
+        # nearest fill: 0.9-1.4 s on 2-core machines) is kept must not hang on the machine's speed
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return folder
 
 
