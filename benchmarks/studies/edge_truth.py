@@ -346,9 +346,29 @@ def _pose(rdef, k: int) -> np.ndarray:
     return T
 
 
-def accumulated_points(rig: str, seed: int, half: int, *, effects: bool = True) -> np.ndarray:
-    """(N, 3) float32 returns of sweeps -half..half of the twin's LiDAR (effects on, the twin's rates) in the
-    reference points frame; sweep 0 draws exactly as ``make_twin`` (the input sweep's own points)."""
+def _footprint(cast, T: np.ndarray, out: dict, footprint_mrad: float) -> np.ndarray:
+    """(n, 3) ``out``'s points with each valid ray's range replaced by the smallest of its own and of the same
+    ray cast ``footprint_mrad`` to either side in azimuth (a beam returning the nearer surface over its width)."""
+    pts = out["points"].astype(np.float64)
+    origin = out["origin"]
+    r = np.linalg.norm(pts - origin, axis=1)
+    best = np.where(out["valid"], r, np.inf)
+    for sign in (-1.0, 1.0):
+        a = sign * footprint_mrad * 1e-3
+        Rz = np.eye(4)
+        Rz[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+        side = cast(T @ Rz)
+        rs = np.linalg.norm(side["points"].astype(np.float64) - origin, axis=1)
+        best = np.minimum(best, np.where(side["valid"], rs, np.inf))
+    scale = np.where(out["valid"], best / np.maximum(r, 1e-9), 1.0)
+    return origin + (pts - origin) * scale[:, None]
+
+
+def accumulated_points(rig: str, seed: int, half: int, *, effects: bool = True, footprint_mrad: float = 0.0,
+                       ks=None) -> np.ndarray:
+    """(N, 3) float32 returns of sweeps -half..half (or ``ks``) of the twin's LiDAR (effects on: the twin's
+    rates) in the reference points frame; sweep 0 draws exactly as ``make_twin`` (the input sweep's own points,
+    in its order). ``footprint_mrad``: see :func:`_footprint` (0: thin rays, as the twin)."""
     from jaxdepth.research import twin_scene
     from jaxdepth.research.twin_rigs import RIG_BUILDERS
     from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit
@@ -358,13 +378,16 @@ def accumulated_points(rig: str, seed: int, half: int, *, effects: bool = True) 
     T_ref_world = np.linalg.inv(_pose(rdef, 0) @ rdef.T_ego_points)
     spheres = twin_scene.twin_spheres(seed)
     pts = []
-    for k in range(-half, half + 1):
+    for k in (range(-half, half + 1) if ks is None else ks):
         scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
         T_world_k = _pose(rdef, k) @ rdef.T_ego_points
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             key = [seed, k, u, 37] if k >= 0 else [seed, 1000 - k, u, 37]
-            out = cast_unit(scene, spheres, make_unit(k), T_world_k @ T_points_unit, rates, key)
-            p = out["points"][out["valid"]].astype(np.float64)
+            unit, T = make_unit(k), T_world_k @ T_points_unit
+            cast = lambda T_, unit=unit, scene=scene, key=key: cast_unit(scene, spheres, unit, T_, rates, key)  # noqa: E731
+            out = cast(T)
+            p = _footprint(cast, T, out, footprint_mrad) if footprint_mrad else out["points"].astype(np.float64)
+            p = p[out["valid"]]
             pts.append((p @ T_ref_world[:3, :3].T + T_ref_world[:3, 3]).astype(np.float32))
     return np.concatenate(pts)
 
@@ -417,11 +440,16 @@ def gt_errors(gt: list, exact: list) -> dict:
             "share_wrong_farther": wrong_far / max(n, 1)}
 
 
-def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARIANTS) -> dict:
+def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARIANTS, footprint_mrad: float = 0.0) -> dict:
     from benchmarks.accuracy_twins import predictions, z_buffers
     from benchmarks.studies.edge_side import run_sgm, twin_input
     t0 = time.time()
     inp, exact = twin_input("kitti", 1, seed, scale, effects=effects)
+    if footprint_mrad:                       # the input sweep with beam footprints (same rays, same order)
+        import dataclasses
+        pts = accumulated_points("kitti", seed, 0, effects=effects, footprint_mrad=footprint_mrad, ks=[0])
+        assert pts.shape == inp.cloud.points.shape
+        inp = dataclasses.replace(inp, cloud=dataclasses.replace(inp.cloud, points=pts))
     runs = {}
     for name, (config, rule) in SGM_VARIANTS.items():
         with _seed_rule(rule):
@@ -431,12 +459,13 @@ def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARI
     print(f"twin methods: {time.time() - t0:.0f} s", flush=True)
     regions = [input_regions(sp) for sp in z_buffers(inp.cloud.points, inp.rig)]
     out = {"rig": "kitti", "sweeps_input": 1, "seed": seed, "scale": scale, "effects": effects,
+           "footprint_mrad": footprint_mrad,
            "exact_dense": {m: devkit(d, exact) for m, d in runs.items()},
            "exact_dense_regions_mse": region_mse(exact, regions, runs), "gt_variants": {}}
     cache = {}
     for name, half, radius, tau in variants:
         if half not in cache:
-            cache[half] = accumulated_points("kitti", seed, half, effects=effects)
+            cache[half] = accumulated_points("kitti", seed, half, effects=effects, footprint_mrad=footprint_mrad)
         gt = kitti_style_gt(cache[half], inp.rig, exact, radius=radius, tau=tau)
         at_gt = [np.where(g > 0, e, 0.0).astype(np.float32) for g, e in zip(gt, exact)]
         # the referee's "image" is the exact depth: 100 log z (sky at 120 m), a clear edge = a step of 10 %
@@ -469,6 +498,8 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=str(RESULTS / "edge_truth.json"))
     parser.add_argument("--no-effects", action="store_true", help="twin: no range noise, dropouts or mixed returns")
     parser.add_argument("--variants", nargs="+", default=None, help="twin: only these GT variants (names)")
+    parser.add_argument("--footprint-mrad", type=float, default=0.0,
+                        help="twin: every LiDAR ray returns the nearest of itself and the rays this far to either side")
     args = parser.parse_args(argv)
     t0 = time.time()
     path = pathlib.Path(args.json)
@@ -481,8 +512,10 @@ def main(argv=None) -> int:
         write_results(args.json, doc, SGMConfig(), t0)
     if "twin" in args.part:
         variants = [v for v in GT_VARIANTS if args.variants is None or v[0] in args.variants]
-        key = f"twin_kitti_seed{args.seed}" + ("_no_effects" if args.no_effects else "")
-        new = twin_part(args.seed, args.scale, effects=not args.no_effects, variants=variants)
+        key = (f"twin_kitti_seed{args.seed}" + ("_no_effects" if args.no_effects else "")
+               + (f"_footprint{args.footprint_mrad:g}" if args.footprint_mrad else ""))
+        new = twin_part(args.seed, args.scale, effects=not args.no_effects, variants=variants,
+                        footprint_mrad=args.footprint_mrad)
         if key in doc:                                   # a run of other variants: keep the earlier ones
             new["gt_variants"] = {**doc[key]["gt_variants"], **new["gt_variants"]}
         doc[key] = new
