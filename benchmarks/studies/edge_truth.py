@@ -1,7 +1,7 @@
 """Which truth is wrong at depth edges: the twins' exact depth or KITTI's ground truth? (issue 37)
 
-    PYTHONPATH=. python -m benchmarks.studies.edge_truth [--part real twin] [--seed 0] [--scale 1]
-        [--json benchmarks/results/edge_truth.json]
+    PYTHONPATH=. python -m benchmarks.studies.edge_truth [--part real twin band] [--seed 0] [--scale 1]
+        [--variants NAME ...] [--no-effects] [--footprint-mrad 0] [--json benchmarks/results/edge_truth.json]
 
 Two referees, independent of every method under test (and of the ground truth they judge):
 
@@ -31,7 +31,10 @@ Two referees, independent of every method under test (and of the ground truth th
    scored against the exact depth of every pixel, the exact depth at the KITTI-style GT's pixels and
    the KITTI-style GT's values (also by input region); the GT's own errors against the exact depth
    and part 1's referee with the exact depth as the "image" (``100 log z``) are reported beside.
-   ``--no-effects``: the twin without range noise, dropouts or mixed returns.
+   ``--no-effects``: the twin without range noise, dropouts or mixed returns; ``--footprint-mrad M``: every
+   LiDAR ray (input and GT sweeps) returns the nearest of itself and the rays M mrad to either side.
+3. ``--part band``: in the input's edge band, the share of the GT's pixels on the near side
+   (:func:`band_near_share`), real KITTI against the twin's exact depth and KITTI-style GTs.
 
 Methods everywhere: the SGM default, ``seed_horizontal_cost = 3``, the near-side Step 3 rule
 (``d z^0.5``) and the far-side rule (``d z^-0.5``) of ``benchmarks.studies.edge_side``, the city-block
@@ -284,6 +287,36 @@ def colour_agreement(sparse, image, truth, completions: dict) -> dict:
     return out
 
 
+def band_near_share(sparse: np.ndarray, truth: np.ndarray, *, half: int = 4) -> dict:
+    """In the input's edge band (:func:`input_regions`), the truth's pixels and the share of them on the near
+    side (depth below the mean of the window's smallest and largest input depth): a GT biased to the
+    foreground where it has one side only shows a larger share than the exact depth has."""
+    band = input_regions(sparse, half=half)["edge"]
+    _, _, mid = colour_sides(sparse, np.zeros(sparse.shape + (3,), np.uint8), half=half)
+    m = band & (truth > 0)
+    return {"pixels": int(m.sum()), "near": int((truth[m] < mid[m]).sum())}
+
+
+def band_part(seed: int, scale: float) -> dict:
+    """:func:`band_near_share` of the real GT, and of the KITTI twin's exact depth and KITTI-style GTs."""
+    from benchmarks._common import load_frames
+    from benchmarks.accuracy_twins import z_buffers
+    from benchmarks.studies.edge_side import twin_input
+    pool = lambda rows: {"pixels": sum(r["pixels"] for r in rows), "near": sum(r["near"] for r in rows)}  # noqa: E731
+    out = {"real_gt": pool([band_near_share(s, g) for s, g, _, _ in load_frames().values()])}
+    inp, exact = twin_input("kitti", 1, seed, scale)
+    sparse = z_buffers(inp.cloud.points, inp.rig)
+    out["twin_exact"] = pool([band_near_share(s, e) for s, e in zip(sparse, exact)])
+    points = accumulated_points("kitti", seed, 5)
+    for name, half, radius, tau in GT_VARIANTS:
+        gt = kitti_style_gt(points, inp.rig, exact, radius=radius, tau=tau)
+        out[name] = pool([band_near_share(s, g) for s, g in zip(sparse, gt)])
+        out[f"{name}_exact_at_pixels"] = pool([band_near_share(s, np.where(g > 0, e, 0.0)) for s, g, e in zip(sparse, gt, exact)])
+    for v in out.values():
+        v["share_near"] = v["near"] / max(v["pixels"], 1)
+    return out
+
+
 # ------------------------------------------------------------------ the methods
 
 def _seed_rule(rule):
@@ -492,7 +525,7 @@ def main(argv=None) -> int:
     import json
     import pathlib
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", nargs="+", default=["real", "twin"], choices=["real", "twin"])
+    parser.add_argument("--part", nargs="+", default=["real", "twin"], choices=["real", "twin", "band"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--json", default=str(RESULTS / "edge_truth.json"))
@@ -509,6 +542,10 @@ def main(argv=None) -> int:
                        "gt_variants": [list(v) for v in GT_VARIANTS]}
     if "real" in args.part:
         doc["real_kitti"] = real_part()
+        write_results(args.json, doc, SGMConfig(), t0)
+    if "band" in args.part:
+        doc[f"band_near_share_seed{args.seed}"] = band_part(args.seed, args.scale)
+        print(doc[f"band_near_share_seed{args.seed}"])
         write_results(args.json, doc, SGMConfig(), t0)
     if "twin" in args.part:
         variants = [v for v in GT_VARIANTS if args.variants is None or v[0] in args.variants]
