@@ -19,7 +19,9 @@ below-right, own row and column included: the nearest of the four is the nearest
   gap between scan lines: ``Q < P`` reaches across the gap sooner);
 - ``cost_P``: ``SGMConfig(seed_horizontal_cost=P)``, the library's option (``aniso_hP_v1`` up to the tie order);
 - ``combo_hP_vQ_gG``: the smallest ``(P |du| + Q |dv|) * z**G`` (both at once);
-- ``up`` / ``down``: always the nearest seed above / below (where there is one), only for the oracle.
+- ``up`` / ``down``: always the nearest seed above / below (where there is one), only for the oracle;
+- ``above:R``: rule ``R`` above the topmost kept pixel of each column, ``nearest`` elsewhere
+  (``benchmarks.studies.edge_truth``: the twins' far-side win sits above the top scan line).
 
 Each rule replaces :func:`jaxdepth._src.pipeline._seeds` for a whole run (the twins' user path:
 ``complete-rig``'s single-sweep path at 1 sweep, the multi-source path at 5), so the seed's plane, the
@@ -135,6 +137,13 @@ def _seed_depth(kept_depth, du, dv):
 
 def rule_seeds(rule: str, keep: jax.Array, kept_depth: jax.Array) -> Seeds:
     """(du, dv) of ``rule`` (see the module docstring) for an (H, W) keep mask and the kept depth."""
+    if rule.startswith("above:"):
+        # ``above:R``: rule R above the topmost kept pixel of each column, the library's nearest seed elsewhere
+        inner, base = rule_seeds(rule[6:], keep, kept_depth), rule_seeds("nearest", keep, kept_depth)
+        h = keep.shape[0]
+        top = jnp.where(keep.any(axis=0), jnp.argmax(keep, axis=0), h)
+        above = jnp.arange(h, dtype=jnp.int32)[:, None] < top[None, :]
+        return Seeds(jnp.where(above, inner.du, base.du), jnp.where(above, inner.dv, base.dv))
     if rule.startswith(("aniso_", "combo_")):
         fields = {t[0]: t[1:] for t in rule.split("_")[1:]}
         p, q, gamma = int(fields["h"]), int(fields["v"]), float(fields.get("g", 0))
@@ -194,10 +203,10 @@ def seed_rule(rule: str):
         jax.clear_caches()
 
 
-def twin_input(rig_name: str, sweeps: int, seed: int, scale: float):
+def twin_input(rig_name: str, sweeps: int, seed: int, scale: float, *, effects: bool = True):
     from benchmarks.accuracy_twins import exact_truth, read_user_input
     from jaxdepth.research.twins import make_twin, write_twin
-    tw = make_twin(rig_name, sweeps=sweeps, seed=seed, scale=scale)
+    tw = make_twin(rig_name, sweeps=sweeps, seed=seed, scale=scale, effects=effects)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps_json"] if sweeps > 1 else paths["sweeps"][0], paths["rig"])
