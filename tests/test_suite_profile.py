@@ -91,8 +91,10 @@ def test_one_program_compiled_twice_is_found_by_its_cache_key():
 
 def test_signature_reads_jax_compiling_messages():
     message = ("Compiling jit(_complete_depth) with global shapes and types (ShapedArray(float32[2,32,48]), "
-               "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[])). Argument mapping: ...")
-    assert suite_profile.signature(message) == "f32[2,32,48] f32[2,3,3] u8[2,32,48,3] pred[]"
+               "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[]), "
+               "ShapedArray(float32[], weak_type=True)). Argument mapping: ...")
+    # a Python scalar (weakly typed) is a program apart from a float32 array: marked
+    assert suite_profile.signature(message) == "f32[2,32,48] f32[2,3,3] u8[2,32,48,3] pred[] ~f32[]"
 
 
 @pytest.mark.slow  # a pytest subprocess (Python and JAX start-up)
