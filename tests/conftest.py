@@ -5,7 +5,6 @@ When it is missing, tests that need it skip locally and fail when CI is set.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import os
 import pathlib
@@ -74,66 +73,29 @@ SLOW_DOCTESTS = ("jaxdepth._src.pipeline.complete",)
 
 
 class ProductionFlagsItem(pytest.Item):
-    """A ``production_flags`` test, run in a pytest subprocess at the production XLA flags.
+    """A ``production_flags`` test, run by itself in a pytest subprocess at the production XLA flags.
 
     Stands in for the test when this process compiles at the suite's flags: it requests no fixture,
     so nothing of the test is computed here; it carries the test's markers (``slow``,
-    ``xdist_group``) and passes, fails or skips as the subprocess's run of the test does. The stand-ins
-    of one module and ``xdist_group`` (those of a module without one get a group of their own) run in
-    one subprocess, started by the first of them: one Python, JAX and pytest start-up, one collection
-    of the module and one computation of its fixtures for all of them; the others report its results.
+    ``xdist_group``) and passes, fails or skips as the subprocess's run of the test does.
     """
-
-    #: outcomes of stand-ins run by an earlier one of their batch: test id -> (status, message, output)
-    _done: dict = {}
 
     def __init__(self, *, test_id: str, **kwargs):
         super().__init__(**kwargs)
         self.test_id = test_id
 
-    def _batch_key(self):
-        return str(self.path), tuple(sorted(str(m.args[0]) for m in self.iter_markers("xdist_group") if m.args))
-
     def runtest(self):
-        if self.test_id not in self._done:
-            key = self._batch_key()
-            self._run([item.test_id for item in self.session.items if isinstance(item, ProductionFlagsItem)
-                       and item._batch_key() == key and item.test_id not in self._done])
-        status, message, self.child_output = self._done.pop(self.test_id)
-        if status == "failed":
-            raise RuntimeError(f"{self.test_id} at the production XLA flags: {message}")
-        if status == "skipped":
-            pytest.skip(f"at the production XLA flags: {message}")
-
-    @classmethod
-    def _run(cls, test_ids: list) -> None:
-        """Runs ``test_ids`` in one ``pytest -n 0`` at the production flags; their outcomes into ``_done``."""
         import subprocess
-        import xml.etree.ElementTree as ElementTree
         env = dict(os.environ, XLA_FLAGS=os.environ[PRODUCTION_FLAGS_ENV])
-        outcomes = {}
-        with tempfile.TemporaryDirectory(prefix="jaxdepth-production-flags-") as folder:
-            report = os.path.join(folder, "report.xml")
-            command = [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", "-rs",
-                       f"--junitxml={report}", *test_ids]
-            proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True)
-            try:
-                cases = list(ElementTree.parse(report).getroot().iter("testcase"))
-            except (OSError, ElementTree.ParseError):
-                cases = []
-        for case in cases:
-            failure = next((e for e in case if e.tag in ("failure", "error")), None)
-            skipped = case.find("skipped")
-            if failure is not None:
-                outcomes[case.get("name")] = ("failed", f"{failure.tag}: {failure.get('message', '')}")
-            elif skipped is not None:
-                outcomes.setdefault(case.get("name"), ("skipped", skipped.get("message", "")))
-            else:
-                outcomes.setdefault(case.get("name"), ("passed", ""))
-        output = proc.stdout[-6000:] + proc.stderr[-3000:]
-        for test_id in test_ids:
-            status, message = outcomes.get(test_id.split("::")[-1], ("failed", "no result"))
-            cls._done[test_id] = status, f"{message} (exit {proc.returncode})", output
+        command = [sys.executable, "-m", "pytest", "-q", "-n", "0", "-p", "no:cacheprovider", "-rs", self.test_id]
+        proc = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True)
+        self.child_output = proc.stdout[-6000:] + proc.stderr[-3000:]
+        if proc.returncode != 0:
+            raise RuntimeError(f"{self.test_id} at the production XLA flags: exit {proc.returncode}")
+        if " passed" not in proc.stdout:
+            lines = proc.stdout.strip().splitlines()
+            reason = next((line for line in lines if line.startswith("SKIPPED")), lines[-1])
+            pytest.skip(f"at the production XLA flags: {reason}")
 
     def repr_failure(self, excinfo):
         return f"{excinfo.value}\n{getattr(self, 'child_output', '')}"
@@ -155,13 +117,6 @@ def pytest_collection_modifyitems(config, items):
             stand_in.own_markers.extend(item.own_markers)
             stand_in.keywords.update(item.keywords)
             items[i] = stand_in
-    # the ungrouped stand-ins of a module share one subprocess, so one worker: a group of their own
-    ungrouped = collections.Counter(str(item.path) for item in items if isinstance(item, ProductionFlagsItem)
-                                    and item.get_closest_marker("xdist_group") is None)
-    for item in items:
-        if isinstance(item, ProductionFlagsItem) and ungrouped.get(str(item.path), 0) > 1 \
-                and item.get_closest_marker("xdist_group") is None:
-            item.own_markers.append(pytest.mark.xdist_group(f"production_flags_{item.path.stem}").mark)
     # each stand-in is one long subprocess with no fixture to share: first, so that no worker ends the run
     # alone on one (loadgroup hands out the groups first, then single tests in this order; sorted is stable)
     items[:] = sorted(items, key=lambda item: not isinstance(item, ProductionFlagsItem))
