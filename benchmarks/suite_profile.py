@@ -65,10 +65,12 @@ _DTYPES = {"float32": "f32", "float64": "f64", "int32": "s32", "int64": "s64", "
 
 
 def signature(message: str) -> str:
-    """``f32[32,48] f32[3,3]``: the argument shapes of JAX's "Compiling <fun> with global shapes and
-    types (ShapedArray(float32[32,48]), ...)" message (static options are not in it)."""
-    shapes = re.findall(r"ShapedArray\((\w+)(\[[^\]]*\])", message)
-    return " ".join(_DTYPES.get(dtype, dtype) + dims for dtype, dims in shapes)
+    """``f32[32,48] f32[3,3] ~f32[]``: the argument shapes of JAX's "Compiling <fun> with global shapes and
+    types (ShapedArray(float32[32,48]), ...)" message (static options are not in it); ``~`` marks a weakly
+    typed argument (a Python scalar: a program apart from the same call with a typed array)."""
+    shapes = re.findall(r"ShapedArray\((\w+)(\[[^\]]*\])([^)]*)\)", message)
+    return " ".join(("~" if "weak_type=True" in rest else "") + _DTYPES.get(dtype, dtype) + dims
+                    for dtype, dims, rest in shapes)
 
 
 class _CompilingMessages(logging.Handler):

@@ -220,11 +220,17 @@ def _release_compiled_programs():
     above it every cache is cleared and programs still needed come back from the session's
     persistent compilation cache (read from disk, not compiled again).
     ``JAXDEPTH_TEST_MAX_LIVE_EXECUTABLES=0`` clears after every module.
+
+    JAX's backend starts here, before a process's first test: a test process keeps JAX's one CPU device
+    whatever runs first (a multi-frame ``complete`` run in process, e.g. ``cli.main``, would otherwise split
+    an unstarted backend into ``os.cpu_count()`` devices, so a machine's core count and the test order
+    would set the device count of every later test of that process).
     """
-    yield
     import jax
     from jax.extend.backend import get_backend
-    live = len(get_backend().live_executables())
+    backend = get_backend()
+    yield
+    live = len(backend.live_executables())
     if os.environ.get("JAXDEPTH_TEST_REPORT_LIVE"):
         print(f"\n[live executables after module: {live}]", file=sys.stderr)
     if live > MAX_LIVE_EXECUTABLES:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import pathlib
 import subprocess
 import sys
 import time
@@ -91,8 +92,10 @@ def test_one_program_compiled_twice_is_found_by_its_cache_key():
 
 def test_signature_reads_jax_compiling_messages():
     message = ("Compiling jit(_complete_depth) with global shapes and types (ShapedArray(float32[2,32,48]), "
-               "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[])). Argument mapping: ...")
-    assert suite_profile.signature(message) == "f32[2,32,48] f32[2,3,3] u8[2,32,48,3] pred[]"
+               "ShapedArray(float32[2,3,3]), ShapedArray(uint8[2,32,48,3]), ShapedArray(bool[]), "
+               "ShapedArray(float32[], weak_type=True)). Argument mapping: ...")
+    # a Python scalar (weakly typed) is a program apart from a float32 array: marked
+    assert suite_profile.signature(message) == "f32[2,32,48] f32[2,3,3] u8[2,32,48,3] pred[] ~f32[]"
 
 
 @pytest.mark.slow  # a pytest subprocess (Python and JAX start-up)
@@ -182,7 +185,12 @@ def test_run_processes_counts_runnable_threads_of_the_run_only(tmp_path):
     try:
         for proc in procs:  # each has started (Python's own start-up is runnable too)
             proc.stdout.readline()
-        time.sleep(0.5)  # the sleeping child, runnable between its print and time.sleep, is asleep by now
+        # the sleeping child is runnable between its print and time.sleep: wait until it sleeps (on a loaded
+        # machine it may wait for a core longer than any fixed pause)
+        stat = pathlib.Path(f"/proc/{procs[1].pid}/stat")
+        deadline = time.monotonic() + 60
+        while stat.read_text().rsplit(")", 1)[1].split()[0] != "S" and time.monotonic() < deadline:
+            time.sleep(0.05)
         run = suite_profile._RunProcesses(str(tmp_path))
         seen = collections.Counter()
         for _ in range(20):  # the spinning child may be descheduled at one sample on a loaded machine
