@@ -356,10 +356,12 @@ def entry_jit(fun=None, **jit_kwargs):
         return functools.partial(entry_jit, **jit_kwargs)
     plain = jax.jit(fun, **jit_kwargs)
     top = jax.jit(fun, compiler_options=COMPILER_OPTIONS, **jit_kwargs)
+    static = frozenset(jit_kwargs.get("static_argnames", ()))    # hashable options: never tracers
 
     @functools.wraps(fun)
     def call(*args, **kwargs):
-        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs)))
+        dynamic = (args, [v for k, v in kwargs.items() if k not in static])
+        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(dynamic))
         return (plain if traced else top)(*args, **kwargs)
 
     def clear_cache():
