@@ -102,7 +102,7 @@ def test_helpers_reduce_to_the_plain_computation():
 def test_entry_jit_compiles_with_the_options_at_the_top_level_only():
     """entry_jit: a top-level call compiles with COMPILER_OPTIONS (fewer copies in an in-place loop than
     the plain jit's program); JAX rejects the options on a nested jit, so a call inside jit / vmap takes
-    the plain jit; every way returns the plain jit's bytes."""
+    the plain jit (also nested with constant arguments only); every way returns the plain jit's bytes."""
     import jax
     import jax.numpy as jnp
 
@@ -120,7 +120,8 @@ def test_entry_jit_compiles_with_the_options_at_the_top_level_only():
     assert copies(fn) < copies(plain)
     want = np.asarray(plain(x, scale=2))
     np.testing.assert_array_equal(want[1:], np.minimum(want[1:], want[:-1] + 2))   # the recurrence holds
-    for got in (fn(x, scale=2), jax.jit(lambda y: fn(y, scale=2))(x), jax.vmap(lambda y: fn(y, scale=2))(x[None])[0]):
+    for got in (fn(x, scale=2), jax.jit(lambda y: fn(y, scale=2))(x), jax.vmap(lambda y: fn(y, scale=2))(x[None])[0],
+                jax.jit(lambda: fn(np.asarray(x), scale=2))()):       # nested, a constant argument
         np.testing.assert_array_equal(np.asarray(got), want)
     fn.clear_cache()
 

@@ -342,13 +342,13 @@ def shared_loop_bounds(first: jax.Array, stop: jax.Array):
     return _widest_bounds(first, stop)
 
 
-
 def entry_jit(fun=None, **jit_kwargs):
     """``jax.jit(fun, **jit_kwargs)`` compiled with :data:`COMPILER_OPTIONS` when called at the top level.
 
     JAX takes compile options only for a program's outermost ``jit``: called with a tracer among its
-    arguments (inside another ``jit``, ``vmap``, ``grad``), the call goes to the plain ``jit``, whose
-    program the caller's compiles. Same results either way (the options steer copy insertion only).
+    arguments (inside another ``jit``, ``vmap``, ``grad``), or inside another trace with constants only
+    (JAX then refuses the options), the call goes to the plain ``jit``, whose program the caller's
+    compiles. Same results either way (the options steer copy insertion only).
     Usable as ``@entry_jit`` or ``@functools.partial(entry_jit, static_argnames=...)``; ``lower`` and
     ``clear_cache`` are the top-level ``jit``'s (``clear_cache`` clears both).
     """
@@ -361,8 +361,14 @@ def entry_jit(fun=None, **jit_kwargs):
     @functools.wraps(fun)
     def call(*args, **kwargs):
         dynamic = (args, [v for k, v in kwargs.items() if k not in static])
-        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(dynamic))
-        return (plain if traced else top)(*args, **kwargs)
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(dynamic)):
+            return plain(*args, **kwargs)
+        try:
+            return top(*args, **kwargs)
+        except ValueError as error:      # nested without tracers among the arguments (closed-over constants)
+            if "compiler_options" not in str(error):
+                raise
+            return plain(*args, **kwargs)
 
     def clear_cache():
         plain.clear_cache()
