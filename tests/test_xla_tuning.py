@@ -99,6 +99,33 @@ def test_helpers_reduce_to_the_plain_computation():
                 assert bool(xla_tuning.any_true(mask)) == bool(np.any(np.asarray(mask)))
 
 
+def test_entry_jit_compiles_with_the_options_at_the_top_level_only():
+    """entry_jit: a top-level call compiles with COMPILER_OPTIONS (fewer copies in an in-place loop than
+    the plain jit's program); JAX rejects the options on a nested jit, so a call inside jit / vmap takes
+    the plain jit (also nested with constant arguments only); every way returns the plain jit's bytes."""
+    import jax
+    import jax.numpy as jnp
+
+    def sweep(x, *, scale: int):    # an in-place loop: what the options' copy insertion is about
+        body = lambda i, b: b.at[i].set(jnp.minimum(b[i], b[i - 1] + scale))
+        return jax.lax.fori_loop(1, x.shape[0], body, x)
+
+    fn = xla_tuning.entry_jit(sweep, static_argnames=("scale",))
+    plain = jax.jit(sweep, static_argnames=("scale",))
+    nested = jax.jit(sweep, static_argnames=("scale",), compiler_options=xla_tuning.COMPILER_OPTIONS)
+    with pytest.raises(ValueError, match="compiler_options"):      # why the nested path exists
+        jax.jit(lambda y: nested(y, scale=2))(jnp.zeros(3))
+    x = jnp.asarray(np.random.default_rng(0).integers(0, 50, (40, 7)), jnp.int32)
+    copies = lambda f: f.lower(x, scale=2).compile().as_text().count(" copy(")
+    assert copies(fn) < copies(plain)
+    want = np.asarray(plain(x, scale=2))
+    np.testing.assert_array_equal(want[1:], np.minimum(want[1:], want[:-1] + 2))   # the recurrence holds
+    for got in (fn(x, scale=2), jax.jit(lambda y: fn(y, scale=2))(x), jax.vmap(lambda y: fn(y, scale=2))(x[None])[0],
+                jax.jit(lambda: fn(np.asarray(x), scale=2))()):       # nested, a constant argument
+        np.testing.assert_array_equal(np.asarray(got), want)
+    fn.clear_cache()
+
+
 @pytest.mark.parametrize("config, rig", [(POINTS_CONFIG, False), (SGMConfig(distance_metric="l2", blend_hypotheses=True), True)],
                          ids=["default-points", "l2_blend-rig"])
 @pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)

@@ -29,6 +29,7 @@ Pixels without both neighbours in the window keep the paper's prediction.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -101,12 +102,15 @@ def _running_max_rows(forward: jax.Array, backward: jax.Array):
     h, w = forward.shape
     init = jnp.full((w,), -1, jnp.int32)
 
+    # Indices in range: no negative-index wrap (a compare and select kernel per access and step on XLA:CPU).
+    get = functools.partial(lax.dynamic_index_in_dim, axis=0, keepdims=False, allow_negative_indices=False)
+    put = functools.partial(lax.dynamic_update_index_in_dim, axis=0, allow_negative_indices=False)
+
     def step(i, state):
         c_fwd, c_bwd, fwd, bwd = state
-        c_fwd = jnp.maximum(c_fwd, fwd[i])
-        c_bwd = jnp.maximum(c_bwd, bwd[h - 1 - i])
-        return (c_fwd, c_bwd, lax.dynamic_update_index_in_dim(fwd, c_fwd, i, 0),
-                lax.dynamic_update_index_in_dim(bwd, c_bwd, h - 1 - i, 0))
+        c_fwd = jnp.maximum(c_fwd, get(fwd, i))
+        c_bwd = jnp.maximum(c_bwd, get(bwd, h - 1 - i))
+        return c_fwd, c_bwd, put(fwd, c_fwd, i), put(bwd, c_bwd, h - 1 - i)
 
     _, _, forward, backward = lax.fori_loop(0, h, step, (init, init, forward, backward))
     return forward, backward

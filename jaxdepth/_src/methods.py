@@ -19,6 +19,7 @@ from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.pipeline import complete_stages
 from jaxdepth._src.types import LidarSpec
+from jaxdepth._src.xla_tuning import entry_jit
 
 
 def _keep_mask(sparse_depth, K, T_cam_lidar, config: SGMConfig, lidar: LidarSpec):
@@ -43,7 +44,7 @@ def _ip_basic(sparse_depth, K, T_cam_lidar, *, config, lidar):
 METHODS = {"sgm": _sgm, "nearest": _nearest, "ip-basic": _ip_basic}
 
 
-@functools.partial(jax.jit, static_argnames=("method", "config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("method", "config", "lidar"))
 def complete_with(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
                   method: str = "sgm", config: SGMConfig = DEFAULT_CONFIG,
                   lidar: LidarSpec = presets.KITTI_HDL64) -> jax.Array:

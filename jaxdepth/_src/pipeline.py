@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, fence, pack_pair, stage, unpack_pair
+from jaxdepth._src.xla_tuning import after, fence, entry_jit, pack_pair, stage, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -153,7 +153,7 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
     return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
     K = jnp.asarray(K, jnp.float32)
@@ -200,7 +200,7 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
     return _complete_depth(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
     # Its own jit: only the depth leaves the computation, so XLA drops or fuses
     # away the intermediate stages instead of writing each of them out.
@@ -227,7 +227,7 @@ def complete_points_stages(points: jax.Array, valid: jax.Array, camera: Camera, 
     return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def _complete_points_stages(points, valid, camera: Camera, image=None, *, config: SGMConfig,
                             lidar: LidarSpec) -> Stages:
     points = jnp.asarray(points, jnp.float32)
@@ -326,7 +326,7 @@ def complete_points(points: jax.Array, valid: jax.Array, camera: Camera, *,
     return _complete_points_depth(points, valid, camera, image, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def _complete_points_depth(points, valid, camera: Camera, image=None, *, config: SGMConfig,
                            lidar: LidarSpec) -> jax.Array:
     return _complete_points_stages(points, valid, camera, image, config=config, lidar=lidar).depth
