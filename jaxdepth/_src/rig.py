@@ -58,7 +58,7 @@ from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outliers import keep_mask_for_config
-from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_apart
 from jaxdepth._src.types import LidarSpec, Stages
 
 
@@ -307,8 +307,8 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
 
     def per_camera(K, T, size, image, *, height, width):
         K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
-        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, apart=True,
-                                                                        height=height, width=width, image_size=size)
+        sparse_depth, points_cam, normals_cam, _ = project_apart(points, valid, normals_lidar, T, K, height=height,
+                                                                 width=width, image_size=size)
         return CameraView(sparse_depth, points_cam, normals_cam)
 
     return map_by_size(per_camera, cameras)

@@ -53,7 +53,7 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import project_with_normals
+from jaxdepth._src.pipeline import project_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import CameraView, RigCameras, call_stage, camera_tails, check_images, map_by_size
 from jaxdepth._src.types import LidarSpec, Stages
@@ -536,11 +536,13 @@ def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, 
     LiDAR's shadow)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
-    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
-                                                                        width=width, image_size=image_size, apart=True)
-    hit = index >= 0
-    pixel_source = jnp.where(hit, index // per_source, -1)     # the point's source, without a gather
-    pixel_shadow = None if shadow is None else hit & shadow[jnp.where(hit, index, 0)]
+    source = jnp.arange(points.shape[0], dtype=jnp.int32) // per_source     # each point's source
+    labels = ((source, -1),) if shadow is None else ((source, -1), (shadow, False))
+    sparse_depth, points_cam, normals_cam, label_images = project_apart(points, valid, normals, T, K, height=height,
+                                                                        width=width, image_size=image_size,
+                                                                        labels=labels)
+    pixel_source = label_images[0]
+    pixel_shadow = None if shadow is None else label_images[1]
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow)
 
 
