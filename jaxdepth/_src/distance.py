@@ -63,7 +63,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import shared_loop_bounds, take_last
+from jaxdepth._src.xla_tuning import shared_loop_bounds
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -462,4 +462,4 @@ def gather_at_seed(field: jax.Array, du: jax.Array, dv: jax.Array) -> jax.Array:
     u = jnp.arange(w, dtype=jnp.int32)[None, :]
     index = (v + dv.astype(jnp.int32)) * w + (u + du.astype(jnp.int32))
     flat = field.reshape(field.shape[:-2] + (h * w,))
-    return take_last(flat, index)    # under vmap (rig cameras): one flat 1-D gather
+    return flat.at[..., index].get(mode=_PIB)
