@@ -25,8 +25,8 @@ The pipeline is written as three stages, each a ``jit`` of its own (:func:`run_r
 camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail` (Steps 3-4, the canvas).
 Called one after another they are three programs with the one program's bytes; measured, they
 compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stage programs"),
-so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs, which write depth alone,
-run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
+so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs and :func:`complete_rig`,
+which return depth alone, run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
 pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
 (:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
 
