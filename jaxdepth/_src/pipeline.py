@@ -312,12 +312,14 @@ def project_apart(points, valid, normals, T, K, *, height: int, width: int, imag
     point by point"). Every output is a scatter's buffer: no consumer re-runs it.
     """
     p_cam = camera_points(T, points)
-    slot, z = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size)
+    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size)
     n_cam = camera_points(T, normals, translate=False)
     # Real (N,) buffers: fused into the scatters, the exact transform would run once per channel.
-    slot, z, *channels = fence(slot, z, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
+    slot, *channels = fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
     image = functools.partial(winners_image, slot, height=height, width=width)
-    return (image(z, 0.0), tuple(image(c, 0.0) for c in channels[:3]), tuple(image(c, 0.0) for c in channels[3:]),
+    points_cam = tuple(image(c, 0.0) for c in channels[:3])
+    # A winner's depth is its point's z (both read p_cam; winners lie in front): the z channel is the depth image.
+    return (points_cam[2], points_cam, tuple(image(c, 0.0) for c in channels[3:]),
             tuple(image(v, fill) for v, fill in labels))
 
 
