@@ -8,14 +8,17 @@ each program compiled apart, every output leaf compared byte for byte, then ``--
 both (the order alternating), process CPU and wall ns per real pixel, per-round ratios this / base.
 ``--this-depth-only``: this library's program returns ``depth`` alone, the other's its ``Stages`` (the Argoverse 2
 job's program before and after it ran a depth-only program, branch rigtail5); outputs compared on ``depth``.
+``--stages``: the three stage programs (projection, Step 2, Steps 3-4) compiled and timed apart, each library's
+on its own previous stages' outputs (with ``--depth-only`` the tail returns ``depth`` alone).
 
     python -m benchmarks.bench_rig_against_checkout --checkout /path/to/main [--cases av2 nuscenes]
-        [--rounds 5] [--depth-only | --this-depth-only] [--json benchmarks/results/rig_against_checkout.json]
+        [--rounds 5] [--depth-only | --this-depth-only] [--stages] [--json benchmarks/results/rig_against_checkout.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import os
 import pathlib
@@ -42,8 +45,10 @@ def _copy_as_base(checkout: pathlib.Path, folder: pathlib.Path) -> None:
     sys.path.insert(0, str(folder))
 
 
-def _program(package: str, case: str, depth_only: bool):
-    """``(compiled program, args, real pixels)`` of ``case`` with the library ``package``."""
+def _program(package: str, case: str, depth_only: bool, stages: bool = False):
+    """``(compiled program, args, real pixels)`` of ``case`` with the library ``package``; with ``stages``, a
+    dict of them, one per stage program (``projection``, ``keep``, ``tail``; the tail's ``depth`` alone with
+    ``depth_only``), each on the previous stages' outputs of the same library."""
     import jax
 
     from benchmarks.bench_rigs import AV2_LOG, NUSCENES
@@ -60,8 +65,8 @@ def _program(package: str, case: str, depth_only: bool):
         beams = S.default_beams(sources)
         args = (sources, cameras)
 
-        def run(src, cams):
-            return S.run_sources_stages(src, cams, config=config, free_space=True, beams=beams)
+        def run(src, cams, call=R.call_stage):
+            return S.run_sources_stages(src, cams, config=config, free_space=True, beams=beams, call=call)
     else:
         io = importlib.import_module(f"{package}.io")
         rig = io.rig_from_nuscenes_calibration(NUSCENES / "calibration.json")
@@ -69,17 +74,48 @@ def _program(package: str, case: str, depth_only: bool):
         cameras = lib.stack_cameras([c.as_camera() for c in rig.cameras])
         args = (points, valid, cameras)
 
-        def run(p, v, cams):
-            return R.run_rig_stages(p, v, cams, config=config, lidar=rig.lidar)
-    fn = (lambda *a: run(*a).depth) if depth_only else run
+        def run(p, v, cams, call=R.call_stage):
+            return R.run_rig_stages(p, v, cams, config=config, lidar=rig.lidar, call=call)
     pixels = float(sum(int(h) * int(w) for h, w in np.asarray(cameras.image_size)))
+    if stages:
+        return _stage_programs(run, args, depth_only, pixels)
+    fn = (lambda *a: run(*a).depth) if depth_only else run
     return jax.jit(fn).lower(*args).compile(), args, pixels
 
 
-def run_case(case: str, rounds: int, depth_only: bool, this_depth_only: bool = False) -> dict:
+def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
+    """``{stage: (compiled, args, pixels)}``: the pipeline's three stage programs, each compiled apart on the
+    inputs the previous ones gave (``run`` called once with a recording ``call``)."""
     import jax
+    recorded = []
+
+    def call(stage, *stage_args, **statics):
+        recorded.append((stage, stage_args, statics))
+        return stage(*stage_args, **statics)
+
+    run(*args, call=call)
+    out = {}
+    for name, (stage, stage_args, statics) in zip(("projection", "keep", "tail"), recorded):
+        fn = functools.partial(stage, **statics)
+        if name == "tail" and depth_only:
+            fn = (lambda f: lambda *a: f(*a).depth)(fn)
+        out[name] = (jax.jit(fn).lower(*stage_args).compile(), stage_args, pixels)
+    return out
+
+
+def run_case(case: str, rounds: int, depth_only: bool, this_depth_only: bool = False, stages: bool = False) -> dict:
+    if stages:
+        base, this = _program(BASE, case, depth_only, stages=True), _program("jaxdepth", case, depth_only, stages=True)
+        return {name: _timed(f"{case}/{name}", {"base": base[name], "this": this[name]}, rounds, depth_only)
+                for name in this}
     programs = {"base": _program(BASE, case, depth_only),
                 "this": _program("jaxdepth", case, depth_only or this_depth_only)}
+    return _timed(case, programs, rounds, depth_only, this_depth_only)
+
+
+def _timed(case: str, programs: dict, rounds: int, depth_only: bool, this_depth_only: bool = False) -> dict:
+    """Outputs compared byte for byte, then ``rounds`` interleaved rounds of ``programs`` (base, this)."""
+    import jax
     leaves = {k: jax.tree.leaves(jax.device_get(exe(*args))) for k, (exe, args, _) in programs.items()}
     if this_depth_only and not depth_only:
         leaves["base"] = [jax.device_get(programs["base"][0](*programs["base"][1])).depth]
@@ -112,6 +148,8 @@ def main(argv=None) -> int:
     parser.add_argument("--depth-only", action="store_true", help="programs returning depth alone (the nuScenes job's)")
     parser.add_argument("--this-depth-only", action="store_true",
                         help="this library's program returns depth alone, the other's its Stages (outputs: depth)")
+    parser.add_argument("--stages", action="store_true",
+                        help="time the three stage programs apart (each on its library's previous stages' outputs)")
     parser.add_argument("--json", default=str(RESULTS / "rig_against_checkout.json"))
     args = parser.parse_args(argv)
     from jaxdepth.batch.devices import keep_freed_memory
@@ -119,7 +157,8 @@ def main(argv=None) -> int:
     t0 = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         _copy_as_base(args.checkout.resolve(), pathlib.Path(tmp))
-        cases = {case: run_case(case, args.rounds, args.depth_only, args.this_depth_only) for case in args.cases}
+        cases = {case: run_case(case, args.rounds, args.depth_only, args.this_depth_only, args.stages)
+                 for case in args.cases}
     write_results(args.json, {"what": "rig programs, this library against another checkout's, one process, "
                                       "interleaved rounds, ns per real pixel", "checkout": str(args.checkout),
                               "load_average": os.getloadavg(), "cases": cases}, None, t0)

@@ -209,8 +209,9 @@ def test_project_with_normals_vmapped_equals_single_call(edge_rig):
 
 
 def test_project_with_normals_apart_equals_stacked(edge_rig):
-    """``apart=True`` (the rig views: three (H, W) channels each, gathered in one stage) == the stacked
-    (3, H, W) channels, bit for bit, one camera and vmapped."""
+    """``apart=True`` (the rig views: three (H, W) channels each, written point by point by ``project_apart``)
+    == the stacked (3, H, W) channels gathered at the z-buffer's index, and the same depth and index, bit for
+    bit, one camera and vmapped."""
     points, valid, Ks, Ts = edge_rig
     normals = points / np.linalg.norm(points, axis=1, keepdims=True)
     size = jnp.array([H, W], jnp.int32)
@@ -220,6 +221,8 @@ def test_project_with_normals_apart_equals_stacked(edge_rig):
 
     stacked = jax.jit(jax.vmap(lambda K, T: run(K, T, False)))(Ks, Ts)
     apart = jax.jit(jax.vmap(lambda K, T: run(K, T, True)))(Ks, Ts)
+    for k in (0, 1):
+        assert np.asarray(apart[k]).tobytes() == np.asarray(stacked[k]).tobytes()
     for k in (2, 3):
         assert isinstance(apart[k], tuple) and len(apart[k]) == 3
         assert np.asarray(jnp.stack(apart[k], axis=1)).tobytes() == np.asarray(stacked[k]).tobytes()

@@ -362,21 +362,27 @@ def test_stage_programs_equal_the_one_program(pipeline, mixed_rig):
 @pytest.mark.production_flags  # the depth-only program fuses the tail otherwise: at level 0 some depths move 1 ulp
 @pytest.mark.parametrize("pipeline", ["rig", "sources"])
 def test_depth_programs_equal_the_stages_programs_depth(pipeline, mixed_rig):
-    """The jobs' depth-only programs (``rig_depth_program`` / ``sources_depth_program``: no other field written,
-    none put onto the canvas) against the ``Stages`` programs' ``depth``, bit for bit, on the two-size rig (the
-    canvas) and the two-sweep sources with free space and occlusion."""
+    """The depth-only programs (``rig_depth_program`` / ``sources_depth_program``: no other field written, none
+    put onto the canvas), as ``complete_rig`` / ``complete_sources`` run them and with ``seen`` (``complete-rig``'s),
+    against the ``Stages`` programs' ``depth`` bit for bit and their ``sparse_depth``'s pixel counts, on the
+    two-size rig (the canvas) and the two-sweep sources with free space and occlusion."""
+    from jaxdepth import complete_rig
     from jaxdepth._src.config import DEFAULT_CONFIG
     from jaxdepth._src.rig import rig_depth_program
-    from jaxdepth._src.sources import default_beams, sources_depth_program
+    from jaxdepth._src.sources import complete_sources, default_beams, sources_depth_program
     points, valid, cams = mixed_rig
     cameras = stack_cameras(cams)
     if pipeline == "rig":
-        want = complete_rig_stages(points, valid, cameras, lidar=LIDAR).depth
-        got = rig_depth_program(points, valid, cameras, config=DEFAULT_CONFIG, lidar=LIDAR)
+        want = complete_rig_stages(points, valid, cameras, lidar=LIDAR)
+        got = complete_rig(points, valid, cameras, lidar=LIDAR)
+        got_seen = rig_depth_program(points, valid, cameras, config=DEFAULT_CONFIG, lidar=LIDAR, seen=True)
     else:
         sources = _two_sweeps(points, valid, second_valid=valid)
-        want = complete_sources_stages(sources, cameras).depth
-        got = sources_depth_program(sources, cameras, config=DEFAULT_CONFIG, free_space=True,
-                                    beams=default_beams(sources))
-    assert np.count_nonzero(np.asarray(want)) > 1000
-    assert np.asarray(got).tobytes() == np.asarray(want).tobytes()
+        want = complete_sources_stages(sources, cameras)
+        got = complete_sources(sources, cameras)
+        got_seen = sources_depth_program(sources, cameras, config=DEFAULT_CONFIG, free_space=True,
+                                         beams=default_beams(sources), seen=True)
+    assert np.count_nonzero(np.asarray(want.depth)) > 1000
+    assert np.asarray(got).tobytes() == np.asarray(want.depth).tobytes()
+    assert np.asarray(got_seen[0]).tobytes() == np.asarray(want.depth).tobytes()
+    np.testing.assert_array_equal(np.asarray(got_seen[1]), np.count_nonzero(np.asarray(want.sparse_depth), axis=(1, 2)))

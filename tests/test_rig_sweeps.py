@@ -146,7 +146,7 @@ def test_warmup_stores_the_program_that_complete_rig_then_loads(tmp_path):
     wall_sweep(sweep)
     warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--points", "2560"],
                                           ["complete-rig", sweep, rig, tmp_path / "out", "--no-estimate", "-q"],
-                                          program="jit_rig_program")
+                                          program="jit_rig_depth_program")   # complete-rig without seed extras: depth alone
     assert "compiled for 4096 padded points" in warm.stdout
     assert "field of view is left open" not in warm.stderr                 # the wall rig states it
     assert warmed and not added

@@ -38,6 +38,47 @@ def test_scatter_argmin_equals_brute_force_with_lowest_index_on_ties(dtype):
     np.testing.assert_array_equal(np.asarray(eager_idx), np.asarray(idx))
 
 
+def test_zbuffer_winners_write_the_brute_force_zbuffer_with_lowest_index_on_ties():
+    """``winners_image`` of ``zbuffer_winners`` (the rigs' projection, point by point) == a NumPy z-buffer
+    (nearest, then lowest index; points at equal depth on one pixel: ties), == ``zbuffer_image``'s depth and
+    index bit for bit, jit == eager, vmap == loop."""
+    rng = np.random.default_rng(3)
+    h, w, n = 7, 9, 400
+    K = jnp.asarray(np.array([[4.0, 0.0, 4.0], [0.0, 3.0, 3.0], [0.0, 0.0, 1.0]], np.float32))
+    z = rng.integers(1, 6, n).astype(np.float32)                      # few depths: many ties
+    u, v = rng.integers(-2, w + 2, n), rng.integers(-2, h + 2, n)      # some outside the image
+    points = np.stack([(u - 4.0) * z / 4.0, (v - 3.0) * z / 3.0, z], -1).astype(np.float32)
+    points[::37, 2] = -1.0                                             # behind the camera
+    valid = rng.random(n) < 0.9
+    size = jnp.array([h - 1, w], jnp.int32)                            # a window: the last row dropped
+
+    def run(pts, ok, K, size):
+        slot, zz = geometry.zbuffer_winners(pts, ok, K, height=h, width=w, valid_size=size)
+        image = lambda x, fill: geometry.winners_image(slot, x, fill, height=h, width=w)
+        return image(zz, 0.0), image(jnp.arange(n, dtype=jnp.int32), -1)
+
+    depth, index = (np.asarray(a) for a in jax.jit(run)(points, valid, K, size))
+    pu, pv, pz, front = (np.asarray(a) for a in geometry.project_pixels(jnp.asarray(points), K))
+    ui, vi = np.round(pu).astype(np.int64), np.round(pv).astype(np.int64)
+    inside = front & valid & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h - 1)
+    slot = np.where(inside, vi * w + ui, h * w)
+    _, want_idx = _brute_argmin(slot, np.where(inside, pz, np.inf).astype(np.float64), h * w)
+    want_index = np.where(want_idx == n, -1, want_idx).reshape(h, w)
+    np.testing.assert_array_equal(index, want_index)
+    np.testing.assert_array_equal(depth, np.where(want_index >= 0, pz[np.maximum(want_index, 0)], 0.0))
+    assert len(np.unique(slot[inside])) < np.count_nonzero(inside)     # the case has shared pixels
+    ref_depth, ref_index = geometry.zbuffer_image(jnp.asarray(points), valid, K, height=h, width=w, valid_size=size)
+    assert depth.tobytes() == np.asarray(ref_depth).tobytes() and index.tobytes() == np.asarray(ref_index).tobytes()
+    assert all(np.array_equal(e, g) for e, g in zip(run(points, valid, K, size), (depth, index)))
+    perm = rng.permutation(n)                                          # a second camera's view: another point order
+    batched = jax.jit(jax.vmap(run, in_axes=(0, 0, None, None)))(np.stack([points, points[perm]]),
+                                                                 np.stack([valid, valid[perm]]), K, size)
+    second = jax.jit(run)(points[perm], valid[perm], K, size)
+    for b, one, two in zip(batched, (depth, index), second):
+        np.testing.assert_array_equal(np.asarray(b[0]), one)
+        np.testing.assert_array_equal(np.asarray(b[1]), np.asarray(two))
+
+
 def test_backproject_equals_inverse_intrinsics():
     rng = np.random.default_rng(1)
     K = np.array([[500.0, 3.0, 160.5], [0.0, 480.0, 90.25], [0.0, 0.0, 1.0]], np.float32)

@@ -23,9 +23,8 @@ from jaxdepth.io.sweep_frame import FOV_GRID_DEG, source_spec
 
 from helpers import wall_sweep, warm_then_run, write_wall_rig
 
-#: The multi-source rig program (its persistent-cache entries start with this name).
-PROGRAM = "jit_sources_program"
-#: Its depth-only program, what the Argoverse 2 job runs (the job writes depth alone).
+#: The multi-source rig's depth-only program (its persistent-cache entries start with this name): what the
+#: Argoverse 2 job and ``complete-rig`` without seed extras run (they write depth alone).
 DEPTH_PROGRAM = "jit_sources_depth_program"
 SPEC = LidarSpec(beams=16, fov_up_deg=5.0, fov_down_deg=-10.0, columns=720)
 TWO_LIDARS = [{"name": "left", "T_points_lidar": np.eye(4).tolist(), "beams": 16, "fov_up_deg": 5.0,
@@ -119,7 +118,7 @@ def test_warmup_of_a_rig_of_two_lidars_serves_complete_rig(tmp_path):
     sweep = tmp_path / "000001.npy"
     _two_lidar_sweep(sweep)
     warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--points", "1280"],
-                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=PROGRAM)
+                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=DEPTH_PROGRAM)
     assert f"compiled for {POINT_BUCKET} padded points per LiDAR" in warm.stdout
     assert warmed and not added
     import cv2
@@ -172,6 +171,6 @@ def test_warmup_on_a_sample_sweep_serves_complete_rig_of_estimated_lidars(tmp_pa
     points = np.load(sweep)
     np.save(sweep, np.concatenate([points, (np.arange(len(points)) // 160)[:, None].astype(np.float32)], 1))
     warmed, added, warm = warm_then_run(tmp_path / "xla", [rig, "--sample", sweep],
-                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=PROGRAM)
+                                          ["complete-rig", sweep, rig, tmp_path / "out", "-q"], program=DEPTH_PROGRAM)
     assert f"compiled for the sweep {sweep}" in warm.stdout
     assert warmed and not added

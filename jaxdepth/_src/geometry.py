@@ -162,12 +162,34 @@ def zbuffer_image(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, heig
     return pixel_zbuffer(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size)
 
 
-def pixel_zbuffer(u: jax.Array, v: jax.Array, z: jax.Array, ok: jax.Array, *, height: int, width: int,
-                  valid_size: jax.Array | None = None):
-    """(H, W) depth and index images of (N,) points at pixel coordinates ``u``, ``v`` (rounded half to
-    even) with depth ``z``, where ``ok``; the nearest wins, then the smallest index (:func:`scatter_argmin`).
-    ``valid_size``: as :func:`project_to_image`. Returns ``(depth, index)`` as :func:`project_to_image`."""
-    n = u.shape[0]
+def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, height: int, width: int,
+                    min_depth_m: float = 0.1, valid_size: jax.Array | None = None):
+    """:func:`zbuffer_image` per point: the pixel each point wins, for writing values onto the image.
+
+    Args as :func:`zbuffer_image`. Returns ``(slot, z)``: (N,) int32 flat pixel ``v W + u`` of the
+    pixel the point won in :func:`zbuffer_image` (the same winners: nearest, then smallest index),
+    ``H W`` (past the image) for points that won none; (N,) float32 depth of each point
+    (:func:`project_pixels`). :func:`winners_image` of ``z`` (fill 0) is ``zbuffer_image``'s depth
+    and of ``arange(N)`` (fill -1) its index, bit for bit; of any per-point value it is that value
+    gathered at the index, without a pass that reads the (H, W) index (a rig camera's image has
+    ~20x more pixels than points).
+    """
+    u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
+    flat, _, idx = _pixel_argmin(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size)
+    n = flat.shape[0]
+    won = idx.at[flat].get(mode="fill", fill_value=-1) == jnp.arange(n, dtype=jnp.int32)
+    return jnp.where(won, flat, height * width), z
+
+
+def winners_image(slot: jax.Array, values: jax.Array, fill, *, height: int, width: int) -> jax.Array:
+    """(H, W) image of per-point ``values`` (N,) written at the pixels they won (``slot`` from
+    :func:`zbuffer_winners`; slots past the image dropped), ``fill`` (of ``values``' dtype) elsewhere."""
+    image = jnp.full((height * width,), fill, values.dtype)
+    return image.at[slot].set(values, mode="drop").reshape(height, width)
+
+
+def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None):
+    """:func:`pixel_zbuffer`'s flat (N,) slots (``H W`` = no pixel) and flat (H W,) :func:`scatter_argmin`."""
     ui = jnp.round(u)
     vi = jnp.round(v)
     inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
@@ -177,6 +199,16 @@ def pixel_zbuffer(u: jax.Array, v: jax.Array, z: jax.Array, ok: jax.Array, *, he
     dump = height * width
     flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
     zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
+    return flat, zbuf, idx
+
+
+def pixel_zbuffer(u: jax.Array, v: jax.Array, z: jax.Array, ok: jax.Array, *, height: int, width: int,
+                  valid_size: jax.Array | None = None):
+    """(H, W) depth and index images of (N,) points at pixel coordinates ``u``, ``v`` (rounded half to
+    even) with depth ``z``, where ``ok``; the nearest wins, then the smallest index (:func:`scatter_argmin`).
+    ``valid_size``: as :func:`project_to_image`. Returns ``(depth, index)`` as :func:`project_to_image`."""
+    n = u.shape[0]
+    _, zbuf, idx = _pixel_argmin(u, v, z, ok, height=height, width=width, valid_size=valid_size)
     depth = jnp.where(jnp.isfinite(zbuf), zbuf, 0.0).reshape(height, width)
     index = jnp.where(idx == n, -1, idx).reshape(height, width)
     return depth, index

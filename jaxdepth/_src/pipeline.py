@@ -32,14 +32,14 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed
 from jaxdepth._src.images import guidance_image
-from jaxdepth._src.geometry import camera_points, zbuffer_image
+from jaxdepth._src.geometry import camera_points, winners_image, zbuffer_image, zbuffer_winners
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, fence, entry_jit, pack_pair, stage, unpack_pair
+from jaxdepth._src.xla_tuning import after, fence, entry_jit, pack_pair, unpack_pair
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -268,8 +268,9 @@ def project_with_normals(points, valid, normals, T, K, *, height: int, width: in
       points: (N, 3) float32 points; valid: (N,) bool; normals: (N, 3) unit normals, same frame.
       T: (4, 4) float32 points' frame -> camera; K: (3, 3) float32.
       image_size: optional traced (2,) height, width of a window of the canvas (rigs).
-      apart: static; points_cam and normals_cam as three (H, W) channels each, not stacked
-        (rigs: under ``vmap`` the stack is a (3, C, H, W) buffer that the cameras' stages would transpose).
+      apart: static; points_cam and normals_cam as three (H, W) channels each, not stacked, written
+        by :func:`project_apart` (rigs: under ``vmap`` the stack is a (3, C, H, W) buffer that the
+        cameras' stages would transpose).
 
     Returns:
       sparse_depth (H, W) float32 (0 = empty); index (H, W) int32 of the point seen (-1 = none);
@@ -280,14 +281,46 @@ def project_with_normals(points, valid, normals, T, K, *, height: int, width: in
     ``points_cam`` read the same float32 values, the same bits in a rig's camera (``vmap``) as in
     its single-camera call.
     """
+    if apart:
+        n = points.shape[0]
+        sparse_depth, points_cam, normals_cam, (index,) = project_apart(
+            points, valid, normals, T, K, height=height, width=width, image_size=image_size,
+            labels=((jnp.arange(n, dtype=jnp.int32), -1),))
+        return sparse_depth, index, points_cam, normals_cam
     p_cam = camera_points(T, points)
     sparse_depth, index = zbuffer_image(p_cam, valid, K, height=height, width=width, valid_size=image_size)
     n_cam = camera_points(T, normals, translate=False)
-    if not apart:
-        return sparse_depth, index, gather_channels(p_cam, index), gather_channels(n_cam, index)
-    # A stage: unstacked, each channel's gather would otherwise be fused into (and re-run by) every consumer.
-    channels = stage(lambda p, n, i: channels_at(p, i) + channels_at(n, i), (p_cam, n_cam, index), index[0, 0])
-    return sparse_depth, index, channels[:3], channels[3:]
+    return sparse_depth, index, gather_channels(p_cam, index), gather_channels(n_cam, index)
+
+
+def project_apart(points, valid, normals, T, K, *, height: int, width: int, image_size=None, labels=()):
+    """:func:`project_with_normals` (``apart``) written point by point: the rigs' projection.
+
+    Args as :func:`project_with_normals`; ``labels``: pairs ``(values, fill)`` of further (N,) per-point
+    values (a point's source, ...) to put on the pixels.
+
+    Returns:
+      ``(sparse_depth, points_cam, normals_cam, label_images)``: sparse_depth (H, W) float32 (0 = empty);
+      points_cam and normals_cam three (H, W) float32 channels each (0 where empty); one (H, W) image
+      per label, ``fill`` where empty.
+
+    Each pixel's values are those of the point that won it
+    (:func:`~jaxdepth._src.geometry.zbuffer_winners`), written by a scatter of the N points onto a
+    filled image (:func:`~jaxdepth._src.geometry.winners_image`), the same bits as
+    ``project_with_normals``' per-pixel gathers at the index, without reading an (H, W) index once per
+    channel (a rig camera has ~20x more pixels than points; docs/speed.md, "The rig's projection
+    point by point"). Every output is a scatter's buffer: no consumer re-runs it.
+    """
+    p_cam = camera_points(T, points)
+    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size)
+    n_cam = camera_points(T, normals, translate=False)
+    # Real (N,) buffers: fused into the scatters, the exact transform would run once per channel.
+    slot, *channels = fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
+    image = functools.partial(winners_image, slot, height=height, width=width)
+    points_cam = tuple(image(c, 0.0) for c in channels[:3])
+    # A winner's depth is its point's z (both read p_cam; winners lie in front): the z channel is the depth image.
+    return (points_cam[2], points_cam, tuple(image(c, 0.0) for c in channels[3:]),
+            tuple(image(v, fill) for v, fill in labels))
 
 
 def channels_at(values: jax.Array, index: jax.Array) -> tuple:

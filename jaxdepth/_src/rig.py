@@ -25,8 +25,8 @@ The pipeline is written as three stages, each a ``jit`` of its own (:func:`run_r
 camera), :func:`rig_stage_keep` (Step 2) and :func:`rig_stage_tail` (Steps 3-4, the canvas).
 Called one after another they are three programs with the one program's bytes; measured, they
 compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stage programs"),
-so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs, which write depth alone,
-run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
+so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs and :func:`complete_rig`,
+which return depth alone, run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
 pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
 (:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
 
@@ -58,7 +58,7 @@ from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outliers import keep_mask_for_config
-from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_with_normals
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_apart
 from jaxdepth._src.types import LidarSpec, Stages
 
 
@@ -307,8 +307,8 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
 
     def per_camera(K, T, size, image, *, height, width):
         K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
-        sparse_depth, _, points_cam, normals_cam = project_with_normals(points, valid, normals_lidar, T, K, apart=True,
-                                                                        height=height, width=width, image_size=size)
+        sparse_depth, points_cam, normals_cam, _ = project_apart(points, valid, normals_lidar, T, K, height=height,
+                                                                 width=width, image_size=size)
         return CameraView(sparse_depth, points_cam, normals_cam)
 
     return map_by_size(per_camera, cameras)
@@ -376,13 +376,25 @@ def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMC
     return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(jax.jit, static_argnames=("config", "lidar", "seen"))
 def rig_depth_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig,
-                      lidar: LidarSpec) -> jax.Array:
-    """:func:`rig_program`'s (C, H, W) ``depth`` alone (the jobs' program): the other fields are never written
-    out, nor put onto the canvas (on the Argoverse 2 sweep 0.8-0.9x the stages program's CPU, the same depth
-    bytes: docs/speed.md, "The jobs' depth programs")."""
-    return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar).depth
+                      lidar: LidarSpec, seen: bool = False):
+    """:func:`rig_program`'s (C, H, W) ``depth`` alone (the jobs' program, :func:`complete_rig`'s): the other
+    fields are never written out, nor put onto the canvas (on the Argoverse 2 sweep 0.8-0.9x the stages
+    program's CPU, the same depth bytes: docs/speed.md, "The jobs' depth programs"). ``seen`` (static):
+    ``(depth, seen)``, with (C,) int32 :func:`seen_pixels`."""
+    return depth_output(run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar), seen)
+
+
+def seen_pixels(stages: Stages) -> jax.Array:
+    """(C,) int32: each camera's pixels with a projected point (nonzero ``sparse_depth``; 0: no point
+    projects into the camera, ``complete-rig`` warns)."""
+    return jnp.sum(stages.sparse_depth != 0, axis=(1, 2), dtype=jnp.int32)
+
+
+def depth_output(stages: Stages, seen: bool):
+    """A depth program's output: ``stages.depth``, with :func:`seen_pixels` when ``seen``."""
+    return (stages.depth, seen_pixels(stages)) if seen else stages.depth
 
 
 def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
@@ -419,5 +431,9 @@ def complete_rig_stages(points: jax.Array, valid: jax.Array, cameras: RigCameras
 def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
                  config: SGMConfig = DEFAULT_CONFIG, lidar: LidarSpec = presets.KITTI_HDL64,
                  images: jax.Array | None = None) -> jax.Array:
-    """(C, H, W) float32 dense depth for every camera of the rig; see :func:`complete_rig_stages`."""
-    return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth
+    """(C, H, W) float32 dense depth for every camera of the rig; see :func:`complete_rig_stages`.
+
+    Runs :func:`rig_depth_program` (the other fields never written; the same depth bytes as
+    ``complete_rig_stages(...).depth`` at XLA's default optimisation level, the suite's level 0 may
+    round the two programs' blur 1 ulp apart: docs/speed.md, "The jobs' depth programs")."""
+    return rig_depth_program(points, valid, cameras, images, config=config, lidar=lidar)

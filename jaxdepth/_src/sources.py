@@ -53,9 +53,10 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import project_with_normals
+from jaxdepth._src.pipeline import project_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
-from jaxdepth._src.rig import CameraView, RigCameras, call_stage, camera_tails, check_images, map_by_size
+from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
+                              map_by_size)
 from jaxdepth._src.types import LidarSpec, Stages
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
@@ -536,12 +537,11 @@ def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, 
     LiDAR's shadow)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
-    sparse_depth, index, points_cam, normals_cam = project_with_normals(points, valid, normals, T, K, height=height,
-                                                                        width=width, image_size=image_size, apart=True)
-    hit = index >= 0
-    pixel_source = jnp.where(hit, index // per_source, -1)     # the point's source, without a gather
-    pixel_shadow = None if shadow is None else hit & shadow[jnp.where(hit, index, 0)]
-    return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow)
+    labels = ((jnp.arange(points.shape[0], dtype=jnp.int32) // per_source, -1),)      # each point's source
+    labels += () if shadow is None else ((shadow, False),)
+    sparse_depth, points_cam, normals_cam, (pixel_source, *pixel_shadow) = project_apart(
+        points, valid, normals, T, K, height=height, width=width, image_size=image_size, labels=labels)
+    return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow[0] if pixel_shadow else None)
 
 
 def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config, image_size=None, reference=None,
@@ -591,8 +591,7 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
         valid = valid & ~free
         shadow = shadow.reshape(-1)
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
-    flat_points, flat_valid = points.reshape(-1, 3), valid.reshape(-1)
-    flat_normals = normals.reshape(-1, 3)
+    flat_points, flat_valid, flat_normals = points.reshape(-1, 3), valid.reshape(-1), normals.reshape(-1, 3)
 
     def per_camera(K, T, size, image, *, height, width):
         cam_valid = flat_valid
@@ -654,12 +653,13 @@ def sources_program(sources: Sources, cameras: RigCameras, images=None, *, confi
                               occlusion=occlusion)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
+@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion", "seen"))
 def sources_depth_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig,
-                          free_space: bool, beams: int, occlusion: bool = True) -> jax.Array:
-    """:func:`sources_program`'s ``depth`` alone (see :func:`~jaxdepth._src.rig.rig_depth_program`)."""
-    return run_sources_stages(sources, cameras, images, config=config, free_space=free_space, beams=beams,
-                              occlusion=occlusion).depth
+                          free_space: bool, beams: int, occlusion: bool = True, seen: bool = False):
+    """:func:`sources_program`'s ``depth`` alone, or ``(depth, seen)`` (see
+    :func:`~jaxdepth._src.rig.rig_depth_program`)."""
+    return depth_output(run_sources_stages(sources, cameras, images, config=config, free_space=free_space,
+                                           beams=beams, occlusion=occlusion), seen)
 
 
 def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
@@ -693,6 +693,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
                      free_space: bool = True, beams: int | None = None,
                      images: jax.Array | None = None, occlusion: bool = True) -> jax.Array:
-    """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`."""
-    return complete_sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                                   images=images, occlusion=occlusion).depth
+    """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`
+    (:func:`sources_depth_program`, as :func:`~jaxdepth.complete_rig` runs the rig's depth program)."""
+    beams = default_beams(sources) if beams is None else int(beams)
+    return sources_depth_program(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
+                                 occlusion=bool(occlusion))

@@ -231,29 +231,34 @@ def cached_stage(stage: Callable, *args, **statics):
     return _stages_program(stage, tuple(sorted(statics.items())))(*args)
 
 
-def rig_stages(points, valid, cameras, *, config, lidar, images=None, depth_only: bool = False):
+def rig_stages(points, valid, cameras, *, config, lidar, images=None, depth_only: bool = False, seen: bool = False):
     """:func:`jaxdepth.complete_rig_stages` (same arguments, same bytes): its program
     (:func:`jaxdepth._src.rig.rig_program`) through the program cache (when the cache is off, the plain
     ``jit`` call). ``depth_only``: the (C, H, W) depth alone, from :func:`jaxdepth._src.rig.rig_depth_program`
-    (the same depth bytes; the other fields never written)."""
+    (the same depth bytes; the other fields never written); with ``seen``, ``(depth, seen)`` (its ``seen``)."""
     from jaxdepth._src.rig import rig_depth_program, rig_program
     program = rig_depth_program if depth_only else rig_program
     call = program if program_folder() is None else functools.partial(cached_stage, program)
-    return call(points, valid, cameras, images, config=config, lidar=lidar)
+    return call(points, valid, cameras, images, config=config, lidar=lidar, **_seen(depth_only, seen))
+
+
+def _seen(depth_only: bool, seen: bool) -> dict:
+    """The depth programs' ``seen`` option, passed only when set (the other programs' cache keys unchanged)."""
+    return dict(seen=True) if depth_only and seen else {}
 
 
 def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: int | None = None, images=None,
-                   occlusion: bool = True, depth_only: bool = False):
+                   occlusion: bool = True, depth_only: bool = False, seen: bool = False):
     """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes): its program
     (:func:`jaxdepth._src.sources.sources_program`) through the program cache (when the cache is off, the
     plain ``jit`` call). ``depth_only``: the depth alone, from
-    :func:`jaxdepth._src.sources.sources_depth_program` (as :func:`rig_stages`)."""
+    :func:`jaxdepth._src.sources.sources_depth_program` (and ``seen``: as :func:`rig_stages`)."""
     from jaxdepth._src.sources import default_beams, sources_depth_program, sources_program
     program = sources_depth_program if depth_only else sources_program
     call = program if program_folder() is None else functools.partial(cached_stage, program)
     beams = default_beams(sources) if beams is None else int(beams)
     return call(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                occlusion=bool(occlusion))
+                occlusion=bool(occlusion), **_seen(depth_only, seen))
 
 
 def _read_entry(path: pathlib.Path, key: str, signature: tuple):

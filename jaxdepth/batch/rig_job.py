@@ -3,7 +3,8 @@
 Reads the sweep and the rig (and, when guided, the camera images), checks the sweep
 against its LiDAR (:func:`jaxdepth.io.prepare_sweep`) and applies its trust policy
 (outlier removal off when the sweep's beam angles cannot be trusted), completes
-every camera in one call (:func:`jaxdepth.complete_rig_stages`; or a baseline, ``method``
+every camera in one call (the depth program of :func:`jaxdepth.complete_rig`, or
+:func:`jaxdepth.complete_rig_stages` when an extra output needs the seeds; or a baseline, ``method``
 ``"nearest"`` / ``"ip-basic"``, of the same points: :func:`rig_results`) and writes
 ``<out_dir>/<camera name>.png`` per camera (plus the extra outputs asked for),
 atomically, skipping finished outputs unless ``overwrite``.
@@ -146,6 +147,23 @@ def rig_stages(prepared: PreparedSweep, *, images=None):
     return stages, cameras
 
 
+def rig_depth(prepared: PreparedSweep, *, images=None):
+    """``(depth, seen)`` NumPy of a :class:`PreparedSweep` from the depth program alone (no seed extras): (C, H, W)
+    depth, ``(C,)`` pixels with a point (:func:`jaxdepth._src.rig.seen_pixels`); the same bytes as the
+    :class:`~jaxdepth.Stages` program's ``depth`` and ``sparse_depth`` count (docs/speed.md, "The jobs' depth
+    programs")."""
+    import jaxdepth
+    rig, config = prepared.rig, prepared.config
+    if prepared.multi:
+        from jaxdepth.batch.sources_job import complete_cloud
+        return complete_cloud(prepared.points, rig, config=config, images=images, seen=True)
+    from jaxdepth.batch.program_cache import rig_stages as complete_rig_stages   # warm: no trace
+    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
+    out = complete_rig_stages(*prepared.points, cameras, config=config, lidar=rig.lidar, images=images,
+                              depth_only=True, seen=True)
+    return tuple(np.asarray(a) for a in out)
+
+
 def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.ExtraOutputs):
     """``(depth, valid, distance)``: (C, H, W) NumPy arrays on the rig's canvas; ``valid`` and
     ``distance`` None unless ``extras`` needs the seeds."""
@@ -162,9 +180,13 @@ def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.
 def rig_results(prepared: PreparedSweep, extras: extra_outputs.ExtraOutputs, *, method: str = "sgm", images=None):
     """``(depth, valid, distance, seen)`` of a :class:`PreparedSweep` by ``method``: the three (C, H, W) NumPy
     arrays of :func:`rig_outputs` and ``seen`` (C,), the sparse pixels of each camera (0: no point projects
-    into it). ``"sgm"``: :func:`rig_stages`; ``"nearest"`` / ``"ip-basic"``: the baselines of the same points
+    into it). ``"sgm"``: :func:`rig_depth` (the depth program) unless ``extras`` needs the seeds, then
+    :func:`rig_stages`; ``"nearest"`` / ``"ip-basic"``: the baselines of the same points
     (every LiDAR and sweep merged, :func:`jaxdepth.batch.cloud_runner.baseline_depth`), ``seen`` counted on
     the filled depth (a fill has depth where some point projects), ``valid`` and ``distance`` None."""
+    if method == "sgm" and not extras.needs_seeds:
+        depth, seen = rig_depth(prepared, images=images)
+        return depth, None, None, seen
     if method == "sgm":
         stages, cameras = rig_stages(prepared, images=images)
         seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))

@@ -2,7 +2,7 @@
 
 :func:`run_rig_sweeps` completes every sweep that :func:`jaxdepth.io.sweep_list.list_sweeps` names into
 ``<out_dir>/<sweep stem>/<camera>.png``, each sweep exactly as one ``complete-rig`` call on it would
-(:func:`jaxdepth.batch.rig_job.prepare_rig_sweep`, :func:`~jaxdepth.batch.rig_job.rig_stages`: the same
+(:func:`jaxdepth.batch.rig_job.prepare_rig_sweep`, :func:`~jaxdepth.batch.rig_job.rig_results`: the same
 bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
 reader threads read and check the next sweeps while the current one computes, writer threads encode
 and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
@@ -280,9 +280,7 @@ def warm_rig(rig_path, *, config: SGMConfig, extras: extra_outputs.ExtraOutputs 
     done = []
     for label, prepared in inputs:
         start = time.perf_counter()
-        stages, cameras = rig_job.rig_stages(prepared)
-        rig_job.rig_outputs(prepared, stages, cameras, extras)        # NumPy: waits for the result
-        np.asarray(stages.sparse_depth)
+        rig_job.rig_results(prepared, extras)        # the run's program; NumPy: waits for the result
         done.append((label, time.perf_counter() - start))
     return done
 

@@ -208,7 +208,7 @@ def _single_origin(cloud) -> bool:
 
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
                    beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
-                   window: tuple | None = None):
+                   window: tuple | None = None, seen: bool = False):
     """Dense depth for every camera of ``rig`` from every point of ``cloud``.
 
     Args:
@@ -232,6 +232,8 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         every frame of the job runs one compiled program, same outputs; used with ``free_space`` on and
         ``free_space_neighbour_sweeps = 0`` (the default) when every source's spec is stated and the
         sources fit, else ignored.
+      seen: without ``stages``, return ``(depth, seen)``: ``seen`` (C,) the pixels of each camera a point
+        projects into (:func:`~jaxdepth._src.rig.seen_pixels`), from the same depth program.
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
@@ -252,19 +254,22 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         fitted = fit_to_window(sources, index, window)
     if fitted is not None:
         out = sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion, depth_only=not stages)
+                             images=images, occlusion=occlusion, depth_only=not stages, seen=seen)
     elif _single_origin(cloud):
         from jaxdepth.io import pad_points
         padded, valid = pad_points(cloud.points)
         spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images, depth_only=not stages)
+        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images, depth_only=not stages,
+                         seen=seen)
     else:
         if sources is None:         # not built for the window above
             sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
                                        min_cells=config.free_space_min_cells)
         out = sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion, depth_only=not stages)
-    return out if stages else np.asarray(out)
+                             images=images, occlusion=occlusion, depth_only=not stages, seen=seen)
+    if stages:
+        return out
+    return tuple(np.asarray(a) for a in out) if seen else np.asarray(out)
 
 
 def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: bool = True):
