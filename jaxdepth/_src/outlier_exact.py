@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from jaxdepth._src.compaction import WORD_BITS, nth_set_bit
 from jaxdepth._src.fastmath import pseudo_angle
 from jaxdepth._src.geometry import backproject
+from jaxdepth._src.xla_tuning import fence
 
 #: Candidate slots tested per loop step.
 CHUNK = 512
@@ -149,12 +150,17 @@ def _view(ex: ExactTest, flat, row, col):
     """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
     z (inf where empty)."""
     d = ex.depth.reshape(-1).at[flat].get(mode=_PIB)
-    # One gather of the three channels: slicing them apart first would copy each (3 passes over the image);
-    # channels given apart (rigs' views) are gathered one by one.
+    # One element gather per channel. A stacked (3, H, W) array is read through its flat view at
+    # ``flat + c H W``: slicing the channels apart first would copy each (3 passes over the image), and one
+    # gather of (3, 1) slices is not vectorised by XLA:CPU (~7x the rank step's time on an Argoverse 2
+    # crop; docs/speed.md, "Step 2, kernel by kernel"). Channels given apart (rigs' views): one by one.
     if isinstance(ex.points, tuple):
         p = tuple(channel.reshape(-1).at[flat].get(mode=_PIB) for channel in ex.points)
+    elif ex.points is not None:
+        size = ex.depth.size
+        p = tuple(ex.points.reshape(-1).at[flat + c * size].get(mode=_PIB) for c in range(3))
     else:
-        p = None if ex.points is None else ex.points.reshape(3, -1).at[:, flat].get(mode=_PIB)
+        p = None
     view_fn = lidar_view if ex.test == "footprint" else lidar_angles
     return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
         jnp.where(d > 0, d, jnp.float32(jnp.inf))
@@ -245,6 +251,8 @@ def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p,
         present = m < total
         row_q = base + nth_set_bit(word, jnp.where(present, rank, 0))
         flat_q = jnp.where(present, row_q * width + col_q, 0)
+        if ex.points is not None:   # several gathers at flat_q: each would re-run the bit search (XLA fuses it)
+            row_q, flat_q = fence(row_q, flat_q, token=m)
         view_q, z_q = _view(ex, flat_q, row_q, col_q)
         dv = row_q - row[None, :]
         flip = condition_1(ex.test, view_p, view_q, du, dv, ex.cell_u, ex.cell_v)

@@ -83,7 +83,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.compaction import pack_bits, word_locator
+from jaxdepth._src.compaction import WORD_BITS, pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
@@ -159,21 +159,27 @@ def _z_key(z, part):
 
 def _prefilter_key(depth, *, hh, hw):
     """The uint16 depth key (see :data:`_ZQ`) of each pixel of the (H, W) float32 ``depth``, ``_ZNONE``
-    where it has none, padded by ``_ZNONE``: (H + 2 hh, W + 2 hw) (one fenced stage)."""
+    where it has none, padded by ``_ZNONE``: (H + 2 hh, Wp + 2 hw) with ``Wp = 32 ceil(W / 32)`` (one
+    fenced stage). The columns past W (no depth: never candidates) make the words pass's mask a whole
+    number of words wide, so it packs with no pad of its own (a pad fused with the window minima ran
+    ~8x slower than the minima alone on the 1550-wide portrait camera; docs/speed.md, "Step 2, kernel
+    by kernel")."""
     key = _z_key(depth, (depth > 0) & jnp.isfinite(depth))
-    return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
+    extra = -depth.shape[1] % WORD_BITS
+    return jnp.pad(key, ((hh, hh), (hw, hw + extra)), constant_values=np.uint16(_ZNONE))
 
 
 def _prefilter_rows(padded, *, hh):
     """Column (vertical) minima of the padded depth key over the window's 2 hh + 1 rows (doubling,
-    :func:`_sliding_mins`): (H, W + 2 hw)."""
+    :func:`_sliding_mins`): (H, Wp + 2 hw)."""
     return _sliding_mins(padded, (hh,), axis=0)[0]
 
 
 def _prefilter_words(k, low, key, eps, *, hw, width):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
-    ``low``: the row minima of :func:`_prefilter_rows`; their minima over columns ``|du| <= k``
+    ``width``: Wp, a multiple of 32 (:func:`_prefilter_key`). ``low``: the row minima of
+    :func:`_prefilter_rows`; their minima over columns ``|du| <= k``
     (:func:`_window_min`, ``k`` int32 data: one program for every k) give each pixel's window minimum.
     Both forms of condition 1 need condition 2: a pixel more than ``eps`` nearer in the window,
     ``z_i > min_window(z) + eps``, tested on uint16 keys ``floor(z * 256)``: ``key_i >= min key +
@@ -255,7 +261,7 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
     """
-    height, width = depth.shape
+    height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
