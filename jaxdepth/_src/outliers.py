@@ -220,8 +220,13 @@ class _Bounds(NamedTuple):
     h_max: jax.Array | None = None   # int32 largest |dv| in S(i) of a window of a canvas (None: the static one)
 
 
-def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None) -> _Bounds:
+def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None,
+            columns=None) -> _Bounds:
     """N and the window bounds W L / N, H / L of an (H, W) bool mask of pixels with depth.
+
+    ``columns``: optional, ``valid`` packed down the columns (:func:`~jaxdepth._src.outlier_exact.pack_columns`):
+    N is then the sum of their population counts (32x fewer elements than the mask; under ``vmap`` the mask's
+    float sum was a materialised (H, W) float32 copy and a reduction, ~11 % of the rig's Step 2, docs/speed.md).
 
     ``image_size``: optional traced (2,) int32 (h, w) of the image, a window in the top-left
     corner of the (H, W) canvas (rigs of mixed sizes): the bounds are then the image's own,
@@ -231,9 +236,10 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     empty pixels.
     """
     height, width = valid.shape
+    counted = valid if columns is None else jax.lax.population_count(columns)
     # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
-    n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
-        jnp.sum(valid, dtype=jnp.int32)
+    n_points = jnp.sum(counted.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
+        jnp.sum(counted, dtype=jnp.int32)
     h_max = None
     if image_size is None:
         wl, cell_v = width * beams, jnp.float32(height / beams)
@@ -286,7 +292,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
     ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
-    (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
+    (H, W) int32, clipped to [0, S) where read: ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
     ``origins[pixel_source[i]]``, read where used by the exact test (no (3, H, W) map is stored). Returns the
     keep mask.
     """
@@ -299,8 +305,10 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
     t = T_cam_lidar.astype(jnp.float32)[:3, 3] if origins is None else origins.astype(jnp.float32)
+    columns = pack_columns(valid)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
-                     half_height=half_height, image_size=image_size)
+                     half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
+                     else columns)
     words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
     if candidates is not None:
         words = words & pack_bits(candidates)
@@ -308,7 +316,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         nearer = nearer & valid
         words = words | pack_bits(nearer)
     count, locate = _compact(words)
-    ex = ExactTest(depth, points, pack_columns(valid), K, t,
+    ex = ExactTest(depth, points, columns, K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
                    hw=half_width, test=test, nearer=nearer, source=pixel_source)
     return exact_test(valid, ex)
