@@ -123,6 +123,11 @@ def pack_columns(valid: jax.Array) -> jax.Array:
     height, width = valid.shape
     n_words = -(-height // WORD_BITS)
     packed = jnp.zeros((n_words, width), jnp.uint32)
+    if height % WORD_BITS == 0:     # whole words: rows b of each 32 as a reshape (no slice is short)
+        bits = valid.reshape(n_words, WORD_BITS, width)
+        for i in range(WORD_BITS):
+            packed = packed | (bits[:, i, :].astype(jnp.uint32) << i)
+        return packed
     for i in range(min(WORD_BITS, height)):
         bits = jax.lax.slice_in_dim(valid, i, height, WORD_BITS, axis=0).astype(jnp.uint32) << i
         packed = packed | jnp.pad(bits, ((0, n_words - bits.shape[0]), (0, 0)))
