@@ -216,7 +216,6 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     height, width = ex.depth.shape
     slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
     row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
-    row, col = fence(row, col, token=c)     # the binary search once: XLA fused it into each consumer
     flat_p = row * width + col
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
         src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
