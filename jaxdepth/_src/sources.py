@@ -414,11 +414,10 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
                                max_half_height_px=config.outlier_max_half_height_px)
     eps = jnp.asarray(config.epsilon_m, jnp.float32)
     n_src = T_cam_sources.shape[0]
-    safe = jnp.clip(pixel_source, 0, n_src - 1)     # computed only where a dense gather by source needs it
+    safe = jnp.clip(pixel_source, 0, n_src - 1)
     origins = T_cam_sources[:, :3, 3]       # (S, 3): pixel i's origin is origins[safe[i]], read where used
     nearer = None if pixel_shadow is None else valid & pixel_shadow
-    # The mask is within ``valid`` already; the exact test clips the source where it reads one
-    # (``outlier_exact.origins_of``): no dense clip, no dense ``&`` (two passes over the canvas).
+    # Within ``valid`` already; the source is clipped where read (``origins_of``): no dense clip, no dense ``&``.
     keep = _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
                       half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
                       image_size=image_size, pixel_source=pixel_source)
