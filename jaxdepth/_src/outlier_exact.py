@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from jaxdepth._src.compaction import WORD_BITS, nth_set_bit
 from jaxdepth._src.fastmath import pseudo_angle
 from jaxdepth._src.geometry import backproject
+from jaxdepth._src.xla_tuning import fence, shared_loop_bounds
 
 #: Candidate slots tested per loop step.
 CHUNK = 512
@@ -113,13 +114,23 @@ def condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
 
 
 def pack_columns(valid: jax.Array) -> jax.Array:
-    """(H, W) bool -> (ceil(H / 32), W) uint32: bit b of word m in column c is ``valid[32 m + b, c]``."""
+    """(H, W) bool -> (ceil(H / 32), W) uint32: bit b of word m in column c is ``valid[32 m + b, c]``.
+
+    Bit b of every word is the strided row slice ``valid[b::32]``; a slice one word short (H not a multiple
+    of 32) is padded by one row of zeros as uint32 (a pad of the whole (H, W) mask to 32 rows a word ran as
+    a kernel of its own, ~3 % of the rig's Step 2 on its 1550-row cameras).
+    """
     height, width = valid.shape
     n_words = -(-height // WORD_BITS)
-    bits = jnp.pad(valid, ((0, n_words * WORD_BITS - height), (0, 0))).reshape(n_words, WORD_BITS, width)
     packed = jnp.zeros((n_words, width), jnp.uint32)
-    for i in range(WORD_BITS):
-        packed = packed | (bits[:, i, :].astype(jnp.uint32) << i)
+    if height % WORD_BITS == 0:     # whole words: rows b of each 32 as a reshape (no slice is short)
+        bits = valid.reshape(n_words, WORD_BITS, width)
+        for i in range(WORD_BITS):
+            packed = packed | (bits[:, i, :].astype(jnp.uint32) << i)
+        return packed
+    for i in range(min(WORD_BITS, height)):
+        bits = jax.lax.slice_in_dim(valid, i, height, WORD_BITS, axis=0).astype(jnp.uint32) << i
+        packed = packed | jnp.pad(bits, ((0, n_words - bits.shape[0]), (0, 0)))
     return packed
 
 
@@ -149,12 +160,17 @@ def _view(ex: ExactTest, flat, row, col):
     """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
     z (inf where empty)."""
     d = ex.depth.reshape(-1).at[flat].get(mode=_PIB)
-    # One gather of the three channels: slicing them apart first would copy each (3 passes over the image);
-    # channels given apart (rigs' views) are gathered one by one.
+    # One element gather per channel. A stacked (3, H, W) array is read through its flat view at
+    # ``flat + c H W``: slicing the channels apart first would copy each (3 passes over the image), and one
+    # gather of (3, 1) slices is not vectorised by XLA:CPU (~7x the rank step's time on an Argoverse 2
+    # crop; docs/speed.md, "Step 2, kernel by kernel"). Channels given apart (rigs' views): one by one.
     if isinstance(ex.points, tuple):
         p = tuple(channel.reshape(-1).at[flat].get(mode=_PIB) for channel in ex.points)
+    elif ex.points is not None:
+        size = ex.depth.size
+        p = tuple(ex.points.reshape(-1).at[flat + c * size].get(mode=_PIB) for c in range(3))
     else:
-        p = None if ex.points is None else ex.points.reshape(3, -1).at[:, flat].get(mode=_PIB)
+        p = None
     view_fn = lidar_view if ex.test == "footprint" else lidar_angles
     return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
         jnp.where(d > 0, d, jnp.float32(jnp.inf))
@@ -245,6 +261,8 @@ def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p,
         present = m < total
         row_q = base + nth_set_bit(word, jnp.where(present, rank, 0))
         flat_q = jnp.where(present, row_q * width + col_q, 0)
+        if ex.points is not None:   # several gathers at flat_q: each would re-run the bit search (XLA fuses it)
+            row_q, flat_q = fence(row_q, flat_q, token=m)
         view_q, z_q = _view(ex, flat_q, row_q, col_q)
         dv = row_q - row[None, :]
         flip = condition_1(ex.test, view_p, view_q, du, dv, ex.cell_u, ex.cell_v)
@@ -265,6 +283,8 @@ def exact_test(valid: jax.Array, ex: ExactTest) -> jax.Array:
     Returns the (H, W) bool keep mask: ``valid`` with the removed candidates cleared.
     """
     height, width = valid.shape
-    n_chunks = (ex.count + CHUNK - 1) // CHUNK
-    keep = jax.lax.fori_loop(0, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
+    # Under vmap, the batch's largest chunk count for every member (a member's extra chunks test no slot):
+    # a batched trip count would select the whole (B, H W) mask between old and new after every chunk.
+    first, n_chunks = shared_loop_bounds(jnp.int32(0), (ex.count + CHUNK - 1) // CHUNK)
+    keep = jax.lax.fori_loop(first, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
     return keep.reshape(height, width)

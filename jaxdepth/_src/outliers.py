@@ -83,7 +83,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.compaction import pack_bits, word_locator
+from jaxdepth._src.compaction import WORD_BITS, pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
@@ -159,21 +159,27 @@ def _z_key(z, part):
 
 def _prefilter_key(depth, *, hh, hw):
     """The uint16 depth key (see :data:`_ZQ`) of each pixel of the (H, W) float32 ``depth``, ``_ZNONE``
-    where it has none, padded by ``_ZNONE``: (H + 2 hh, W + 2 hw) (one fenced stage)."""
+    where it has none, padded by ``_ZNONE``: (H + 2 hh, Wp + 2 hw) with ``Wp = 32 ceil(W / 32)`` (one
+    fenced stage). The columns past W (no depth: never candidates) make the words pass's mask a whole
+    number of words wide, so it packs with no pad of its own (a pad fused with the window minima ran
+    ~8x slower than the minima alone on the 1550-wide portrait camera; docs/speed.md, "Step 2, kernel
+    by kernel")."""
     key = _z_key(depth, (depth > 0) & jnp.isfinite(depth))
-    return jnp.pad(key, ((hh, hh), (hw, hw)), constant_values=np.uint16(_ZNONE))
+    extra = -depth.shape[1] % WORD_BITS
+    return jnp.pad(key, ((hh, hh), (hw, hw + extra)), constant_values=np.uint16(_ZNONE))
 
 
 def _prefilter_rows(padded, *, hh):
     """Column (vertical) minima of the padded depth key over the window's 2 hh + 1 rows (doubling,
-    :func:`_sliding_mins`): (H, W + 2 hw)."""
+    :func:`_sliding_mins`): (H, Wp + 2 hw)."""
     return _sliding_mins(padded, (hh,), axis=0)[0]
 
 
 def _prefilter_words(k, low, key, eps, *, hw, width):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
-    ``low``: the row minima of :func:`_prefilter_rows`; their minima over columns ``|du| <= k``
+    ``width``: Wp, a multiple of 32 (:func:`_prefilter_key`). ``low``: the row minima of
+    :func:`_prefilter_rows`; their minima over columns ``|du| <= k``
     (:func:`_window_min`, ``k`` int32 data: one program for every k) give each pixel's window minimum.
     Both forms of condition 1 need condition 2: a pixel more than ``eps`` nearer in the window,
     ``z_i > min_window(z) + eps``, tested on uint16 keys ``floor(z * 256)``: ``key_i >= min key +
@@ -214,8 +220,13 @@ class _Bounds(NamedTuple):
     h_max: jax.Array | None = None   # int32 largest |dv| in S(i) of a window of a canvas (None: the static one)
 
 
-def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None) -> _Bounds:
+def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, image_size=None,
+            columns=None) -> _Bounds:
     """N and the window bounds W L / N, H / L of an (H, W) bool mask of pixels with depth.
+
+    ``columns``: optional, ``valid`` packed down the columns (:func:`~jaxdepth._src.outlier_exact.pack_columns`):
+    N is then the sum of their population counts (32x fewer elements than the mask; under ``vmap`` the mask's
+    float sum was a materialised (H, W) float32 copy and a reduction, ~11 % of the rig's Step 2, docs/speed.md).
 
     ``image_size``: optional traced (2,) int32 (h, w) of the image, a window in the top-left
     corner of the (H, W) canvas (rigs of mixed sizes): the bounds are then the image's own,
@@ -225,9 +236,10 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     empty pixels.
     """
     height, width = valid.shape
+    counted = valid if columns is None else jax.lax.population_count(columns)
     # An exact count (H W < 2**24) in one pass; an int32 sum splits into more.
-    n_points = jnp.sum(valid.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
-        jnp.sum(valid, dtype=jnp.int32)
+    n_points = jnp.sum(counted.astype(jnp.float32)).astype(jnp.int32) if height * width < 2 ** 24 else \
+        jnp.sum(counted, dtype=jnp.int32)
     h_max = None
     if image_size is None:
         wl, cell_v = width * beams, jnp.float32(height / beams)
@@ -255,7 +267,7 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
     """
-    height, width = depth.shape
+    height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
@@ -280,7 +292,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     S(i)). ``image_size``: optional traced (2,) int32 (h, w), the image as a window in the top-left
     corner of the canvas (rigs of mixed sizes; window bounds from h and w, see :func:`_bounds`).
     ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
-    (H, W) int32 in [0, S): ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
+    (H, W) int32, clipped to [0, S) where read: ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
     ``origins[pixel_source[i]]``, read where used by the exact test (no (3, H, W) map is stored). Returns the
     keep mask.
     """
@@ -293,8 +305,10 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
     t = T_cam_lidar.astype(jnp.float32)[:3, 3] if origins is None else origins.astype(jnp.float32)
+    columns = pack_columns(valid)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
-                     half_height=half_height, image_size=image_size)
+                     half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
+                     else columns)
     words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
     if candidates is not None:
         words = words & pack_bits(candidates)
@@ -302,7 +316,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         nearer = nearer & valid
         words = words | pack_bits(nearer)
     count, locate = _compact(words)
-    ex = ExactTest(depth, points, pack_columns(valid), K, t,
+    ex = ExactTest(depth, points, columns, K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
                    hw=half_width, test=test, nearer=nearer, source=pixel_source)
     return exact_test(valid, ex)
