@@ -418,10 +418,9 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     safe = jnp.clip(pixel_source, 0, n_src - 1)
     origins = T_cam_sources[:, :3, 3]       # (S, 3): pixel i's origin is origins[safe[i]], read where used
     nearer = None if pixel_shadow is None else valid & pixel_shadow
-    # Within ``valid`` already; the source is clipped where read (``origins_of``): no dense clip, no dense ``&``.
-    keep = _keep_mask(sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw,
-                      half_height=hh, test=config.outlier_test, origins=origins, nearer=nearer,
-                      image_size=image_size, pixel_source=pixel_source)
+    keep = _keep_mask(  # within ``valid`` already; the source clipped where read (``origins_of``)
+        sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw, half_height=hh,
+        test=config.outlier_test, origins=origins, nearer=nearer, image_size=image_size, pixel_source=pixel_source)
     if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
             and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
         older = valid & (jnp.asarray(np.asarray(all_sweep, np.int32))[safe] != 0)
