@@ -1,39 +1,44 @@
 """Why the twins and real data disagree at depth edges: what the twins' input leaves out (issue 37).
 
-    PYTHONPATH=. python -m benchmarks.studies.edge_input [--part real twin] [--seed 0] [--scale 1]
-        [--cases NAME ...] [--json benchmarks/results/edge_input.json]
+    PYTHONPATH=. python -m benchmarks.studies.edge_input [--part real twin exact] [--cases NAME ...]
+        [--seed 0] [--scale 1] [--rig nuscenes] [size options] [--json benchmarks/results/edge_input.json]
 
-Candidates the KITTI twin does not model, each a *distortion* of what the LiDAR reports (a function of
-the true point in the unit's frame, x forward, y left, z up), applied to every sweep the study casts
-(the input sweep and the KITTI-style GT's sweeps of :mod:`benchmarks.studies.edge_truth` alike, as the
-real GT is built from the same scans):
+Candidates the twins do not model, each a :class:`Distortion` of what the LiDAR reports (a function of
+the true point in the unit's frame, x forward, y left, z up, and / or the scan pattern cast), applied to
+every sweep the study casts (the input sweep and the KITTI-style GT's sweeps of
+:mod:`benchmarks.studies.edge_truth` alike, as the real GT is built from the same scans). Cases:
 
-- ``extrinsic``: a LiDAR-camera calibration error, a small rotation (yaw, pitch, roll) and translation;
-- ``time_offset``: the LiDAR's sweep ``dt`` later than the camera's exposure, the ego moving at the
-  twin's speed and yaw rate (the movers are not moved: a lower bound at moving objects);
+- ``extrinsic``: a LiDAR-camera calibration error, a small rotation (``--yaw-mrad``, ``--pitch-mrad``);
+- ``time_offset``: the LiDAR's sweep ``--time-offset-ms`` later than the camera's exposure, the ego moving
+  at the twin's speed and yaw rate (the movers are not moved);
 - ``sweep_motion``: motion within the sweep: a spinning LiDAR turning clockwise seen from above reaches
   azimuth ``phi`` at ``t = -phi / (2 pi / T)`` (T the sweep period; the camera fires when it faces
   forward), and reports the point in its frame at that time (KITTI's points are not motion-compensated);
-- ``laser_azimuth``: per-laser azimuth offsets, one N(0, sigma) draw per laser (fixed seed).
+- ``laser_phase``: each laser samples at its own azimuth phase (the twins' lasers share one;
+  :func:`jaxdepth.research.twin_sensors.stagger_lasers`), the scan recast;
+- ``laser_azimuth`` / ``azimuth_jitter``: a per-laser / per-return azimuth offset, N(0, sigma) (fixed seeds);
+- ``footprint``: the nearest return over +-``--footprint-az-mrad`` along and +-``--footprint-el-mrad`` across
+  the scan (a beam's divergence); ``measured``: extrinsic, sweep motion and laser phases together;
+  ``phase_footprint``: laser phases and footprint together; ``none``: the twin as it is.
 
 Sizes, from the real shared data where it can say (``--part real``):
 
-- KITTI: (a) the official sparse input against the raw scan projected with the raw calibration
-  (:func:`raw_vs_official`: mean pixel displacement by depth and image column); (b) the input's depth
-  edges against the image's colour edges (:func:`edge_shift`: the pixel shift of the input's edge pixels
-  that maximises the image gradient under them, Levinson and Thrun's alignment score; near and far
-  points apart: a rotation shifts both alike, a translation the near ones more);
+- KITTI: the official sparse input against the raw scan projected with the raw calibration
+  (:func:`raw_vs_official`: mean pixel displacement by depth and image column); the same depth edge on
+  neighbouring rings of the raw scans (:func:`kitti_ring_jitter`); the city-block fill's reach past the
+  official GT's steps (:func:`overhang`);
+- every real LiDAR's per-laser sampling phases (:func:`real_laser_phases`: KITTI, nuScenes, Argoverse 2);
 - nuScenes: the six camera timestamps against the LiDAR's (file names) and the cameras' yaws
-  (:func:`nuscenes_sync`: the sweep period and the residual offset of each camera from the moment the
+  (:func:`nuscenes_sync`: the sweep period and each camera's residual offset from the moment the
   spinning LiDAR faces it);
 - Argoverse 2: the per-point ``offset_ns`` of the two sweeps (the sweep's duration).
 
 Per case (``--part twin``): the KITTI twin (1 sweep) with that distortion, scored as
-:func:`benchmarks.studies.edge_truth.twin_part` (exact depth of every pixel, KITTI-style GT r = 0, 1),
-the side rules (default, near ``d z^0.5``, far ``d z^-0.5``, ``above:far``) and the city-block fill; and the
-fill's *overhang at the GT's steps* (:func:`overhang`: how far the fill's foreground reaches past the
-GT's step, px, every step, no image), the number real KITTI puts at +0.30 px. Nothing is tuned on a
-real set; no library default changes.
+:func:`benchmarks.studies.edge_truth.twin_part` (exact depth of every pixel, KITTI-style GT r = 0, 1) for
+the side rules (default, near ``d z^0.5``, far ``d z^-0.5``, ``above:far``) and the city-block fill, plus the
+fill's reach past the KITTI-style GT's steps (:func:`overhang`) and the ring-to-ring edge spread of the
+input. ``--part exact``: any twin (``--rig``) with a case, the same methods against its exact depth only.
+Nothing is tuned on a real set; no library default changes.
 """
 
 from __future__ import annotations
