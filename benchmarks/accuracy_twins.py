@@ -503,6 +503,8 @@ def main(argv=None) -> int:
     parser.add_argument("--diagnose", action="store_true",
                         help="also the SGM with removal forced on where the sweep check turns it off")
     parser.add_argument("--no-hold-out", action="store_true", help="full-input scores only (no protocols)")
+    parser.add_argument("--laser-phases", action="store_true",
+                        help="spinning twins' lasers each at their own azimuth phase (make_twin(laser_phases=True))")
     parser.add_argument("--above-scan", choices=("plane", "background"), default=SGMConfig().above_scan,
                         help="SGMConfig.above_scan of every SGM method (default: the library's)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
@@ -531,6 +533,9 @@ def main(argv=None) -> int:
         return 0
     config = SGMConfig(above_scan=args.above_scan)
     from jaxdepth.research.twins import make_twin, write_twin
+    if args.laser_phases:
+        import functools
+        make_twin = functools.partial(make_twin, laser_phases=True)
     cases = []
     for n in args.sweeps:
         for rig in args.rigs:
@@ -603,7 +608,8 @@ def document(cases: list, args, *, complete: bool) -> dict:
                         "camera_sizes": sizes, "fraction": FRACTION,
                         "min_range_m": MIN_RANGE_M,
                         "defaults_chosen_on": "none (every option is the library default)",
-                        "above_scan": getattr(args, "above_scan", SGMConfig().above_scan)},
+                        "above_scan": getattr(args, "above_scan", SGMConfig().above_scan),
+                        "laser_phases": bool(getattr(args, "laser_phases", False))},
            "methods": list(METHODS), "protocols": list(PROTOCOLS), "summary": table,
            "targets": targets_check(table), "agreement": agreement(cases), "complete": complete, "cases": cases}
 

@@ -257,6 +257,30 @@ def test_raster_lines_are_densest_at_the_horizon():
     assert gaps.max() > 2.5 * gaps.min()
 
 
+def test_staggered_lasers_keep_elevations_and_spread_their_phases_over_a_column():
+    from jaxdepth.research.twin_sensors import spinning_unit, stagger_lasers
+
+    unit = spinning_unit("s", [2.0, 0.0, -5.0, -10.0, -20.0, -24.0], cols=2048)
+    out = stagger_lasers(unit, seed=3)
+    d0, d1 = (u.directions.reshape(u.rows, u.cols, 3).astype(np.float64) for u in (unit, out))
+    np.testing.assert_allclose(d1[..., 2], d0[..., 2], atol=1e-7)                   # elevations unchanged
+    turn = np.angle(np.exp(1j * (np.arctan2(d1[..., 1], d1[..., 0]) - np.arctan2(d0[..., 1], d0[..., 0]))))
+    per_row = turn.mean(axis=1)
+    np.testing.assert_allclose(turn, np.broadcast_to(per_row[:, None], turn.shape), atol=1e-6)   # one turn per laser
+    assert np.all(np.abs(per_row) <= math.pi / unit.cols + 1e-9)                    # within half a column
+    assert np.ptp(per_row) > 0.5 * 2 * math.pi / unit.cols                          # the lasers differ
+    assert np.array_equal(stagger_lasers(unit, seed=3).directions, out.directions)
+
+
+def test_laser_phases_option_moves_only_spinning_twins_rays():
+    plain = make_twin("kitti", seed=2, scale=SCALE, effects=False)
+    staggered = make_twin("kitti", seed=2, scale=SCALE, effects=False, laser_phases=True)
+    assert not np.array_equal(plain.cloud.points, staggered.cloud.points)
+    assert np.array_equal(plain.depths[0], staggered.depths[0])                    # the cameras see the same scene
+    a, b = (make_twin("rosette", seed=0, scale=SCALE, effects=False, laser_phases=p) for p in (False, True))
+    assert np.array_equal(a.cloud.points, b.cloud.points)
+
+
 def test_rosette_sweeps_do_not_repeat_each_others_rays():
     from scipy.spatial import cKDTree
 

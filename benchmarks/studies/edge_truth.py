@@ -397,11 +397,34 @@ def _footprint(cast, T: np.ndarray, out: dict, footprint_mrad: float) -> np.ndar
     return origin + (pts - origin) * scale[:, None]
 
 
+def _footprint_el(cast_with, unit, out: dict, footprint_mrad: float) -> np.ndarray:
+    """:func:`_footprint` across the scan lines: the smallest range of each ray and the same ray tilted
+    ``footprint_mrad`` up and down in elevation (``cast_with(unit)`` casts a unit at the sweep's pose)."""
+    import dataclasses
+    pts = out["points"].astype(np.float64)
+    origin = out["origin"]
+    r = np.linalg.norm(pts - origin, axis=1)
+    best = np.where(out["valid"], r, np.inf)
+    d = unit.directions.astype(np.float64)
+    el, rho = np.arcsin(np.clip(d[:, 2], -1, 1)), np.hypot(d[:, 0], d[:, 1])
+    for sign in (-1.0, 1.0):
+        e = el + sign * footprint_mrad * 1e-3
+        k = np.cos(e) / np.maximum(rho, 1e-12)
+        side = cast_with(dataclasses.replace(unit, directions=np.c_[d[:, 0] * k, d[:, 1] * k, np.sin(e)].astype(np.float32)))
+        rs = np.linalg.norm(side["points"].astype(np.float64) - origin, axis=1)
+        best = np.minimum(best, np.where(side["valid"], rs, np.inf))
+    return origin + (pts - origin) * np.where(out["valid"], best / np.maximum(r, 1e-9), 1.0)[:, None]
+
+
 def accumulated_points(rig: str, seed: int, half: int, *, effects: bool = True, footprint_mrad: float = 0.0,
-                       ks=None) -> np.ndarray:
+                       ks=None, distort=None, with_ring: bool = False):
     """(N, 3) float32 returns of sweeps -half..half (or ``ks``) of the twin's LiDAR (effects on: the twin's
     rates) in the reference points frame; sweep 0 draws exactly as ``make_twin`` (the input sweep's own points,
-    in its order). ``footprint_mrad``: see :func:`_footprint` (0: thin rays, as the twin)."""
+    in its order). ``footprint_mrad``: see :func:`_footprint` (0: thin rays, as the twin). ``distort``: None, or an
+    object with ``unit`` (None, or ``Unit -> Unit``: the scan pattern cast in place of the twin's) and ``points``
+    (None, or ``f(points (n, 3) in the unit's frame, ring (n,), rdef) -> (n, 3)``: what the sensor reports in
+    place of the true point), applied to every sweep (``benchmarks.studies.edge_input``). ``with_ring``: also
+    the (N,) int32 ring (laser index) of each return."""
     from jaxdepth.research import twin_scene
     from jaxdepth.research.twin_rigs import RIG_BUILDERS
     from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit
@@ -410,19 +433,28 @@ def accumulated_points(rig: str, seed: int, half: int, *, effects: bool = True, 
     rdef = RIG_BUILDERS[rig](rates)
     T_ref_world = np.linalg.inv(_pose(rdef, 0) @ rdef.T_ego_points)
     spheres = twin_scene.twin_spheres(seed)
-    pts = []
+    pts, rings = [], []
     for k in (range(-half, half + 1) if ks is None else ks):
         scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
         T_world_k = _pose(rdef, k) @ rdef.T_ego_points
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             key = [seed, k, u, 37] if k >= 0 else [seed, 1000 - k, u, 37]
             unit, T = make_unit(k), T_world_k @ T_points_unit
+            if distort is not None and distort.unit is not None:
+                unit = distort.unit(unit)
             cast = lambda T_, unit=unit, scene=scene, key=key: cast_unit(scene, spheres, unit, T_, rates, key)  # noqa: E731
             out = cast(T)
             p = _footprint(cast, T, out, footprint_mrad) if footprint_mrad else out["points"].astype(np.float64)
+            if getattr(distort, "footprint_el_mrad", 0.0):
+                p = _footprint_el(lambda u, T=T, scene=scene, key=key: cast_unit(scene, spheres, u, T, rates, key), unit,
+                                  {**out, "points": p}, distort.footprint_el_mrad)
             p = p[out["valid"]]
+            if distort is not None and distort.points is not None:     # in the unit's frame, where the sensor errs
+                p = (p - T[:3, 3]) @ T[:3, :3]
+                p = distort.points(p, out["ring"][out["valid"]], rdef) @ T[:3, :3].T + T[:3, 3]
             pts.append((p @ T_ref_world[:3, :3].T + T_ref_world[:3, 3]).astype(np.float32))
-    return np.concatenate(pts)
+            rings.append(np.asarray(out["ring"])[out["valid"]].astype(np.int32))
+    return (np.concatenate(pts), np.concatenate(rings)) if with_ring else np.concatenate(pts)
 
 
 def kitti_style_gt(points: np.ndarray, rig, exact: list, *, radius: int, tau: float | None) -> list:
@@ -473,22 +505,25 @@ def gt_errors(gt: list, exact: list) -> dict:
             "share_wrong_farther": wrong_far / max(n, 1)}
 
 
-def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARIANTS, footprint_mrad: float = 0.0) -> dict:
+def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARIANTS, footprint_mrad: float = 0.0,
+              distort=None, methods=None, fills=FILLS) -> dict:
     from benchmarks.accuracy_twins import predictions, z_buffers
     from benchmarks.studies.edge_side import run_sgm, twin_input
     t0 = time.time()
     inp, exact = twin_input("kitti", 1, seed, scale, effects=effects)
-    if footprint_mrad:                       # the input sweep with beam footprints (same rays, same order)
+    if footprint_mrad or distort:            # the input sweep with footprints / distortion (same rays, same order)
         import dataclasses
-        pts = accumulated_points("kitti", seed, 0, effects=effects, footprint_mrad=footprint_mrad, ks=[0])
-        assert pts.shape == inp.cloud.points.shape
-        inp = dataclasses.replace(inp, cloud=dataclasses.replace(inp.cloud, points=pts))
+        pts = accumulated_points("kitti", seed, 0, effects=effects, footprint_mrad=footprint_mrad, ks=[0],
+                                 distort=distort)
+        assert inp.cloud.ring is None and len(inp.cloud.T_ref_source) == 1      # one source: a recast may add points
+        inp = dataclasses.replace(inp, cloud=dataclasses.replace(inp.cloud, points=pts,
+                                                                 source=np.zeros(len(pts), np.int32)))
     runs = {}
-    for name, (config, rule) in SGM_VARIANTS.items():
+    for name, (config, rule) in (SGM_VARIANTS if methods is None else methods).items():
         with _seed_rule(rule):
             runs[name] = run_sgm(inp, config)
-    fills = predictions(inp, np.ones(inp.cloud.points.shape[0], bool), SGMConfig())
-    runs.update({m: fills[m] for m in FILLS})
+    filled = predictions(inp, np.ones(inp.cloud.points.shape[0], bool), SGMConfig())
+    runs.update({m: filled[m] for m in fills})
     print(f"twin methods: {time.time() - t0:.0f} s", flush=True)
     regions = [input_regions(sp) for sp in z_buffers(inp.cloud.points, inp.rig)]
     out = {"rig": "kitti", "sweeps_input": 1, "seed": seed, "scale": scale, "effects": effects,
@@ -498,7 +533,8 @@ def twin_part(seed: int, scale: float, *, effects: bool = True, variants=GT_VARI
     cache = {}
     for name, half, radius, tau in variants:
         if half not in cache:
-            cache[half] = accumulated_points("kitti", seed, half, effects=effects, footprint_mrad=footprint_mrad)
+            cache[half] = accumulated_points("kitti", seed, half, effects=effects, footprint_mrad=footprint_mrad,
+                                             distort=distort)
         gt = kitti_style_gt(cache[half], inp.rig, exact, radius=radius, tau=tau)
         at_gt = [np.where(g > 0, e, 0.0).astype(np.float32) for g, e in zip(gt, exact)]
         # the referee's "image" is the exact depth: 100 log z (sky at 120 m), a clear edge = a step of 10 %

@@ -96,6 +96,23 @@ def spinning_unit(name: str, elevations_deg, *, cols: int, phase: float = 0.0, a
                 np.array([0.0, 0.0, apex_m]), float(max_range_m), np.repeat(np.arange(rows, dtype=np.int32), cols))
 
 
+def stagger_lasers(unit: Unit, *, seed: int = 0) -> Unit:
+    """``unit`` (a spinning LiDAR) with each laser sampling at its own azimuth phase, uniform over one column.
+
+    Real spinning LiDARs do (``benchmarks.studies.edge_input``: the phases of KITTI's, nuScenes' and both
+    Argoverse 2 LiDARs' rings are spread over a column: resultant length 0.08-0.22, 1 for one shared phase);
+    :func:`spinning_unit`'s lasers share one, so their columns line up and many image columns get no point.
+    Row i is turned by ``-2 pi phase_i / cols`` about the unit's z axis (``phase_i ~ U(-0.5, 0.5)``, drawn
+    from ``seed``: a property of the sensor, the same every sweep).
+    """
+    phase = np.random.default_rng([int(seed), 39]).uniform(-0.5, 0.5, unit.rows)
+    a = (-2.0 * math.pi * phase / unit.cols)[:, None]
+    d = unit.directions.reshape(unit.rows, unit.cols, 3).astype(np.float64)
+    turned = np.stack([np.cos(a) * d[..., 0] - np.sin(a) * d[..., 1], np.sin(a) * d[..., 0] + np.cos(a) * d[..., 1],
+                       d[..., 2]], axis=-1)
+    return dataclasses.replace(unit, directions=turned.reshape(-1, 3).astype(np.float32))
+
+
 def raster_lines_deg(lines: int, *, top_deg: float = 10.0, bottom_deg: float = -20.0, squeeze: float = 3.0):
     """(lines,) scan-line elevations, top first, denser near the horizon: ``A sinh(squeeze (h - u))``
     over ``u`` uniform in [0, 1], with ``A`` and the horizon's ``h`` set by the two ends."""
@@ -234,5 +251,5 @@ def cast_unit(scene: SceneArrays, spheres: np.ndarray, unit: Unit, T_world_unit:
             "mixed": np.asarray(mixed), "ring": unit.ring, "origin": origin}
 
 
-__all__ = ["SensorEffects", "NO_EFFECTS", "Unit", "spinning_unit", "raster_unit", "raster_lines_deg",
+__all__ = ["SensorEffects", "NO_EFFECTS", "Unit", "spinning_unit", "stagger_lasers", "raster_unit", "raster_lines_deg",
            "rosette_unit", "cast_unit", "sphere_hits", "first_hits", "render_twin_depth"]

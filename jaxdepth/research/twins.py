@@ -27,7 +27,7 @@ from jaxdepth._src.types import Camera, SourceCloud
 from jaxdepth.io.rig import Rig, RigCamera, RigLidar
 from jaxdepth.research import twin_scene
 from jaxdepth.research.twin_rigs import RIG_BUILDERS, RigDef
-from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit, render_twin_depth
+from jaxdepth.research.twin_sensors import NO_EFFECTS, SensorEffects, cast_unit, render_twin_depth, stagger_lasers
 from jaxdepth.research.twin_tables import SENSOR_EFFECTS
 
 TWIN_RIGS: tuple = ("kitti", "nuscenes", "av2", "raster", "rosette")
@@ -180,7 +180,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
 
 
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
-              step_m: float | None = None) -> Twin:
+              step_m: float | None = None, laser_phases: bool = False) -> Twin:
     """A digital twin of a real rig (see the module docstring and ``docs/twins.md``).
 
     Args:
@@ -191,6 +191,9 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
       effects: True (the rig's measured rates, :data:`~jaxdepth.research.twin_tables.SENSOR_EFFECTS`),
         False (exact returns: every point on a surface) or a :class:`SensorEffects`.
       step_m: ego motion per sweep, metres (default: the rig's, 0.5-1.26 m).
+      laser_phases: each laser of a spinning unit samples at its own azimuth phase
+        (:func:`~jaxdepth.research.twin_sensors.stagger_lasers`, unit ``u`` drawn from seed ``u``), as real
+        spinning LiDARs do; False (default): the lasers share one phase, as the published results.
 
     Returns:
       :class:`Twin`.
@@ -204,6 +207,9 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         if not 0 <= step_m <= 5:
             raise ValueError(f"make_twin: field 'step_m' expected metres in [0, 5], got {step_m!r}")
         rdef = dataclasses.replace(rdef, step_m=float(step_m))
+    if laser_phases and rdef.sensor_class == "spinning":
+        units = tuple((lambda k, mk=mk, u=u: stagger_lasers(mk(k), seed=u), T) for u, (mk, T) in enumerate(rdef.units))
+        rdef = dataclasses.replace(rdef, units=units)
     T_world_points = [ego_pose(rdef, k) @ rdef.T_ego_points for k in range(int(sweeps))]
     cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates)
     T_ref_world = np.linalg.inv(T_world_points[0])
