@@ -254,6 +254,53 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     return _Bounds(n_points, k_max, cell_u, cell_v, h_max)
 
 
+#: Rows per block of the prefilter's vertical minima on tall windows (``hh >= _BLOCK_HALF``, the rigs' cameras:
+#: 49 rows): the largest of these that divides the canvas height (none: the exact row minima). The minima run
+#: over whole blocks, so each pixel's window is widened to the blocks that cover its block's windows (a
+#: superset of the exact window's candidates; docs/speed.md, "The prefilter in row blocks").
+_ROW_BLOCKS = (8, 7, 6, 5, 4)
+_BLOCK_HALF = 16
+
+
+def _row_block(height: int, hh: int):
+    """Static rows per block of :func:`_prefilter` for an ``height``-row canvas and half window ``hh`` (None: exact)."""
+    return next((b for b in _ROW_BLOCKS if height % b == 0), None) if hh >= _BLOCK_HALF else None
+
+
+def _block_mins(depth, *, block):
+    """(H / block, W) uint16: the smallest key (:data:`_ZQ`) of each block of ``block`` image rows
+    ``[block r, block r + block)``, ``_ZNONE`` where a block has no depth (``block`` divides H)."""
+    height, width = depth.shape
+    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth)).reshape(height // block, block, width)
+    out = key[:, 0]
+    for i in range(1, block):
+        out = jnp.minimum(out, key[:, i])
+    return out
+
+
+def _block_rows(blocks, *, half, hw, width):
+    """Vertical minima over ``2 half + 1`` blocks (each output block's rows' windows, covered by whole
+    blocks), padded by ``_ZNONE`` to (R, width + 2 hw) for the horizontal pass."""
+    cols = blocks.shape[1]
+    padded = jnp.pad(blocks, ((half, half), (0, 0)), constant_values=np.uint16(_ZNONE))
+    low = _sliding_mins(padded, (half,), axis=0)[0]
+    return jnp.pad(low, ((0, 0), (hw, hw + width - cols)), constant_values=np.uint16(_ZNONE))
+
+
+def _block_words(low, depth, eps, *, block):
+    """Candidate words (H, ceil(W / 32)) from the per-block window minima ``low`` (H / block, >= W): as
+    :func:`_prefilter_words`, each pixel compared with its block's minimum (never larger than its own
+    window's: a superset)."""
+    height, width = depth.shape
+    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth)).astype(jnp.int32).reshape(height // block, block, width)
+    low = low[:, None, :width].astype(jnp.int32)
+    margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
+    cand = ((key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))).reshape(height, width)
+    whole = width - width % WORD_BITS   # the last partial word apart: a pad of the whole mask ran ~8x slower
+    return jnp.concatenate([pack_bits(cand[:, :whole]), pack_bits(cand[:, whole:])], axis=1) if whole < width \
+        else pack_bits(cand)
+
+
 def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
@@ -266,8 +313,17 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
       ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Three dense
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
+      Tall windows (``hh >= _BLOCK_HALF``): the row minima over blocks of :func:`_row_block` rows instead
+      (two dense passes over the depth, the block minima and the words; the minima between them on the
+      blocks).
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
+    b = _row_block(height, hh)
+    if b is not None:
+        blocks = stage(lambda d: (_block_mins(d, block=b),), (depth,), bounds.n_points)[0]
+        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (blocks,), bounds.n_points)[0]
+        low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
+        return stage(lambda lo, d, e: _block_words(lo, d, e, block=b), (low, depth, eps), bounds.n_points)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
