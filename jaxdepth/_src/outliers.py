@@ -192,8 +192,10 @@ def _prefilter_words(k, low, key, eps, *, hw, width):
     return pack_bits(cand)
 
 
-def _compact(words: jax.Array):
-    """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words.
+def _compact(words: jax.Array, *, down: bool = False):
+    """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words
+    (``down``: (ceil(H / 32), W) words packed down the columns; the slots then run word row by word row,
+    column by column, down each word's 32 rows).
 
     Returns ``(count, locate)``: the int32 number of candidates, and
     ``locate(slot) -> (row, column)`` (int32 pixel coordinates) of the slot-th
@@ -203,11 +205,16 @@ def _compact(words: jax.Array):
     row_bits = words.shape[1] * 32
     count, locate_bit = word_locator(words)
 
+    def locate_down(slot):
+        flat = locate_bit(slot)
+        word = flat // WORD_BITS
+        return (word // words.shape[1]) * WORD_BITS + flat % WORD_BITS, word % words.shape[1]
+
     def locate(slot):
         flat = locate_bit(slot)
         return flat // row_bits, flat % row_bits
 
-    return count, locate
+    return count, (locate_down if down else locate)
 
 
 class _Bounds(NamedTuple):
@@ -288,17 +295,16 @@ def _block_rows(blocks, *, half, hw, width):
 
 
 def _block_words(low, depth, eps, *, block):
-    """Candidate words (H, ceil(W / 32)) from the per-block window minima ``low`` (H / block, >= W): as
-    :func:`_prefilter_words`, each pixel compared with its block's minimum (never larger than its own
-    window's: a superset)."""
+    """Candidate words packed down the columns, (ceil(H / 32), W) (:func:`~jaxdepth._src.outlier_exact.pack_columns`:
+    contiguous rows, where a row's words read strided columns), from the per-block window minima ``low``
+    (H / block, >= W): as :func:`_prefilter_words`, each pixel compared with its block's minimum (never
+    larger than its own window's: a superset)."""
     height, width = depth.shape
     key = _z_key(depth, (depth > 0) & jnp.isfinite(depth)).astype(jnp.int32).reshape(height // block, block, width)
     low = low[:, None, :width].astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
-    cand = ((key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))).reshape(height, width)
-    whole = width - width % WORD_BITS   # the last partial word apart: a pad of the whole mask ran ~8x slower
-    return jnp.concatenate([pack_bits(cand[:, :whole]), pack_bits(cand[:, whole:])], axis=1) if whole < width \
-        else pack_bits(cand)
+    cand = (key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
+    return pack_columns(cand.reshape(height, width))
 
 
 def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
@@ -366,12 +372,14 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
                      half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
                      else columns)
     words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
+    down = _row_block(depth.shape[0], half_height) is not None      # the words' layout (:func:`_prefilter`)
+    pack = pack_columns if down else pack_bits
     if candidates is not None:
-        words = words & pack_bits(candidates)
+        words = words & pack(candidates)
     if nearer is not None:      # tested even outside ``candidates`` (the prefilter's condition 2 keeps them)
         nearer = nearer & valid
-        words = words | pack_bits(nearer)
-    count, locate = _compact(words)
+        words = words | pack(nearer)
+    count, locate = _compact(words, down=down)
     ex = ExactTest(depth, points, columns, K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
                    hw=half_width, test=test, nearer=nearer, source=pixel_source)
