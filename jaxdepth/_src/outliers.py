@@ -274,40 +274,66 @@ def _row_block(height: int, hh: int):
     return next((b for b in _ROW_BLOCKS if height % b == 0), None) if hh >= _BLOCK_HALF else None
 
 
-def _block_mins(depth, *, block):
-    """(H / block, W) uint16: the smallest key (:data:`_ZQ`) of each block of ``block`` image rows
-    ``[block r, block r + block)``, ``_ZNONE`` where a block has no depth (``block`` divides H)."""
+def _block_keys(depth, *, block):
+    """(H / block, W) uint32: in the low 16 bits the smallest key (:data:`_ZQ`) of each block of ``block``
+    image rows ``[block r, block r + block)`` (``_ZNONE`` where a block has no depth), in the high 16 the
+    largest key of a pixel with depth (0 where none); ``block`` divides H. One pass over the depth (as two
+    outputs, XLA ran two passes)."""
     height, width = depth.shape
-    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth)).reshape(height // block, block, width)
-    out = key[:, 0]
+    valid = (depth > 0) & jnp.isfinite(depth)
+    key = _z_key(depth, valid).reshape(height // block, block, width)
+    top = jnp.where(valid, key.reshape(height, width), np.uint16(0)).reshape(key.shape)
+    low, high = key[:, 0], top[:, 0]
     for i in range(1, block):
-        out = jnp.minimum(out, key[:, i])
-    return out
+        low, high = jnp.minimum(low, key[:, i]), jnp.maximum(high, top[:, i])
+    return low.astype(jnp.uint32) | (high.astype(jnp.uint32) << 16)
 
 
 def _block_rows(blocks, *, half, hw, width):
-    """Vertical minima over ``2 half + 1`` blocks (each output block's rows' windows, covered by whole
-    blocks), padded by ``_ZNONE`` to (R, width + 2 hw) for the horizontal pass."""
+    """Vertical minima over ``2 half + 1`` blocks of the block minima (the low halves of :func:`_block_keys`;
+    each output block's rows' windows, covered by whole blocks), padded by ``_ZNONE`` to (R, width + 2 hw) for the horizontal pass."""
     cols = blocks.shape[1]
+    blocks = (blocks & 0xFFFF).astype(jnp.uint16)
     padded = jnp.pad(blocks, ((half, half), (0, 0)), constant_values=np.uint16(_ZNONE))
     low = _sliding_mins(padded, (half,), axis=0)[0]
     return jnp.pad(low, ((0, 0), (hw, hw + width - cols)), constant_values=np.uint16(_ZNONE))
 
 
-def _block_words(low, depth, eps, *, block):
-    """Candidate words packed down the columns, (ceil(H / 32), W) (:func:`~jaxdepth._src.outlier_exact.pack_columns`:
-    contiguous rows, where a row's words read strided columns), from the per-block window minima ``low``
-    (H / block, >= W): as :func:`_prefilter_words`, each pixel compared with its block's minimum (never
-    larger than its own window's: a superset)."""
-    height, width = depth.shape
-    key = _z_key(depth, (depth > 0) & jnp.isfinite(depth)).astype(jnp.int32).reshape(height // block, block, width)
-    low = low[:, None, :width].astype(jnp.int32)
+def _block_bits(on, *, block, height):
+    """(ceil(height / 32), W) uint32 words packed down the columns (as
+    :func:`~jaxdepth._src.outlier_exact.pack_columns`): bit i of word m is ``on[(32 m + i) // block]``, from the
+    (height / block, W) bool ``on``. Rows repeat their pattern of blocks in words every lcm(block, 32) rows: each
+    word of a period is an OR of its blocks' static bit masks (static slices, no gather)."""
+    rows, width = on.shape
+    period = block * WORD_BITS // math.gcd(block, WORD_BITS)
+    per_words, per_blocks = period // WORD_BITS, period // block
+    n = -(-rows // per_blocks)
+    on = jnp.pad(on, ((0, n * per_blocks - rows), (0, 0))).reshape(n, per_blocks, width)
+    words = []
+    for s in range(per_words):
+        word = jnp.zeros((n, width), jnp.uint32)
+        for q in range(s * WORD_BITS // block, ((s + 1) * WORD_BITS - 1) // block + 1):
+            first, last = max(q * block, s * WORD_BITS), min((q + 1) * block, (s + 1) * WORD_BITS)
+            mask = np.uint32(sum(1 << (r - s * WORD_BITS) for r in range(first, last)))
+            word = word | jnp.where(on[:, q], mask, np.uint32(0))
+        words.append(word)
+    return jnp.stack(words, axis=1).reshape(n * per_words, width)[:-(-height // WORD_BITS)]
+
+
+def _block_words(low, high, columns, eps, *, block, height):
+    """Candidate words packed down the columns, (ceil(H / 32), W) (``columns``: the pixels with depth so
+    packed), from each block's window minimum ``low`` (R, >= W) and largest key ``high`` (R, W), the high
+    halves of :func:`_block_keys`: every pixel
+    with depth of a block whose largest key passes :func:`_prefilter_words`'s test against the block's minimum
+    (never larger than a pixel's own window's, and its key never above the largest: a superset)."""
+    width = high.shape[1]
+    low, high = low[:, :width].astype(jnp.int32), (high >> 16).astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
-    cand = (key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
-    return pack_columns(cand.reshape(height, width))
+    on = (low < _ZNONE) & ((high >= low + margin) | (high == _ZSAT))
+    return columns & _block_bits(on, block=block, height=height)
 
 
-def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
+def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
@@ -326,10 +352,12 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
     if b is not None:
-        blocks = stage(lambda d: (_block_mins(d, block=b),), (depth,), bounds.n_points)[0]
+        if columns is None:
+            columns = pack_columns((depth > 0) & jnp.isfinite(depth))
+        high = blocks = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
         low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (blocks,), bounds.n_points)[0]
         low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
-        return stage(lambda lo, d, e: _block_words(lo, d, e, block=b), (low, depth, eps), bounds.n_points)
+        return _block_words(low, high, columns, eps, block=b, height=height)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
@@ -371,7 +399,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
                      else columns)
-    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
+    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns)
     down = _row_block(depth.shape[0], half_height) is not None      # the words' layout (:func:`_prefilter`)
     pack = pack_columns if down else pack_bits
     if candidates is not None:
