@@ -357,7 +357,9 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
         high = blocks = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
         low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (blocks,), bounds.n_points)[0]
         low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
-        return _block_words(low, high, columns, eps, block=b, height=height)
+        # fenced: XLA fused the words (with the columns' packing) into each of the compaction's three readers
+        return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, high, columns, eps),
+                     bounds.n_points)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
