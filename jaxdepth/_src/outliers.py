@@ -49,6 +49,10 @@ leaves.
    footprint form's parallax here, from window extrema of ``1 / (Z - t_z)``: ~1.5k candidates on
    the KITTI frame, but three more keys' minima and a float pass over every pixel cost more than
    the exact test spends on the extra candidates; docs/speed.md, "Step 2's cost (branch step2cut)".)
+   Tall windows (the rigs' cameras, 49 rows): the minima over blocks of 4-8 rows and each block's
+   largest key instead, one pass over the depth; a pixel with depth is a candidate when its block's
+   largest key passes against the minimum over the blocks covering its block's windows (a superset:
+   ~1 % more candidates on the Argoverse 2 cameras; docs/speed.md, "The prefilter in row blocks").
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
@@ -345,9 +349,9 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
       ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Three dense
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
-      Tall windows (``hh >= _BLOCK_HALF``): the row minima over blocks of :func:`_row_block` rows instead
-      (two dense passes over the depth, the block minima and the words; the minima between them on the
-      blocks).
+      Tall windows (:func:`_row_block` not None): (ceil(H / 32), W) words packed down the columns
+      (:func:`~jaxdepth._src.outlier_exact.pack_columns`; ``columns``: the pixels with depth so packed, or
+      None), from one dense pass over the depth (:func:`_block_keys`) and passes over the blocks.
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
