@@ -52,11 +52,12 @@ leaves.
    Tall windows (the rigs' cameras, 49 rows): the minima over blocks of 4-8 rows and each block's
    largest key instead, one pass over the depth; a pixel with depth is a candidate when its block's
    largest key passes against the minimum over the blocks covering its block's windows (a superset:
-   ~1 % more candidates on the Argoverse 2 cameras; docs/speed.md, "The prefilter in row blocks").
+   5-7 % more candidates on the Argoverse 2 cameras; docs/speed.md, "The prefilter in row blocks").
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
-   ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals).
+   ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals). The words
+   run along the rows, or down the columns on the tall windows' path (the slots' order changes, not the set).
 3. Exact test (:mod:`jaxdepth._src.outlier_exact`), per chunk of candidate slots: walk the points
    of each candidate's window (pixels with depth packed down the columns into words, visited rank
    by rank), gather their depths (and points) from the image, recompute the LiDAR view, and
