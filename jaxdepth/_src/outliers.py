@@ -296,7 +296,8 @@ def _block_keys(depth, *, block):
 
 def _block_rows(blocks, *, half, hw, width):
     """Vertical minima over ``2 half + 1`` blocks of the block minima (the low halves of :func:`_block_keys`;
-    each output block's rows' windows, covered by whole blocks), padded by ``_ZNONE`` to (R, width + 2 hw) for the horizontal pass."""
+    each output block's rows' windows, covered by whole blocks), padded by ``_ZNONE`` to (R, width + 2 hw)
+    for the horizontal pass."""
     cols = blocks.shape[1]
     blocks = (blocks & 0xFFFF).astype(jnp.uint16)
     padded = jnp.pad(blocks, ((half, half), (0, 0)), constant_values=np.uint16(_ZNONE))
@@ -325,14 +326,14 @@ def _block_bits(on, *, block, height):
     return jnp.stack(words, axis=1).reshape(n * per_words, width)[:-(-height // WORD_BITS)]
 
 
-def _block_words(low, high, columns, eps, *, block, height):
+def _block_words(low, keys, columns, eps, *, block, height):
     """Candidate words packed down the columns, (ceil(H / 32), W) (``columns``: the pixels with depth so
-    packed), from each block's window minimum ``low`` (R, >= W) and largest key ``high`` (R, W), the high
-    halves of :func:`_block_keys`: every pixel
-    with depth of a block whose largest key passes :func:`_prefilter_words`'s test against the block's minimum
-    (never larger than a pixel's own window's, and its key never above the largest: a superset)."""
-    width = high.shape[1]
-    low, high = low[:, :width].astype(jnp.int32), (high >> 16).astype(jnp.int32)
+    packed), from each block's window minimum ``low`` (R, >= W) and :func:`_block_keys`' ``keys`` (R, W; the
+    high halves: each block's largest key): every pixel with depth of a block whose largest key passes
+    :func:`_prefilter_words`'s test against the block's minimum (never larger than a pixel's own window's,
+    and its key never above the largest: a superset)."""
+    width = keys.shape[1]
+    low, high = low[:, :width].astype(jnp.int32), (keys >> 16).astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
     on = (low < _ZNONE) & ((high >= low + margin) | (high == _ZSAT))
     return columns & _block_bits(on, block=block, height=height)
@@ -359,11 +360,11 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     if b is not None:
         if columns is None:
             columns = pack_columns((depth > 0) & jnp.isfinite(depth))
-        high = blocks = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
-        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (blocks,), bounds.n_points)[0]
+        keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
+        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (keys,), bounds.n_points)[0]
         low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
         # fenced: XLA fused the words (with the columns' packing) into each of the compaction's three readers
-        return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, high, columns, eps),
+        return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, keys, columns, eps),
                      bounds.n_points)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
