@@ -703,3 +703,39 @@ def test_points_as_three_channels_give_the_same_mask():
             if test == "footprint":
                 _assert_matches_footprint(stacked[c], *footprint_double_loop(d, K, T, points_cam=p, beams=6,
                                                                              epsilon_m=1.0, **CAPS))
+
+
+@pytest.mark.parametrize("seed, shape, block", [(5, (40, 70), 8), (6, (45, 64), 5), (7, (42, 96), 7)])
+@pytest.mark.slow  # frozen oracle on tall windows
+def test_row_blocks_equal_frozen_dense_sweep(seed, shape, block):
+    """Tall windows (half height >= 16: the rigs' cameras) take the prefilter in row blocks (a looser superset,
+    words packed down the columns): the same masks as the frozen dense sweep, image and raw input, and vmapped;
+    a 2-beam LiDAR gives these small images a half height of 19-22 rows."""
+    rng = np.random.default_rng(seed)
+    K, T = _camera(rng, *shape)
+    depths = [_random_sparse(rng, *shape, density) for density in (0.05, 0.2)]
+    kw, mode = dict(beams=2, max_half_width_px=12, max_half_height_px=24), dict(test="paper")
+    _, hh = window_half_sizes(*shape, beams=2, max_half_width_px=12, max_half_height_px=24)
+    assert hh >= 16 and outliers_module._row_block(shape[0], hh) == block
+    for depth in depths:
+        points = np.stack([rng.normal(0, 3, shape), rng.normal(0, 1, shape), depth]).astype(np.float32)
+        got = np.asarray(outlier_keep_mask(depth, K, T, **kw, **mode))
+        assert (got != (depth > 0)).any()
+        np.testing.assert_array_equal(got, np.asarray(frozen_keep_mask(depth, K, T, **kw)))
+        np.testing.assert_array_equal(np.asarray(outlier_keep_mask(depth, K, T, points_cam=points, **kw, **mode)),
+                                      np.asarray(frozen_keep_mask(depth, K, T, points_cam=points, **kw)))
+    fn = jax.vmap(lambda d: outlier_keep_mask(d, K, T, **kw, **mode))
+    batched = np.asarray(fn(jnp.asarray(np.stack(depths))))
+    for i, depth in enumerate(depths):
+        np.testing.assert_array_equal(batched[i], np.asarray(outlier_keep_mask(depth, K, T, **kw, **mode)))
+
+
+@pytest.mark.parametrize("block, height", [(5, 1550), (8, 2048), (6, 900), (7, 77), (4, 36)])
+def test_block_bits_equal_packed_repeated_rows(block, height):
+    """The block path's words (each block's flag on each of its rows, packed down the columns) against
+    pack_columns of the flags repeated row by row (NumPy)."""
+    from jaxdepth._src.outlier_exact import pack_columns
+    on = np.random.default_rng(block).random((height // block, 13)) < 0.4
+    want = np.asarray(pack_columns(jnp.asarray(np.repeat(on, block, axis=0))))
+    np.testing.assert_array_equal(np.asarray(outliers_module._block_bits(jnp.asarray(on), block=block, height=height)),
+                                  want)

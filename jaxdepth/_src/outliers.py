@@ -49,10 +49,15 @@ leaves.
    footprint form's parallax here, from window extrema of ``1 / (Z - t_z)``: ~1.5k candidates on
    the KITTI frame, but three more keys' minima and a float pass over every pixel cost more than
    the exact test spends on the extra candidates; docs/speed.md, "Step 2's cost (branch step2cut)".)
+   Tall windows (the rigs' cameras, 49 rows): the minima over blocks of 4-8 rows and each block's
+   largest key instead, one pass over the depth; a pixel with depth is a candidate when its block's
+   largest key passes against the minimum over the blocks covering its block's windows (a superset:
+   5-7 % more candidates on the Argoverse 2 cameras; docs/speed.md, "The prefilter in row blocks").
 2. Compaction (:func:`_compact`). The candidate mask is packed into 32-bit words; a
    prefix sum of their popcounts gives every candidate a slot, found back from the
    slot by a binary search over the words and one within the word (no scatter, no
-   ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals).
+   ``nonzero``; :mod:`jaxdepth._src.compaction`, shared with the image-plane normals). The words
+   run along the rows, or down the columns on the tall windows' path (the slots' order changes, not the set).
 3. Exact test (:mod:`jaxdepth._src.outlier_exact`), per chunk of candidate slots: walk the points
    of each candidate's window (pixels with depth packed down the columns into words, visited rank
    by rank), gather their depths (and points) from the image, recompute the LiDAR view, and
@@ -192,8 +197,10 @@ def _prefilter_words(k, low, key, eps, *, hw, width):
     return pack_bits(cand)
 
 
-def _compact(words: jax.Array):
-    """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words.
+def _compact(words: jax.Array, *, down: bool = False):
+    """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words
+    (``down``: (ceil(H / 32), W) words packed down the columns; the slots then run word row by word row,
+    column by column, down each word's 32 rows).
 
     Returns ``(count, locate)``: the int32 number of candidates, and
     ``locate(slot) -> (row, column)`` (int32 pixel coordinates) of the slot-th
@@ -203,11 +210,16 @@ def _compact(words: jax.Array):
     row_bits = words.shape[1] * 32
     count, locate_bit = word_locator(words)
 
+    def locate_down(slot):
+        flat = locate_bit(slot)
+        word = flat // WORD_BITS
+        return (word // words.shape[1]) * WORD_BITS + flat % WORD_BITS, word % words.shape[1]
+
     def locate(slot):
         flat = locate_bit(slot)
         return flat // row_bits, flat % row_bits
 
-    return count, locate
+    return count, (locate_down if down else locate)
 
 
 class _Bounds(NamedTuple):
@@ -254,7 +266,80 @@ def _bounds(valid: jax.Array, *, beams: int, half_width: int, half_height: int, 
     return _Bounds(n_points, k_max, cell_u, cell_v, h_max)
 
 
-def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
+#: Rows per block of the prefilter's vertical minima on tall windows (``hh >= _BLOCK_HALF``, the rigs' cameras:
+#: 49 rows): the largest of these that divides the canvas height (none: the exact row minima). The minima run
+#: over whole blocks, so each pixel's window is widened to the blocks that cover its block's windows (a
+#: superset of the exact window's candidates; docs/speed.md, "The prefilter in row blocks").
+_ROW_BLOCKS = (8, 7, 6, 5, 4)
+_BLOCK_HALF = 16
+
+
+def _row_block(height: int, hh: int):
+    """Static rows per block of :func:`_prefilter` for an ``height``-row canvas and half window ``hh`` (None: exact)."""
+    return next((b for b in _ROW_BLOCKS if height % b == 0), None) if hh >= _BLOCK_HALF else None
+
+
+def _block_keys(depth, *, block):
+    """(H / block, W) uint32: in the low 16 bits the smallest key (:data:`_ZQ`) of each block of ``block``
+    image rows ``[block r, block r + block)`` (``_ZNONE`` where a block has no depth), in the high 16 the
+    largest key of a pixel with depth (0 where none); ``block`` divides H. One pass over the depth (as two
+    outputs, XLA ran two passes)."""
+    height, width = depth.shape
+    valid = (depth > 0) & jnp.isfinite(depth)
+    key = _z_key(depth, valid).reshape(height // block, block, width)
+    top = jnp.where(valid, key.reshape(height, width), np.uint16(0)).reshape(key.shape)
+    low, high = key[:, 0], top[:, 0]
+    for i in range(1, block):
+        low, high = jnp.minimum(low, key[:, i]), jnp.maximum(high, top[:, i])
+    return low.astype(jnp.uint32) | (high.astype(jnp.uint32) << 16)
+
+
+def _block_rows(blocks, *, half, hw, width):
+    """Vertical minima over ``2 half + 1`` blocks of the block minima (the low halves of :func:`_block_keys`;
+    each output block's rows' windows, covered by whole blocks), padded by ``_ZNONE`` to (R, width + 2 hw)
+    for the horizontal pass."""
+    cols = blocks.shape[1]
+    blocks = (blocks & 0xFFFF).astype(jnp.uint16)
+    padded = jnp.pad(blocks, ((half, half), (0, 0)), constant_values=np.uint16(_ZNONE))
+    low = _sliding_mins(padded, (half,), axis=0)[0]
+    return jnp.pad(low, ((0, 0), (hw, hw + width - cols)), constant_values=np.uint16(_ZNONE))
+
+
+def _block_bits(on, *, block, height):
+    """(ceil(height / 32), W) uint32 words packed down the columns (as
+    :func:`~jaxdepth._src.outlier_exact.pack_columns`): bit i of word m is ``on[(32 m + i) // block]``, from the
+    (height / block, W) bool ``on``. Rows repeat their pattern of blocks in words every lcm(block, 32) rows: each
+    word of a period is an OR of its blocks' static bit masks (static slices, no gather)."""
+    rows, width = on.shape
+    period = block * WORD_BITS // math.gcd(block, WORD_BITS)
+    per_words, per_blocks = period // WORD_BITS, period // block
+    n = -(-rows // per_blocks)
+    on = jnp.pad(on, ((0, n * per_blocks - rows), (0, 0))).reshape(n, per_blocks, width)
+    words = []
+    for s in range(per_words):
+        word = jnp.zeros((n, width), jnp.uint32)
+        for q in range(s * WORD_BITS // block, ((s + 1) * WORD_BITS - 1) // block + 1):
+            first, last = max(q * block, s * WORD_BITS), min((q + 1) * block, (s + 1) * WORD_BITS)
+            mask = np.uint32(sum(1 << (r - s * WORD_BITS) for r in range(first, last)))
+            word = word | jnp.where(on[:, q], mask, np.uint32(0))
+        words.append(word)
+    return jnp.stack(words, axis=1).reshape(n * per_words, width)[:-(-height // WORD_BITS)]
+
+
+def _block_words(low, keys, columns, eps, *, block, height):
+    """Candidate words packed down the columns, (ceil(H / 32), W) (``columns``: the pixels with depth so
+    packed), from each block's window minimum ``low`` (R, >= W) and :func:`_block_keys`' ``keys`` (R, W; the
+    high halves: each block's largest key): every pixel with depth of a block whose largest key passes
+    :func:`_prefilter_words`'s test against the block's minimum (never larger than a pixel's own window's,
+    and its key never above the largest: a superset)."""
+    width = keys.shape[1]
+    low, high = low[:, :width].astype(jnp.int32), (keys >> 16).astype(jnp.int32)
+    margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
+    on = (low < _ZNONE) & ((high >= low + margin) | (high == _ZSAT))
+    return columns & _block_bits(on, block=block, height=height)
+
+
+def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
@@ -266,8 +351,21 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int):
       ``(v, 32 m + i)`` (:func:`~jaxdepth._src.compaction.pack_bits`). Three dense
       passes over the canvas (the key, its row minima, its column minima with the words), each a fenced
       stage; the column minima take the run-time half window k as data: one program for every k.
+      Tall windows (:func:`_row_block` not None): (ceil(H / 32), W) words packed down the columns
+      (:func:`~jaxdepth._src.outlier_exact.pack_columns`; ``columns``: the pixels with depth so packed, or
+      None), from one dense pass over the depth (:func:`_block_keys`) and passes over the blocks.
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
+    b = _row_block(height, hh)
+    if b is not None:
+        if columns is None:
+            columns = pack_columns((depth > 0) & jnp.isfinite(depth))
+        keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
+        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (keys,), bounds.n_points)[0]
+        low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
+        # fenced: XLA fused the words (with the columns' packing) into each of the compaction's three readers
+        return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, keys, columns, eps),
+                     bounds.n_points)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
     low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
@@ -309,13 +407,15 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
                      else columns)
-    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width)
+    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns)
+    down = _row_block(depth.shape[0], half_height) is not None      # the words' layout (:func:`_prefilter`)
+    pack = pack_columns if down else pack_bits
     if candidates is not None:
-        words = words & pack_bits(candidates)
+        words = words & pack(candidates)
     if nearer is not None:      # tested even outside ``candidates`` (the prefilter's condition 2 keeps them)
         nearer = nearer & valid
-        words = words | pack_bits(nearer)
-    count, locate = _compact(words)
+        words = words | pack(nearer)
+    count, locate = _compact(words, down=down)
     ex = ExactTest(depth, points, columns, K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,
                    hw=half_width, test=test, nearer=nearer, source=pixel_source)
