@@ -99,36 +99,6 @@ def test_helpers_reduce_to_the_plain_computation():
                 assert bool(xla_tuning.any_true(mask)) == bool(np.any(np.asarray(mask)))
 
 
-def test_fences_and_cond_all_run_op_by_op_without_jit():
-    """Under ``jax.disable_jit()`` a fence and ``cond_all`` run their function on the concrete arrays (op by op,
-    only the branch the predicate picks), not traced into one compiled conditional; under ``vmap`` (a batched
-    token) the steered path stays; every way gives the plain result."""
-    import jax
-    import jax.numpy as jnp
-    seen = []
-
-    def fn(x):
-        seen.append(isinstance(x, jax.core.Tracer))
-        return (x * 2.0 + 1.0,)
-
-    def other(x):
-        seen.append("other")
-        return (x * 2.0 + 1.0,)
-
-    x = jnp.arange(6.0)
-    with xla_tuning.forced("cpu"):
-        with jax.disable_jit():
-            got = xla_tuning.stage(fn, (x,), jnp.int32(3))
-            assert seen == [False]
-            picked = xla_tuning.cond_all(jnp.bool_(True), fn, other, x)
-            assert seen == [False, False], "only the picked branch runs, on concrete arrays"
-            batched = jax.vmap(lambda v: xla_tuning.stage(fn, (v,), v[0].astype(jnp.int32)))(x.reshape(2, 3))
-            assert seen[2:] and all(s is True for s in seen[2:]), "a batched token keeps the steered (traced) path"
-        jitted = jax.jit(lambda v: xla_tuning.stage(fn, (v,), jnp.int32(3)))(x)
-    for out in (got, picked, jitted, (batched[0].reshape(-1),)):
-        np.testing.assert_array_equal(np.asarray(out[0]), np.asarray(x * 2.0 + 1.0))
-
-
 def test_entry_jit_compiles_with_the_options_at_the_top_level_only():
     """entry_jit: a top-level call compiles with COMPILER_OPTIONS (fewer copies in an in-place loop than
     the plain jit's program); JAX rejects the options on a nested jit, so a call inside jit / vmap takes

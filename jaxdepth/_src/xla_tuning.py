@@ -18,9 +18,7 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   are real buffers. The producer runs inside the branch, so nothing is copied. Under ``vmap``
   the predicate is reduced to a scalar (``custom_vmap``), so the conditional is not turned
   into a select that would run both branches; a ``custom_jvp`` differentiates ``fn``
-  directly, so gradients flow as if the fence were not there. Plain: ``fn(*args)``, and so
-  op by op (``jax.disable_jit()``, where nothing fuses): ``fn`` runs primitive by primitive there,
-  not as one compiled conditional (the same for :func:`cond_all`: the branch the predicate picks).
+  directly, so gradients flow as if the fence were not there. Plain: ``fn(*args)``.
 * **Channel packing** (:func:`pack_pair`, :func:`take_pair`). Two float32 channels gathered
   at the same indices travel as one complex64 array: half the gathered elements of two
   float32 gathers, and XLA fuses a complex gather into its consumer where it would not fuse a
@@ -138,12 +136,7 @@ def _steered(scalar, operands, *, single, batched, reduce, tangent_fn=None):
     unbatched operands are broadcast leaf by leaf, and ``batched(scalar,
     operands)`` computes the whole batch. With ``tangent_fn``, JVPs are
     ``jax.jvp(tangent_fn(scalar), (operands,), (operand_tangents,))``.
-    Op by op (``jax.disable_jit()``) with a concrete ``scalar`` it is ``single(scalar, operands)``
-    itself: nothing fuses there, so nothing needs steering, and ``lax.cond`` runs the branch in Python
-    (through ``custom_vmap`` it would be traced and compiled as one program, both branches).
     """
-    if jax.config.jax_disable_jit and not isinstance(scalar, jax.core.Tracer):
-        return single(scalar, operands)
 
     @custom_batching.custom_vmap
     def run(scalar, operands):
