@@ -90,7 +90,8 @@ def test_median_network_sorts():
 @pytest.mark.xdist_group("ip_basic_synthetic")  # one worker compiles their shared program once
 @pytest.mark.parametrize("extrapolate", [False, True])
 def test_ip_basic_equals_opencv_synthetic(extrapolate):
-    """80 x 80 (the isolated-point test's size: its program without extrapolation)."""
+    """80 x 80 (the isolated-point test's size: its program without extrapolation; with it, the stage table's
+    ip_basic row's program and frames)."""
     for seed in range(3):
         d = sparse_image(seed, 80, 80, density=(0.02, 0.06, 0.3)[seed])
         got = np.asarray(ipb.ip_basic(d, extrapolate=extrapolate, blur_type="gaussian"))

@@ -18,6 +18,9 @@ import pytest
 from jaxdepth._src import synthetic, synthetic_images
 from jaxdepth._src.types import LidarSpec
 
+# One worker for the module: its tests share the small scene's render_image program (on two workers two tests
+# compiled it at once: suite12's profile; docs/testing.md, "Compiled programs").
+pytestmark = pytest.mark.xdist_group("synthetic_images")
 SPEC = LidarSpec(beams=16, fov_up_deg=2.0, fov_down_deg=-24.9, columns=256)
 SUN = np.asarray(synthetic_images.SUN_DIRECTION) / np.linalg.norm(synthetic_images.SUN_DIRECTION)
 AMBIENT = 0.4

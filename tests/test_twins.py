@@ -15,6 +15,9 @@ from jaxdepth.research.twins import TWIN_RIGS, make_twin, write_twin
 from tests.conftest import require_shared
 
 SCALE = 0.1
+# One worker for the module: its twins' renders (render_twin_depth, _cast_unit) are shared by tests that, on two
+# workers, both compiled them (suite12's profile; docs/testing.md, "Compiled programs").
+pytestmark = pytest.mark.xdist_group("twins")
 
 
 @pytest.fixture(scope="module")
