@@ -28,7 +28,8 @@ compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stag
 so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs and :func:`complete_rig`,
 which return depth alone, run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
 pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
-(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
+(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk. Every program here is an
+:func:`~jaxdepth._src.xla_tuning.entry_jit` (region-analysis copy insertion at the top level; the same bytes).
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
