@@ -41,9 +41,10 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   state in place only where its copy insertion proves no live value aliases it, and copies the rest
   every loop step (loop counters, carried rows) or once per loop (whole images); the region analysis
   proves more of it: on the KITTI frame 15 fewer copies (10 of them loop counters, copied every step,
-  two (H, W) int32 images), the same bytes, about 0.9x the frame's CPU; on the Argoverse 2 rig's
-  depth program about 0.95x (docs/speed.md, "The rig's tail against one camera"). A compile option, not an ``XLA_FLAGS`` setting: only the programs it is given
-  to see it, and backends other than XLA:CPU do not read it, so it holds in both modes.
+  two (H, W) int32 images), the same bytes, about 0.9x the frame's CPU; on the rigs' depth programs
+  about 0.95x, their projection 0.86x (docs/speed.md, "The rig's tail against one camera"). A compile
+  option, not an ``XLA_FLAGS`` setting: only the programs it is given see it, and backends other than
+  XLA:CPU do not read it, so it holds in both modes.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
