@@ -10,6 +10,8 @@ both (the order alternating), process CPU and wall ns per real pixel, per-round 
 job's program before and after it ran a depth-only program, branch rigtail5); outputs compared on ``depth``.
 ``--stages``: the three stage programs (projection, Step 2, Steps 3-4) compiled and timed apart, each library's
 on its own previous stages' outputs (with ``--depth-only`` the tail returns ``depth`` alone).
+Each library's programs compile with the options that library gives its rig programs (``compiler_options`` of
+its ``xla_tuning.entry_jit``, region-analysis copy insertion, since branch rigtail7; none before).
 
     python -m benchmarks.bench_rig_against_checkout --checkout /path/to/main [--cases av2 nuscenes]
         [--rounds 5] [--depth-only | --this-depth-only] [--stages] [--json benchmarks/results/rig_against_checkout.json]
@@ -80,7 +82,13 @@ def _program(package: str, case: str, depth_only: bool, stages: bool = False):
     if stages:
         return _stage_programs(run, args, depth_only, pixels)
     fn = (lambda *a: run(*a).depth) if depth_only else run
-    return jax.jit(fn).lower(*args).compile(), args, pixels
+    program = S.sources_depth_program if case == "av2" else R.rig_depth_program
+    return jax.jit(fn).lower(*args).compile(_options(program)), args, pixels
+
+
+def _options(program):
+    """The compile options the library gives ``program`` (``xla_tuning.entry_jit``'s), None if it gives none."""
+    return getattr(program, "compiler_options", None)
 
 
 def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
@@ -99,7 +107,7 @@ def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
         fn = functools.partial(stage, **statics)
         if name == "tail" and depth_only:
             fn = (lambda f: lambda *a: f(*a).depth)(fn)
-        out[name] = (jax.jit(fn).lower(*stage_args).compile(), stage_args, pixels)
+        out[name] = (jax.jit(fn).lower(*stage_args).compile(_options(stage)), stage_args, pixels)
     return out
 
 

@@ -77,6 +77,31 @@ def test_a_stored_program_runs_without_tracing_and_gives_the_jit_bytes(cache_on,
     assert _same(Program(fn, name="toy", statics=("s", 1))(*other), fn(*other)) and exports == ["toy"]
 
 
+def test_an_entry_jit_program_runs_from_disk_with_its_compile_options(cache_on, exports, monkeypatch):
+    """A Program of an ``xla_tuning.entry_jit`` function (the rig / sources / nuScenes programs): the ``jit`` that
+    calls the stored Exported is given the function's compile options, exported or loaded; a plain ``jit``'s is
+    given none; the bytes are the plain ``jit`` call's (an in-place loop, where the options change the copies)."""
+    from jaxdepth._src import xla_tuning
+
+    def sweep(x):
+        return jax.lax.fori_loop(1, x.shape[0], lambda i, b: b.at[i].set(jnp.minimum(b[i], b[i - 1] + 2)), x)
+
+    given, real_jit = [], jax.jit
+
+    def recorded(fun, **kwargs):
+        if getattr(fun, "__name__", "") == "call":          # Exported.call: the jit that runs a stored program
+            given.append(kwargs.get("compiler_options"))
+        return real_jit(fun, **kwargs)
+
+    monkeypatch.setattr(jax, "jit", recorded)
+    x = jnp.asarray(np.random.default_rng(0).integers(0, 50, (40, 7)), jnp.int32)
+    want = real_jit(sweep)(x)
+    runs = [Program(xla_tuning.entry_jit(sweep), name="sweep")(x) for _ in range(2)]   # exported, then loaded
+    assert exports == ["sweep"] and given == [xla_tuning.COMPILER_OPTIONS] * 2
+    assert all(_same(got, want) for got in runs)
+    assert _same(Program(real_jit(sweep), name="sweep_plain")(x), want) and given[2:] == [None]
+
+
 @pytest.mark.parametrize("change", ["statics", "name", "shape", "source", "xla_flags", "tuning_env"])
 def test_a_changed_key_traces_again(cache_on, exports, monkeypatch, change):
     traces = []

@@ -28,7 +28,8 @@ compiled no faster than one program and ran 13-31 % slower (docs/speed.md, "Stag
 so :func:`complete_rig_stages` runs them in one ``jit``, :func:`rig_program`; the jobs and :func:`complete_rig`,
 which return depth alone, run :func:`rig_depth_program` (the same depth bytes, the other fields never written). The multi-source
 pipeline (:mod:`~jaxdepth._src.sources`) is split at the same places and shares the tail
-(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk.
+(:func:`camera_tails`); :mod:`jaxdepth.batch.program_cache` serves ``rig_program`` from disk. Every program here is an
+:func:`~jaxdepth._src.xla_tuning.entry_jit` (region-analysis copy insertion at the top level; the same bytes).
 
 Image-guided seeds (``SGMConfig.guidance_weight > 0``) take one camera
 image per camera on the same canvas, ``images`` (C, H, W) grey or (C, H, W, 3)
@@ -60,6 +61,7 @@ from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_apart
 from jaxdepth._src.types import LidarSpec, Stages
+from jaxdepth._src.xla_tuning import entry_jit
 
 
 @jax.tree_util.register_dataclass
@@ -292,7 +294,7 @@ def check_images(images, cameras: RigCameras, config: SGMConfig, *, where: str) 
     jax.eval_shape(lambda im: _rig_images(im, cameras, guided=config.guidance_weight > 0, where=where), images)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfig, lidar: LidarSpec) -> tuple:
     """Stage program 1 of :func:`complete_rig_stages`: Step 1 (the sweep's normals) and each camera's projection.
 
@@ -314,7 +316,7 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
     return map_by_size(per_camera, cameras)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "beams"))
+@functools.partial(entry_jit, static_argnames=("config", "beams"))
 def rig_stage_keep(views: tuple, cameras: RigCameras, *, config: SGMConfig, beams: int) -> tuple:
     """Stage program 2 of :func:`complete_rig_stages`: Step 2, one (h, w) bool keep mask per camera, per size
     group (``views``: :func:`rig_stage_projection`'s; ``beams``: the LiDAR's L)."""
@@ -346,7 +348,7 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
     return to_canvas(map_by_size(per_camera, cameras, images, tuple(zip(views, keeps))), cameras)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "beams"))
+@functools.partial(entry_jit, static_argnames=("config", "beams"))
 def rig_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig,
                    beams: int) -> Stages:
     """Stage program 3 of :func:`complete_rig_stages`: Steps 3-4 on the canvas (:func:`camera_tails`)."""
@@ -368,7 +370,7 @@ def run_rig_stages(points, valid, cameras: RigCameras, images=None, *, config: S
     return call(rig_stage_tail, views, keeps, cameras, images, config=config, beams=lidar.beams)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar"))
 def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
     """:func:`complete_rig_stages`' program: the three stages of :func:`run_rig_stages` traced into one ``jit``
     (the same bytes as the stages called one after another, and as fast or faster to compile and run:
@@ -376,7 +378,7 @@ def rig_program(points, valid, cameras: RigCameras, images=None, *, config: SGMC
     return run_rig_stages(points, valid, cameras, images, config=config, lidar=lidar)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "lidar", "seen"))
+@functools.partial(entry_jit, static_argnames=("config", "lidar", "seen"))
 def rig_depth_program(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig,
                       lidar: LidarSpec, seen: bool = False):
     """:func:`rig_program`'s (C, H, W) ``depth`` alone (the jobs' program, :func:`complete_rig`'s): the other

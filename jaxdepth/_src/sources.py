@@ -34,8 +34,7 @@ As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is writte
 each camera's z-buffer with each pixel's source), :func:`sources_stage_keep` (Step 2 and the top-line rule)
 and :func:`sources_stage_tail` (Steps 3-4), run in one ``jit``, :func:`sources_program`.
 
-With one source at the points' origin, :func:`complete_sources` equals
-:func:`~jaxdepth.complete_rig` (tests/test_sources.py).
+With one source at the points' origin, :func:`complete_sources` equals :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
 """
 
 from __future__ import annotations
@@ -58,6 +57,7 @@ from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
                               map_by_size)
 from jaxdepth._src.types import LidarSpec, Stages
+from jaxdepth._src.xla_tuning import entry_jit
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
 # these names keep their defaults for the functions that take them one by one.
@@ -568,7 +568,7 @@ def default_beams(sources: Sources) -> int:
     return sum(spec.beams for spec, sw in zip(sources.lidars, sources.sweep) if sw == 0) or sources.lidars[0].beams
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "occlusion"))
+@functools.partial(entry_jit, static_argnames=("config", "free_space", "occlusion"))
 def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: SGMConfig, free_space: bool,
                              occlusion: bool = True) -> tuple:
     """Stage program 1 of :func:`complete_sources_stages`: Step 1 per source, the free-space and occlusion
@@ -605,7 +605,7 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
     return map_by_size(per_camera, cameras)     # one vmap per camera size (rig.py)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "beams"))
+@functools.partial(entry_jit, static_argnames=("config", "beams"))
 def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, config: SGMConfig,
                        beams: int) -> tuple:
     """Stage program 2 of :func:`complete_sources_stages`: Step 2 per source (:func:`source_keep_mask`, the
@@ -624,7 +624,7 @@ def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, c
     return map_by_size(per_camera, cameras, None, views)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "beams"))
+@functools.partial(entry_jit, static_argnames=("config", "beams"))
 def sources_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig,
                        beams: int) -> Stages:
     """Stage program 3 of :func:`complete_sources_stages`: Steps 3-4 on the canvas
@@ -644,7 +644,7 @@ def run_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, co
     return call(sources_stage_tail, views, keeps, cameras, images, config=config, beams=beams)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion"))
+@functools.partial(entry_jit, static_argnames=("config", "free_space", "beams", "occlusion"))
 def sources_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
                     beams: int, occlusion: bool = True) -> Stages:
     """:func:`complete_sources_stages`' program: the stages of :func:`run_sources_stages` in one ``jit``
@@ -653,7 +653,7 @@ def sources_program(sources: Sources, cameras: RigCameras, images=None, *, confi
                               occlusion=occlusion)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "free_space", "beams", "occlusion", "seen"))
+@functools.partial(entry_jit, static_argnames=("config", "free_space", "beams", "occlusion", "seen"))
 def sources_depth_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig,
                           free_space: bool, beams: int, occlusion: bool = True, seen: bool = False):
     """:func:`sources_program`'s ``depth`` alone, or ``(depth, seen)`` (see

@@ -36,13 +36,15 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
 * **Wrap padding as one gather** (:func:`wrap_pad`). XLA:CPU compiles each slice feeding a
   concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
   Plain: slices and concatenates (:func:`wrap_pad_slices`).
-* **Copy insertion by region analysis** (:data:`COMPILER_OPTIONS`, given to the single-frame entry
-  points' ``jax.jit`` by :func:`entry_jit`). XLA:CPU keeps loop state in place only where its copy insertion proves no
-  live value aliases it, and copies the rest every loop step (loop counters, carried rows) or once
-  per loop (whole images); the region analysis proves more of it: on the KITTI frame 15 fewer
-  copies (10 of them loop counters, copied every step, two (H, W) int32 images), the same bytes, about
-  0.9x the frame's CPU. A compile option, not an ``XLA_FLAGS`` setting: only the programs it is given
-  to see it, and backends other than XLA:CPU do not read it, so it holds in both modes.
+* **Copy insertion by region analysis** (:data:`COMPILER_OPTIONS`, given by :func:`entry_jit` to the
+  ``jax.jit`` of the single-frame entry points and of the rig / sources programs). XLA:CPU keeps loop
+  state in place only where its copy insertion proves no live value aliases it, and copies the rest
+  every loop step (loop counters, carried rows) or once per loop (whole images); the region analysis
+  proves more of it: on the KITTI frame 15 fewer copies (10 of them loop counters, copied every step,
+  two (H, W) int32 images), the same bytes, about 0.9x the frame's CPU; on the rigs' depth programs
+  about 0.95x, their projection 0.86x (docs/speed.md, "The rig's tail against one camera"). A compile
+  option, not an ``XLA_FLAGS`` setting: only the programs it is given see it, and backends other than
+  XLA:CPU do not read it, so it holds in both modes.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -350,7 +352,9 @@ def entry_jit(fun=None, **jit_kwargs):
     (JAX then refuses the options), the call goes to the plain ``jit``, whose program the caller's
     compiles. Same results either way (the options steer copy insertion only).
     Usable as ``@entry_jit`` or ``@functools.partial(entry_jit, static_argnames=...)``; ``lower`` and
-    ``clear_cache`` are the top-level ``jit``'s (``clear_cache`` clears both).
+    ``clear_cache`` are the top-level ``jit``'s (``clear_cache`` clears both); ``compiler_options`` is
+    :data:`COMPILER_OPTIONS`, for callers that compile the function inside a ``jit`` of their own (the program
+    cache's :class:`~jaxdepth.batch.program_cache.Program`, benchmarks).
     """
     if fun is None:
         return functools.partial(entry_jit, **jit_kwargs)
@@ -374,5 +378,5 @@ def entry_jit(fun=None, **jit_kwargs):
         plain.clear_cache()
         top.clear_cache()
 
-    call.lower, call.clear_cache = top.lower, clear_cache
+    call.lower, call.clear_cache, call.compiler_options = top.lower, clear_cache, COMPILER_OPTIONS
     return call

@@ -85,25 +85,23 @@ class _SampleJob:
 def _depth_fn(config, lidar):
     """jit: (padded (B, 3), valid (B,), RigCameras[, images (C, H, W, 3) uint8 when guided]) -> (C, H, W)
     depth; one trace per bucket and canvas."""
-    import jax
-
     from jaxdepth._src.rig import complete_rig_stages
+    from jaxdepth._src.xla_tuning import entry_jit
     from jaxdepth.batch.program_cache import Program
 
     def depth(points, valid, cameras, images=None):
         return complete_rig_stages(points, valid, cameras, config=config, lidar=lidar, images=images).depth
 
-    return Program(jax.jit(depth), name="nuscenes_depth", statics=(config, lidar))
+    return Program(entry_jit(depth), name="nuscenes_depth", statics=(config, lidar))
 
 
 @functools.lru_cache(maxsize=8)
 def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
     """jit: as :func:`_depth_fn`, returning ((C, H, W) depth, valid, seed distance) for the extra outputs
     (:func:`jaxdepth._src.validity.validity_and_distance` per camera)."""
-    import jax
-
     from jaxdepth._src.rig import complete_rig_stages
     from jaxdepth._src.validity import rig_validity_and_distance
+    from jaxdepth._src.xla_tuning import entry_jit
     from jaxdepth.batch.program_cache import Program
 
     def depth(points, valid, cameras, images=None):
@@ -111,7 +109,7 @@ def _depth_and_validity_fn(config, lidar, max_seed_distance_px: float):
         return (stages.depth,) + rig_validity_and_distance(stages, cameras, lidar=lidar, metric=config.distance_metric,
                                                            max_seed_distance_px=max_seed_distance_px)
 
-    return Program(jax.jit(depth), name="nuscenes_depth_validity", statics=(config, lidar, max_seed_distance_px))
+    return Program(entry_jit(depth), name="nuscenes_depth_validity", statics=(config, lidar, max_seed_distance_px))
 
 
 def plan(tables, dst: pathlib.Path, *, overwrite: bool, summary, notify, extras=None) -> list:

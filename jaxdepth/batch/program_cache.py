@@ -150,7 +150,9 @@ class Program:
     ``jitted``: a ``jax.jit`` function of positional array pytrees (its static options already bound);
     ``name`` and ``statics`` (hashable, with a stable ``repr``): what, beyond the inputs' structure and
     shapes, selects the program (part of the key). ``in_shardings``: ``in_shardings(exported)`` -> the
-    ``in_shardings`` of the ``jit`` that calls an Exported of several devices (None: one device).
+    ``in_shardings`` of the ``jit`` that calls an Exported of several devices (None: one device). The ``jit``
+    that calls an Exported compiles with ``jitted.compiler_options`` when it has them
+    (:func:`jaxdepth._src.xla_tuning.entry_jit`'s), as the plain call would.
     Calling returns what ``jitted`` returns, the same bytes.
     """
 
@@ -186,7 +188,9 @@ class Program:
         else:
             exported, out_tree = loaded
         shardings = self.in_shardings(exported) if self.in_shardings is not None and exported.nr_devices > 1 else None
-        called = jax.jit(exported.call) if shardings is None else jax.jit(exported.call, in_shardings=shardings)
+        options = getattr(self.jitted, "compiler_options", None)
+        options = {} if options is None else dict(compiler_options=options)
+        called = jax.jit(exported.call, **options, **({} if shardings is None else dict(in_shardings=shardings)))
 
         def call(*flat):
             return jax.tree_util.tree_unflatten(out_tree, called(*flat))
@@ -213,7 +217,7 @@ def _stages_program(stage: Callable, statics: tuple) -> Program:
     """The :class:`Program` of a public ``jit`` of :mod:`jaxdepth._src.rig` / :mod:`jaxdepth._src.sources`
     (``rig_program``, ``sources_program``, or one of their stage programs, e.g. ``rig_stage_projection``),
     its static options ``statics`` ((name, value), ...) bound; named after it (entry and compile cache names)."""
-    import jax
+    from jaxdepth._src.xla_tuning import entry_jit
 
     options = dict(statics)
 
@@ -221,7 +225,7 @@ def _stages_program(stage: Callable, statics: tuple) -> Program:
         return stage(*args, **options)
 
     program.__name__ = program.__qualname__ = stage.__name__   # the compile cache entry's name
-    return Program(jax.jit(program), name=stage.__name__, statics=statics)
+    return Program(entry_jit(program), name=stage.__name__, statics=statics)
 
 
 def cached_stage(stage: Callable, *args, **statics):
