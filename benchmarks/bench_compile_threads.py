@@ -19,6 +19,11 @@ after another) and ``pool`` (the same, each stage's compile handed to a thread p
 ``os.cpu_count()`` as soon as it is lowered, so that the next stage's trace and lowering, and the stages'
 compiles, overlap). The variants rotate in order round by round.
 
+``first``: the cold path to the first and second sweep of the same cases, with the demand's idle estimate at
+each: ``one`` (the one program compiled, two sweeps through it), ``keep`` (the stage programs compiled in the
+pool, both sweeps through them) and ``switch`` (the same, while the one program is lowered and compiled in a
+background thread; the second sweep through it, once compiled). Outputs compared byte for byte.
+
     python -m benchmarks.bench_compile_threads [--parts threads stages] [--cases av2] [--rounds 3]
         [--json benchmarks/results/compile_threads.json]
 """
@@ -63,6 +68,7 @@ class Demand:
     def __init__(self, period: float = 0.05):
         self.period, self.cores = period, os.cpu_count() or 1
         self.idle_s = self.single_cpu_s = self.cpu_s = 0.0
+        self.t0 = time.perf_counter()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -90,6 +96,10 @@ class Demand:
             self.idle_s += used / min(self.cores, max(1.0, n))
             self.single_cpu_s += used if n <= 1 else 0.0
             cpu, wanting = now, want
+
+    def mark(self) -> dict:
+        """The estimate so far (up to the last sample), wall seconds since the start beside it."""
+        return {"idle_estimate_s": self.idle_s, "sampled_cpu_s": self.cpu_s, "wall_s": time.perf_counter() - self.t0}
 
     def stop(self) -> dict:
         self._stop.set()
@@ -131,9 +141,10 @@ def _kitti_lowered(width: int):
     return jax.jit(jaxdepth.complete).lower(sparse[:, :width], K, T)
 
 
-def _compile_in(pool, lowered, clock: Clock):
+def _compile_in(pool, lowered, clock: Clock | None):
     def task():
-        clock.callers.add(threading.get_native_id())
+        if clock is not None:
+            clock.callers.add(threading.get_native_id())
         return lowered.compile()
     return pool.submit(task)
 
@@ -161,6 +172,18 @@ def part_threads(rounds: int) -> dict:
             "median_wall_ratio_threads_serial": statistics.median(r["wall_ratio_threads_serial"] for r in out)}
 
 
+def _digest(tree) -> str:
+    """SHA-256 of every leaf's bytes, in order."""
+    import hashlib
+
+    import jax
+    import numpy as np
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(tree):
+        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+    return h.hexdigest()
+
+
 def _shape_of(tree):
     import jax
     return jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), tree)
@@ -181,46 +204,107 @@ def compile_stages(stages, args, statics, *, pool=None, clock: Clock | None = No
     return [d.result() for d in done] if pool is not None else done
 
 
-def part_stages(case: str, rounds: int) -> dict:
+def _run_stages(exes: list, args: tuple):
+    """The three compiled stage programs called in turn (``args`` as in :func:`compile_stages`)."""
+    views = exes[0](*args[0])
+    keeps = exes[1](*args[1](views))
+    return exes[2](*args[2]((views, keeps)))
+
+
+def _pool_compiled(stages, args, statics, clock: Clock | None = None) -> list:
+    with concurrent.futures.ThreadPoolExecutor(os.cpu_count()) as pool:
+        return compile_stages(stages, args, statics, pool=pool, clock=clock)
+
+
+def _each_variant(variants: tuple, rounds: int, out: list):
+    """Yields ``(row, variant)``: ``rounds`` rounds (each a ``row`` dict appended to ``out``) of the variants,
+    each round in another order (each variant first in turn), JAX's in-memory caches cleared before each."""
     import jax
-    import numpy as np
+    for r in range(rounds):
+        row = {}
+        out.append(row)
+        for variant in variants[r % len(variants):] + variants[:r % len(variants)]:
+            jax.clear_caches()
+            yield row, variant
+
+
+def part_stages(case: str, rounds: int) -> dict:
 
     from benchmarks.bench_stage_programs import _case_inputs
     stages, args, statics, one, one_args = _case_inputs(case)
     variants = ("one", "stages", "pool")
     out, reference = [], None
-    for r in range(rounds):
-        row = {}
-        for variant in variants[r % 3:] + variants[:r % 3]:
-            jax.clear_caches()
-            clock = Clock()
-            if variant == "one":
-                exes = [one.lower(*one_args).compile()]
-            elif variant == "stages":
-                exes = compile_stages(stages, args, statics)
-            else:
-                with concurrent.futures.ThreadPoolExecutor(os.cpu_count()) as pool:
-                    exes = compile_stages(stages, args, statics, pool=pool, clock=clock)
-            row[variant] = clock.stop()
-            if variant == "one":
-                result = exes[0](*one_args)
-            else:
-                views = exes[0](*args[0])
-                keeps = exes[1](*args[1](views))
-                result = exes[2](*args[2]((views, keeps)))
-            digest = [np.asarray(leaf).tobytes() for leaf in jax.tree_util.tree_leaves(result)]
-            reference = digest if reference is None else reference
-            row[variant]["bytes_identical_to_first"] = digest == reference
-            print(case, r, variant, _short(row[variant]), flush=True)
-        out.append(row)
+    for row, variant in _each_variant(variants, rounds, out):
+        clock = Clock()
+        if variant == "one":
+            exes = [one.lower(*one_args).compile()]
+        elif variant == "stages":
+            exes = compile_stages(stages, args, statics)
+        else:
+            exes = _pool_compiled(stages, args, statics, clock)
+        row[variant] = clock.stop()
+        result = exes[0](*one_args) if variant == "one" else _run_stages(exes, args)
+        digest = _digest(result)
+        del result, exes
+        reference = digest if reference is None else reference
+        row[variant]["bytes_identical_to_first"] = digest == reference
+        print(case, len(out) - 1, variant, _short(row[variant]), flush=True)
     med = {v: statistics.median(row[v]["wall_s"] for row in out) for v in variants}
     return {"rounds": out, "median_wall_s": med,
             "median_wall_ratio_pool_one": statistics.median(row["pool"]["wall_s"] / row["one"]["wall_s"] for row in out)}
 
 
+def part_first(case: str, rounds: int) -> dict:
+    """Compile and two sweeps (``block_until_ready``) three ways; the demand's idle estimate and CPU seconds
+    at the first sweep's end and at the second's (see the module docs, part ``first``)."""
+    import jax
+
+    from benchmarks.bench_stage_programs import _case_inputs
+    stages, args, statics, one, one_args = _case_inputs(case)
+
+    def run_stages(exes):
+        return jax.block_until_ready(_run_stages(exes, args))
+
+    variants = ("one", "keep", "switch")
+    out, reference = [], None
+    for row, variant in _each_variant(variants, rounds, out):
+        demand = Demand()
+        background = None
+        if variant == "one":
+            exe = one.lower(*one_args).compile()
+            first = jax.block_until_ready(exe(*one_args))
+        else:
+            exes = _pool_compiled(stages, args, statics)
+            if variant == "switch":   # the one program, traced and compiled beside the first sweep
+                background = concurrent.futures.ThreadPoolExecutor(1).submit(
+                    lambda: one.lower(*one_args).compile())
+            first = run_stages(exes)
+        at_first = demand.mark()
+        if variant == "one":
+            second = jax.block_until_ready(exe(*one_args))
+        elif variant == "keep":
+            second = run_stages(exes)
+        else:
+            second = jax.block_until_ready(background.result()(*one_args))
+        at_second = demand.mark()
+        total = demand.stop()
+        digest = _digest((first, second))
+        reference = digest if reference is None else reference
+        row[variant] = {"first_sweep": at_first, "second_sweep": at_second, "total": total,
+                        "load_1min": os.getloadavg()[0], "bytes_identical_to_first": digest == reference}
+        del first, second, background
+        exe = exes = None   # free the executables before the next variant
+        print(case, len(out) - 1, variant, "first", _short(at_first), "second", _short(at_second),
+              "identical", digest == reference, flush=True)
+    return {"rounds": out, "median_idle_first_s": {v: statistics.median(
+        row[v]["first_sweep"]["idle_estimate_s"] for row in out) for v in variants},
+        "median_idle_second_s": {v: statistics.median(row[v]["second_sweep"]["idle_estimate_s"] for row in out)
+                                 for v in variants}}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--parts", nargs="+", default=["threads", "stages"], choices=("threads", "stages"))
+    parser.add_argument("--parts", nargs="+", default=["threads", "stages"], choices=("threads", "stages", "first"))
     parser.add_argument("--cases", nargs="+", default=["av2"], choices=("av2", "nuscenes"))
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--json", default=str(RESULTS / "compile_threads.json"))
@@ -233,6 +317,8 @@ def main(argv=None) -> int:
         doc["threads"] = part_threads(args.rounds)
     if "stages" in args.parts:
         doc["stages"] = {case: part_stages(case, args.rounds) for case in args.cases}
+    if "first" in args.parts:
+        doc["first"] = {case: part_first(case, args.rounds) for case in args.cases}
     doc["load_average_end"] = os.getloadavg()
     write_results(args.json, doc, None, t0)
     return 0
