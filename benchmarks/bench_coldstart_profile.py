@@ -10,7 +10,8 @@ meanwhile (``getrusage``: every thread, so reader threads running beside a compi
 persistent cache's hits and misses, the files in the cache folder afterwards (their bytes), and the size of each lowered module (StableHLO text written by
 ``jax_dump_ir_to``: lines and bytes; the dump itself costs a little of the lowering time). Reading
 (the job's loader) and PNG writes (``jaxdepth.batch.extras.write_outputs``) are timed by wrapping them.
-The import of ``jaxdepth.cli`` and of JAX is timed apart; the interpreter's own start is the
+``demand``: the child's idle estimate and its CPU seconds while at most one thread wanted a core
+(:class:`benchmarks.bench_compile_threads.Demand`, sampled every 50 ms from the imports to the end). The import of ``jaxdepth.cli`` and of JAX is timed apart; the interpreter's own start is the
 parent's wall time minus the child's.
 
 Cases: ``av2`` (``complete LOG OUT --lidar-time``, the shared Argoverse 2 log cut to its first sweep:
@@ -109,6 +110,8 @@ def record_compile_steps(t0: float) -> tuple[list, dict]:
 
 def child(argv: list, ir_dir: str, report: str) -> int:
     """Runs ``jaxdepth`` ``argv`` in this process and writes the profile to ``report`` (JSON)."""
+    from benchmarks.bench_compile_threads import Demand
+    demand = Demand()
     t0, c0 = time.perf_counter(), _cpu()
     import jaxdepth.cli as cli
     t_cli, c_cli = time.perf_counter(), _cpu()
@@ -142,7 +145,7 @@ def child(argv: list, ir_dir: str, report: str) -> int:
     doc = {"exit": code, "import_cli": {"wall_s": t_cli - t0, "cpu_s": c_cli - c0},
            "import_jax": {"wall_s": t_jax - t_cli, "cpu_s": c_jax - c_cli},
            "command": {"wall_s": t2 - t1, "cpu_s": c2 - c1}, "events": events, "cache_events": counts,
-           "reads_wall_s": reads, "writes_wall_s": writes, "lowered_modules": modules}
+           "reads_wall_s": reads, "writes_wall_s": writes, "lowered_modules": modules, "demand": demand.stop()}
     pathlib.Path(report).write_text(json.dumps(doc, indent=1))
     return 0
 
@@ -210,7 +213,8 @@ def main(argv=None) -> int:
             s = doc["summary"]["steps"]
             print(f"{case}: process {doc['process']['wall_s']:.1f} s wall / {doc['process']['cpu_s']:.1f} s CPU; "
                   + ", ".join(f"{k} {v['wall_s']:.1f} s ({v['count']})" for k, v in s.items())
-                  + f"; cache {doc['cache_events']}", flush=True)
+                  + f"; cache {doc['cache_events']}; demand "
+                  + ", ".join(f"{k} {v:.1f}" for k, v in doc["demand"].items()), flush=True)
     try:
         load = os.getloadavg()
     except OSError:
