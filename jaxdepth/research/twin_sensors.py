@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxdepth._src.poses import rotation_rpy
 from jaxdepth._src.scene import SceneArrays, camera_rays, cast_rays
 
 
@@ -106,10 +107,9 @@ def stagger_lasers(unit: Unit, *, seed: int = 0) -> Unit:
     from ``seed``: a property of the sensor, the same every sweep).
     """
     phase = np.random.default_rng([int(seed), 39]).uniform(-0.5, 0.5, unit.rows)
-    a = (-2.0 * math.pi * phase / unit.cols)[:, None]
+    R = np.stack([rotation_rpy(0.0, 0.0, -2.0 * math.pi * p / unit.cols) for p in phase])     # (rows, 3, 3)
     d = unit.directions.reshape(unit.rows, unit.cols, 3).astype(np.float64)
-    turned = np.stack([np.cos(a) * d[..., 0] - np.sin(a) * d[..., 1], np.sin(a) * d[..., 0] + np.cos(a) * d[..., 1],
-                       d[..., 2]], axis=-1)
+    turned = np.einsum("rij,rcj->rci", R, d)
     return dataclasses.replace(unit, directions=turned.reshape(-1, 3).astype(np.float32))
 
 
