@@ -113,35 +113,25 @@ def condition_1(test, view_p, view_q, du, dv, cell_u, cell_v):
     return ok_p & ok_q & moved & passes & through_cell
 
 
-def pack_columns(valid: jax.Array, *, on=None) -> jax.Array:
+def pack_columns(valid: jax.Array) -> jax.Array:
     """(H, W) bool -> (ceil(H / 32), W) uint32: bit b of word m in column c is ``valid[32 m + b, c]``.
 
     Bit b of every word is the strided row slice ``valid[b::32]``; a slice one word short (H not a multiple
     of 32) is padded by one row of zeros as uint32 (a pad of the whole (H, W) mask to 32 rows a word ran as
-    a kernel of its own, ~3 % of the rig's Step 2 on its 1550-row cameras). ``on``: optional elementwise
-    function giving the bool mask of ``valid``'s values (e.g. a depth image's pixels with depth), applied to
-    each row slice (no mask of the whole image is formed first).
+    a kernel of its own, ~3 % of the rig's Step 2 on its 1550-row cameras).
     """
-    on = (lambda x: x) if on is None else on
     height, width = valid.shape
     n_words = -(-height // WORD_BITS)
     packed = jnp.zeros((n_words, width), jnp.uint32)
     if height % WORD_BITS == 0:     # whole words: rows b of each 32 as a reshape (no slice is short)
         bits = valid.reshape(n_words, WORD_BITS, width)
         for i in range(WORD_BITS):
-            packed = packed | (on(bits[:, i, :]).astype(jnp.uint32) << i)
+            packed = packed | (bits[:, i, :].astype(jnp.uint32) << i)
         return packed
     for i in range(min(WORD_BITS, height)):
-        bits = on(jax.lax.slice_in_dim(valid, i, height, WORD_BITS, axis=0)).astype(jnp.uint32) << i
+        bits = jax.lax.slice_in_dim(valid, i, height, WORD_BITS, axis=0).astype(jnp.uint32) << i
         packed = packed | jnp.pad(bits, ((0, n_words - bits.shape[0]), (0, 0)))
     return packed
-
-
-def unpack_columns(columns: jax.Array, *, height: int) -> jax.Array:
-    """:func:`pack_columns` undone: (ceil(H / 32), W) uint32 -> the (H, W) bool mask (``height`` = H)."""
-    n_words, width = columns.shape
-    bits = (columns[:, None, :] >> jnp.arange(WORD_BITS, dtype=jnp.uint32)[None, :, None]) & jnp.uint32(1)
-    return bits.astype(bool).reshape(n_words * WORD_BITS, width)[:height]
 
 
 class ExactTest(NamedTuple):

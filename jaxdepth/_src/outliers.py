@@ -157,11 +157,6 @@ _ZSAT = 65534
 _ZNONE = 65535
 
 
-def _has_depth(depth):
-    """The pixels of ``depth`` (float32, any shape) that hold a depth: finite and positive."""
-    return (depth > 0) & jnp.isfinite(depth)
-
-
 def _z_key(z, part):
     return jnp.where(part, jnp.clip(jnp.floor(z * np.float32(_ZQ)), 0.0, float(_ZSAT)), float(_ZNONE)
                      ).astype(jnp.uint16)
@@ -299,23 +294,6 @@ def _block_keys(depth, *, block):
     return low.astype(jnp.uint32) | (high.astype(jnp.uint32) << 16)
 
 
-def _depth_pass(depth, *, block):
-    """:func:`_block_keys` and the pixels with depth packed down the columns
-    (:func:`~jaxdepth._src.outlier_exact.pack_columns`) in one pass over the (H, W) ``depth``: one
-    (H / block + ceil(H / 32), W) uint32 array, the keys' rows then the words' (read it with
-    :func:`_split_pass`). Concatenated, they are one loop (two outputs of different shapes were two passes);
-    each word tests its own rows' depth (a mask of the image made first was written out, then read back).
-    Call it in a stage of its own: a slice of the concatenation in the same program is simplified back to
-    its operand (two passes again)."""
-    on = lambda d: (d > 0) & jnp.isfinite(d)
-    return jnp.concatenate([_block_keys(depth, block=block), pack_columns(depth, on=on)], axis=0)
-
-
-def _split_pass(both, *, height, block):
-    """``(keys, columns)`` of :func:`_depth_pass`'s array: (H / block, W) and (ceil(H / 32), W) uint32."""
-    return both[:height // block], both[height // block:]
-
-
 def _block_rows(blocks, *, half, hw, width):
     """Vertical minima over ``2 half + 1`` blocks of the block minima (the low halves of :func:`_block_keys`;
     each output block's rows' windows, covered by whole blocks), padded by ``_ZNONE`` to (R, width + 2 hw)
@@ -361,7 +339,7 @@ def _block_words(low, keys, columns, eps, *, block, height):
     return columns & _block_bits(on, block=block, height=height)
 
 
-def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None, keys=None):
+def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
@@ -375,16 +353,14 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None, k
       stage; the column minima take the run-time half window k as data: one program for every k.
       Tall windows (:func:`_row_block` not None): (ceil(H / 32), W) words packed down the columns
       (:func:`~jaxdepth._src.outlier_exact.pack_columns`; ``columns``: the pixels with depth so packed, or
-      None), from one dense pass over the depth (:func:`_block_keys`; ``keys``: those already made, by
-      :func:`_depth_pass`) and passes over the blocks.
+      None), from one dense pass over the depth (:func:`_block_keys`) and passes over the blocks.
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
     if b is not None:
         if columns is None:
             columns = pack_columns((depth > 0) & jnp.isfinite(depth))
-        if keys is None:
-            keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
+        keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
         low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (keys,), bounds.n_points)[0]
         low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
         # fenced: XLA fused the words (with the columns' packing) into each of the compaction's three readers
@@ -425,15 +401,14 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
         points = None if points_cam is None else points_cam.astype(jnp.float32)
     K = K.astype(jnp.float32)
     eps = jnp.asarray(epsilon_m, jnp.float32)
+    valid = (depth > 0) & jnp.isfinite(depth)
     t = T_cam_lidar.astype(jnp.float32)[:3, 3] if origins is None else origins.astype(jnp.float32)
-    block = _row_block(depth.shape[0], half_height)
-    down = block is not None        # the words' layout (:func:`_prefilter`)
-    keys, valid = None, _has_depth(depth)
-    columns = pack_columns(depth, on=_has_depth)      # from the depth, row slice by row slice (no stored mask)
+    columns = pack_columns(valid)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
                      else columns)
-    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns, keys=keys)
+    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns)
+    down = _row_block(depth.shape[0], half_height) is not None      # the words' layout (:func:`_prefilter`)
     pack = pack_columns if down else pack_bits
     if candidates is not None:
         words = words & pack(candidates)
