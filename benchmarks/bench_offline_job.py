@@ -24,6 +24,10 @@ benchmarks/results/offline_job.json.
 
     python -m benchmarks.bench_offline_job [--frames 960] [--repeats 3] [-- extra jaxdepth complete options]
     python -m benchmarks.bench_offline_job --breakdown   # per-step CPU / wall ms, one process
+    python -m benchmarks.bench_offline_job --checkout /path/to/other/worktree   # that code's job too
+
+``--checkout``: another checkout's `jaxdepth complete` (its own folder first on PYTHONPATH, its own compile
+cache) joins the interleaved rounds (the order rotates each round); its outputs must be the same bytes.
 
 Each run's CPU seconds (user + system, every thread) are recorded beside its wall time: when
 other work loads the cores, the job's wall time follows its CPU seconds.
@@ -201,6 +205,8 @@ def main(argv=None) -> int:
     parser.add_argument("--warm-frames", type=int, default=16, help="frames of the untimed cache-filling run")
     parser.add_argument("--json", default=str(RESULTS))
     parser.add_argument("--label", default="", help="free text stored with the results")
+    parser.add_argument("--checkout", default=None,
+                        help="another checkout's `jaxdepth complete`, in the same rounds (same bytes required)")
     parser.add_argument("--breakdown", action="store_true",
                         help="instead: per-step CPU / wall ms of both jobs in this process "
                              "(default --json results/offline_job_breakdown.json)")
@@ -213,6 +219,7 @@ def main(argv=None) -> int:
         return breakdown(str(RESULTS.with_name("offline_job_breakdown.json")) if args.json == str(RESULTS)
                          else args.json)
 
+    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="jaxdepth_offline_") as tmp:
         tmp = pathlib.Path(tmp)
         src = build_folder(tmp / "job", args.frames)
@@ -225,16 +232,23 @@ def main(argv=None) -> int:
         ip_cmd = [sys.executable, "-c", IP_BASIC_LOOP]
         baselines_py = str(ROOT / "jaxdepth" / "research" / "baselines.py")
 
-        wall, _ = timed(jaxdepth_cmd + [str(warm_src), str(tmp / "warm_out"), "-q"] + args.jaxdepth_args,
-                        env, "warm-up")
-        print(f"warm-up (fills the compile cache): {wall:.1f} s", file=sys.stderr)
+        envs = {"jaxdepth_complete": env}
+        if args.checkout:
+            other = pathlib.Path(args.checkout).resolve()
+            envs["jaxdepth_checkout"] = dict(env, XDG_CACHE_HOME=str(tmp / "cache_checkout"), PYTHONPATH=os.pathsep.join(
+                [str(other)] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        for which, job_env in envs.items():
+            wall, _ = timed(jaxdepth_cmd + [str(warm_src), str(tmp / "warm_out"), "-q"] + args.jaxdepth_args,
+                            job_env, "warm-up")
+            shutil.rmtree(tmp / "warm_out", ignore_errors=True)
+            print(f"warm-up of {which} (fills the compile cache): {wall:.1f} s", file=sys.stderr)
 
-        runs = {"ip_basic_loop": [], "jaxdepth_complete": []}
-        cpu = {"ip_basic_loop": [], "jaxdepth_complete": []}
-        summaries, digests = [], set()
+        kinds = ("ip_basic_loop",) + tuple(envs)
+        runs, cpu = ({k: [] for k in kinds} for _ in range(2))
+        summaries, digests, checkout_digests = [], set(), set()
         ip_digest = None
         for r in range(args.repeats):
-            order = ("ip_basic_loop", "jaxdepth_complete") if r % 2 == 0 else ("jaxdepth_complete", "ip_basic_loop")
+            order = kinds[r % len(kinds):] + kinds[:r % len(kinds)]
             for which in order:
                 out = tmp / f"out_{which}"
                 shutil.rmtree(out, ignore_errors=True)
@@ -242,10 +256,11 @@ def main(argv=None) -> int:
                     wall, _ = timed(ip_cmd + [str(src), str(out), baselines_py], env, which, cpu[which])
                     ip_digest = folder_digest(out)
                 else:
-                    wall, lines = timed(jaxdepth_cmd + [str(src), str(out)] + args.jaxdepth_args, env, which,
+                    wall, lines = timed(jaxdepth_cmd + [str(src), str(out)] + args.jaxdepth_args, envs[which], which,
                                         cpu[which])
-                    summaries.append(lines)
-                    digests.add(folder_digest(out))
+                    if which == "jaxdepth_complete":
+                        summaries.append(lines)
+                    (digests if which == "jaxdepth_complete" else checkout_digests).add(folder_digest(out))
                 runs[which].append(wall)
                 print(f"repeat {r}: {which:18s} {wall:6.2f} s, CPU {cpu[which][-1]:6.2f} s", file=sys.stderr)
 
@@ -275,7 +290,19 @@ def main(argv=None) -> int:
         "ip_basic_output": {"files": ip_digest[1], "mean_bytes_per_file": ip_digest[2] / max(ip_digest[1], 1)},
         "jaxdepth_run_summary": summaries[-1] if summaries else [],
         "target": "ratio <= 0.7",
+        "load_average_before_after": [list(load_before), list(os.getloadavg())],
     }
+    if args.checkout:
+        mine, theirs = cpu["jaxdepth_complete"], cpu["jaxdepth_checkout"]
+        result["checkout"] = {
+            "path": args.checkout,
+            "outputs_identical_to_this": checkout_digests == digests,
+            "cpu_ratio_this_over_checkout_per_round": [a / b for a, b in zip(mine, theirs)],
+            "cpu_ratio_this_over_checkout_median": statistics.median(mine) / statistics.median(theirs),
+            "cpu_ratio_checkout_over_ip_basic_median": statistics.median(theirs) / statistics.median(cpu["ip_basic_loop"]),
+            "wall_ratio_this_over_checkout_median": statistics.median(jd) / statistics.median(runs["jaxdepth_checkout"]),
+        }
+        print(json.dumps(result["checkout"], indent=2))
     print(json.dumps({k: result[k] for k in ("median_seconds", "ratio_jaxdepth_over_ip_basic_median",
                                               "cpu_ratio_jaxdepth_over_ip_basic_median",
                                               "ratio_per_interleaved_pair", "jaxdepth_outputs_identical_between_runs",
@@ -283,7 +310,8 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
-    return 0 if len(digests) == 1 else 1
+    same = len(digests) == 1 and (not args.checkout or checkout_digests == digests)
+    return 0 if same else 1
 
 
 if __name__ == "__main__":

@@ -50,6 +50,24 @@ def test_batched_equals_single_frame_calls(frames, strategy):
 
 
 @pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 batches once
+def test_the_batch_program_compiles_with_the_entry_options_and_gives_the_plain_jit_bytes(frames):
+    """The job's program (SGM, "map", as the offline job runs it) is an ``xla_tuning.entry_jit`` function: it
+    carries the entry points' compile options (region-analysis copy insertion), which the program cache gives
+    the ``jit`` of a stored program; oracle: a plain ``jax.jit`` of the same function, the same bytes."""
+    import jax
+    from jaxdepth._src import xla_tuning
+    items, T = frames
+    depths = np.stack([d for d, _ in items[:2]])
+    Ks = np.stack([k for _, k in items[:2]])
+    Ts = np.ascontiguousarray(np.broadcast_to(T, (2, 4, 4)), np.float32)
+    fn = runner.batched_completion(2, *depths.shape[1:], method="sgm", config=CONFIG, lidar=runner.presets.KITTI_HDL64,
+                                   strategy="map")
+    assert fn.jitted.compiler_options == xla_tuning.COMPILER_OPTIONS
+    plain = jax.jit(fn.jitted.__wrapped__)
+    assert np.asarray(fn(depths, Ks, Ts)).tobytes() == np.asarray(plain(depths, Ks, Ts)).tobytes()
+
+
+@pytest.mark.xdist_group("jobs_small_sgm_batches")  # one worker compiles the 64 x 128 batches once
 def test_batch_size_changes_rounding_only(frames):
     items, T = frames
     depths = np.stack([d for d, _ in items])

@@ -37,12 +37,14 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
   Plain: slices and concatenates (:func:`wrap_pad_slices`).
 * **Copy insertion by region analysis** (:data:`COMPILER_OPTIONS`, given by :func:`entry_jit` to the
-  ``jax.jit`` of the single-frame entry points and of the rig / sources programs). XLA:CPU keeps loop
+  ``jax.jit`` of the single-frame entry points, of the rig / sources programs and of the KITTI jobs' batch
+  programs, ``jaxdepth.batch.runner``). XLA:CPU keeps loop
   state in place only where its copy insertion proves no live value aliases it, and copies the rest
   every loop step (loop counters, carried rows) or once per loop (whole images); the region analysis
   proves more of it: on the KITTI frame 15 fewer copies (10 of them loop counters, copied every step,
   two (H, W) int32 images), the same bytes, about 0.9x the frame's CPU; on the rigs' depth programs
-  about 0.95x, their projection 0.86x (docs/speed.md, "The rig's tail against one camera"). A compile
+  about 0.95x, their projection 0.86x (docs/speed.md, "The rig's tail against one camera"); the KITTI job's
+  batch program 0.96-1.00x (docs/speed.md, "Step 2's dense passes and the KITTI job's programs"). A compile
   option, not an ``XLA_FLAGS`` setting: only the programs it is given see it, and backends other than
   XLA:CPU do not read it, so it holds in both modes.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32

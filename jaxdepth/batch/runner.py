@@ -38,6 +38,7 @@ from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.methods import complete_with
 from jaxdepth._src.types import LidarSpec
+from jaxdepth._src.xla_tuning import entry_jit
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png
@@ -222,10 +223,11 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
     the shape the loop strategy requires of the first argument (clear error otherwise).
     ``program``: ``(name, statics)`` of the "map" / "vmap" program, which then runs through the
     on-disk program cache (:class:`jaxdepth.batch.program_cache.Program`: a warm start skips tracing;
-    the same bytes).
+    the same bytes). Every strategy's ``jit`` is :func:`~jaxdepth._src.xla_tuning.entry_jit`'s (region-analysis
+    copy insertion, as the single-frame entry points; the same bytes as a plain ``jit``).
     """
     if strategy == "loop":
-        single = jax.jit(one)
+        single = entry_jit(one)
         targets = jax.local_devices()[:devices]
 
         def run(*args):
@@ -253,14 +255,14 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
         return per_device(*args)
 
     if program is None:
-        return jax.jit(sharded)
+        return entry_jit(sharded)
     from jaxdepth.batch.program_cache import Program
 
     def in_shardings(exported):      # the batch axis over the devices, as shard_map splits it
         mesh = Mesh(np.array(jax.local_devices()[:exported.nr_devices]), ("batch",))
         return (NamedSharding(mesh, PartitionSpec("batch")),) * len(exported.in_avals)
 
-    return Program(jax.jit(sharded), name=program[0], statics=program[1], in_shardings=in_shardings)
+    return Program(entry_jit(sharded), name=program[0], statics=program[1], in_shardings=in_shardings)
 
 
 def complete_batch(depths: np.ndarray, Ks: np.ndarray, T_cam_lidar: np.ndarray | None = None, *,
