@@ -8,10 +8,11 @@ SGM, the checkout's SGM, IP_Basic's fast mode in OpenCV (``ip_basic_opencv``, Ga
 ``bench_end_to_end``). Process CPU (user + system of every thread) and wall of each call; reported: the
 medians, the ratio of CPU sums SGM / IP_Basic for each library, and the median of the per-round ratios
 this / checkout. ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
-instead of the whole frame, against IP_Basic all the same.
+instead of the whole frame, against IP_Basic all the same. ``--above-scan background``: both libraries'
+frames with ``SGMConfig(above_scan="background")`` (Step 4c) instead of the default.
 
     python -m benchmarks.bench_frame_against_checkout --checkout PATH [--rounds 60] [--stage frame|outliers]
-        [--json benchmarks/results/frame_against_checkout.json]
+        [--above-scan plane|background] [--json benchmarks/results/frame_against_checkout.json]
 """
 
 from __future__ import annotations
@@ -32,13 +33,13 @@ from benchmarks.bench_end_to_end import wall_and_cpu_ms
 from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
 
 
-def _program(package: str, stage: str, d, k, t):
+def _program(package: str, stage: str, d, k, t, *, above_scan: str = "plane"):
     """A no-argument call of ``package``'s SGM frame (or Step 2 alone) on the frame, blocking."""
     import jax
 
     lib = importlib.import_module(package)
     presets = importlib.import_module(f"{package}._src.presets")
-    config = lib.SGMConfig()
+    config = lib.SGMConfig(above_scan=above_scan)
     if stage == "outliers":
         outliers = importlib.import_module(f"{package}._src.outliers")
         fn = jax.jit(lambda d, k, t: outliers.keep_mask_for_config(d, k, t, beams=presets.KITTI_HDL64.beams,
@@ -54,6 +55,8 @@ def main(argv=None) -> int:
     parser.add_argument("--checkout", required=True, help="another checkout (a folder holding its jaxdepth/)")
     parser.add_argument("--rounds", type=int, default=60)
     parser.add_argument("--stage", choices=("frame", "outliers"), default="frame")
+    parser.add_argument("--above-scan", choices=("plane", "background"), default="plane",
+                        help="SGMConfig.above_scan of both libraries' frames")
     parser.add_argument("--json", default=str(RESULTS / "frame_against_checkout.json"))
     args, t0 = parser.parse_args(argv), time.time()
     import jax.numpy as jnp
@@ -63,7 +66,8 @@ def main(argv=None) -> int:
     _copy_as_base(pathlib.Path(args.checkout), pathlib.Path(folder.name))
     sparse, K, T, label = load_frame()
     d, k, t = jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T)
-    calls = {"this": _program("jaxdepth", args.stage, d, k, t), "checkout": _program(BASE, args.stage, d, k, t),
+    calls = {"this": _program("jaxdepth", args.stage, d, k, t, above_scan=args.above_scan),
+             "checkout": _program(BASE, args.stage, d, k, t, above_scan=args.above_scan),
              "ip_basic": lambda: ip_basic_opencv(sparse, blur_type="gaussian")}
     outs = {name: np.asarray(fn()) for name, fn in calls.items() if name != "ip_basic"}
     same = bool(np.array_equal(outs["this"].view(np.uint8), outs["checkout"].view(np.uint8)))
@@ -81,7 +85,7 @@ def main(argv=None) -> int:
             wall[n].append(w)
             cpu[n].append(c)
     med = lambda v: statistics.median(v) * 1e3
-    doc = {"what": f"{args.stage}: this library, the checkout's and IP_Basic (OpenCV, Gaussian) in turn, one process",
+    doc = {"what": f"{args.stage} (above_scan={args.above_scan}): this library, the checkout's and IP_Basic (OpenCV, Gaussian) in turn, one process",
            "frame": label, "checkout": str(args.checkout), "rounds": args.rounds,
            "cpu_ms_median": {n: med(cpu[n]) for n in names}, "wall_ms_median": {n: med(wall[n]) for n in names},
            "cpu_ratio_to_ip_basic": {n: sum(cpu[n]) / sum(cpu["ip_basic"]) for n in ("this", "checkout")},

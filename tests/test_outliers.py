@@ -732,10 +732,11 @@ def test_row_blocks_equal_frozen_dense_sweep(seed, shape, block):
 
 @pytest.mark.parametrize("block, height", [(5, 1550), (8, 2048), (6, 900), (7, 77), (4, 36)])
 def test_block_bits_equal_packed_repeated_rows(block, height):
-    """The block path's words (each block's flag on each of its rows, packed down the columns) against
-    pack_columns of the flags repeated row by row (NumPy)."""
-    from jaxdepth._src.outlier_exact import pack_columns
+    """The block path's words (each block's flag on each of its rows, packed down the columns) against the
+    flags repeated row by row, packed by NumPy bit by bit (test_outlier_exact's oracle of ``pack_columns``);
+    through one jit (op by op each height compiled ~50 primitives: 3 s of CPU per case)."""
+    from test_outlier_exact import _pack_columns_numpy
     on = np.random.default_rng(block).random((height // block, 13)) < 0.4
-    want = np.asarray(pack_columns(jnp.asarray(np.repeat(on, block, axis=0))))
-    np.testing.assert_array_equal(np.asarray(outliers_module._block_bits(jnp.asarray(on), block=block, height=height)),
-                                  want)
+    want = _pack_columns_numpy(np.repeat(on, block, axis=0))
+    block_bits = jax.jit(outliers_module._block_bits, static_argnames=("block", "height"))
+    np.testing.assert_array_equal(np.asarray(block_bits(jnp.asarray(on), block=block, height=height)), want)
