@@ -1,0 +1,194 @@
+"""The rig's Steps 3-4 sub-stage by sub-stage: process CPU of each part jitted apart (issue 38, the rigs' tail).
+
+One process (host memory kept, ``keep_freed_memory``, as the jobs), interleaved rounds, process CPU per real
+pixel, every program compiled with the library's compile options (``xla_tuning.COMPILER_OPTIONS``). The tail
+``pipeline._complete_tail`` (default ``SGMConfig``: unguided L1 seed, column bracket, no blend) cut at its
+sub-stages, each part a program of its own on the real inputs (the previous part's outputs):
+
+- ``seed``: Step 3's distance transform (``nearest_seed`` of the Step 2 mask): ``du``, ``dv``;
+- ``gather``: the seed depth and normals read at each pixel's seed (``_gather_seeds``, complex64 pairs);
+- ``residual``: the plane residual and the clipped ``depth_raw`` (``plane_residual``);
+- ``bracket``: the column bracket (``column_hypotheses``: the neighbour search and the clip);
+- ``blur``: Step 4's Gaussian blur (``gaussian_blur``, the window form with ``image_size``);
+- ``final``: the measured depth kept, the clips and the window cleared (``clear_outside_window``);
+- ``whole``: the tail in one program (``_complete_tail`` then ``clear_outside_window``, ``depth`` out).
+
+Cases: ``vmap6``, the parts under ``vmap`` over the Argoverse 2 sweep's six 1550 x 2048 landscape cameras (the rig's
+size group, window form) and ``one``, a single 1550 x 2048 camera (the first, no window, the single-camera path);
+beside them ``rig``, the Argoverse 2 tail stage program (``sources_stage_tail``: seven cameras, two size groups,
+the canvas). The parts' chain must give the whole's ``depth`` bit for bit (checked). The sum of the parts against
+the whole is what fusion between the sub-stages saves (or costs).
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--json benchmarks/results/rig_tail_parts.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import statistics
+import time
+
+import numpy as np
+
+from benchmarks._common import RESULTS, write_results
+
+PARTS = ("seed", "gather", "residual", "bracket", "blur", "final")
+
+
+def _parts(config, beams: int) -> dict:
+    """``{part: per-camera function}`` (module docs); every one takes ``size`` (None: no window) last."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.distance import nearest_seed
+    from jaxdepth._src.hypotheses import column_hypotheses
+    from jaxdepth._src.pipeline import _gather_seeds
+    from jaxdepth._src.residual import plane_residual
+    from jaxdepth._src.smoothing import gaussian_blur
+    assert config.guidance_weight == 0 and config.column_bracket and not config.blend_hypotheses
+    assert config.above_scan == "plane" and config.keep_measured_depth
+
+    def seed(keep, size):
+        s = nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
+        return s.du, s.dv
+
+    def gather(sparse, normals, keep, du, dv, size):
+        return _gather_seeds(jnp.where(keep, sparse, 0.0), normals, du, dv)
+
+    def residual(seed_depth, seed_normal, du, dv, K, size):
+        res = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
+                             max_residual_ratio=config.max_residual_ratio)
+        return jnp.where(seed_depth > 0, jnp.clip(seed_depth + res, config.min_depth_m, config.max_depth_m), 0.0)
+
+    def bracket(depth_raw, sparse, keep, normals, K, size):
+        return column_hypotheses(depth_raw, jnp.where(keep, sparse, 0.0), jnp.zeros_like(depth_raw), normals, K,
+                                 window_px=sparse.shape[0] / beams, blend=False, materialise=True,
+                                 min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio,
+                                 image_size=size, image_gap=None if size is None else size[0] // beams)
+
+    def blur(depth_raw, size):
+        return gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
+                             image_size=size)
+
+    def final(depth, sparse, keep, seed_depth, size):
+        depth = jnp.where(seed_depth > 0, jnp.clip(jnp.where(keep, sparse, depth), config.min_depth_m,
+                                                   config.max_depth_m), 0.0)
+        if size is None:
+            return depth
+        h, w = depth.shape
+        inside = (jnp.arange(h)[:, None] < size[0]) & (jnp.arange(w)[None, :] < size[1])
+        return jnp.where(inside, depth, 0.0)
+
+    return dict(seed=seed, gather=gather, residual=residual, bracket=bracket, blur=blur, final=final)
+
+
+def _cases() -> tuple:
+    """``(cases, rig)``: ``{case: {part: (jitted, arg builder)}, ...}`` and the rig program (module docs)."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_stage_programs import _case_inputs
+    from jaxdepth._src.pipeline import _complete_tail, clear_outside_window
+    stages, args, statics, _, one_args = _case_inputs("av2")
+    jitted = [jax.jit(functools.partial(s, **e)) for s, e in zip(stages, statics)]
+    views = jitted[0](*args[0])
+    keeps = jitted[1](*args[1](views))
+    cameras, config, beams = one_args[-1], statics[2]["config"], statics[2]["beams"]
+    sizes = np.asarray(cameras.image_size).tolist()
+    group = next(g for g, v in enumerate(views) if v.sparse_depth.shape[-2:] == (1550, 2048))
+    view, keep = views[group], keeps[group]
+    landscape = [i for i, s in enumerate(sizes) if s == [1550, 2048]]
+    K = jnp.asarray(np.asarray(cameras.K)[landscape], jnp.float32)
+    T = jnp.asarray(np.asarray(cameras.T_cam_lidar)[landscape], jnp.float32)
+    parts = _parts(config, beams)
+
+    def whole(sparse, normals, points, keep, K, T, size):
+        out = _complete_tail(sparse, normals, points, K, T, beams=beams, config=config, keep=keep, image_size=size)
+        return (out if size is None else clear_outside_window(out, size)).depth
+
+    inputs = {"vmap6": dict(sparse=view.sparse_depth, normals=view.normals_cam, points=view.points_cam, keep=keep,
+                            K=K, T=T, size=jnp.broadcast_to(jnp.asarray([1550, 2048], jnp.int32), (6, 2))),
+              "one": dict(sparse=view.sparse_depth[0], normals=tuple(n[0] for n in view.normals_cam),
+                          points=tuple(p[0] for p in view.points_cam), keep=keep[0], K=K[0], T=T[0], size=None)}
+    rig = (jax.jit(lambda *a: functools.partial(stages[2], **statics[2])(*a).depth), args[2]((views, keeps)),
+           float(sum(h * w for h, w in sizes)))
+    return inputs, parts, whole, rig
+
+
+def _compile(fn, args, batched: bool, options):
+    import jax
+    if batched:
+        fn = jax.vmap(fn)
+    return jax.jit(fn).lower(*args).compile(options)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--json", default=str(RESULTS / "rig_tail_parts.json"))
+    args, t0 = parser.parse_args(argv), time.time()
+    from jaxdepth.batch.devices import keep_freed_memory
+    keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
+    import jax
+
+    from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
+    inputs, parts, whole, rig = _cases()
+    runs, same = {}, {}             # runs[name] = (executable, args, real pixels)
+    for case, x in inputs.items():
+        batched, px = case == "vmap6", 1550 * 2048.0 * (6 if case == "vmap6" else 1)
+        size = x["size"]
+        part_args = {"seed": (x["keep"], size)}
+        chain = {}
+
+        def run(name, a, batched=batched, case=case, px=px):
+            fn = parts[name] if size is not None else (lambda *b, f=parts[name]: f(*b, None))
+            a = a if size is not None else a[:-1]
+            exe = _compile(fn, a, batched, COMPILER_OPTIONS)
+            runs[f"{case}/{name}"] = (exe, a, px)
+            return exe(*a)
+
+        chain["du"], chain["dv"] = run("seed", part_args["seed"])
+        chain["seed_depth"], chain["seed_normal"] = run(
+            "gather", (x["sparse"], x["normals"], x["keep"], chain["du"], chain["dv"], size))
+        chain["depth_raw"] = run("residual", (chain["seed_depth"], chain["seed_normal"], chain["du"], chain["dv"],
+                                              x["K"], size))
+        chain["bracketed"] = run("bracket", (chain["depth_raw"], x["sparse"], x["keep"], x["normals"], x["K"], size))
+        chain["blurred"] = run("blur", (chain["bracketed"], size))
+        depth = run("final", (chain["blurred"], x["sparse"], x["keep"], chain["seed_depth"], size))
+        whole_args = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], size)
+        fn = whole if size is not None else (lambda *b: whole(*b, None))
+        wa = whole_args if size is not None else whole_args[:-1]
+        exe = _compile(fn, wa, batched, COMPILER_OPTIONS)
+        runs[f"{case}/whole"] = (exe, wa, px)
+        same[case] = int(np.sum(np.asarray(exe(*wa)) != np.asarray(depth)))
+    runs["rig/whole"] = (rig[0].lower(*rig[1]).compile(COMPILER_OPTIONS), rig[1], rig[2])
+    print("depth values of the parts' chain differing from the whole:", same, flush=True)
+    cpu = {name: [] for name in runs}
+    for r in range(args.rounds):
+        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
+            exe, a, px = runs[name]
+            c = time.process_time()
+            jax.block_until_ready(exe(*a))
+            cpu[name].append((time.process_time() - c) * 1e9 / px)
+        print(r, {k: round(v[-1], 2) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
+    median = {k: statistics.median(v) for k, v in cpu.items()}
+    summary = {}
+    for case in inputs:
+        total = [sum(cpu[f"{case}/{p}"][r] for p in PARTS) for r in range(args.rounds)]
+        summary[case] = {"parts_sum_median": statistics.median(total), "whole_median": median[f"{case}/whole"],
+                         "whole_over_parts_per_round_median": statistics.median(
+                             [w / t for w, t in zip(cpu[f"{case}/whole"], total)]),
+                         "share_of_parts_sum": {p: statistics.median([cpu[f"{case}/{p}"][r] / total[r]
+                                                                      for r in range(args.rounds)]) for p in PARTS}}
+    print("median CPU ns/px", {k: round(v, 2) for k, v in median.items()}, flush=True)
+    print("summary", summary, flush=True)
+    doc = {"what": "the rig's tail sub-stage by sub-stage (module docs), process CPU ns per real pixel, "
+                   "interleaved rounds", "load_average": os.getloadavg(), "cpu_ns_px": cpu, "cpu_ns_px_median": median,
+           "summary": summary, "chain_depth_values_differing_from_whole": same}
+    write_results(args.json, doc, None, t0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
