@@ -19,7 +19,12 @@ beside them ``rig``, the Argoverse 2 tail stage program (``sources_stage_tail``:
 the canvas). The parts' chain must give the whole's ``depth`` bit for bit (checked). The sum of the parts against
 the whole is what fusion between the sub-stages saves (or costs).
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--json benchmarks/results/rig_tail_parts.json]
+``--gather-forms``: instead, the whole tail programs (``vmap6``, ``one``, the Argoverse 2 and the nuScenes tail stage
+programs) compiled twice from this library in one process, with its seed gather (``pipeline._gather_seeds``: four
+float32 gathers) and with the form before branch rigtail8 (``_pairs_gather`` here: two complex64 pairs), outputs
+compared byte for byte, interleaved rounds, per-round ratios library / pairs.
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--gather-forms] [--json PATH]
 """
 
 from __future__ import annotations
@@ -116,6 +121,45 @@ def _cases() -> tuple:
     return inputs, parts, whole, rig
 
 
+def _pairs_gather(seed_field, normals, du, dv):
+    """The seed gather before branch rigtail8: two complex64 pairs (``xla_tuning.pack_pair``), XLA:CPU mode."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.distance import gather_at_seed
+    from jaxdepth._src.xla_tuning import pack_pair, unpack_pair
+    xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
+    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    return depth, jnp.stack([nx, ny, nz])
+
+
+def _gather_forms(inputs, whole, rig, options) -> dict:
+    """``{name: (executable, args, real pixels)}``: each whole tail with the library's gather and ``_pairs_gather``."""
+    import jax
+
+    from benchmarks.bench_stage_programs import _case_inputs
+    from jaxdepth._src import pipeline
+    stages, args, statics, _, one_args = _case_inputs("nuscenes")
+    views = jax.jit(functools.partial(stages[0], **statics[0]))(*args[0])
+    keeps = jax.jit(functools.partial(stages[1], **statics[1]))(*args[1](views))
+    sizes = np.asarray(one_args[-1].image_size).tolist()
+    nuscenes = (jax.jit(lambda *a: functools.partial(stages[2], **statics[2])(*a).depth), args[2]((views, keeps)),
+                float(sum(h * w for h, w in sizes)))
+    library, runs = pipeline._gather_seeds, {}
+    for form, gather in (("library", library), ("pairs", _pairs_gather)):
+        pipeline._gather_seeds = gather          # read when the programs are traced (below)
+        try:
+            for case, x in inputs.items():
+                a = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], x["size"])
+                fn = jax.vmap(whole) if case == "vmap6" else (lambda *b: whole(*b[:-1], None))
+                runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a,
+                                          1550 * 2048.0 * (6 if case == "vmap6" else 1))
+            for case, (fn, a, px) in (("av2_rig", rig), ("nuscenes_rig", nuscenes)):
+                runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
+        finally:
+            pipeline._gather_seeds = library
+    return runs
+
+
 def _compile(fn, args, batched: bool, options):
     import jax
     if batched:
@@ -126,14 +170,18 @@ def _compile(fn, args, batched: bool, options):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=7)
-    parser.add_argument("--json", default=str(RESULTS / "rig_tail_parts.json"))
+    parser.add_argument("--gather-forms", action="store_true", help="the seed gather's two forms (module docs)")
+    parser.add_argument("--json", default=None, help="default results/rig_tail_parts.json (--gather-forms: "
+                                                        "rig_tail_gather_forms.json)")
     args, t0 = parser.parse_args(argv), time.time()
+    args.json = args.json or str(RESULTS / ("rig_tail_gather_forms.json" if args.gather_forms else "rig_tail_parts.json"))
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
-    import jax
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
     inputs, parts, whole, rig = _cases()
+    if args.gather_forms:
+        return _time_gather_forms(_gather_forms(inputs, whole, rig, COMPILER_OPTIONS), args, t0)
     runs, same = {}, {}             # runs[name] = (executable, args, real pixels)
     for case, x in inputs.items():
         batched, px = case == "vmap6", 1550 * 2048.0 * (6 if case == "vmap6" else 1)
@@ -164,14 +212,7 @@ def main(argv=None) -> int:
         same[case] = int(np.sum(np.asarray(exe(*wa)) != np.asarray(depth)))
     runs["rig/whole"] = (rig[0].lower(*rig[1]).compile(COMPILER_OPTIONS), rig[1], rig[2])
     print("depth values of the parts' chain differing from the whole:", same, flush=True)
-    cpu = {name: [] for name in runs}
-    for r in range(args.rounds):
-        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
-            exe, a, px = runs[name]
-            c = time.process_time()
-            jax.block_until_ready(exe(*a))
-            cpu[name].append((time.process_time() - c) * 1e9 / px)
-        print(r, {k: round(v[-1], 2) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
+    cpu = _rounds(runs, args.rounds)
     median = {k: statistics.median(v) for k, v in cpu.items()}
     summary = {}
     for case in inputs:
@@ -186,6 +227,39 @@ def main(argv=None) -> int:
     doc = {"what": "the rig's tail sub-stage by sub-stage (module docs), process CPU ns per real pixel, "
                    "interleaved rounds", "load_average": os.getloadavg(), "cpu_ns_px": cpu, "cpu_ns_px_median": median,
            "summary": summary, "chain_depth_values_differing_from_whole": same}
+    write_results(args.json, doc, None, t0)
+    return 0
+
+
+def _rounds(runs: dict, rounds: int) -> dict:
+    """Process CPU ns per real pixel of every run, ``rounds`` interleaved rounds (order alternating)."""
+    import jax
+    cpu = {name: [] for name in runs}
+    for r in range(rounds):
+        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
+            exe, a, px = runs[name]
+            c = time.process_time()
+            jax.block_until_ready(exe(*a))
+            cpu[name].append((time.process_time() - c) * 1e9 / px)
+        print(r, {k: round(v[-1], 2) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
+    return cpu
+
+
+def _time_gather_forms(runs: dict, args, t0) -> int:
+    cases = sorted({name.split("/")[0] for name in runs})
+    differ = {c: int(np.sum(np.asarray(runs[f"{c}/library"][0](*runs[f"{c}/library"][1]))
+                            != np.asarray(runs[f"{c}/pairs"][0](*runs[f"{c}/pairs"][1])))) for c in cases}
+    print("depth values differing between the two forms:", differ, flush=True)
+    cpu = _rounds(runs, args.rounds)
+    ratio = {c: [a / b for a, b in zip(cpu[f"{c}/library"], cpu[f"{c}/pairs"])] for c in cases}
+    median = {k: statistics.median(v) for k, v in cpu.items()}
+    summary = {c: {"library_over_pairs_per_round_median": statistics.median(ratio[c]),
+                   "rounds_below_1": sum(r < 1 for r in ratio[c])} for c in cases}
+    print("median CPU ns/px", {k: round(v, 2) for k, v in median.items()}, "\nlibrary / pairs", summary, flush=True)
+    doc = {"what": "the whole tail with the library's seed gather against the pairs form (module docs, --gather-forms), "
+                   "process CPU ns per real pixel, interleaved rounds", "load_average": os.getloadavg(),
+           "cpu_ns_px": cpu, "cpu_ns_px_median": median, "library_over_pairs_per_round": ratio, "summary": summary,
+           "depth_values_differing": differ}
     write_results(args.json, doc, None, t0)
     return 0
 
