@@ -58,9 +58,9 @@ def _gather_seeds(seed_field, normals, du, dv):
     if not enabled():  # plain: one gather of the four stacked channels
         gathered = gather_at_seed(jnp.stack([normals[0], normals[1], normals[2], seed_field]), du, dv)
         return gathered[3], gathered[:3]
-    # XLA:CPU: four float32 gathers, each fused into its consumers. Packed as two complex64 pairs they were
-    # written out (the packing fused into the gathers, 16 bytes a pixel) and read back: ~0.96x the tail's CPU
-    # apart, the rig's and one camera's (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
+    # XLA:CPU: four float32 gathers, each fused into its consumers. As two complex64 pairs the single-camera tail
+    # wrote them out (the packing fused into the gathers) and read them back: 0.88x its tail's CPU, 0.96x under a
+    # vmap; the rig programs fold the pairs and are unchanged (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
     nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, seed_field))
     return depth, jnp.stack([nx, ny, nz])
 
