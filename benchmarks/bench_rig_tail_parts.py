@@ -38,6 +38,7 @@ import time
 import numpy as np
 
 from benchmarks._common import RESULTS, write_results
+from benchmarks.bench_rig_tail_split import interleaved_cpu
 
 PARTS = ("seed", "gather", "residual", "bracket", "blur", "final")
 
@@ -93,19 +94,10 @@ def _cases() -> tuple:
     import jax
     import jax.numpy as jnp
 
-    from benchmarks.bench_stage_programs import _case_inputs
+    from benchmarks.bench_rig_tail_split import av2_landscape_group
     from jaxdepth._src.pipeline import _complete_tail, clear_outside_window
-    stages, args, statics, _, one_args = _case_inputs("av2")
-    jitted = [jax.jit(functools.partial(s, **e)) for s, e in zip(stages, statics)]
-    views = jitted[0](*args[0])
-    keeps = jitted[1](*args[1](views))
-    cameras, config, beams = one_args[-1], statics[2]["config"], statics[2]["beams"]
-    sizes = np.asarray(cameras.image_size).tolist()
-    group = next(g for g, v in enumerate(views) if v.sparse_depth.shape[-2:] == (1550, 2048))
-    view, keep = views[group], keeps[group]
-    landscape = [i for i, s in enumerate(sizes) if s == [1550, 2048]]
-    K = jnp.asarray(np.asarray(cameras.K)[landscape], jnp.float32)
-    T = jnp.asarray(np.asarray(cameras.T_cam_lidar)[landscape], jnp.float32)
+    g = av2_landscape_group()
+    config, beams, sizes, view, keep, K, T = (g[k] for k in ("config", "beams", "sizes", "view", "keep", "K", "T"))
     parts = _parts(config, beams)
 
     def whole(sparse, normals, points, keep, K, T, size):
@@ -116,7 +108,7 @@ def _cases() -> tuple:
                             K=K, T=T, size=jnp.broadcast_to(jnp.asarray([1550, 2048], jnp.int32), (6, 2))),
               "one": dict(sparse=view.sparse_depth[0], normals=tuple(n[0] for n in view.normals_cam),
                           points=tuple(p[0] for p in view.points_cam), keep=keep[0], K=K[0], T=T[0], size=None)}
-    rig = (jax.jit(lambda *a: functools.partial(stages[2], **statics[2])(*a).depth), args[2]((views, keeps)),
+    rig = (jax.jit(lambda *a: functools.partial(g["stage"], **g["statics"])(*a).depth), g["tail_args"],
            float(sum(h * w for h, w in sizes)))
     return inputs, parts, whole, rig
 
@@ -212,7 +204,7 @@ def main(argv=None) -> int:
         same[case] = int(np.sum(np.asarray(exe(*wa)) != np.asarray(depth)))
     runs["rig/whole"] = (rig[0].lower(*rig[1]).compile(COMPILER_OPTIONS), rig[1], rig[2])
     print("depth values of the parts' chain differing from the whole:", same, flush=True)
-    cpu = _rounds(runs, args.rounds)
+    cpu = interleaved_cpu(runs, args.rounds)
     median = {k: statistics.median(v) for k, v in cpu.items()}
     summary = {}
     for case in inputs:
@@ -231,26 +223,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def _rounds(runs: dict, rounds: int) -> dict:
-    """Process CPU ns per real pixel of every run, ``rounds`` interleaved rounds (order alternating)."""
-    import jax
-    cpu = {name: [] for name in runs}
-    for r in range(rounds):
-        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
-            exe, a, px = runs[name]
-            c = time.process_time()
-            jax.block_until_ready(exe(*a))
-            cpu[name].append((time.process_time() - c) * 1e9 / px)
-        print(r, {k: round(v[-1], 2) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
-    return cpu
-
-
 def _time_gather_forms(runs: dict, args, t0) -> int:
     cases = sorted({name.split("/")[0] for name in runs})
     differ = {c: int(np.sum(np.asarray(runs[f"{c}/library"][0](*runs[f"{c}/library"][1]))
                             != np.asarray(runs[f"{c}/pairs"][0](*runs[f"{c}/pairs"][1])))) for c in cases}
     print("depth values differing between the two forms:", differ, flush=True)
-    cpu = _rounds(runs, args.rounds)
+    cpu = interleaved_cpu(runs, args.rounds)
     ratio = {c: [a / b for a, b in zip(cpu[f"{c}/library"], cpu[f"{c}/pairs"])] for c in cases}
     median = {k: statistics.median(v) for k, v in cpu.items()}
     summary = {c: {"library_over_pairs_per_round_median": statistics.median(ratio[c]),
