@@ -37,27 +37,39 @@ import numpy as np
 from benchmarks._common import RESULTS, load_frames, write_results
 
 
+def av2_landscape_group() -> dict:
+    """The Argoverse 2 sweep's stage inputs (``bench_stage_programs``) and its six 1550 x 2048 landscape cameras:
+    ``stage``, ``statics``, ``tail_args`` (the tail stage program's inputs), ``config``, ``beams``, ``sizes`` (every
+    camera's (h, w)), ``view`` and ``keep`` (the group's :class:`CameraView` and Step 2 mask), ``K``, ``T`` (6, ...)."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_stage_programs import _case_inputs
+    stages, args, statics, _, one_args = _case_inputs("av2")
+    jitted = [jax.jit(functools.partial(s, **e)) for s, e in zip(stages, statics)]
+    views = jitted[0](*args[0])
+    keeps = jitted[1](*args[1](views))
+    cameras = one_args[-1]
+    sizes = np.asarray(cameras.image_size).tolist()
+    group = next(g for g, v in enumerate(views) if v.sparse_depth.shape[-2:] == (1550, 2048))
+    landscape = [i for i, s in enumerate(sizes) if s == [1550, 2048]]
+    return dict(stage=stages[2], statics=statics[2], tail_args=args[2]((views, keeps)), config=statics[2]["config"],
+                beams=statics[2]["beams"], sizes=sizes, view=views[group], keep=keeps[group],
+                K=jnp.asarray(np.asarray(cameras.K)[landscape], jnp.float32),
+                T=jnp.asarray(np.asarray(cameras.T_cam_lidar)[landscape], jnp.float32))
+
+
 def _programs() -> dict:
     """``{name: (jitted function, args, real pixels)}`` (module docs)."""
     import jax
     import jax.numpy as jnp
 
     import jaxdepth
-    from benchmarks.bench_stage_programs import _case_inputs
     from jaxdepth._src import presets
     from jaxdepth._src.methods import complete_with
     from jaxdepth._src.pipeline import _complete_tail, clear_outside_window
-    stages, args, statics, _, one_args = _case_inputs("av2")
-    jitted = [jax.jit(functools.partial(s, **e)) for s, e in zip(stages, statics)]
-    views = jitted[0](*args[0])
-    keeps = jitted[1](*args[1](views))
-    cameras, config, beams = one_args[-1], statics[2]["config"], statics[2]["beams"]
-    sizes = np.asarray(cameras.image_size).tolist()
-    group = next(g for g, v in enumerate(views) if v.sparse_depth.shape[-2:] == (1550, 2048))
-    view, keep = views[group], keeps[group]
-    landscape = [i for i, s in enumerate(sizes) if s == [1550, 2048]]
-    K = jnp.asarray(np.asarray(cameras.K)[landscape], jnp.float32)
-    T = jnp.asarray(np.asarray(cameras.T_cam_lidar)[landscape], jnp.float32)
+    g = av2_landscape_group()
+    config, beams, sizes, view, keep, K, T = (g[k] for k in ("config", "beams", "sizes", "view", "keep", "K", "T"))
 
     def tail(sparse, normals, points, keep, K, T, size=None, *, beams=beams):
         out = _complete_tail(sparse, normals, points, K, T, beams=beams, config=config, keep=keep, image_size=size)
@@ -75,7 +87,7 @@ def _programs() -> dict:
                   jnp.asarray(T_kitti, jnp.float32))
     size = jnp.asarray([1550, 2048], jnp.int32)
     return {
-        "rig": (jax.jit(lambda *a: functools.partial(stages[2], **statics[2])(*a).depth), args[2]((views, keeps)),
+        "rig": (jax.jit(lambda *a: functools.partial(g["stage"], **g["statics"])(*a).depth), g["tail_args"],
                 float(sum(h * w for h, w in sizes))),
         "one": (jax.jit(tail), (*first(one), K[0], T[0]), 1550 * 2048.0),
         "one_window": (jax.jit(tail), (*first(one), K[0], T[0], size), 1550 * 2048.0),
@@ -88,6 +100,21 @@ def _programs() -> dict:
     }
 
 
+def interleaved_cpu(runs: dict, rounds: int) -> dict:
+    """``{name: [process CPU ns per real pixel, one a round]}`` of ``runs`` (``{name: (executable, args, pixels)}``),
+    ``rounds`` interleaved rounds, the order alternating."""
+    import jax
+    cpu = {name: [] for name in runs}
+    for r in range(rounds):
+        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
+            exe, a, px = runs[name]
+            c = time.process_time()
+            jax.block_until_ready(exe(*a))
+            cpu[name].append((time.process_time() - c) * 1e9 / px)
+        print(r, {k: round(v[-1], 2) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
+    return cpu
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=9)
@@ -97,7 +124,6 @@ def main(argv=None) -> int:
     args, t0 = parser.parse_args(argv), time.time()
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
-    import jax
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
     exes = {name: (fn.lower(*a).compile(COMPILER_OPTIONS), a, px) for name, (fn, a, px) in _programs().items()}
@@ -105,14 +131,7 @@ def main(argv=None) -> int:
     differ = {"one_window": int(np.sum(np.asarray(exes["one_window"][0](*exes["one_window"][1])) != ref)),
               "vmap6_first": int(np.sum(np.asarray(exes["vmap6"][0](*exes["vmap6"][1]))[0] != ref))}
     print("depth values differing from one:", differ, flush=True)
-    cpu = {name: [] for name in exes}
-    for r in range(args.rounds):
-        for name in (list(exes) if r % 2 == 0 else list(exes)[::-1]):
-            exe, a, px = exes[name]
-            c = time.process_time()
-            jax.block_until_ready(exe(*a))
-            cpu[name].append((time.process_time() - c) * 1e9 / px)
-        print(r, {k: round(v[-1], 1) for k, v in cpu.items()}, "CPU ns/px, load", os.getloadavg(), flush=True)
+    cpu = interleaved_cpu(exes, args.rounds)
     median = {k: statistics.median(v) for k, v in cpu.items()}
     ratio = {k: statistics.median([a / b for a, b in zip(v, cpu["one"])]) for k, v in cpu.items()}
     print("median CPU ns/px", {k: round(v, 2) for k, v in median.items()}, "per-round ratio to one",

@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, fence, entry_jit, pack_pair, unpack_pair
+from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -55,12 +55,13 @@ def _gather_seeds(seed_field, normals, du, dv):
 
     Returns (seed depth (H, W), seed normals (3, H, W)).
     """
-    xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
-    if isinstance(xy, tuple):  # plain: one gather of the four stacked channels
-        gathered = gather_at_seed(jnp.stack([*xy, *zd]), du, dv)
+    if not enabled():  # plain: one gather of the four stacked channels
+        gathered = gather_at_seed(jnp.stack([normals[0], normals[1], normals[2], seed_field]), du, dv)
         return gathered[3], gathered[:3]
-    # XLA:CPU: two complex64 gathers, fused into the residual that consumes them.
-    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    # XLA:CPU: four float32 gathers, each fused into its consumers. As two complex64 pairs the single-camera tail
+    # wrote them out (the packing fused into the gathers) and read them back: 0.88x its tail's CPU, 0.96x under a
+    # vmap; the rig programs fold the pairs and are unchanged (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
+    nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, seed_field))
     return depth, jnp.stack([nx, ny, nz])
 
 

@@ -24,7 +24,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   float32 gathers, and XLA fuses a complex gather into its consumer where it would not fuse a
   gather of a stacked (2, ...) array. Plain: the channels stay separate arrays. (Inside the
   normal fits, the pixel binning and the geodesic passes complex64 is the data layout of the
-  stage itself and stays in both modes.)
+  stage itself and stays in both modes.) Not Step 3's seed gather: there the packing fused into
+  the gathers, whose complex64 results were written out; four float32 gathers, each fused into
+  its consumers, cost less (``pipeline._gather_seeds``; plain: one gather of the stacked channels).
 * **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
