@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.xla_tuning import fence, stage
+from jaxdepth._src.xla_tuning import stage
 
 #: Bits per word of a packed mask (one uint32), also the group size of :func:`inclusive_prefix`.
 WORD_BITS = 32
@@ -141,7 +141,7 @@ def compact_indices(valid: jax.Array, capacity: int, token):
     word = jnp.minimum(inclusive_prefix(hits).astype(jnp.int32), words - 1)
     packed = jnp.stack([incl - count, jax.lax.bitcast_convert_type(mask, jnp.int32)], axis=1)
     # Materialised before the gather (fused, the gather would re-run the prefix sums).
-    word, packed, total = fence(word, packed, incl[-1], token=token)
+    word, packed, total = stage(lambda *a: a, (word, packed, incl[-1]), token)
     start_mask = stage(lambda p, w: (p.at[w].get(mode="promise_in_bounds"),), (packed, word), token)[0]
     slot = jnp.arange(capacity, dtype=jnp.int32)
     bit = nth_set_bit(jax.lax.bitcast_convert_type(start_mask[:, 1], jnp.uint32), slot - start_mask[:, 0])

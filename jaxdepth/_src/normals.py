@@ -122,7 +122,7 @@ import numpy as np
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.fastmath import PI, sin_cos_small, wrap_angle
 from jaxdepth._src.range_image import RangeImage, check_lidar, check_points, range_image_and_slots
-from jaxdepth._src.xla_tuning import fence, stage, take_pair, wrap_pad, wrap_pad_slices
+from jaxdepth._src.xla_tuning import stage, take_pair, wrap_pad, wrap_pad_slices
 from jaxdepth._src.types import LidarSpec
 
 #: Neighbour angle offsets below this (radians) are not used for differences.
@@ -476,7 +476,7 @@ def _normal_channels(ri: RangeImage, smoothing: int, fill_max_gap: int):
         nx, ny, nz = (jnp.where(meas, a, b) for a, b in ((jnp.real(rxy), nx), (jnp.imag(rxy), ny), (rz, nz)))
         has = has | meas
     for _ in range(fill_max_gap):
-        nx, ny, nz, has = fence(nx, ny, nz, has, token=ri.index[0, 0])
+        nx, ny, nz, has = stage(lambda *a: a, (nx, ny, nz, has), ri.index[0, 0])
         w = has.astype(jnp.float32)
         sx, sy, sz = _box_sums((nx * w, ny * w, nz * w), 1, ri.index[0, 0])
         grow, gx, gy, gz = _normalise(sx, sy, sz, ~has)

@@ -183,22 +183,14 @@ def stage(fn, args, token):
     Returns:
       ``fn(*args)``, bit-identical to calling it directly (which is what it does when the
       tricks are off).
-
-    The never-taken false branch runs ``fn`` too (one trace, one jaxpr for both): XLA:CPU
-    compiles its fusions as the true branch's kernels (kernels are shared by content), where
-    zeros of ``fn``'s output shapes compiled one broadcast kernel per shape (30 of the KITTI
-    frame's 286 kernels). :func:`fence` keeps the zeros: XLA removes a conditional whose two
-    branches pass their operands through unchanged, and with it the fence.
     """
-    return _conditional(fn, tuple(args), token, zeros=False)
-
-
-def _conditional(fn, args, token, *, zeros: bool):
-    """:func:`stage`, whose false branch returns zeros of ``fn``'s output shapes when ``zeros`` (for :func:`fence`)."""
     if not enabled():
         return fn(*args)
 
     def single(tok, operands):
+        # The false branch returns zeros of fn's output shapes. lax.cond traces the true
+        # branch first, so its outputs give those shapes without tracing fn a second time
+        # (eval_shape only if another JAX traced the branches in the other order).
         traced = []
 
         def run(ops):
@@ -206,17 +198,15 @@ def _conditional(fn, args, token, *, zeros: bool):
             traced.append(jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), out))
             return out
 
-        def zeros_of(ops):
-            # lax.cond traces the true branch first, so its outputs give the shapes (eval_shape
-            # only if another JAX traced the branches in the other order).
+        def zeros(ops):
             shapes = traced[-1] if traced else jax.eval_shape(fn, *ops)
             return jax.tree.map(lambda t: jnp.zeros(t.shape, t.dtype), shapes)
 
-        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, run, zeros_of if zeros else run, operands)
+        return jax.lax.cond(tok >= jnp.iinfo(jnp.int32).min, run, zeros, operands)
 
     # The batched token is reduced to one predicate for the batch, which keeps the conditional.
-    return _steered(jnp.asarray(token, jnp.int32), args, single=single, reduce=jnp.min,
-                    batched=lambda tok, ops: _conditional(jax.vmap(fn), ops, tok, zeros=zeros),
+    return _steered(jnp.asarray(token, jnp.int32), tuple(args), single=single, reduce=jnp.min,
+                    batched=lambda tok, ops: stage(jax.vmap(fn), ops, tok),
                     tangent_fn=lambda _: (lambda ops: fn(*ops)))
 
 
@@ -233,7 +223,7 @@ def fence(*arrays, token=None):
         if jnp.iscomplexobj(first):
             first = jnp.real(first)
         token = first.astype(jnp.int32)  # any int32 value will do
-    return _conditional(lambda *a: a, tuple(arrays), token, zeros=True)
+    return stage(lambda *a: a, arrays, token)
 
 
 def cond_all(pred, true_fn, false_fn, *operands):
