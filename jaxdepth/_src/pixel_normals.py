@@ -186,9 +186,8 @@ def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: 
     inside the window and falls back to the whole range image otherwise.
     """
     x, y = pixel_rays(K, jnp.float32((height - 1) / 2), jnp.float32((width - 1) / 2))
-    ray = jnp.stack([x, y, jnp.float32(1.0)])
-    d = T[:3, :3].T @ ray
-    theta = jnp.arctan2(d[1], d[0])
+    # R^T (x, y, 1) written out (scalars in one kernel; a dot and a stack were kernels of their own)
+    theta = jnp.arctan2(T[0, 1] * x + T[1, 1] * y + T[2, 1], T[0, 0] * x + T[1, 0] * y + T[2, 0])
     n_cols = lidar.columns
     centre = jnp.floor((PI - theta) * (n_cols / (2 * PI))).astype(jnp.int32)
     return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
