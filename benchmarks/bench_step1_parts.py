@@ -1,15 +1,17 @@
 """Step 1 on the KITTI frame (``pixel_normals``) as stage programs: process CPU per part, interleaved.
 
-Each part of the listed path is jitted on its own with its inputs computed beforehand (real buffers), and
-the parts and the whole ``pixel_normals`` are called in turn (the order rotating) for ``--rounds`` rounds of
-``--calls`` calls each; process CPU (every thread) per call, medians. Parts: the depth mask and the listing
+Each part of the listed path is jitted on its own with its inputs computed beforehand (real buffers; every
+program call also pays ~0.3-0.5 ms of its own: dispatch, output buffers), and as prefixes (the first n parts in
+one program of the frame, the differences of which are each part's marginal cost), and the whole
+``pixel_normals``; all are called in turn (the order rotating) for ``--rounds`` rounds of ``--calls`` calls
+each; process CPU (every thread) per call, medians. Parts: the depth mask and the listing
 of the pixels with depth (``compact_indices``); the window start and the per-point back-projection and
-binning (``_pixel_points``); the range image (``scatter_argmin`` and the per-cell stage); the cell normals
+binning (``_pixel_points``); the range image (``window_range_image``: scatter-min, per-cell stage); the cell normals
 (``cell_normals``: padding, basis, neighbour searches, the three fit stages, the smoothing); the per-point
 normal gathers, the rotation into the camera frame and the scatter into the (3, H, W) output. Also each
 part's kernels (the LLVM modules of its compiled program; the whole ``pixel_normals`` counts its dense
 fallback branch and the never-taken zeros of its fences too).
-The parts' sum exceeds the whole by the parts' own input and output handling.
+The last prefix (all parts, without the fallback's test and branch) must give ``pixel_normals``' bytes.
 
     python -m benchmarks.bench_step1_parts [--rounds 30] [--calls 5] [--json benchmarks/results/step1_parts.json]
 """
@@ -38,11 +40,8 @@ def _parts(d, k, t):
 
     from jaxdepth._src import pixel_normals as pn
     from jaxdepth._src.compaction import compact_indices
-    from jaxdepth._src.geometry import scatter_argmin
     from jaxdepth._src.normals import cell_normals, normals_at_points
     from jaxdepth._src.presets import KITTI_HDL64 as lidar
-    from jaxdepth._src.range_image import RangeImage, cell_centres
-    from jaxdepth._src.xla_tuning import stage
     from jaxdepth._src.config import DEFAULT_CONFIG as cfg
 
     h, w = d.shape
@@ -57,26 +56,10 @@ def _parts(d, k, t):
         col0 = pn._window_start(k, t, h, w, lidar, wc)
         return col0, pn._pixel_points(pix, d, k, t, col0, tok(d), lidar=lidar, window_cols=wc, margin=margin)
 
-    def range_image(slot, key, thph, zr, col0):
-        n_pts, n_win = slot.shape[0], lidar.beams * wc
-        _, idx = scatter_argmin(slot, key, n_win, fill=jnp.iinfo(jnp.int32).max)
+    def range_image(pts, col0):
+        return pn.window_range_image(pts, col0, pts.key[0], lidar=lidar, window_cols=wc)
 
-        def per_cell(idx, thph, zr, col0):     # as pixel_normals' own per-cell stage
-            has = idx < n_pts
-            safe = jnp.where(has, idx, 0)
-            theta_c, phi_c = cell_centres(lidar)
-            theta_c = jax.lax.dynamic_slice(jnp.concatenate([theta_c, theta_c[:, :wc]], axis=1), (0, col0), (1, wc))
-            shape = (lidar.beams, wc)
-            tp = thph.at[safe].get(mode="promise_in_bounds")
-            r = jnp.imag(zr).at[safe].get(mode="promise_in_bounds")
-            th = jnp.where(has, jnp.real(tp), jnp.broadcast_to(theta_c, shape).reshape(-1))
-            ph = jnp.where(has, jnp.imag(tp), jnp.broadcast_to(phi_c, shape).reshape(-1))
-            return (jnp.where(has, r, 0.0).reshape(shape), th.reshape(shape), ph.reshape(shape),
-                    jnp.where(has, idx, -1).reshape(shape))
-        return stage(per_cell, (idx, thph, zr, col0), key[0])
-
-    def normals(r, th, ph, index, col0):
-        ri = RangeImage(r=r, theta=th, phi=ph, index=index, cell=jnp.zeros((0,), jnp.int32))
+    def normals(ri, col0):
         return cell_normals(ri, smoothing, gap, (col0, lidar.columns))
 
     def output(nxy, nz, pix, slot, key, xy, zr, t):
@@ -89,16 +72,35 @@ def _parts(d, k, t):
 
     pix, _ = jax.jit(listing)(d)
     col0, pts = jax.jit(points)(pix, d, k, t)
-    ri = jax.jit(range_image)(pts.slot, pts.key, pts.thph, pts.zr, col0)
-    nxy, nz = jax.jit(normals)(*ri, col0)
+    ri = jax.jit(range_image)(pts, col0)
+    nxy, nz = jax.jit(normals)(ri, col0)
     whole = jax.jit(lambda d, k, t: pn.pixel_normals(d, k, t, lidar=lidar, smoothing=smoothing, fill_max_gap=gap))
-    return {"listing (mask, compact_indices)": (jax.jit(listing), (d,)),
-            "points (window start, back-projection, binning)": (jax.jit(points), (pix, d, k, t)),
-            "range image (scatter-min, cells)": (jax.jit(range_image), (pts.slot, pts.key, pts.thph, pts.zr, col0)),
-            "cell normals (pads, basis, neighbours, fit, smoothing)": (jax.jit(normals), (*ri, col0)),
-            "output (gathers, rotation, scatter into (3, H, W))": (jax.jit(output),
-                                                                  (nxy, nz, pix, pts.slot, pts.key, pts.xy, pts.zr, t)),
-            "pixel_normals (whole Step 1)": (whole, (d, k, t))}
+    def up_to(n):
+        """The first ``n`` parts in one program of (d, k, t), returning the last part's outputs."""
+        def run(d, k, t):
+            pix, _ = listing(d)
+            if n == 1:
+                return pix
+            col0, pts = points(pix, d, k, t)
+            if n == 2:
+                return pts
+            ri = range_image(pts, col0)
+            if n == 3:
+                return ri
+            nxy, nz = normals(ri, col0)
+            if n == 4:
+                return nxy, nz
+            return output(nxy, nz, pix, pts.slot, pts.key, pts.xy, pts.zr, t)
+        return jax.jit(run)
+
+    names = ("listing (mask, compact_indices)", "points (window start, back-projection, binning)",
+             "range image (scatter-min, cells)", "cell normals (pads, basis, neighbours, fit, smoothing)",
+             "output (gathers, rotation, scatter into (3, H, W))")
+    alone = {n: (jax.jit(f), a) for n, f, a in zip(names, (listing, points, range_image, normals, output), (
+        (d,), (pix, d, k, t), (pts, col0), (ri, col0),
+        (nxy, nz, pix, pts.slot, pts.key, pts.xy, pts.zr, t)))}
+    prefix = {f"up to {n.split(' (')[0]}": (up_to(i + 1), (d, k, t)) for i, n in enumerate(names)}
+    return alone | prefix | {"pixel_normals (whole Step 1)": (whole, (d, k, t))}
 
 
 def _kernels(fn, args) -> int:
@@ -123,7 +125,7 @@ def main(argv=None) -> int:
     parts = _parts(jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T))
     import numpy as np
     names = list(parts)
-    chained, whole = (np.asarray(parts[n][0](*parts[n][1])) for n in names[-2:])
+    chained, whole = (np.asarray(parts[n][0](*parts[n][1])) for n in names[-2:])   # all parts in one program
     same = bool(np.array_equal(chained.reshape(whole.shape).view(np.uint8), whole.view(np.uint8)))
     print(f"{label}: the parts chained give pixel_normals' bytes: {same}", flush=True)
     kernels = {n: _kernels(fn, a) for n, (fn, a) in parts.items()}
@@ -140,9 +142,13 @@ def main(argv=None) -> int:
            "frame": label, "rounds": args.rounds, "calls": args.calls, "parts_equal_whole": same,
            "cpu_ms_median": {n: statistics.median(cpu[n]) for n in names}, "kernels": kernels,
            "load_average": os.getloadavg(), "runs_cpu_ms": cpu}
+    prefixes = [n for n in names if n.startswith("up to ")]
+    med = doc["cpu_ms_median"]
+    doc["marginal_cpu_ms"] = {n: med[n] - (med[prefixes[i - 1]] if i else 0.0) for i, n in enumerate(prefixes)}
     for n in names:
-        print(f"{n:58s} CPU {doc['cpu_ms_median'][n]:6.3f} ms  kernels {kernels[n]}")
-    print(f"sum of parts {sum(doc['cpu_ms_median'][n] for n in names[:-1]):.3f} ms; load {doc['load_average']}")
+        extra = f"  (+{doc['marginal_cpu_ms'][n]:.3f} ms)" if n in prefixes else ""
+        print(f"{n:58s} CPU {med[n]:6.3f} ms  kernels {kernels[n]}{extra}")
+    print(f"load {doc['load_average']}")
     write_results(args.json, doc, None, t0)
     return 0
 
