@@ -20,17 +20,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import sys
 import time
 
 from benchmarks._common import RESULTS, load_frame, write_results
-
-
-def _cpu() -> float:
-    u = resource.getrusage(resource.RUSAGE_SELF)
-    return u.ru_utime + u.ru_stime
+from benchmarks.bench_compile_flags import _cpu
 
 
 def _parts(d, k, t):
