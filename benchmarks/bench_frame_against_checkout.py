@@ -8,10 +8,11 @@ SGM, the checkout's SGM, IP_Basic's fast mode in OpenCV (``ip_basic_opencv``, Ga
 ``bench_end_to_end``). Process CPU (user + system of every thread) and wall of each call; reported: the
 medians, the ratio of CPU sums SGM / IP_Basic for each library, and the median of the per-round ratios
 this / checkout. ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
-instead of the whole frame, against IP_Basic all the same. ``--above-scan background``: both libraries'
+instead of the whole frame, against IP_Basic all the same; ``--stage normals``: Step 1 alone (``pixel_normals``,
+the frame's range image and normals, the default options). ``--above-scan background``: both libraries'
 frames with ``SGMConfig(above_scan="background")`` (Step 4c) instead of the default.
 
-    python -m benchmarks.bench_frame_against_checkout --checkout PATH [--rounds 60] [--stage frame|outliers]
+    python -m benchmarks.bench_frame_against_checkout --checkout PATH [--rounds 60] [--stage frame|outliers|normals]
         [--above-scan plane|background] [--json benchmarks/results/frame_against_checkout.json]
 """
 
@@ -40,6 +41,12 @@ def _program(package: str, stage: str, d, k, t, *, above_scan: str = "plane"):
     lib = importlib.import_module(package)
     presets = importlib.import_module(f"{package}._src.presets")
     config = lib.SGMConfig(above_scan=above_scan)
+    if stage == "normals":
+        normals = importlib.import_module(f"{package}._src.pixel_normals")
+        fn = jax.jit(lambda d, k, t: normals.pixel_normals(d, k, t, lidar=presets.KITTI_HDL64,
+                                                          smoothing=config.normal_smoothing,
+                                                          fill_max_gap=config.range_fill_max_gap))
+        return lambda: fn(d, k, t).block_until_ready()
     if stage == "outliers":
         outliers = importlib.import_module(f"{package}._src.outliers")
         fn = jax.jit(lambda d, k, t: outliers.keep_mask_for_config(d, k, t, beams=presets.KITTI_HDL64.beams,
@@ -54,7 +61,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkout", required=True, help="another checkout (a folder holding its jaxdepth/)")
     parser.add_argument("--rounds", type=int, default=60)
-    parser.add_argument("--stage", choices=("frame", "outliers"), default="frame")
+    parser.add_argument("--stage", choices=("frame", "outliers", "normals"), default="frame")
     parser.add_argument("--above-scan", choices=("plane", "background"), default="plane",
                         help="SGMConfig.above_scan of both libraries' frames")
     parser.add_argument("--json", default=str(RESULTS / "frame_against_checkout.json"))

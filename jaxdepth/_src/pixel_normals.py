@@ -134,14 +134,30 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
     """
     slot, key = pts.slot, pts.key
     ok = key != jnp.iinfo(jnp.int32).max
-    n_pts = slot.shape[0]
-    n_rows, n_cols = lidar.beams, lidar.columns
-    n_win = n_rows * window_cols
+    n_cols = lidar.columns
     window = None if window_cols == n_cols else (col0, n_cols)
-    # Nearest range wins a cell (scatter-min of the range bits), ties the
-    # smaller point index = the smaller pixel index (points are listed in
-    # pixel order). Slot n_win collects points without a cell.
-    _, idx = scatter_argmin(slot, key, n_win, fill=jnp.iinfo(jnp.int32).max)
+    ri = window_range_image(pts, col0, token, lidar=lidar, window_cols=window_cols)
+    # Points only sit in measured cells, so the filling of empty cells is skipped.
+    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
+    xyz = (jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr))
+    px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
+    n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
+    h, w = shape
+    if identity:
+        return n_cam.reshape(3, h, w)
+    out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
+    return out.reshape(3, h, w)
+
+
+def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, window_cols: int) -> RangeImage:
+    """The (L, window_cols) range image of the listed points (from :func:`_pixel_points`): per cell the
+    nearest point's range and angles and its index (-1 and the cell centre's angles where none; ``cell``
+    empty). Nearest range wins a cell (scatter-min of the range bits), ties the smaller point index = the
+    smaller pixel index (points are listed in pixel order)."""
+    n_pts = pts.slot.shape[0]
+    n_rows = lidar.beams
+    # Slot L window_cols collects points without a cell.
+    _, idx = scatter_argmin(pts.slot, pts.key, n_rows * window_cols, fill=jnp.iinfo(jnp.int32).max)
 
     def per_cell(idx, thph, zr, col0):
         has = idx < n_pts
@@ -158,17 +174,7 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
                 jnp.where(has, idx, -1).reshape(img_shape))
 
     r_img, th_img, ph_img, index = stage(per_cell, (idx, pts.thph, pts.zr, col0), token)
-    ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
-    # Points only sit in measured cells, so the filling of empty cells is skipped.
-    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
-    xyz = (jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr))
-    px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
-    n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
-    h, w = shape
-    if identity:
-        return n_cam.reshape(3, h, w)
-    out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
-    return out.reshape(3, h, w)
+    return RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
 
 
 def default_window_columns(lidar: LidarSpec) -> int:
@@ -186,9 +192,8 @@ def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: 
     inside the window and falls back to the whole range image otherwise.
     """
     x, y = pixel_rays(K, jnp.float32((height - 1) / 2), jnp.float32((width - 1) / 2))
-    ray = jnp.stack([x, y, jnp.float32(1.0)])
-    d = T[:3, :3].T @ ray
-    theta = jnp.arctan2(d[1], d[0])
+    # R^T (x, y, 1) written out (scalars in one kernel; a dot and a stack were kernels of their own)
+    theta = jnp.arctan2(T[0, 1] * x + T[1, 1] * y + T[2, 1], T[0, 0] * x + T[1, 0] * y + T[2, 0])
     n_cols = lidar.columns
     centre = jnp.floor((PI - theta) * (n_cols / (2 * PI))).astype(jnp.int32)
     return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
