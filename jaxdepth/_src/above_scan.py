@@ -95,6 +95,63 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
     return jnp.where((rows < top_window) & (seed_depth > 0), farthest, depth_raw)
 
 
+def capped_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, seed_normal: jax.Array, du: jax.Array,
+                      dv: jax.Array, keep: jax.Array, valid: jax.Array, K: jax.Array, *, beams: int,
+                      rows_px, max_half_width_px: int = _DEFAULTS.outlier_max_half_width_px,
+                      min_abs_denom: float = _DEFAULTS.min_abs_denom,
+                      max_residual_ratio: float = _DEFAULTS.max_residual_ratio, image_size=None) -> jax.Array:
+    """Step 4's prediction with the seed's plane followed at most ``rows_px`` rows above the top scan line.
+
+    Above the top scan line (judged as in :func:`background_above_scan`) a pixel ``(u, v)`` whose seed
+    lies more than ``R = rows_px`` rows away takes the plane's depth at ``(u, v_e)``, ``v_e`` the row
+    ``R`` rows from the seed towards the pixel: the plane is extrapolated over one scan-line spacing
+    (the gap the laser left between two of its rings, where the paper's plane is what it assumes) and
+    held constant beyond. With ``r(u, v) = ((u - pu) / fu, (v - pv) / fv, 1)`` and the seed's normal
+    ``n``, depth ``z'`` at ``(u + du, v + dv)``::
+
+        z = z' (n . r(u + du, v + dv)) / (n . r(u, v + dv - R sign(dv)))
+
+    (the paper's ``z' + Delta z`` at that pixel), ``z'`` where ``|n . r(u, v_e)| <= min_abs_denom``, and
+    ``|z - z'|`` clipped to ``max_residual_ratio z'`` as Step 4's residual is.
+
+    Args:
+      depth_raw: (H, W) float32 metres, Step 4's prediction (0 = no seed).
+      seed_depth: (H, W) float32 metres, each pixel's nearest seed depth z' (0 = no seed).
+      seed_normal: (3, H, W) float32, the seed's unit normal (camera frame).
+      du, dv: (H, W) int32, the seed's offset: it sits at ``(u + du, v + dv)``.
+      keep: (H, W) bool, the LiDAR pixels kept by Step 2 (the scan lines).
+      valid: (H, W) bool, every pixel with depth (N of the window ``W L / N``).
+      K: (3, 3) float32 intrinsics.
+      beams: L, the LiDAR's beam count.
+      rows_px: R, rows (float, static or traced): one scan-line spacing, ``h / L``.
+      max_half_width_px: static cap on the window's half width, pixels.
+      min_abs_denom, max_residual_ratio: Step 4's residual guards (``SGMConfig``).
+      image_size: optional traced (2,) int32 (h, w): the image is the top-left h x w window.
+
+    Returns:
+      (H, W) float32 metres: ``depth_raw`` except above the top scan line where ``|dv| > R``.
+    """
+    height, width = depth_raw.shape
+    k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
+                             image_width=None if image_size is None else image_size[1])
+    top_window, _ = _window_top_and_farthest(_top_line(keep), jnp.zeros((1, width), jnp.float32), height=height,
+                                             k_max=k_max, max_half_width_px=max_half_width_px)
+    K = jnp.asarray(K, jnp.float32)
+    fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    v = jnp.arange(height, dtype=jnp.float32)[:, None]
+    u = jnp.arange(width, dtype=jnp.float32)[None, :]
+    rows = jnp.asarray(rows_px, jnp.float32)
+    dvf = dv.astype(jnp.float32)
+    capped = (v < top_window) & (seed_depth > 0) & (jnp.abs(dvf) > rows)
+    nx, ny, nz = seed_normal[0], seed_normal[1], seed_normal[2]
+    at_seed = (u + du - pu) / fu * nx + (v + dvf - pv) / fv * ny + nz
+    at_cap = (u - pu) / fu * nx + (v + dvf - jnp.sign(dvf) * rows - pv) / fv * ny + nz
+    ok = capped & (jnp.abs(at_cap) > min_abs_denom)
+    ratio = jnp.where(ok, at_seed / jnp.where(ok, at_cap, 1.0), 1.0)
+    z = seed_depth * jnp.clip(ratio, 1.0 - max_residual_ratio, 1.0 + max_residual_ratio)
+    return jnp.where(capped, z, depth_raw)
+
+
 def _top_line(mask: jax.Array) -> jax.Array:
     """(1, W) int32: each column's first True row of an (H, W) mask (H where none)."""
     return jnp.where(jnp.any(mask, axis=0), jnp.argmax(mask, axis=0), mask.shape[0]).astype(jnp.int32)[None, :]
