@@ -20,7 +20,13 @@ column that no point projects into (sparse horizontal sampling) does not count a
 open to the top. The window is the paper's S(i), as in Step 2; no constant is
 added. Below the top scan line nothing changes.
 
-Where it is wrong: a near surface that does continue above the scan and is
+The milder rule (``SGMConfig.above_scan="capped"``, :func:`capped_above_scan`) keeps the
+nearest seed and its plane but follows the plane at most one scan-line spacing (``h / L``
+rows, the column bracket's window) above the seed and holds its depth beyond: the gap
+between two rings is where the paper's plane is what it assumes; tens of rows above the top
+ring it extrapolates one top-ring normal.
+
+Where the background rule is wrong: a near surface that does continue above the scan and is
 narrower than one point spacing is lost, and the farther side of a depth edge
 above the scan moves by up to one point spacing. Measured on the digital twins and
 real data in docs/method.md ("Above the top scan line").

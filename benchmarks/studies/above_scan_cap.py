@@ -1,0 +1,127 @@
+"""The plane extended above the top scan line, capped at one scan-line spacing (issue 37, ``above_scan``).
+
+    PYTHONPATH=. python -m benchmarks.studies.above_scan_cap [--rigs kitti nuscenes] [--seeds 0 1]
+        [--sweeps 1 5] [--phases aligned staggered] [--scale 1] [--json benchmarks/results/above_scan_cap.json]
+
+Each digital twin (``make_twin``; ``staggered``: ``laser_phases=True``, each laser of a spinning unit at its
+own azimuth phase, as real spinning LiDARs sample) is completed through the user's path
+(``accuracy_twins``: ``complete-rig``'s single-sweep path for 1 sweep, the sweeps JSON's multi-source path
+for more) with ``SGMConfig.above_scan`` = ``plane`` (the default, the paper's Step 4), ``background`` and
+``capped`` (:func:`jaxdepth._src.above_scan.capped_above_scan`: the seed's plane followed at most h / L
+rows, one scan-line spacing, above its seed, held constant beyond), beside the city-block nearest fill of
+the same points (``accuracy_twins``' ``nearest``). Scores: KITTI devkit RMSE / MAE mm against the exact
+depth of every pixel (mean over cameras), and against the exact depth of only the pixels above their
+column's top input pixel (``above``: where the three rules differ).
+
+Nothing here is tuned: R = h / L is the column bracket's window, fixed before any run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+
+import numpy as np
+
+from benchmarks._common import RESULTS, write_results
+from jaxdepth._src.config import SGMConfig
+
+RULES = ("plane", "background", "capped")
+
+
+def twin_case(rig: str, sweeps: int, seed: int, scale: float, staggered: bool):
+    """(user input, exact depth per camera) of one twin."""
+    from benchmarks.accuracy_twins import exact_truth, read_user_input
+    from jaxdepth.research.twins import make_twin, write_twin
+    tw = make_twin(rig, sweeps=sweeps, seed=seed, scale=scale, laser_phases=staggered)
+    with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
+        paths = write_twin(tw, tmp)
+        inp = read_user_input(paths["sweeps_json"] if sweeps > 1 else paths["sweeps"][0], paths["rig"])
+    return inp, exact_truth(tw, inp.rig)
+
+
+def sgm(inp, config: SGMConfig) -> list:
+    """Each camera's depth from the user's path (single-sweep or multi-source, as ``accuracy_twins``)."""
+    from benchmarks.accuracy_twins import crops, single_path
+    from jaxdepth.batch.sources_job import complete_cloud
+    if inp.multi:
+        return crops(complete_cloud(inp.cloud, inp.rig, config=config), inp.rig)
+    return crops(single_path(inp.cloud.points, inp.cloud.ring, inp.rig, config)[0], inp.rig)
+
+
+def city_block_and_sparse(inp) -> tuple:
+    """(city-block nearest fill per camera, sparse z-buffer per camera) of every point as one cloud."""
+    from benchmarks.accuracy_twins import one_cloud_rig, z_buffers
+    from jaxdepth._src.methods import complete_with
+    from jaxdepth.io import prepare_sweep
+    frame = prepare_sweep(inp.cloud.points, one_cloud_rig(inp.rig))
+    sparse = z_buffers(frame.points, frame.rig)
+    cfg = SGMConfig(outlier_removal=False, distance_metric="l1")
+    fill = [np.asarray(complete_with(s, c.K, c.T_cam_lidar, method="nearest", config=cfg, lidar=frame.rig.lidar))
+            for s, c in zip(sparse, frame.rig.cameras)]
+    return fill, sparse
+
+
+def above_top_input(sparse: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels above their column's top input pixel (every pixel of an empty column)."""
+    has = sparse > 0
+    top = np.where(has.any(axis=0), np.argmax(has, axis=0), sparse.shape[0])
+    return np.arange(sparse.shape[0])[:, None] < top[None, :]
+
+
+def scores(pred: list, exact: list, above: list) -> dict:
+    from benchmarks.accuracy_twins import score
+    every = score(pred, exact)
+    part = score(pred, [np.where(a, t, 0.0) for a, t in zip(above, exact)])
+    return {"rmse": round(every["rmse"], 1), "mae": round(every["mae"], 1),
+            "above": {"rmse": round(part["rmse"], 1), "mae": round(part["mae"], 1)}}
+
+
+def run_case(rig: str, sweeps: int, seed: int, scale: float, staggered: bool) -> dict:
+    inp, exact = twin_case(rig, sweeps, seed, scale, staggered)
+    fill, sparse = city_block_and_sparse(inp)
+    above = [above_top_input(s) for s in sparse]
+    rows = {rule: scores(sgm(inp, SGMConfig(above_scan=rule)), exact, above) for rule in RULES}
+    rows["city_block"] = scores(fill, exact, above)
+    share = sum(int((a & (t > 0)).sum()) for a, t in zip(above, exact)) / sum(int((t > 0).sum()) for t in exact)
+    return {"rig": rig, "sweeps": sweeps, "seed": seed, "scale": scale, "phases": "staggered" if staggered else
+            "aligned", "path": "multi-source" if inp.multi else "single-sweep",
+            "camera_sizes": [[int(c.width), int(c.height)] for c in inp.rig.cameras],
+            "exact_pixels_above_top_input": round(share, 4), "scores": rows}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rigs", nargs="+", default=["kitti", "nuscenes"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
+    parser.add_argument("--sweeps", nargs="+", type=int, default=[1, 5])
+    parser.add_argument("--phases", nargs="+", choices=("aligned", "staggered"), default=["aligned", "staggered"])
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--json", default=str(RESULTS / "above_scan_cap.json"))
+    parser.add_argument("--append", action="store_true", help="add the cases to an existing --json")
+    args = parser.parse_args(argv)
+    t0 = time.time()
+    doc = {"rules": list(RULES), "cases": []}
+    if args.append:
+        import json
+        import pathlib
+        if pathlib.Path(args.json).exists():
+            doc["cases"] = json.loads(pathlib.Path(args.json).read_text())["cases"]
+    for sweeps in args.sweeps:
+        for rig in args.rigs:
+            for seed in args.seeds:
+                for phases in args.phases:
+                    t = time.time()
+                    case = run_case(rig, sweeps, seed, args.scale, phases == "staggered")
+                    case["run_seconds"] = round(time.time() - t, 1)
+                    doc["cases"].append(case)
+                    print(f"{rig} sweeps={sweeps} seed={seed} {phases} ({case['run_seconds']:.0f} s): " + ", ".join(
+                        f"{k} {v['rmse']:.0f}/{v['mae']:.0f} (above {v['above']['rmse']:.0f}/{v['above']['mae']:.0f})"
+                        for k, v in case["scores"].items()), flush=True)
+                    write_results(args.json, doc, SGMConfig(), t0)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
