@@ -2,6 +2,8 @@
 
     PYTHONPATH=. python -m benchmarks.studies.above_scan_cap [--rigs kitti nuscenes] [--seeds 0 1]
         [--sweeps 1 5] [--phases aligned staggered] [--scale 1] [--json benchmarks/results/above_scan_cap.json]
+        [--append]
+    PYTHONPATH=. python -m benchmarks.studies.above_scan_cap --tables benchmarks/results/above_scan_cap.json
 
 Each digital twin (``make_twin``; ``staggered``: ``laser_phases=True``, each laser of a spinning unit at its
 own azimuth phase, as real spinning LiDARs sample) is completed through the user's path
@@ -91,6 +93,23 @@ def run_case(rig: str, sweeps: int, seed: int, scale: float, staggered: bool) ->
             "exact_pixels_above_top_input": round(share, 4), "scores": rows}
 
 
+def markdown(doc: dict) -> str:
+    """The docs' table: one row per case, RMSE / MAE mm of each rule and the fill, capped vs plane in %."""
+    lines = ["| twin, sweeps, seed, phases | `plane` (default) | `background` | `capped` | city-block fill "
+             "| capped vs plane, RMSE / MAE |", "|---|---|---|---|---|---|"]
+    for c in doc["cases"]:
+        s = c["scores"]
+        best = min(RULES, key=lambda r: s[r]["rmse"])
+
+        def cell(k):
+            text = f"{s[k]['rmse']:.1f} / {s[k]['mae']:.1f}"
+            return f"**{text}**" if k == best else text
+        pct = [100 * (s["capped"][m] / s["plane"][m] - 1) for m in ("rmse", "mae")]
+        lines.append(f"| {c['rig']}, {c['sweeps']}, {c['seed']}, {c['phases']} | " + " | ".join(
+            cell(k) for k in (*RULES, "city_block")) + f" | {pct[0]:+.1f} / {pct[1]:+.1f} % |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rigs", nargs="+", default=["kitti", "nuscenes"])
@@ -100,7 +119,13 @@ def main(argv=None) -> int:
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--json", default=str(RESULTS / "above_scan_cap.json"))
     parser.add_argument("--append", action="store_true", help="add the cases to an existing --json")
+    parser.add_argument("--tables", metavar="JSON", help="print the docs' table of a result file and exit")
     args = parser.parse_args(argv)
+    if args.tables:
+        import json
+        import pathlib
+        print(markdown(json.loads(pathlib.Path(args.tables).read_text())))
+        return 0
     t0 = time.time()
     doc = {"rules": list(RULES), "cases": []}
     if args.append:
