@@ -565,7 +565,7 @@ def _rows() -> list[Row]:
         Row("background_above_scan", background_above_scan, _above_scan_inputs, static=dict(beams=16),
             oracle=_above_scan_oracle, oracle_ulps=0, ulps=0),
         Row("capped_above_scan", capped_above_scan, _capped_inputs, static=dict(beams=16, rows_px=3.0),
-            oracle=_capped_oracle, oracle_ulps=16, ulps=4),
+            oracle=_capped_oracle, oracle_ulps=16, ulps=16),
         Row("gaussian_blur", gaussian_blur, lambda: [(x,) for x in _blur_images(3, 80)],
             static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur, oracle_ulps=15, oracle_scale=80.0, group="stage_blur"),
         # one compiled function for every sigma (0 included), batched over images and sigmas ...
