@@ -4,6 +4,7 @@
         [--sweeps 1 5] [--phases aligned staggered] [--scale 1] [--json benchmarks/results/above_scan_cap.json]
         [--append]
     PYTHONPATH=. python -m benchmarks.studies.above_scan_cap --tables benchmarks/results/above_scan_cap.json
+    PYTHONPATH=. python -m benchmarks.studies.above_scan_cap --real benchmarks/results/above_scan_cap_real.json
 
 Each digital twin (``make_twin``; ``staggered``: ``laser_phases=True``, each laser of a spinning unit at its
 own azimuth phase, as real spinning LiDARs sample) is completed through the user's path
@@ -145,6 +146,43 @@ def nuscenes_scan_lines(rules=("plane", "capped")) -> dict:
     return {"held_out_points": int(hidden.sum()), "input_points": int((~hidden).sum()), "scores": out}
 
 
+def kitti_above_split(rules=RULES) -> dict:
+    """The real KITTI frame's ground truth (cameras 2 and 3, as ``accuracy_kitti``) split into the pixels
+    above their column's top input pixel and the rest: {camera: {"above_share", rule: {above, rest}}}."""
+    import jax.numpy as jnp
+
+    import jaxdepth
+    from benchmarks._common import load_frames
+    from jaxdepth._src.metrics import depth_metrics
+    out = {}
+    for name, (sparse, gt, K, T) in load_frames().items():
+        above, gt = above_top_input(np.asarray(sparse)), np.asarray(gt)
+        row = {"above_share": round(float((above & (gt > 0)).sum() / (gt > 0).sum()), 4)}
+        for rule in rules:
+            depth = jaxdepth.complete_stages(sparse, K, T, config=jaxdepth.SGMConfig(above_scan=rule)).depth
+            row[rule] = {part: {k: round(float(v), 1) for k, v in depth_metrics(depth, jnp.asarray(
+                np.where(above == (part == "above"), gt, 0.0))).items() if k in ("rmse", "mae")}
+                for part in ("above", "rest")}
+        out[name] = row
+    return out
+
+
+def real_checks(rules=("plane", "capped")) -> dict:
+    """Every real-set check of the rules (run once, after the twins): ``accuracy_rigs.real_rows`` (the KITTI
+    frame's ground truth; ``hidden-eval``, seeds 0-4, random 20 %, all and ``uncovered``, on the two KITTI
+    sweeps and the nuScenes sample, with both nearest fills and IP_Basic), :func:`kitti_above_split`,
+    :func:`nuscenes_scan_lines` and the Argoverse 2 job's rows (``av2_job_rows.run``: random 20 % and odd
+    lasers held out, all and ``uncovered``, 7 ring cameras x 2 sweeps)."""
+    from benchmarks.accuracy_rigs import real_rows
+    from benchmarks.studies.av2_job_rows import run as av2_rows
+    from jaxdepth.io.av2 import RING_CAMERAS
+    return {"real_rows": {r: real_rows(SGMConfig(above_scan=r), [0, 1, 2, 3, 4]) for r in rules},
+            "kitti_above_split": kitti_above_split(rules),
+            "nuscenes_scan_lines": nuscenes_scan_lines(rules),
+            "av2_job_rows": {r: av2_rows(tuple(RING_CAMERAS), fraction=0.2, seed=0,
+                                         config=SGMConfig(above_scan=r))["mean"] for r in rules}}
+
+
 def markdown(doc: dict) -> str:
     """The docs' table: one row per case, RMSE / MAE mm of each rule and the fill, capped vs plane in %."""
     lines = ["| twin, sweeps, seed, phases | `plane` (default) | `background` | `capped` | city-block fill "
@@ -171,20 +209,18 @@ def main(argv=None) -> int:
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--json", default=str(RESULTS / "above_scan_cap.json"))
     parser.add_argument("--append", action="store_true", help="add the cases to an existing --json")
-    parser.add_argument("--nuscenes-scan-lines", action="store_true",
-                        help="print the real nuScenes sample's odd-ring hold-out scores (plane, capped, city block)")
+    parser.add_argument("--real", metavar="JSON", help="run the real-set checks (real_checks) into JSON and exit")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' table of a result file and exit")
     args = parser.parse_args(argv)
-    if args.nuscenes_scan_lines:
-        import json
-        print(json.dumps(nuscenes_scan_lines()))
+    t0 = time.time()
+    if args.real:
+        write_results(args.real, real_checks(), SGMConfig(), t0)
         return 0
     if args.tables:
         import json
         import pathlib
         print(markdown(json.loads(pathlib.Path(args.tables).read_text())))
         return 0
-    t0 = time.time()
     doc = {"rules": list(RULES), "cases": []}
     if args.append:
         import json
