@@ -505,7 +505,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-hold-out", action="store_true", help="full-input scores only (no protocols)")
     parser.add_argument("--laser-phases", action="store_true",
                         help="spinning twins' lasers each at their own azimuth phase (make_twin(laser_phases=True))")
-    parser.add_argument("--above-scan", choices=("plane", "background"), default=SGMConfig().above_scan,
+    parser.add_argument("--above-scan", choices=("plane", "background", "capped"), default=SGMConfig().above_scan,
                         help="SGMConfig.above_scan of every SGM method (default: the library's)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
     parser.add_argument("--merge", nargs="+", metavar="JSON",

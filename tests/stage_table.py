@@ -27,7 +27,7 @@ from jaxdepth._src import ip_basic as ipb
 from jaxdepth._src import normals as N
 from jaxdepth._src import pixel_normals as PN
 from jaxdepth._src import range_image as RI
-from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth._src.above_scan import background_above_scan, capped_above_scan
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import _geodesic_seed, geodesic_seed
 from jaxdepth._src.hypotheses import column_hypotheses
@@ -347,6 +347,16 @@ def _above_scan_oracle(depth_raw, seed_depth, keep, valid, *, beams):
                             max_half_width_px=SGMConfig().outlier_max_half_width_px)
 
 
+def _capped_inputs():
+    from test_above_scan import capped_inputs
+    return [capped_inputs(seed) for seed in (1, 2)]
+
+
+def _capped_oracle(*args, **kw):
+    from test_above_scan import numpy_capped_above_scan
+    return numpy_capped_above_scan(*args, **kw)
+
+
 def _blur_images(n, high):
     return np.random.default_rng(2 if n == 3 else 6).uniform(0, high, (n, 20, 30)).astype(np.float32)
 
@@ -554,6 +564,8 @@ def _rows() -> list[Row]:
               in_axes=(0, 0, 0, 0, None), check=_hypotheses_check, group="stage_hypotheses") for blend in (False, True)],
         Row("background_above_scan", background_above_scan, _above_scan_inputs, static=dict(beams=16),
             oracle=_above_scan_oracle, oracle_ulps=0, ulps=0),
+        Row("capped_above_scan", capped_above_scan, _capped_inputs, static=dict(beams=16, rows_px=3.0),
+            oracle=_capped_oracle, oracle_ulps=16, ulps=16),
         Row("gaussian_blur", gaussian_blur, lambda: [(x,) for x in _blur_images(3, 80)],
             static=dict(sigma_px=1.2, radius_px=3), oracle=_cv2_blur, oracle_ulps=15, oracle_scale=80.0, group="stage_blur"),
         # one compiled function for every sigma (0 included), batched over images and sigmas ...

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import jaxdepth
-from jaxdepth._src.above_scan import background_above_scan, top_line_keep
+from jaxdepth._src.above_scan import background_above_scan, capped_above_scan, top_line_keep
 from jaxdepth.options import add_config_options, config_changes
 
 #: The stage, compiled: these tests check values (the oracle, analytic cases); jit == eager is the stage
@@ -166,3 +166,108 @@ def test_reference_top_line_flag():
         p.parse_args(["--reference-top-line", "yes"])
     with pytest.raises(ValueError, match="reference_top_line"):
         jaxdepth.SGMConfig(reference_top_line=True)
+
+
+# ---------------------------------------------------------------- above_scan="capped"
+
+_capped = jax.jit(capped_above_scan, static_argnames=("beams", "max_half_width_px", "min_abs_denom",
+                                                      "max_residual_ratio"))
+
+
+def numpy_capped_above_scan(depth_raw, seed_depth, seed_normal, du, dv, keep, valid, K, *, beams, rows_px,
+                            max_half_width_px=jaxdepth.SGMConfig().outlier_max_half_width_px,
+                            min_abs_denom=jaxdepth.SGMConfig().min_abs_denom,
+                            max_residual_ratio=jaxdepth.SGMConfig().max_residual_ratio):
+    """Pixel by pixel, float64: above the window's top scan line and more than R rows from its seed, the
+    plane through the seed (point z' K^-1 (u + du, v + dv, 1), normal n) met by the ray of (u, v_e),
+    v_e = v + dv - R sign(dv), by ray-plane intersection; z' where the ray is within min_abs_denom of
+    grazing the plane; the change clipped to max_residual_ratio z'."""
+    H, W = depth_raw.shape
+    n_points = int(valid.sum())
+    k_max = 0
+    while n_points > 0 and k_max + 1 < W * beams / n_points and k_max + 1 <= min(max_half_width_px, W - 1):
+        k_max += 1
+    Kinv = np.linalg.inv(np.asarray(K, np.float64))
+    out = depth_raw.astype(np.float32).copy()
+    for v in range(H):
+        for u in range(W):
+            cols = [c for c in range(u - k_max, u + k_max + 1) if 0 <= c < W]
+            z0 = float(seed_depth[v, u])
+            if z0 <= 0 or any(keep[:v + 1, c].any() for c in cols) or abs(dv[v, u]) <= rows_px:
+                continue
+            n = seed_normal[:, v, u].astype(np.float64)
+            seed_point = z0 * Kinv @ np.array([u + du[v, u], v + dv[v, u], 1.0])
+            ray = Kinv @ np.array([u, v + dv[v, u] - np.sign(dv[v, u]) * rows_px, 1.0])   # z component 1
+            z = z0 if abs(n @ ray) <= min_abs_denom else (n @ seed_point) / (n @ ray)
+            out[v, u] = np.clip(z, z0 * (1 - max_residual_ratio), z0 * (1 + max_residual_ratio))
+    return out
+
+
+def capped_inputs(seed: int, *, H: int = 24, W: int = 40, points: int = 200):
+    """(depth_raw, seed_depth, seed_normal, du, dv, keep, valid, K): :func:`above_scan_inputs` with
+    seed offsets of up to 20 rows, normals facing the camera (the denominators far from the guard)."""
+    depth_raw, seed_depth, keep, valid = above_scan_inputs(seed, H=H, W=W, points=points)
+    rng = np.random.default_rng(seed + 100)
+    normal = np.concatenate([rng.uniform(-0.6, 0.6, (2, H, W)), -np.ones((1, H, W))]).astype(np.float32)
+    normal /= np.linalg.norm(normal, axis=0, keepdims=True)
+    du = rng.integers(-3, 4, (H, W)).astype(np.int32)
+    dv = rng.integers(-20, 21, (H, W)).astype(np.int32)
+    K = np.array([[30.0, 0, W / 2 - 0.5], [0, 28.0, H / 2 + 1.5], [0, 0, 1]], np.float32)
+    return depth_raw, seed_depth, normal, du, dv, keep, valid, K
+
+
+@pytest.mark.parametrize("points, rows_px", [(200, 3.0), (400, 1.5), (640, 6.0)])
+def test_capped_matches_the_per_pixel_oracle(points, rows_px):
+    """The float64 ray-plane walk: equal to float32 rounding; only pixels above the top scan line with a
+    seed more than R rows away change, and many do."""
+    args = capped_inputs(points, points=points)
+    got = np.asarray(_capped(*map(jnp.asarray, args), beams=16, rows_px=rows_px))
+    want = numpy_capped_above_scan(*args, beams=16, rows_px=rows_px)
+    np.testing.assert_allclose(got, want, rtol=2e-6)
+    changed = got != args[0]
+    assert changed.mean() > 0.05
+    assert (np.abs(args[4])[changed] > rows_px).all()
+
+
+def test_capped_holds_a_tilted_plane_one_scan_line_above_its_seed():
+    """A plane seen by the camera at depths 1/(0.2 + 0.015 (v - 10)) m (tilted about the x axis), scanned
+    on rows 12, 15 and 18 of every column, each pixel above seeded from row 12 straight below it and
+    predicted on the plane (the paper's Step 4, exact here). With R = 3 rows: rows 9-11 keep the
+    plane, rows 0-8 take the plane's depth at row 9; at and below the top scan line nothing changes."""
+    H, W, R = 20, 32, 3.0
+    K = np.array([[20.0, 0, 15.5], [0, 20.0, 10.0], [0, 0, 1]], np.float32)
+    v = np.arange(H, dtype=np.float64)[:, None] * np.ones((1, W))
+    plane = 1.0 / (0.2 + 0.015 * (v - 10))            # n . X = 1 with n = (0, 0.3, 0.2): n . K^-1 (u, v, 1) z = 1
+    n = np.array([0.0, 0.3, 0.2]) / np.linalg.norm([0.0, 0.3, 0.2])
+    keep = np.zeros((H, W), bool)
+    keep[[12, 15, 18]] = True
+    dv = np.where(v < 12, 12 - v, 0).astype(np.int32)
+    seed_depth = np.where(v < 12, plane[12], plane).astype(np.float32)
+    normal = np.broadcast_to(n[:, None, None], (3, H, W)).astype(np.float32)
+    got = np.asarray(_capped(jnp.asarray(plane.astype(np.float32)), jnp.asarray(seed_depth), jnp.asarray(normal),
+                             jnp.zeros((H, W), jnp.int32), jnp.asarray(dv), jnp.asarray(keep), jnp.asarray(keep),
+                             jnp.asarray(K), beams=8, rows_px=R))
+    np.testing.assert_array_equal(got[9:], plane[9:].astype(np.float32))
+    np.testing.assert_allclose(got[:9], np.broadcast_to(plane[9], (9, W)), rtol=1e-6)
+    assert plane[0, 0] > 1.4 * got[0, 0]                # the plane itself climbs far above: the cap bites
+
+
+def test_capped_through_the_pipeline_changes_only_above_the_scan():
+    """complete_stages with "capped" and with "plane" (the default): Step 4's prediction equal to the bit
+    at and below the top scan line (three full rows of points), different above it; jit == eager is
+    the stage table's row ``capped_above_scan``, vmap == loop too."""
+    H, W = 24, 40
+    sparse = np.zeros((H, W), np.float32)
+    sparse[12, ::2], sparse[17, 1::2], sparse[22, ::2] = 6.0, 5.0, 4.0
+    K = np.array([[30.0, 0, 19.5], [0, 30.0, 11.5], [0, 0, 1]], np.float32)
+    plane = jaxdepth.complete_stages(sparse, K)
+    capped = jaxdepth.complete_stages(sparse, K, config=jaxdepth.SGMConfig(above_scan="capped"))
+    np.testing.assert_array_equal(np.asarray(capped.depth_raw)[12:], np.asarray(plane.depth_raw)[12:])
+    assert not np.array_equal(np.asarray(capped.depth_raw)[:12], np.asarray(plane.depth_raw)[:12])
+
+
+def test_capped_flag():
+    p = argparse.ArgumentParser()
+    add_config_options(p)
+    assert config_changes(p.parse_args(["--above-scan", "capped"]))["above_scan"] == "capped"
+    assert jaxdepth.SGMConfig(above_scan="capped").above_scan == "capped"

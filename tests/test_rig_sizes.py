@@ -25,7 +25,7 @@ import pytest
 import dataclasses
 
 from jaxdepth import complete_points_stages, complete_rig_stages, outlier_keep_mask, project_to_image, stack_cameras
-from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth._src.above_scan import background_above_scan, capped_above_scan
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.smoothing import gaussian_blur
 from jaxdepth._src.rig import size_groups, vmap_by_size
@@ -329,6 +329,33 @@ def test_above_scan_window_is_the_cameras_own():
 
     check_stage(lambda d, s, k, v, n: _inside(background_above_scan(d, s, k, v, beams=16, image_size=n), n), inputs,
                 oracle=oracle, oracle_ulps=0)
+
+
+def test_capped_above_scan_window_is_the_cameras_own():
+    """On a canvas, with the camera's (h, w): inside the window the capped plane equals the float64 oracle of
+    the (h, w) image alone with R = h / L (padding rows and columns hold garbage)."""
+    from test_above_scan import capped_inputs, numpy_capped_above_scan
+    rng = np.random.default_rng(3)
+    inputs = []
+    for n, (h, w) in enumerate(SIZES):
+        d, s, nrm, du, dv, keep, valid, Kc = capped_inputs(n, H=h, W=w, points=3 * w)
+        garbage = lambda x: np.where(np.asarray(_embed(np.ones_like(x, bool), (h, w))), _embed(x, (h, w)),  # noqa: E731
+                                     rng.uniform(70, 90, (CANVAS, CANVAS)).astype(np.float32))
+        inputs.append((garbage(d), garbage(s), np.stack([_embed(c, (h, w)) for c in nrm]),
+                       _embed(du, (h, w)).astype(np.int32), _embed(dv, (h, w)).astype(np.int32),
+                       _embed(keep, (h, w)), _embed(valid, (h, w)), Kc, np.array([h, w], np.int32)))
+
+    def run(d, s, nrm, du, dv, keep, valid, K, size):
+        return _inside(capped_above_scan(d, s, nrm, du, dv, keep, valid, K, beams=16, rows_px=size[0] / 16,
+                                         image_size=size), size)
+
+    def oracle(d, s, nrm, du, dv, keep, valid, K, size):
+        h, w = size
+        return _embed(numpy_capped_above_scan(d[:h, :w], s[:h, :w], nrm[:, :h, :w], du[:h, :w], dv[:h, :w],
+                                              keep[:h, :w], valid[:h, :w], K, beams=16, rows_px=h / 16,
+                                              max_half_width_px=12), size)
+
+    check_stage(run, inputs, oracle=oracle, oracle_ulps=16, ulps=16)
 
 
 @pytest.mark.slow  # one whole program of each pipeline beside its three stage programs (docs/testing.md)

@@ -20,7 +20,13 @@ column that no point projects into (sparse horizontal sampling) does not count a
 open to the top. The window is the paper's S(i), as in Step 2; no constant is
 added. Below the top scan line nothing changes.
 
-Where it is wrong: a near surface that does continue above the scan and is
+The milder rule (``SGMConfig.above_scan="capped"``, :func:`capped_above_scan`) keeps the
+nearest seed and its plane but follows the plane at most one scan-line spacing (``h / L``
+rows, the column bracket's window) above the seed and holds its depth beyond: the gap
+between two rings is where the paper's plane is what it assumes; tens of rows above the top
+ring it extrapolates one top-ring normal.
+
+Where the background rule is wrong: a near surface that does continue above the scan and is
 narrower than one point spacing is lost, and the farther side of a depth edge
 above the scan moves by up to one point spacing. Measured on the digital twins and
 real data in docs/method.md ("Above the top scan line").
@@ -93,6 +99,63 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
                                                     max_half_width_px=max_half_width_px)
     rows = jnp.arange(height, dtype=jnp.int32)[:, None]
     return jnp.where((rows < top_window) & (seed_depth > 0), farthest, depth_raw)
+
+
+def capped_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, seed_normal: jax.Array, du: jax.Array,
+                      dv: jax.Array, keep: jax.Array, valid: jax.Array, K: jax.Array, *, beams: int,
+                      rows_px, max_half_width_px: int = _DEFAULTS.outlier_max_half_width_px,
+                      min_abs_denom: float = _DEFAULTS.min_abs_denom,
+                      max_residual_ratio: float = _DEFAULTS.max_residual_ratio, image_size=None) -> jax.Array:
+    """Step 4's prediction with the seed's plane followed at most ``rows_px`` rows above the top scan line.
+
+    Above the top scan line (judged as in :func:`background_above_scan`) a pixel ``(u, v)`` whose seed
+    lies more than ``R = rows_px`` rows away takes the plane's depth at ``(u, v_e)``, ``v_e`` the row
+    ``R`` rows from the seed towards the pixel: the plane is extrapolated over one scan-line spacing
+    (the gap the laser left between two of its rings, where the paper's plane is what it assumes) and
+    held constant beyond. With ``r(u, v) = ((u - pu) / fu, (v - pv) / fv, 1)`` and the seed's normal
+    ``n``, depth ``z'`` at ``(u + du, v + dv)``::
+
+        z = z' (n . r(u + du, v + dv)) / (n . r(u, v + dv - R sign(dv)))
+
+    (the paper's ``z' + Delta z`` at that pixel), ``z'`` where ``|n . r(u, v_e)| <= min_abs_denom``, and
+    ``|z - z'|`` clipped to ``max_residual_ratio z'`` as Step 4's residual is.
+
+    Args:
+      depth_raw: (H, W) float32 metres, Step 4's prediction (0 = no seed).
+      seed_depth: (H, W) float32 metres, each pixel's nearest seed depth z' (0 = no seed).
+      seed_normal: (3, H, W) float32, the seed's unit normal (camera frame).
+      du, dv: (H, W) int32, the seed's offset: it sits at ``(u + du, v + dv)``.
+      keep: (H, W) bool, the LiDAR pixels kept by Step 2 (the scan lines).
+      valid: (H, W) bool, every pixel with depth (N of the window ``W L / N``).
+      K: (3, 3) float32 intrinsics.
+      beams: L, the LiDAR's beam count.
+      rows_px: R, rows (float, static or traced): one scan-line spacing, ``h / L``.
+      max_half_width_px: static cap on the window's half width, pixels.
+      min_abs_denom, max_residual_ratio: Step 4's residual guards (``SGMConfig``).
+      image_size: optional traced (2,) int32 (h, w): the image is the top-left h x w window.
+
+    Returns:
+      (H, W) float32 metres: ``depth_raw`` except above the top scan line where ``|dv| > R``.
+    """
+    height, width = depth_raw.shape
+    k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
+                             image_width=None if image_size is None else image_size[1])
+    top_window, _ = _window_top_and_farthest(_top_line(keep), jnp.zeros((1, width), jnp.float32), height=height,
+                                             k_max=k_max, max_half_width_px=max_half_width_px)
+    K = jnp.asarray(K, jnp.float32)
+    fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    v = jnp.arange(height, dtype=jnp.float32)[:, None]
+    u = jnp.arange(width, dtype=jnp.float32)[None, :]
+    rows = jnp.asarray(rows_px, jnp.float32)
+    dvf = dv.astype(jnp.float32)
+    capped = (v < top_window) & (seed_depth > 0) & (jnp.abs(dvf) > rows)
+    nx, ny, nz = seed_normal[0], seed_normal[1], seed_normal[2]
+    at_seed = (u + du - pu) / fu * nx + (v + dvf - pv) / fv * ny + nz
+    at_cap = (u - pu) / fu * nx + (v + dvf - jnp.sign(dvf) * rows - pv) / fv * ny + nz
+    ok = capped & (jnp.abs(at_cap) > min_abs_denom)
+    ratio = jnp.where(ok, at_seed / jnp.where(ok, at_cap, 1.0), 1.0)
+    z = seed_depth * jnp.clip(ratio, 1.0 - max_residual_ratio, 1.0 + max_residual_ratio)
+    return jnp.where(capped, z, depth_raw)
 
 
 def _top_line(mask: jax.Array) -> jax.Array:

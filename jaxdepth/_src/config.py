@@ -13,7 +13,7 @@ import dataclasses
 DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
 #: Step 4's choices above the top scan line (``SGMConfig.above_scan``).
-ABOVE_SCAN = ("plane", "background")
+ABOVE_SCAN = ("plane", "background", "capped")
 #: When rule 6 of the multi-source path runs (``SGMConfig.reference_top_line``).
 REFERENCE_TOP_LINE = ("auto", "on", "off")
 #: Step 2 with several sweeps (``SGMConfig.outlier_sweeps``).
@@ -88,7 +88,10 @@ class SGMConfig:
         seed depth among the row's pixels within |du| < W L / N (the paper's
         window of Algorithm 1), with no plane extrapolation: the top laser hit
         the bottom of what stands there, and the near things end above it while
-        the background continues (:mod:`~jaxdepth._src.above_scan`).
+        the background continues (:mod:`~jaxdepth._src.above_scan`). "capped":
+        the nearest-seed plane followed at most one scan-line spacing (h / L
+        rows, the column bracket's window) above the seed, held constant
+        beyond (:func:`~jaxdepth._src.above_scan.capped_above_scan`).
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
         The paper gives no value; the default 1.4 with radius 3 is OpenCV's
         ``GaussianBlur(depth, (7, 7), 0)``.

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdepth._src import presets
-from jaxdepth._src.above_scan import background_above_scan
+from jaxdepth._src.above_scan import background_above_scan, capped_above_scan
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.distance import gather_at_seed, nearest_seed
 from jaxdepth._src.geodesic import geodesic_seed
@@ -119,6 +119,14 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         depth_raw = background_above_scan(depth_raw, seed_depth, keep, sparse_depth > 0, beams=beams,
                                           max_half_width_px=config.outlier_max_half_width_px,
                                           image_size=image_size)
+    elif config.above_scan == "capped":
+        depth_raw = capped_above_scan(depth_raw, seed_depth, seed_normal, du, dv, keep, sparse_depth > 0, K,
+                                      beams=beams, rows_px=(sparse_depth.shape[0] if image_size is None
+                                                            else image_size[0]) / beams,
+                                      max_half_width_px=config.outlier_max_half_width_px,
+                                      min_abs_denom=config.min_abs_denom,
+                                      max_residual_ratio=config.max_residual_ratio, image_size=image_size)
+        depth_raw = jnp.where(has_seed, jnp.clip(depth_raw, config.min_depth_m, config.max_depth_m), 0.0)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
                           image_size=image_size)
     if config.keep_measured_depth:
