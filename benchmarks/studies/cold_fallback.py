@@ -66,6 +66,13 @@ def _digest(folder: pathlib.Path) -> str:
     return h.hexdigest()
 
 
+def _summary(rows: dict) -> dict:
+    """Medians per variant, the probe / main ratio of each round, and whether every run wrote the same PNGs."""
+    return {"medians": {v: {k: statistics.median(x[k] for x in rs) for k in KEYS} for v, rs in rows.items()},
+            "probe_to_main_per_round": {k: [p[k] / m[k] for p, m in zip(rows["probe"], rows["main"])] for k in KEYS},
+            "same_bytes": len({x["sha256"] for rs in rows.values() for x in rs}) == 1}
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
@@ -99,14 +106,11 @@ def main(argv=None) -> int:
                 print(f"round {r} {variant:5s} wall {row['wall_s']:.2f} s, CPU {row['cpu_s']:.2f} s, idle estimate "
                       f"{row['idle_estimate_s']:.2f} s, steps {child['steps_cpu_s']}, load {load:.1f}, "
                       f"sha256 {row['sha256'][:12]}", flush=True)
-    med = {v: {k: statistics.median(x[k] for x in rs) for k in KEYS} for v, rs in rows.items()}
-    ratios = {k: [p[k] / m[k] for p, m in zip(rows["probe"], rows["main"])] for k in KEYS}
     doc = {"what": "cold `jaxdepth complete` on a one-frame KITTI folder (shared frame), fresh process, empty caches; "
                    "main against a probe without pixel_normals' dense fallback, alternating",
-           "rounds": args.rounds, "medians": med, "probe_to_main_per_round": ratios,
-           "same_bytes": len({x["sha256"] for rs in rows.values() for x in rs}) == 1, "runs": rows,
-           "load_average": os.getloadavg()}
-    print(f"medians {med}; probe / main per round {ratios}; same bytes {doc['same_bytes']}")
+           "rounds": args.rounds, **_summary(rows), "runs": rows, "load_average": os.getloadavg()}
+    print(f"medians {doc['medians']}; probe / main per round {doc['probe_to_main_per_round']}; "
+          f"same bytes {doc['same_bytes']}")
     write_results(args.json, doc, None, t0)
     return 0
 
