@@ -11,9 +11,12 @@ fits (the shared frame does). Recorded per run: wall seconds of the whole proces
 (``RUSAGE_CHILDREN``), the child's *idle estimate* (:class:`benchmarks.bench_compile_threads.Demand`
 from before its imports to the end: the wall time the same work would take on an idle 2-core machine, as
 ``bench_coldstart_profile``'s), its trace / lower / compile CPU seconds (``jax.monitoring``, CPU since the
-previous event), the SHA-256 of the output PNGs and the load average.
+previous event), the SHA-256 of the output PNGs and the load average. ``--fingerprint``: ``output_fingerprint
+--check`` (every output on the shared data, the CLI's KITTI jobs included) made by the probe, against main's
+committed hashes.
 
     python -m benchmarks.studies.cold_fallback [--rounds 3] [--json PATH]
+    python -m benchmarks.studies.cold_fallback --fingerprint   # output_fingerprint --check with the probe
 """
 
 from __future__ import annotations
@@ -36,6 +39,12 @@ VARIANTS = ("main", "probe")
 KEYS = ("wall_s", "cpu_s", "idle_estimate_s")
 
 
+def _probe() -> None:
+    """The listed branch only, at trace time (no dense fallback: exact whenever a frame fits)."""
+    from jaxdepth._src import pixel_normals
+    pixel_normals.cond_all = lambda pred, true_fn, false_fn, *ops: true_fn(*ops)
+
+
 def _child(variant: str, report: str, argv: list) -> int:
     from benchmarks.bench_compile_threads import Demand
     demand = Demand()      # from before the imports, as bench_coldstart_profile's child
@@ -43,8 +52,7 @@ def _child(variant: str, report: str, argv: list) -> int:
     from jaxdepth.cli import main
     events, _ = record_compile_steps(time.perf_counter())
     if variant == "probe":
-        from jaxdepth._src import pixel_normals
-        pixel_normals.cond_all = lambda pred, true_fn, false_fn, *ops: true_fn(*ops)
+        _probe()
     code = main(argv)
     steps = {}
     for e in events:
@@ -77,6 +85,10 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
         return _child(argv[1], argv[2], argv[4:])
+    if argv[:1] == ["--fingerprint"]:   # every output of output_fingerprint made by the probe, checked against main's
+        _probe()
+        from benchmarks.output_fingerprint import main as fingerprint
+        return fingerprint(["--check", str(RESULTS / "output_fingerprint.json")])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--json", default=str(RESULTS / "cold_fallback.json"))
