@@ -17,6 +17,7 @@ committed hashes.
 
     python -m benchmarks.studies.cold_fallback [--rounds 3] [--json PATH]
     python -m benchmarks.studies.cold_fallback --fingerprint   # output_fingerprint --check with the probe
+    python -m benchmarks.studies.cold_fallback --run [ROUNDS]  # run time of jit(complete), main and probe
 """
 
 from __future__ import annotations
@@ -74,6 +75,38 @@ def _digest(folder: pathlib.Path) -> str:
     return h.hexdigest()
 
 
+def _run_time(rounds: int) -> int:
+    """Run time of ``jit(complete)`` on the shared frame, main's program against the probe's (both compiled
+    in this process), interleaved rounds of 5 calls each: medians of process CPU ms per call, bytes compared."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import jaxdepth
+    from benchmarks._common import load_frame
+    from jaxdepth._src import pixel_normals
+    sparse, K, T, label = load_frame()
+    frame = (jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T))
+    main_cond = pixel_normals.cond_all
+    fns = {"main": jax.jit(jaxdepth.complete).lower(*frame).compile()}
+    _probe()
+    fns["probe"] = jax.jit(jaxdepth.complete).lower(*frame).compile()
+    pixel_normals.cond_all = main_cond
+    outs = {v: np.asarray(f(*frame)).tobytes() for v, f in fns.items()}
+    ms = {v: [] for v in fns}
+    for r in range(rounds):
+        for v in (VARIANTS if r % 2 == 0 else VARIANTS[::-1]):
+            c0 = time.process_time()
+            for _ in range(5):
+                fns[v](*frame).block_until_ready()
+            ms[v].append((time.process_time() - c0) / 5 * 1e3)
+    med = {v: statistics.median(x) for v, x in ms.items()}
+    ratio = statistics.median(p / m for p, m in zip(ms["probe"], ms["main"]))
+    print(f"{label}: jit(complete) CPU ms per call, medians of {rounds} rounds: {med}, probe / main "
+          f"{med['probe'] / med['main']:.3f} (median of the rounds' ratios {ratio:.3f}); same bytes {outs['main'] == outs['probe']}; load {os.getloadavg()}")
+    return 0
+
+
 def _summary(rows: dict) -> dict:
     """Medians per variant, the probe / main ratio of each round, and whether every run wrote the same PNGs."""
     return {"medians": {v: {k: statistics.median(x[k] for x in rs) for k in KEYS} for v, rs in rows.items()},
@@ -85,6 +118,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
         return _child(argv[1], argv[2], argv[4:])
+    if argv[:1] == ["--run"]:
+        return _run_time(int(argv[1]) if len(argv) > 1 else 20)
     if argv[:1] == ["--fingerprint"]:   # every output of output_fingerprint made by the probe, checked against main's
         _probe()
         from benchmarks.output_fingerprint import main as fingerprint
