@@ -1,7 +1,7 @@
 """What stands above the top scan line: real KITTI ground truth against the KITTI twin (issue 37, a study).
 
     PYTHONPATH=. python -m benchmarks.studies.above_truth [--seeds 0 1] [--phases aligned staggered]
-        [--accumulated 5] [--json benchmarks/results/above_truth.json]
+        [--accumulated 5] [--consistency 0.05] [--json benchmarks/results/above_truth.json]
 
 The same statistics on both, over the target pixels above their column's top input pixel (columns with
 no input left out): the real frame's official semi-dense ground truth (cameras 2 and 3, 352 x 1216, as
@@ -151,30 +151,31 @@ def twin_case_stats(seed: int, staggered: bool) -> dict:
             **study(tables, preds, total)}
 
 
-def accumulated_mask(seed: int, staggered: bool, sweeps: int, exact: list) -> list:
+def accumulated_mask(seed: int, staggered: bool, sweeps: int, exact: list, *, rel: float = 0.05) -> list:
     """Each camera's (H, W) bool: a KITTI-style ground-truth footprint on the twin: the pixels that the
     z-buffer of ``sweeps`` twin sweeps (the reference and the ones before it, ego moving back, all in the
-    reference frame) hits within 5 % of the exact depth (the consistency filter; movers' smears drop out)."""
+    reference frame) hits within ``rel`` of the exact depth (the consistency filter; movers' smears drop out;
+    ``rel`` 0: no filter)."""
     from benchmarks.accuracy_twins import z_buffers
     from jaxdepth.research.twins import make_twin
     tw = make_twin("kitti", sweeps=sweeps, seed=seed, scale=1.0, laser_phases=staggered)
     acc = z_buffers(tw.cloud.points, tw.rig)
     ref = [np.asarray(d, np.float32) for d in tw.depths] if tw.depths else list(tw.dense_depth)
     assert all(np.array_equal(r[:e.shape[0], :e.shape[1]], e) for r, e in zip(ref, exact)), "reference sweep differs"
-    return [(a > 0) & (e > 0) & (np.abs(a - e) <= 0.05 * e) for a, e in zip(acc, exact)]
+    return [(a > 0) & (e > 0) & ((rel <= 0) | (np.abs(a - e) <= rel * e)) for a, e in zip(acc, exact)]
 
 
-def twin_accumulated_stats(seed: int, staggered: bool, sweeps: int = 5) -> dict:
+def twin_accumulated_stats(seed: int, staggered: bool, sweeps: int = 5, *, rel: float = 0.05) -> dict:
     """:func:`twin_case_stats` with the exact depth kept only on :func:`accumulated_mask`."""
     from benchmarks.studies.above_scan_cap import city_block_and_sparse, sgm, twin_case
     inp, exact = twin_case("kitti", 1, seed, 1.0, staggered)
-    mask = accumulated_mask(seed, staggered, sweeps, exact)
+    mask = accumulated_mask(seed, staggered, sweeps, exact, rel=rel)
     truth = [np.where(m, e, 0.0).astype(np.float32) for m, e in zip(mask, exact)]
     _, sparse = city_block_and_sparse(inp)
     tables = [pixel_table(np.asarray(s), t, c.K, c.T_cam_lidar) for s, t, c in zip(sparse, truth, inp.rig.cameras)]
     preds = {r: sgm(inp, SGMConfig(above_scan=r)) for r in RULES}
     return {"set": f"KITTI twin, 1 sweep, seed {seed}, {'staggered' if staggered else 'aligned'}, truth only where "
-            f"{sweeps} sweeps accumulate", "truth_pixels_kept": round(sum(int(m.sum()) for m in mask) / sum(
+            f"{sweeps} sweeps accumulate (filter {rel:g})", "truth_pixels_kept": round(sum(int(m.sum()) for m in mask) / sum(
                 int((e > 0).sum()) for e in exact), 4), **study(tables, preds, sum(int((t > 0).sum()) for t in truth))}
 
 
@@ -185,13 +186,14 @@ def main(argv=None) -> int:
     parser.add_argument("--no-real", action="store_true")
     parser.add_argument("--accumulated", type=int, default=5, metavar="K",
                         help="also score each twin with truth only where K sweeps accumulate (1-5, make_twin's limit; 0: not)")
+    parser.add_argument("--consistency", type=float, default=0.05, help="accumulated_mask's rel (0: no filter)")
     parser.add_argument("--json", default=str(RESULTS / "above_truth.json"))
     args = parser.parse_args(argv)
     t0 = time.time()
     doc = {"cases": []}
     jobs = ([] if args.no_real else [real_case]) + [
         (lambda s=s, p=p: twin_case_stats(s, p == "staggered")) for s in args.seeds for p in args.phases] + [
-        (lambda s=s, p=p: twin_accumulated_stats(s, p == "staggered", args.accumulated))
+        (lambda s=s, p=p: twin_accumulated_stats(s, p == "staggered", args.accumulated, rel=args.consistency))
         for s in args.seeds for p in args.phases if args.accumulated]
     for job in jobs:
         t = time.time()
