@@ -79,15 +79,17 @@ def test_batch_size_changes_rounding_only(frames):
 
 
 def _count_traces(monkeypatch) -> list:
-    """Counts the traces of the runner's compiled batch: ``complete_with`` runs once per trace
-    of its body (a Python wrapper around it, looked up by the runner at trace time)."""
-    traces = []
+    """Counts the traces of the runner's compiled SGM batch: a job's listed program
+    (:mod:`jaxdepth.batch.listed`) calls ``pipeline._complete_stages`` once per trace of its body
+    (a Python wrapper around it, looked up at trace time)."""
+    from jaxdepth._src import pipeline
+    traces, real = [], pipeline._complete_stages
 
     def counted(*args, **kwargs):
         traces.append(args[0].shape)
-        return complete_with(*args, **kwargs)
+        return real(*args, **kwargs)
 
-    monkeypatch.setattr(runner, "complete_with", counted)
+    monkeypatch.setattr(pipeline, "_complete_stages", counted)
     return traces
 
 
