@@ -94,11 +94,11 @@ def _count_traces(monkeypatch) -> list:
 
 
 def _record_buckets(monkeypatch) -> list:
-    """The batch sizes the runner asks :func:`runner.batched_completion` to compile for."""
+    """(batch size, listed_only) of each program the runner asks :func:`runner.batched_completion` for."""
     sizes, real = [], runner.batched_completion
 
     def spy(batch_size, *args, **kwargs):
-        sizes.append(batch_size)
+        sizes.append((batch_size, kwargs.get("listed_only", False)))
         return real(batch_size, *args, **kwargs)
 
     monkeypatch.setattr(runner, "batched_completion", spy)
@@ -118,8 +118,11 @@ def test_last_batch_is_padded_not_recompiled(tmp_path, frames, monkeypatch):
     buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, config=CONFIG)
     assert summary.ok and len(summary.done) == 5
-    # 5 frames in batches of 2: three calls (the last padded) of one bucket, traced once
-    assert buckets == [2, 2, 2] and len(traces) == 1
+    # 5 frames in batches of 2: three calls (the last padded) of one bucket's listed program; these frames
+    # (71 % of the pixels with depth) overflow it, so each batch is recomputed by the full program when
+    # collected (after the next batch's dispatch); each program traced once
+    listed, full = (2, True), (2, False)
+    assert buckets == [listed, listed, full, listed, full, full] and len(traces) == 2
     # Oracle: the public per-frame pipeline, complete_stages (the program test_extras_cli's oracle
     # compiles for these frames: same size, LiDAR and call form)
     for (depth, K), job in zip(items, jobs):
@@ -173,7 +176,7 @@ def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, mon
     buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1, method=PLUMBING)
     assert summary.ok and summary.done == [png.name]
-    assert buckets == [1]  # compiled for a batch of one frame, not four
+    assert buckets == [(1, False)]  # compiled for a batch of one frame, not four (a baseline: no listed program)
 
 
 DEVICES = r"""
