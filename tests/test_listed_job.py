@@ -70,6 +70,7 @@ def test_a_frame_beyond_the_listed_path_is_recomputed_with_the_bytes_of_complete
                                                                                    monkeypatch):
     items, T = frames
     assert [_fits(d, k, T) for d, k in items] == [True, False, True]  # the fixture's premise
+    assert _fits(np.zeros_like(items[0][0]), items[0][1], T)  # a padding frame (empty) never forces a rerun
     jobs = _jobs(tmp_path, items)
     builds = _builds(monkeypatch)
     summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy=strategy)
