@@ -95,3 +95,15 @@ def test_the_full_program_is_not_built_when_every_frame_fits(tmp_path, frames, m
     expected = runner.complete_batch(batch, Ks, T, batch_size=2, strategy="map")  # main's program
     for depth, job in zip(expected, jobs):
         assert job.out_path.read_bytes() == _png(tmp_path, depth)
+
+
+def test_vmap_job_with_an_overflowing_frame_writes_the_bytes_of_main_s_vmap_program(tmp_path, frames):
+    items, T = frames
+    jobs = _jobs(tmp_path, items)
+    summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy="vmap", devices=1)
+    assert summary.ok and len(summary.done) == 3
+    inputs = np.stack([read_depth_png(job.sparse_path) for job in jobs])
+    expected = runner.complete_batch(inputs, np.stack([k for _, k in items]), T, batch_size=1, strategy="vmap",
+                                     devices=1)  # main's program (with the dense fallback), frame by frame
+    for depth, job in zip(expected, jobs):
+        assert job.out_path.read_bytes() == _png(tmp_path, depth)
