@@ -82,6 +82,22 @@ def test_a_frame_beyond_the_listed_path_is_recomputed_with_the_bytes_of_complete
         assert job.out_path.read_bytes() == _png(tmp_path, expected)
 
 
+def test_after_a_frame_beyond_the_listed_path_the_size_runs_the_full_program(tmp_path, frames, monkeypatch):
+    """A dataset denser than the capacity pays the recompute once, not per batch: the batch after the one
+    dispatched beside the overflowing batch gets the full program directly (no listed build), same bytes."""
+    items, T = frames
+    jobs = _jobs(tmp_path, items + [items[2]])  # fit, overflow, fit, fit
+    builds = _builds(monkeypatch)
+    summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy="map")
+    assert summary.ok and len(summary.done) == 4
+    # batches 1-3 listed (batch 3 is dispatched before batch 2 is collected); then the full program, built
+    # when batch 2 is recomputed, serves batch 4
+    assert builds == [True, True, True, False, False]
+    for (_, K), job in zip(items + [items[2]], jobs):
+        expected = np.asarray(complete_stages(read_depth_png(job.sparse_path), K, T).depth)
+        assert job.out_path.read_bytes() == _png(tmp_path, expected)
+
+
 def test_the_full_program_is_not_built_when_every_frame_fits(tmp_path, frames, monkeypatch):
     items, T = frames
     fitting = [items[0], items[2]]

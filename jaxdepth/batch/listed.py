@@ -6,9 +6,10 @@ range-image window). The fallback is never run on KITTI frames but costs ~2.3 s 
 compile. A job (:func:`jaxdepth.batch.runner.run_jobs`, SGM on depth images) therefore runs a
 *listed* program: the fast path alone, which also returns each frame's ``fits`` (the value the
 fallback's choice reads). Where the runner collects a batch, a batch with a frame that does not
-fit is recomputed by the job's full program (main's, built on first need): every output has the
-bytes of the full program, which a fitting frame's listed program gives too (docs/speed.md, "The
-cold first frame without the dense fallback").
+fit is recomputed by the job's full program (main's, built on first need), and that group's later
+batches run the full program directly (a dataset denser than the capacity pays the recompute once,
+not per batch): every output has the bytes of the full program, which a fitting frame's listed
+program gives too (docs/speed.md, "The cold first frame without the dense fallback").
 """
 
 from __future__ import annotations
@@ -42,14 +43,16 @@ def frame_program(*, config, lidar, max_seed_distance_px, validity: Callable) ->
 
 @dataclasses.dataclass(frozen=True)
 class ListedBatch:
-    """A batch function of the listed program ``fn``; ``full()`` builds (or returns) the full one.
+    """A batch function of the listed program ``fn``; ``full()`` builds (or returns) the full one;
+    ``overflowed()`` is called when a batch needs it (the runner then gives the group the full program).
     A call dispatches ``fn`` and returns a :class:`ListedOut` (read it with :func:`settle`)."""
 
     fn: Callable
     full: Callable[[], Callable]
+    overflowed: Callable[[], None] = lambda: None
 
     def __call__(self, *args):
-        return ListedOut(self.fn(*args), args, self.full)
+        return ListedOut(self.fn(*args), args, self.full, self.overflowed)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +60,7 @@ class ListedOut:
     out: tuple
     args: tuple
     full: Callable[[], Callable]
+    overflowed: Callable[[], None]
 
 
 def _arrays(out) -> tuple:
@@ -73,5 +77,6 @@ def settle(out) -> tuple:
     if bool(np.all(fits)):
         return tuple(result)
     log.info("a batch has %d frame(s) beyond the listed normals' capacity or window: recomputed by the "
-             "program with the dense fallback", int(np.sum(~fits)))
+             "program with the dense fallback (and so are this image size's later batches)", int(np.sum(~fits)))
+    out.overflowed()
     return _arrays(out.full()(*out.args))

@@ -389,10 +389,11 @@ def batch_item(job: FrameJob, loaded: tuple, T_default: np.ndarray) -> tuple:
 
 
 def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config: SGMConfig, lidar: LidarSpec,
-                strategy: str, devices: int, max_seed_distance_px: float | None = None, listed_only: bool = False):
+                strategy: str, devices: int, max_seed_distance_px: float | None = None, listed_only=None):
     """(compiled function, padded argument arrays, real frame count) of one group's batch.
 
-    ``listed_only``: an SGM depth-image batch's function is a :class:`jaxdepth.batch.listed.ListedBatch`.
+    ``listed_only``: a set, the run's groups that had a frame beyond the listed path (filled by ``listed.settle``):
+    an SGM depth-image batch of a group not in it runs a :class:`jaxdepth.batch.listed.ListedBatch`.
 
     ``items``: up to ``batch_size`` tuples (job, data, K, T[, image]) of one :func:`_group_key`
     (:func:`batch_item`); guided items carry the camera image, padded with zero images.
@@ -405,9 +406,9 @@ def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config
         h, w = key[:2]
         build = functools.partial(batched_completion, batch_size, h, w, method=method, config=config,
                                   lidar=lidar, strategy=strategy, devices=devices, **more)
-        if listed_only and method == "sgm":  # the full program built on first need only
+        if listed_only is not None and method == "sgm" and key not in listed_only:  # full program on first need
             from jaxdepth.batch.listed import ListedBatch
-            fn = ListedBatch(build(listed_only=True), full=build)
+            fn = ListedBatch(build(listed_only=True), full=build, overflowed=functools.partial(listed_only.add, key))
         else:
             fn = build()
         d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
@@ -549,7 +550,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     batch_size = -(-batch_size // devices) * devices
     group_call = functools.partial(
         _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
-        strategy=strategy or batch_strategy(), devices=devices, listed_only=True,
+        strategy=strategy or batch_strategy(), devices=devices, listed_only=set(),
         max_seed_distance_px=extras.seed_limit if extras.needs_seeds else None)
     pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T[, image])
     # Twice as many writers: each spends a good part of a frame waiting in fsync (atomic writes),
