@@ -57,19 +57,23 @@ def _elevation_level(K, height, width, R_tilt=np.eye(3)):
 def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path, src, capsys, monkeypatch):
     root, items = src
     plain, full, zeroed = tmp_path / "plain", tmp_path / "full", tmp_path / "zeroed"
-    # Traces of the runner's compiled batches: complete_with runs once per trace of the plain
-    # batch body, _validity once per trace of the extras body (both looked up at trace time).
+    # The runner's batch programs (a job's listed ones, jaxdepth.batch.listed): frame_program runs once per
+    # program built, _validity once per trace of the extras body (both looked up when used).
+    from jaxdepth.batch import listed
     runner.batched_completion.cache_clear()
     plain_traces, extra_traces = [], []
-    real_complete_with, real_validity = runner.complete_with, runner._validity
-    monkeypatch.setattr(runner, "complete_with", lambda *a, **k: plain_traces.append(1) or real_complete_with(*a, **k))
+    real_frame_program, real_validity = listed.frame_program, runner._validity
+    monkeypatch.setattr(listed, "frame_program", lambda **k: plain_traces.append(k["max_seed_distance_px"]) or
+                        real_frame_program(**k))
     monkeypatch.setattr(runner, "_validity", lambda *a, **k: extra_traces.append(1) or real_validity(*a, **k))
     assert cli.main(["complete", str(root), str(plain), "--batch-size", "2", "-q"]) == 0
-    assert plain_traces and not extra_traces  # no flag: no extra compiled function
+    assert plain_traces == [None] and not extra_traces  # no flag: no extra compiled function
     assert cli.main(["complete", str(root), str(full), "--batch-size", "2", "-q", *ALL]) == 0
     assert cli.main(["complete", str(root), str(zeroed), "--batch-size", "2", "-q", "--validity",
                      "--zero-invalid"]) == 0
-    assert len(extra_traces) == 1  # one compile for 3 frames (2 batches) and 2 runs
+    # one compile per program for 3 frames (2 batches) and 2 runs: the listed one, and the full one (these
+    # frames, 71 % of the pixels with depth, overflow the listed path: recomputed, jaxdepth.batch.listed)
+    assert len(extra_traces) == 2
     assert sorted(p.name for p in full.glob("*.png")) == sorted(
         f"frame_00{i}{s}.png" for i in range(3) for s in ("", "_preview", "_validity", "_seed_distance"))
     assert sorted(p.name for p in plain.glob("*.png")) == [f"frame_00{i}.png" for i in range(3)]

@@ -79,24 +79,26 @@ def test_batch_size_changes_rounding_only(frames):
 
 
 def _count_traces(monkeypatch) -> list:
-    """Counts the traces of the runner's compiled batch: ``complete_with`` runs once per trace
-    of its body (a Python wrapper around it, looked up by the runner at trace time)."""
-    traces = []
+    """Counts the traces of the runner's compiled SGM batch: a job's listed program
+    (:mod:`jaxdepth.batch.listed`) calls ``pipeline._complete_stages`` once per trace of its body
+    (a Python wrapper around it, looked up at trace time)."""
+    from jaxdepth._src import pipeline
+    traces, real = [], pipeline._complete_stages
 
     def counted(*args, **kwargs):
         traces.append(args[0].shape)
-        return complete_with(*args, **kwargs)
+        return real(*args, **kwargs)
 
-    monkeypatch.setattr(runner, "complete_with", counted)
+    monkeypatch.setattr(pipeline, "_complete_stages", counted)
     return traces
 
 
 def _record_buckets(monkeypatch) -> list:
-    """The batch sizes the runner asks :func:`runner.batched_completion` to compile for."""
+    """(batch size, listed_only) of each program the runner asks :func:`runner.batched_completion` for."""
     sizes, real = [], runner.batched_completion
 
     def spy(batch_size, *args, **kwargs):
-        sizes.append(batch_size)
+        sizes.append((batch_size, kwargs.get("listed_only", False)))
         return real(batch_size, *args, **kwargs)
 
     monkeypatch.setattr(runner, "batched_completion", spy)
@@ -116,8 +118,11 @@ def test_last_batch_is_padded_not_recompiled(tmp_path, frames, monkeypatch):
     buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, config=CONFIG)
     assert summary.ok and len(summary.done) == 5
-    # 5 frames in batches of 2: three calls (the last padded) of one bucket, traced once
-    assert buckets == [2, 2, 2] and len(traces) == 1
+    # 5 frames in batches of 2: three calls (the last padded) of one bucket's listed program; these frames
+    # (71 % of the pixels with depth) overflow it, so each batch is recomputed by the full program when
+    # collected (after the next batch's dispatch); each program traced once
+    listed, full = (2, True), (2, False)
+    assert buckets == [listed, listed, full, listed, full, full] and len(traces) == 2
     # Oracle: the public per-frame pipeline, complete_stages (the program test_extras_cli's oracle
     # compiles for these frames: same size, LiDAR and call form)
     for (depth, K), job in zip(items, jobs):
@@ -171,7 +176,7 @@ def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, mon
     buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs([job], batch_size=4, T_cam_lidar=T, config=CONFIG, devices=1, method=PLUMBING)
     assert summary.ok and summary.done == [png.name]
-    assert buckets == [1]  # compiled for a batch of one frame, not four
+    assert buckets == [(1, False)]  # compiled for a batch of one frame, not four (a baseline: no listed program)
 
 
 DEVICES = r"""

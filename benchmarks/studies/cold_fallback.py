@@ -18,6 +18,12 @@ committed hashes.
     python -m benchmarks.studies.cold_fallback [--rounds 3] [--json PATH]
     python -m benchmarks.studies.cold_fallback --fingerprint   # output_fingerprint --check with the probe
     python -m benchmarks.studies.cold_fallback --run [ROUNDS]  # run time of jit(complete), main and probe
+    python -m benchmarks.studies.cold_fallback --job [--rounds 3]  # main's job against the listed job (coldjob)
+
+``--job`` (branch coldjob, after the jobs got their listed program, :mod:`jaxdepth.batch.listed`): variants
+``main`` (the job made to run the full program, as main did: ``listed_only=False`` forced into the runner's
+``_group_call``) and ``job`` (the job as it is), results in ``results/cold_job.json``. Without ``--job``,
+``main`` is the job as it is (since coldjob: listed) and ``probe`` patches what the job no longer runs.
 """
 
 from __future__ import annotations
@@ -46,6 +52,13 @@ def _probe() -> None:
     pixel_normals.cond_all = lambda pred, true_fn, false_fn, *ops: true_fn(*ops)
 
 
+def _full_program_job() -> None:
+    """The job with main's full program (dense fallback inside), as before branch coldjob."""
+    from jaxdepth.batch import runner
+    real = runner._group_call
+    runner._group_call = lambda key, items, **kw: real(key, items, **{**kw, "listed_only": False})
+
+
 def _child(variant: str, report: str, argv: list) -> int:
     from benchmarks.bench_compile_threads import Demand
     demand = Demand()      # from before the imports, as bench_coldstart_profile's child
@@ -54,6 +67,8 @@ def _child(variant: str, report: str, argv: list) -> int:
     events, _ = record_compile_steps(time.perf_counter())
     if variant == "probe":
         _probe()
+    elif variant == "main" and os.environ.get("COLD_FALLBACK_JOB"):
+        _full_program_job()
     code = main(argv)
     steps = {}
     for e in events:
@@ -108,9 +123,10 @@ def _run_time(rounds: int) -> int:
 
 
 def _summary(rows: dict) -> dict:
-    """Medians per variant, the probe / main ratio of each round, and whether every run wrote the same PNGs."""
+    """Medians per variant, the other / main ratio of each round, and whether every run wrote the same PNGs."""
+    other = [v for v in rows if v != "main"][0]
     return {"medians": {v: {k: statistics.median(x[k] for x in rs) for k in KEYS} for v, rs in rows.items()},
-            "probe_to_main_per_round": {k: [p[k] / m[k] for p, m in zip(rows["probe"], rows["main"])] for k in KEYS},
+            f"{other}_to_main_per_round": {k: [p[k] / m[k] for p, m in zip(rows[other], rows["main"])] for k in KEYS},
             "same_bytes": len({x["sha256"] for rs in rows.values() for x in rs}) == 1}
 
 
@@ -126,16 +142,20 @@ def main(argv=None) -> int:
         return fingerprint(["--check", str(RESULTS / "output_fingerprint.json")])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--json", default=str(RESULTS / "cold_fallback.json"))
+    parser.add_argument("--json", default=None)
+    parser.add_argument("--job", action="store_true", help="main's job (full program) against the listed job")
     args, t0 = parser.parse_args(argv), time.time()
+    variants = ("main", "job") if args.job else VARIANTS
+    args.json = args.json or str(RESULTS / ("cold_job.json" if args.job else "cold_fallback.json"))
     from benchmarks.bench_offline_job import build_folder
-    rows = {v: [] for v in VARIANTS}
+    rows = {v: [] for v in variants}
     with tempfile.TemporaryDirectory(prefix="cold_fallback_") as tmp:
         tmp = pathlib.Path(tmp)
         src = build_folder(tmp / "build", 1)
         env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "JAXDEPTH_COMPILE"))}
+        env.update({"COLD_FALLBACK_JOB": "1"} if args.job else {})
         for r in range(args.rounds):
-            for variant in (VARIANTS if r % 2 == 0 else VARIANTS[::-1]):
+            for variant in (variants if r % 2 == 0 else variants[::-1]):
                 cache, out = tmp / f"cache_{r}_{variant}", tmp / f"out_{r}_{variant}"
                 cache.mkdir()
                 run_env = {**env, "XDG_CACHE_HOME": str(cache)}
@@ -154,9 +174,11 @@ def main(argv=None) -> int:
                       f"{row['idle_estimate_s']:.2f} s, steps {child['steps_cpu_s']}, load {load:.1f}, "
                       f"sha256 {row['sha256'][:12]}", flush=True)
     doc = {"what": "cold `jaxdepth complete` on a one-frame KITTI folder (shared frame), fresh process, empty caches; "
-                   "main against a probe without pixel_normals' dense fallback, alternating",
+                   + ("main's job (full program) against the job's listed program (branch coldjob), alternating"
+                      if args.job else "main against a probe without pixel_normals' dense fallback, alternating"),
            "rounds": args.rounds, **_summary(rows), "runs": rows, "load_average": os.getloadavg()}
-    print(f"medians {doc['medians']}; probe / main per round {doc['probe_to_main_per_round']}; "
+    ratio_key = [k for k in doc if k.endswith("_to_main_per_round")][0]
+    print(f"medians {doc['medians']}; {ratio_key} {doc[ratio_key]}; "
           f"same bytes {doc['same_bytes']}")
     write_results(args.json, doc, None, t0)
     return 0

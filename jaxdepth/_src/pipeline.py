@@ -35,7 +35,7 @@ from jaxdepth._src.images import guidance_image
 from jaxdepth._src.geometry import camera_points, winners_image, zbuffer_image, zbuffer_winners
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
-from jaxdepth._src.pixel_normals import pixel_normals
+from jaxdepth._src.pixel_normals import pixel_normals, pixel_normals_listed
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
@@ -162,8 +162,11 @@ def complete_stages(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Arra
     return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
-@functools.partial(entry_jit, static_argnames=("config", "lidar"))
-def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> Stages:
+@functools.partial(entry_jit, static_argnames=("config", "lidar", "listed_only"))
+def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec,
+                     listed_only: bool = False):
+    # listed_only (private, the CLI's KITTI jobs: jaxdepth.batch.listed): Step 1 without pixel_normals'
+    # dense fallback; returns (Stages, fits), the Stages equal to the public ones only where fits.
     sparse_depth = jnp.asarray(sparse_depth, jnp.float32)
     K = jnp.asarray(K, jnp.float32)
     _check_image_inputs(sparse_depth, K)
@@ -175,10 +178,16 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMCon
     # Step 1 (normals) for image input, in pixel_normals.py: equals R @ point_normals(pixels
     # back-projected into the LiDAR frame) up to float32 rounding, without per-point (N, 3)
     # work over all H W pixels.
-    normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
-                                fill_max_gap=config.range_fill_max_gap)
-    return _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
-                          image=image)
+    if listed_only:
+        normals_cam, fits = pixel_normals_listed(sparse_depth, K, T_cam_lidar, lidar=lidar,
+                                                 smoothing=config.normal_smoothing,
+                                                 fill_max_gap=config.range_fill_max_gap)
+    else:
+        normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
+                                    fill_max_gap=config.range_fill_max_gap)
+    stages = _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
+                            image=image)
+    return (stages, fits) if listed_only else stages
 
 
 def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | None = None, *,
@@ -209,10 +218,15 @@ def complete(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax.Array | Non
     return _complete_depth(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar)
 
 
-@functools.partial(entry_jit, static_argnames=("config", "lidar"))
-def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec) -> jax.Array:
+@functools.partial(entry_jit, static_argnames=("config", "lidar", "listed_only"))
+def _complete_depth(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMConfig, lidar: LidarSpec,
+                    listed_only: bool = False):
     # Its own jit: only the depth leaves the computation, so XLA drops or fuses
-    # away the intermediate stages instead of writing each of them out.
+    # away the intermediate stages instead of writing each of them out. listed_only: (depth, fits).
+    if listed_only:
+        stages, fits = _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar,
+                                        listed_only=True)
+        return stages.depth, fits
     return _complete_stages(sparse_depth, K, T_cam_lidar, image, config=config, lidar=lidar).depth
 
 

@@ -105,7 +105,7 @@ def batch_strategy(backend: str | None = None) -> str:
 @functools.lru_cache(maxsize=32)
 def batched_completion(batch_size: int, height: int, width: int, *, method: str, config: SGMConfig,
                        lidar: LidarSpec, strategy: str, devices: int = 1,
-                       max_seed_distance_px: float | None = None) -> Callable:
+                       max_seed_distance_px: float | None = None, listed_only: bool = False) -> Callable:
     """(B, H, W), (B, 3, 3), (B, 4, 4) -> (B, H, W) completion for one bucket (one compiled function).
 
     Every frame carries its own intrinsics and extrinsic (traced: a new calibration never recompiles).
@@ -119,6 +119,10 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     Guided (``config.guidance_weight > 0``, method "sgm" only): the function takes a fourth
     argument, the (B, H, W) grey or (B, H, W, 3) colour uint8 camera images, and frame i is
     :func:`jaxdepth.complete` of it with ``image=images[i]``. Unguided functions take no image.
+
+    ``listed_only`` (method "sgm"): the program without Step 1's dense fallback
+    (:mod:`jaxdepth.batch.listed`); it returns one more output, the (B,) bool ``fits``; where it
+    is False that frame's outputs are not meaningful.
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
@@ -140,10 +144,18 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
         return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
                                            max_seed_distance_px=max_seed_distance_px)
 
+    out_specs, statics = _out_specs(max_seed_distance_px), ()
+    if listed_only:
+        from jaxdepth.batch import listed
+        if method != "sgm":
+            raise ValueError(f"batched_completion: listed_only needs method 'sgm', got {method!r}")
+        one = listed.frame_program(config=config, lidar=lidar, max_seed_distance_px=max_seed_distance_px,
+                                   validity=_validity)
+        out_specs, statics = (PartitionSpec("batch"),) * (2 if max_seed_distance_px is None else 4), ("listed_only",)
     return _batched(one, arity=4 if guided else 3, batch_size=batch_size, strategy=strategy, devices=devices,
-                    out_specs=_out_specs(max_seed_distance_px), first_shape=(batch_size, height, width),
+                    out_specs=out_specs, first_shape=(batch_size, height, width),
                     program=("batched_completion", (batch_size, height, width, method, config, lidar, strategy,
-                                                    devices, max_seed_distance_px)))
+                                                    devices, max_seed_distance_px) + statics))
 
 
 def is_guided(config: SGMConfig) -> bool:
@@ -377,8 +389,11 @@ def batch_item(job: FrameJob, loaded: tuple, T_default: np.ndarray) -> tuple:
 
 
 def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config: SGMConfig, lidar: LidarSpec,
-                strategy: str, devices: int, max_seed_distance_px: float | None = None):
+                strategy: str, devices: int, max_seed_distance_px: float | None = None, listed_only=None):
     """(compiled function, padded argument arrays, real frame count) of one group's batch.
+
+    ``listed_only``: a set, the run's groups that had a frame beyond the listed path (filled by ``listed.settle``):
+    an SGM depth-image batch of a group not in it runs a :class:`jaxdepth.batch.listed.ListedBatch`.
 
     ``items``: up to ``batch_size`` tuples (job, data, K, T[, image]) of one :func:`_group_key`
     (:func:`batch_item`); guided items carry the camera image, padded with zero images.
@@ -389,8 +404,13 @@ def _group_call(key: tuple, items: list, *, batch_size: int, method: str, config
     images = () if len(items[0]) < 5 else (_pad_zeros(np.stack([it[4] for it in items]), batch_size),)
     if key[0] != "sweep":
         h, w = key[:2]
-        fn = batched_completion(batch_size, h, w, method=method, config=config, lidar=lidar,
-                                strategy=strategy, devices=devices, **more)
+        build = functools.partial(batched_completion, batch_size, h, w, method=method, config=config,
+                                  lidar=lidar, strategy=strategy, devices=devices, **more)
+        if listed_only is not None and method == "sgm" and key not in listed_only:  # full program on first need
+            from jaxdepth.batch.listed import ListedBatch
+            fn = ListedBatch(build(listed_only=True), full=build, overflowed=functools.partial(listed_only.add, key))
+        else:
+            fn = build()
         d, k, t, n = _pad_batch(np.stack([it[1] for it in items]), np.stack([it[2] for it in items]),
                                 np.stack([it[3] for it in items]), batch_size)
         return fn, (d, k, t, *images), n
@@ -530,7 +550,7 @@ def run_jobs(jobs: Sequence[FrameJob], *, method: str = "sgm", config: SGMConfig
     batch_size = -(-batch_size // devices) * devices
     group_call = functools.partial(
         _group_call, batch_size=batch_size, method=method, config=config, lidar=lidar,
-        strategy=strategy or batch_strategy(), devices=devices,
+        strategy=strategy or batch_strategy(), devices=devices, listed_only=set(),
         max_seed_distance_px=extras.seed_limit if extras.needs_seeds else None)
     pending: dict = {}  # _group_key -> list of (job, depth or (points, valid), K, T[, image])
     # Twice as many writers: each spends a good part of a frame waiting in fsync (atomic writes),
@@ -649,9 +669,10 @@ class _BatchRun:
             self.ledger.fail(job.name, message)
 
     def collect(self):
+        from jaxdepth.batch.listed import settle
         items, out = self.in_flight.pop()
         try:
-            result = tuple(np.asarray(o) for o in out) if isinstance(out, tuple) else (np.asarray(out),)
+            result = settle(out)  # (a listed batch with a frame that does not fit: recomputed here)
         except Exception as err:  # a compute failure costs this batch, not the run
             for job, *_ in items:
                 self.record_failure(job.name, f"completion failed: {err}")

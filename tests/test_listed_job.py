@@ -1,0 +1,125 @@
+"""The KITTI job's listed program (issue 38): a batch with a frame that does not fit the listed
+normals is recomputed by the full program; the full program is not built when every frame fits.
+Oracle: the public per-frame ``complete_stages`` (main's one program, with the dense fallback)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jaxdepth import SGMConfig, complete_stages
+from jaxdepth._src import pipeline
+from jaxdepth.batch import runner
+from jaxdepth.io import read_depth_png, write_depth_png
+
+from helpers import small_frames, write_kitti_folder
+
+#: Every test here runs the batch runner (job runs: docs/testing.md).
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """Two fitting frames (the synthetic street's, 71 % of the pixels with depth, kept on every 4th row
+    and column: 4.4 %) and one overflowing (the first frame's whole image: more than H W / 16 pixels with
+    depth, the dense fallback)."""
+    items, T = small_frames(2)
+    sparse = []
+    for depth, K in items:
+        kept = np.zeros_like(depth)
+        kept[::4, ::4] = depth[::4, ::4]
+        sparse.append((kept, K))
+    return [sparse[0], items[0], sparse[1]], T
+
+
+def _jobs(tmp_path, frames):
+    src = write_kitti_folder(tmp_path / "src", frames)
+    (tmp_path / "out").mkdir()
+    return [runner.FrameJob(name=p.name, sparse_path=p, out_path=tmp_path / "out" / p.name,
+                            intrinsics_path=src / "intrinsics" / (p.stem + ".txt"))
+            for p in sorted((src / "velodyne_raw").glob("*.png"))]
+
+
+def _builds(monkeypatch) -> list:
+    """The ``listed_only`` of every program the runner builds (:func:`runner.batched_completion` calls)."""
+    seen, real = [], runner.batched_completion
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("listed_only", False))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "batched_completion", spy)
+    return seen
+
+
+def _png(tmp_path, depth) -> bytes:
+    """The PNG file the job writes for ``depth`` (the same writer, default compression)."""
+    path = tmp_path / "expected.png"
+    write_depth_png(path, depth)
+    return path.read_bytes()
+
+
+def _fits(depth, K, T) -> bool:
+    _, fits = pipeline._complete_stages(depth, K, T, None, config=SGMConfig(), lidar=runner.presets.KITTI_HDL64,
+                                        listed_only=True)
+    return bool(fits)
+
+
+@pytest.mark.parametrize("strategy", ["loop", "map"])
+def test_a_frame_beyond_the_listed_path_is_recomputed_with_the_bytes_of_complete(tmp_path, frames, strategy,
+                                                                                   monkeypatch):
+    items, T = frames
+    assert [_fits(d, k, T) for d, k in items] == [True, False, True]  # the fixture's premise
+    assert _fits(np.zeros_like(items[0][0]), items[0][1], T)  # a padding frame (empty) never forces a rerun
+    jobs = _jobs(tmp_path, items)
+    builds = _builds(monkeypatch)
+    summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy=strategy)
+    assert summary.ok and len(summary.done) == 3
+    # three batches through the listed program; the full one built for the overflowing frame only
+    assert builds == [True, True, True, False]
+    for (depth, K), job in zip(items, jobs):
+        expected = np.asarray(complete_stages(read_depth_png(job.sparse_path), K, T).depth)
+        assert job.out_path.read_bytes() == _png(tmp_path, expected)
+
+
+def test_after_a_frame_beyond_the_listed_path_the_size_runs_the_full_program(tmp_path, frames, monkeypatch):
+    """A dataset denser than the capacity pays the recompute once, not per batch: the batch after the one
+    dispatched beside the overflowing batch gets the full program directly (no listed build), same bytes."""
+    items, T = frames
+    jobs = _jobs(tmp_path, items + [items[2]])  # fit, overflow, fit, fit
+    builds = _builds(monkeypatch)
+    summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy="map")
+    assert summary.ok and len(summary.done) == 4
+    # batches 1-3 listed (batch 3 is dispatched before batch 2 is collected); then the full program, built
+    # when batch 2 is recomputed, serves batch 4
+    assert builds == [True, True, True, False, False]
+    for (_, K), job in zip(items + [items[2]], jobs):
+        expected = np.asarray(complete_stages(read_depth_png(job.sparse_path), K, T).depth)
+        assert job.out_path.read_bytes() == _png(tmp_path, expected)
+
+
+def test_the_full_program_is_not_built_when_every_frame_fits(tmp_path, frames, monkeypatch):
+    items, T = frames
+    fitting = [items[0], items[2]]
+    jobs = _jobs(tmp_path, fitting)
+    builds = _builds(monkeypatch)
+    summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, strategy="map")
+    assert summary.ok and len(summary.done) == 2
+    assert builds == [True]
+    batch = np.stack([read_depth_png(job.sparse_path) for job in jobs])  # the job's inputs
+    Ks = np.stack([k for _, k in fitting])
+    expected = runner.complete_batch(batch, Ks, T, batch_size=2, strategy="map")  # main's program
+    for depth, job in zip(expected, jobs):
+        assert job.out_path.read_bytes() == _png(tmp_path, depth)
+
+
+def test_vmap_job_with_an_overflowing_frame_writes_the_bytes_of_main_s_vmap_program(tmp_path, frames):
+    items, T = frames
+    jobs = _jobs(tmp_path, items)
+    summary = runner.run_jobs(jobs, batch_size=1, T_cam_lidar=T, strategy="vmap", devices=1)
+    assert summary.ok and len(summary.done) == 3
+    inputs = np.stack([read_depth_png(job.sparse_path) for job in jobs])
+    expected = runner.complete_batch(inputs, np.stack([k for _, k in items]), T, batch_size=1, strategy="vmap",
+                                     devices=1)  # main's program (with the dense fallback), frame by frame
+    for depth, job in zip(expected, jobs):
+        assert job.out_path.read_bytes() == _png(tmp_path, depth)
