@@ -118,11 +118,13 @@ def test_last_batch_is_padded_not_recompiled(tmp_path, frames, monkeypatch):
     buckets = _record_buckets(monkeypatch)
     summary = runner.run_jobs(jobs, batch_size=2, T_cam_lidar=T, config=CONFIG)
     assert summary.ok and len(summary.done) == 5
-    # 5 frames in batches of 2: three calls (the last padded) of one bucket's listed program; these frames
-    # (71 % of the pixels with depth) overflow it, so each batch is recomputed by the full program when
-    # collected (after the next batch's dispatch); each program traced once
+    # 5 frames in batches of 2 (the last padded), one bucket: these frames (71 % of the pixels with depth)
+    # overflow the listed program, so batch 1 is recomputed by the full program when collected (after batch
+    # 2's dispatch, listed); from then on the bucket runs the full program (batch 3; batch 2's recompute);
+    # each program traced at most once (the full one may come from the program cache: this group's entry-options
+    # test stores the same program)
     listed, full = (2, True), (2, False)
-    assert buckets == [listed, listed, full, listed, full, full] and len(traces) == 2
+    assert buckets == [listed, listed, full, full, full] and 1 <= len(traces) <= 2
     # Oracle: the public per-frame pipeline, complete_stages (the program test_extras_cli's oracle
     # compiles for these frames: same size, LiDAR and call form)
     for (depth, K), job in zip(items, jobs):
