@@ -21,7 +21,7 @@ committed hashes.
     python -m benchmarks.studies.cold_fallback --job [--rounds 3]  # main's job against the listed job (coldjob)
 
 ``--job`` (branch coldjob, after the jobs got their listed program, :mod:`jaxdepth.batch.listed`): variants
-``main`` (the job made to run the full program, as main did: ``listed_only=False`` forced into the runner's
+``main`` (the job made to run the full program, as main did: ``listed_only=None`` forced into the runner's
 ``_group_call``) and ``job`` (the job as it is), results in ``results/cold_job.json``. Without ``--job``,
 ``main`` is the job as it is (since coldjob: listed) and ``probe`` patches what the job no longer runs.
 """
@@ -56,7 +56,7 @@ def _full_program_job() -> None:
     """The job with main's full program (dense fallback inside), as before branch coldjob."""
     from jaxdepth.batch import runner
     real = runner._group_call
-    runner._group_call = lambda key, items, **kw: real(key, items, **{**kw, "listed_only": False})
+    runner._group_call = lambda key, items, **kw: real(key, items, **{**kw, "listed_only": None})
 
 
 def _child(variant: str, report: str, argv: list) -> int:
