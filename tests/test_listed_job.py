@@ -12,10 +12,11 @@ from jaxdepth._src import pipeline
 from jaxdepth.batch import runner
 from jaxdepth.io import read_depth_png, write_depth_png
 
-from helpers import small_frames, write_kitti_folder
+from helpers import fitting, small_frames, write_kitti_folder
 
-#: Every test here runs the batch runner (job runs: docs/testing.md).
-pytestmark = pytest.mark.slow
+#: Every test here runs the batch runner (job runs: docs/testing.md), on the 64 x 128 frames of the group's
+#: other job tests (the listed and full programs at batch 2, "map": one worker compiles them once).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("jobs_small_sgm_batches")]
 
 
 @pytest.fixture(scope="module")
@@ -24,11 +25,7 @@ def frames():
     and column: 4.4 %) and one overflowing (the first frame's whole image: more than H W / 16 pixels with
     depth, the dense fallback)."""
     items, T = small_frames(2)
-    sparse = []
-    for depth, K in items:
-        kept = np.zeros_like(depth)
-        kept[::4, ::4] = depth[::4, ::4]
-        sparse.append((kept, K))
+    sparse = fitting(items)
     return [sparse[0], items[0], sparse[1]], T
 
 
