@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from jaxdepth import SGMConfig, complete_stages
-from jaxdepth._src import pipeline
 from jaxdepth.batch import runner
 from jaxdepth.io import read_depth_png, write_depth_png
 
@@ -57,9 +56,13 @@ def _png(tmp_path, depth) -> bytes:
 
 
 def _fits(depth, K, T) -> bool:
-    _, fits = pipeline._complete_stages(depth, K, T, None, config=SGMConfig(), lidar=runner.presets.KITTI_HDL64,
-                                        listed_only=True)
-    return bool(fits)
+    """The ``fits`` of the "loop" job's own listed program (one whole-pipeline program fewer than a call of
+    ``pipeline._complete_stages(listed_only=True)`` of its own)."""
+    import jax
+    fn = runner.batched_completion(1, *depth.shape, method="sgm", config=SGMConfig(), lidar=runner.presets.KITTI_HDL64,
+                                   strategy="loop", devices=len(jax.local_devices()), listed_only=True)
+    _, fits = fn(depth[None], K[None], np.asarray(T, np.float32)[None])
+    return bool(np.asarray(fits)[0])
 
 
 @pytest.mark.parametrize("strategy", ["loop", "map"])
