@@ -24,7 +24,6 @@ import argparse
 import json
 import os
 import pathlib
-import resource
 import statistics
 import subprocess
 import sys
@@ -65,26 +64,13 @@ def _child(report: str, argv: list) -> None:
     sys.exit(code)
 
 
-def _children_cpu() -> float:
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _digest(folder: pathlib.Path) -> str:
-    import hashlib
-    h = hashlib.sha256()
-    for f in sorted(folder.rglob("*.png")):
-        h.update(str(f.relative_to(folder)).encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()
-
-
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
         _child(argv[1], argv[3:])
         return 0
     from benchmarks._common import RESULTS, write_results
+    from benchmarks.studies.cold_fallback import _children_cpu, _digest
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkout", required=True, help="the baseline checkout (a folder holding its jaxdepth/)")
     parser.add_argument("--rounds", type=int, default=3)
@@ -126,10 +112,8 @@ def main(argv=None) -> int:
            "this_to_checkout_per_round": {k: [a[k] / b[k] for a, b in zip(rows["this"], rows["checkout"])] for k in KEYS},
            "same_bytes": len({x["sha256"] for rs in rows.values() for x in rs}) == 1,
            "runs": rows, "load_average": os.getloadavg()}
-    print(f"medians {json.dumps(doc['medians'], indent=1)}\nthis / checkout per round "
-          f"{json.dumps(doc['this_to_checkout_per_round'])}\nsame bytes {doc['same_bytes']}")
     write_results(args.json, doc, None, t0)
-    return 0
+    return print(json.dumps({k: doc[k] for k in ("medians", "this_to_checkout_per_round", "same_bytes")}, indent=1)) or 0
 
 
 if __name__ == "__main__":
