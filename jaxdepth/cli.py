@@ -556,6 +556,12 @@ def main(argv=None) -> int:
         code = interrupts.interrupted(end_process=program)
     if program and interrupts.received():  # a Ctrl-C that JAX swallowed (e.g. in its gc callback) still stops
         code = interrupts.interrupted(end_process=True)
+    if program and "ray" not in sys.modules:
+        # Every output is written and closed: skip the interpreter's shutdown (JAX's clear_caches and backend
+        # teardown, module and heap teardown: ~0.3-0.4 s of CPU after a cold KITTI job, docs/speed.md "The
+        # cold process's ends"), as clang's -disable-free. Not with Ray loaded (its atexit stops its processes).
+        logging.shutdown()
+        interrupts.exit_now(code)
     return code
 
 

@@ -56,6 +56,26 @@ def test_help_version_and_usage_errors_do_not_import_jax():
     assert run_cli("complete").returncode == 2  # argparse usage error, through python -m jaxdepth.cli
 
 
+@pytest.mark.slow  # subprocess
+@pytest.mark.parametrize("ray_loaded", [False, True])
+def test_program_ends_without_interpreter_shutdown_unless_ray(tmp_path, ray_loaded):
+    """The program (``main()`` without argv) ends by ``os._exit`` once its command returned: an ``atexit``
+    handler does not run, the exit code and the buffered output are kept; with Ray loaded (a stand-in
+    module) the interpreter's shutdown runs, so Ray's own ``atexit`` can stop its processes."""
+    script = ("import atexit, sys\n"
+              "atexit.register(lambda: print('atexit ran'))\n"
+              f"if {ray_loaded}: sys.modules['ray'] = type(sys)('ray')\n"
+              "print('before')\n"
+              f"sys.argv = ['jaxdepth', 'complete', {str(tmp_path / 'missing')!r}, {str(tmp_path / 'out')!r}]\n"
+              "from jaxdepth.cli import main\n"
+              "sys.exit(main())\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                            env={**os.environ, "JAXDEPTH_COMPILE_CACHE": "0"})
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "input folder not found" in result.stderr
+    assert result.stdout.splitlines() == (["before", "atexit ran"] if ray_loaded else ["before"])
+
+
 @pytest.mark.slow  # a job run: whole-pipeline batch programs (docs/testing.md)
 def test_complete_folder_resume_and_bad_frame(tmp_path, frames, capsys):
     items, T = frames

@@ -59,17 +59,18 @@ def _elevation_level(K, height, width, R_tilt=np.eye(3)):
 def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path, src, capsys, monkeypatch):
     root, items = src
     plain, full, zeroed = tmp_path / "plain", tmp_path / "full", tmp_path / "zeroed"
-    # The runner's batch programs (a job's listed ones, jaxdepth.batch.listed): frame_program runs once per
-    # program built, _validity once per trace of the extras body (both looked up when used).
-    from jaxdepth.batch import listed
+    # The runner's batch programs (a job's listed and full ones, one frame function: jaxdepth.batch.frame_program):
+    # frame_function runs once per program built, validity once per trace of the extras body (both looked up when used).
+    from jaxdepth.batch import frame_program
     runner.batched_completion.cache_clear()
     plain_traces, extra_traces = [], []
-    real_frame_program, real_validity = listed.frame_program, runner._validity
-    monkeypatch.setattr(listed, "frame_program", lambda **k: plain_traces.append(k["max_seed_distance_px"]) or
-                        real_frame_program(**k))
-    monkeypatch.setattr(runner, "_validity", lambda *a, **k: extra_traces.append(1) or real_validity(*a, **k))
+    real_frame_function, real_validity = frame_program.frame_function, frame_program.validity
+    monkeypatch.setattr(frame_program, "frame_function", lambda **k: plain_traces.append(
+        (k["max_seed_distance_px"], k["listed_only"])) or real_frame_function(**k))
+    monkeypatch.setattr(frame_program, "validity", lambda *a, **k: extra_traces.append(1) or real_validity(*a, **k))
     assert cli.main(["complete", str(root), str(plain), "--batch-size", "2", "-q"]) == 0
-    assert plain_traces == [None] and not extra_traces  # no flag: no extra compiled function
+    # no flag: no extra compiled function (the listed program, then the full one for the frames beyond it)
+    assert plain_traces == [(None, True), (None, False)] and not extra_traces
     assert cli.main(["complete", str(root), str(full), "--batch-size", "2", "-q", *ALL]) == 0
     assert cli.main(["complete", str(root), str(zeroed), "--batch-size", "2", "-q", "--validity",
                      "--zero-invalid"]) == 0

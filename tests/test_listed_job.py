@@ -123,3 +123,39 @@ def test_vmap_job_with_an_overflowing_frame_writes_the_bytes_of_main_s_vmap_prog
                                      devices=1)  # main's program (with the dense fallback), frame by frame
     for depth, job in zip(expected, jobs):
         assert job.out_path.read_bytes() == _png(tmp_path, depth)
+
+
+def _public(method, config, max_seed_distance_px):
+    """The public functions a full-program frame is made of (oracle of ``frame_function``'s trace)."""
+    import jaxdepth
+    from jaxdepth._src.validity import validity_and_distance
+    lidar = runner.presets.KITTI_HDL64
+    if max_seed_distance_px is not None:
+        def extras(depth, K, T):
+            stages = jaxdepth.complete_stages(depth, K, T, config=config, lidar=lidar)
+            return (stages.depth,) + validity_and_distance(stages, K, T, lidar=lidar, metric=config.distance_metric,
+                                                          max_seed_distance_px=max_seed_distance_px)
+        return extras
+    if config.guidance_weight > 0:
+        return lambda depth, K, T, image: jaxdepth.complete(depth, K, T, config=config, lidar=lidar, image=image)
+    return lambda depth, K, T: jaxdepth.complete_with(depth, K, T, method=method, config=config, lidar=lidar)
+
+
+@pytest.mark.parametrize("method, config, limit", [
+    ("sgm", SGMConfig(), None), ("sgm", SGMConfig(distance_metric="l2"), None),
+    ("sgm", SGMConfig(guidance_weight=10.0), None), ("sgm", SGMConfig(), 6.0), ("nearest", SGMConfig(), None)])
+def test_the_full_program_s_frame_traces_the_public_functions(method, config, limit):
+    """The one frame function of both programs (jaxdepth.batch.frame_program), without ``listed_only``: the
+    jaxpr of the public functions (the job's bytes before the listed program); with it, one more output."""
+    import jax
+    from jaxdepth.batch.frame_program import frame_function
+    args = (np.zeros((32, 48), np.float32), np.eye(3, dtype=np.float32), np.eye(4, dtype=np.float32))
+    args += (np.zeros((32, 48), np.uint8),) if config.guidance_weight > 0 else ()
+    frame = frame_function(method=method, config=config, lidar=runner.presets.KITTI_HDL64,
+                           max_seed_distance_px=limit, listed_only=False)
+    assert str(jax.make_jaxpr(frame)(*args)) == str(jax.make_jaxpr(_public(method, config, limit))(*args))
+    if method == "sgm":
+        listed = frame_function(method=method, config=config, lidar=runner.presets.KITTI_HDL64,
+                                max_seed_distance_px=limit, listed_only=True)
+        shapes = [o.shape for o in jax.eval_shape(listed, *args)]
+        assert shapes == [(32, 48)] * (1 if limit is None else 3) + [()]

@@ -5,11 +5,12 @@ dense fallback a frame takes when it has depth at over H W / 16 pixels or its po
 range-image window). The fallback is never run on KITTI frames but costs ~2.3 s of a cold job's
 compile. A job (:func:`jaxdepth.batch.runner.run_jobs`, SGM on depth images) therefore runs a
 *listed* program: the fast path alone, which also returns each frame's ``fits`` (the value the
-fallback's choice reads). Where the runner collects a batch, a batch with a frame that does not
-fit is recomputed by the job's full program (main's, built on first need), and that group's later
-batches run the full program directly (a dataset denser than the capacity pays the recompute once,
-not per batch): every output has the bytes of the full program, which a fitting frame's listed
-program gives too (docs/speed.md, "The cold first frame without the dense fallback").
+fallback's choice reads); both programs map one frame function, with and without ``listed_only``
+(:func:`jaxdepth.batch.frame_program.frame_function`). Where the runner collects a batch, a batch
+with a frame that does not fit is recomputed by the job's full program (main's, built on first need),
+and that group's later batches run the full program directly (a dataset denser than the capacity
+pays the recompute once, not per batch): every output has the bytes of the full program, which a
+fitting frame's listed program gives too (docs/speed.md, "The cold first frame without the dense fallback").
 """
 
 from __future__ import annotations
@@ -21,24 +22,6 @@ from typing import Callable
 import numpy as np
 
 log = logging.getLogger("jaxdepth")
-
-
-def frame_program(*, config, lidar, max_seed_distance_px, validity: Callable) -> Callable:
-    """One frame's listed program: ``(depth, K, T[, image]) -> outputs + (fits,)``, the outputs those of
-    :func:`jaxdepth.batch.runner.batched_completion`'s frame with ``method="sgm"`` (the depth, or the depth,
-    validity and seed distance from ``validity(stages, K, T, ...)`` with ``max_seed_distance_px``)."""
-    from jaxdepth._src import pipeline
-
-    def one(depth, K, T, image=None):
-        if max_seed_distance_px is None and config.guidance_weight > 0:  # as jaxdepth.complete
-            return pipeline._complete_depth(depth, K, T, image, config=config, lidar=lidar, listed_only=True)
-        stages, fits = pipeline._complete_stages(depth, K, T, image, config=config, lidar=lidar, listed_only=True)
-        if max_seed_distance_px is None:  # as complete_with(method="sgm"): complete_stages(...).depth
-            return stages.depth, fits
-        return (stages.depth,) + validity(stages, K, T, config=config, lidar=lidar,
-                                          max_seed_distance_px=max_seed_distance_px) + (fits,)
-
-    return one
 
 
 @dataclasses.dataclass(frozen=True)

@@ -36,7 +36,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
-from jaxdepth._src.methods import complete_with
 from jaxdepth._src.types import LidarSpec
 from jaxdepth._src.xla_tuning import entry_jit
 from jaxdepth.io import errors as io_errors
@@ -122,7 +121,8 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
 
     ``listed_only`` (method "sgm"): the program without Step 1's dense fallback
     (:mod:`jaxdepth.batch.listed`); it returns one more output, the (B,) bool ``fits``; where it
-    is False that frame's outputs are not meaningful.
+    is False that frame's outputs are not meaningful. Both programs map one frame function,
+    :func:`jaxdepth.batch.frame_program.frame_function`.
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"batched_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
@@ -133,27 +133,14 @@ def batched_completion(batch_size: int, height: int, width: int, *, method: str,
     if guided and method != "sgm":
         raise ValueError(f"batched_completion: image-guided seeds (config.guidance_weight > 0) need method "
                          f"'sgm', got {method!r}")
-    from jaxdepth._src import pipeline
-
-    def one(depth, K, T, image=None):
-        if max_seed_distance_px is None:
-            if guided:
-                return pipeline.complete(depth, K, T, config=config, lidar=lidar, image=image)
-            return complete_with(depth, K, T, method=method, config=config, lidar=lidar)
-        stages = pipeline.complete_stages(depth, K, T, config=config, lidar=lidar, image=image)
-        return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
-                                           max_seed_distance_px=max_seed_distance_px)
-
-    out_specs, statics = _out_specs(max_seed_distance_px), ()
-    if listed_only:
-        from jaxdepth.batch import listed
-        if method != "sgm":
-            raise ValueError(f"batched_completion: listed_only needs method 'sgm', got {method!r}")
-        one = listed.frame_program(config=config, lidar=lidar, max_seed_distance_px=max_seed_distance_px,
-                                   validity=_validity)
-        out_specs, statics = (PartitionSpec("batch"),) * (2 if max_seed_distance_px is None else 4), ("listed_only",)
+    if listed_only and method != "sgm":
+        raise ValueError(f"batched_completion: listed_only needs method 'sgm', got {method!r}")
+    from jaxdepth.batch.frame_program import frame_function
+    one = frame_function(method=method, config=config, lidar=lidar, max_seed_distance_px=max_seed_distance_px,
+                         listed_only=listed_only)
+    statics = ("listed_only",) if listed_only else ()  # main's stored programs keep their key
     return _batched(one, arity=4 if guided else 3, batch_size=batch_size, strategy=strategy, devices=devices,
-                    out_specs=out_specs, first_shape=(batch_size, height, width),
+                    out_specs=_out_specs(max_seed_distance_px, fits=listed_only), first_shape=(batch_size, height, width),
                     program=("batched_completion", (batch_size, height, width, method, config, lidar, strategy,
                                                     devices, max_seed_distance_px) + statics))
 
@@ -172,14 +159,6 @@ def check_sgm_only(method: str, *, where: str, extras=None, guided: bool = False
                          f"got {method!r}")
 
 
-def _validity(stages, K, T, *, config: SGMConfig, lidar: LidarSpec, max_seed_distance_px):
-    """Validity and seed distance; ``max_seed_distance_px`` pixels or ``"sensor"`` (the camera's own limit)."""
-    from jaxdepth._src.validity import validity_and_distance
-    limit = None if max_seed_distance_px == "sensor" else max_seed_distance_px
-    return validity_and_distance(stages, K, T, lidar=lidar, metric=config.distance_metric,
-                                 max_seed_distance_px=limit)
-
-
 def _stack_outputs(outs: list):
     """Per-frame results (arrays or tuples of arrays) -> one stacked array or tuple."""
     if isinstance(outs[0], tuple):
@@ -187,8 +166,10 @@ def _stack_outputs(outs: list):
     return np.stack([np.asarray(out) for out in outs])
 
 
-def _out_specs(max_seed_distance_px):
-    return PartitionSpec("batch") if max_seed_distance_px is None else (PartitionSpec("batch"),) * 3
+def _out_specs(max_seed_distance_px, *, fits: bool = False):
+    """The outputs' specs: the depth[, validity, seed distance][, fits], each split over the batch."""
+    count = (1 if max_seed_distance_px is None else 3) + fits
+    return PartitionSpec("batch") if count == 1 else (PartitionSpec("batch"),) * count
 
 
 @functools.lru_cache(maxsize=32)
@@ -208,6 +189,7 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         raise ValueError(f"batched_sweep_completion: field 'strategy' expected one of {STRATEGIES}, got {strategy!r}")
     from jaxdepth._src.pipeline import complete_points, complete_points_stages
     from jaxdepth._src.types import Camera
+    from jaxdepth.batch.frame_program import validity
     guided = is_guided(config)
 
     def one(pts, valid, K, T, image=None):
@@ -216,8 +198,8 @@ def batched_sweep_completion(batch_size: int, points: int, height: int, width: i
         if max_seed_distance_px is None:
             return complete_points(pts, valid, camera, config=config, lidar=lidar, **more)
         stages = complete_points_stages(pts, valid, camera, config=config, lidar=lidar, **more)
-        return (stages.depth,) + _validity(stages, K, T, config=config, lidar=lidar,
-                                           max_seed_distance_px=max_seed_distance_px)
+        return (stages.depth,) + validity(stages, K, T, config=config, lidar=lidar,
+                                          max_seed_distance_px=max_seed_distance_px)
 
     return _batched(one, arity=5 if guided else 4, batch_size=batch_size, strategy=strategy, devices=devices,
                     out_specs=_out_specs(max_seed_distance_px),
