@@ -69,8 +69,8 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
         (k["max_seed_distance_px"], k["listed_only"])) or real_frame_function(**k))
     monkeypatch.setattr(frame_program, "validity", lambda *a, **k: extra_traces.append(1) or real_validity(*a, **k))
     assert cli.main(["complete", str(root), str(plain), "--batch-size", "2", "-q"]) == 0
-    # no flag: no extra compiled function (the listed program, then the full one for the frames beyond it)
-    assert plain_traces == [(None, True), (None, False)] and not extra_traces
+    # no flag: no extra compiled function (the listed program alone: these frames fit it, no full one built)
+    assert plain_traces == [(None, True)] and not extra_traces
     assert cli.main(["complete", str(root), str(full), "--batch-size", "2", "-q", *ALL]) == 0
     assert cli.main(["complete", str(root), str(zeroed), "--batch-size", "2", "-q", "--validity",
                      "--zero-invalid"]) == 0
