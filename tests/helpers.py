@@ -27,6 +27,18 @@ def small_frames(count: int, *, seed: int = 0):
     return out, T
 
 
+def fitting(items):
+    """``items`` ((depth, K) pairs) with the depth kept on every 4th row and column only (the synthetic
+    street's 71 % of the pixels with depth -> 4.4 %, under H W / 16): frames the KITTI job's listed program
+    (``jaxdepth.batch.listed``) completes alone, no full program built (the whole frames overflow it)."""
+    out = []
+    for depth, K in items:
+        kept = np.zeros_like(depth)
+        kept[::4, ::4] = depth[::4, ::4]
+        out.append((kept, K))
+    return out
+
+
 def write_kitti_folder(root: pathlib.Path, frames, *, names=None) -> pathlib.Path:
     from jaxdepth.io import write_depth_png
     (root / "velodyne_raw").mkdir(parents=True, exist_ok=True)

@@ -21,7 +21,7 @@ from jaxdepth.research import evaluation
 from jaxdepth._src import presets
 from jaxdepth.io import encode_depth_uint16, read_depth_png
 
-from helpers import WALL_CAMERAS, WALL_DOWN_DEG, WALL_UP_DEG, small_frames, wall_sweep, write_kitti_folder, \
+from helpers import WALL_CAMERAS, WALL_DOWN_DEG, WALL_UP_DEG, fitting, small_frames, wall_sweep, write_kitti_folder, \
     write_wall_rig
 
 ALL = ["--preview", "--validity", "--seed-distance"]
@@ -30,7 +30,9 @@ B2 = ["--batch-size", "2"]  # one batch bucket (2 frames) for every run here: co
 
 @pytest.fixture(scope="module")
 def src(tmp_path_factory):
-    items, _ = small_frames(3, seed=21)
+    # frames the job's listed program fits (helpers.fitting): its full program, which the whole frames would
+    # need too, is not what these tests check (tests/test_listed_job.py checks the overflow)
+    items = fitting(small_frames(3, seed=21)[0])
     return write_kitti_folder(tmp_path_factory.mktemp("src"), items), items
 
 
@@ -67,14 +69,12 @@ def test_folder_extras_match_the_library_zero_invalid_and_default_bytes(tmp_path
         (k["max_seed_distance_px"], k["listed_only"])) or real_frame_function(**k))
     monkeypatch.setattr(frame_program, "validity", lambda *a, **k: extra_traces.append(1) or real_validity(*a, **k))
     assert cli.main(["complete", str(root), str(plain), "--batch-size", "2", "-q"]) == 0
-    # no flag: no extra compiled function (the listed program, then the full one for the frames beyond it)
-    assert plain_traces == [(None, True), (None, False)] and not extra_traces
+    # no flag: no extra compiled function (the listed program alone: these frames fit it, no full one built)
+    assert plain_traces == [(None, True)] and not extra_traces
     assert cli.main(["complete", str(root), str(full), "--batch-size", "2", "-q", *ALL]) == 0
     assert cli.main(["complete", str(root), str(zeroed), "--batch-size", "2", "-q", "--validity",
                      "--zero-invalid"]) == 0
-    # one compile per program for 3 frames (2 batches) and 2 runs: the listed one, and the full one (these
-    # frames, 71 % of the pixels with depth, overflow the listed path: recomputed, jaxdepth.batch.listed)
-    assert len(extra_traces) == 2
+    assert len(extra_traces) == 1  # one compile (the listed program) for 3 frames (2 batches) and 2 runs
     assert sorted(p.name for p in full.glob("*.png")) == sorted(
         f"frame_00{i}{s}.png" for i in range(3) for s in ("", "_preview", "_validity", "_seed_distance"))
     assert sorted(p.name for p in plain.glob("*.png")) == [f"frame_00{i}.png" for i in range(3)]

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from jaxdepth import SGMConfig, complete_stages
-from jaxdepth._src import pipeline
 from jaxdepth.batch import runner
 from jaxdepth.io import read_depth_png, write_depth_png
 
-from helpers import small_frames, write_kitti_folder
+from helpers import fitting, small_frames, write_kitti_folder
 
-#: Every test here runs the batch runner (job runs: docs/testing.md).
-pytestmark = pytest.mark.slow
+#: Every test here runs the batch runner (job runs: docs/testing.md), on the 64 x 128 frames of the group's
+#: other job tests (the listed and full programs at batch 2, "map": one worker compiles them once).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("jobs_small_sgm_batches")]
 
 
 @pytest.fixture(scope="module")
@@ -24,11 +24,7 @@ def frames():
     and column: 4.4 %) and one overflowing (the first frame's whole image: more than H W / 16 pixels with
     depth, the dense fallback)."""
     items, T = small_frames(2)
-    sparse = []
-    for depth, K in items:
-        kept = np.zeros_like(depth)
-        kept[::4, ::4] = depth[::4, ::4]
-        sparse.append((kept, K))
+    sparse = fitting(items)
     return [sparse[0], items[0], sparse[1]], T
 
 
@@ -60,9 +56,13 @@ def _png(tmp_path, depth) -> bytes:
 
 
 def _fits(depth, K, T) -> bool:
-    _, fits = pipeline._complete_stages(depth, K, T, None, config=SGMConfig(), lidar=runner.presets.KITTI_HDL64,
-                                        listed_only=True)
-    return bool(fits)
+    """The ``fits`` of the "loop" job's own listed program (one whole-pipeline program fewer than a call of
+    ``pipeline._complete_stages(listed_only=True)`` of its own)."""
+    import jax
+    fn = runner.batched_completion(1, *depth.shape, method="sgm", config=SGMConfig(), lidar=runner.presets.KITTI_HDL64,
+                                   strategy="loop", devices=len(jax.local_devices()), listed_only=True)
+    _, fits = fn(depth[None], K[None], np.asarray(T, np.float32)[None])
+    return bool(np.asarray(fits)[0])
 
 
 @pytest.mark.parametrize("strategy", ["loop", "map"])
