@@ -25,8 +25,8 @@ float32 gathers) and with the form before branch rigtail8 (``_pairs_gather`` her
 compared byte for byte, interleaved rounds, per-round ratios library / pairs.
 
 ``--dt-forms``: the same whole tail programs, and the distance transform alone (``vmap6``, ``one``), compiled from this
-library with its ``nearest_seed`` and with the form before branch rigdt (``_previous_row_pass``,
-``_previous_l1_column_pass`` here: the mask and the row keys built by full-image fusions, each followed by XLA:CPU's
+library with its ``nearest_seed`` and with the form before branch rigdt (``_previous_nearest_seed`` here, set as
+``pipeline.nearest_seed``: the mask and the row keys built by full-image fusions, each followed by XLA:CPU's
 transposing copy, instead of inside the passes' first loops), outputs compared byte for byte, per-round ratios
 library / previous.
 
@@ -53,7 +53,7 @@ def _parts(config, beams: int) -> dict:
     """``{part: per-camera function}`` (module docs); every one takes ``size`` (None: no window) last."""
     import jax.numpy as jnp
 
-    from jaxdepth._src.distance import nearest_seed
+    from jaxdepth._src import pipeline
     from jaxdepth._src.hypotheses import column_hypotheses
     from jaxdepth._src.pipeline import _gather_seeds
     from jaxdepth._src.residual import plane_residual
@@ -62,7 +62,7 @@ def _parts(config, beams: int) -> dict:
     assert config.above_scan == "plane" and config.keep_measured_depth
 
     def seed(keep, size):
-        s = nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
+        s = pipeline.nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
         return s.du, s.dv
 
     def gather(sparse, normals, keep, du, dv, size):
@@ -130,35 +130,35 @@ def _pairs_gather(seed_field, normals, du, dv):
     return depth, jnp.stack([nx, ny, nz])
 
 
-def _previous_row_pass(seed_mask):
-    """``distance._row_pass`` before branch rigdt: the mask to int16 keys by a full-image fusion first."""
+def _previous_nearest_seed(seed_mask, *, metric, horizontal_cost):
+    """``distance.nearest_seed`` (``"l1"``) before branch rigdt, here for ``pipeline``: the mask to int16 and the row
+    keys to int32 by full-image fusions before the loops (each followed by XLA:CPU's transposing copy)."""
     import jax.numpy as jnp
 
-    from jaxdepth._src.distance import _INT16_MAX, _sweep
+    from jaxdepth._src.distance import _INT16_MAX, NearestSeed, _bits, _sweep
+    assert metric == "l1"
     h, w = seed_mask.shape
-    far = h + w
+    far, c = seed_mask.shape[0] + seed_mask.shape[1], horizontal_cost
     dtype = jnp.int16 if 2 * (far + w) + 1 <= _INT16_MAX else jnp.int32
     init = jnp.full((h,), 2 * far, dtype)
     buf = jnp.where(seed_mask.T, jnp.zeros((), dtype), jnp.asarray(2 * (far + w) + 1, dtype))
     buf = _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, carry + 2))
-    return _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
-
-
-def _previous_l1_column_pass(row_key_t, far, horizontal_cost=1):
-    """``distance._l1_column_pass`` before branch rigdt: the int32 keys by a full-image fusion first."""
-    import jax.numpy as jnp
-
-    from jaxdepth._src.distance import _bits, _sweep
-    w, h = row_key_t.shape
+    row_key_t = _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
     cb = _bits(h) + 1
     step = 1 << cb
     hk = row_key_t.T.astype(jnp.int32)
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    g = hk >> 1 if horizontal_cost == 1 else horizontal_cost * (hk >> 1)
-    key = (jnp.minimum(g, far) << cb) | (rows << 1) | (hk & 1)
-    init = jnp.full((w,), far << cb, jnp.int32)
+    key = (jnp.minimum(c * (hk >> 1), c * far) << cb) | (rows << 1) | (hk & 1)
+    init = jnp.full((w,), (c * far) << cb, jnp.int32)
     key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step))
-    return _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step), reverse=True), cb
+    key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step), reverse=True)
+    has_seed = key[0, 0] < ((c * far) << cb)
+    dist = key >> cb
+    dv = ((key >> 1) & ((1 << (cb - 1)) - 1)) - rows
+    abs_du = (dist - jnp.abs(dv)) // c
+    du = jnp.where((key & 1) == 1, abs_du, -abs_du)
+    return NearestSeed(distance=jnp.where(has_seed, dist.astype(jnp.float32), jnp.inf),
+                       du=jnp.where(has_seed, du, 0), dv=jnp.where(has_seed, dv, 0), has_seed=has_seed)
 
 
 def _forms(inputs, whole, rig, options, forms: dict, seed_part=None) -> dict:
@@ -219,13 +219,12 @@ def main(argv=None) -> int:
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
     inputs, parts, whole, rig = _cases()
-    from jaxdepth._src import distance, pipeline
+    from jaxdepth._src import pipeline
     if args.gather_forms:
         forms = {"library": {}, "pairs": {(pipeline, "_gather_seeds"): _pairs_gather}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "the seed gather", "pairs")
     if args.dt_forms:
-        forms = {"library": {}, "previous": {(distance, "_row_pass"): _previous_row_pass,
-                                             (distance, "_l1_column_pass"): _previous_l1_column_pass}}
+        forms = {"library": {}, "previous": {(pipeline, "nearest_seed"): _previous_nearest_seed}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, parts["seed"]), args, t0,
                            "the distance transform", "previous")
     runs, same = {}, {}             # runs[name] = (executable, args, real pixels)

@@ -43,7 +43,11 @@ The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
 place (the backward loop reads the forward result and overwrites it): on CPU
 faster than ``lax.scan`` with stacked outputs followed by a minimum of the
 two directions (benchmarks/bench_distance.py), and packing every decision into one int32
-key keeps each step to a couple of fused ops.
+key keeps each step to a couple of fused ops. The first loop of each pass
+builds its values from the narrow input row by row (the row pass from the
+transposed bool mask, the L1 column pass from the row keys transposed as
+int16), not from a full-image pass before the loop (docs/speed.md, "The
+distance transform's full-image passes").
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
