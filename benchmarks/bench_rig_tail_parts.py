@@ -24,7 +24,13 @@ programs) compiled twice from this library in one process, with its seed gather 
 float32 gathers) and with the form before branch rigtail8 (``_pairs_gather`` here: two complex64 pairs), outputs
 compared byte for byte, interleaved rounds, per-round ratios library / pairs.
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--gather-forms] [--json PATH]
+``--dt-forms``: the same whole tail programs, and the distance transform alone (``vmap6``, ``one``), compiled from this
+library with its ``nearest_seed`` and with the form before branch rigdt (``_previous_nearest_seed`` here, set as
+``pipeline.nearest_seed``: the mask and the row keys built by full-image fusions, each followed by XLA:CPU's
+transposing copy, instead of inside the passes' first loops), outputs compared byte for byte, per-round ratios
+library / previous.
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--gather-forms | --dt-forms] [--json PATH]
 """
 
 from __future__ import annotations
@@ -47,7 +53,7 @@ def _parts(config, beams: int) -> dict:
     """``{part: per-camera function}`` (module docs); every one takes ``size`` (None: no window) last."""
     import jax.numpy as jnp
 
-    from jaxdepth._src.distance import nearest_seed
+    from jaxdepth._src import pipeline
     from jaxdepth._src.hypotheses import column_hypotheses
     from jaxdepth._src.pipeline import _gather_seeds
     from jaxdepth._src.residual import plane_residual
@@ -56,7 +62,7 @@ def _parts(config, beams: int) -> dict:
     assert config.above_scan == "plane" and config.keep_measured_depth
 
     def seed(keep, size):
-        s = nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
+        s = pipeline.nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
         return s.du, s.dv
 
     def gather(sparse, normals, keep, du, dv, size):
@@ -124,31 +130,70 @@ def _pairs_gather(seed_field, normals, du, dv):
     return depth, jnp.stack([nx, ny, nz])
 
 
-def _gather_forms(inputs, whole, rig, options) -> dict:
-    """``{name: (executable, args, real pixels)}``: each whole tail with the library's gather and ``_pairs_gather``."""
+def _previous_nearest_seed(seed_mask, *, metric, horizontal_cost):
+    """``distance.nearest_seed`` (``"l1"``) before branch rigdt, here for ``pipeline``: the mask to int16 and the row
+    keys to int32 by full-image fusions before the loops (each followed by XLA:CPU's transposing copy)."""
+    import jax.numpy as jnp
+
+    from jaxdepth._src.distance import _INT16_MAX, NearestSeed, _bits, _sweep
+    assert metric == "l1"
+    h, w = seed_mask.shape
+    far, c = seed_mask.shape[0] + seed_mask.shape[1], horizontal_cost
+    dtype = jnp.int16 if 2 * (far + w) + 1 <= _INT16_MAX else jnp.int32
+    init = jnp.full((h,), 2 * far, dtype)
+    buf = jnp.where(seed_mask.T, jnp.zeros((), dtype), jnp.asarray(2 * (far + w) + 1, dtype))
+    buf = _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, carry + 2))
+    row_key_t = _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
+    cb = _bits(h) + 1
+    step = 1 << cb
+    hk = row_key_t.T.astype(jnp.int32)
+    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
+    key = (jnp.minimum(c * (hk >> 1), c * far) << cb) | (rows << 1) | (hk & 1)
+    init = jnp.full((w,), (c * far) << cb, jnp.int32)
+    key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step))
+    key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step), reverse=True)
+    has_seed = key[0, 0] < ((c * far) << cb)
+    dist = key >> cb
+    dv = ((key >> 1) & ((1 << (cb - 1)) - 1)) - rows
+    abs_du = (dist - jnp.abs(dv)) // c
+    du = jnp.where((key & 1) == 1, abs_du, -abs_du)
+    return NearestSeed(distance=jnp.where(has_seed, dist.astype(jnp.float32), jnp.inf),
+                       du=jnp.where(has_seed, du, 0), dv=jnp.where(has_seed, dv, 0), has_seed=has_seed)
+
+
+def _forms(inputs, whole, rig, options, forms: dict, seed_part=None) -> dict:
+    """``{case/form: (executable, args, real pixels)}``: each whole tail (and, given ``seed_part``, the distance
+    transform alone) traced with every form's module attributes set (``forms[form] = {(module, name): value}``)."""
     import jax
 
     from benchmarks.bench_stage_programs import _case_inputs
-    from jaxdepth._src import pipeline
     stages, args, statics, _, one_args = _case_inputs("nuscenes")
     views = jax.jit(functools.partial(stages[0], **statics[0]))(*args[0])
     keeps = jax.jit(functools.partial(stages[1], **statics[1]))(*args[1](views))
     sizes = np.asarray(one_args[-1].image_size).tolist()
     nuscenes = (jax.jit(lambda *a: functools.partial(stages[2], **statics[2])(*a).depth), args[2]((views, keeps)),
                 float(sum(h * w for h, w in sizes)))
-    library, runs = pipeline._gather_seeds, {}
-    for form, gather in (("library", library), ("pairs", _pairs_gather)):
-        pipeline._gather_seeds = gather          # read when the programs are traced (below)
+    runs = {}
+    for form, patch in forms.items():
+        saved = {key: getattr(*key) for key in patch}
+        for (module, name), value in patch.items():
+            setattr(module, name, value)         # read when the programs are traced (below)
+        jax.clear_caches()                       # nearest_seed is a jit of its own: trace it again
         try:
             for case, x in inputs.items():
+                px = 1550 * 2048.0 * (6 if case == "vmap6" else 1)
                 a = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], x["size"])
                 fn = jax.vmap(whole) if case == "vmap6" else (lambda *b: whole(*b[:-1], None))
-                runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a,
-                                          1550 * 2048.0 * (6 if case == "vmap6" else 1))
+                runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
+                if seed_part is not None:
+                    runs[f"{case}_seed/{form}"] = (_compile(lambda k: seed_part(k, None), (x["keep"],),
+                                                            case == "vmap6", options), (x["keep"],), px)
             for case, (fn, a, px) in (("av2_rig", rig), ("nuscenes_rig", nuscenes)):
                 runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
         finally:
-            pipeline._gather_seeds = library
+            for (module, name), value in saved.items():
+                setattr(module, name, value)
+            jax.clear_caches()
     return runs
 
 
@@ -163,17 +208,25 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--gather-forms", action="store_true", help="the seed gather's two forms (module docs)")
+    parser.add_argument("--dt-forms", action="store_true", help="the distance transform's two forms (module docs)")
     parser.add_argument("--json", default=None, help="default results/rig_tail_parts.json (--gather-forms: "
-                                                        "rig_tail_gather_forms.json)")
+                                                        "rig_tail_gather_forms.json, --dt-forms: rig_tail_dt_forms.json)")
     args, t0 = parser.parse_args(argv), time.time()
-    args.json = args.json or str(RESULTS / ("rig_tail_gather_forms.json" if args.gather_forms else "rig_tail_parts.json"))
+    args.json = args.json or str(RESULTS / ("rig_tail_gather_forms.json" if args.gather_forms else
+                                            "rig_tail_dt_forms.json" if args.dt_forms else "rig_tail_parts.json"))
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
     inputs, parts, whole, rig = _cases()
+    from jaxdepth._src import pipeline
     if args.gather_forms:
-        return _time_gather_forms(_gather_forms(inputs, whole, rig, COMPILER_OPTIONS), args, t0)
+        forms = {"library": {}, "pairs": {(pipeline, "_gather_seeds"): _pairs_gather}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "the seed gather", "pairs")
+    if args.dt_forms:
+        forms = {"library": {}, "previous": {(pipeline, "nearest_seed"): _previous_nearest_seed}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, parts["seed"]), args, t0,
+                           "the distance transform", "previous")
     runs, same = {}, {}             # runs[name] = (executable, args, real pixels)
     for case, x in inputs.items():
         batched, px = case == "vmap6", 1550 * 2048.0 * (6 if case == "vmap6" else 1)
@@ -223,23 +276,29 @@ def main(argv=None) -> int:
     return 0
 
 
-def _time_gather_forms(runs: dict, args, t0) -> int:
+def _time_forms(runs: dict, args, t0, what: str, other: str) -> int:
     cases = sorted({name.split("/")[0] for name in runs})
-    differ = {c: int(np.sum(np.asarray(runs[f"{c}/library"][0](*runs[f"{c}/library"][1]))
-                            != np.asarray(runs[f"{c}/pairs"][0](*runs[f"{c}/pairs"][1])))) for c in cases}
-    print("depth values differing between the two forms:", differ, flush=True)
+    differ = {c: int(sum(np.sum(np.asarray(a) != np.asarray(b)) for a, b in zip(
+        _leaves(runs[f"{c}/library"][0](*runs[f"{c}/library"][1])),
+        _leaves(runs[f"{c}/{other}"][0](*runs[f"{c}/{other}"][1]))))) for c in cases}
+    print("output values differing between the two forms:", differ, flush=True)
     cpu = interleaved_cpu(runs, args.rounds)
-    ratio = {c: [a / b for a, b in zip(cpu[f"{c}/library"], cpu[f"{c}/pairs"])] for c in cases}
+    ratio = {c: [a / b for a, b in zip(cpu[f"{c}/library"], cpu[f"{c}/{other}"])] for c in cases}
     median = {k: statistics.median(v) for k, v in cpu.items()}
-    summary = {c: {"library_over_pairs_per_round_median": statistics.median(ratio[c]),
+    summary = {c: {f"library_over_{other}_per_round_median": statistics.median(ratio[c]),
                    "rounds_below_1": sum(r < 1 for r in ratio[c])} for c in cases}
-    print("median CPU ns/px", {k: round(v, 2) for k, v in median.items()}, "\nlibrary / pairs", summary, flush=True)
-    doc = {"what": "the whole tail with the library's seed gather against the pairs form (module docs, --gather-forms), "
+    print("median CPU ns/px", {k: round(v, 2) for k, v in median.items()}, f"\nlibrary / {other}", summary, flush=True)
+    doc = {"what": f"the whole tail (and parts) with the library's {what} against the {other} form (module docs), "
                    "process CPU ns per real pixel, interleaved rounds", "load_average": os.getloadavg(),
-           "cpu_ns_px": cpu, "cpu_ns_px_median": median, "library_over_pairs_per_round": ratio, "summary": summary,
-           "depth_values_differing": differ}
+           "cpu_ns_px": cpu, "cpu_ns_px_median": median, f"library_over_{other}_per_round": ratio, "summary": summary,
+           "output_values_differing": differ}
     write_results(args.json, doc, None, t0)
     return 0
+
+
+def _leaves(out) -> list:
+    import jax
+    return [np.asarray(a) for a in jax.tree_util.tree_leaves(out)]
 
 
 if __name__ == "__main__":

@@ -43,7 +43,11 @@ The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
 place (the backward loop reads the forward result and overwrites it): on CPU
 faster than ``lax.scan`` with stacked outputs followed by a minimum of the
 two directions (benchmarks/bench_distance.py), and packing every decision into one int32
-key keeps each step to a couple of fused ops.
+key keeps each step to a couple of fused ops. The first loop of each pass
+builds its values from the narrow input row by row (the row pass from the
+transposed bool mask, the L1 column pass from the row keys transposed as
+int16), not from a full-image pass before the loop (docs/speed.md, "The
+distance transform's full-image passes").
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
@@ -122,23 +126,31 @@ def _check(seed_mask: jax.Array, metric: str, horizontal_cost: int = 1) -> None:
             f"H <= {_L2_MAX_SIDE} and W <= {_L2_MAX_SIDE} (int32 squared distances)")
 
 
-def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False) -> jax.Array:
-    """``buf`` with row i replaced by ``carry = step(buf[i], carry)``, rows in order (or reversed), in place.
+def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
+           source: jax.Array | None = None) -> jax.Array:
+    """``buf`` with row i replaced by ``carry = step(i, source[i], carry)``, rows in order (or reversed), in place.
 
     Args:
-      buf: (N, ...) array; init: the first carry, ``buf[0]``'s shape and dtype; step: elementwise
-        ``(row, carry) -> carry``.
+      buf: (N, ...) array, written row by row; init: the first carry, ``buf[0]``'s shape and dtype; step:
+        elementwise ``(i, row, carry) -> carry`` (``i`` the int32 row index); source: (N, ...) array read row
+        by row, any dtype (default ``buf`` itself).
 
     XLA:CPU runs each scalar op of a loop step as a kernel of its own, and a sweep has N steps: the row
     read and write skip ``lax``'s negative-index wrap (a compare and select per index; every index here
     is in range), which cut the L1 transform's CPU by ~10 % on the KITTI frame (docs/speed.md, "One frame").
+    A ``source`` apart from ``buf`` lets the first sweep of a pass read its input in the narrow dtype and
+    build each row's value inside the loop: ``buf`` is then only written, and the full-image pass that
+    would build it (an elementwise fusion, then XLA:CPU's transposing copy of its result) is gone
+    (docs/speed.md, "The distance transform's full-image passes").
     """
     n = buf.shape[0]
 
     def body(j, state):
         carry, buf = state
         i = n - 1 - j if reverse else j
-        carry = step(lax.dynamic_index_in_dim(buf, i, 0, keepdims=False, allow_negative_indices=False), carry)
+        row = lax.dynamic_index_in_dim(buf if source is None else source, i, 0, keepdims=False,
+                                       allow_negative_indices=False)
+        carry = step(i, row, carry)
         return carry, lax.dynamic_update_index_in_dim(buf, carry, i, 0, allow_negative_indices=False)
 
     return lax.fori_loop(0, n, body, (init, buf))[1]
@@ -160,13 +172,16 @@ def _row_pass(seed_mask: jax.Array) -> jax.Array:
     far = h + w
     dtype = jnp.int16 if 2 * (far + w) + 1 <= _INT16_MAX else jnp.int32
     init = jnp.full((h,), 2 * far, dtype)
-    # Forward: 0 at a seed, else the carry + 2; the carry never exceeds 2 (far + w), so a seed's 0
-    # and a non-seed's 2 (far + w) + 1 under a minimum give exactly that.
-    buf = jnp.where(seed_mask.T, jnp.zeros((), dtype), jnp.asarray(2 * (far + w) + 1, dtype))
-    buf = _sweep(buf, init, lambda row, carry: jnp.minimum(row, carry + 2))
+    no_seed = jnp.asarray(2 * (far + w) + 1, dtype)
+    # Forward, on the transposed bool mask (one byte a pixel), into a fresh buffer: 0 at a seed, else
+    # the carry + 2; the carry never exceeds 2 (far + w), so a seed's 0 and a non-seed's
+    # 2 (far + w) + 1 under a minimum give exactly that.
+    buf = _sweep(jnp.zeros((w, h), dtype), init,
+                 lambda i, row, carry: jnp.minimum(jnp.where(row, jnp.zeros((), dtype), no_seed), carry + 2),
+                 source=seed_mask.T)
     # Backward: moving one column left from the seed of column i + 1 puts it on the right; a left
     # seed of column i + 1 can never win here.
-    return _sweep(buf, init, lambda row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
+    return _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
 
 
 def _l1_column_pass(row_key_t: jax.Array, far: int, horizontal_cost: int = 1) -> tuple[jax.Array, int]:
@@ -185,13 +200,16 @@ def _l1_column_pass(row_key_t: jax.Array, far: int, horizontal_cost: int = 1) ->
     w, h = row_key_t.shape
     cb = _bits(h) + 1
     step = 1 << cb
-    hk = row_key_t.T.astype(jnp.int32)
-    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    g = hk >> 1 if horizontal_cost == 1 else horizontal_cost * (hk >> 1)
-    key = (jnp.minimum(g, far) << cb) | (rows << 1) | (hk & 1)
     init = jnp.full((w,), far << cb, jnp.int32)
-    key = _sweep(key, init, lambda row, carry: jnp.minimum(row, carry + step))
-    key = _sweep(key, init, lambda row, carry: jnp.minimum(row, carry + step), reverse=True)
+
+    def forward(i, hk, carry):
+        # Row i's keys built inside the loop from the row keys transposed in their narrow dtype.
+        hk = hk.astype(jnp.int32)
+        g = hk >> 1 if horizontal_cost == 1 else horizontal_cost * (hk >> 1)
+        return jnp.minimum((jnp.minimum(g, far) << cb) | (i << 1) | (hk & 1), carry + step)
+
+    key = _sweep(jnp.zeros((h, w), jnp.int32), init, forward, source=row_key_t.T)
+    key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step), reverse=True)
     return key, cb
 
 
