@@ -291,8 +291,8 @@ def test_auto_rule_is_capped_for_a_reference_sweep_of_several_line_scanning_lida
 
 
 def test_run_record_holds_the_rule_the_run_uses(tmp_path):
-    """The run record holds the rule, not "auto": "plane" for one LiDAR (so records of earlier runs, whose
-    outputs are unchanged, stay valid), "capped" for a rig of two LiDARs, an explicit choice as given."""
+    """The run record holds the rule, not "auto": "plane" for one LiDAR, "capped" for a rig of two LiDARs,
+    an explicit choice as given."""
     import json
 
     from jaxdepth.batch import run_record
