@@ -95,7 +95,7 @@ class SGMConfig:
         where the reference sweep is several LiDARs scanning in lines (an Argoverse 2 rig's two
         VLP-32C), "plane" otherwise (one LiDAR: every single-sweep call, KITTI, nuScenes, a raster
         or rosette unit; :func:`~jaxdepth._src.above_scan.above_scan_rule`). Chosen on the twins
-        (docs/method.md, "The capped plane").
+        (docs/method.md, "Per sensor class").
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
         The paper gives no value; the default 1.4 with radius 3 is OpenCV's
         ``GaussianBlur(depth, (7, 7), 0)``.
