@@ -16,7 +16,7 @@ __version__ = "0.1.0"
 #: the SHA-256 of ``benchmarks/results/output_fingerprint.json`` as canonical JSON (sorted keys, no
 #: spaces). Run records store it and refuse to resume a folder written by another one
 #: (:mod:`jaxdepth.batch.run_record`); tests/test_run_records.py fails when the two disagree.
-__output_version__ = "154e40903cb7"
+__output_version__ = "80b54ef3747d"
 
 if TYPE_CHECKING:  # the names of _LAZY below, imported eagerly, for type checkers and IDEs
     from jaxdepth._src.config import SGMConfig as SGMConfig

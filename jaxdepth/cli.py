@@ -168,6 +168,7 @@ def _multi_source_usage(args, what: str) -> str | None:
 
 def _cmd_complete_av2(args) -> int:
     """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
+    from jaxdepth.batch import run_record
     from jaxdepth.batch.av2_job import cli_usage, find_logs, run_av2
 
     usage = cli_usage(args) or _settle_rig_baseline_removal(args)
@@ -178,7 +179,8 @@ def _cmd_complete_av2(args) -> int:
     cameras = None if args.cameras is None else tuple(c.strip() for c in args.cameras.split(",") if c.strip())
     time_ = "lidar" if args.lidar_time else "camera"
     _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0, time=time_,
-                         cameras=None if cameras is None else ",".join(cameras))
+                         cameras=None if cameras is None else ",".join(cameras),
+                         above_scan=run_record.lidars_above_scan(_config_from(args).above_scan, lidars=2))
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
     progress = _progress(args, total, "sweeps")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),

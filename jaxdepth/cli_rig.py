@@ -43,7 +43,8 @@ def cmd_complete_rig(args) -> int:
               file=sys.stderr)
         return 2
     settings = run_record.settings_of(config_from(args), method=args.method, extras=extras_from(args),
-                                      estimate=not args.no_estimate)
+                                      estimate=not args.no_estimate,
+                                      above_scan=run_record.rig_above_scan(config_from(args).above_scan, args.rig))
     record = run_record.make_record(settings, inputs=[args.points, args.rig],
                                     command=getattr(args, "command_line", None))
     if sweeps is not None:

@@ -26,11 +26,12 @@ def add_config_options(p: argparse.ArgumentParser) -> None:
                    help="Step 4's prediction between scan lines: paper (the nearest seed's plane only), bracket "
                         "(default: clipped to the depths of the LiDAR pixels straight above and below within one "
                         "scan-line spacing), blend (also average in those pixels' own planes)")
-    p.add_argument("--above-scan", dest="above_scan", choices=("plane", "background", "capped"), default=argparse.SUPPRESS,
+    p.add_argument("--above-scan", dest="above_scan", choices=("auto", "plane", "background", "capped"),
+                   default=argparse.SUPPRESS,
                    help="Step 4 above the top scan line: plane (the nearest seed's plane, as in the paper), "
                         "background (the farthest seed within one LiDAR point spacing, |du| < W L / N, no plane) or "
                         "capped (the plane followed at most one scan-line spacing, h / L rows, above its seed); "
-                        "default: SGMConfig's")
+                        "auto (default): capped for a sweep of several LiDARs (a rig's lidars), else plane")
     p.add_argument("--seed-horizontal-cost", dest="seed_horizontal_cost", type=int, metavar="C",
                    default=argparse.SUPPRESS,
                    help="Step 3 (l1, unguided): a seed's horizontal offset costs C times its vertical offset "

@@ -271,3 +271,64 @@ def test_capped_flag():
     add_config_options(p)
     assert config_changes(p.parse_args(["--above-scan", "capped"]))["above_scan"] == "capped"
     assert jaxdepth.SGMConfig(above_scan="capped").above_scan == "capped"
+
+
+def test_auto_rule_is_capped_for_a_reference_sweep_of_several_line_scanning_lidars():
+    """``above_scan="auto"`` (the default): capped for two or more reference-sweep LiDARs scanning in lines
+    (the Argoverse 2 rig), the paper's plane for one LiDAR (any number of sweeps) and for a reference
+    LiDAR scanning without lines (a rosette's witness grid differs from its spec); an explicit mode wins."""
+    from jaxdepth._src.above_scan import above_scan_rule
+    a, b = jaxdepth.LidarSpec(beams=32), jaxdepth.LidarSpec(beams=16, fov_up_deg=15.0, fov_down_deg=-15.0)
+    assert jaxdepth.SGMConfig().above_scan == "auto"
+    assert above_scan_rule("auto", sweep=(0, 0), lidars=(a, b)) == "capped"
+    assert above_scan_rule("auto", sweep=(0, 0, 1, 1), lidars=(a, a, a, a)) == "capped"
+    assert above_scan_rule("auto", sweep=(0,), lidars=(a,)) == "plane"
+    assert above_scan_rule("auto", sweep=(0, 1, 2), lidars=(a, a, a)) == "plane"
+    assert above_scan_rule("auto", sweep=(0, 0), lidars=(a, a), witnesses=(a, b)) == "plane"
+    for mode in ("plane", "background", "capped"):
+        assert above_scan_rule(mode, sweep=(0, 0), lidars=(a, a)) == mode
+        assert above_scan_rule(mode, sweep=(0,), lidars=(a,)) == mode
+
+
+def test_run_record_holds_the_rule_the_run_uses(tmp_path):
+    """The run record holds the rule, not "auto": "plane" for one LiDAR, "capped" for a rig of two LiDARs,
+    an explicit choice as given."""
+    import json
+
+    from jaxdepth.batch import run_record
+    rig = {"lidar": {"beams": 32, "fov_up_deg": 10.0, "fov_down_deg": -25.0, "columns": 1024},
+           "cameras": [{"name": "cam", "width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]],
+                        "T_cam_lidar": np.eye(4).tolist()}]}
+    (tmp_path / "one.json").write_text(json.dumps(rig))
+    rig["lidars"] = [{"name": n, "T_points_lidar": np.eye(4).tolist()} for n in ("up", "down")]
+    rig["columns"] = ["x", "y", "z", "lidar"]
+    (tmp_path / "two.json").write_text(json.dumps(rig))
+    config = jaxdepth.SGMConfig()
+    assert run_record.settings_of(config, method="sgm")["above_scan"] == "plane"
+    assert run_record.settings_of(config.replace(above_scan="background"), method="sgm")["above_scan"] == "background"
+    assert run_record.rig_above_scan("auto", tmp_path / "one.json") == "plane"
+    assert run_record.rig_above_scan("auto", tmp_path / "two.json") == "capped"
+    assert run_record.rig_above_scan("plane", tmp_path / "two.json") == "plane"
+    assert run_record.settings_of(config, method="sgm", above_scan=run_record.rig_above_scan(
+        "auto", tmp_path / "two.json"))["above_scan"] == "capped"
+
+
+@pytest.mark.slow  # four whole-pipeline programs (test_rig_sizes' edge rig)
+def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_path():
+    """The same cloud: as one source its default equals the single-sweep path's (``complete_rig``, both the
+    plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and
+    an explicit ``plane`` there is not the default's output."""
+    from jaxdepth._src.sources import complete_sources, make_sources
+
+    from scenes import SMALL_LIDAR, edge_size_rig
+    points, valid, cameras = edge_size_rig()
+    cams = jaxdepth.stack_cameras(cameras)
+    single = np.asarray(jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR))
+    one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
+    np.testing.assert_array_equal(np.asarray(complete_sources(one, cams)), single)
+    two = make_sources(np.stack([points] * 2), np.stack([valid] * 2), np.stack([np.eye(4)] * 2),
+                       lidars=(SMALL_LIDAR,) * 2, sweep=(0, 0))
+    capped = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="capped")))
+    np.testing.assert_array_equal(np.asarray(complete_sources(two, cams)), capped)
+    plane = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="plane")))
+    assert not np.array_equal(capped, plane)                 # the explicit plane is not the default's rule

@@ -185,7 +185,7 @@ def real_checks(rules=("plane", "capped")) -> dict:
 
 def markdown(doc: dict) -> str:
     """The docs' table: one row per case, RMSE / MAE mm of each rule and the fill, capped vs plane in %."""
-    lines = ["| twin, sweeps, seed, phases | `plane` (default) | `background` | `capped` | city-block fill "
+    lines = ["| twin, sweeps, seed, phases | `plane` | `background` | `capped` | city-block fill "
              "| capped vs plane, RMSE / MAE |", "|---|---|---|---|---|---|"]
     for c in doc["cases"]:
         s = c["scores"]

@@ -20,7 +20,8 @@ column that no point projects into (sparse horizontal sampling) does not count a
 open to the top. The window is the paper's S(i), as in Step 2; no constant is
 added. Below the top scan line nothing changes.
 
-The milder rule (``SGMConfig.above_scan="capped"``, :func:`capped_above_scan`) keeps the
+The milder rule (``SGMConfig.above_scan="capped"``, :func:`capped_above_scan`; the default,
+``"auto"``, on a reference sweep of several LiDARs, :func:`above_scan_rule`) keeps the
 nearest seed and its plane but follows the plane at most one scan-line spacing (``h / L``
 rows, the column bracket's window) above the seed and holds its depth beyond: the gap
 between two rings is where the paper's plane is what it assumes; tens of rows above the top
@@ -40,6 +41,27 @@ import jax.numpy as jnp
 from jaxdepth._src.config import DEFAULT_CONFIG
 
 _DEFAULTS = DEFAULT_CONFIG
+
+
+def above_scan_rule(mode: str, *, sweep, lidars, witnesses=None) -> str:
+    """The rule ``SGMConfig.above_scan=mode`` stands for on a multi-source call (static).
+
+    ``"auto"``: ``"capped"`` where the reference sweep (``sweep == 0``) is two or more LiDARs that scan
+    in lines (each one's free-space grid its own spec: not a rosette), ``"plane"`` otherwise. Any
+    other mode is itself. The single-sweep path (one LiDAR) treats ``"auto"`` as ``"plane"``.
+
+    Args:
+      mode: ``SGMConfig.above_scan``.
+      sweep: each source's sweep number (0: the reference sweep).
+      lidars: each source's :class:`~jaxdepth.LidarSpec`.
+      witnesses: each source's free-space grid spec, or None (every source's own spec).
+    """
+    if mode != "auto":
+        return mode
+    ref = [i for i, sw in enumerate(sweep) if int(sw) == 0]
+    grids = lidars if witnesses is None else witnesses
+    lines = all(grids[i] == lidars[i] for i in ref)
+    return "capped" if len(ref) >= 2 and lines else "plane"
 
 
 def _shift_columns(x: jax.Array, k: int, fill) -> jax.Array:

@@ -13,7 +13,7 @@ import dataclasses
 DISTANCE_METRICS = ("l1", "l2")
 _OUTLIER_TESTS = ("footprint", "paper")
 #: Step 4's choices above the top scan line (``SGMConfig.above_scan``).
-ABOVE_SCAN = ("plane", "background", "capped")
+ABOVE_SCAN = ("auto", "plane", "background", "capped")
 #: When rule 6 of the multi-source path runs (``SGMConfig.reference_top_line``).
 REFERENCE_TOP_LINE = ("auto", "on", "off")
 #: Step 2 with several sweeps (``SGMConfig.outlier_sweeps``).
@@ -91,7 +91,11 @@ class SGMConfig:
         the background continues (:mod:`~jaxdepth._src.above_scan`). "capped":
         the nearest-seed plane followed at most one scan-line spacing (h / L
         rows, the column bracket's window) above the seed, held constant
-        beyond (:func:`~jaxdepth._src.above_scan.capped_above_scan`).
+        beyond (:func:`~jaxdepth._src.above_scan.capped_above_scan`). "auto" (default): "capped"
+        where the reference sweep is several LiDARs scanning in lines (an Argoverse 2 rig's two
+        VLP-32C), "plane" otherwise (one LiDAR: every single-sweep call, KITTI, nuScenes, a raster
+        or rosette unit; :func:`~jaxdepth._src.above_scan.above_scan_rule`). Chosen on the twins
+        (docs/method.md, "Per sensor class").
       smoothing_sigma_px: Gaussian sigma of Step 4's smoothing, pixels (0 disables).
         The paper gives no value; the default 1.4 with radius 3 is OpenCV's
         ``GaussianBlur(depth, (7, 7), 0)``.
@@ -186,7 +190,7 @@ class SGMConfig:
     max_residual_ratio: float = 0.5
     column_bracket: bool = True
     blend_hypotheses: bool = False
-    above_scan: str = "plane"
+    above_scan: str = "auto"
     smoothing_sigma_px: float = 1.4
     smoothing_radius_px: int = 3
     keep_measured_depth: bool = True

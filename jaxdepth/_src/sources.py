@@ -27,12 +27,11 @@ source's points, padded to one point bucket ``P``, in the *reference frame*
   in each camera, the kept pixels of other sweeps' points above the reference sweep's kept top
   scan line and nearer than its top pixels by more than epsilon are no seeds
   (:func:`~jaxdepth._src.above_scan.top_line_keep`).
-* Steps 3 and 4 are the single-source ones on the merged, filtered image.
+* Steps 3 and 4 are the single-source ones on the merged, filtered image (``above_scan``: :func:`above_scan_rule`).
 
 As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is written as three stages
-(:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion,
-each camera's z-buffer with each pixel's source), :func:`sources_stage_keep` (Step 2 and the top-line rule)
-and :func:`sources_stage_tail` (Steps 3-4), run in one ``jit``, :func:`sources_program`.
+(:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion, each
+camera's z-buffer), :func:`sources_stage_keep` (Step 2, the top-line rule), :func:`sources_stage_tail` (Steps 3-4).
 
 With one source at the points' origin, :func:`complete_sources` equals :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
 """
@@ -47,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.above_scan import top_line_keep
+from jaxdepth._src.above_scan import above_scan_rule, top_line_keep
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
@@ -635,13 +634,15 @@ def sources_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=N
 def run_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig, free_space: bool,
                        beams: int, occlusion: bool = True, call=call_stage) -> Stages:
     """:func:`complete_sources_stages` (``beams`` given) as three stage programs called through ``call``:
-    :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail` (see
-    :func:`~jaxdepth._src.rig.run_rig_stages`; the library runs them in one ``jit``, :func:`sources_program`)."""
+    :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail` (the tail's
+    ``above_scan`` resolved, :func:`~jaxdepth._src.above_scan.above_scan_rule`; see run_rig_stages)."""
     check_images(images, cameras, config, where="complete_sources")
     views = call(sources_stage_projection, sources, cameras, config=config, free_space=free_space,
                  occlusion=occlusion)
     keeps = call(sources_stage_keep, views, sources, cameras, config=config, beams=beams)
-    return call(sources_stage_tail, views, keeps, cameras, images, config=config, beams=beams)
+    tail = config.replace(above_scan=above_scan_rule(config.above_scan, sweep=sources.sweep, lidars=sources.lidars,
+                                                     witnesses=sources.witnesses))
+    return call(sources_stage_tail, views, keeps, cameras, images, config=tail, beams=beams)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "free_space", "beams", "occlusion"))
@@ -656,8 +657,7 @@ def sources_program(sources: Sources, cameras: RigCameras, images=None, *, confi
 @functools.partial(entry_jit, static_argnames=("config", "free_space", "beams", "occlusion", "seen"))
 def sources_depth_program(sources: Sources, cameras: RigCameras, images=None, *, config: SGMConfig,
                           free_space: bool, beams: int, occlusion: bool = True, seen: bool = False):
-    """:func:`sources_program`'s ``depth`` alone, or ``(depth, seen)`` (see
-    :func:`~jaxdepth._src.rig.rig_depth_program`)."""
+    """:func:`sources_program`'s ``depth`` alone, or ``(depth, seen)`` (see ``rig_depth_program``)."""
     return depth_output(run_sources_stages(sources, cameras, images, config=config, free_space=free_space,
                                            beams=beams, occlusion=occlusion), seen)
 

@@ -80,10 +80,12 @@ def settings_of(config, *, method: str, extras=None, **options) -> dict:
       extras: :class:`jaxdepth.batch.extras.ExtraOutputs` or None; its value settings
         (``zero_invalid``, ``max_seed_distance_px`` (None: from the sensor),
         ``preview_range``) are recorded, not which files it asks for.
-      options: further output-changing options (``crop``, ``camera``, ``sweeps``...).
+      options: further output-changing options (``crop``, ``camera``, ``sweeps``...; ``above_scan``: the
+        rule a rig of several LiDARs uses, :func:`rig_above_scan`; else ``"auto"`` is recorded as ``"plane"``).
     """
     settings = {"method": method}
     settings.update({f.name: _plain(getattr(config, f.name)) for f in dataclasses.fields(config)})
+    settings["above_scan"] = lidars_above_scan(settings["above_scan"], lidars=1)    # options: a rig's choice
     if extras is not None:
         settings.update(zero_invalid=bool(extras.zero_invalid),
                         max_seed_distance_px=("sensor" if extras.max_seed_distance_px is None
@@ -91,6 +93,25 @@ def settings_of(config, *, method: str, extras=None, **options) -> dict:
                         preview_range=None if extras.preview_range is None else list(extras.preview_range))
     settings.update({k: _plain(v) for k, v in options.items()})
     return settings
+
+
+def lidars_above_scan(mode: str, *, lidars: int) -> str:
+    """The ``above_scan`` rule a run with ``lidars`` LiDARs per sweep uses, recorded in place of ``"auto"``
+    (:func:`jaxdepth._src.above_scan.above_scan_rule` for LiDARs scanning in lines: ``"capped"`` from two)."""
+    return mode if mode != "auto" else ("capped" if int(lidars) >= 2 else "plane")
+
+
+def rig_above_scan(mode: str, rig_path) -> str:
+    """:func:`lidars_above_scan` of the rig JSON at ``rig_path`` (its ``lidars``; one LiDAR without);
+    ``mode`` itself when the rig cannot be read (the job reports that)."""
+    from jaxdepth.io.errors import JaxdepthError
+    from jaxdepth.io.rig import read_rig_json
+    if mode != "auto":
+        return mode
+    try:
+        return lidars_above_scan(mode, lidars=len(read_rig_json(rig_path).lidars))
+    except (JaxdepthError, OSError, ValueError):
+        return mode
 
 
 def _plain(value):
