@@ -170,10 +170,10 @@ def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, wind
     n_pts = pts.slot.shape[0]
     n_rows = lidar.beams
     # Slot L window_cols collects points without a cell.
-    _, idx, dump_key = scatter_argmin(pts.slot, pts.key, n_rows * window_cols, fill=jnp.iinfo(jnp.int32).max,
-                                      with_dump=True)
+    best, idx = scatter_argmin(pts.slot, pts.key, n_rows * window_cols, fill=jnp.iinfo(jnp.int32).max, full=True)
 
     def per_cell(idx, thph, zr, col0):
+        idx = idx[:-1]  # (the dump slot; sliced here, not in a kernel of its own)
         has = idx < n_pts
         safe = jnp.where(has, idx, 0)
         theta_c, phi_c = cell_centres(lidar)
@@ -189,7 +189,7 @@ def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, wind
 
     r_img, th_img, ph_img, index = stage(per_cell, (idx, pts.thph, pts.zr, col0), token)
     ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
-    return (ri, dump_key) if with_dump else ri
+    return (ri, best[-1]) if with_dump else ri
 
 
 def default_window_columns(lidar: LidarSpec) -> int:
