@@ -361,18 +361,19 @@ def _fit_slopes(rows, token):
     return stage(_fit_pass2, (w01, w23) + rows, token)
 
 
-def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
+def _slopes(ri: RangeImage, fill_max_gap: int, window=None, token=None):
     """Measured mask, basis (complex(cos, sin) of theta and phi), slopes complex(a, b) and smoothing weight.
 
     ``a = r_theta / (r cos phi)``, ``b = r_phi / r`` (see the module docstring);
     ``full`` in [_PARTIAL_WEIGHT, 1] is 1 where the neighbours constrain both
     derivatives and small where they are (nearly) collinear (the unseen
-    derivative is then ~0). All (L, C) and materialised (stage outputs).
+    derivative is then ~0). All (L, C) and materialised (stage outputs). ``token``: the stages'
+    (:func:`~jaxdepth._src.xla_tuning.stage`; default ``ri.index[0, 0]``).
     """
     meas = ri.index >= 0
     r, th, ph = ri.r, ri.theta, ri.phi
     k = 1 + fill_max_gap
-    token = ri.index[0, 0]
+    token = ri.index[0, 0] if token is None else token
 
     def pad(meas, r, th, ph):
         # Columns wrap; azimuths in the pads are unwrapped (left of column 0
@@ -423,10 +424,13 @@ def _normalise(nx, ny, nz, ok):
     return good, nx * inv, ny * inv, nz * inv
 
 
-def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
+def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None, token=None):
     """Smoothed normals of the cells packed for per-point gathers: (complex(nx, ny), nz), (L, C),
-    materialised (:func:`_smoothed_cells` of :func:`_slopes`; ``smoothing`` 0: the raw normals)."""
-    return _smoothed_cells(_slopes(ri, fill_max_gap, window), smoothing, ri.index[0, 0])
+    materialised (:func:`_smoothed_cells` of :func:`_slopes`; ``smoothing`` 0: the raw normals).
+    ``token``: the stages' (default ``ri.index[0, 0]``; a caller's own token saves that one's
+    predicate kernel)."""
+    token = ri.index[0, 0] if token is None else token
+    return _smoothed_cells(_slopes(ri, fill_max_gap, window, token), smoothing, token)
 
 
 def _smoothed_cells(slopes, smoothing: int, token):

@@ -147,7 +147,7 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
     window = None if window_cols == n_cols else (col0, n_cols)
     ri, dump_key = window_range_image(pts, col0, token, lidar=lidar, window_cols=window_cols, with_dump=True)
     # Points only sit in measured cells, so the filling of empty cells is skipped.
-    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
+    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window, token)
     xyz = (jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr))
     px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
     n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
