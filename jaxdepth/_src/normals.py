@@ -430,10 +430,10 @@ def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None,
     ``token``: the stages' (default ``ri.index[0, 0]``; a caller's own token saves that one's
     predicate kernel)."""
     token = ri.index[0, 0] if token is None else token
-    return _smoothed_cells(_slopes(ri, fill_max_gap, window, token), smoothing, token)
+    return _smoothed_cells(_slopes(ri, fill_max_gap, window, token), smoothing, token, wrap=window is None)
 
 
-def _smoothed_cells(slopes, smoothing: int, token):
+def _smoothed_cells(slopes, smoothing: int, token, *, wrap: bool = True):
     """The one normal smoothing: the weighted box mean of the measured cells' raw normals.
 
     Normals with both derivatives weigh 1, those with a missing derivative
@@ -442,9 +442,13 @@ def _smoothed_cells(slopes, smoothing: int, token):
     (complex(nx, ny), nz), (L, C): unit where a measured cell lies within
     ``smoothing`` cells (columns wrap, rows are cut), zero elsewhere; with
     ``smoothing`` 0 the raw normals (zero at empty cells). The weighted normals
-    are formed and padded in one stage, the row sums of the box in a second,
+    are formed in one stage, padded and summed along the rows in a second,
     and the column sums with the renormalisation in a third; (x, y) travel as
-    one complex channel, so each stage has two outputs.
+    one complex channel, so each stage has two outputs. ``wrap`` False (a
+    window of the range image's columns): the columns are padded with zeros,
+    not wrapped, which changes only the cells within ``smoothing`` columns of
+    the window's edges (no listed point reads them: its margin) and lets XLA
+    fuse the pad into the row sums (no slice and concatenate kernels).
     """
     if smoothing == 0:
         def raw(meas, e_th, e_ph, ab):
@@ -453,17 +457,18 @@ def _smoothed_cells(slopes, smoothing: int, token):
         return stage(raw, slopes[:4], token)
     half = smoothing
 
-    def weighted_padded(meas, e_th, e_ph, ab, full):
+    def weighted(meas, e_th, e_ph, ab, full):
         nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
-        return tuple(wrap_pad_slices(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
+        return jax.lax.complex(nx * full, ny * full), nz * full
 
     def vertical(*horiz):
         sxy, sz = _column_box_sums(horiz, half)
         _, nx, ny, nz = _normalise(jnp.real(sxy), jnp.imag(sxy), sz, True)
         return jax.lax.complex(nx, ny), nz
 
-    padded = stage(weighted_padded, slopes, token)
-    horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
+    cells = stage(weighted, slopes, token)
+    pad = (lambda x: wrap_pad_slices(x, half, 0.0)) if wrap else (lambda x: jnp.pad(x, half))
+    horiz = stage(lambda *c: _row_box_sums(tuple(pad(x) for x in c), half), cells, token)
     return stage(vertical, horiz, token)
 
 
