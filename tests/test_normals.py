@@ -590,6 +590,34 @@ def test_pixel_normals_whole_range_image_window_and_options():
         assert stable[depth > 0].mean() > 0.99
 
 
+def test_pixel_normals_listed_fits_is_the_per_point_margin_test():
+    """``pixel_normals_listed`` (the KITTI job's program: no dense fallback) reads its ``fits`` from the
+    range image's dump slot. Oracle: the per-point flags of the listed path (every pixel with depth at
+    least the margin inside the window and off the seam, at most H W / 16 of them). Frames: every 4th
+    row and column of a narrow camera (fits), a ~127-degree one wider than the window, a backwards one
+    (window across the seam), a whole frame (overflow); where it fits, the normals of ``pixel_normals``."""
+    opts = dict(smoothing=N.DEFAULT_CONFIG.normal_smoothing, fill_max_gap=N.DEFAULT_CONFIG.range_fill_max_gap)
+    margin, wc = max(1 + opts["fill_max_gap"], opts["smoothing"]), PN.default_window_columns(PIX_LIDAR)
+    yaw = np.diag([-1.0, -1.0, 1.0, 1.0]).astype(np.float32)
+    cams = [_pix_camera(), _pix_camera(f=40.0), small_camera(lidar_to_camera() @ yaw), _pix_camera()]
+    got_fits = []
+    for i, camera in enumerate(cams):
+        depth = _pix_frame(i, camera)
+        sparse = depth if i == 3 else np.where(np.arange(96)[:, None] % 4 + np.arange(160) % 4 == 0, depth, 0)
+        K, T = camera.K, camera.T_cam_lidar
+        normals, fits = PN.pixel_normals_listed(sparse, K, T, lidar=PIX_LIDAR, **opts)
+        pix, total = compaction.compact_indices(jnp.asarray(sparse > 0).reshape(-1), 96 * 160 // 16, 0)
+        col0 = PN._window_start(K, T, 96, 160, PIX_LIDAR, wc)
+        pts = PN._pixel_points(pix, jnp.asarray(sparse), K, T, col0, 0, lidar=PIX_LIDAR, window_cols=wc,
+                               margin=margin)
+        assert bool(fits) == (int(total) <= 96 * 160 // 16 and not np.asarray(pts.edge).any())
+        got_fits.append(bool(fits))
+        if fits:
+            want = PN.pixel_normals(sparse, K, T, lidar=PIX_LIDAR, **opts)
+            np.testing.assert_array_equal(np.asarray(normals), np.asarray(want))
+    assert got_fits == [True, False, False, False]  # the frames' premise
+
+
 def test_compact_indices_lists_true_entries_in_order():
     """Two shapes: several fill levels (none, sparse, more than the capacity, all) share one program."""
     rng = np.random.default_rng(7)

@@ -28,7 +28,7 @@ from jax import lax
 _HIGH_HALF = -4096   # 0xFFFFF000
 
 
-def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill):
+def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill, full: bool = False):
     """Per-slot minimum of ``key`` and the smallest index that attains it (a z-buffer).
 
     Args:
@@ -44,14 +44,16 @@ def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill):
       ``(best, index)``: (size,) smallest key per slot (``fill`` where empty) and
       (size,) int32 index of the entry that won the slot: the smallest index among
       equal keys, ``N`` where empty. Scatter-min makes the result independent of
-      the order in which duplicates are applied.
+      the order in which duplicates are applied. ``full``: both (size + 1,), the dump
+      slot's last (its key ``fill`` when no entry went there; a caller that slices
+      inside its own stage saves the slices' kernels).
     """
     n = slot.shape[0]
     best = jnp.full((size + 1,), fill, key.dtype).at[slot].min(key, mode="promise_in_bounds")
     win = key == best.at[slot].get(mode="promise_in_bounds")
     ids = jnp.arange(n, dtype=jnp.int32)
     idx = jnp.full((size + 1,), n, jnp.int32).at[jnp.where(win, slot, size)].min(ids, mode="promise_in_bounds")
-    return best[:size], idx[:size]
+    return (best, idx) if full else (best[:size], idx[:size])
 
 
 def split_halves(x: jax.Array):

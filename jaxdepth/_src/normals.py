@@ -361,18 +361,19 @@ def _fit_slopes(rows, token):
     return stage(_fit_pass2, (w01, w23) + rows, token)
 
 
-def _slopes(ri: RangeImage, fill_max_gap: int, window=None):
+def _slopes(ri: RangeImage, fill_max_gap: int, window=None, token=None):
     """Measured mask, basis (complex(cos, sin) of theta and phi), slopes complex(a, b) and smoothing weight.
 
     ``a = r_theta / (r cos phi)``, ``b = r_phi / r`` (see the module docstring);
     ``full`` in [_PARTIAL_WEIGHT, 1] is 1 where the neighbours constrain both
     derivatives and small where they are (nearly) collinear (the unseen
-    derivative is then ~0). All (L, C) and materialised (stage outputs).
+    derivative is then ~0). All (L, C) and materialised (stage outputs). ``token``: the stages'
+    (:func:`~jaxdepth._src.xla_tuning.stage`; default ``ri.index[0, 0]``).
     """
     meas = ri.index >= 0
     r, th, ph = ri.r, ri.theta, ri.phi
     k = 1 + fill_max_gap
-    token = ri.index[0, 0]
+    token = ri.index[0, 0] if token is None else token
 
     def pad(meas, r, th, ph):
         # Columns wrap; azimuths in the pads are unwrapped (left of column 0
@@ -423,13 +424,16 @@ def _normalise(nx, ny, nz, ok):
     return good, nx * inv, ny * inv, nz * inv
 
 
-def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None):
+def cell_normals(ri: RangeImage, smoothing: int, fill_max_gap: int, window=None, token=None):
     """Smoothed normals of the cells packed for per-point gathers: (complex(nx, ny), nz), (L, C),
-    materialised (:func:`_smoothed_cells` of :func:`_slopes`; ``smoothing`` 0: the raw normals)."""
-    return _smoothed_cells(_slopes(ri, fill_max_gap, window), smoothing, ri.index[0, 0])
+    materialised (:func:`_smoothed_cells` of :func:`_slopes`; ``smoothing`` 0: the raw normals).
+    ``token``: the stages' (default ``ri.index[0, 0]``; a caller's own token saves that one's
+    predicate kernel)."""
+    token = ri.index[0, 0] if token is None else token
+    return _smoothed_cells(_slopes(ri, fill_max_gap, window, token), smoothing, token, wrap=window is None)
 
 
-def _smoothed_cells(slopes, smoothing: int, token):
+def _smoothed_cells(slopes, smoothing: int, token, *, wrap: bool = True):
     """The one normal smoothing: the weighted box mean of the measured cells' raw normals.
 
     Normals with both derivatives weigh 1, those with a missing derivative
@@ -438,9 +442,13 @@ def _smoothed_cells(slopes, smoothing: int, token):
     (complex(nx, ny), nz), (L, C): unit where a measured cell lies within
     ``smoothing`` cells (columns wrap, rows are cut), zero elsewhere; with
     ``smoothing`` 0 the raw normals (zero at empty cells). The weighted normals
-    are formed and padded in one stage, the row sums of the box in a second,
+    are formed in one stage, padded and summed along the rows in a second,
     and the column sums with the renormalisation in a third; (x, y) travel as
-    one complex channel, so each stage has two outputs.
+    one complex channel, so each stage has two outputs. ``wrap`` False (a
+    window of the range image's columns): the columns are padded with zeros,
+    not wrapped, which changes only the cells within ``smoothing`` columns of
+    the window's edges (no listed point reads them: its margin) and lets XLA
+    fuse the pad into the row sums (no slice and concatenate kernels).
     """
     if smoothing == 0:
         def raw(meas, e_th, e_ph, ab):
@@ -449,17 +457,18 @@ def _smoothed_cells(slopes, smoothing: int, token):
         return stage(raw, slopes[:4], token)
     half = smoothing
 
-    def weighted_padded(meas, e_th, e_ph, ab, full):
+    def weighted(meas, e_th, e_ph, ab, full):
         nx, ny, nz = _normal_of_slopes(meas, e_th, e_ph, ab)
-        return tuple(wrap_pad_slices(a, half, 0.0) for a in (jax.lax.complex(nx * full, ny * full), nz * full))
+        return jax.lax.complex(nx * full, ny * full), nz * full
 
     def vertical(*horiz):
         sxy, sz = _column_box_sums(horiz, half)
         _, nx, ny, nz = _normalise(jnp.real(sxy), jnp.imag(sxy), sz, True)
         return jax.lax.complex(nx, ny), nz
 
-    padded = stage(weighted_padded, slopes, token)
-    horiz = stage(lambda *p: _row_box_sums(p, half), padded, token)
+    cells = stage(weighted, slopes, token)
+    pad = (lambda x: wrap_pad_slices(x, half, 0.0)) if wrap else (lambda x: jnp.pad(x, half))
+    horiz = stage(lambda *c: _row_box_sums(tuple(pad(x) for x in c), half), cells, token)
     return stage(vertical, horiz, token)
 
 

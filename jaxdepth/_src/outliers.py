@@ -357,19 +357,21 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
+    # The stages' token: the depth's bits, as Step 1's and the tail's fences' (one predicate kernel for all)
+    token = jax.lax.bitcast_convert_type(jnp.ravel(depth)[0], jnp.int32)
     if b is not None:
         if columns is None:
             columns = pack_columns((depth > 0) & jnp.isfinite(depth))
-        keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), bounds.n_points)[0]
-        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (keys,), bounds.n_points)[0]
-        low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), bounds.n_points)[0]
+        keys = stage(lambda d: (_block_keys(d, block=b),), (depth,), token)[0]
+        low = stage(lambda x: (_block_rows(x, half=-(-hh // b), hw=hw, width=width),), (keys,), token)[0]
+        low = stage(lambda k, x: (_window_min(x, k, hw=hw, width=width),), (bounds.k_max, low), token)[0]
         # fenced: XLA fused the words (with the columns' packing) into each of the compaction's three readers
         return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, keys, columns, eps),
-                     bounds.n_points)
-    padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), bounds.n_points)[0]
-    low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), bounds.n_points)[0]
+                     token)
+    padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), token)[0]
+    low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), token)[0]
     return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
-                 (bounds.k_max, low, padded, eps), bounds.n_points)
+                 (bounds.k_max, low, padded, eps), token)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))

@@ -95,10 +95,12 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
                                     points_cam=points_cam, image_size=image_size)
     # Stage fences (real buffers): XLA would otherwise fuse each producer into
     # its consumers and re-run it there (the mask into every step of the
-    # distance transform's loops, the offsets into every gather).
-    keep, = fence(keep)
+    # distance transform's loops, the offsets into every gather). Their token is the depth's, as Step 1's
+    # stages' (one predicate kernel for all of them, not one per fence).
+    token = jax.lax.bitcast_convert_type(jnp.ravel(sparse_depth)[0].astype(jnp.float32), jnp.int32)
+    keep, = fence(keep, token=token)
     seeds = _seeds(keep, image, config)
-    du, dv = fence(seeds.du, seeds.dv)
+    du, dv = fence(seeds.du, seeds.dv, token=token)
     seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
                               min_abs_denom=config.min_abs_denom,

@@ -67,10 +67,12 @@ class _PixelPoints(NamedTuple):
     zr: jax.Array  # complex64 (z, range r), metres; r = 0 for no point
     slot: jax.Array  # int32 flat window cell row * window_cols + col; L window_cols for none / outside
     key: jax.Array  # int32 range bits; INT32_MAX for no point
-    edge: jax.Array  # bool: a point within `margin` columns of the window's edges or of the seam (or outside it)
+    edge: jax.Array | None  # bool: a point within `margin` columns of the window's edges or of the seam (or outside
+    # it); None when such points were sent to the dump slot instead (``dump_edge``)
 
 
-def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_cols: int, margin: int):
+def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_cols: int, margin: int,
+                  dump_edge: bool = False):
     """Per listed pixel: back-projected LiDAR-frame point, range-image window cell and scatter key.
 
     Args:
@@ -80,6 +82,9 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
       col0: int32 first range-image column of the window (0 for the whole image).
       margin: static number of columns a point must keep from the window's edges and from the
         360-degree seam when the window spans it.
+      dump_edge: static; points that do not keep it go to the dump slot (``edge`` is None): the
+        range image is then exact only when no point did, which the dump slot's key tells
+        (:func:`window_range_image`), so the fit test needs no reduction of its own.
 
     Returns a :class:`_PixelPoints`. The float32 expressions are those of
     :func:`~jaxdepth._src.range_image.range_image` applied to ``unproject_depth`` + ``transform_points``.
@@ -116,50 +121,59 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
         seam = n_cols - col0
         near_seam = (col >= seam - margin) & (col < seam + margin)
         edge = ok & ((col < margin) | (col >= window_cols - margin) | near_seam)
+        if dump_edge:
+            return jnp.where(edge, n_win, slot), key
         return slot, key, edge
 
     thph, xy, zr = stage(per_point, (pix, depth, K, T), token)
-    return _PixelPoints(thph, xy, zr, *stage(binning, (thph, zr, col0), token))
+    binned = stage(binning, (thph, zr, col0), token)
+    return _PixelPoints(thph, xy, zr, *binned, *((None,) if dump_edge else ()))
 
 
 def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpec, window_cols: int,
-                             smoothing: int, fill_max_gap: int, identity: bool):
+                             smoothing: int, fill_max_gap: int, identity: bool, with_dump: bool = False):
     """Camera-frame (3, H, W) normals of the listed pixels (from :func:`_pixel_points`), zeros elsewhere.
 
     Every point's cell must lie in the window ``col0 .. col0 + window_cols - 1``
     (mod C) at least ``max(1 + fill_max_gap, smoothing)`` columns from its edges
     (unless the window is the whole image): then the neighbour search and the
     smoothing never reach the edges and the result equals that of the whole
-    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter).
+    range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter). ``with_dump``:
+    returns ``(normals, dump_key)`` (:func:`window_range_image`).
     """
     slot, key = pts.slot, pts.key
     ok = key != jnp.iinfo(jnp.int32).max
     n_cols = lidar.columns
     window = None if window_cols == n_cols else (col0, n_cols)
-    ri = window_range_image(pts, col0, token, lidar=lidar, window_cols=window_cols)
+    ri, dump_key = window_range_image(pts, col0, token, lidar=lidar, window_cols=window_cols, with_dump=True)
     # Points only sit in measured cells, so the filling of empty cells is skipped.
-    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window)
+    nxy, nz = cell_normals(ri, smoothing, fill_max_gap, window, token)
     xyz = (jnp.real(pts.xy), jnp.imag(pts.xy), jnp.real(pts.zr))
     px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
     n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
     h, w = shape
     if identity:
-        return n_cam.reshape(3, h, w)
-    out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
-    return out.reshape(3, h, w)
+        out = n_cam.reshape(3, h, w)
+    else:
+        out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
+        out = out.reshape(3, h, w)
+    return (out, dump_key) if with_dump else out
 
 
-def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, window_cols: int) -> RangeImage:
+def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, window_cols: int,
+                       with_dump: bool = False) -> RangeImage:
     """The (L, window_cols) range image of the listed points (from :func:`_pixel_points`): per cell the
     nearest point's range and angles and its index (-1 and the cell centre's angles where none; ``cell``
     empty). Nearest range wins a cell (scatter-min of the range bits), ties the smaller point index = the
-    smaller pixel index (points are listed in pixel order)."""
+    smaller pixel index (points are listed in pixel order). ``with_dump``: returns ``(image, dump_key)``,
+    the smallest key of the points without a cell (``INT32_MAX`` when none is a point)."""
     n_pts = pts.slot.shape[0]
     n_rows = lidar.beams
     # Slot L window_cols collects points without a cell.
-    _, idx = scatter_argmin(pts.slot, pts.key, n_rows * window_cols, fill=jnp.iinfo(jnp.int32).max)
+    best, idx = scatter_argmin(pts.slot, pts.key, n_rows * window_cols, fill=jnp.iinfo(jnp.int32).max, full=True)
 
     def per_cell(idx, thph, zr, col0):
+        idx = idx[:-1]  # (the dump slot; sliced here, not in a kernel of its own)
         has = idx < n_pts
         safe = jnp.where(has, idx, 0)
         theta_c, phi_c = cell_centres(lidar)
@@ -174,7 +188,8 @@ def window_range_image(pts: _PixelPoints, col0, token, *, lidar: LidarSpec, wind
                 jnp.where(has, idx, -1).reshape(img_shape))
 
     r_img, th_img, ph_img, index = stage(per_cell, (idx, pts.thph, pts.zr, col0), token)
-    return RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
+    ri = RangeImage(r=r_img, theta=th_img, phi=ph_img, index=index, cell=jnp.zeros((0,), jnp.int32))
+    return (ri, best[-1]) if with_dump else ri
 
 
 def default_window_columns(lidar: LidarSpec) -> int:
@@ -306,11 +321,14 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
         fits = total <= capacity
     else:
         col0 = _window_start(K, T, h, w, lidar, wc)
-    pts = _pixel_points(pix, depth, K, T, col0, token, lidar=lidar, window_cols=wc, margin=margin)
-    if wc < n_cols:
-        # Every point must lie at least `margin` columns inside the window:
-        # then the neighbour search and the smoothing never reach its edges
-        # and the window gives exactly the whole image's normals.
+    # Every point must lie at least `margin` columns inside the window: then the neighbour search and the
+    # smoothing never reach its edges and the window gives exactly the whole image's normals. The listed
+    # program alone sends the points that do not to the range image's dump slot and reads that slot's key
+    # (no reduction of its own: four kernels fewer); the fallback's choice needs the test before its branch.
+    dump_edge = listed_only and wc < n_cols
+    pts = _pixel_points(pix, depth, K, T, col0, token, lidar=lidar, window_cols=wc, margin=margin,
+                        dump_edge=dump_edge)
+    if wc < n_cols and not dump_edge:
         fits = (total <= capacity) & ~any_true(pts.edge)  # (a bool any: a large kernel)
 
     def listed(pix, col0, R, depth, K, T, *pts):
@@ -322,5 +340,9 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
         return dense(depth, K, T)
 
     if listed_only:
-        return listed(pix, col0, R, depth, K, T, *pts), fits
+        normals, dump_key = _pixel_normals_of_points(pix, pts, col0, R, (h, w), token, window_cols=wc,
+                                                     identity=False, with_dump=True, **options)
+        if dump_edge:  # no point in the dump slot: every point kept the margin (and had a cell)
+            fits = (total <= capacity) & (dump_key == jnp.iinfo(jnp.int32).max)
+        return normals, fits
     return cond_all(fits, listed, fallback, pix, col0, R, depth, K, T, *pts)
