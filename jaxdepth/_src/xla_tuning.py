@@ -52,8 +52,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
 * **Column reductions in a row loop** (:func:`first_row_and_count`). XLA:CPU reduces an (H, W) array over
   H > 32 rows by reduce-windows that read it from a buffer, so their producer (a select, a convert of a
   mask) is written out whole first; one loop over the rows reads each row once and writes nothing
-  image-sized (the capped plane's top scan line and point count: 0.93x the Argoverse 2 tail's CPU with
-  the window fences below, docs/speed.md "The capped plane on the Argoverse 2 job"). Plain: a min and a sum.
+  image-sized (the capped plane's top scan line and point count; with its window rows fenced, the Argoverse 2
+  tail under ``capped`` 0.70x main's CPU, docs/speed.md "The capped plane on the Argoverse 2 job"). Plain: a
+  min and a sum.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
