@@ -47,16 +47,17 @@ def _copy_as_base(checkout: pathlib.Path, folder: pathlib.Path) -> None:
     sys.path.insert(0, str(folder))
 
 
-def _program(package: str, case: str, depth_only: bool, stages: bool = False):
+def _program(package: str, case: str, depth_only: bool, stages: bool = False, above_scan=None):
     """``(compiled program, args, real pixels)`` of ``case`` with the library ``package``; with ``stages``, a
     dict of them, one per stage program (``projection``, ``keep``, ``tail``; the tail's ``depth`` alone with
-    ``depth_only``), each on the previous stages' outputs of the same library."""
+    ``depth_only``), each on the previous stages' outputs of the same library. ``above_scan``: that
+    ``SGMConfig.above_scan`` (None: the library's default)."""
     import jax
 
     from benchmarks.bench_rigs import AV2_LOG, NUSCENES
     lib = importlib.import_module(package)
     R, S = (importlib.import_module(f"{package}._src.{m}") for m in ("rig", "sources"))
-    config = lib.SGMConfig()
+    config = lib.SGMConfig() if above_scan is None else lib.SGMConfig(above_scan=above_scan)
     if case == "av2":
         av2 = importlib.import_module(f"{package}.io.av2")
         jobs = importlib.import_module(f"{package}.batch.sources_job")

@@ -81,6 +81,7 @@ def test_mode_comes_from_the_environment_and_set_mode(monkeypatch):
 
 
 def test_helpers_reduce_to_the_plain_computation():
+    import jax
     import jax.numpy as jnp
     a, b = jnp.arange(6.0), -jnp.arange(6.0)
     index = jnp.array([5, 0, 2])
@@ -97,6 +98,12 @@ def test_helpers_reduce_to_the_plain_computation():
             for mask in (jnp.zeros((3, 40), bool), jnp.zeros((3, 40), bool).at[2, 39].set(True), jnp.ones(5, bool),
                          jnp.zeros((0,), bool)):
                 assert bool(xla_tuning.any_true(mask)) == bool(np.any(np.asarray(mask)))
+            rng = np.random.default_rng(3)     # first True row per column (H where none) and count: NumPy's
+            mask, valid = rng.random((2, 3, 37, 29)) < np.array([0.05, 0.3])[:, None, None, None]
+            mask[0] = False
+            first, count = jax.vmap(xla_tuning.first_row_and_count)(jnp.asarray(mask), jnp.asarray(valid))
+            np.testing.assert_array_equal(first, np.where(mask.any(1), mask.argmax(1), 37))
+            np.testing.assert_array_equal(count, valid.sum((1, 2)))
 
 
 def test_entry_jit_compiles_with_the_options_at_the_top_level_only():

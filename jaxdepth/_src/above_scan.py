@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.xla_tuning import fence, first_row_and_count
 
 _DEFAULTS = DEFAULT_CONFIG
 
@@ -74,7 +75,8 @@ def _shift_columns(x: jax.Array, k: int, fill) -> jax.Array:
     return jnp.concatenate([pad, x[:, :k]], axis=1)
 
 
-def paper_half_width(valid: jax.Array, *, beams: int, max_half_width_px: int, image_width=None) -> jax.Array:
+def paper_half_width(valid: jax.Array, *, beams: int, max_half_width_px: int, image_width=None,
+                     n_points=None) -> jax.Array:
     """Largest ``|du|`` of the paper's window ``|du| < W L / N`` (int32, traced), capped.
 
     Args:
@@ -83,9 +85,10 @@ def paper_half_width(valid: jax.Array, *, beams: int, max_half_width_px: int, im
       max_half_width_px: static cap (``SGMConfig.outlier_max_half_width_px``).
       image_width: optional traced int32 w: the image is the left w columns of ``valid`` (a
         rig's canvas); W is then w (the cap stays the canvas's: columns past the image are empty).
+      n_points: optional traced int32 N, the count of ``valid`` when the caller has it.
     """
     width = valid.shape[1]
-    n_points = jnp.sum(valid, dtype=jnp.int32)
+    n_points = jnp.sum(valid, dtype=jnp.int32) if n_points is None else n_points
     wl = width * beams if image_width is None else jnp.asarray(image_width, jnp.int32) * beams
     return jnp.where(n_points > 0, jnp.minimum((wl - 1) // jnp.maximum(n_points, 1),
                                                min(max_half_width_px, width - 1)), 0)
@@ -113,11 +116,12 @@ def background_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, keep: jax
       ``seed_depth`` over the row's pixels with ``|du| < W L / N``.
     """
     height, width = depth_raw.shape
+    top, n_points = _top_line_and_count(keep, valid)
     k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
-                             image_width=None if image_size is None else image_size[1])
+                             image_width=None if image_size is None else image_size[1], n_points=n_points)
     if image_size is not None:      # the seeds of the canvas's padding columns are no part of the image
         seed_depth = jnp.where(jnp.arange(width)[None, :] < image_size[1], seed_depth, 0.0)
-    top_window, farthest = _window_top_and_farthest(_top_line(keep), seed_depth, height=height, k_max=k_max,
+    top_window, farthest = _window_top_and_farthest(top, seed_depth, height=height, k_max=k_max,
                                                     max_half_width_px=max_half_width_px)
     rows = jnp.arange(height, dtype=jnp.int32)[:, None]
     return jnp.where((rows < top_window) & (seed_depth > 0), farthest, depth_raw)
@@ -160,9 +164,10 @@ def capped_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, seed_normal: 
       (H, W) float32 metres: ``depth_raw`` except above the top scan line where ``|dv| > R``.
     """
     height, width = depth_raw.shape
+    top, n_points = _top_line_and_count(keep, valid)
     k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
-                             image_width=None if image_size is None else image_size[1])
-    top_window, _ = _window_top_and_farthest(_top_line(keep), jnp.zeros((1, width), jnp.float32), height=height,
+                             image_width=None if image_size is None else image_size[1], n_points=n_points)
+    top_window, _ = _window_top_and_farthest(top, jnp.zeros((1, width), jnp.float32), height=height,
                                              k_max=k_max, max_half_width_px=max_half_width_px)
     K = jnp.asarray(K, jnp.float32)
     fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -180,9 +185,13 @@ def capped_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, seed_normal: 
     return jnp.where(capped, z, depth_raw)
 
 
-def _top_line(mask: jax.Array) -> jax.Array:
-    """(1, W) int32: each column's first True row of an (H, W) mask (H where none)."""
-    return jnp.where(jnp.any(mask, axis=0), jnp.argmax(mask, axis=0), mask.shape[0]).astype(jnp.int32)[None, :]
+def _top_line_and_count(mask: jax.Array, valid: jax.Array):
+    """``(top, N)``: each column's first True row of an (H, W) bool ``mask`` ((1, W) int32, H where none) and N,
+    the int32 count of an (H, W) bool ``valid``.
+
+    XLA:CPU: one loop over the rows (``xla_tuning.first_row_and_count``), no image-sized buffer written."""
+    first, n_points = first_row_and_count(mask, valid)
+    return first[None, :], n_points
 
 
 def _window_top_and_farthest(top: jax.Array, depth: jax.Array, *, height: int, k_max, max_half_width_px: int):
@@ -196,7 +205,10 @@ def _window_top_and_farthest(top: jax.Array, depth: jax.Array, *, height: int, k
         for s in (k, -k):
             top_window = jnp.where(on, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
             farthest = jnp.where(on, jnp.maximum(farthest, _shift_columns(depth, s, 0.0)), farthest)
-    return top_window, farthest
+    # XLA:CPU: the (1, W) rows as buffers, else the window's shifts are fused into every pixel of an (H, W) consumer
+    if farthest.shape[0] == 1:
+        return fence(top_window, farthest)
+    return fence(top_window)[0], farthest
 
 
 def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon_m: float = _DEFAULTS.epsilon_m,
@@ -221,8 +233,9 @@ def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon
       image_width: optional traced int32 w, the image's width on a rig's canvas.
     """
     height = reference.shape[0]
-    k_max = paper_half_width(reference, beams=beams, max_half_width_px=max_half_width_px, image_width=image_width)
-    top = _top_line(reference)
+    top, n_points = _top_line_and_count(reference, reference)
+    k_max = paper_half_width(reference, beams=beams, max_half_width_px=max_half_width_px, image_width=image_width,
+                             n_points=n_points)
     top_depth = jnp.take_along_axis(jnp.where(reference, depth, 0.0), jnp.minimum(top, height - 1), axis=0)
     top_window, far = _window_top_and_farthest(top, top_depth, height=height, k_max=k_max,
                                                max_half_width_px=max_half_width_px)

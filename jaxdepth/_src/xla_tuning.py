@@ -49,6 +49,12 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   batch program 0.96-1.00x (docs/speed.md, "Step 2's dense passes and the KITTI job's programs"). A compile
   option, not an ``XLA_FLAGS`` setting: only the programs it is given see it, and backends other than
   XLA:CPU do not read it, so it holds in both modes.
+* **Column reductions in a row loop** (:func:`first_row_and_count`). XLA:CPU reduces an (H, W) array over
+  H > 32 rows by reduce-windows that read it from a buffer, so their producer (a select, a convert of a
+  mask) is written out whole first; one loop over the rows reads each row once and writes nothing
+  image-sized (the capped plane's top scan line and point count; with its window rows fenced, the Argoverse 2
+  tail under ``capped`` 0.70x main's CPU, docs/speed.md "The capped plane on the Argoverse 2 job"). Plain: a
+  min and a sum.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -290,6 +296,23 @@ def any_true(mask: jax.Array) -> jax.Array:
     if not enabled():
         return jnp.any(mask)
     return jnp.max(mask.astype(jnp.int32), initial=0) > 0
+
+
+def first_row_and_count(mask: jax.Array, valid: jax.Array) -> tuple:
+    """``(first, n)``: each column's first True row of an (H, W) bool ``mask`` ((W,) int32, H where none) and
+    the int32 count of the True pixels of an (H, W) bool ``valid``; one loop over the rows (tricks on)."""
+    height, width = mask.shape
+    if not enabled():
+        rows = jnp.arange(height, dtype=jnp.int32)[:, None]
+        return jnp.min(jnp.where(mask, rows, height), axis=0), jnp.sum(valid, dtype=jnp.int32)
+
+    def row(v, carry):
+        first, count = carry
+        return jnp.minimum(first, jnp.where(mask[v], v, height)), count + valid[v].astype(jnp.int32)
+
+    first, count = jax.lax.fori_loop(0, height, row, (jnp.full((width,), height, jnp.int32),
+                                                       jnp.zeros((width,), jnp.int32)))
+    return first, jnp.sum(count)
 
 
 def wrap_pad(a: jax.Array, k: int, fill, *, seam=None) -> jax.Array:
