@@ -97,8 +97,10 @@ def settings_of(config, *, method: str, extras=None, **options) -> dict:
 
 def lidars_above_scan(mode: str, *, lidars: int) -> str:
     """The ``above_scan`` rule a run with ``lidars`` LiDARs per sweep uses, recorded in place of ``"auto"``
-    (:func:`jaxdepth._src.above_scan.above_scan_rule` for LiDARs scanning in lines: ``"capped"`` from two)."""
-    return mode if mode != "auto" else ("capped" if int(lidars) >= 2 else "plane")
+    (:func:`jaxdepth._src.above_scan.above_scan_rule` of one sweep of ``lidars`` LiDARs scanning in lines)."""
+    from jaxdepth._src.above_scan import above_scan_rule
+    n = int(lidars)
+    return above_scan_rule(mode, sweep=(0,) * n, lidars=(None,) * n)
 
 
 def rig_above_scan(mode: str, rig_path) -> str:
