@@ -229,6 +229,27 @@ def test_capped_matches_the_per_pixel_oracle(points, rows_px):
     assert (np.abs(args[4])[changed] > rows_px).all()
 
 
+def test_capped_builds_the_window_top_line_alone():
+    """The capped rule reads the window's top scan line only: its program (tricks on, as on CPU) holds the
+    windowed minimum of the (1, W) int32 top line and no windowed maximum of a (1, W) float32 row (the
+    background rule's farthest seed, which it never reads), and fences that one row alone; the values are
+    the oracle's (test above)."""
+    from jaxdepth._src import xla_tuning
+    args = tuple(map(jnp.asarray, capped_inputs(200)))
+    width = args[0].shape[1]
+
+    def row_ops(jaxpr, name, dtype):
+        return sum(e.primitive.name == name and any(tuple(v.aval.shape) == (1, width) and v.aval.dtype == dtype
+                                                    for v in e.outvars) for e in jaxpr.eqns)
+
+    with xla_tuning.forced("cpu"):
+        jaxpr = jax.make_jaxpr(functools.partial(capped_above_scan, beams=16, rows_px=3.0))(*args).jaxpr
+    assert row_ops(jaxpr, "min", jnp.int32) >= 2          # |du| = 1 on both sides at least
+    assert row_ops(jaxpr, "max", jnp.float32) == 0
+    fenced = [e for e in jaxpr.eqns if e.primitive.name in ("custom_vmap_call", "custom_jvp_call", "cond")]
+    assert [[(tuple(v.aval.shape), v.aval.dtype) for v in e.outvars] for e in fenced] == [[((1, width), jnp.int32)]]
+
+
 def test_capped_holds_a_tilted_plane_one_scan_line_above_its_seed():
     """A plane seen by the camera at depths 1/(0.2 + 0.015 (v - 10)) m (tilted about the x axis), scanned
     on rows 12, 15 and 18 of every column, each pixel above seeded from row 12 straight below it and
