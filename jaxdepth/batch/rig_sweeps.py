@@ -7,8 +7,9 @@ bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runn
 reader threads read and check the next sweeps while the current one computes, writer threads encode
 and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
 reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
-above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`). The run record (:mod:`jaxdepth.batch.run_record`) lists
-every output with its inputs, so a re-run skips what is done and redoes what changed.
+above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`).
+The run record (:mod:`jaxdepth.batch.run_record`) lists every output with its inputs, so a re-run skips
+what is done and redoes what changed.
 
 The rig's shapes do not change between sweeps, so the whole run uses one compiled program as long as
 the sweeps fall in one point bucket (:func:`jaxdepth.io.bucket_size`) and the LiDAR check keeps one
