@@ -42,9 +42,9 @@ def cmd_complete_rig(args) -> int:
         print("jaxdepth: error: --guidance-weight takes one sweep per call (the camera images belong to one sweep)",
               file=sys.stderr)
         return 2
+    # above_scan: the jobs read the rig JSON (once) and record the rule its sweeps resolve (run_record.rig_above_scan)
     settings = run_record.settings_of(config_from(args), method=args.method, extras=extras_from(args),
-                                      estimate=not args.no_estimate,
-                                      above_scan=run_record.rig_above_scan(config_from(args).above_scan, args.rig))
+                                      estimate=not args.no_estimate)
     record = run_record.make_record(settings, inputs=[args.points, args.rig],
                                     command=getattr(args, "command_line", None))
     if sweeps is not None:

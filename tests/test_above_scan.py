@@ -229,6 +229,27 @@ def test_capped_matches_the_per_pixel_oracle(points, rows_px):
     assert (np.abs(args[4])[changed] > rows_px).all()
 
 
+def test_capped_builds_the_window_top_line_alone():
+    """The capped rule reads the window's top scan line only: its program (tricks on, as on CPU) holds the
+    windowed minimum of the (1, W) int32 top line and no windowed maximum of a (1, W) float32 row (the
+    background rule's farthest seed, which it never reads), and fences that one row alone; the values are
+    the oracle's (test above)."""
+    from jaxdepth._src import xla_tuning
+    args = tuple(map(jnp.asarray, capped_inputs(200)))
+    width = args[0].shape[1]
+
+    def row_ops(jaxpr, name, dtype):
+        return sum(e.primitive.name == name and any(tuple(v.aval.shape) == (1, width) and v.aval.dtype == dtype
+                                                    for v in e.outvars) for e in jaxpr.eqns)
+
+    with xla_tuning.forced("cpu"):
+        jaxpr = jax.make_jaxpr(functools.partial(capped_above_scan, beams=16, rows_px=3.0))(*args).jaxpr
+    assert row_ops(jaxpr, "min", jnp.int32) >= 2          # |du| = 1 on both sides at least
+    assert row_ops(jaxpr, "max", jnp.float32) == 0
+    fenced = [e for e in jaxpr.eqns if e.primitive.name in ("custom_vmap_call", "custom_jvp_call", "cond")]
+    assert [[(tuple(v.aval.shape), v.aval.dtype) for v in e.outvars] for e in fenced] == [[((1, width), jnp.int32)]]
+
+
 def test_capped_holds_a_tilted_plane_one_scan_line_above_its_seed():
     """A plane seen by the camera at depths 1/(0.2 + 0.015 (v - 10)) m (tilted about the x axis), scanned
     on rows 12, 15 and 18 of every column, each pixel above seeded from row 12 straight below it and
@@ -291,26 +312,107 @@ def test_auto_rule_is_capped_for_a_reference_sweep_of_several_line_scanning_lida
 
 
 def test_run_record_holds_the_rule_the_run_uses(tmp_path):
-    """The run record holds the rule, not "auto": "plane" for one LiDAR, "capped" for a rig of two LiDARs,
-    an explicit choice as given."""
+    """The run record holds the rule, not "auto": "plane" for one LiDAR, "capped" for a rig of two LiDARs that
+    state their scan lines, undecided (None) without a sweep when they state none, an explicit choice as given."""
     import json
 
     from jaxdepth.batch import run_record
+    from jaxdepth.io import read_rig_json
     rig = {"lidar": {"beams": 32, "fov_up_deg": 10.0, "fov_down_deg": -25.0, "columns": 1024},
            "cameras": [{"name": "cam", "width": 64, "height": 48, "K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]],
                         "T_cam_lidar": np.eye(4).tolist()}]}
     (tmp_path / "one.json").write_text(json.dumps(rig))
     rig["lidars"] = [{"name": n, "T_points_lidar": np.eye(4).tolist()} for n in ("up", "down")]
     rig["columns"] = ["x", "y", "z", "lidar"]
+    (tmp_path / "open.json").write_text(json.dumps(rig))
+    for lidar in rig["lidars"]:
+        lidar["beams"] = 32
     (tmp_path / "two.json").write_text(json.dumps(rig))
+    one, two, open_ = (read_rig_json(tmp_path / f"{n}.json") for n in ("one", "two", "open"))
     config = jaxdepth.SGMConfig()
     assert run_record.settings_of(config, method="sgm")["above_scan"] == "plane"
     assert run_record.settings_of(config.replace(above_scan="background"), method="sgm")["above_scan"] == "background"
-    assert run_record.rig_above_scan("auto", tmp_path / "one.json") == "plane"
-    assert run_record.rig_above_scan("auto", tmp_path / "two.json") == "capped"
-    assert run_record.rig_above_scan("plane", tmp_path / "two.json") == "plane"
-    assert run_record.settings_of(config, method="sgm", above_scan=run_record.rig_above_scan(
-        "auto", tmp_path / "two.json"))["above_scan"] == "capped"
+    assert run_record.rig_above_scan("auto", one) == "plane"
+    assert run_record.rig_above_scan("auto", two) == "capped"
+    assert run_record.rig_above_scan("auto", open_) is None
+    assert run_record.rig_above_scan("plane", two) == "plane" and run_record.rig_above_scan("capped", open_) == "capped"
+
+
+def _two_lidar_rig(tmp_path, *, stated: bool, sweep: str = "sweep.bin", on_grid: bool = False):
+    """A rig JSON of two LiDARs 0.6 m apart looking along +x at a wall 20 m ahead and a point file ``sweep``
+    (x, y, z, lidar): each LiDAR's 8000 points uniform in a 35 deg cone (a rosette's scan: no laser rows), or
+    ``on_grid`` one point in every cell of the rig's 64 x 2048 grid within 30 deg (rows and columns), its spec
+    stated (``beams``: a spinning LiDAR's rows) or not (the rig's grid its fallback)."""
+    import json
+    poses = [np.eye(4), np.eye(4)]
+    poses[1][1, 3] = 0.6
+    rng = np.random.default_rng(5)
+    points = []
+    for i, T in enumerate(poses):
+        if on_grid:
+            el, az = np.meshgrid(np.radians(35.0 - 70.0 / 64 * (np.arange(64) + 0.5)),
+                                 2 * np.pi / 2048 * (np.arange(-170, 171) + 0.5), indexing="ij")
+            keep = np.abs(el.ravel()) < np.radians(30.0)
+            ray = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)[keep]
+        else:
+            cos_t = 1.0 - rng.random(8000) * (1.0 - np.cos(np.radians(35.0)))
+            phi, sin_t = rng.random(8000) * 2 * np.pi, np.sqrt(1.0 - cos_t ** 2)
+            ray = np.stack([cos_t, sin_t * np.cos(phi), sin_t * np.sin(phi)], 1)
+        local = ray * (20.0 / ray[:, :1])
+        points.append(np.column_stack([local + T[:3, 3], np.full(len(local), i)]))
+    np.concatenate(points).astype(np.float32).tofile(tmp_path / sweep)
+    lidars = [{"name": f"unit{i}", "T_points_lidar": T.tolist()} for i, T in enumerate(poses)]
+    if stated:
+        for lidar in lidars:
+            lidar.update(beams=64, fov_up_deg=35.0, fov_down_deg=-35.0)
+    K = [[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]]
+    cam_from_lidar = [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]]
+    rig = {"lidar": {"beams": 64, "fov_up_deg": 35.0, "fov_down_deg": -35.0, "columns": 2048}, "lidars": lidars,
+           "columns": ["x", "y", "z", "lidar"],
+           "cameras": [{"name": "front", "width": 160, "height": 120, "K": K, "T_cam_lidar": cam_from_lidar}]}
+    (tmp_path / "rig.json").write_text(json.dumps(rig))
+    return tmp_path / sweep, tmp_path / "rig.json"
+
+
+def _rules_the_pipeline_resolves(monkeypatch):
+    """``(ran, reads)``: the multi-source program replaced by run_sources_stages with its stages stubbed (no
+    JAX; zero depth), ``ran`` the above-scan rule of each tail it configured; ``reads`` each rig JSON read."""
+    from jaxdepth._src import sources as S
+    from jaxdepth.batch import program_cache
+    from jaxdepth.io import rig as rig_io
+    ran, reads = [], []
+
+    def stages(sources, cameras, *, config, beams=None, seen=False, **options):
+        def call(stage, *args, **statics):
+            if stage is S.sources_stage_tail:
+                ran.append(statics["config"].above_scan)
+        S.run_sources_stages(sources, cameras, config=config, free_space=True,
+                             beams=beams or S.default_beams(sources), call=call)
+        depth = np.zeros((cameras.K.shape[0], 120, 160), np.float32)
+        return (depth, np.ones(cameras.K.shape[0], np.int64)) if seen else depth
+
+    read = rig_io.read_rig_json
+    monkeypatch.setattr(program_cache, "sources_stages", stages)
+    for module in (jaxdepth.io, rig_io):         # the names the CLI, the job and the record import it by
+        monkeypatch.setattr(module, "read_rig_json", lambda path: reads.append(path) or read(path))
+    return ran, reads
+
+
+@pytest.mark.parametrize("stated, rule", [(False, "plane"), (True, "capped")])
+def test_complete_rig_records_the_rule_its_sources_resolve(tmp_path, monkeypatch, stated, rule):
+    """complete-rig on two rosette LiDARs (no stated spec: each judged on a grid of its own points' spacing)
+    records "plane", on two LiDARs stating their scan lines "capped": each time the rule the multi-source
+    pipeline resolved for that sweep (run_sources_stages' tail config, its stages stubbed: no JAX), and
+    the rig JSON is read once."""
+    import json
+
+    from jaxdepth import cli
+    ran, reads = _rules_the_pipeline_resolves(monkeypatch)
+    sweep, rig = _two_lidar_rig(tmp_path, stated=stated)
+    assert cli.main(["complete-rig", str(sweep), str(rig), str(tmp_path / "out"), "-q"]) == 0
+    recorded = json.loads((tmp_path / "out" / "jaxdepth_run.json").read_text())["settings"]["above_scan"]
+    assert ran == [rule] and recorded == rule
+    assert len(reads) == 1
 
 
 @pytest.mark.slow  # four whole-pipeline programs (test_rig_sizes' edge rig)
@@ -332,3 +434,25 @@ def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_p
     np.testing.assert_array_equal(np.asarray(complete_sources(two, cams)), capped)
     plane = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="plane")))
     assert not np.array_equal(capped, plane)                 # the explicit plane is not the default's rule
+
+
+def test_complete_rig_sweeps_record_the_first_sweeps_rule_and_fail_a_sweep_that_resolves_another(tmp_path, monkeypatch,
+                                                                                                    capsys):
+    """complete-rig over a folder of sweeps whose LiDARs state no spec: the record holds the rule of the first
+    sweep (two rosettes: "plane", as the pipeline resolved it); a sweep whose points fill the rig's grid (its
+    LiDARs judged in lines: "capped") is not completed under that record: it fails, named."""
+    import json
+
+    from jaxdepth import cli
+    ran, reads = _rules_the_pipeline_resolves(monkeypatch)
+    (tmp_path / "sweeps").mkdir()
+    _two_lidar_rig(tmp_path / "sweeps", stated=False, sweep="a.bin")
+    _, rig = _two_lidar_rig(tmp_path / "sweeps", stated=False, sweep="b.bin", on_grid=True)
+    (tmp_path / "rig.json").write_text(rig.read_text())
+    rig.unlink()
+    code = cli.main(["complete-rig", str(tmp_path / "sweeps"), str(tmp_path / "rig.json"), str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    recorded = json.loads((tmp_path / "out" / "jaxdepth_run.json").read_text())["settings"]["above_scan"]
+    assert code == 1 and ran == ["plane"] and recorded == "plane" and len(reads) == 1
+    assert "b.bin" in err and "'capped'" in err and (tmp_path / "out" / "a" / "front.png").exists()
+    assert not (tmp_path / "out" / "b").exists()

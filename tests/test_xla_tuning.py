@@ -109,6 +109,41 @@ def test_helpers_reduce_to_the_plain_computation():
             np.testing.assert_array_equal(count, valid.sum((1, 2)))
 
 
+def test_stage_token_is_the_first_values_bits_and_the_only_one_written():
+    """stage_token: the int32 bits of the first value as float32 (NumPy's view; NaN, infinities, -0.0,
+    subnormals and other dtypes too), jit == eager, vmap == loop, a fence token in both modes; and no module
+    of jaxdepth writes the token out by hand (the stages' fences share one expression, so one predicate)."""
+    import pathlib
+    import re
+
+    import jax
+    import jax.numpy as jnp
+    firsts = [np.nan, np.inf, -np.inf, -0.0, 1e-45, -3.5, 95.8, 0.0]
+    for first in firsts:
+        x = np.full((3, 5), 7.25, np.float32)
+        x[0, 0] = first
+        want = int(x.reshape(-1)[:1].view(np.int32)[0])
+        assert int(xla_tuning.stage_token(x)) == want
+        assert int(jax.jit(xla_tuning.stage_token)(x)) == want
+        assert int(xla_tuning.stage_token(x[None])) == want and int(xla_tuning.stage_token(x[0])) == want
+    stack = np.random.default_rng(0).uniform(-5, 5, (len(firsts), 4, 6)).astype(np.float32)
+    stack[:, 0, 0] = firsts
+    np.testing.assert_array_equal(jax.vmap(xla_tuning.stage_token)(stack),
+                                  [int(xla_tuning.stage_token(s)) for s in stack])
+    for other in (np.float64(2.5), np.int32(3), np.float16(-1.5)):       # converted to float32 first
+        assert int(xla_tuning.stage_token(np.asarray([other]))) == int(np.float32(other).view(np.int32))
+    for mode in ("cpu", "plain"):
+        with xla_tuning.forced(mode):
+            x = jnp.asarray(stack[0])
+            out = xla_tuning.stage(lambda a: (a * 2.0,), (x,), xla_tuning.stage_token(x))[0]
+            np.testing.assert_array_equal(out, stack[0] * 2.0)
+    package = pathlib.Path(jaxdepth.__file__).parent
+    by_hand = re.compile(r"bitcast_convert_type\(\s*(jnp\.ravel\([^)]*\)\[0\]|\w+\[0, 0\])")
+    written = [str(f.relative_to(package)) for f in package.rglob("*.py")
+               if f.name != "xla_tuning.py" and by_hand.search(f.read_text())]
+    assert written == []
+
+
 def test_entry_jit_compiles_with_the_options_at_the_top_level_only():
     """entry_jit: a top-level call compiles with COMPILER_OPTIONS (fewer copies in an in-place loop than
     the plain jit's program); JAX rejects the options on a nested jit, so a call inside jit / vmap takes

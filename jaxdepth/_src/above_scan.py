@@ -167,8 +167,7 @@ def capped_above_scan(depth_raw: jax.Array, seed_depth: jax.Array, seed_normal: 
     top, n_points = _top_line_and_count(keep, valid)
     k_max = paper_half_width(valid, beams=beams, max_half_width_px=max_half_width_px,
                              image_width=None if image_size is None else image_size[1], n_points=n_points)
-    top_window, _ = _window_top_and_farthest(top, jnp.zeros((1, width), jnp.float32), height=height,
-                                             k_max=k_max, max_half_width_px=max_half_width_px)
+    top_window = _window_top(top, height=height, k_max=k_max, max_half_width_px=max_half_width_px)
     K = jnp.asarray(K, jnp.float32)
     fu, fv, pu, pv = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     v = jnp.arange(height, dtype=jnp.float32)[:, None]
@@ -194,21 +193,36 @@ def _top_line_and_count(mask: jax.Array, valid: jax.Array):
     return first[None, :], n_points
 
 
-def _window_top_and_farthest(top: jax.Array, depth: jax.Array, *, height: int, k_max, max_half_width_px: int):
-    """Over the columns within ``|du| <= k_max`` of each column (the paper's window; ``k_max`` traced,
-    at most the static ``max_half_width_px``): the highest top-line row of ``top`` ((1, W) int32, ``height``
-    where a column has none) and the largest ``depth`` ((1, W) or (H, W) float32 metres, 0 = none).
-    Returns ``(top_window, farthest)``, shaped as ``top`` and ``depth``."""
-    top_window, farthest = top, depth
-    for k in range(1, min(int(max_half_width_px), top.shape[1] - 1) + 1):
+def _window_extreme(row: jax.Array, *, fill, reduce, k_max, max_half_width_px: int) -> jax.Array:
+    """``reduce`` (``jnp.minimum`` / ``jnp.maximum``) of ``row`` ((1, W) or (H, W)) over the columns within
+    ``|du| <= k_max`` of each column (the paper's window; ``k_max`` traced, at most the static
+    ``max_half_width_px``), ``fill`` beyond the image's sides; shaped as ``row``."""
+    out = row
+    for k in range(1, min(int(max_half_width_px), row.shape[1] - 1) + 1):
         on = k <= k_max
         for s in (k, -k):
-            top_window = jnp.where(on, jnp.minimum(top_window, _shift_columns(top, s, height)), top_window)
-            farthest = jnp.where(on, jnp.maximum(farthest, _shift_columns(depth, s, 0.0)), farthest)
-    # XLA:CPU: the (1, W) rows as buffers, else the window's shifts are fused into every pixel of an (H, W) consumer
+            out = jnp.where(on, reduce(out, _shift_columns(row, s, fill)), out)
+    return out
+
+
+def _window_top(top: jax.Array, *, height: int, k_max, max_half_width_px: int) -> jax.Array:
+    """(1, W) int32: the highest top-line row of ``top`` ((1, W) int32, ``height`` where a column has none)
+    over the columns within ``|du| <= k_max`` of each column (:func:`_window_extreme`).
+
+    XLA:CPU: a buffer (fenced), else the window's shifts are fused into every pixel of an (H, W) consumer."""
+    return fence(_window_extreme(top, fill=height, reduce=jnp.minimum, k_max=k_max,
+                                 max_half_width_px=max_half_width_px))[0]
+
+
+def _window_top_and_farthest(top: jax.Array, depth: jax.Array, *, height: int, k_max, max_half_width_px: int):
+    """:func:`_window_top` of ``top`` and, over the same columns, the largest ``depth`` ((1, W) or (H, W)
+    float32 metres, 0 = none). Returns ``(top_window, farthest)``, shaped as ``top`` and ``depth``; a (1, W)
+    ``farthest`` is fenced with ``top_window`` (one conditional)."""
+    window = dict(k_max=k_max, max_half_width_px=max_half_width_px)
+    farthest = _window_extreme(depth, fill=0.0, reduce=jnp.maximum, **window)
     if farthest.shape[0] == 1:
-        return fence(top_window, farthest)
-    return fence(top_window)[0], farthest
+        return fence(_window_extreme(top, fill=height, reduce=jnp.minimum, **window), farthest)
+    return _window_top(top, height=height, **window), farthest
 
 
 def top_line_keep(reference: jax.Array, depth: jax.Array, *, beams: int, epsilon_m: float = _DEFAULTS.epsilon_m,

@@ -92,7 +92,7 @@ from jaxdepth._src.compaction import WORD_BITS, pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
 from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
-from jaxdepth._src.xla_tuning import stage
+from jaxdepth._src.xla_tuning import stage, stage_token
 
 
 #: Condition-1 forms of the exact test (static option ``test``).
@@ -358,7 +358,7 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
     # The stages' token: the depth's bits, as Step 1's and the tail's fences' (one predicate kernel for all)
-    token = jax.lax.bitcast_convert_type(jnp.ravel(depth)[0], jnp.int32)
+    token = stage_token(depth)
     if b is not None:
         if columns is None:
             columns = pack_columns((depth > 0) & jnp.isfinite(depth))

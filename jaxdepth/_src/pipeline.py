@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals, pixel_normals_listed
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit
+from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit, stage_token
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -97,7 +97,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     # its consumers and re-run it there (the mask into every step of the
     # distance transform's loops, the offsets into every gather). Their token is the depth's, as Step 1's
     # stages' (one predicate kernel for all of them, not one per fence).
-    token = jax.lax.bitcast_convert_type(jnp.ravel(sparse_depth)[0].astype(jnp.float32), jnp.int32)
+    token = stage_token(sparse_depth)
     keep, = fence(keep, token=token)
     seeds = _seeds(keep, image, config)
     du, dv = fence(seeds.du, seeds.dv, token=token)

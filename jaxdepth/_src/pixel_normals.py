@@ -41,7 +41,7 @@ from jaxdepth._src.fastmath import PI
 from jaxdepth._src.geometry import backproject, pixel_rays, scatter_argmin
 from jaxdepth._src.normals import cell_normals, check_options, normals_at_points
 from jaxdepth._src.range_image import RangeImage, angles_xyz, cell_centres, check_lidar, row_col
-from jaxdepth._src.xla_tuning import any_true, cond_all, stage
+from jaxdepth._src.xla_tuning import any_true, cond_all, stage, stage_token
 from jaxdepth._src.types import LidarSpec
 
 
@@ -295,7 +295,7 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
     h, w = depth.shape
     n_pix = h * w
     n_cols = lidar.columns
-    token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
+    token = stage_token(depth)
     R = T[:3, :3]
     options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
     margin = max(1 + fill_max_gap, smoothing)
@@ -303,7 +303,7 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
     def dense(depth, K, T):
         # Every pixel is a point slot and the whole range image is used (as
         # fast as the listed path only when most pixels have depth).
-        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)  # (a branch may not close over tracers)
+        token = stage_token(depth)  # (a branch may not close over tracers)
         pix = jnp.arange(n_pix, dtype=jnp.int32)
         pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=n_cols, margin=0)
         return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=n_cols,
@@ -332,7 +332,7 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
         fits = (total <= capacity) & ~any_true(pts.edge)  # (a bool any: a large kernel)
 
     def listed(pix, col0, R, depth, K, T, *pts):
-        token = jax.lax.bitcast_convert_type(depth[0, 0], jnp.int32)
+        token = stage_token(depth)
         return _pixel_normals_of_points(pix, _PixelPoints(*pts), col0, R, (h, w), token, window_cols=wc,
                                         identity=False, **options)
 

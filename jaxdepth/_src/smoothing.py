@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.xla_tuning import stage
+from jaxdepth._src.xla_tuning import stage, stage_token
 
 
 def gaussian_kernel_1d(sigma_px: float, radius_px: int) -> np.ndarray:
@@ -118,7 +118,7 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_si
     rows, cols = image.ndim - 2, image.ndim - 1
     radius = (len(weights) - 1) // 2
     image = image.astype(jnp.float32)
-    token = jax.lax.bitcast_convert_type(jnp.ravel(image)[0], jnp.int32)
+    token = stage_token(image)
     if image_size is None:
         padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
         vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]

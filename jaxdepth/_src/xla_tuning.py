@@ -18,7 +18,8 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   are real buffers. The producer runs inside the branch, so nothing is copied. Under ``vmap``
   the predicate is reduced to a scalar (``custom_vmap``), so the conditional is not turned
   into a select that would run both branches; a ``custom_jvp`` differentiates ``fn``
-  directly, so gradients flow as if the fence were not there. Plain: ``fn(*args)``.
+  directly, so gradients flow as if the fence were not there. Plain: ``fn(*args)``. The stages
+  reading the depth take their token from it with :func:`stage_token` (its first value's bits).
 * **Channel packing** (:func:`pack_pair`, :func:`take_pair`). Two float32 channels gathered
   at the same indices travel as one complex64 array: half the gathered elements of two
   float32 gathers, and XLA fuses a complex gather into its consumer where it would not fuse a
@@ -188,7 +189,7 @@ def stage(fn, args, token):
       args: tuple of arrays (the conditional's operands).
       token: int32 scalar derived from the data; ``token >= INT32_MIN`` always
         holds, so ``fn`` always runs. Any data-dependent scalar works (e.g.
-        ``mask[0, 0].astype(jnp.int32)``).
+        ``mask[0, 0].astype(jnp.int32)``); the depth's stages use :func:`stage_token`.
 
     Returns:
       ``fn(*args)``, bit-identical to calling it directly (which is what it does when the
@@ -218,6 +219,26 @@ def stage(fn, args, token):
     return _steered(jnp.asarray(token, jnp.int32), tuple(args), single=single, reduce=jnp.min,
                     batched=lambda tok, ops: stage(jax.vmap(fn), ops, tok),
                     tangent_fn=lambda _: (lambda ops: fn(*ops)))
+
+
+def stage_token(x: jax.Array) -> jax.Array:
+    """The int32 scalar token of :func:`stage` / :func:`fence` taken from an array: the bits of its first value.
+
+    Args:
+      x: any array of float32 (or a type that converts to float32 exactly), at least one element; usually
+        the depth image, so that the fences of every stage reading it share one token.
+
+    Returns:
+      int32 scalar: ``x``'s first value, as float32, reinterpreted (``bitcast_convert_type``), not converted.
+
+    Why data: the token must come from the inputs, so that XLA cannot fold the fence's predicate and inline
+    the conditional (which would fuse the stages again). Why one value's bits: a bitcast costs no
+    instruction and every bit pattern is a valid int32 (a NaN or an infinite depth too, where a float to
+    int conversion is not defined), and the same expression of the same array gives the same scalar, which
+    XLA computes once: the fences of Step 1, Step 2's prefilter and the tail share one predicate kernel
+    instead of one per token (the KITTI listed program 203 -> 199 kernels when they first shared it).
+    """
+    return jax.lax.bitcast_convert_type(jnp.ravel(x)[0].astype(jnp.float32), jnp.int32)
 
 
 def fence(*arrays, token=None):

@@ -239,8 +239,9 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
       report: ``report(kind, text)`` for every message (see the module docstring).
       force: use a sweep or a calibration that fails the plausibility checks
         (:mod:`jaxdepth.io.plausibility`: the sweep's values, K and T_cam_lidar against the sweep), logged.
-      record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns
-        are added to its settings), checked against ``out_dir``'s and written before any
+      record: the run record (:func:`jaxdepth.batch.run_record.make_record`; the point columns and the
+        above-scan rule the sweep resolves, :func:`jaxdepth.batch.run_record.rig_above_scan`, are set in its
+        settings), checked against ``out_dir``'s and written once the sweep is read, before any
         computation (:func:`jaxdepth.batch.run_record.claim_folder`); None: no record.
       method: ``"sgm"`` (default), or the baselines ``"nearest"`` / ``"ip-basic"`` of the same checked points
         (every LiDAR and sweep merged, no outlier removal: :func:`rig_results`).
@@ -259,15 +260,16 @@ def run_rig_job(points_path, rig_path, out_dir, *, config: SGMConfig, extras: ex
     columns = point_columns_of(rig, points_path, point_columns, multi=multi)
     out_dir = pathlib.Path(out_dir)
     ensure_output_dir(out_dir)
-    if record is not None:
-        from jaxdepth.batch import run_record
-        record = dict(record, settings=dict(record["settings"], point_columns=columns))
-        run_record.claim_folder(out_dir, record, overwrite=overwrite,
-                                outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
-                                                           guided=config.guidance_weight > 0))
     prepared = prepare_rig_sweep(points_path, rig, config=config, multi=multi, columns=columns,
                                  point_columns=point_columns, estimate=estimate, force=force, report=report,
                                  rig_path=rig_path)
+    if record is not None:     # the above-scan rule the sweep's program resolves (it may depend on the points)
+        from jaxdepth.batch import run_record
+        record = dict(record, settings=dict(record["settings"], point_columns=columns,
+                                            above_scan=run_record.rig_above_scan(config.above_scan, rig, prepared)))
+        run_record.claim_folder(out_dir, record, overwrite=overwrite,
+                                outputs=_output_identities(rig, points_path, rig_path, out_dir, image_dir,
+                                                           guided=config.guidance_weight > 0))
     depth, valid, distance, seen = rig_results(prepared, extras, method=method, images=images)
     rig = prepared.rig
     summary = RigJobSummary()

@@ -6,8 +6,10 @@
 bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
 reader threads read and check the next sweeps while the current one computes, writer threads encode
 and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
-reported and skipped; the others carry on. The run record (:mod:`jaxdepth.batch.run_record`) lists
-every output with its inputs, so a re-run skips what is done and redoes what changed.
+reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
+above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`).
+The run record (:mod:`jaxdepth.batch.run_record`) lists every output with its inputs, so a re-run skips
+what is done and redoes what changed.
 
 The rig's shapes do not change between sweeps, so the whole run uses one compiled program as long as
 the sweeps fall in one point bucket (:func:`jaxdepth.io.bucket_size`) and the LiDAR check keeps one
@@ -115,6 +117,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
       JaxdepthError: an unreadable rig JSON, guided seeds, or an output folder or record that cannot
         be claimed. A bad sweep is a failure in the summary, never an exception.
     """
+    from jaxdepth.batch import run_record
     from jaxdepth.batch.cloud_runner import run_cloud_jobs
     from jaxdepth.batch.runner import RunSummary
     from jaxdepth.io import read_rig_json
@@ -131,19 +134,33 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
     rig = read_rig_json(rig_path)
     out_dir = pathlib.Path(out_dir)
     ensure_output_dir(out_dir)
+
+    def prepare(path, report):
+        multi = is_sweeps_json(path) or bool(rig.lidars)
+        columns = rig_job.point_columns_of(rig, path, point_columns, multi=multi)
+        return rig_job.prepare_rig_sweep(path, rig, config=config, multi=multi, columns=columns,
+                                         point_columns=point_columns, estimate=estimate, force=force, report=report,
+                                         rig_path=rig_path)
+
+    # The record's above-scan rule: the rig JSON's LiDARs decide it, or (LiDARs without a stated spec) the
+    # first sweep that reads does, and every sweep must resolve the same (else it fails, named).
+    rule = run_record.rig_above_scan(config.above_scan, rig)
+    per_sweep = record is not None and rule is None
+    if per_sweep:
+        rule = _first_sweep_rule(sweeps, prepare, config.above_scan, rig)
     if record is not None:
-        _claim(out_dir, rig, sweeps, rig_path, record=record, overwrite=overwrite,
-               columns=len(rig.columns) if rig.columns is not None else point_columns)
+        _claim(out_dir, rig, sweeps, rig_path, record=dict(record, settings=dict(record["settings"], above_scan=rule)),
+               overwrite=overwrite, columns=len(rig.columns) if rig.columns is not None else point_columns)
     summary = RunSummary(started_at=time.perf_counter())
     jobs = _jobs(sweeps, rig, out_dir, extras=extras, overwrite=overwrite, summary=summary, notify=on_progress)
 
     def load(job):
-        multi = is_sweeps_json(job.source) or bool(rig.lidars)
-        columns = rig_job.point_columns_of(rig, job.source, point_columns, multi=multi)
         notes = []
-        prepared = rig_job.prepare_rig_sweep(job.source, rig, config=config, multi=multi, columns=columns,
-                                             point_columns=point_columns, estimate=estimate, force=force,
-                                             report=lambda kind, text: notes.append(text), rig_path=rig_path)
+        prepared = prepare(job.source, lambda kind, text: notes.append(text))
+        own = run_record.rig_above_scan(config.above_scan, rig, prepared) if per_sweep else rule
+        if own != rule:
+            raise InputError(f"{job.source}: its LiDARs resolve above_scan 'auto' to {own!r}, the run's first sweep "
+                             f"(the run record) to {rule!r}: complete it apart, or state --above-scan")
         ensure_output_dir(out_dir / sweep_stem(job.source))      # once the sweep reads: none for a bad one
         return _Loaded(sweep_stem(job.source), prepared, tuple(notes)), prepared.rig
 
@@ -167,6 +184,21 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
     run_cloud_jobs(jobs, load, summary, on_progress, config=config, png_compression=DEFAULT_PNG_COMPRESSION,
                    io_threads=io_threads, complete=complete, extras=extras, overwrite=overwrite)
     return summary
+
+
+def _first_sweep_rule(sweeps, prepare, mode: str, rig) -> str:
+    """The above-scan rule of the first of ``sweeps`` that ``prepare(path, report)`` reads and checks
+    (:func:`jaxdepth.batch.run_record.rig_above_scan`); ``mode`` itself when none does (each sweep then fails
+    as it would, nothing is written)."""
+    from jaxdepth.batch import run_record
+    from jaxdepth.io.errors import JaxdepthError
+    for path in sweeps:
+        try:
+            prepared = prepare(path, _ignore)
+        except (JaxdepthError, ValueError):      # what the job's reader counts as a failed sweep
+            continue
+        return run_record.rig_above_scan(mode, rig, prepared)
+    return mode
 
 
 def _key_text(key: tuple) -> str:

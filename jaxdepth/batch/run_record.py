@@ -81,7 +81,8 @@ def settings_of(config, *, method: str, extras=None, **options) -> dict:
         (``zero_invalid``, ``max_seed_distance_px`` (None: from the sensor),
         ``preview_range``) are recorded, not which files it asks for.
       options: further output-changing options (``crop``, ``camera``, ``sweeps``...; ``above_scan``: the
-        rule a rig of several LiDARs uses, :func:`rig_above_scan`; else ``"auto"`` is recorded as ``"plane"``).
+        rule a run of several LiDARs uses, :func:`lidars_above_scan`; ``complete-rig``'s jobs set the rule their
+        sweeps resolve, :func:`rig_above_scan`; else ``"auto"`` is recorded as ``"plane"``).
     """
     settings = {"method": method}
     settings.update({f.name: _plain(getattr(config, f.name)) for f in dataclasses.fields(config)})
@@ -103,17 +104,31 @@ def lidars_above_scan(mode: str, *, lidars: int) -> str:
     return above_scan_rule(mode, sweep=(0,) * n, lidars=(None,) * n)
 
 
-def rig_above_scan(mode: str, rig_path) -> str:
-    """:func:`lidars_above_scan` of the rig JSON at ``rig_path`` (its ``lidars``; one LiDAR without);
-    ``mode`` itself when the rig cannot be read (the job reports that)."""
-    from jaxdepth.io.errors import JaxdepthError
-    from jaxdepth.io.rig import read_rig_json
-    if mode != "auto":
-        return mode
-    try:
-        return lidars_above_scan(mode, lidars=len(read_rig_json(rig_path).lidars))
-    except (JaxdepthError, OSError, ValueError):
-        return mode
+#: The free-space grid of a LiDAR without a stated spec that its points give it (any grid but its spec).
+_OWN_GRID = "a grid of its own points"
+
+
+def rig_above_scan(mode: str, rig, prepared=None) -> str | None:
+    """The ``above_scan`` rule a ``complete-rig`` run of ``rig`` (:class:`~jaxdepth.io.rig.Rig`) uses, recorded in
+    place of ``"auto"``: :func:`jaxdepth._src.above_scan.above_scan_rule` of the inputs the run gives it.
+
+    The rig JSON's LiDARs decide it (its ``lidars``, each a source of the reference sweep; one LiDAR without)
+    unless one states no spec: such a LiDAR may scan in lines (laser rows, or points that fill its grid) or
+    not (a rosette: a free-space grid of its own points), and where the two give different rules its sweep
+    decides: ``prepared`` (the sweep read and checked, :class:`jaxdepth.batch.rig_job.PreparedSweep`), through
+    the sources its program gets (:func:`jaxdepth.batch.sources_job.cloud_above_scan`); None without it.
+    """
+    from jaxdepth._src.above_scan import above_scan_rule
+    specs = tuple(lidar.spec for lidar in rig.lidars) or (rig.lidar,)
+    own_grids = tuple(_OWN_GRID if spec is None else spec for spec in specs)     # every spec-less one a rosette
+    lines, rosettes = (above_scan_rule(mode, sweep=(0,) * len(specs), lidars=specs, witnesses=grids)
+                       for grids in (None, own_grids))
+    if lines == rosettes:
+        return lines
+    if prepared is None:
+        return None
+    from jaxdepth.batch.sources_job import cloud_above_scan
+    return cloud_above_scan(prepared.points, prepared.rig, prepared.config.replace(above_scan=mode))
 
 
 def _plain(value):

@@ -206,6 +206,28 @@ def _single_origin(cloud) -> bool:
     return cloud.num_sources == 1 and np.allclose(cloud.T_ref_source[0], np.eye(4), atol=1e-9)
 
 
+def _config_sources(cloud, rig, config: SGMConfig):
+    """:func:`cloud_sources` of ``cloud`` as :func:`complete_cloud` builds them (``rig.lidar`` the fallback spec,
+    ``config``'s free-space witness grid)."""
+    return cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
+                         min_cells=config.free_space_min_cells)
+
+
+def cloud_above_scan(cloud, rig, config: SGMConfig = DEFAULT_CONFIG) -> str:
+    """The ``SGMConfig.above_scan`` rule :func:`complete_cloud` (without ``window``) runs for ``cloud``: ``config``'s
+    own unless ``"auto"``, which :func:`~jaxdepth._src.above_scan.above_scan_rule` resolves from the same sources
+    the program gets (each LiDAR's spec and free-space grid: a LiDAR that states no spec and has no laser rows
+    may get a grid of its own points' spacing, a rosette's, so the rule depends on the sweep), or the one
+    LiDAR's of a cloud at the reference origin (:func:`~jaxdepth.complete_rig`'s path). Host only, no JAX."""
+    from jaxdepth._src.above_scan import above_scan_rule
+    if config.above_scan != "auto":
+        return config.above_scan
+    if _single_origin(cloud):
+        return above_scan_rule(config.above_scan, sweep=(0,), lidars=(cloud.lidars[0],))    # complete_rig's path
+    sources, _ = _config_sources(cloud, rig, config)
+    return above_scan_rule(config.above_scan, sweep=sources.sweep, lidars=sources.lidars, witnesses=sources.witnesses)
+
+
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
                    beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
                    window: tuple | None = None, seen: bool = False):
@@ -249,8 +271,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
     sources = fitted = None
     if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
             and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
-        sources, index = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
-                                       min_cells=config.free_space_min_cells)
+        sources, index = _config_sources(cloud, rig, config)
         fitted = fit_to_window(sources, index, window)
     if fitted is not None:
         out = sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
@@ -263,8 +284,7 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
                          seen=seen)
     else:
         if sources is None:         # not built for the window above
-            sources, _ = cloud_sources(cloud, fallback=rig.lidar, witness_cell_spacings=config.free_space_witness_cell,
-                                       min_cells=config.free_space_min_cells)
+            sources, _ = _config_sources(cloud, rig, config)
         out = sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
                              images=images, occlusion=occlusion, depth_only=not stages, seen=seen)
     if stages:
@@ -286,5 +306,5 @@ def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: b
     return frame, config
 
 
-__all__ = ["complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec", "POINT_BUCKET",
-           "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
+__all__ = ["cloud_above_scan", "complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec",
+           "POINT_BUCKET", "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
