@@ -238,6 +238,39 @@ def map_by_size(per_camera, cameras: RigCameras, images=None, per_group=None) ->
     return tuple(out)
 
 
+def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
+    """:func:`map_by_size` of ``per_camera(K, T_cam_lidar, size, image, shared_part, *, height, width)``, where
+    ``shared_part = shared(K, T_cam_lidar, size, group_size, *, height, width)`` holds no (h, w) array.
+
+    Several size groups: ``shared`` runs once, one vmap over every camera (one set of kernels, not one per
+    group), with ``group_size`` each camera's group's traced (2,) int32 (h, w) and ``(height, width)`` =
+    (the largest h w, 1), a flat buffer every group's pixels fit; its parts are then split by group. One
+    group: ``shared`` inside the group's vmap with ``group_size`` None and the group's size.
+    """
+    groups = size_groups(cameras)
+    if len(groups) == 1:
+        def both(K, T, size, image, *, height, width):
+            part = shared(K, T, size, None, height=height, width=width)
+            return per_camera(K, T, size, image, part, height=height, width=width)
+        return map_by_size(both, cameras)
+    bound = np.zeros((cameras.count, 2), np.int32)
+    for size, idx in groups:
+        bound[idx] = size
+    pixels = max(h * w for (h, w), _ in groups)
+    parts = jax.vmap(functools.partial(shared, height=pixels, width=1))(cameras.K, cameras.T_cam_lidar,
+                                                                         cameras.image_size, jnp.asarray(bound))
+    return map_by_size(lambda K, T, size, image, part, *, height, width: per_camera(
+        K, T, size, image, part, height=height, width=width), cameras, None,
+        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
+
+
+def _cameras_at(x: jax.Array, idx: np.ndarray) -> jax.Array:
+    """``x[idx]`` on the leading axis, a slice when the static ``idx`` run in a row."""
+    if np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
+        return jax.lax.slice_in_dim(x, int(idx[0]), int(idx[0]) + len(idx))
+    return jnp.take(x, jnp.asarray(idx), axis=0)
+
+
 def to_canvas(parts: tuple, cameras: RigCameras):
     """:func:`map_by_size`'s per-group results as one pytree with a leading C axis, in camera order,
     each (..., h, w) leaf padded onto the (H, W) canvas with zeros (False)."""
