@@ -79,6 +79,37 @@ def test_zbuffer_winners_write_the_brute_force_zbuffer_with_lowest_index_on_ties
         np.testing.assert_array_equal(np.asarray(b[1]), np.asarray(two))
 
 
+def test_zbuffer_winners_of_cameras_of_two_sizes_in_one_vmap_are_each_cameras_own():
+    """``group_size`` (the rigs' projection of every size group in one ``vmap``): a 7 x 9 and a 9 x 5 camera on
+    a flat buffer of 63 slots win the pixels of a NumPy z-buffer of their own size (row stride w), the same
+    slots as their own ``zbuffer_winners(height=h, width=w)`` (none: 63 against h w), jit == eager."""
+    rng = np.random.default_rng(5)
+    n = 300
+    K = jnp.asarray(np.array([[4.0, 0.0, 4.0], [0.0, 3.0, 3.0], [0.0, 0.0, 1.0]], np.float32))
+    sizes = np.array([[7, 9], [9, 5]], np.int32)
+    z = rng.integers(1, 6, (2, n)).astype(np.float32)
+    u, v = rng.integers(-2, 11, (2, n)), rng.integers(-2, 11, (2, n))    # some outside either image
+    points = np.stack([(u - 4.0) * z / 4.0, (v - 3.0) * z / 3.0, z], -1).astype(np.float32)
+    valid = rng.random((2, n)) < 0.9
+
+    def shared(pts, ok, group):
+        return geometry.zbuffer_winners(pts, ok, K, height=63, width=1, group_size=group)[0]
+
+    slots = np.asarray(jax.jit(jax.vmap(shared))(points, valid, sizes))
+    assert np.array_equal(np.asarray(jax.vmap(shared)(points, valid, sizes)), slots)
+    for c, (h, w) in enumerate(sizes):
+        own = np.asarray(geometry.zbuffer_winners(jnp.asarray(points[c]), valid[c], K, height=int(h), width=int(w))[0])
+        np.testing.assert_array_equal(np.where(slots[c] == 63, h * w, slots[c]), own)
+        pu, pv, pz, front = (np.asarray(a) for a in geometry.project_pixels(jnp.asarray(points[c]), K))
+        ui, vi = np.round(pu).astype(np.int64), np.round(pv).astype(np.int64)
+        inside = front & valid[c] & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+        slot = np.where(inside, vi * w + ui, h * w)
+        _, idx = _brute_argmin(slot, np.where(inside, pz, np.inf).astype(np.float64), h * w)
+        won = np.full(n, h * w)
+        won[idx[idx < n]] = np.nonzero(idx < n)[0]                     # each winner's pixel
+        np.testing.assert_array_equal(np.where(slots[c] == 63, h * w, slots[c]), won)
+
+
 def test_backproject_equals_inverse_intrinsics():
     rng = np.random.default_rng(1)
     K = np.array([[500.0, 3.0, 160.5], [0.0, 480.0, 90.25], [0.0, 0.0, 1.0]], np.float32)

@@ -165,7 +165,7 @@ def zbuffer_image(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, heig
 
 
 def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, height: int, width: int,
-                    min_depth_m: float = 0.1, valid_size: jax.Array | None = None):
+                    min_depth_m: float = 0.1, valid_size: jax.Array | None = None, group_size: jax.Array | None = None):
     """:func:`zbuffer_image` per point: the pixel each point wins, for writing values onto the image.
 
     Args as :func:`zbuffer_image`. Returns ``(slot, z)``: (N,) int32 flat pixel ``v W + u`` of the
@@ -175,9 +175,13 @@ def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, he
     and of ``arange(N)`` (fill -1) its index, bit for bit; of any per-point value it is that value
     gathered at the index, without a pass that reads the (H, W) index (a rig camera's image has
     ~20x more pixels than points).
+    ``group_size``: optional traced (2,) int32 (h, w), the image's own size, its pixels the first h w of
+    the H W flat slots (row stride w): slots ``v w + u`` (``H W`` for none), the bounds h and w, the same
+    winners as ``height=h, width=w`` (cameras of several sizes in one ``vmap``; ``H W`` >= h w).
     """
     u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
-    flat, _, idx = _pixel_argmin(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size)
+    flat, _, idx = _pixel_argmin(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size,
+                                 group_size=group_size)
     n = flat.shape[0]
     won = idx.at[flat].get(mode="fill", fill_value=-1) == jnp.arange(n, dtype=jnp.int32)
     return jnp.where(won, flat, height * width), z
@@ -190,16 +194,18 @@ def winners_image(slot: jax.Array, values: jax.Array, fill, *, height: int, widt
     return image.at[slot].set(values, mode="drop").reshape(height, width)
 
 
-def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None):
-    """:func:`pixel_zbuffer`'s flat (N,) slots (``H W`` = no pixel) and flat (H W,) :func:`scatter_argmin`."""
+def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None, group_size=None):
+    """:func:`pixel_zbuffer`'s flat (N,) slots (``H W`` = no pixel) and flat (H W,) :func:`scatter_argmin`
+    (``group_size``: as :func:`zbuffer_winners`)."""
     ui = jnp.round(u)
     vi = jnp.round(v)
-    inside = ok & (ui >= 0) & (ui <= width - 1) & (vi >= 0) & (vi <= height - 1)
+    h, w = (height, width) if group_size is None else (group_size[0], group_size[1])
+    inside = ok & (ui >= 0) & (ui <= w - 1) & (vi >= 0) & (vi <= h - 1)
     if valid_size is not None:
         valid_size = jnp.asarray(valid_size)
         inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
     dump = height * width
-    flat = jnp.where(inside, vi.astype(jnp.int32) * width + ui.astype(jnp.int32), dump)
+    flat = jnp.where(inside, vi.astype(jnp.int32) * w + ui.astype(jnp.int32), dump)
     zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
     return flat, zbuf, idx
 

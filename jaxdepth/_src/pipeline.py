@@ -336,11 +336,25 @@ def project_apart(points, valid, normals, T, K, *, height: int, width: int, imag
     channel (a rig camera has ~20x more pixels than points; docs/speed.md, "The rig's projection
     point by point"). Every output is a scatter's buffer: no consumer re-runs it.
     """
+    won = project_winners(points, valid, normals, T, K, height=height, width=width, image_size=image_size)
+    return winners_apart(won, labels, height=height, width=width)
+
+
+def project_winners(points, valid, normals, T, K, *, height: int, width: int, image_size=None, group_size=None):
+    """:func:`project_apart`'s per-point half: ``(slot, x, y, z, nx, ny, nz)``, seven (N,) arrays, each point's
+    :func:`~jaxdepth._src.geometry.zbuffer_winners` slot (``group_size``: as there) and its camera-frame point
+    and normal channels (float32), each a real buffer (fused into the scatters, the exact transform would run
+    once per channel). Nothing (H, W): cameras of several sizes share one ``vmap`` of it."""
     p_cam = camera_points(T, points)
-    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size)
+    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size,
+                              group_size=group_size)
     n_cam = camera_points(T, normals, translate=False)
-    # Real (N,) buffers: fused into the scatters, the exact transform would run once per channel.
-    slot, *channels = fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
+    return fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
+
+
+def winners_apart(won, labels=(), *, height: int, width: int):
+    """:func:`project_apart`'s (H, W) half from :func:`project_winners`' ``won``: its return value."""
+    slot, *channels = won
     image = functools.partial(winners_image, slot, height=height, width=width)
     points_cam = tuple(image(c, 0.0) for c in channels[:3])
     # A winner's depth is its point's z (both read p_cam; winners lie in front): the z channel is the depth image.

@@ -7,7 +7,9 @@ outside it is 0. Inside the program the cameras are grouped by size (the static
 exactly that size, so no camera computes the padding (the Argoverse 2 rig: six
 landscape cameras on 1550 x 2048 and the portrait one on 2048 x 1550, not seven
 on 2048 x 2048); the results are padded back onto the (C, H, W) canvas in camera
-order (:func:`vmap_by_size`). Every stage uses the camera's own size, never the canvas's:
+order (:func:`vmap_by_size`). The projection's per-point part (each point's pixel and
+camera-frame values, no (h, w) array) runs once, one vmap of every camera
+(:func:`map_by_size_shared`: one set of kernels, not one per size group). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
@@ -59,7 +61,7 @@ from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outliers import keep_mask_for_config
-from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_apart
+from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_winners, winners_apart
 from jaxdepth._src.types import LidarSpec, Stages
 from jaxdepth._src.xla_tuning import entry_jit
 
@@ -238,6 +240,39 @@ def map_by_size(per_camera, cameras: RigCameras, images=None, per_group=None) ->
     return tuple(out)
 
 
+def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
+    """:func:`map_by_size` of ``per_camera(K, T_cam_lidar, size, image, shared_part, *, height, width)``, where
+    ``shared_part = shared(K, T_cam_lidar, size, group_size, *, height, width)`` holds no (h, w) array.
+
+    Several size groups: ``shared`` runs once, one vmap over every camera (one set of kernels, not one per
+    group), with ``group_size`` each camera's group's traced (2,) int32 (h, w) and ``(height, width)`` =
+    (the largest h w, 1), a flat buffer every group's pixels fit; its parts are then split by group. One
+    group: ``shared`` inside the group's vmap with ``group_size`` None and the group's size.
+    """
+    groups = size_groups(cameras)
+    if len(groups) == 1:
+        def both(K, T, size, image, *, height, width):
+            part = shared(K, T, size, None, height=height, width=width)
+            return per_camera(K, T, size, image, part, height=height, width=width)
+        return map_by_size(both, cameras)
+    bound = np.zeros((cameras.count, 2), np.int32)
+    for size, idx in groups:
+        bound[idx] = size
+    pixels = max(h * w for (h, w), _ in groups)
+    parts = jax.vmap(functools.partial(shared, height=pixels, width=1))(cameras.K, cameras.T_cam_lidar,
+                                                                         cameras.image_size, jnp.asarray(bound))
+    return map_by_size(lambda K, T, size, image, part, *, height, width: per_camera(
+        K, T, size, image, part, height=height, width=width), cameras, None,
+        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
+
+
+def _cameras_at(x: jax.Array, idx: np.ndarray) -> jax.Array:
+    """``x[idx]`` on the leading axis, a slice when the static ``idx`` run in a row."""
+    if np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
+        return jax.lax.slice_in_dim(x, int(idx[0]), int(idx[0]) + len(idx))
+    return jnp.take(x, jnp.asarray(idx), axis=0)
+
+
 def to_canvas(parts: tuple, cameras: RigCameras):
     """:func:`map_by_size`'s per-group results as one pytree with a leading C axis, in camera order,
     each (..., h, w) leaf padded onto the (H, W) canvas with zeros (False)."""
@@ -307,13 +342,15 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
     normals_lidar = point_normals(points, valid, lidar=lidar, smoothing=config.normal_smoothing,
                                   fill_max_gap=config.range_fill_max_gap)
 
-    def per_camera(K, T, size, image, *, height, width):
-        K, T = jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32)
-        sparse_depth, points_cam, normals_cam, _ = project_apart(points, valid, normals_lidar, T, K, height=height,
-                                                                 width=width, image_size=size)
+    def winners(K, T, size, group_size, *, height, width):       # one vmap of every camera (map_by_size_shared)
+        return project_winners(points, valid, normals_lidar, jnp.asarray(T, jnp.float32), jnp.asarray(K, jnp.float32),
+                               height=height, width=width, image_size=size, group_size=group_size)
+
+    def per_camera(K, T, size, image, won, *, height, width):     # one vmap per camera size
+        sparse_depth, points_cam, normals_cam, _ = winners_apart(won, height=height, width=width)
         return CameraView(sparse_depth, points_cam, normals_cam)
 
-    return map_by_size(per_camera, cameras)
+    return map_by_size_shared(winners, per_camera, cameras)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "beams"))

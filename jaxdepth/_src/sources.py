@@ -51,10 +51,10 @@ from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
-from jaxdepth._src.pipeline import project_apart
+from jaxdepth._src.pipeline import project_winners, winners_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
-                              map_by_size)
+                              map_by_size, map_by_size_shared)
 from jaxdepth._src.types import LidarSpec, Stages
 from jaxdepth._src.xla_tuning import entry_jit
 
@@ -529,17 +529,13 @@ def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweep
     return any(sources.witnesses[i] != sources.lidars[i] for i, sw in enumerate(sources.sweep) if sw == 0)
 
 
-def _camera_view(points, valid, normals, per_source: int, shadow, K, T_cam_ref, *, height, width,
-                 image_size=None) -> CameraView:
-    """Step 1's projection for one camera from all sources' (N, 3) points and normals (``per_source`` points a
-    source, sources one after another), with each pixel's source (and whether its point lies in a reference
-    LiDAR's shadow)."""
-    K = jnp.asarray(K, jnp.float32)
-    T = jnp.asarray(T_cam_ref, jnp.float32)
-    labels = ((jnp.arange(points.shape[0], dtype=jnp.int32) // per_source, -1),)      # each point's source
+def _camera_view(won, n: int, per_source: int, shadow, *, height, width) -> CameraView:
+    """Step 1's projection for one camera from :func:`~jaxdepth._src.pipeline.project_winners` of all sources' ``n``
+    points (``per_source`` a source, one after another), with each pixel's source (and its shadow flag)."""
+    labels = ((jnp.arange(n, dtype=jnp.int32) // per_source, -1),)      # each point's source
     labels += () if shadow is None else ((shadow, False),)
-    sparse_depth, points_cam, normals_cam, (pixel_source, *pixel_shadow) = project_apart(
-        points, valid, normals, T, K, height=height, width=width, image_size=image_size, labels=labels)
+    sparse_depth, points_cam, normals_cam, (pixel_source, *pixel_shadow) = winners_apart(
+        won, labels, height=height, width=width)
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow[0] if pixel_shadow else None)
 
 
@@ -592,16 +588,19 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
         hidden = hidden.reshape(hidden.shape[0], -1) if occlusion else None
     flat_points, flat_valid, flat_normals = points.reshape(-1, 3), valid.reshape(-1), normals.reshape(-1, 3)
 
-    def per_camera(K, T, size, image, *, height, width):
+    def winners(K, T, size, group_size, *, height, width):      # one vmap of every camera (rig.py)
         cam_valid = flat_valid
         if hidden is not None:       # other sweeps' points hidden from the LiDAR next to this camera
             rank, usable = camera_witness(T, sources.T_ref_source, sweep=sources.sweep,
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
-        return _camera_view(flat_points, cam_valid, flat_normals, p, shadow, K, T, height=height, width=width,
-                            image_size=size)
+        return project_winners(flat_points, cam_valid, flat_normals, jnp.asarray(T, jnp.float32), jnp.asarray(
+            K, jnp.float32), height=height, width=width, image_size=size, group_size=group_size)
 
-    return map_by_size(per_camera, cameras)     # one vmap per camera size (rig.py)
+    def per_camera(K, T, size, image, won, *, height, width):     # one vmap per camera size
+        return _camera_view(won, flat_points.shape[0], p, shadow, height=height, width=width)
+
+    return map_by_size_shared(winners, per_camera, cameras)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "beams"))
