@@ -116,7 +116,7 @@ def stage_functions(config: SGMConfig, lidar):
 
     @jax.jit
     def residual_and_smoothing(sparse, keep, normals, du, dv, K):
-        seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse, 0.0), normals, du, dv)
+        seed_depth, seed_normal = _gather_seeds(sparse, keep, normals, du, dv, jnp.any(keep))
         dz = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                             max_residual_ratio=config.max_residual_ratio)
         raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + dz, config.min_depth_m, config.max_depth_m), 0.0)

@@ -81,7 +81,7 @@ def _stage_fns(points, valid, camera, spec, config):
 
     @jax.jit
     def residual_fn(s, nc, k, du, dv):
-        seed_depth, seed_normal = _gather_seeds(jnp.where(k, s, 0.0), nc, du, dv)
+        seed_depth, seed_normal = _gather_seeds(s, k, nc, du, dv, jnp.any(k))
         return seed_depth, plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                                           max_residual_ratio=config.max_residual_ratio)
     seed_depth, residual = residual_fn(sparse, nc, keep, du, dv)

@@ -50,19 +50,24 @@ def _check_image_inputs(sparse_depth, K):
         raise ValueError(f"complete: field 'K' expected shape (3, 3), got {K.shape}")
 
 
-def _gather_seeds(seed_field, normals, du, dv):
-    """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals.
+def _gather_seeds(sparse_depth, keep, normals, du, dv, has_seed):
+    """The seed depth and normals at every pixel's seed: ``gather_at_seed`` of ``where(keep, sparse_depth, 0)`` and of
+    the (3, H, W) normals.
+
+    A seed is a pixel of ``keep``, so the masked depth at the seed is ``sparse_depth`` there: the depth is read
+    unmasked and set to 0 where the mask has no seed (``has_seed``, a scalar; then ``du = dv = 0``). The same
+    values, one read fewer at each pixel's seed (the mask's).
 
     Returns (seed depth (H, W), seed normals (3, H, W)).
     """
     if not enabled():  # plain: one gather of the four stacked channels
-        gathered = gather_at_seed(jnp.stack([normals[0], normals[1], normals[2], seed_field]), du, dv)
-        return gathered[3], gathered[:3]
+        gathered = gather_at_seed(jnp.stack([normals[0], normals[1], normals[2], sparse_depth]), du, dv)
+        return jnp.where(has_seed, gathered[3], 0.0), gathered[:3]
     # XLA:CPU: four float32 gathers, each fused into its consumers. As two complex64 pairs the single-camera tail
     # wrote them out (the packing fused into the gathers) and read them back: 0.88x its tail's CPU, 0.96x under a
     # vmap; the rig programs fold the pairs and are unchanged (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
-    nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, seed_field))
-    return depth, jnp.stack([nx, ny, nz])
+    nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, sparse_depth))
+    return jnp.where(has_seed, depth, 0.0), jnp.stack([nx, ny, nz])
 
 
 def _seeds(keep, image, config: SGMConfig):
@@ -101,7 +106,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     keep, = fence(keep, token=token)
     seeds = _seeds(keep, image, config)
     du, dv = fence(seeds.du, seeds.dv, token=token)
-    seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
+    seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, du, dv, seeds.has_seed)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
                               min_abs_denom=config.min_abs_denom,
                               max_residual_ratio=config.max_residual_ratio)
