@@ -58,7 +58,7 @@ def _parts(config, beams: int) -> dict:
     from jaxdepth._src import pipeline
     from jaxdepth._src.above_scan import capped_above_scan
     from jaxdepth._src.hypotheses import column_hypotheses
-    from jaxdepth._src.pipeline import _gather_seeds
+    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds, _seed_index, _seed_offsets
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur
     assert config.guidance_weight == 0 and config.column_bracket and not config.blend_hypotheses
@@ -66,12 +66,13 @@ def _parts(config, beams: int) -> dict:
 
     def seed(keep, size):
         s = pipeline.nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
-        return s.du, s.dv, s.has_seed
+        return _seed_index(s.du, s.dv), s.has_seed
 
-    def gather(sparse, normals, keep, du, dv, has_seed, size):
-        return _gather_seeds(sparse, keep, normals, du, dv, has_seed)
+    def gather(sparse, normals, keep, seed_at, has_seed, size):
+        return _gather_seeds(sparse, keep, normals, _at_seed_index(seed_at), has_seed)
 
-    def residual(seed_depth, seed_normal, du, dv, K, size):
+    def residual(seed_depth, seed_normal, seed_at, K, size):
+        du, dv = _seed_offsets(seed_at)
         res = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                              max_residual_ratio=config.max_residual_ratio)
         return jnp.where(seed_depth > 0, jnp.clip(seed_depth + res, config.min_depth_m, config.max_depth_m), 0.0)
@@ -82,9 +83,10 @@ def _parts(config, beams: int) -> dict:
                                  min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio,
                                  image_size=size, image_gap=None if size is None else size[0] // beams)
 
-    def cap(depth_raw, seed_depth, seed_normal, du, dv, sparse, keep, K, size):
+    def cap(depth_raw, seed_depth, seed_normal, seed_at, sparse, keep, K, size):
         if config.above_scan != "capped":       # the tail's "auto" is "plane" (the jobs resolve it before)
             return depth_raw
+        du, dv = _seed_offsets(seed_at)
         rows = (sparse.shape[0] if size is None else size[0]) / beams
         out = capped_above_scan(depth_raw, seed_depth, seed_normal, du, dv, keep, sparse > 0, K, beams=beams,
                                 rows_px=rows, max_half_width_px=config.outlier_max_half_width_px,
@@ -138,26 +140,23 @@ def _cases(capped: bool = False) -> tuple:
     return inputs, parts, whole, rig
 
 
-def _pairs_gather(sparse_depth, keep, normals, du, dv, has_seed):
+def _pairs_gather(sparse_depth, keep, normals, at, has_seed):
     """The seed gather before branch rigtail8: two complex64 pairs (``xla_tuning.pack_pair``), XLA:CPU mode."""
     import jax.numpy as jnp
-    seed_field = jnp.where(keep, sparse_depth, 0.0)
 
-    from jaxdepth._src.distance import gather_at_seed
     from jaxdepth._src.xla_tuning import pack_pair, unpack_pair
+    seed_field = jnp.where(keep, sparse_depth, 0.0)
     xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
-    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    (nx, ny), (nz, depth) = unpack_pair(at(xy)), unpack_pair(at(zd))
     return depth, jnp.stack([nx, ny, nz])
 
 
-def _masked_gather(sparse_depth, keep, normals, du, dv, has_seed):
+def _masked_gather(sparse_depth, keep, normals, at, has_seed):
     """The seed gather before branch rigtail9 (XLA:CPU mode): the depth read through the mask,
     ``where(keep, sparse_depth, 0)`` at the seed (two reads there), ``has_seed`` unused."""
     import jax.numpy as jnp
-
-    from jaxdepth._src.distance import gather_at_seed
     seed_field = jnp.where(keep, sparse_depth, 0.0)
-    nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, seed_field))
+    nx, ny, nz, depth = (at(channel) for channel in (*normals, seed_field))
     return depth, jnp.stack([nx, ny, nz])
 
 
@@ -278,14 +277,14 @@ def main(argv=None) -> int:
             runs[f"{case}/{name}"] = (exe, a, px)
             return exe(*a)
 
-        chain["du"], chain["dv"], has_seed = run("seed", part_args["seed"])
+        chain["seed_at"], has_seed = run("seed", part_args["seed"])
         chain["seed_depth"], chain["seed_normal"] = run(
-            "gather", (x["sparse"], x["normals"], x["keep"], chain["du"], chain["dv"], has_seed, size))
-        chain["depth_raw"] = run("residual", (chain["seed_depth"], chain["seed_normal"], chain["du"], chain["dv"],
-                                              x["K"], size))
+            "gather", (x["sparse"], x["normals"], x["keep"], chain["seed_at"], has_seed, size))
+        chain["depth_raw"] = run("residual", (chain["seed_depth"], chain["seed_normal"], chain["seed_at"], x["K"],
+                                              size))
         chain["bracketed"] = run("bracket", (chain["depth_raw"], x["sparse"], x["keep"], x["normals"], x["K"], size))
-        chain["capped"] = run("cap", (chain["bracketed"], chain["seed_depth"], chain["seed_normal"], chain["du"],
-                                      chain["dv"], x["sparse"], x["keep"], x["K"], size))
+        chain["capped"] = run("cap", (chain["bracketed"], chain["seed_depth"], chain["seed_normal"], chain["seed_at"],
+                                      x["sparse"], x["keep"], x["K"], size))
         chain["blurred"] = run("blur", (chain["capped"], size))
         depth = run("final", (chain["blurred"], x["sparse"], x["keep"], chain["seed_depth"], size))
         whole_args = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], size)
