@@ -32,7 +32,7 @@ library with its ``nearest_seed`` and with the form before branch rigdt (``_prev
 transposing copy, instead of inside the passes' first loops), outputs compared byte for byte, per-round ratios
 library / previous.
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--gather-forms | --dt-forms] [--json PATH]
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped] [--gather-forms | --dt-forms | --depth-forms] [--json PATH]
 """
 
 from __future__ import annotations

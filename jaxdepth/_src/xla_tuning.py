@@ -27,6 +27,11 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   stage itself and stays in both modes.) Not Step 3's seed gather: there the packing fused into
   the gathers, whose complex64 results were written out; four float32 gathers, each fused into
   its consumers, cost less (``pipeline._gather_seeds``; plain: one gather of the stacked channels).
+* **Flat gathers under vmap** (:func:`take_last`). JAX batches a gather whose operand and index are
+  both batched as a gather with a batching dimension, which XLA:CPU expands into an int32
+  (B, ..., 2) array of (member, index) pairs written out before the gather; one flat 1-D gather
+  from the flattened batch (member ``b`` at ``b N + index``) computes its index inside the gather's
+  fusion (the seed gathers of the rigs' tails, ``pipeline._at_seed_index``). Plain: the batched gather.
 * **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
@@ -380,6 +385,7 @@ def _take_last(values: jax.Array, index: jax.Array):
 @_take_last.def_vmap
 def _take_last_vmap(axis_size, in_batched, values, index):
     values_batched, index_batched = in_batched
+    values, index = jnp.asarray(values), jnp.asarray(index)
     if not index_batched:
         return _take_last(values, index), values_batched
     if not values_batched:
@@ -401,6 +407,7 @@ def take_last(values: jax.Array, index: jax.Array) -> jax.Array:
     (the rig tail's seed gather: 152 MB per group of six 1550 x 2048 cameras). The same elements. Plain:
     ``values[..., index]``.
     """
+    values, index = jnp.asarray(values), jnp.asarray(index)
     if not enabled():
         return values.at[..., index].get(mode=_PIB)
     return _take_last(values, index)
