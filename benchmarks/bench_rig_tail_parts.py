@@ -57,6 +57,7 @@ def _parts(config, beams: int) -> dict:
 
     from jaxdepth._src import pipeline
     from jaxdepth._src.above_scan import capped_above_scan
+    from jaxdepth._src.distance import gather_at_seed
     from jaxdepth._src.hypotheses import column_hypotheses
     from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds, _seed_index, _seed_offsets
     from jaxdepth._src.residual import plane_residual
@@ -69,6 +70,9 @@ def _parts(config, beams: int) -> dict:
         return _seed_index(s.du, s.dv), s.has_seed
 
     def gather(sparse, normals, keep, seed_at, has_seed, size):
+        if config.above_scan == "capped":      # the library's capped form: gathers at (v + dv, u + du)
+            du, dv = _seed_offsets(seed_at)
+            return _gather_seeds(sparse, keep, normals, functools.partial(gather_at_seed, du=du, dv=dv), has_seed)
         return _gather_seeds(sparse, keep, normals, _at_seed_index(seed_at), has_seed)
 
     def residual(seed_depth, seed_normal, seed_at, K, size):
