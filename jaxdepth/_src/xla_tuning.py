@@ -31,7 +31,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   both batched as a gather with a batching dimension, which XLA:CPU expands into an int32
   (B, ..., 2) array of (member, index) pairs written out before the gather; one flat 1-D gather
   from the flattened batch (member ``b`` at ``b N + index``) computes its index inside the gather's
-  fusion (the seed gathers of the rigs' tails, ``pipeline._at_seed_index``). Plain: the batched gather.
+  fusion (the seed gathers of the rigs' tails, ``pipeline._at_seed_index``: with the seed search's one
+  flat index image, the nuScenes tail 0.84-0.90x; docs/speed.md, "The seed search's one flat index and
+  the seed depth's read"). Plain: the batched gather.
 * **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
