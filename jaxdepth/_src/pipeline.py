@@ -130,8 +130,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     seeds = _seeds(keep, image, config)
     if config.above_scan == "capped":
         # du and dv, read by gathers of (v + dv, u + du): the flat index below moved the capped plane's float32
-        # rounding in the Argoverse 2 depth program (1-2 ulps at 0.7 % of its pixels; docs/speed.md, "The seed
-        # search's one flat index").
+        # rounding in the Argoverse 2 depth program (a few ulps at 0.7-1 % of its pixels; docs/speed.md, "The seed
+        # search's one flat index and the seed depth's read").
         du, dv = fence(seeds.du, seeds.dv, token=token)
         at = functools.partial(gather_at_seed, du=du, dv=dv)
     else:
