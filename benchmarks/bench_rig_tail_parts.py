@@ -9,6 +9,8 @@ sub-stages, each part a program of its own on the real inputs (the previous part
 - ``gather``: the seed depth and normals read at each pixel's seed (``_gather_seeds``, complex64 pairs);
 - ``residual``: the plane residual and the clipped ``depth_raw`` (``plane_residual``);
 - ``bracket``: the column bracket (``column_hypotheses``: the neighbour search and the clip);
+- ``cap``: the capped plane above the top scan line and its clip (``capped_above_scan``; the input as is when the
+  case's ``above_scan`` is ``plane``);
 - ``blur``: Step 4's Gaussian blur (``gaussian_blur``, the window form with ``image_size``);
 - ``final``: the measured depth kept, the clips and the window cleared (``clear_outside_window``);
 - ``whole``: the tail in one program (``_complete_tail`` then ``clear_outside_window``, ``depth`` out).
@@ -30,7 +32,7 @@ library with its ``nearest_seed`` and with the form before branch rigdt (``_prev
 transposing copy, instead of inside the passes' first loops), outputs compared byte for byte, per-round ratios
 library / previous.
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--gather-forms | --dt-forms] [--json PATH]
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped] [--gather-forms | --dt-forms | --depth-forms] [--json PATH]
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ import numpy as np
 from benchmarks._common import RESULTS, write_results
 from benchmarks.bench_rig_tail_split import interleaved_cpu
 
-PARTS = ("seed", "gather", "residual", "bracket", "blur", "final")
+PARTS = ("seed", "gather", "residual", "bracket", "cap", "blur", "final")
 
 
 def _parts(config, beams: int) -> dict:
@@ -54,21 +56,27 @@ def _parts(config, beams: int) -> dict:
     import jax.numpy as jnp
 
     from jaxdepth._src import pipeline
+    from jaxdepth._src.above_scan import capped_above_scan
+    from jaxdepth._src.distance import gather_at_seed
     from jaxdepth._src.hypotheses import column_hypotheses
-    from jaxdepth._src.pipeline import _gather_seeds
+    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds, _seed_index, _seed_offsets
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur
     assert config.guidance_weight == 0 and config.column_bracket and not config.blend_hypotheses
-    assert config.above_scan == "plane" and config.keep_measured_depth
+    assert config.above_scan in ("auto", "plane", "capped") and config.keep_measured_depth
 
     def seed(keep, size):
         s = pipeline.nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
-        return s.du, s.dv
+        return _seed_index(s.du, s.dv), s.has_seed
 
-    def gather(sparse, normals, keep, du, dv, size):
-        return _gather_seeds(jnp.where(keep, sparse, 0.0), normals, du, dv)
+    def gather(sparse, normals, keep, seed_at, has_seed, size):
+        if config.above_scan == "capped":      # the library's capped form: gathers at (v + dv, u + du)
+            du, dv = _seed_offsets(seed_at)
+            return _gather_seeds(sparse, keep, normals, functools.partial(gather_at_seed, du=du, dv=dv), has_seed)
+        return _gather_seeds(sparse, keep, normals, _at_seed_index(seed_at), has_seed)
 
-    def residual(seed_depth, seed_normal, du, dv, K, size):
+    def residual(seed_depth, seed_normal, seed_at, K, size):
+        du, dv = _seed_offsets(seed_at)
         res = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                              max_residual_ratio=config.max_residual_ratio)
         return jnp.where(seed_depth > 0, jnp.clip(seed_depth + res, config.min_depth_m, config.max_depth_m), 0.0)
@@ -78,6 +86,17 @@ def _parts(config, beams: int) -> dict:
                                  window_px=sparse.shape[0] / beams, blend=False, materialise=True,
                                  min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio,
                                  image_size=size, image_gap=None if size is None else size[0] // beams)
+
+    def cap(depth_raw, seed_depth, seed_normal, seed_at, sparse, keep, K, size):
+        if config.above_scan != "capped":       # the tail's "auto" is "plane" (the jobs resolve it before)
+            return depth_raw
+        du, dv = _seed_offsets(seed_at)
+        rows = (sparse.shape[0] if size is None else size[0]) / beams
+        out = capped_above_scan(depth_raw, seed_depth, seed_normal, du, dv, keep, sparse > 0, K, beams=beams,
+                                rows_px=rows, max_half_width_px=config.outlier_max_half_width_px,
+                                min_abs_denom=config.min_abs_denom, max_residual_ratio=config.max_residual_ratio,
+                                image_size=size)
+        return jnp.where(seed_depth > 0, jnp.clip(out, config.min_depth_m, config.max_depth_m), 0.0)
 
     def blur(depth_raw, size):
         return gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
@@ -92,11 +111,14 @@ def _parts(config, beams: int) -> dict:
         inside = (jnp.arange(h)[:, None] < size[0]) & (jnp.arange(w)[None, :] < size[1])
         return jnp.where(inside, depth, 0.0)
 
-    return dict(seed=seed, gather=gather, residual=residual, bracket=bracket, blur=blur, final=final)
+    return dict(seed=seed, gather=gather, residual=residual, bracket=bracket, cap=cap, blur=blur, final=final)
 
 
-def _cases() -> tuple:
-    """``(cases, rig)``: ``{case: {part: (jitted, arg builder)}, ...}`` and the rig program (module docs)."""
+def _cases(capped: bool = False) -> tuple:
+    """``(cases, rig)``: ``{case: {part: (jitted, arg builder)}, ...}`` and the rig program (module docs); ``capped``:
+    every program with ``SGMConfig(above_scan="capped")``, the Argoverse 2 job's resolved ``"auto"``."""
+    import dataclasses
+
     import jax
     import jax.numpy as jnp
 
@@ -104,6 +126,9 @@ def _cases() -> tuple:
     from jaxdepth._src.pipeline import _complete_tail, clear_outside_window
     g = av2_landscape_group()
     config, beams, sizes, view, keep, K, T = (g[k] for k in ("config", "beams", "sizes", "view", "keep", "K", "T"))
+    if capped:
+        config = dataclasses.replace(config, above_scan="capped")
+        g["statics"] = {**g["statics"], "config": config}
     parts = _parts(config, beams)
 
     def whole(sparse, normals, points, keep, K, T, size):
@@ -119,14 +144,23 @@ def _cases() -> tuple:
     return inputs, parts, whole, rig
 
 
-def _pairs_gather(seed_field, normals, du, dv):
+def _pairs_gather(sparse_depth, keep, normals, at, has_seed):
     """The seed gather before branch rigtail8: two complex64 pairs (``xla_tuning.pack_pair``), XLA:CPU mode."""
     import jax.numpy as jnp
 
-    from jaxdepth._src.distance import gather_at_seed
     from jaxdepth._src.xla_tuning import pack_pair, unpack_pair
+    seed_field = jnp.where(keep, sparse_depth, 0.0)
     xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
-    (nx, ny), (nz, depth) = unpack_pair(gather_at_seed(xy, du, dv)), unpack_pair(gather_at_seed(zd, du, dv))
+    (nx, ny), (nz, depth) = unpack_pair(at(xy)), unpack_pair(at(zd))
+    return depth, jnp.stack([nx, ny, nz])
+
+
+def _masked_gather(sparse_depth, keep, normals, at, has_seed):
+    """The seed gather before branch rigtail9 (XLA:CPU mode): the depth read through the mask,
+    ``where(keep, sparse_depth, 0)`` at the seed (two reads there), ``has_seed`` unused."""
+    import jax.numpy as jnp
+    seed_field = jnp.where(keep, sparse_depth, 0.0)
+    nx, ny, nz, depth = (at(channel) for channel in (*normals, seed_field))
     return depth, jnp.stack([nx, ny, nz])
 
 
@@ -209,20 +243,26 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--gather-forms", action="store_true", help="the seed gather's two forms (module docs)")
     parser.add_argument("--dt-forms", action="store_true", help="the distance transform's two forms (module docs)")
+    parser.add_argument("--depth-forms", action="store_true", help="the seed depth's two reads (module docs)")
+    parser.add_argument("--capped", action="store_true", help='SGMConfig(above_scan="capped"), the AV2 job\'s tail')
     parser.add_argument("--json", default=None, help="default results/rig_tail_parts.json (--gather-forms: "
                                                         "rig_tail_gather_forms.json, --dt-forms: rig_tail_dt_forms.json)")
     args, t0 = parser.parse_args(argv), time.time()
     args.json = args.json or str(RESULTS / ("rig_tail_gather_forms.json" if args.gather_forms else
-                                            "rig_tail_dt_forms.json" if args.dt_forms else "rig_tail_parts.json"))
+                                            "rig_tail_dt_forms.json" if args.dt_forms else
+                                            "rig_tail_depth_forms.json" if args.depth_forms else "rig_tail_parts.json"))
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
-    inputs, parts, whole, rig = _cases()
+    inputs, parts, whole, rig = _cases(args.capped)
     from jaxdepth._src import pipeline
     if args.gather_forms:
         forms = {"library": {}, "pairs": {(pipeline, "_gather_seeds"): _pairs_gather}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "the seed gather", "pairs")
+    if args.depth_forms:
+        forms = {"library": {}, "masked": {(pipeline, "_gather_seeds"): _masked_gather}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "seed depth", "masked")
     if args.dt_forms:
         forms = {"library": {}, "previous": {(pipeline, "nearest_seed"): _previous_nearest_seed}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, parts["seed"]), args, t0,
@@ -241,13 +281,15 @@ def main(argv=None) -> int:
             runs[f"{case}/{name}"] = (exe, a, px)
             return exe(*a)
 
-        chain["du"], chain["dv"] = run("seed", part_args["seed"])
+        chain["seed_at"], has_seed = run("seed", part_args["seed"])
         chain["seed_depth"], chain["seed_normal"] = run(
-            "gather", (x["sparse"], x["normals"], x["keep"], chain["du"], chain["dv"], size))
-        chain["depth_raw"] = run("residual", (chain["seed_depth"], chain["seed_normal"], chain["du"], chain["dv"],
-                                              x["K"], size))
+            "gather", (x["sparse"], x["normals"], x["keep"], chain["seed_at"], has_seed, size))
+        chain["depth_raw"] = run("residual", (chain["seed_depth"], chain["seed_normal"], chain["seed_at"], x["K"],
+                                              size))
         chain["bracketed"] = run("bracket", (chain["depth_raw"], x["sparse"], x["keep"], x["normals"], x["K"], size))
-        chain["blurred"] = run("blur", (chain["bracketed"], size))
+        chain["capped"] = run("cap", (chain["bracketed"], chain["seed_depth"], chain["seed_normal"], chain["seed_at"],
+                                      x["sparse"], x["keep"], x["K"], size))
+        chain["blurred"] = run("blur", (chain["capped"], size))
         depth = run("final", (chain["blurred"], x["sparse"], x["keep"], chain["seed_depth"], size))
         whole_args = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], size)
         fn = whole if size is not None else (lambda *b: whole(*b, None))

@@ -67,6 +67,29 @@ def test_seeds_keep_depth_and_outputs_are_finite_and_clipped():
     assert sparse.max() > config.max_depth_m and np.any(depth == config.max_depth_m)  # the clip is exercised
     # every kept seed is its own nearest seed
     assert np.all(np.asarray(stages.du)[keep] == 0) and np.all(np.asarray(stages.dv)[keep] == 0)
+    # the seed depth is the kept depth at (v + dv, u + du) (NumPy's indexing), and the seeds are Step 2's
+    v, u = np.indices(sparse.shape)
+    du, dv = np.asarray(stages.du), np.asarray(stages.dv)
+    np.testing.assert_array_equal(np.asarray(stages.seed_depth), np.where(keep, sparse, 0)[v + dv, u + du])
+    seeds = nearest_seed(stages.inlier_mask)
+    np.testing.assert_array_equal(du, np.asarray(seeds.du))
+    np.testing.assert_array_equal(dv, np.asarray(seeds.dv))
+
+
+def test_no_kept_pixel_gives_no_seed_depth_where_the_depth_is_not_empty():
+    """The seed depth is read unmasked at each seed (a seed is a kept pixel): with no kept pixel at all, every
+    pixel is its own "seed" and the depth there, not kept, must not leak in."""
+    from jaxdepth._src.pipeline import _complete_tail
+    sparse, K, T = tiny_frame(3)
+    assert np.any(sparse > 0)
+    normals = jnp.zeros((3,) + sparse.shape, jnp.float32).at[2].set(-1.0)
+    for keep in (np.zeros(sparse.shape, bool), sparse > 0):
+        stages = _complete_tail(jnp.asarray(sparse), normals, None, jnp.asarray(K), jnp.asarray(T),
+                                beams=SMALL_LIDAR.beams, config=POINTS_CONFIG, keep=jnp.asarray(keep))
+        if keep.any():
+            assert np.all(np.asarray(stages.seed_depth) > 0)
+        else:
+            assert np.all(np.asarray(stages.seed_depth) == 0) and np.all(np.asarray(stages.depth) == 0)
 
 
 @pytest.mark.slow  # a pipeline program of its own (docs/testing.md)

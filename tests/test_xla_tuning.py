@@ -107,6 +107,15 @@ def test_helpers_reduce_to_the_plain_computation():
             first, count = jax.vmap(xla_tuning.first_row_and_count)(jnp.asarray(mask), jnp.asarray(valid))
             np.testing.assert_array_equal(first, np.where(mask.any(1), mask.argmax(1), 37))
             np.testing.assert_array_equal(count, valid.sum((1, 2)))
+            values, at = rng.random((4, 3, 35)).astype(np.float32), rng.integers(0, 35, (4, 5, 7))
+            for v_axis in (0, None):        # values[..., index] under vmap: NumPy's indexing, member by member
+                got = jax.vmap(xla_tuning.take_last, in_axes=(v_axis, 0))(values if v_axis == 0 else values[0], at)
+                want = np.stack([(values[b] if v_axis == 0 else values[0])[:, at[b]] for b in range(4)])
+                np.testing.assert_array_equal(got, want)
+            np.testing.assert_array_equal(xla_tuning.take_last(values[1], at[2]), values[1][:, at[2]])
+            # tuned: a gather from the flattened batch, no batching dimension (which XLA:CPU expands to pairs)
+            jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.take_last))(values, at))
+            assert ("operand_batching_dims=(0,)" in jaxpr) == (mode == "plain"), jaxpr
 
 
 def test_stage_token_is_the_first_values_bits_and_the_only_one_written():

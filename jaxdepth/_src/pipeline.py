@@ -39,7 +39,7 @@ from jaxdepth._src.pixel_normals import pixel_normals, pixel_normals_listed
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit, stage_token
+from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit, stage_token, take_last
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -50,19 +50,47 @@ def _check_image_inputs(sparse_depth, K):
         raise ValueError(f"complete: field 'K' expected shape (3, 3), got {K.shape}")
 
 
-def _gather_seeds(seed_field, normals, du, dv):
-    """``gather_at_seed`` of the (H, W) seed depth and the (3, H, W) normals.
+def _gather_seeds(sparse_depth, keep, normals, at, has_seed):
+    """The seed depth and normals at every pixel's seed: ``where(keep, sparse_depth, 0)`` and the (3, H, W)
+    normals read by ``at`` ((..., H, W) field -> (..., H, W) values at each pixel's seed).
+
+    A seed is a pixel of ``keep``, so the masked depth at the seed is ``sparse_depth`` there: the depth is read
+    unmasked and set to 0 where the mask has no seed (``has_seed``, a scalar; then every pixel is its own
+    "seed"). The same values, one read fewer at each pixel's seed (the mask's).
 
     Returns (seed depth (H, W), seed normals (3, H, W)).
     """
     if not enabled():  # plain: one gather of the four stacked channels
-        gathered = gather_at_seed(jnp.stack([normals[0], normals[1], normals[2], seed_field]), du, dv)
-        return gathered[3], gathered[:3]
+        gathered = at(jnp.stack([normals[0], normals[1], normals[2], sparse_depth]))
+        return jnp.where(has_seed, gathered[3], 0.0), gathered[:3]
     # XLA:CPU: four float32 gathers, each fused into its consumers. As two complex64 pairs the single-camera tail
     # wrote them out (the packing fused into the gathers) and read them back: 0.88x its tail's CPU, 0.96x under a
-    # vmap; the rig programs fold the pairs and are unchanged (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
-    nx, ny, nz, depth = (gather_at_seed(channel, du, dv) for channel in (*normals, seed_field))
-    return depth, jnp.stack([nx, ny, nz])
+    # vmap (docs/speed.md, "The rig's tail, sub-stage by sub-stage").
+    nx, ny, nz, depth = (at(channel) for channel in (*normals, sparse_depth))
+    return jnp.where(has_seed, depth, 0.0), jnp.stack([nx, ny, nz])
+
+
+def _at_seed_index(seed_at):
+    """``at`` of :func:`_gather_seeds` for a flat seed index ((H, W) int32, :func:`_seed_index`): under a rig's
+    ``vmap`` one flat gather per channel (``xla_tuning.take_last``), no (camera, index) pairs written out."""
+    h, w = seed_at.shape
+    return lambda field: take_last(field.reshape(field.shape[:-2] + (h * w,)), seed_at)
+
+
+def _seed_index(du, dv):
+    """(H, W) int32 flat index ``(v + dv) W + (u + du)`` of every pixel's seed; ``_seed_offsets`` inverts it."""
+    h, w = du.shape
+    v = jnp.arange(h, dtype=jnp.int32)[:, None]
+    u = jnp.arange(w, dtype=jnp.int32)[None, :]
+    return (v + dv) * w + (u + du)
+
+
+def _seed_offsets(seed_at):
+    """``(du, dv)`` (H, W) int32 of a flat seed index (:func:`_seed_index`); exact (the index is >= 0)."""
+    h, w = seed_at.shape
+    v = jnp.arange(h, dtype=jnp.int32)[:, None]
+    u = jnp.arange(w, dtype=jnp.int32)[None, :]
+    return jax.lax.rem(seed_at, jnp.int32(w)) - u, jax.lax.div(seed_at, jnp.int32(w)) - v
 
 
 def _seeds(keep, image, config: SGMConfig):
@@ -100,8 +128,19 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     token = stage_token(sparse_depth)
     keep, = fence(keep, token=token)
     seeds = _seeds(keep, image, config)
-    du, dv = fence(seeds.du, seeds.dv, token=token)
-    seed_depth, seed_normal = _gather_seeds(jnp.where(keep, sparse_depth, 0.0), normals_cam, du, dv)
+    if config.above_scan == "capped":
+        # du and dv, read by gathers of (v + dv, u + du): the flat index below moved the capped plane's float32
+        # rounding in the Argoverse 2 depth program (a few ulps at 0.7-1 % of its pixels; docs/speed.md, "The seed
+        # search's one flat index and the seed depth's read").
+        du, dv = fence(seeds.du, seeds.dv, token=token)
+        at = functools.partial(gather_at_seed, du=du, dv=dv)
+    else:
+        # One int32 image out of the seed search, the seed's flat index (du and dv: two, and under a rig's vmap the
+        # gathers' (camera, index) pairs a third); du and dv are recomputed from it where they are read.
+        seed_at, = fence(_seed_index(seeds.du, seeds.dv), token=token)
+        du, dv = _seed_offsets(seed_at)
+        at = _at_seed_index(seed_at)
+    seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, seeds.has_seed)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,
                               min_abs_denom=config.min_abs_denom,
                               max_residual_ratio=config.max_residual_ratio)

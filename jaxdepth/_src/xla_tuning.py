@@ -28,6 +28,13 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   stage itself and stays in both modes.) Not Step 3's seed gather: there the packing fused into
   the gathers, whose complex64 results were written out; four float32 gathers, each fused into
   its consumers, cost less (``pipeline._gather_seeds``; plain: one gather of the stacked channels).
+* **Flat gathers under vmap** (:func:`take_last`). JAX batches a gather whose operand and index are
+  both batched as a gather with a batching dimension, which XLA:CPU expands into an int32
+  (B, ..., 2) array of (member, index) pairs written out before the gather; one flat 1-D gather
+  from the flattened batch (member ``b`` at ``b N + index``) computes its index inside the gather's
+  fusion (the seed gathers of the rigs' tails, ``pipeline._at_seed_index``: with the seed search's one
+  flat index image, the nuScenes tail 0.84-0.90x; docs/speed.md, "The seed search's one flat index and
+  the seed depth's read"). Plain: the batched gather.
 * **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
@@ -99,6 +106,7 @@ MODES = ("auto", "cpu", "plain")
 _ENV = "JAXDEPTH_XLA_TUNING"
 _forced: str | None = None
 _INT32_MIN = jnp.iinfo(jnp.int32).min
+_INT32_MAX = jnp.iinfo(jnp.int32).max
 _PIB = "promise_in_bounds"
 
 
@@ -390,6 +398,42 @@ def shared_loop_bounds(first: jax.Array, stop: jax.Array):
     if not enabled():
         return first, stop
     return _widest_bounds(first, stop)
+
+
+@custom_batching.custom_vmap
+def _take_last(values: jax.Array, index: jax.Array):
+    return values.at[..., index].get(mode=_PIB)
+
+
+@_take_last.def_vmap
+def _take_last_vmap(axis_size, in_batched, values, index):
+    values_batched, index_batched = in_batched
+    values, index = jnp.asarray(values), jnp.asarray(index)
+    if not index_batched:
+        return _take_last(values, index), values_batched
+    if not values_batched:
+        values = jnp.broadcast_to(values, (axis_size,) + values.shape)
+    rows, n = int(np.prod(values.shape[:-1])), values.shape[-1]      # batch x channels: one flat row each
+    if rows * n > _INT32_MAX:                                         # past int32: the batched gather
+        return jax.vmap(lambda v, i: v.at[..., i].get(mode=_PIB))(values, index), True
+    row = jnp.arange(rows, dtype=jnp.int32).reshape(values.shape[:-1] + (1,) * (index.ndim - 1)) * n
+    at = row + index.reshape(index.shape[:1] + (1,) * (values.ndim - 2) + index.shape[1:]).astype(jnp.int32)
+    return values.reshape(-1).at[at].get(mode=_PIB), True
+
+
+def take_last(values: jax.Array, index: jax.Array) -> jax.Array:
+    """``values[..., index]``, every index in bounds: (..., N) values at an integer index array of any shape.
+
+    Under ``vmap`` with the tricks on, a batched index reads the batch with one flat 1-D gather (member
+    ``b``'s row at ``b N + index[b]``, int32; fused into its consumer), where JAX's batching rule gives
+    XLA a gather of (member, index) pairs, which XLA:CPU writes out first as an int32 (B, ..., 2) array
+    (the rig tail's seed gather: 152 MB per group of six 1550 x 2048 cameras). The same elements. Plain:
+    ``values[..., index]``.
+    """
+    values, index = jnp.asarray(values), jnp.asarray(index)
+    if not enabled():
+        return values.at[..., index].get(mode=_PIB)
+    return _take_last(values, index)
 
 
 def entry_jit(fun=None, **jit_kwargs):
