@@ -109,17 +109,17 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if isinstance(item, pytest.DoctestItem) and item.name in SLOW_DOCTESTS:
             item.add_marker(pytest.mark.slow)
-    if not AT_SUITE_FLAGS:
-        return
-    for i, item in enumerate(items):
+    for i, item in enumerate(items if AT_SUITE_FLAGS else ()):
         if item.get_closest_marker("production_flags") is not None:
             stand_in = ProductionFlagsItem.from_parent(item.parent, name=item.name, test_id=item.nodeid)
             stand_in.own_markers.extend(item.own_markers)
             stand_in.keywords.update(item.keywords)
             items[i] = stand_in
-    # each stand-in is one long subprocess with no fixture to share: first, so that no worker ends the run
-    # alone on one (loadgroup hands out the groups first, then single tests in this order; sorted is stable)
-    items[:] = sorted(items, key=lambda item: not isinstance(item, ProductionFlagsItem))
+    # loadgroup hands out the groups first (largest first), then single tests in this order: the stand-ins (each
+    # one long subprocess), then the other slow tests, then the quick ones, so that no worker ends the run alone on
+    # a long test while the other has none left (sorted is stable: collection order within each class)
+    items[:] = sorted(items, key=lambda item: (not isinstance(item, ProductionFlagsItem),
+                                               item.get_closest_marker("slow") is None))
 
 
 def pytest_sessionfinish(session, exitstatus):

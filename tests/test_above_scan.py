@@ -416,6 +416,7 @@ def test_complete_rig_records_the_rule_its_sources_resolve(tmp_path, monkeypatch
 
 
 @pytest.mark.slow  # four whole-pipeline programs (test_rig_sizes' edge rig)
+@pytest.mark.xdist_group("rig_mixed_sizes")  # its complete_rig and one-source programs are test_sources' edge-rig test's
 def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_path():
     """The same cloud: as one source its default equals the single-sweep path's (``complete_rig``, both the
     plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and
