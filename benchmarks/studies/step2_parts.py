@@ -11,12 +11,16 @@ medians over rounds of ``--calls`` calls):
 * **chunks**: :data:`~jaxdepth._src.outlier_exact.CHUNK` (candidate slots per chunk) set to each of
   ``--chunks`` before tracing: fewer chunks, fewer launches (10 chunks of 512 on this frame; one chunk of
   8192); the masks must be equal.
-* **pairs**: the candidates (the prefilter's words), the points in their windows, how many (candidate, point)
+* **pairs**: the candidates of condition 2 alone, the points in their windows, how many (candidate, point)
   pairs meet condition 2 and conditions 1 and 2 (the library's ``lidar_view`` / ``condition_1`` on the
-  pairs), and how many candidates are removed: what an exact bound sharper than condition 2 could leave.
+  pairs), and how many candidates are removed: what an exact bound sharper than condition 2 could leave;
+  and the candidates with the footprint form's reach bound (``outliers._Reach``).
+* **reach**: Step 2 and the whole frame (``complete_with(method="sgm")``) with the reach bound on (the
+  library) and off (``outliers._reach`` replaced at trace time), in one process, outputs equal.
+  The parts and chunks above are the library's program (with the bound since branch kitti10).
 
     python -m benchmarks.studies.step2_parts [--rounds 15] [--calls 20] [--chunks 512 1024 2048 4096 8192]
-        [--json benchmarks/results/step2_parts.json]
+        [--reach-rounds 30] [--json benchmarks/results/step2_parts.json]
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=15)
     parser.add_argument("--calls", type=int, default=20)
     parser.add_argument("--chunks", type=int, nargs="+", default=[512, 1024, 2048, 4096, 8192])
+    parser.add_argument("--reach-rounds", type=int, default=30)
     parser.add_argument("--json", default=str(RESULTS / "step2_parts.json"))
     args, t0 = parser.parse_args(argv), time.time()
     import jax
@@ -57,7 +62,8 @@ def main(argv=None) -> int:
 
     import jaxdepth
     from jaxdepth._src import outlier_exact as X
-    from jaxdepth._src import outliers
+    from jaxdepth._src import outliers, presets
+    from jaxdepth._src.methods import complete_with
     config = jaxdepth.SGMConfig()
     sparse, K, T, label = load_frame()
     d, k, t, eps = jnp.asarray(sparse), jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32), jnp.float32(1.0)
@@ -74,7 +80,7 @@ def main(argv=None) -> int:
         words = X._window_words(ex, row, col, start, 2 * group + 1)[0]
         return removed | jnp.any(jax.lax.population_count(words).sum(axis=0) > 64, axis=0)
 
-    saved = outliers.exact_test, X._column_block, X.CHUNK
+    saved, saved_reach = (outliers.exact_test, X._column_block, X.CHUNK), outliers._reach
     exes = {"whole stage": compiled()}
     try:
         outliers.exact_test = lambda valid, ex: valid & (ex.count >= 0)
@@ -100,11 +106,29 @@ def main(argv=None) -> int:
     chunks = _interleaved(chunk_exes, call, args.rounds, args.calls)
     load.append(os.getloadavg())
 
+    frame_kw = {"method": "sgm", "config": config, "lidar": presets.KITTI_HDL64}
+    frame = lambda: complete_with.lower(d, k, t, **frame_kw).compile()
+    reach_exes = {"Step 2, reach bound on": compiled(), "frame, reach bound on": frame()}
+    outliers._reach = lambda *a, **kw: (None, 0)
+    try:
+        reach_exes.update({"Step 2, reach bound off": compiled(), "frame, reach bound off": frame()})
+    finally:
+        outliers._reach = saved_reach
+        jax.clear_caches()
+    reach = {}
+    for part in ("Step 2", "frame"):
+        pair = {n: e for n, e in reach_exes.items() if n.startswith(part)}
+        run = (lambda e: e(d, k, t, None, eps)) if part == "Step 2" else (lambda e: e(d, k, t))
+        outs = [np.asarray(run(e)) for e in pair.values()]
+        assert (outs[0] == outs[1]).all(), f"{part}: the reach bound changed the output"
+        reach.update(_interleaved(pair, run, args.reach_rounds, args.calls // 2))
+    load.append(os.getloadavg())
+
     # pairs: every (candidate, point) of the candidates' windows, through the library's view and conditions
     valid = np.asarray(sparse) > 0
     bounds = outliers._bounds(jnp.asarray(valid), beams=64, half_width=hw, half_height=hh)
     k_max = int(bounds.k_max)
-    words = np.asarray(outliers._prefilter(d.astype(jnp.float32), eps, bounds, hh=hh, hw=hw))
+    words = np.asarray(outliers._prefilter(d.astype(jnp.float32), eps, bounds, hh=hh, hw=hw))     # condition 2 alone
     cand = np.unpackbits(words.view(np.uint8), bitorder="little").reshape(height, -1)[:, :width].astype(bool)
     ys, xs = np.nonzero(cand)
     owner, qy, qx = [], [], []
@@ -126,19 +150,24 @@ def main(argv=None) -> int:
     c2 = z[py, px] > z[qy, qx] + np.float32(1.0)
     removed = np.zeros(len(ys), bool)
     np.logical_or.at(removed, owner, c1 & c2)
+    box, hs = outliers._reach(k, t[:3, 3], bounds, shape=(height, width), beams=64, hh=hh)
+    words = np.asarray(outliers._prefilter(d.astype(jnp.float32), eps, bounds, hh=hh, hw=hw, reach=box, hs=hs))
+    reach_cand = np.unpackbits(words.view(np.uint8), bitorder="little").reshape(height, -1)[:, :width].astype(bool)
     keep = np.asarray(outliers.outlier_keep_mask(d, k, t, beams=64))
     assert removed.sum() == (valid & ~keep).sum(), "the pairs' removals differ from the mask's"
     pairs = {"points": int(valid.sum()), "k_max": k_max, "half_height": hh, "candidates": int(len(ys)),
              "chunks_of_512": int(-(-len(ys) // 512)), "pairs_in_windows": int(len(owner)),
              "pairs_condition_2": int(c2.sum()), "pairs_conditions_1_and_2": int((c1 & c2).sum()),
-             "candidates_with_a_condition_2_pair": int(np.unique(owner[c2]).size), "removed": int(removed.sum())}
-    for name, row in {**parts, **chunks}.items():
+             "candidates_with_a_condition_2_pair": int(np.unique(owner[c2]).size), "removed": int(removed.sum()),
+             "candidates_with_the_reach_bound": int(reach_cand.sum()), "reach_box_half_sizes": [int(box.a), hs],
+             "removed_outside_the_reach_candidates": int((~keep & valid & ~reach_cand).sum())}
+    for name, row in {**parts, **chunks, **reach}.items():
         print(f"{name:45s} CPU {row['cpu_ms']:.3f} ms  wall {row['wall_ms']:.3f} ms  CPU / first {row['cpu_ratio_to_first']:.3f}")
     print(pairs, "load", load)
     doc = {"what": "Step 2 (outliers._keep_mask) on the KITTI frame: the stage against its prefilter + count and its "
                    "exact test without the rank loop (parts), CHUNK sizes (masks equal), and the candidates' pairs",
            "frame": label, "rounds": args.rounds, "calls": args.calls, "parts": parts, "chunks": chunks,
-           "pairs": pairs, "load_average": load}
+           "reach_rounds": args.reach_rounds, "reach": reach, "pairs": pairs, "load_average": load}
     write_results(args.json, doc, config, t0)
     return 0
 
