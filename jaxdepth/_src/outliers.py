@@ -49,6 +49,10 @@ leaves.
    footprint form's parallax here, from window extrema of ``1 / (Z - t_z)``: ~1.5k candidates on
    the KITTI frame, but three more keys' minima and a float pass over every pixel cost more than
    the exact test spends on the extra candidates; docs/speed.md, "Step 2's cost (branch step2cut)".)
+   The footprint form on image input (one LiDAR origin, the exact path) adds its reach bound
+   (:class:`_Reach`, from the same key and window minimum, no pass of its own): a pixel whose
+   relative parallax move is small must have its nearer pixel within a small box (KITTI: ~1.4k
+   candidates instead of ~4.7k; docs/speed.md, "Step 2's reach bound").
    Tall windows (the rigs' cameras, 49 rows): the minima over blocks of 4-8 rows and each block's
    largest key instead, one pass over the depth; a pixel with depth is a candidate when its block's
    largest key passes against the minimum over the blocks covering its block's windows (a superset:
