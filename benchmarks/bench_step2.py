@@ -114,7 +114,11 @@ def _info(args, beams, hw, hh):
     depth = args[0]
     valid = (depth > 0) & jnp.isfinite(depth)
     bounds = O._bounds(valid, beams=beams, half_width=hw, half_height=hh)
-    words = O._prefilter(depth, jnp.float32(1.0), bounds, hh=hh, hw=hw)
+    reach, hs = None, 0
+    if args[3] is None and len(args) == 4 and O._row_block(depth.shape[0], hh) is None:   # as _keep_mask: image input
+        reach, hs = O._reach(jnp.asarray(args[1], jnp.float32), jnp.asarray(args[2], jnp.float32)[:3, 3], bounds,
+                             shape=depth.shape, beams=beams, hh=hh)
+    words = O._prefilter(depth, jnp.float32(1.0), bounds, hh=hh, hw=hw, reach=reach, hs=hs)
     count = int(O._compact(words)[0])
     return dict(points=int(bounds.n_points), k=int(bounds.k_max), candidates=count, chunks=-(-count // CHUNK))
 

@@ -49,6 +49,10 @@ leaves.
    footprint form's parallax here, from window extrema of ``1 / (Z - t_z)``: ~1.5k candidates on
    the KITTI frame, but three more keys' minima and a float pass over every pixel cost more than
    the exact test spends on the extra candidates; docs/speed.md, "Step 2's cost (branch step2cut)".)
+   The footprint form on image input (one LiDAR origin, the exact path) adds its reach bound
+   (:class:`_Reach`, from the same key and window minimum, no pass of its own): a pixel whose
+   relative parallax move is small must have its nearer pixel within a small box (KITTI: ~1.4k
+   candidates instead of ~4.7k; docs/speed.md, "Step 2's reach bound").
    Tall windows (the rigs' cameras, 49 rows): the minima over blocks of 4-8 rows and each block's
    largest key instead, one pass over the depth; a pixel with depth is a candidate when its block's
    largest key passes against the minimum over the blocks covering its block's windows (a superset:
@@ -174,13 +178,95 @@ def _prefilter_key(depth, *, hh, hw):
     return jnp.pad(key, ((hh, hh), (hw, hw + extra)), constant_values=np.uint16(_ZNONE))
 
 
-def _prefilter_rows(padded, *, hh):
+def _prefilter_rows(padded, *, hh, hs=None):
     """Column (vertical) minima of the padded depth key over the window's 2 hh + 1 rows (doubling,
-    :func:`_sliding_mins`): (H, Wp + 2 hw)."""
-    return _sliding_mins(padded, (hh,), axis=0)[0]
+    :func:`_sliding_mins`): (H, Wp + 2 hw); with ``hs`` (static, <= hh) also over the 2 hs + 1 rows of the
+    reach box (:class:`_Reach`): a tuple of one or two arrays. (The two packed in one uint32 output, one
+    pass instead of two, made the prefilter slower: 1.05 against 0.89 ms CPU on the KITTI frame.)"""
+    return _sliding_mins(padded, (hh,) if hs is None else (hh, hs), axis=0)
 
 
-def _prefilter_words(k, low, key, eps, *, hw, width):
+#: The footprint form's reach bound on image input (:class:`_Reach`): a pixel whose relative move is at most
+#: this many cells can only be removed by a nearer pixel within ``_reach_radius()`` cells of it.
+_REACH_MOVE = 0.5
+#: Static cap on the reach box's half width, pixels (its run-time half width is ~0.72 W L / N: 2 on KITTI).
+_REACH_HALF_WIDTH = 4
+#: Slack of the reach bound, cells (float32 rounding of the exact test is ~1e-4 cells).
+_REACH_SLACK = 0.01
+
+
+def _reach_radius() -> float:
+    """Cells: a pair the footprint form can remove lies within this of the removed pixel when its move is
+    at most ``_REACH_MOVE`` (``|rb|^2 < |m|^2 + 1/4``, slack added; :class:`_Reach`)."""
+    return math.sqrt((_REACH_MOVE + _REACH_SLACK) ** 2 + 0.25 + _REACH_SLACK)
+
+
+class _Reach(NamedTuple):
+    """The footprint form's reach bound on image input (one LiDAR origin ``t``, points back-projected).
+
+    For such a pixel ``p = z K^-1 (q, 1)`` (``q = (u, v)``, K upper triangular as :func:`~jaxdepth._src.
+    geometry.pixel_rays` inverts it) the camera pixel is ``b = q`` and the LiDAR view's
+    ``a = (z q - C) / (z - t_z)`` with ``C = (K t)_{u, v}``, so its parallax is ``b - a = (C - q t_z) w``,
+    ``w = 1 / (z - t_z)``. For a removed ``i`` and its ``j`` (``z_j < z_i``, both ``z - t_z > 1 mm``) the
+    relative move is ``m = (C - q_i t_z)(w_i - w_j) + (q_j - q_i) t_z w_j`` (pixels), so, with ``w_j <= W``
+    (the window's smallest depth key) and ``w_i >= 1 / ((key_i + 1) / 256 - t_z)``,
+    ``|m_u| <= |C_u - u_i t_z| (W - w_i) + |t_z| k W`` and ``|m_v| <= |C_v - v_i t_z| (W - w_i) + |t_z| hh W``.
+    The exact test's conditions (``ra . m < 0 < rb . m``, ``|ra x m| < |m| / 2``, in cells) put ``rb`` at
+    ``alpha m_hat + beta n_hat`` with ``0 < alpha < |m|`` and ``|beta| < 1/2``: ``|rb|^2 < |m|^2 + 1/4``.
+    So a pixel whose bound on ``|m|`` (cells) is at most ``_REACH_MOVE`` is removed only by a nearer pixel
+    within :func:`_reach_radius` cells, inside the box ``|du| <= a``, ``|dv| <= hs``; the prefilter then
+    asks condition 2 in that box instead of the whole window (a superset of the removed pixels: the
+    float32 rounding of the bound and of the exact test is covered by ``slack`` and ``_REACH_SLACK``).
+    """
+
+    c_u: jax.Array    # float32 (K t)_u = K00 t_x + K01 t_y + K02 t_z, pixel metres
+    c_v: jax.Array    # float32 (K t)_v = K11 t_y + K12 t_z
+    t_z: jax.Array    # float32
+    slack: jax.Array  # float32 pixel metres: bound on the rounding of C - q t_z (added times W)
+    cell_u: jax.Array
+    cell_v: jax.Array
+    a: jax.Array      # int32 half width of the reach box, <= k
+
+
+def _reach(K, t, bounds: _Bounds, *, shape: tuple, beams: int, hh: int) -> tuple:
+    """(:class:`_Reach`, hs) of an image of static ``shape`` (H, W) ((3, 3) float32 K, (3,) LiDAR origin
+    ``t`` in the camera frame): the reach box is ``|du| <= a`` (int32 data, ``<= k``) by ``|dv| <= hs``
+    (static, ``<= hh``), every offset within :func:`_reach_radius` cells (``W L / N`` by ``H / L`` pixels)."""
+    height, width = shape
+    radius = _reach_radius() * (1 + 1e-5)
+    c_u, c_v = K[0, 0] * t[0] + K[0, 1] * t[1] + K[0, 2] * t[2], K[1, 1] * t[1] + K[1, 2] * t[2]
+    size = jnp.sum(jnp.abs(K)) + (width + height)
+    slack = np.float32(1e-5) * size * (jnp.abs(t[0]) + jnp.abs(t[1]) + jnp.abs(t[2]))
+    a = jnp.minimum(jnp.floor(np.float32(radius) * bounds.cell_u).astype(jnp.int32), bounds.k_max)
+    hs = min(math.floor(radius * height / beams), hh)
+    return _Reach(c_u, c_v, t[2], slack, bounds.cell_u, bounds.cell_v, a), hs
+
+
+def _moves_far(key, low, k, reach: _Reach, *, hh):
+    """(H, Wp) bool: False only where :class:`_Reach`'s bound on the relative move is at most ``_REACH_MOVE``
+    cells. ``key``: each pixel's int32 depth key, ``low``: the window's smallest (int32, :func:`_window_min`).
+
+    With ``n = low / 256 - t_z <= z_j - t_z`` and ``o = (key + 1) / 256 - t_z > z_i - t_z``: ``W = 1 / n``,
+    ``W - w_i <= (o - n) / (n o)`` (``W`` for a saturated key), so the bound times ``n o`` needs no division:
+    ``|m_u| n o <= |C_u - u t_z| (o - n) + (|t_z| k + slack) o`` (likewise v with ``hh``), compared squared
+    with ``(_REACH_MOVE n o)^2``, inflated by 0.2 % + 1e-3 cells^2 against its own float32 rounding."""
+    rows, cols = key.shape
+    inv_q = np.float32(1.0 / _ZQ)
+    near = low.astype(jnp.float32) * inv_q - reach.t_z
+    own = (key + 1).astype(jnp.float32) * inv_q - reach.t_z
+    bounded = near > np.float32(2e-3)
+    gap = jnp.where(key >= _ZSAT, own, own - near)
+    tz = jnp.abs(reach.t_z)
+    a_u = jnp.abs(reach.c_u - jnp.arange(cols, dtype=jnp.float32)[None, :] * reach.t_z) / reach.cell_u
+    a_v = jnp.abs(reach.c_v - jnp.arange(rows, dtype=jnp.float32)[:, None] * reach.t_z) / reach.cell_v
+    m_u = a_u * gap + (tz * k.astype(jnp.float32) + reach.slack) / reach.cell_u * own
+    m_v = a_v * gap + (tz * np.float32(hh) + reach.slack) / reach.cell_v * own
+    scale = near * own
+    move2 = (m_u * m_u + m_v * m_v) * np.float32(1.002) + np.float32(1e-3) * scale * scale
+    return ~bounded | ~(move2 <= np.float32(_REACH_MOVE ** 2) * scale * scale)
+
+
+def _prefilter_words(k, low, key, eps, *, hw, width, hh=0, reach=None, low_reach=None):
     """Candidate mask for the run-time horizontal half window k, packed into uint32 words (H, ceil(W / 32)).
 
     ``width``: Wp, a multiple of 32 (:func:`_prefilter_key`). ``low``: the row minima of
@@ -189,11 +275,19 @@ def _prefilter_words(k, low, key, eps, *, hw, width):
     Both forms of condition 1 need condition 2: a pixel more than ``eps`` nearer in the window,
     ``z_i > min_window(z) + eps``, tested on uint16 keys ``floor(z * 256)``: ``key_i >= min key +
     floor(256 eps)`` follows from it (a superset; a saturated key always passes).
+    ``reach`` (:class:`_Reach`, the footprint form on image input) with ``low_reach`` (the row minima over
+    the reach box's rows, :func:`_prefilter_rows`): a pixel whose move bound is small must pass the same
+    test in the reach box too.
     """
     low = _window_min(low, k, hw=hw, width=width).astype(jnp.int32)
     key = key.astype(jnp.int32)
     margin = jnp.floor(eps * np.float32(_ZQ)).astype(jnp.int32)
     cand = (key < _ZNONE) & (low < _ZNONE) & ((key >= low + margin) | (key == _ZSAT))
+    if reach is not None:
+        hb = min(hw, _REACH_HALF_WIDTH)     # the box's static cap; wider at run time: every pixel is "far"
+        box = _window_min(low_reach[:, hw - hb:hw + hb + width], reach.a, hw=hb, width=width).astype(jnp.int32)
+        far = _moves_far(key, low, k, reach, hh=hh) | (reach.a > hb)
+        cand = cand & (far | (key >= box + margin) | (key == _ZSAT))
     return pack_bits(cand)
 
 
@@ -339,7 +433,8 @@ def _block_words(low, keys, columns, eps, *, block, height):
     return columns & _block_bits(on, block=block, height=height)
 
 
-def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
+def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None, reach: _Reach | None = None,
+               hs: int = 0):
     """Phase 1: candidates for removal, exact superset of the removed pixels, as packed words.
 
     Args:
@@ -354,6 +449,8 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
       Tall windows (:func:`_row_block` not None): (ceil(H / 32), W) words packed down the columns
       (:func:`~jaxdepth._src.outlier_exact.pack_columns`; ``columns``: the pixels with depth so packed, or
       None), from one dense pass over the depth (:func:`_block_keys`) and passes over the blocks.
+      ``reach``: optional :class:`_Reach` (exact path only) with ``hs``, the reach box's static row half
+      size: pixels whose move bound is small pass only with a nearer pixel in the reach box.
     """
     height, width = depth.shape[0], -(-depth.shape[1] // WORD_BITS) * WORD_BITS
     b = _row_block(height, hh)
@@ -369,9 +466,14 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None):
         return stage(lambda lo, hi, c, e: _block_words(lo, hi, c, e, block=b, height=height), (low, keys, columns, eps),
                      token)
     padded = stage(lambda d: (_prefilter_key(d, hh=hh, hw=hw),), (depth,), token)[0]
-    low = stage(lambda x: (_prefilter_rows(x, hh=hh),), (padded,), token)[0]
-    return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw, width=width),
-                 (bounds.k_max, low, padded, eps), token)
+    if reach is None:
+        low = stage(lambda x: _prefilter_rows(x, hh=hh), (padded,), token)[0]
+        return stage(lambda k, lo, x, e: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw,
+                                                          width=width), (bounds.k_max, low, padded, eps), token)
+    low, low_reach = stage(lambda x: _prefilter_rows(x, hh=hh, hs=hs), (padded,), token)
+    return stage(lambda k, lo, lr, x, e, r: _prefilter_words(k, lo, x[hh:hh + height, hw:hw + width], e, hw=hw,
+                                                             width=width, hh=hh, reach=r, low_reach=lr),
+                 (bounds.k_max, low, low_reach, padded, eps, reach), token)
 
 
 @functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
@@ -409,8 +511,11 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
                      half_height=half_height, image_size=image_size, columns=None if window_pixels is not None
                      else columns)
-    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns)
     down = _row_block(depth.shape[0], half_height) is not None      # the words' layout (:func:`_prefilter`)
+    reach, hs = None, 0
+    if test == "footprint" and points is None and origins is None and image_size is None and not down:
+        reach, hs = _reach(K, t, bounds, shape=depth.shape, beams=beams, hh=half_height)
+    words = _prefilter(depth, eps, bounds, hh=half_height, hw=half_width, columns=columns, reach=reach, hs=hs)
     pack = pack_columns if down else pack_bits
     if candidates is not None:
         words = words & pack(candidates)
