@@ -82,7 +82,8 @@ def profile_frames(fn, directory: str, frames: int = 10, top: int = 15):
 def stage_functions(config: SGMConfig, lidar):
     """Each paper step jitted on its own (so the per-stage times add up to a separated pipeline)."""
     from jaxdepth._src.distance import nearest_seed
-    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds, _seed_index
+    from jaxdepth._src.distance import seed_index
+    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds
     from jaxdepth._src.normals import point_normals
     from jaxdepth._src.pixel_normals import pixel_normals
     from jaxdepth._src.outliers import outlier_keep_mask
@@ -116,7 +117,7 @@ def stage_functions(config: SGMConfig, lidar):
 
     @jax.jit
     def residual_and_smoothing(sparse, keep, normals, du, dv, K):
-        seed_depth, seed_normal = _gather_seeds(sparse, keep, normals, _at_seed_index(_seed_index(du, dv)), jnp.any(keep))
+        seed_depth, seed_normal = _gather_seeds(sparse, keep, normals, _at_seed_index(seed_index(du, dv)), jnp.any(keep))
         dz = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                             max_residual_ratio=config.max_residual_ratio)
         raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + dz, config.min_depth_m, config.max_depth_m), 0.0)

@@ -59,7 +59,8 @@ def _parts(config, beams: int) -> dict:
     from jaxdepth._src.above_scan import capped_above_scan
     from jaxdepth._src.distance import gather_at_seed
     from jaxdepth._src.hypotheses import column_hypotheses
-    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds, _seed_index, _seed_offsets
+    from jaxdepth._src.distance import seed_index, seed_offsets
+    from jaxdepth._src.pipeline import _at_seed_index, _gather_seeds
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur
     assert config.guidance_weight == 0 and config.column_bracket and not config.blend_hypotheses
@@ -67,16 +68,16 @@ def _parts(config, beams: int) -> dict:
 
     def seed(keep, size):
         s = pipeline.nearest_seed(keep, metric=config.distance_metric, horizontal_cost=config.seed_horizontal_cost)
-        return _seed_index(s.du, s.dv), s.has_seed
+        return seed_index(s.du, s.dv), s.has_seed
 
     def gather(sparse, normals, keep, seed_at, has_seed, size):
         if config.above_scan == "capped":      # the library's capped form: gathers at (v + dv, u + du)
-            du, dv = _seed_offsets(seed_at)
+            du, dv = seed_offsets(seed_at)
             return _gather_seeds(sparse, keep, normals, functools.partial(gather_at_seed, du=du, dv=dv), has_seed)
         return _gather_seeds(sparse, keep, normals, _at_seed_index(seed_at), has_seed)
 
     def residual(seed_depth, seed_normal, seed_at, K, size):
-        du, dv = _seed_offsets(seed_at)
+        du, dv = seed_offsets(seed_at)
         res = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                              max_residual_ratio=config.max_residual_ratio)
         return jnp.where(seed_depth > 0, jnp.clip(seed_depth + res, config.min_depth_m, config.max_depth_m), 0.0)
@@ -90,7 +91,7 @@ def _parts(config, beams: int) -> dict:
     def cap(depth_raw, seed_depth, seed_normal, seed_at, sparse, keep, K, size):
         if config.above_scan != "capped":       # the tail's "auto" is "plane" (the jobs resolve it before)
             return depth_raw
-        du, dv = _seed_offsets(seed_at)
+        du, dv = seed_offsets(seed_at)
         rows = (sparse.shape[0] if size is None else size[0]) / beams
         out = capped_above_scan(depth_raw, seed_depth, seed_normal, du, dv, keep, sparse > 0, K, beams=beams,
                                 rows_px=rows, max_half_width_px=config.outlier_max_half_width_px,

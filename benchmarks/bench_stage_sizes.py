@@ -62,7 +62,8 @@ def _stage_fns(points, valid, camera, spec, config):
     from jaxdepth._src.hypotheses import column_hypotheses
     from jaxdepth._src.normals import point_normals
     from jaxdepth._src.outliers import keep_mask_for_config
-    from jaxdepth._src.pipeline import _at_seed_index, _complete_tail, _gather_seeds, _seed_index, project_with_normals
+    from jaxdepth._src.distance import seed_index
+    from jaxdepth._src.pipeline import _at_seed_index, _complete_tail, _gather_seeds, project_with_normals
     from jaxdepth._src.residual import plane_residual
     from jaxdepth._src.smoothing import gaussian_blur
     from jaxdepth._src.validity import seed_distance
@@ -81,7 +82,7 @@ def _stage_fns(points, valid, camera, spec, config):
 
     @jax.jit
     def residual_fn(s, nc, k, du, dv):
-        seed_depth, seed_normal = _gather_seeds(s, k, nc, _at_seed_index(_seed_index(du, dv)), jnp.any(k))
+        seed_depth, seed_normal = _gather_seeds(s, k, nc, _at_seed_index(seed_index(du, dv)), jnp.any(k))
         return seed_depth, plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
                                           max_residual_ratio=config.max_residual_ratio)
     seed_depth, residual = residual_fn(sparse, nc, keep, du, dv)

@@ -475,8 +475,22 @@ def gather_at_seed(field: jax.Array, du: jax.Array, dv: jax.Array) -> jax.Array:
         if offset.shape != (h, w):
             raise ValueError(
                 f"gather_at_seed: {name} expected shape {(h, w)}, got {tuple(offset.shape)}")
+    flat = field.reshape(field.shape[:-2] + (h * w,))
+    return flat.at[..., seed_index(du, dv)].get(mode=_PIB)
+
+
+def seed_index(du: jax.Array, dv: jax.Array) -> jax.Array:
+    """(H, W) int32 flat index ``(v + dv) W + (u + du)`` of every pixel's seed (``du``, ``dv``: (H, W) integer
+    offsets as :func:`gather_at_seed` takes them); :func:`seed_offsets` inverts it."""
+    h, w = du.shape
     v = jnp.arange(h, dtype=jnp.int32)[:, None]
     u = jnp.arange(w, dtype=jnp.int32)[None, :]
-    index = (v + dv.astype(jnp.int32)) * w + (u + du.astype(jnp.int32))
-    flat = field.reshape(field.shape[:-2] + (h * w,))
-    return flat.at[..., index].get(mode=_PIB)
+    return (v + dv.astype(jnp.int32)) * w + (u + du.astype(jnp.int32))
+
+
+def seed_offsets(index: jax.Array) -> jax.Array:
+    """``(du, dv)`` (H, W) int32 of a flat seed index of :func:`seed_index`; exact (the index is >= 0)."""
+    h, w = index.shape
+    v = jnp.arange(h, dtype=jnp.int32)[:, None]
+    u = jnp.arange(w, dtype=jnp.int32)[None, :]
+    return jax.lax.rem(index, jnp.int32(w)) - u, jax.lax.div(index, jnp.int32(w)) - v

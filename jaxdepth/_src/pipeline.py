@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxdepth._src import presets
 from jaxdepth._src.above_scan import background_above_scan, capped_above_scan
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
-from jaxdepth._src.distance import gather_at_seed, nearest_seed
+from jaxdepth._src.distance import gather_at_seed, nearest_seed, seed_index, seed_offsets
 from jaxdepth._src.geodesic import geodesic_seed
 from jaxdepth._src.images import guidance_image
 from jaxdepth._src.geometry import camera_points, winners_image, zbuffer_image, zbuffer_winners
@@ -71,26 +71,10 @@ def _gather_seeds(sparse_depth, keep, normals, at, has_seed):
 
 
 def _at_seed_index(seed_at):
-    """``at`` of :func:`_gather_seeds` for a flat seed index ((H, W) int32, :func:`_seed_index`): under a rig's
+    """``at`` of :func:`_gather_seeds` for a flat seed index ((H, W) int32, :func:`~jaxdepth._src.distance.seed_index`): under a rig's
     ``vmap`` one flat gather per channel (``xla_tuning.take_last``), no (camera, index) pairs written out."""
     h, w = seed_at.shape
     return lambda field: take_last(field.reshape(field.shape[:-2] + (h * w,)), seed_at)
-
-
-def _seed_index(du, dv):
-    """(H, W) int32 flat index ``(v + dv) W + (u + du)`` of every pixel's seed; ``_seed_offsets`` inverts it."""
-    h, w = du.shape
-    v = jnp.arange(h, dtype=jnp.int32)[:, None]
-    u = jnp.arange(w, dtype=jnp.int32)[None, :]
-    return (v + dv) * w + (u + du)
-
-
-def _seed_offsets(seed_at):
-    """``(du, dv)`` (H, W) int32 of a flat seed index (:func:`_seed_index`); exact (the index is >= 0)."""
-    h, w = seed_at.shape
-    v = jnp.arange(h, dtype=jnp.int32)[:, None]
-    u = jnp.arange(w, dtype=jnp.int32)[None, :]
-    return jax.lax.rem(seed_at, jnp.int32(w)) - u, jax.lax.div(seed_at, jnp.int32(w)) - v
 
 
 def _seeds(keep, image, config: SGMConfig):
@@ -137,8 +121,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     else:
         # One int32 image out of the seed search, the seed's flat index (du and dv: two, and under a rig's vmap the
         # gathers' (camera, index) pairs a third); du and dv are recomputed from it where they are read.
-        seed_at, = fence(_seed_index(seeds.du, seeds.dv), token=token)
-        du, dv = _seed_offsets(seed_at)
+        seed_at, = fence(seed_index(seeds.du, seeds.dv), token=token)
+        du, dv = seed_offsets(seed_at)
         at = _at_seed_index(seed_at)
     seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, seeds.has_seed)
     residual = plane_residual(seed_depth, seed_normal, du, dv, K,

@@ -261,9 +261,8 @@ def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
     pixels = max(h * w for (h, w), _ in groups)
     parts = jax.vmap(functools.partial(shared, height=pixels, width=1))(cameras.K, cameras.T_cam_lidar,
                                                                          cameras.image_size, jnp.asarray(bound))
-    return map_by_size(lambda K, T, size, image, part, *, height, width: per_camera(
-        K, T, size, image, part, height=height, width=width), cameras, None,
-        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
+    return map_by_size(per_camera, cameras, None,
+                       tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
 
 
 def _cameras_at(x: jax.Array, idx: np.ndarray) -> jax.Array:
