@@ -87,6 +87,12 @@ def balanced_orders(names, rounds: int, *, seed: int = 0) -> list[tuple]:
     return out[:rounds]
 
 
+def rotated_orders(names, rounds: int) -> list[tuple]:
+    """The frame bench's former orders: ``names`` rotated by one place a round (``--order rotate``)."""
+    names = list(names)
+    return [tuple(names[r % len(names):] + names[:r % len(names)]) for r in range(rounds)]
+
+
 def order_effects(calls: list[tuple], names) -> dict:
     """Per arm, the median ms of its calls by place in the round and by the arm called just before.
 

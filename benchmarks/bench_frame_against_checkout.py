@@ -34,7 +34,8 @@ import time
 
 import numpy as np
 
-from benchmarks._common import RESULTS, balanced_orders, load_frame, order_effects, write_results
+from benchmarks._common import (RESULTS, balanced_orders, load_frame, order_effects, rotated_orders,
+                                write_results)
 from benchmarks.bench_end_to_end import wall_and_cpu_ms
 from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
 
@@ -94,7 +95,7 @@ def main(argv=None) -> int:
         fn()
     names = list(calls)
     if args.order == "rotate":
-        orders = [tuple(names[r % 3:] + names[:r % 3]) for r in range(args.rounds)]
+        orders = rotated_orders(names, args.rounds)
     else:
         orders = balanced_orders(names, args.rounds, seed=args.seed)
     wall, cpu = {n: [] for n in names}, {n: [] for n in names}

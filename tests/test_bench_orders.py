@@ -9,7 +9,7 @@ import itertools
 
 import pytest
 
-from benchmarks._common import balanced_orders, order_effects
+from benchmarks._common import balanced_orders, order_effects, rotated_orders
 
 
 @pytest.mark.parametrize("names", [("a", "b"), ("this", "checkout", "ip_basic")])
@@ -43,3 +43,9 @@ def test_order_effects_groups_by_place_and_predecessor():
                                  "a": {"median_ms": pytest.approx(3.0), "calls": 1}}
     assert got["after"]["b"] == {"a": {"median_ms": pytest.approx(4.0), "calls": 1},
                                  "b": {"median_ms": pytest.approx(2.0), "calls": 1}}
+
+
+def test_rotated_orders_move_each_arm_one_place_a_round():
+    orders = rotated_orders(("a", "b", "c"), 7)
+    assert orders[:4] == [("a", "b", "c"), ("b", "c", "a"), ("c", "a", "b"), ("a", "b", "c")]
+    assert all(sorted(o) == ["a", "b", "c"] for o in orders)
