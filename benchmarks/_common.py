@@ -67,3 +67,45 @@ def write_results(path, doc: dict, config, t0: float, *, indent: int | None = 2)
     out = pathlib.Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, (json.dumps(doc, indent=indent) + "\n").encode())
+
+
+def balanced_orders(names, rounds: int, *, seed: int = 0) -> list[tuple]:
+    """``rounds`` call orders of ``names``, balanced so that no arm's place in the round decides it.
+
+    Every block of ``len(names)!`` rounds holds each permutation of ``names`` once (shuffled within
+    the block by a NumPy generator seeded with ``seed``: the same orders on every run), so over whole
+    blocks each arm is first, second, ... equally often and, within a round, follows each other arm
+    equally often (for two arms: AB / BA, ABBA-like). A rotation (``names[r % k:] + names[:r % k]``)
+    balances the place but not the predecessor: every arm follows the same arm in most rounds.
+    """
+    import itertools
+    perms = list(itertools.permutations(names))
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < rounds:
+        out.extend(perms[i] for i in rng.permutation(len(perms)))
+    return out[:rounds]
+
+
+def rotated_orders(names, rounds: int) -> list[tuple]:
+    """The frame bench's former orders: ``names`` rotated by one place a round (``--order rotate``)."""
+    names = list(names)
+    return [tuple(names[r % len(names):] + names[:r % len(names)]) for r in range(rounds)]
+
+
+def order_effects(calls: list[tuple], names) -> dict:
+    """Per arm, the median ms of its calls by place in the round and by the arm called just before.
+
+    ``calls`` is every timed call in run order as ``(name, place, seconds)``; the first call's
+    predecessor is ``"none"``. Shows how much the order moves an arm (the same code in two places).
+    """
+    import statistics
+    by_place = {n: {} for n in names}
+    by_prev = {n: {} for n in names}
+    prev = "none"
+    for name, place, seconds in calls:
+        by_place[name].setdefault(str(place), []).append(seconds)
+        by_prev[name].setdefault(prev, []).append(seconds)
+        prev = name
+    med = lambda groups: {k: {"median_ms": statistics.median(v) * 1e3, "calls": len(v)} for k, v in sorted(groups.items())}
+    return {"by_place": {n: med(by_place[n]) for n in names}, "after": {n: med(by_prev[n]) for n in names}}

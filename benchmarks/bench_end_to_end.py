@@ -3,7 +3,7 @@
 Frame: ../shared/data/kitti/drive_0001_frame05 camera 2, cropped to 352x1216 (random
 ~4 % sparse input of that size when the data is missing). Reports medians after
 warm-up (compile time separately), ratios against the OpenCV baselines timed in
-the same run (alternating calls: wall and process CPU of each), per-stage times (each stage jitted on its own), batched
+the same run (alternating calls, each pair's order balanced: wall and process CPU of each), per-stage times (each stage jitted on its own), batched
 throughput for lax.map and vmap batching, and peak resident memory.
 
     python -m benchmarks.bench_end_to_end [--repeats 50] [--json benchmarks/results/end_to_end.json]
@@ -34,7 +34,7 @@ from jaxdepth._src.methods import complete_with
 from jaxdepth.research.baselines import ip_basic_opencv
 from jaxdepth.batch import runner
 
-from benchmarks._common import ROOT, load_frame
+from benchmarks._common import ROOT, balanced_orders, load_frame
 
 
 def timeit(fn, repeats):
@@ -168,9 +168,12 @@ def main(argv=None):
     # tens of percent over seconds): the median of the per-pair ratios.
     # Process CPU beside wall: when other work loads the cores, wall times follow the CPU
     # seconds (the SGM's XLA threads against IP_Basic's one), so both ratios are recorded.
+    # Each pair's order from balanced_orders (SGM first in half the pairs: which call comes first moves
+    # the SGM's time, see docs/speed.md "A fair frame bench").
     pairs = []
-    for _ in range(2 * args.repeats):
-        pairs.append((*wall_and_cpu_ms(sgm), *wall_and_cpu_ms(ipb)))
+    for order in balanced_orders(("sgm", "ipb"), 2 * args.repeats, seed=0):
+        timed = {name: wall_and_cpu_ms(sgm if name == "sgm" else ipb) for name in order}
+        pairs.append((*timed["sgm"], *timed["ipb"]))
     results["alternating"] = {
         "sgm_median_ms": statistics.median(p[0] for p in pairs),
         "ip_basic_opencv_median_ms": statistics.median(p[2] for p in pairs),

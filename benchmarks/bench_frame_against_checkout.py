@@ -3,17 +3,22 @@
 Issue 38's first bar (one frame at most 0.8x IP_Basic) before and after a change, measured without the
 machine's drift between two runs: the other checkout's ``jaxdepth`` is copied as the package
 ``jaxdepth_base`` (``bench_rig_against_checkout``'s copy), both SGM programs are compiled and their depth
-compared byte for byte, then ``--rounds`` rounds each call the three in turn (the order rotating): this
-SGM, the checkout's SGM, IP_Basic's fast mode in OpenCV (``ip_basic_opencv``, Gaussian blur, as
-``bench_end_to_end``). Process CPU (user + system of every thread) and wall of each call; reported: the
-medians, the ratio of CPU sums SGM / IP_Basic for each library, and the median of the per-round ratios
-this / checkout. ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
+compared byte for byte, then ``--rounds`` rounds each call the three once: this SGM, the checkout's SGM,
+IP_Basic's fast mode in OpenCV (``ip_basic_opencv``, Gaussian blur, as ``bench_end_to_end``). The order of
+each round (``--order balanced``, the default): every block of 6 rounds runs the 6 permutations, shuffled
+with ``--seed`` (``_common.balanced_orders``), so each arm is in each place and after each other arm
+equally often; ``--order rotate``: the former rotation (this, checkout, IP_Basic, rotated by one a round),
+in which the SGM called first in the rotation follows IP_Basic in 2 rounds of 3 and the other follows it.
+Process CPU (user + system of every thread) and wall of each call; reported: the medians, the ratio of
+CPU sums SGM / IP_Basic and the ratio of wall medians SGM / IP_Basic for each library, the median of the
+per-round ratios this / checkout, and each arm's medians by place and by the arm called before it
+(``_common.order_effects``: how much the order moves the same code). ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
 instead of the whole frame, against IP_Basic all the same; ``--stage normals``: Step 1 alone (``pixel_normals``,
 the frame's range image and normals, the default options). ``--above-scan background``: both libraries'
 frames with ``SGMConfig(above_scan="background")`` (Step 4c) instead of the default.
 
     python -m benchmarks.bench_frame_against_checkout --checkout PATH [--rounds 60] [--stage frame|outliers|normals]
-        [--above-scan plane|background] [--json benchmarks/results/frame_against_checkout.json]
+        [--above-scan plane|background] [--order balanced|rotate] [--seed 0] [--json benchmarks/results/frame_against_checkout.json]
 """
 
 from __future__ import annotations
@@ -29,7 +34,8 @@ import time
 
 import numpy as np
 
-from benchmarks._common import RESULTS, load_frame, write_results
+from benchmarks._common import (RESULTS, balanced_orders, load_frame, order_effects, rotated_orders,
+                                write_results)
 from benchmarks.bench_end_to_end import wall_and_cpu_ms
 from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
 
@@ -64,6 +70,9 @@ def main(argv=None) -> int:
     parser.add_argument("--stage", choices=("frame", "outliers", "normals"), default="frame")
     parser.add_argument("--above-scan", choices=("plane", "background"), default="plane",
                         help="SGMConfig.above_scan of both libraries' frames")
+    parser.add_argument("--order", choices=("balanced", "rotate"), default="balanced",
+                        help="each round's call order: all permutations in seeded blocks, or the former rotation")
+    parser.add_argument("--seed", type=int, default=0, help="the shuffle of --order balanced")
     parser.add_argument("--json", default=str(RESULTS / "frame_against_checkout.json"))
     args, t0 = parser.parse_args(argv), time.time()
     import jax.numpy as jnp
@@ -85,26 +94,41 @@ def main(argv=None) -> int:
     for fn in calls.values():
         fn()
     names = list(calls)
+    if args.order == "rotate":
+        orders = rotated_orders(names, args.rounds)
+    else:
+        orders = balanced_orders(names, args.rounds, seed=args.seed)
     wall, cpu = {n: [] for n in names}, {n: [] for n in names}
-    for r in range(args.rounds):
-        for n in names[r % 3:] + names[:r % 3]:       # the order rotating
+    timed = []                                        # (name, place, wall s, CPU s) in run order
+    for order in orders:
+        for place, n in enumerate(order):
             w, c = (ms / 1e3 for ms in wall_and_cpu_ms(calls[n]))
             wall[n].append(w)
             cpu[n].append(c)
+            timed.append((n, place, w, c))
     med = lambda v: statistics.median(v) * 1e3
     doc = {"what": f"{args.stage} (above_scan={args.above_scan}): this library, the checkout's and IP_Basic (OpenCV, Gaussian) in turn, one process",
-           "frame": label, "checkout": str(args.checkout), "rounds": args.rounds,
+           "frame": label, "checkout": str(args.checkout), "rounds": args.rounds, "order": args.order,
+           "seed": args.seed if args.order == "balanced" else None,
            "cpu_ms_median": {n: med(cpu[n]) for n in names}, "wall_ms_median": {n: med(wall[n]) for n in names},
            "cpu_ratio_to_ip_basic": {n: sum(cpu[n]) / sum(cpu["ip_basic"]) for n in ("this", "checkout")},
+           "wall_ratio_to_ip_basic": {n: med(wall[n]) / med(wall["ip_basic"]) for n in ("this", "checkout")},
            "cpu_ratio_this_to_checkout_median": statistics.median(a / b for a, b in zip(cpu["this"], cpu["checkout"])),
            "wall_ratio_this_to_checkout_median": statistics.median(a / b for a, b in zip(wall["this"], wall["checkout"])),
-           "load_average": os.getloadavg(), "runs_cpu_s": cpu, "runs_wall_s": wall}
+           "wall_by_order": order_effects([(n, p, w) for n, p, w, _ in timed], names),
+           "cpu_by_order": order_effects([(n, p, c) for n, p, _, c in timed], names),
+           "load_average": os.getloadavg(), "runs_cpu_s": cpu, "runs_wall_s": wall,
+           "run_order": [n for n, *_ in timed]}
     for n in names:
         print(f"{n:9s} CPU {doc['cpu_ms_median'][n]:6.2f} ms  wall {doc['wall_ms_median'][n]:6.2f} ms (medians)")
     print(f"CPU / IP_Basic's (ratio of sums): this {doc['cpu_ratio_to_ip_basic']['this']:.2f}, checkout "
           f"{doc['cpu_ratio_to_ip_basic']['checkout']:.2f}; this / checkout per round (median): CPU "
           f"{doc['cpu_ratio_this_to_checkout_median']:.3f}, wall {doc['wall_ratio_this_to_checkout_median']:.3f}; "
-          f"load {doc['load_average']}")
+          f"wall / IP_Basic's (ratio of medians): this {doc['wall_ratio_to_ip_basic']['this']:.3f}, checkout "
+          f"{doc['wall_ratio_to_ip_basic']['checkout']:.3f}; order {args.order}; load {doc['load_average']}")
+    for n in names:
+        print(f"  {n} wall median by the call before it: " + ", ".join(
+            f"{k} {v['median_ms']:.2f} ms ({v['calls']})" for k, v in doc["wall_by_order"]["after"][n].items()))
     write_results(args.json, doc, None, t0)
     return 0
 

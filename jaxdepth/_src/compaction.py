@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.xla_tuning import stage
+from jaxdepth._src.xla_tuning import fence, stage
 
 #: Bits per word of a packed mask (one uint32), also the group size of :func:`inclusive_prefix`.
 WORD_BITS = 32
@@ -133,7 +133,9 @@ def compact_indices(valid: jax.Array, capacity: int, token):
     :func:`nth_set_bit`.
     """
     n = valid.shape[0]
-    mask = pack_bits(valid)
+    # The words as a buffer: unfenced, XLA:CPU packed the mask twice, in the population counts' fusion and
+    # again in the (start, word) pairs' (compact_indices alone 0.69x CPU; docs/speed.md, "A fair frame bench").
+    mask, = fence(pack_bits(valid), token=token)
     words = mask.shape[0]
     count = jax.lax.population_count(mask).astype(jnp.int32)
     incl = inclusive_prefix(count.astype(jnp.float32)).astype(jnp.int32)
