@@ -112,25 +112,50 @@ def cloud_baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
     return baseline_depth(*pad_points(cloud.points), rig, method=method, config=config)
 
 
-def cloud_completion(method: str, *, config, window: tuple | None = None) -> Callable:
-    """``complete(cloud, rig) -> (depth, None, None)`` of :func:`run_cloud_jobs` for ``method``: the SGM
-    (:func:`complete_sources`, ``window`` as there) or a baseline of the cloud's points (:func:`baseline_depth`)."""
+def cloud_preparation(method: str, *, config, window: tuple | None = None) -> Callable:
+    """``prepare(cloud, rig) -> call`` of :func:`run_cloud_jobs` for ``method``; ``call()`` returns
+    ``(depth, None, None)``. The SGM's host work (cameras, sources pytree: :func:`jaxdepth.batch.sources_job.cloud_call`,
+    as :func:`complete_sources` with ``window``) is done by ``prepare``, ``call()`` dispatches its program and
+    returns device arrays; a baseline (:func:`cloud_baseline_depth`) runs whole in ``call()``, as before."""
     if method not in METHODS:
-        raise ValueError(f"cloud_completion: field 'method' expected one of {METHODS}, got {method!r}")
+        raise ValueError(f"cloud_preparation: field 'method' expected one of {METHODS}, got {method!r}")
     if method == "sgm":
-        return lambda cloud, rig: (complete_sources(cloud, rig, config=config, window=window), None, None)
+        from jaxdepth.batch.sources_job import cloud_call
 
-    return lambda cloud, rig: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
+        def prepare(cloud, rig):
+            program = cloud_call(cloud, rig, config=config, free_space=True, window=window)
+            return lambda: (program(), None, None)
+        return prepare
+
+    return lambda cloud, rig: lambda: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
+
+
+def on_host(outputs) -> bool:
+    """True when ``outputs`` is a tuple of NumPy arrays and None (nothing to wait for)."""
+    return isinstance(outputs, tuple) and all(o is None or isinstance(o, np.ndarray) for o in outputs)
+
+
+def read_back(outputs) -> tuple:
+    """``outputs`` (device arrays, NumPy or None) as NumPy: waits for the program that makes them."""
+    return tuple(None if o is None else np.asarray(o) for o in outputs)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
-                   io_threads: int = 2, complete: Callable | None = None, extras=None,
-                   overwrite: bool = True) -> None:
+                   io_threads: int = 2, complete: Callable | None = None, prepare: Callable | None = None,
+                   extras=None, overwrite: bool = True) -> None:
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
     ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
-    ``complete(cloud, rig) -> (depth, valid, distance)``, each (C, H, W) on the rig's canvas
-    (``valid`` and ``distance`` None unless ``extras`` needs them); default: :func:`complete_sources`.
+    A frame's completion, in three steps: ``prepare(cloud, rig) -> call`` on the reader thread right after
+    ``load`` (host work); ``call() -> collect`` on the main thread (dispatch); ``collect() -> (depth, valid,
+    distance)`` NumPy, each (C, H, W) on the rig's canvas (``valid`` and ``distance`` None unless ``extras``
+    needs them), called once the next frame is dispatched, so that frame k+1's host work and dispatch run
+    while frame k's program does. ``call`` may return the outputs instead of ``collect``: device arrays
+    (read back by :func:`read_back` once the next frame is dispatched) or NumPy (handed to the writers at
+    once). Default: :func:`cloud_preparation`'s SGM; ``complete(cloud, rig) -> (depth, valid, distance)``,
+    when given, runs whole on the main thread instead.
+    A (Jaxdepth or Value) error of any step fails its frame as "completion failed: ..."; frames are
+    dispatched, collected and handed to the writers in ``todo``'s order.
     ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
     ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
     Records each job in ``summary`` as done or failed (never raises for a bad frame).
@@ -141,9 +166,19 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
 
     ledger = Ledger(summary, notify)
     extras = extra_outputs.NONE if extras is None else extras
-    if complete is None:
-        def complete(cloud, rig):
-            return complete_sources(cloud, rig, config=config), None, None
+    written = []                  # the writers' futures
+    if complete is not None:
+        def prepare(cloud, rig):
+            return lambda: complete(cloud, rig)
+    elif prepare is None:
+        prepare = cloud_preparation("sgm", config=config)
+
+    def load_prepared(job):
+        cloud, rig = load(job)
+        try:
+            return rig, prepare(cloud, rig), None
+        except (JaxdepthError, ValueError) as err:
+            return rig, None, f"completion failed: {err}"
 
     def write(job, rig, depth, valid, distance):
         index = {c.name: i for i, c in enumerate(rig.cameras)}
@@ -159,23 +194,37 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
                 return
         ledger.done(job.name)
 
+    def collect(job, rig, collected):
+        try:
+            outputs = collected() if callable(collected) else read_back(collected)
+        except (JaxdepthError, ValueError) as err:
+            ledger.fail(job.name, f"completion failed: {err}")
+            return
+        written.append(writers.submit(write, job, rig, *outputs))
+
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        written = []
-        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load,
+        in_flight = None          # (job, rig, what its call returned): dispatched, not collected
+        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load_prepared,
                                                  os_error=lambda job, err: f"cannot read: {err}"):
+            rig, call, message = loaded if message is None else (None, None, message)
             if message is not None:
                 ledger.fail(job.name, message)
                 continue
-            cloud, rig = loaded
             try:
-                outputs = complete(cloud, rig)
+                dispatched = (job, rig, call())
             except (JaxdepthError, ValueError) as err:
                 ledger.fail(job.name, f"completion failed: {err}")
                 continue
-            written.append(writers.submit(write, job, rig, *outputs))
+            if in_flight is not None:
+                collect(*in_flight)
+            in_flight = None if on_host(dispatched[2]) else dispatched
+            if in_flight is None:           # NumPy already (a baseline, ``complete``): to the writers at once
+                collect(*dispatched)
+        if in_flight is not None:
+            collect(*in_flight)
         for f in written:
             f.result()
 
 
-__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_baseline_depth", "cloud_completion",
-           "METHODS"]
+__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_baseline_depth",
+           "cloud_preparation", "read_back", "METHODS"]
