@@ -114,9 +114,10 @@ def cloud_baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
 
 def cloud_preparation(method: str, *, config, window: tuple | None = None) -> Callable:
     """``prepare(cloud, rig) -> call`` of :func:`run_cloud_jobs` for ``method``; ``call()`` returns
-    ``(depth, None, None)``. The SGM's host work (cameras, sources pytree: :func:`jaxdepth.batch.sources_job.cloud_call`,
-    as :func:`complete_sources` with ``window``) is done by ``prepare``, ``call()`` dispatches its program and
-    returns device arrays; a baseline (:func:`cloud_baseline_depth`) runs whole in ``call()``, as before."""
+    ``(depth, None, None)``. The SGM's host work (cameras, sources pytree:
+    :func:`jaxdepth.batch.sources_job.cloud_call`, as :func:`complete_sources` with ``window``) is done by
+    ``prepare``, ``call()`` dispatches its program and returns device arrays; a baseline
+    (:func:`cloud_baseline_depth`) runs whole in ``call()``, as before."""
     if method not in METHODS:
         raise ValueError(f"cloud_preparation: field 'method' expected one of {METHODS}, got {method!r}")
     if method == "sgm":
@@ -130,11 +131,6 @@ def cloud_preparation(method: str, *, config, window: tuple | None = None) -> Ca
     return lambda cloud, rig: lambda: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
 
 
-def on_host(outputs) -> bool:
-    """True when ``outputs`` is a tuple of NumPy arrays and None (nothing to wait for)."""
-    return isinstance(outputs, tuple) and all(o is None or isinstance(o, np.ndarray) for o in outputs)
-
-
 def read_back(outputs) -> tuple:
     """``outputs`` (device arrays, NumPy or None) as NumPy: waits for the program that makes them."""
     return tuple(None if o is None else np.asarray(o) for o in outputs)
@@ -146,16 +142,15 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
     ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
-    A frame's completion, in three steps: ``prepare(cloud, rig) -> call`` on the reader thread right after
-    ``load`` (host work); ``call() -> collect`` on the main thread (dispatch); ``collect() -> (depth, valid,
-    distance)`` NumPy, each (C, H, W) on the rig's canvas (``valid`` and ``distance`` None unless ``extras``
-    needs them), called once the next frame is dispatched, so that frame k+1's host work and dispatch run
-    while frame k's program does. ``call`` may return the outputs instead of ``collect``: device arrays
-    (read back by :func:`read_back` once the next frame is dispatched) or NumPy (handed to the writers at
-    once). Default: :func:`cloud_preparation`'s SGM; ``complete(cloud, rig) -> (depth, valid, distance)``,
-    when given, runs whole on the main thread instead.
-    A (Jaxdepth or Value) error of any step fails its frame as "completion failed: ..."; frames are
-    dispatched, collected and handed to the writers in ``todo``'s order.
+    A frame's completion, in two steps: ``prepare(cloud, rig) -> call`` on the reader thread right after
+    ``load`` (the host work of the frame's program: the main thread does not wait for it), then on the main
+    thread ``call() -> (depth, valid, distance)``, each (C, H, W) on the rig's canvas (``valid`` and
+    ``distance`` None unless ``extras`` needs them), device arrays or NumPy, read back (:func:`read_back`)
+    at once: the next frame's program is not dispatched before (two programs of the rig in flight ran
+    slower on the 2-core CPU, docs/speed.md "The multi-source jobs' host work on the reader threads").
+    Default: :func:`cloud_preparation`'s SGM; ``complete(cloud, rig) -> (depth, valid, distance)``, when
+    given, runs whole on the main thread instead. A (Jaxdepth or Value) error of either step fails its frame
+    as "completion failed: ..."; frames are completed and handed to the writers in ``todo``'s order.
     ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
     ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
     Records each job in ``summary`` as done or failed (never raises for a bad frame).
@@ -194,16 +189,7 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
                 return
         ledger.done(job.name)
 
-    def collect(job, rig, collected):
-        try:
-            outputs = collected() if callable(collected) else read_back(collected)
-        except (JaxdepthError, ValueError) as err:
-            ledger.fail(job.name, f"completion failed: {err}")
-            return
-        written.append(writers.submit(write, job, rig, *outputs))
-
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        in_flight = None          # (job, rig, what its call returned): dispatched, not collected
         for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load_prepared,
                                                  os_error=lambda job, err: f"cannot read: {err}"):
             rig, call, message = loaded if message is None else (None, None, message)
@@ -211,17 +197,11 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
                 ledger.fail(job.name, message)
                 continue
             try:
-                dispatched = (job, rig, call())
+                outputs = read_back(call())
             except (JaxdepthError, ValueError) as err:
                 ledger.fail(job.name, f"completion failed: {err}")
                 continue
-            if in_flight is not None:
-                collect(*in_flight)
-            in_flight = None if on_host(dispatched[2]) else dispatched
-            if in_flight is None:           # NumPy already (a baseline, ``complete``): to the writers at once
-                collect(*dispatched)
-        if in_flight is not None:
-            collect(*in_flight)
+            written.append(writers.submit(write, job, rig, *outputs))
         for f in written:
             f.result()
 

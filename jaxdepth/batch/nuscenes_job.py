@@ -301,7 +301,7 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
         raise ValueError("nuScenes job: the validity, seed-distance and zero-invalid outputs need sweeps = 1")
     check_method(method, where="nuScenes job", extras=extras, config=config)
     from jaxdepth._src.rig import stack_cameras
-    from jaxdepth.batch.sources_job import cloud_call
+    from jaxdepth.batch.cloud_runner import complete_sources
     from jaxdepth.batch.runner import is_guided, read_ahead
     from jaxdepth.io.errors import JaxdepthError
 
@@ -321,16 +321,15 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
                 _baseline(run, writers, job, rig, (padded, valid) if inputs.cloud is None else inputs.cloud,
                           method=method, config=config)
                 continue
-            if inputs.cloud is not None:  # several sweeps: one source each, as complete_sources; dispatched
-                try:                      # (the sources pytree built while the previous sample's program runs)
-                    out = cloud_call(inputs.cloud, rig, config=config, free_space=True, images=images,
-                                     window=tuple(-k for k in range(sweeps)))()  # one program for every sample
+            if inputs.cloud is not None:  # several sweeps: one source each
+                try:
+                    out = complete_sources(inputs.cloud, rig, config=config, images=images,
+                                           window=tuple(-k for k in range(sweeps)))  # one program for every sample
                 except (JaxdepthError, ValueError) as err:
                     run.fail(job.token, f"completion failed: {err}")
                     continue
                 run.in_flight.append((job, rig, out))
-                if len(run.in_flight) > 1:
-                    run.collect(writers)
+                run.collect(writers)
                 continue
             # From the RigCameras' NumPy K and T (the values as_camera's would hold): a jax.Array read back
             # here would wait for the sample in flight, and the next sample could not be dispatched before.

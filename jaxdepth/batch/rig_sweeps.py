@@ -4,10 +4,9 @@
 ``<out_dir>/<sweep stem>/<camera>.png``, each sweep exactly as one ``complete-rig`` call on it would
 (:func:`jaxdepth.batch.rig_job.prepare_rig_sweep`, :func:`~jaxdepth.batch.rig_job.rig_results`: the same
 bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
-reader threads read and check the next sweeps and build their program inputs (:func:`jaxdepth.batch.rig_job.rig_call`)
-while the current one computes, the next sweep's program is dispatched before the current one's depth is
-read back (its notes and warnings then reported, in the sweeps' order), writer threads encode and write
-the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
+reader threads read and check the next sweeps and build their program inputs (the stacked cameras,
+the sources pytree: :func:`jaxdepth.batch.rig_job.rig_call`) while the current one computes, writer
+threads encode and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
 reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
 above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`).
 The run record (:mod:`jaxdepth.batch.run_record`) lists every output with its inputs, so a re-run skips
@@ -170,13 +169,9 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
 
     def prepare(loaded: _Loaded, checked_rig):       # a reader thread: the host work of the sweep's program
         call = rig_job.rig_call(loaded.prepared, extras, method=method)
+        return lambda: complete(loaded, checked_rig, call)
 
-        def dispatch():                              # the main thread; read back once the next sweep is dispatched
-            outputs = call()
-            return lambda: finish(loaded, checked_rig, outputs)
-        return dispatch
-
-    def finish(loaded: _Loaded, checked_rig, outputs):   # the main thread, in the sweeps' order
+    def complete(loaded: _Loaded, checked_rig, call):   # the main thread, in the sweeps' order
         if loaded.notes != last_notes[0]:          # a log's sweeps mostly repeat one check's notes: shown once
             for note in loaded.notes:
                 report("note", f"{loaded.stem}: {note}")
@@ -185,7 +180,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         if programs and key not in programs:
             report("note", f"{loaded.stem}: compiles another program ({_key_text(key)})")
         programs.add(key)
-        *outputs, seen = read_back(outputs)           # waits for the sweep's program
+        *outputs, seen = read_back(call())
         for i, camera in enumerate(checked_rig.cameras):
             if seen[i] == 0:
                 report("warning", f"{loaded.stem}: " + rig_job.empty_camera_message(camera.name, rig_path))
