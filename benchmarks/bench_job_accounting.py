@@ -47,7 +47,7 @@ from benchmarks._common import RESULTS, write_results
 #: (module, attribute, part): the host functions timed. The PNG parts nest inside ``write_outputs``.
 WRAPPED = (("jaxdepth.batch.av2_job", "_load", "read (reader threads)"),
            ("jaxdepth.batch.nuscenes_job", "_load", "read (reader threads)"),
-           ("jaxdepth.batch.sources_job", "cloud_sources", "sources pytree (main thread)"),
+           ("jaxdepth.batch.sources_job", "cloud_sources", "sources pytree (cloud_sources)"),
            ("jaxdepth.batch.sources_job", "cloud_call", "prepare: cameras, sources pytree (reader threads)"),
            ("jaxdepth.batch.sources_job", "complete_cloud", "main: the sweep's completion, sources included"),
            ("jaxdepth.batch.cloud_runner", "read_back", "main: waiting for a sweep's result"),

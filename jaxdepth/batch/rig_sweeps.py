@@ -167,7 +167,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
 
     programs, last_notes = set(), [()]
 
-    def prepare(loaded: _Loaded, checked_rig):       # a reader thread: the host work of the sweep's program
+    def program_inputs(loaded: _Loaded, checked_rig):   # a reader thread: the host work of the sweep's program
         call = rig_job.rig_call(loaded.prepared, extras, method=method)
         return lambda: complete(loaded, checked_rig, call)
 
@@ -187,7 +187,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         return outputs
 
     run_cloud_jobs(jobs, load, summary, on_progress, config=config, png_compression=DEFAULT_PNG_COMPRESSION,
-                   io_threads=io_threads, prepare=prepare, extras=extras, overwrite=overwrite)
+                   io_threads=io_threads, prepare=program_inputs, extras=extras, overwrite=overwrite)
     return summary
 
 
