@@ -6,8 +6,8 @@
 bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
 reader threads read and check the next sweeps and build their program inputs (the stacked cameras,
 the sources pytree: :func:`jaxdepth.batch.rig_job.rig_call`) while the current one computes, writer
-threads encode and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
-reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
+threads encode and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or
+completed is reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
 above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`).
 The run record (:mod:`jaxdepth.batch.run_record`) lists every output with its inputs, so a re-run skips
 what is done and redoes what changed.

@@ -236,9 +236,10 @@ def cloud_call(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bo
     The same arguments as :func:`complete_cloud`. Now: the stacked cameras (from the rig cameras' NumPy K
     and T), the sources pytree (:func:`cloud_sources`, :func:`fit_to_window`) or the padded points: host
     work that waits for no program's result, so that a job runs it on a reader thread while the previous
-    sweep's program runs (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`). ``call()`` dispatches the program (asynchronously) and returns its device arrays: the
-    :class:`~jaxdepth.Stages` with ``stages``, else the (C, H_max, W_max) depth (and with ``seen`` the
-    ``(depth, seen)`` pair), which :func:`complete_cloud` reads back.
+    sweep's program runs (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`). ``call()`` dispatches the
+    program (asynchronously) and returns its device arrays: the :class:`~jaxdepth.Stages` with ``stages``,
+    else the (C, H_max, W_max) depth (and with ``seen`` the ``(depth, seen)`` pair), which
+    :func:`complete_cloud` reads back.
     """
     import functools
 
@@ -322,5 +323,6 @@ def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: b
     return frame, config
 
 
-__all__ = ["cloud_above_scan", "cloud_call", "complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec",
-           "POINT_BUCKET", "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
+__all__ = ["cloud_above_scan", "cloud_call", "complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window",
+           "source_spec", "POINT_BUCKET", "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence",
+           "witness_spec"]
