@@ -9,11 +9,12 @@ per method, then ``--rounds`` rounds of default (``sgm``) and ``--method nearest
 
 The job's host functions are wrapped, by module attribute, with timers that add each call's wall and
 **thread** CPU seconds (``time.thread_time``: the calling thread's CPU only) to its part: reading a sweep
-(the job's ``_load``, on the reader threads), the sources pytree (``cloud_sources``, Argoverse 2, the main
-thread), each camera's PNG (``write_outputs`` on the writer threads, and inside it the float -> uint16
+(the job's ``_load``, on the reader threads), the sources pytree (``cloud_sources``, Argoverse 2: on the main
+thread up to main 2b66b47, since branch av2host inside ``cloud_call``, the sweep's program inputs built on the
+reader threads after ``_load``: its own part, counted with the reader threads), each camera's PNG (``write_outputs`` on the writer threads, and inside it the float -> uint16
 conversion, the PNG encoding (row filter + zlib) and the atomic write); and on the main thread the calls that
 hold a sweep's compute (the Argoverse 2 job's ``complete_cloud`` or nearest fill, the nuScenes job's wait for a
-dispatched sample): their wall over the run's wall is the share of the wall the job spends on compute, the rest
+dispatched sample; since av2host the program's dispatch and ``read_back``, the wait for a sweep's result): their wall over the run's wall is the share of the wall the job spends on compute, the rest
 being reading and writing the main thread waits for (pipelined: near 1). ``main thread`` is the thread that
 runs the job (dispatch, Python per sweep and camera, waiting is not CPU); ``program and other threads`` is
 the process CPU less the main, reader and writer threads' CPU: XLA's threads running the compiled program
@@ -46,8 +47,10 @@ from benchmarks._common import RESULTS, write_results
 #: (module, attribute, part): the host functions timed. The PNG parts nest inside ``write_outputs``.
 WRAPPED = (("jaxdepth.batch.av2_job", "_load", "read (reader threads)"),
            ("jaxdepth.batch.nuscenes_job", "_load", "read (reader threads)"),
-           ("jaxdepth.batch.sources_job", "cloud_sources", "sources pytree (main thread)"),
+           ("jaxdepth.batch.sources_job", "cloud_sources", "sources pytree (cloud_sources)"),
+           ("jaxdepth.batch.sources_job", "cloud_call", "prepare: cameras, sources pytree (reader threads)"),
            ("jaxdepth.batch.sources_job", "complete_cloud", "main: the sweep's completion, sources included"),
+           ("jaxdepth.batch.cloud_runner", "read_back", "main: waiting for a sweep's result"),
            ("jaxdepth.batch.cloud_runner", "baseline_depth", "main: the sweep's nearest fill"),
            ("jaxdepth.batch.nuscenes_job._SampleRun", "collect", "main: waiting for a sample's result"),
            ("jaxdepth.batch.program_cache.Program", "__call__", "main: calling a cached program (dispatch)"),
@@ -58,7 +61,8 @@ WRAPPED = (("jaxdepth.batch.av2_job", "_load", "read (reader threads)"),
 #: The wall of the outermost ``main:`` calls (a program call inside ``complete_cloud`` counted once).
 COMPUTE = "main thread in compute calls (wall)"
 #: Parts run on the reader and writer threads (not nested in one another).
-IO_THREAD_PARTS = ("read (reader threads)", "PNG writes (writer threads)")
+IO_THREAD_PARTS = ("read (reader threads)", "prepare: cameras, sources pytree (reader threads)",
+                   "PNG writes (writer threads)")
 
 
 class Accounts:
@@ -104,7 +108,8 @@ def install(accounts: Accounts) -> None:
     for module, name, part in WRAPPED:
         owner, _, cls = module.rpartition(".")
         target = importlib.import_module(module) if not cls.lstrip("_")[:1].isupper() else getattr(importlib.import_module(owner), cls)
-        accounts.wrap(target, name, part)
+        if hasattr(target, name):           # an older checkout lacks the newer names
+            accounts.wrap(target, name, part)
 
 
 def av2_runner(tmp: pathlib.Path, sweeps: int):

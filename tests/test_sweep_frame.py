@@ -173,3 +173,35 @@ def test_real_sweeps_are_in_their_sensor_frame(kitti, nuscenes_sample):
     assert est.spinning and est.beams == 32
     assert abs(est.fov_up_deg - 10.67) < 0.5 and abs(est.fov_down_deg + 30.67) < 1.0
     assert not estimate_lidar_geometry(points + np.float32([0.94, 0.0, 1.84]), ring=extra[:, 1]).spinning
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int16, np.uint16, np.int32, np.int64, np.uint64, np.float32])
+def test_ring_labels_are_numpys_unique(dtype):
+    from jaxdepth.io.lidar_estimate import ring_labels
+    rng = np.random.default_rng(7)
+    cases = [rng.choice([0, 3, 4, 31, 90], size=5000), rng.integers(0, 128, 3000), np.array([5]), np.array([], int)]
+    if np.dtype(dtype).kind != "u":
+        cases += [rng.integers(-3, 3, 200)]                     # negative rings: not counted
+    if np.dtype(dtype).itemsize > 1:
+        cases += [np.array([0, 65535, 65536, 7, 7])]            # beyond the counted range
+    for ring in (np.asarray(c).astype(dtype) for c in cases):
+        labels, inverse = ring_labels(ring)
+        want_labels, want_inverse = np.unique(ring, return_inverse=True)
+        assert labels.dtype == want_labels.dtype and inverse.dtype == want_inverse.dtype
+        np.testing.assert_array_equal(labels, want_labels)
+        np.testing.assert_array_equal(inverse, want_inverse)
+
+
+def test_ring_medians_are_numpys_masked_medians():
+    from jaxdepth.io.lidar_estimate import ring_medians
+    rng = np.random.default_rng(11)
+    for count, n in ((32, 4001), (5, 10), (70_000, 2000)):      # the last: more rings than a 16-bit key holds
+        inverse = rng.integers(0, count, n)
+        inverse[inverse == 1] = 0                               # ring 1 empty: NaN
+        values = rng.normal(size=n) * 10
+        values[::7] = values[0]                                 # ties
+        got = ring_medians(values, inverse, count)
+        assert got.dtype == np.float64 and got.shape == (count,)
+        for i in np.unique(inverse)[:200]:
+            assert got[i] == np.median(values[inverse == i])    # the same number, bit for bit
+        assert np.isnan(got[1])

@@ -32,8 +32,10 @@ each camera at its own size (the ``nearest`` / ``ip_basic`` columns of
 ``benchmarks/accuracy_multisource.py``).
 
 Scheduling (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`): a reader thread pool loads
-sweeps ahead (Feather decoding, pose maths); the completion runs on the default device; writer
-threads encode and write the PNGs.
+sweeps ahead (Feather decoding, pose maths) and builds each sweep's program inputs (the sources
+pytree: padding, the LiDARs' spec estimates); the main thread dispatches a sweep's program on the
+default device before it reads back the previous sweep's depth; writer threads encode and write
+the PNGs.
 """
 
 from __future__ import annotations
@@ -44,9 +46,7 @@ import pathlib
 import time as _time
 from typing import Callable
 
-import numpy as np
-
-from jaxdepth.batch.cloud_runner import METHODS, CloudJob, check_method, cloud_baseline_depth, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, check_method, cloud_baseline_depth, read_back, run_cloud_jobs
 
 log = logging.getLogger("jaxdepth")
 
@@ -207,20 +207,26 @@ def _validity_fn(lidar, metric: str, max_seed_distance_px):
 
 
 def completion(*, method: str, config, extras) -> Callable:
-    """``complete(cloud, rig) -> (depth, valid, distance)`` of :func:`run_cloud_jobs` for ``method``;
-    the validity mask and seed distance (``extras.needs_seeds``, SGM only) use the rig's LiDAR spec."""
-    from jaxdepth.batch.cloud_runner import cloud_completion
-    from jaxdepth.batch.sources_job import complete_cloud
+    """``prepare(cloud, rig) -> call`` of :func:`run_cloud_jobs` for ``method``: ``call()`` returns
+    ``(depth, valid, distance)`` (device arrays of the SGM, read back by the job once the next sweep is
+    dispatched; NumPy of a baseline); the validity mask and seed distance (``extras.needs_seeds``, SGM
+    only) use the rig's LiDAR spec."""
+    import jaxdepth
+    from jaxdepth.batch.cloud_runner import cloud_preparation
+    from jaxdepth.batch.sources_job import cloud_call
 
     if method != "sgm" or not extras.needs_seeds:
-        return cloud_completion(method, config=config)
+        return cloud_preparation(method, config=config)
 
     def with_validity(cloud, rig):
-        import jaxdepth
-        stages = complete_cloud(cloud, rig, config=config, free_space=True, stages=True)
-        cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
-        valid, distance = _validity_fn(rig.lidar, config.distance_metric, extras.max_seed_distance_px)(stages, cameras)
-        return np.asarray(stages.depth), np.asarray(valid), np.asarray(distance)
+        stages = cloud_call(cloud, rig, config=config, free_space=True, stages=True)
+        cameras = jaxdepth.stack_cameras(rig.cameras)
+        validity = _validity_fn(rig.lidar, config.distance_metric, extras.max_seed_distance_px)
+
+        def call():
+            out = stages()
+            return (out.depth, *validity(out, cameras))
+        return call
 
     return with_validity
 
@@ -287,7 +293,7 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     make_output_folders(p for job in todo for _, p in job.outputs)
     run_cloud_jobs(todo, functools.partial(_load, tables=tables, cameras=cameras, force=force), summary, notify,
                    config=config, png_compression=png_compression, io_threads=io_threads,
-                   complete=completion(method=method, config=config, extras=extras), extras=extras,
+                   prepare=completion(method=method, config=config, extras=extras), extras=extras,
                    overwrite=overwrite)
     return summary
 
@@ -325,7 +331,7 @@ def warm_av2(root, *, sweeps: int = 0, cameras=None, config=None, time: str = "c
     job = CloudJob(name=f"{folder.name}/{ts}", outputs=(), source=(folder, ts, _camera_times(log_, cameras, ts, time)))
     start = _time.perf_counter()
     cloud, rig = _load(job, tables={folder: (log_, served_sweeps(log_, sweeps))}, cameras=cameras, force=force)
-    completion(method=method, config=config, extras=extras)(cloud, rig)    # NumPy results: waits for them
+    read_back(completion(method=method, config=config, extras=extras)(cloud, rig)())    # waits for the results
     return job.name, _time.perf_counter() - start
 
 

@@ -112,25 +112,45 @@ def cloud_baseline_depth(cloud, rig, *, method: str, config) -> np.ndarray:
     return baseline_depth(*pad_points(cloud.points), rig, method=method, config=config)
 
 
-def cloud_completion(method: str, *, config, window: tuple | None = None) -> Callable:
-    """``complete(cloud, rig) -> (depth, None, None)`` of :func:`run_cloud_jobs` for ``method``: the SGM
-    (:func:`complete_sources`, ``window`` as there) or a baseline of the cloud's points (:func:`baseline_depth`)."""
+def cloud_preparation(method: str, *, config, window: tuple | None = None) -> Callable:
+    """``prepare(cloud, rig) -> call`` of :func:`run_cloud_jobs` for ``method``; ``call()`` returns
+    ``(depth, None, None)``. The SGM's host work (cameras, sources pytree:
+    :func:`jaxdepth.batch.sources_job.cloud_call`, as :func:`complete_sources` with ``window``) is done by
+    ``prepare``, ``call()`` dispatches its program and returns device arrays; a baseline
+    (:func:`cloud_baseline_depth`) runs whole in ``call()``, as before."""
     if method not in METHODS:
-        raise ValueError(f"cloud_completion: field 'method' expected one of {METHODS}, got {method!r}")
+        raise ValueError(f"cloud_preparation: field 'method' expected one of {METHODS}, got {method!r}")
     if method == "sgm":
-        return lambda cloud, rig: (complete_sources(cloud, rig, config=config, window=window), None, None)
+        from jaxdepth.batch.sources_job import cloud_call
 
-    return lambda cloud, rig: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
+        def prepare(cloud, rig):
+            program = cloud_call(cloud, rig, config=config, free_space=True, window=window)
+            return lambda: (program(), None, None)
+        return prepare
+
+    return lambda cloud, rig: lambda: (cloud_baseline_depth(cloud, rig, method=method, config=config), None, None)
+
+
+def read_back(outputs) -> tuple:
+    """``outputs`` (device arrays, NumPy or None) as NumPy: waits for the program that makes them."""
+    return tuple(None if o is None else np.asarray(o) for o in outputs)
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
-                   io_threads: int = 2, complete: Callable | None = None, extras=None,
-                   overwrite: bool = True) -> None:
+                   io_threads: int = 2, complete: Callable | None = None, prepare: Callable | None = None,
+                   extras=None, overwrite: bool = True) -> None:
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
     ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
-    ``complete(cloud, rig) -> (depth, valid, distance)``, each (C, H, W) on the rig's canvas
-    (``valid`` and ``distance`` None unless ``extras`` needs them); default: :func:`complete_sources`.
+    A frame's completion, in two steps: ``prepare(cloud, rig) -> call`` on the reader thread right after
+    ``load`` (the host work of the frame's program: the main thread does not wait for it), then on the main
+    thread ``call() -> (depth, valid, distance)``, each (C, H, W) on the rig's canvas (``valid`` and
+    ``distance`` None unless ``extras`` needs them), device arrays or NumPy, read back (:func:`read_back`)
+    at once: the next frame's program is not dispatched before (two programs of the rig in flight ran
+    slower on the 2-core CPU, docs/speed.md "The multi-source jobs' host work on the reader threads").
+    Default: :func:`cloud_preparation`'s SGM; ``complete(cloud, rig) -> (depth, valid, distance)``, when
+    given, runs whole on the main thread instead. A (Jaxdepth or Value) error of either step fails its frame
+    as "completion failed: ..."; frames are completed and handed to the writers in ``todo``'s order.
     ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
     ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
     Records each job in ``summary`` as done or failed (never raises for a bad frame).
@@ -141,9 +161,19 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
 
     ledger = Ledger(summary, notify)
     extras = extra_outputs.NONE if extras is None else extras
-    if complete is None:
-        def complete(cloud, rig):
-            return complete_sources(cloud, rig, config=config), None, None
+    written = []                  # the writers' futures
+    if complete is not None:
+        def prepare(cloud, rig):
+            return lambda: complete(cloud, rig)
+    elif prepare is None:
+        prepare = cloud_preparation("sgm", config=config)
+
+    def load_prepared(job):
+        cloud, rig = load(job)
+        try:
+            return rig, prepare(cloud, rig), None
+        except (JaxdepthError, ValueError) as err:
+            return rig, None, f"completion failed: {err}"
 
     def write(job, rig, depth, valid, distance):
         index = {c.name: i for i, c in enumerate(rig.cameras)}
@@ -160,15 +190,14 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
         ledger.done(job.name)
 
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
-        written = []
-        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load,
+        for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load_prepared,
                                                  os_error=lambda job, err: f"cannot read: {err}"):
+            rig, call, message = loaded if message is None else (None, None, message)
             if message is not None:
                 ledger.fail(job.name, message)
                 continue
-            cloud, rig = loaded
             try:
-                outputs = complete(cloud, rig)
+                outputs = read_back(call())
             except (JaxdepthError, ValueError) as err:
                 ledger.fail(job.name, f"completion failed: {err}")
                 continue
@@ -177,5 +206,5 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
             f.result()
 
 
-__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_baseline_depth", "cloud_completion",
-           "METHODS"]
+__all__ = ["CloudJob", "complete_sources", "run_cloud_jobs", "baseline_depth", "cloud_baseline_depth",
+           "cloud_preparation", "read_back", "METHODS"]

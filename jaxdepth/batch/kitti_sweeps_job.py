@@ -18,7 +18,7 @@ import pathlib
 import time
 from typing import Callable
 
-from jaxdepth.batch.cloud_runner import METHODS, CloudJob, cloud_completion, run_cloud_jobs
+from jaxdepth.batch.cloud_runner import METHODS, CloudJob, cloud_preparation, run_cloud_jobs
 
 
 def plan(jobs, *, overwrite: bool, summary, notify) -> list:
@@ -119,7 +119,7 @@ def run_kitti_raw_sweeps(jobs, *, sweeps: int, config=None, overwrite: bool = Fa
         make_output_folders(p for job in todo for _, p in job.outputs)
         run_cloud_jobs(todo, functools.partial(_load, sweeps=sweeps, force=force), summary, notify, config=config,
                        png_compression=png_compression, io_threads=io_threads,
-                       complete=cloud_completion(method, config=config, window=window(sweeps)))
+                       prepare=cloud_preparation(method, config=config, window=window(sweeps)))
     return summary
 
 

@@ -147,21 +147,22 @@ def rig_stages(prepared: PreparedSweep, *, images=None):
     return stages, cameras
 
 
-def rig_depth(prepared: PreparedSweep, *, images=None):
-    """``(depth, seen)`` NumPy of a :class:`PreparedSweep` from the depth program alone (no seed extras): (C, H, W)
-    depth, ``(C,)`` pixels with a point (:func:`jaxdepth._src.rig.seen_pixels`); the same bytes as the
-    :class:`~jaxdepth.Stages` program's ``depth`` and ``sparse_depth`` count (docs/speed.md, "The jobs' depth
-    programs")."""
+def _depth_call(prepared: PreparedSweep, *, images=None):
+    """The depth program's call (no seed extras), its host work done: ``call() -> (depth, seen)`` device arrays,
+    (C, H, W) depth and ``(C,)`` pixels with a point (:func:`jaxdepth._src.rig.seen_pixels`); the same bytes as
+    the :class:`~jaxdepth.Stages` program's ``depth`` and ``sparse_depth`` count (docs/speed.md, "The jobs'
+    depth programs")."""
+    import functools
+
     import jaxdepth
     rig, config = prepared.rig, prepared.config
     if prepared.multi:
-        from jaxdepth.batch.sources_job import complete_cloud
-        return complete_cloud(prepared.points, rig, config=config, images=images, seen=True)
+        from jaxdepth.batch.sources_job import cloud_call
+        return cloud_call(prepared.points, rig, config=config, images=images, seen=True)
     from jaxdepth.batch.program_cache import rig_stages as complete_rig_stages   # warm: no trace
-    cameras = jaxdepth.stack_cameras([camera.as_camera() for camera in rig.cameras])
-    out = complete_rig_stages(*prepared.points, cameras, config=config, lidar=rig.lidar, images=images,
-                              depth_only=True, seen=True)
-    return tuple(np.asarray(a) for a in out)
+    cameras = jaxdepth.stack_cameras(rig.cameras)       # the values RigCamera.as_camera's would hold
+    return functools.partial(complete_rig_stages, *prepared.points, cameras, config=config, lidar=rig.lidar,
+                             images=images, depth_only=True, seen=True)
 
 
 def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.ExtraOutputs):
@@ -180,23 +181,41 @@ def rig_outputs(prepared: PreparedSweep, stages, cameras, extras: extra_outputs.
 def rig_results(prepared: PreparedSweep, extras: extra_outputs.ExtraOutputs, *, method: str = "sgm", images=None):
     """``(depth, valid, distance, seen)`` of a :class:`PreparedSweep` by ``method``: the three (C, H, W) NumPy
     arrays of :func:`rig_outputs` and ``seen`` (C,), the sparse pixels of each camera (0: no point projects
-    into it). ``"sgm"``: :func:`rig_depth` (the depth program) unless ``extras`` needs the seeds, then
+    into it). ``"sgm"``: the depth program (:func:`rig_call`) unless ``extras`` needs the seeds, then
     :func:`rig_stages`; ``"nearest"`` / ``"ip-basic"``: the baselines of the same points
     (every LiDAR and sweep merged, :func:`jaxdepth.batch.cloud_runner.baseline_depth`), ``seen`` counted on
     the filled depth (a fill has depth where some point projects), ``valid`` and ``distance`` None."""
+    from jaxdepth.batch.cloud_runner import read_back
+    return read_back(rig_call(prepared, extras, method=method, images=images)())
+
+
+def rig_call(prepared: PreparedSweep, extras: extra_outputs.ExtraOutputs, *, method: str = "sgm", images=None):
+    """:func:`rig_results`'s host work done now (the stacked cameras, the sources pytree), its program left for
+    ``call()``, which returns ``(depth, valid, distance, seen)``: the depth program's device arrays (the SGM
+    without seed extras; ``valid``, ``distance`` None), NumPy otherwise (computed whole in ``call()``).
+    Read back with :func:`jaxdepth.batch.cloud_runner.read_back`: :func:`rig_results`' values."""
     if method == "sgm" and not extras.needs_seeds:
-        depth, seen = rig_depth(prepared, images=images)
-        return depth, None, None, seen
+        program = _depth_call(prepared, images=images)
+
+        def depth_program():
+            depth, seen = program()
+            return depth, None, None, seen
+        return depth_program
     if method == "sgm":
-        stages, cameras = rig_stages(prepared, images=images)
-        seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
-        return (*rig_outputs(prepared, stages, cameras, extras), seen)
+        def seeds():
+            stages, cameras = rig_stages(prepared, images=images)
+            seen = np.count_nonzero(np.asarray(stages.sparse_depth), axis=(1, 2))
+            return (*rig_outputs(prepared, stages, cameras, extras), seen)
+        return seeds
     from jaxdepth.batch.cloud_runner import baseline_depth, check_method, cloud_baseline_depth
     check_method(method, where="complete-rig", extras=extras, guided=images is not None)
     options = dict(method=method, config=prepared.config)
-    depth = (cloud_baseline_depth(prepared.points, prepared.rig, **options) if prepared.multi
-             else baseline_depth(*prepared.points, prepared.rig, **options))
-    return depth, None, None, np.count_nonzero(depth, axis=(1, 2))
+
+    def baseline():
+        depth = (cloud_baseline_depth(prepared.points, prepared.rig, **options) if prepared.multi
+                 else baseline_depth(*prepared.points, prepared.rig, **options))
+        return depth, None, None, np.count_nonzero(depth, axis=(1, 2))
+    return baseline
 
 
 def empty_camera_message(camera_name: str, rig_path) -> str:

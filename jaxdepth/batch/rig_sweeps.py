@@ -4,9 +4,10 @@
 ``<out_dir>/<sweep stem>/<camera>.png``, each sweep exactly as one ``complete-rig`` call on it would
 (:func:`jaxdepth.batch.rig_job.prepare_rig_sweep`, :func:`~jaxdepth.batch.rig_job.rig_results`: the same
 bytes). It runs on the multi-source jobs' loop (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`):
-reader threads read and check the next sweeps while the current one computes, writer threads encode
-and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or completed is
-reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
+reader threads read and check the next sweeps and build their program inputs (the stacked cameras,
+the sources pytree: :func:`jaxdepth.batch.rig_job.rig_call`) while the current one computes, writer
+threads encode and write the previous sweep's PNGs, atomically. A sweep that cannot be read, checked or
+completed is reported and skipped; the others carry on (so is a sweep whose LiDARs, stating no spec, resolve another
 above-scan rule than the record's, the first sweep's: :func:`jaxdepth.batch.run_record.rig_above_scan`).
 The run record (:mod:`jaxdepth.batch.run_record`) lists every output with its inputs, so a re-run skips
 what is done and redoes what changed.
@@ -118,7 +119,7 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         be claimed. A bad sweep is a failure in the summary, never an exception.
     """
     from jaxdepth.batch import run_record
-    from jaxdepth.batch.cloud_runner import run_cloud_jobs
+    from jaxdepth.batch.cloud_runner import read_back, run_cloud_jobs
     from jaxdepth.batch.runner import RunSummary
     from jaxdepth.io import read_rig_json
     from jaxdepth.io.atomic import ensure_output_dir
@@ -166,7 +167,11 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
 
     programs, last_notes = set(), [()]
 
-    def complete(loaded: _Loaded, checked_rig):
+    def program_inputs(loaded: _Loaded, checked_rig):   # a reader thread: the host work of the sweep's program
+        call = rig_job.rig_call(loaded.prepared, extras, method=method)
+        return lambda: complete(loaded, checked_rig, call)
+
+    def complete(loaded: _Loaded, checked_rig, call):   # the main thread, in the sweeps' order
         if loaded.notes != last_notes[0]:          # a log's sweeps mostly repeat one check's notes: shown once
             for note in loaded.notes:
                 report("note", f"{loaded.stem}: {note}")
@@ -175,14 +180,14 @@ def run_rig_sweeps(sweeps, rig_path, out_dir, *, config: SGMConfig, extras: extr
         if programs and key not in programs:
             report("note", f"{loaded.stem}: compiles another program ({_key_text(key)})")
         programs.add(key)
-        *outputs, seen = rig_job.rig_results(loaded.prepared, extras, method=method)
+        *outputs, seen = read_back(call())
         for i, camera in enumerate(checked_rig.cameras):
             if seen[i] == 0:
                 report("warning", f"{loaded.stem}: " + rig_job.empty_camera_message(camera.name, rig_path))
         return outputs
 
     run_cloud_jobs(jobs, load, summary, on_progress, config=config, png_compression=DEFAULT_PNG_COMPRESSION,
-                   io_threads=io_threads, complete=complete, extras=extras, overwrite=overwrite)
+                   io_threads=io_threads, prepare=program_inputs, extras=extras, overwrite=overwrite)
     return summary
 
 

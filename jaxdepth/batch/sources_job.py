@@ -228,6 +228,45 @@ def cloud_above_scan(cloud, rig, config: SGMConfig = DEFAULT_CONFIG) -> str:
     return above_scan_rule(config.above_scan, sweep=sources.sweep, lidars=sources.lidars, witnesses=sources.witnesses)
 
 
+def cloud_call(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
+               beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
+               window: tuple | None = None, seen: bool = False):
+    """:func:`complete_cloud`'s host work done now, its program call left for later: ``call() -> out``.
+
+    The same arguments as :func:`complete_cloud`. Now: the stacked cameras (from the rig cameras' NumPy K
+    and T), the sources pytree (:func:`cloud_sources`, :func:`fit_to_window`) or the padded points: host
+    work that waits for no program's result, so that a job runs it on a reader thread while the previous
+    sweep's program runs (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`). ``call()`` dispatches the
+    program (asynchronously) and returns its device arrays: the :class:`~jaxdepth.Stages` with ``stages``,
+    else the (C, H_max, W_max) depth (and with ``seen`` the ``(depth, seen)`` pair), which
+    :func:`complete_cloud` reads back.
+    """
+    import functools
+
+    import jaxdepth
+    from jaxdepth.batch.program_cache import rig_stages, sources_stages
+    if neighbour_sweeps != "default":
+        config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
+    cameras = jaxdepth.stack_cameras(rig.cameras)     # the values RigCamera.as_camera's would hold
+    options = dict(config=config, images=images, depth_only=not stages, seen=seen)
+    sources = fitted = None
+    if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
+            and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
+        sources, index = _config_sources(cloud, rig, config)
+        fitted = fit_to_window(sources, index, window)
+    if fitted is not None:
+        sources = fitted[0]
+    elif _single_origin(cloud):
+        from jaxdepth.io import pad_points
+        padded, valid = pad_points(cloud.points)
+        spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
+        return functools.partial(rig_stages, padded, valid, cameras, lidar=spec, **options)
+    elif sources is None:         # not built for the window above
+        sources, _ = _config_sources(cloud, rig, config)
+    return functools.partial(sources_stages, sources, cameras, free_space=free_space, beams=beams,
+                             occlusion=occlusion, **options)
+
+
 def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bool = True, images=None,
                    beams: int | None = None, stages: bool = False, neighbour_sweeps="default", occlusion: bool = True,
                    window: tuple | None = None, seen: bool = False):
@@ -263,30 +302,8 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
       as :func:`~jaxdepth.complete_rig`). A cloud of one source at the reference origin gives
       exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
-    import jaxdepth
-    from jaxdepth.batch.program_cache import rig_stages, sources_stages
-    if neighbour_sweeps != "default":
-        config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
-    cameras = jaxdepth.stack_cameras([c.as_camera() for c in rig.cameras])
-    sources = fitted = None
-    if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
-            and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
-        sources, index = _config_sources(cloud, rig, config)
-        fitted = fit_to_window(sources, index, window)
-    if fitted is not None:
-        out = sources_stages(fitted[0], cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion, depth_only=not stages, seen=seen)
-    elif _single_origin(cloud):
-        from jaxdepth.io import pad_points
-        padded, valid = pad_points(cloud.points)
-        spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-        out = rig_stages(padded, valid, cameras, config=config, lidar=spec, images=images, depth_only=not stages,
-                         seen=seen)
-    else:
-        if sources is None:         # not built for the window above
-            sources, _ = _config_sources(cloud, rig, config)
-        out = sources_stages(sources, cameras, config=config, free_space=free_space, beams=beams,
-                             images=images, occlusion=occlusion, depth_only=not stages, seen=seen)
+    out = cloud_call(cloud, rig, config=config, free_space=free_space, images=images, beams=beams, stages=stages,
+                     neighbour_sweeps=neighbour_sweeps, occlusion=occlusion, window=window, seen=seen)()
     if stages:
         return out
     return tuple(np.asarray(a) for a in out) if seen else np.asarray(out)
@@ -306,5 +323,6 @@ def checked_cloud(cloud, rig, config: SGMConfig = DEFAULT_CONFIG, *, estimate: b
     return frame, config
 
 
-__all__ = ["cloud_above_scan", "complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window", "source_spec",
-           "POINT_BUCKET", "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence", "witness_spec"]
+__all__ = ["cloud_above_scan", "cloud_call", "complete_cloud", "checked_cloud", "cloud_sources", "fit_to_window",
+           "source_spec", "POINT_BUCKET", "WITNESS_GRID_STEP", "scan_witness_spec", "spec_grid_evidence",
+           "witness_spec"]

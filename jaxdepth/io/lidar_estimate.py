@@ -99,10 +99,35 @@ def _elevation_deg(p: np.ndarray, origin) -> np.ndarray:
     return np.degrees(np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))
 
 
+def ring_labels(ring) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(ring, return_inverse=True)`` of a (n,) ring array: its sorted distinct values and each
+    point's index among them, the same arrays. Integer rings of non-negative values below 65536 (laser
+    numbers) are counted (bincount, one gather) instead of sorted; any other ring goes to ``np.unique``."""
+    ring = np.asarray(ring)
+    if (ring.ndim == 1 and ring.size and ring.dtype.kind in "iu" and np.can_cast(ring.dtype, np.intp)
+            and ring.min() >= 0 and ring.max() < 1 << 16):
+        present = np.bincount(ring) > 0
+        return np.flatnonzero(present).astype(ring.dtype), (np.cumsum(present) - 1)[ring]
+    return np.unique(ring, return_inverse=True)
+
+
+def ring_medians(values: np.ndarray, inverse: np.ndarray, count: int) -> np.ndarray:
+    """(count,) float64: ``np.median(values[inverse == i])`` for each ring index ``i < count`` (NaN where the
+    ring has no value), the same numbers: one stable sort by ring (a radix sort of 16-bit indices) keeps each
+    ring's values in their order, then a median per run instead of a mask over all values per ring."""
+    inverse = np.asarray(inverse)
+    keys = inverse.astype(np.uint16) if count <= 1 << 16 else inverse
+    ordered = np.asarray(values)[np.argsort(keys, kind="stable")]
+    sizes = np.bincount(inverse, minlength=count)
+    ends = np.cumsum(sizes)
+    return np.array([np.median(ordered[end - size:end]) if size else np.nan for size, end in zip(sizes, ends)],
+                    np.float64)
+
+
 def _ring_spread(el: np.ndarray, ring: np.ndarray) -> float:
     """Minus the share of elevation variance left within rings (scale free: a far-away origin
     squeezes every angle, within and between rings alike)."""
-    labels, inverse = np.unique(ring, return_inverse=True)
+    labels, inverse = ring_labels(ring)
     sums = np.bincount(inverse, weights=el, minlength=labels.size)
     counts = np.bincount(inverse, minlength=labels.size).astype(np.float64)
     means = sums / np.maximum(counts, 1.0)
@@ -176,8 +201,8 @@ def estimate_lidar_geometry(points: np.ndarray, *, ring: np.ndarray | None = Non
     cover = float(np.mean(np.bincount(np.floor((az + 180.0) / 5.0).astype(np.int64).clip(0, 71),
                                       minlength=72) > 0))
     if ring is not None:
-        labels, inverse = np.unique(ring, return_inverse=True)
-        centres = np.array([np.median(el[inverse == i]) for i in range(labels.size)])
+        labels, inverse = ring_labels(ring)
+        centres = ring_medians(el, inverse, labels.size)
         on_peaks = float(np.mean(np.abs(el - centres[inverse]) <= PEAK_TOL_DEG))
         far = np.linalg.norm(q, axis=1) > MIN_RANGE_M
         tight = -_ring_spread(el[far], ring[far]) <= TIGHT_RINGS if far.sum() >= 100 else False
@@ -198,4 +223,4 @@ def estimate_lidar_geometry(points: np.ndarray, *, ring: np.ndarray | None = Non
                          ground_z_m=ground)
 
 
-__all__ = ["LidarEstimate", "estimate_lidar_geometry"]
+__all__ = ["LidarEstimate", "estimate_lidar_geometry", "ring_labels", "ring_medians"]

@@ -253,7 +253,7 @@ def source_spec(cloud, s: int, fallback: LidarSpec):
         return spec, None
     if cloud.ring is None:
         return fallback, None
-    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry
+    from jaxdepth.io.lidar_estimate import estimate_lidar_geometry, ring_labels, ring_medians
     mine = cloud.source == s
     local = source_points_local(cloud, s)
     ring = cloud.ring[mine]
@@ -262,10 +262,12 @@ def source_spec(cloud, s: int, fallback: LidarSpec):
         log.info("%s: %s; using the rig's LiDAR spec", cloud.names[s], est.describe())
         return fallback, None
     el = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
-    lasers, inverse = np.unique(ring, return_inverse=True)
+    lasers, inverse = ring_labels(ring)
     far = np.linalg.norm(local, axis=1) > 2.0
-    median = np.array([np.median(el[(inverse == i) & far]) if np.any((inverse == i) & far)
-                       else np.median(el[inverse == i]) for i in range(lasers.size)])
+    median = ring_medians(el[far], inverse[far], lasers.size)
+    near_only = np.isnan(median)                    # a laser with no point beyond 2 m: the median of all its points
+    if near_only.any():
+        median[near_only] = ring_medians(el, inverse, lasers.size)[near_only]
     rank = np.empty(lasers.size, np.int32)
     rank[np.argsort(-median, kind="stable")] = np.arange(lasers.size, dtype=np.int32)
     half = 0.5 * (median.max() - median.min()) / max(lasers.size - 1, 1)
