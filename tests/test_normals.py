@@ -616,8 +616,8 @@ def test_pixel_normals_listed_fits_is_the_per_point_margin_test():
         total, edge = listed_flags(jnp.asarray(sparse, jnp.float32), K, T)
         assert bool(fits) == (int(total) <= 96 * 160 // 16 and not bool(edge))
         got_fits.append(bool(fits))
-        if fits:
-            want = PN.pixel_normals(sparse, K, T, lidar=PIX_LIDAR, **opts)
+        if fits:    # capacity LISTED (the frame fits it too): the program of the backwards-camera test above
+            want = PN.pixel_normals(sparse, K, T, lidar=PIX_LIDAR, max_points=LISTED)
             np.testing.assert_array_equal(np.asarray(normals), np.asarray(want))
     assert got_fits == [True, False, False, False]  # the frames' premise
 
