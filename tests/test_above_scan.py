@@ -273,18 +273,22 @@ def test_capped_holds_a_tilted_plane_one_scan_line_above_its_seed():
     assert plane[0, 0] > 1.4 * got[0, 0]                # the plane itself climbs far above: the cap bites
 
 
+@pytest.mark.slow  # two whole-pipeline programs (docs/testing.md); the plane one is the complete_stages row's
 def test_capped_through_the_pipeline_changes_only_above_the_scan():
     """complete_stages with "capped" and with "plane" (the default): Step 4's prediction equal to the bit
     at and below the top scan line (three full rows of points), different above it; jit == eager is
-    the stage table's row ``capped_above_scan``, vmap == loop too."""
-    H, W = 24, 40
+    the stage table's row ``capped_above_scan``, vmap == loop too. On the 32 x 48 camera and SMALL_LIDAR of
+    the stage table's pipeline rows (their default program; K and T are arguments), not one of its own."""
+    from scenes import SMALL_LIDAR, small_camera
+    H, W = 32, 48
+    camera = small_camera(h=H, w=W, f=40.0)
     sparse = np.zeros((H, W), np.float32)
-    sparse[12, ::2], sparse[17, 1::2], sparse[22, ::2] = 6.0, 5.0, 4.0
-    K = np.array([[30.0, 0, 19.5], [0, 30.0, 11.5], [0, 0, 1]], np.float32)
-    plane = jaxdepth.complete_stages(sparse, K)
-    capped = jaxdepth.complete_stages(sparse, K, config=jaxdepth.SGMConfig(above_scan="capped"))
-    np.testing.assert_array_equal(np.asarray(capped.depth_raw)[12:], np.asarray(plane.depth_raw)[12:])
-    assert not np.array_equal(np.asarray(capped.depth_raw)[:12], np.asarray(plane.depth_raw)[:12])
+    sparse[16, ::2], sparse[22, 1::2], sparse[28, ::2] = 6.0, 5.0, 4.0
+    K, T = np.asarray(camera.K), np.asarray(camera.T_cam_lidar)
+    plane = jaxdepth.complete_stages(sparse, K, T, lidar=SMALL_LIDAR)
+    capped = jaxdepth.complete_stages(sparse, K, T, lidar=SMALL_LIDAR, config=jaxdepth.SGMConfig(above_scan="capped"))
+    np.testing.assert_array_equal(np.asarray(capped.depth_raw)[16:], np.asarray(plane.depth_raw)[16:])
+    assert not np.array_equal(np.asarray(capped.depth_raw)[:16], np.asarray(plane.depth_raw)[:16])
 
 
 def test_capped_flag():
@@ -419,10 +423,12 @@ def test_complete_rig_records_the_rule_its_sources_resolve(tmp_path, monkeypatch
 @pytest.mark.xdist_group("rig_mixed_sizes")  # its complete_rig and one-source programs are test_sources' edge-rig test's
 def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_path():
     """The same cloud: as one source its default equals the single-sweep path's (``complete_rig``, both the
-    plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and
-    an explicit ``plane`` there is not the default's output."""
+    plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and is
+    its program (resolved on the host, before the ``jit``: no trace of its own), and an explicit ``plane``
+    there is not the default's output."""
     from jaxdepth._src.sources import complete_sources, make_sources
 
+    from _harness import _top_level_traces
     from scenes import SMALL_LIDAR, edge_size_rig
     points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
@@ -432,7 +438,9 @@ def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_p
     two = make_sources(np.stack([points] * 2), np.stack([valid] * 2), np.stack([np.eye(4)] * 2),
                        lidars=(SMALL_LIDAR,) * 2, sweep=(0, 0))
     capped = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="capped")))
+    traces = _top_level_traces[0]
     np.testing.assert_array_equal(np.asarray(complete_sources(two, cams)), capped)
+    assert _top_level_traces[0] == traces                    # the default ran explicit capped's program
     plane = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="plane")))
     assert not np.array_equal(capped, plane)                 # the explicit plane is not the default's rule
 

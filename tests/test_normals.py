@@ -600,20 +600,24 @@ def test_pixel_normals_listed_fits_is_the_per_point_margin_test():
     margin, wc = max(1 + opts["fill_max_gap"], opts["smoothing"]), PN.default_window_columns(PIX_LIDAR)
     yaw = np.diag([-1.0, -1.0, 1.0, 1.0]).astype(np.float32)
     cams = [_pix_camera(), _pix_camera(f=40.0), small_camera(lidar_to_camera() @ yaw), _pix_camera()]
+    @jax.jit      # the per-point flags in one program (called plainly, every primitive compiles on its own)
+    def listed_flags(sparse, K, T):
+        pix, total = compaction.compact_indices(jnp.asarray(sparse > 0).reshape(-1), 96 * 160 // 16, 0)
+        col0 = PN._window_start(K, T, 96, 160, PIX_LIDAR, wc)
+        pts = PN._pixel_points(pix, sparse, K, T, col0, 0, lidar=PIX_LIDAR, window_cols=wc, margin=margin)
+        return total, pts.edge.any()
+
     got_fits = []
     for i, camera in enumerate(cams):
         depth = _pix_frame(i, camera)
         sparse = depth if i == 3 else np.where(np.arange(96)[:, None] % 4 + np.arange(160) % 4 == 0, depth, 0)
         K, T = camera.K, camera.T_cam_lidar
         normals, fits = PN.pixel_normals_listed(sparse, K, T, lidar=PIX_LIDAR, **opts)
-        pix, total = compaction.compact_indices(jnp.asarray(sparse > 0).reshape(-1), 96 * 160 // 16, 0)
-        col0 = PN._window_start(K, T, 96, 160, PIX_LIDAR, wc)
-        pts = PN._pixel_points(pix, jnp.asarray(sparse), K, T, col0, 0, lidar=PIX_LIDAR, window_cols=wc,
-                               margin=margin)
-        assert bool(fits) == (int(total) <= 96 * 160 // 16 and not np.asarray(pts.edge).any())
+        total, edge = listed_flags(jnp.asarray(sparse, jnp.float32), K, T)
+        assert bool(fits) == (int(total) <= 96 * 160 // 16 and not bool(edge))
         got_fits.append(bool(fits))
-        if fits:
-            want = PN.pixel_normals(sparse, K, T, lidar=PIX_LIDAR, **opts)
+        if fits:    # capacity LISTED (the frame fits it too): the program of the backwards-camera test above
+            want = PN.pixel_normals(sparse, K, T, lidar=PIX_LIDAR, max_points=LISTED)
             np.testing.assert_array_equal(np.asarray(normals), np.asarray(want))
     assert got_fits == [True, False, False, False]  # the frames' premise
 

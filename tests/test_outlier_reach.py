@@ -70,6 +70,7 @@ def test_reach_candidates_kitti_windows(kitti, r0, c0):
     assert fewer > 0
 
 
+@pytest.mark.slow  # the real KITTI frame at its own size, two keep-mask programs; the quick tests above check the bound
 def test_reach_cuts_the_kitti_frame(kitti, monkeypatch):
     """The whole frame (64 beams, the library's caps): the bound leaves under half the candidates of
     condition 2 alone (4,658 -> 1,361 on camera 2's shared frame), and the keep mask equals the one of the

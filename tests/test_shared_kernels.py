@@ -97,8 +97,9 @@ def test_zbuffer_winners_of_cameras_of_two_sizes_in_one_vmap_are_each_cameras_ow
 
     slots = np.asarray(jax.jit(jax.vmap(shared))(points, valid, sizes))
     assert np.array_equal(np.asarray(jax.vmap(shared)(points, valid, sizes)), slots)
+    own_winners = jax.jit(geometry.zbuffer_winners, static_argnames=("height", "width"))  # not op by op per size
     for c, (h, w) in enumerate(sizes):
-        own = np.asarray(geometry.zbuffer_winners(jnp.asarray(points[c]), valid[c], K, height=int(h), width=int(w))[0])
+        own = np.asarray(own_winners(jnp.asarray(points[c]), valid[c], K, height=int(h), width=int(w))[0])
         np.testing.assert_array_equal(np.where(slots[c] == 63, h * w, slots[c]), own)
         pu, pv, pz, front = (np.asarray(a) for a in geometry.project_pixels(jnp.asarray(points[c]), K))
         ui, vi = np.round(pu).astype(np.int64), np.round(pv).astype(np.int64)

@@ -65,6 +65,16 @@ def above_scan_rule(mode: str, *, sweep, lidars, witnesses=None) -> str:
     return "capped" if len(ref) >= 2 and lines else "plane"
 
 
+def resolved_config(config, sources):
+    """``config`` (:class:`~jaxdepth.SGMConfig`) with ``above_scan`` resolved for ``sources`` (a multi-source
+    call's :class:`~jaxdepth._src.sources.Sources`: its static ``sweep``, ``lidars``, ``witnesses``) by
+    :func:`above_scan_rule`. The entry points resolve it on the host, before their ``jit``: the default
+    ``"auto"`` and the explicit mode it stands for are then one static option, one compiled program (the
+    same bytes: only the tail reads ``above_scan``)."""
+    return config.replace(above_scan=above_scan_rule(config.above_scan, sweep=sources.sweep, lidars=sources.lidars,
+                                                     witnesses=sources.witnesses))
+
+
 def _shift_columns(x: jax.Array, k: int, fill) -> jax.Array:
     """``out[:, u] = x[:, u + k]`` (``fill`` outside the image), for a static ``k``."""
     if k == 0:

@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.above_scan import above_scan_rule, top_line_keep
+from jaxdepth._src.above_scan import resolved_config, top_line_keep
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
@@ -636,12 +636,9 @@ def run_sources_stages(sources: Sources, cameras: RigCameras, images=None, *, co
     :func:`sources_stage_projection`, :func:`sources_stage_keep`, :func:`sources_stage_tail` (the tail's
     ``above_scan`` resolved, :func:`~jaxdepth._src.above_scan.above_scan_rule`; see run_rig_stages)."""
     check_images(images, cameras, config, where="complete_sources")
-    views = call(sources_stage_projection, sources, cameras, config=config, free_space=free_space,
-                 occlusion=occlusion)
+    views = call(sources_stage_projection, sources, cameras, config=config, free_space=free_space, occlusion=occlusion)
     keeps = call(sources_stage_keep, views, sources, cameras, config=config, beams=beams)
-    tail = config.replace(above_scan=above_scan_rule(config.above_scan, sweep=sources.sweep, lidars=sources.lidars,
-                                                     witnesses=sources.witnesses))
-    return call(sources_stage_tail, views, keeps, cameras, images, config=tail, beams=beams)
+    return call(sources_stage_tail, views, keeps, cameras, images, config=resolved_config(config, sources), beams=beams)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "free_space", "beams", "occlusion"))
@@ -685,8 +682,8 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
       image (free-space points never reach the image).
     """
     beams = default_beams(sources) if beams is None else int(beams)
-    return sources_program(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                           occlusion=bool(occlusion))
+    return sources_program(sources, cameras, images, config=resolved_config(config, sources),
+                           free_space=bool(free_space), beams=beams, occlusion=bool(occlusion))
 
 
 def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig = DEFAULT_CONFIG,
@@ -695,5 +692,5 @@ def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`
     (:func:`sources_depth_program`, as :func:`~jaxdepth.complete_rig` runs the rig's depth program)."""
     beams = default_beams(sources) if beams is None else int(beams)
-    return sources_depth_program(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                                 occlusion=bool(occlusion))
+    return sources_depth_program(sources, cameras, images, config=resolved_config(config, sources),
+                                 free_space=bool(free_space), beams=beams, occlusion=bool(occlusion))

@@ -257,12 +257,13 @@ def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: 
     (:func:`jaxdepth._src.sources.sources_program`) through the program cache (when the cache is off, the
     plain ``jit`` call). ``depth_only``: the depth alone, from
     :func:`jaxdepth._src.sources.sources_depth_program` (and ``seen``: as :func:`rig_stages`)."""
+    from jaxdepth._src.above_scan import resolved_config
     from jaxdepth._src.sources import default_beams, sources_depth_program, sources_program
     program = sources_depth_program if depth_only else sources_program
     call = program if program_folder() is None else functools.partial(cached_stage, program)
     beams = default_beams(sources) if beams is None else int(beams)
-    return call(sources, cameras, images, config=config, free_space=bool(free_space), beams=beams,
-                occlusion=bool(occlusion), **_seen(depth_only, seen))
+    return call(sources, cameras, images, config=resolved_config(config, sources), free_space=bool(free_space),
+                beams=beams, occlusion=bool(occlusion), **_seen(depth_only, seen))
 
 
 def _read_entry(path: pathlib.Path, key: str, signature: tuple):
