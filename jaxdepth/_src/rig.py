@@ -60,6 +60,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.outlier_groups import exact_test_groups
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_winners, winners_apart
 from jaxdepth._src.types import LidarSpec, Stages
@@ -263,6 +264,27 @@ def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
                                                                          cameras.image_size, jnp.asarray(bound))
     return map_by_size(per_camera, cameras, None,
                        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
+
+
+def keep_by_size(per_camera, cameras: RigCameras, views: tuple, *, windows: dict | None = None) -> tuple:
+    """Step 2 of every camera: :func:`map_by_size` of ``per_camera(K, T, size, image, view, keep=None, *, height,
+    width, defer=False)`` over ``views`` (one per group), its (h, w) keep masks per group.
+
+    ``windows``: None, or with several size groups the statics of
+    :func:`~jaxdepth._src.outlier_groups.exact_test_groups` (:func:`~jaxdepth._src.outlier_groups.shared_windows`):
+    then ``per_camera(..., defer=True)`` returns each camera's phases 1-2 (``outliers.KeepParts``), the
+    exact test runs once for all cameras, and ``per_camera(..., keep=)`` finishes each camera from its mask.
+    """
+    groups = size_groups(cameras)
+    if windows is None or len(groups) < 2:
+        return map_by_size(per_camera, cameras, None, views)
+    parts = map_by_size(functools.partial(per_camera, defer=True), cameras, None, views)
+    keeps = exact_test_groups(parts, tuple(size for size, _ in groups), **windows)
+
+    def finish(K, T, size, image, view_keep, *, height, width):
+        return per_camera(K, T, size, image, view_keep[0], view_keep[1], height=height, width=width)
+
+    return map_by_size(finish, cameras, None, tuple(zip(views, keeps)))
 
 
 def _cameras_at(x: jax.Array, idx: np.ndarray) -> jax.Array:

@@ -1,0 +1,82 @@
+"""Step 2's exact test once for several size groups (``outlier_groups.exact_test_groups``) against each group's
+own ``_keep_mask`` (the per-group form, vmapped as the rigs run it), bit for bit, and jit == eager."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxdepth._src import outliers
+from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
+
+
+def _camera(rng, h, w, n_sources):
+    """A sparse depth image with near and far layers (occlusions), its points, each pixel's source, K, origins."""
+    K = np.array([[0.8 * w, 0.0, w / 2], [0.0, 0.8 * w, h / 2], [0, 0, 1]], np.float32)
+    depth = np.where(rng.random((h, w)) < 0.25, rng.uniform(2.0, 30.0, (h, w)), 0.0).astype(np.float32)
+    depth[h // 3:h // 2, w // 4:w // 2] = np.where(depth[h // 3:h // 2, w // 4:w // 2] > 0, 1.5, 0.0)
+    v, u = np.mgrid[:h, :w].astype(np.float32) + rng.uniform(-0.4, 0.4, (2, h, w)).astype(np.float32)
+    points = tuple(np.where(depth > 0, c, 0.0).astype(np.float32)
+                   for c in ((u - K[0, 2]) * depth / K[0, 0], (v - K[1, 2]) * depth / K[1, 1], depth))
+    source = rng.integers(0, n_sources, (h, w)).astype(np.int32)
+    origins = rng.uniform(-0.6, 0.6, (n_sources, 3)).astype(np.float32)
+    return depth, points, source, K, origins
+
+
+def _group(rng, n, h, w, n_sources=2):
+    cams = [_camera(rng, h, w, n_sources) for _ in range(n)]
+    return tuple(jnp.asarray(np.stack(x)) if not isinstance(x[0], tuple) else
+                 tuple(jnp.asarray(np.stack(c)) for c in zip(*x)) for x in zip(*cams))
+
+
+def _masks(groups, sizes, *, beams, shared, test="footprint"):
+    windows = dict(shared_windows(sizes, beams=beams, config=DEFAULT_CONFIG), test=test)
+
+    def one(depth, points, source, K, origins, size, *, defer):
+        return outliers._keep_mask(depth, K, jnp.eye(4, dtype=jnp.float32), points, jnp.float32(1.0), beams=beams,
+                                   half_width=windows["hw"], half_height=windows["hh"], test=test, origins=origins,
+                                   image_size=size, pixel_source=source, defer=defer)
+
+    out = []
+    for (depth, points, source, K, origins), (h, w) in zip(groups, sizes):
+        size = jnp.broadcast_to(jnp.asarray([h, w], jnp.int32), (depth.shape[0], 2))
+        run = jax.vmap(lambda *a: one(*a, defer=shared))
+        out.append(run(depth, points, source, K, origins, size))
+    if shared:
+        out = exact_test_groups(tuple(out), sizes, **windows)
+    return [np.asarray(m) for m in out]
+
+
+@pytest.mark.parametrize("test", ["footprint", "paper"])
+@pytest.mark.parametrize("sizes, beams", [(((96, 128), (128, 96)), 2),    # tall windows: words down the columns
+                                          (((64, 72), (60, 80)), 8)])     # short windows: words along the rows
+def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams, test):
+    rng = np.random.default_rng(7)
+    groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
+    want = _masks(groups, sizes, beams=beams, shared=False, test=test)
+    got = _masks(groups, sizes, beams=beams, shared=True, test=test)
+    for g, (a, b) in enumerate(zip(got, want)):
+        assert a.shape == b.shape
+        np.testing.assert_array_equal(a, b, err_msg=f"group {g}")
+    assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0   # some removed
+
+
+def test_one_loop_jit_equals_eager():
+    sizes = ((96, 128), (128, 96))
+    rng = np.random.default_rng(3)
+    groups = [_group(rng, n, h, w) for n, (h, w) in zip((2, 1), sizes)]
+    fast = _masks(groups, sizes, beams=2, shared=True)
+    with jax.disable_jit():
+        eager = _masks(groups, sizes, beams=2, shared=True)
+    for a, b in zip(fast, eager):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_shared_windows_only_where_every_group_agrees():
+    assert shared_windows(((96, 128), (128, 96)), beams=2, config=DEFAULT_CONFIG)["down"]
+    assert not shared_windows(((64, 72), (60, 80)), beams=8, config=DEFAULT_CONFIG)["down"]
+    assert shared_windows(((96, 128),), beams=2, config=DEFAULT_CONFIG) is None           # one group
+    assert shared_windows(((40, 24), (24, 40)), beams=8, config=DEFAULT_CONFIG) is None    # hh 4 against 2
