@@ -3,6 +3,8 @@ own ``_keep_mask`` (the per-group form, vmapped as the rigs run it), bit for bit
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,6 +13,11 @@ import pytest
 from jaxdepth._src import outliers
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
+from jaxdepth._src.rig import size_groups, stack_cameras
+from jaxdepth._src.sources import complete_sources_stages, make_sources
+from jaxdepth._src import synthetic
+
+from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
 
 
 def _camera(rng, h, w, n_sources):
@@ -80,3 +87,26 @@ def test_shared_windows_only_where_every_group_agrees():
     assert not shared_windows(((64, 72), (60, 80)), beams=8, config=DEFAULT_CONFIG)["down"]
     assert shared_windows(((96, 128),), beams=2, config=DEFAULT_CONFIG) is None           # one group
     assert shared_windows(((40, 24), (24, 40)), beams=8, config=DEFAULT_CONFIG) is None    # hh 4 against 2
+
+
+@pytest.mark.slow  # two whole several-sources programs (grouped by size, and every camera on one canvas)
+def test_sources_rig_of_two_sizes_with_one_loop_equals_one_canvas():
+    # 40 x 48 and 48 x 40 cameras under a 32-beam LiDAR: the same window (|dv| <= 1, |du| <= 12), so the grouped
+    # program runs one exact-test loop for all three cameras (rig.keep_by_size); on one 48 x 48 canvas (sizes
+    # unknown) one group, each camera its own bounds: every field equal in each camera's window.
+    cams = [small_camera(h=40, w=48, f=30.0), small_camera(lidar_to_camera((0.2, 0.0, 0.5)), h=48, w=40, f=30.0),
+            small_camera(lidar_to_camera((-0.5, 0.1, 0.2)), h=40, w=48, f=34.0)]
+    frame = synthetic.make_street_scene(3, lidar=SMALL_LIDAR, cameras=cams)
+    sources = make_sources(np.asarray(frame.points)[None], np.asarray(frame.valid)[None],
+                           np.eye(4, dtype=np.float32)[None], lidars=(SMALL_LIDAR,))
+    cameras = stack_cameras(cams)
+    sizes = tuple(size for size, _ in size_groups(cameras))
+    assert shared_windows(sizes, beams=SMALL_LIDAR.beams, config=DEFAULT_CONFIG) is not None
+    grouped = complete_sources_stages(sources, cameras)
+    one_canvas = complete_sources_stages(sources, dataclasses.replace(cameras, sizes=None))
+    assert int((np.asarray(grouped.sparse_depth) > 0).sum() - np.asarray(grouped.inlier_mask).sum()) > 0  # removed
+    for name in grouped._fields:
+        for i, cam in enumerate(cams):
+            window = (Ellipsis, slice(cam.height), slice(cam.width))
+            np.testing.assert_array_equal(np.asarray(getattr(grouped, name)[i])[window],
+                                          np.asarray(getattr(one_canvas, name)[i])[window], err_msg=f"{i} {name}")

@@ -60,7 +60,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.outlier_groups import exact_test_groups
+from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_winners, winners_apart
 from jaxdepth._src.types import LidarSpec, Stages
@@ -266,17 +266,20 @@ def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
                        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
 
 
-def keep_by_size(per_camera, cameras: RigCameras, views: tuple, *, windows: dict | None = None) -> tuple:
+def keep_by_size(per_camera, cameras: RigCameras, views: tuple, *, beams: int, config: SGMConfig,
+                 shared: bool = True) -> tuple:
     """Step 2 of every camera: :func:`map_by_size` of ``per_camera(K, T, size, image, view, keep=None, *, height,
     width, defer=False)`` over ``views`` (one per group), its (h, w) keep masks per group.
 
-    ``windows``: None, or with several size groups the statics of
-    :func:`~jaxdepth._src.outlier_groups.exact_test_groups` (:func:`~jaxdepth._src.outlier_groups.shared_windows`):
-    then ``per_camera(..., defer=True)`` returns each camera's phases 1-2 (``outliers.KeepParts``), the
-    exact test runs once for all cameras, and ``per_camera(..., keep=)`` finishes each camera from its mask.
+    ``shared`` and several size groups with the same static window (:func:`~jaxdepth._src.outlier_groups.
+    shared_windows` of the LiDAR's ``beams`` and ``config``): ``per_camera(..., defer=True)`` returns each
+    camera's phases 1-2 (``outliers.KeepParts``), the exact test runs once for all cameras
+    (:func:`~jaxdepth._src.outlier_groups.exact_test_groups`), and ``per_camera(..., keep=)`` finishes each camera
+    from its mask (the same masks as each group's own loop).
     """
     groups = size_groups(cameras)
-    if windows is None or len(groups) < 2:
+    windows = shared_windows(tuple(size for size, _ in groups), beams=beams, config=config) if shared else None
+    if windows is None:
         return map_by_size(per_camera, cameras, None, views)
     parts = map_by_size(functools.partial(per_camera, defer=True), cameras, None, views)
     keeps = exact_test_groups(parts, tuple(size for size, _ in groups), **windows)

@@ -50,12 +50,11 @@ from jaxdepth._src.above_scan import above_scan_rule, top_line_keep
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
 from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
-from jaxdepth._src.outlier_groups import shared_windows
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
 from jaxdepth._src.pipeline import project_winners, winners_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
-                              keep_by_size, map_by_size_shared, size_groups)
+                              keep_by_size, map_by_size_shared)
 from jaxdepth._src.types import LidarSpec, Stages
 from jaxdepth._src.xla_tuning import entry_jit
 
@@ -401,7 +400,7 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
       all_sweep: optional static tuple of S ints, each source's sweep (0 = reference), for
         ``config.older_sweeps_test="paper"``: with several sweeps, the older sweeps' pixels are also judged by
         the paper form of condition 1 (same window, origins and epsilon; the reference sweep's are not).
-      defer: static; True: the main pass's phases 1-2 (``outliers.KeepParts``, for ``rig.keep_by_size``; one sweep).
+      defer: static; True (one sweep only): the pass's phases 1-2 (``outliers.KeepParts``, for ``rig.keep_by_size``).
 
     Algorithm 1 tests each pixel's point with that point's own source origin as the
     viewpoint compared with the camera's; every pixel of the image is a possible occluder
@@ -420,11 +419,8 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     origins = T_cam_sources[:, :3, 3]       # (S, 3): pixel i's origin is origins[safe[i]], read where used
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     keep = _keep_mask(  # within ``valid`` already; the source clipped where read (``origins_of``)
-        sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw, half_height=hh,
-        test=config.outlier_test, origins=origins, nearer=nearer, image_size=image_size, pixel_source=pixel_source,
-        defer=defer)
-    if defer:
-        return keep
+        sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw, half_height=hh, defer=defer,
+        test=config.outlier_test, origins=origins, nearer=nearer, image_size=image_size, pixel_source=pixel_source)
     if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
             and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
         older = valid & (jnp.asarray(np.asarray(all_sweep, np.int32))[safe] != 0)
@@ -546,18 +542,15 @@ def _camera_view(won, n: int, per_source: int, shadow, *, height, width) -> Came
 
 def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, keep=None, *, beams, config, image_size=None,
                  reference=None, sweep=None, all_sweep=None, defer=False) -> jax.Array:
-    """Step 2 for one camera's :class:`CameraView`: the sources' mask (:func:`source_keep_mask`, or ``keep`` given)
-    and the top-line rule (``reference``: (S,) bool, the reference sweep's sources); ``defer``: source_keep_mask's."""
+    """Step 2 for one camera's :class:`CameraView`: :func:`source_keep_mask` (``defer``: its) or the ``keep`` given,
+    then the top-line rule (``reference``: (S,) bool, the reference sweep's sources; None with one sweep)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, pixel_source = view.sparse_depth, view.pixel_source
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
-    if keep is None:
-        keep = source_keep_mask(sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams,
-                                config=config, pixel_shadow=view.pixel_shadow, image_size=image_size,
-                                source_sweep=sweep, all_sweep=all_sweep, defer=defer)
-    if defer:
-        return keep
+    keep = keep if keep is not None else source_keep_mask(
+        sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams, config=config, defer=defer,
+        pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep, all_sweep=all_sweep)
     if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
         own = keep & reference[jnp.maximum(pixel_source, 0)]
         keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
@@ -627,9 +620,7 @@ def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, c
         return _camera_keep(view, T_ref_source, K, T, keep, beams=beams, config=config, image_size=size, defer=defer,
                             reference=reference, sweep=sweep, all_sweep=tuple(int(x) for x in sources.sweep))
 
-    one_sweep = len(set(sources.sweep)) == 1     # no per-sweep or older-sweep passes: the exact test shared
-    windows = shared_windows(tuple(size for size, _ in size_groups(cameras)), beams=beams, config=config)
-    return keep_by_size(per_camera, cameras, views, windows=windows if one_sweep else None)
+    return keep_by_size(per_camera, cameras, views, beams=beams, config=config, shared=len(set(sources.sweep)) == 1)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "beams"))
