@@ -18,8 +18,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxdepth._src.outlier_exact import ExactTest, Grouped, exact_test
-from jaxdepth._src.outliers import _compact, _row_block, window_half_sizes
+from jaxdepth._src.compaction import WORD_BITS, word_locator
+from jaxdepth._src.outlier_exact import ExactTest, Grouped, _read, exact_test
+from jaxdepth._src.outliers import _row_block, window_half_sizes
 
 
 def _flat(x: jax.Array, length: int) -> jax.Array:
@@ -34,7 +35,7 @@ def _by_group(images: tuple):
 
 
 def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str, down: bool) -> tuple:
-    """Phase 3 of Step 2 for every camera of a rig at once.
+    """Phase 3 of Step 2 for every camera of a rig at once, the cameras' candidates pooled into one list.
 
     Args:
       parts: one :class:`~jaxdepth._src.outliers.KeepParts` per size group, each leaf with a leading axis of
@@ -52,26 +53,41 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     longest = lambda f: max(int(np.prod(f(p).shape[1:])) for p in parts)
     n_pix, n_words, n_columns = max(pixels), longest(lambda p: p.words), longest(lambda p: p.columns)
     cat = lambda f: jnp.concatenate([f(p) for p in parts])
-    row_words = [p.words.shape[-1] for p in parts]
-    per_camera = (cat(lambda p: _flat(p.valid, n_pix)), cat(lambda p: _flat(p.words, n_words)),
-                  cat(lambda p: _flat(p.columns, n_columns)), cat(lambda p: p.K), cat(lambda p: p.t),
-                  cat(lambda p: p.eps), cat(lambda p: p.k_max), cat(lambda p: p.cell_u), cat(lambda p: p.cell_v),
-                  cat(lambda p: p.h_max), jnp.asarray(np.repeat(np.asarray(sizes, np.int32), counts, axis=0)),
-                  jnp.asarray(np.repeat(np.asarray(row_words, np.int32), counts)),
-                  jnp.asarray(np.repeat(np.arange(len(parts), dtype=np.int32), counts)),
-                  jnp.asarray(np.concatenate([np.arange(n, dtype=np.int32) for n in counts])))
-    depth = _by_group(tuple(p.depth for p in parts))
-    points = tuple(_by_group(tuple(p.points[c] for p in parts)) for c in range(3))
-    nearer, source = _by_group(tuple(p.nearer for p in parts)), _by_group(tuple(p.source for p in parts))
+    per_camera = lambda values, dtype=np.int32: jnp.asarray(np.repeat(np.asarray(values, dtype), counts, axis=0))
+    size, row_words = per_camera(sizes), per_camera([p.words.shape[-1] for p in parts])
+    group = per_camera(np.arange(len(parts)))
+    member = jnp.asarray(np.concatenate([np.arange(n, dtype=np.int32) for n in counts]))
+    K, t, eps, k_max = cat(lambda p: p.K), cat(lambda p: p.t), cat(lambda p: p.eps), cat(lambda p: p.k_max)
+    cell_u, cell_v, h_max = cat(lambda p: p.cell_u), cat(lambda p: p.cell_v), cat(lambda p: p.h_max)
+    source = _by_group(tuple(p.source for p in parts))
+    count, locate_bit = word_locator(cat(lambda p: _flat(p.words, n_words)))
 
-    def camera(valid, words, columns, K, t, eps, k_max, cell_u, cell_v, h_max, size, row_word, group, member):
-        count, locate = _compact(words, down=down, row_words=row_word)
-        ex = ExactTest(depth, points, columns, K, t, eps, k_max, cell_u, cell_v, h_max, count, locate, hh=hh, hw=hw,
-                       test=test, nearer=nearer, source=source, shape=(size[0], size[1]),
-                       grouped=Grouped(group, member, pixels))
-        return exact_test(valid, ex)
+    def locate(at):   # the slot's camera, its candidate, that camera's parameters (outlier_exact.Grouped)
+        bit = locate_bit(at)
+        cam = bit // (n_words * WORD_BITS)
+        bit, rw = bit - cam * (n_words * WORD_BITS), row_words[cam]
+        if down:       # words down the columns (outliers._compact)
+            row, col = (bit // WORD_BITS // rw) * WORD_BITS + bit % WORD_BITS, bit // WORD_BITS % rw
+        else:
+            row, col = bit // (rw * WORD_BITS), bit % (rw * WORD_BITS)
+        h, w = size[cam, 0], size[cam, 1]
+        row, col = jnp.minimum(row, h - 1), jnp.minimum(col, w - 1)     # no candidate: a padding slot's
+        flat = row * w + col
+        grouped = Grouped(group[cam], member[cam], pixels, cam * n_columns, cam * n_pix)
+        slot = ex._replace(K=jnp.moveaxis(K[cam], 0, -1), eps=eps[cam], k_max=k_max[cam], cell_u=cell_u[cam],
+                           cell_v=cell_v[cam], h_max=h_max[cam], shape=(h, w), grouped=grouped, source=None)
+        if source is None:
+            origin = t[cam]
+        else:           # each candidate's own LiDAR origin: its source's row of its camera's (S, 3) table
+            origin = t[cam, jnp.clip(_read(slot, source, flat), 0, t.shape[1] - 1)]
+        return row, col, flat, slot._replace(t=origin.T[:, None, :])
 
-    keep = jax.vmap(camera)(*per_camera)
+    ex = ExactTest(_by_group(tuple(p.depth for p in parts)),
+                   tuple(_by_group(tuple(p.points[c] for p in parts)) for c in range(3)),
+                   cat(lambda p: _flat(p.columns, n_columns)).reshape(-1), K, t, eps, k_max, cell_u, cell_v, h_max,
+                   count, locate, hh=hh, hw=hw, test=test, nearer=_by_group(tuple(p.nearer for p in parts)),
+                   source=source, grouped=Grouped(group, member, pixels, None, None))
+    keep = exact_test(cat(lambda p: _flat(p.valid, n_pix)).reshape(-1), ex).reshape(-1, n_pix)
     out, first = [], 0
     for n, (h, w) in zip(counts, sizes):
         out.append(keep[first:first + n, :h * w].reshape(n, h, w))
