@@ -154,26 +154,23 @@ class ExactTest(NamedTuple):
     test: str
     nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
     source: jax.Array | None = None   # (H, W) int32: each pixel's row of ``t``, then the (S, 3) origins (or None)
-    shape: tuple | None = None        # int32 (h, w) of each slot's camera (:class:`Grouped`; None: depth's)
-    grouped: Grouped | None = None    # the candidates of several cameras' images pooled (:class:`Grouped`), or None
+    shape: tuple | None = None        # traced int32 (h, w) of a camera of :class:`Grouped` images (None: depth's)
+    grouped: Grouped | None = None    # images of several size groups (:class:`Grouped`), or None
 
 
 class Grouped(NamedTuple):
-    """Where each candidate slot's camera sits when the candidates of several cameras (of several size groups)
-    are pooled into one list of slots (:mod:`~jaxdepth._src.outlier_groups`).
+    """Where one camera's images sit among several size groups' (one exact-test loop for a rig's cameras,
+    :mod:`~jaxdepth._src.outlier_groups`).
 
-    Then ``depth``, ``nearer``, ``source`` and each channel of ``points`` are tuples with one flat
+    With it, ``depth``, ``nearer``, ``source`` and each channel of ``points`` are tuples with one flat
     (n_g h_g w_g,) array per group (the group's cameras one after another; not copied together), ``columns``
-    every camera's words flat one after another, and ``locate(slot)`` returns ``(row, column, flat pixel,
-    ExactTest)``: the candidate and its camera's parameters, per slot ((CHUNK,) arrays: ``K`` (3, 3, CHUNK),
-    ``t`` the candidate's origin (3, 1, CHUNK), ``shape``, ``k_max``, ``cell_*``, ``h_max``, ``eps``, this).
+    every camera's words flat, the camera's ((ceil(h / 32) w,)) from ``columns_at``, and ``shape`` its traced (h, w).
     """
 
-    group: jax.Array       # int32: the slot's camera's group
+    group: jax.Array       # int32: the camera's group
     member: jax.Array      # int32: its index within the group
     pixels: tuple          # static h_g w_g of each group
-    columns_at: jax.Array  # int32: where its camera's column words start in ``columns``
-    keep_at: jax.Array     # int32: where its camera's pixels start in the flat keep mask
+    columns_at: jax.Array  # int32: where the camera's column words start in ``columns``
 
 
 def _shape(ex: ExactTest):
@@ -258,32 +255,32 @@ def origins_of(table, source):
 def _test_chunk(c, keep, *, ex: ExactTest):
     """Exact test of the candidate slots ``c CHUNK ...`` (int32 chunk index ``c``); clears the removed
     ones in ``keep``, the (H W,) bool mask."""
+    width = ex.depth.shape[1]
     slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
-    at = jnp.minimum(slot, jnp.maximum(ex.count - 1, 0))
-    if ex.grouped is not None:  # pooled cameras: each slot's camera's parameters and its candidate's origin
-        row, col, flat_p, ex = ex.locate(at)
-        out = flat_p + ex.grouped.keep_at
-    else:
-        width = ex.depth.shape[1]
-        row, col = ex.locate(at)
-        flat_p = out = row * width + col
+    row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
+    flat_p = row * width + col
+    removed = candidates_removed(ex, row, col, flat_p)
+    flat = jnp.where(slot < ex.count, flat_p, keep.shape[0])
+    return keep.at[flat].set(~removed, mode="drop")
+
+
+def candidates_removed(ex: ExactTest, row, col, flat_p):
+    """(CHUNK,) bool: which candidates at int32 rows ``row``, columns ``col`` (flat pixel ``flat_p``) the
+    paper's conditions remove (:func:`_column_block` over their window's blocks of columns)."""
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
-        src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
+        src = _read(ex, ex.source, flat_p)
         ex = ex._replace(t=jnp.stack(origins_of(ex.t, src))[:, None, :])
-    elif ex.t.ndim == 3 and ex.grouped is None:        # each candidate's own LiDAR origin, shared by its window
+    elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, None, :])
     nearer_p = None if ex.nearer is None else _read(ex, ex.nearer, flat_p)[None, :]
     view_p, z_p = _view(ex, flat_p[None, :], row[None, :], col[None, :])
     group = max(min(ex.hw, _GROUP), 0)
     block = 2 * group + 1
     n_blocks = jnp.maximum((2 * ex.k_max + block) // block, 1)       # ceil((2 k + 1) / B)
-    if ex.grouped is not None:      # pooled: each slot's own k (a block past it is clipped, harmless)
-        n_blocks = jnp.max(n_blocks)
     removed = jax.lax.fori_loop(0, n_blocks, functools.partial(
         _column_block, ex=ex, row=row, col=col, view_p=view_p, z_p=z_p, nearer_p=nearer_p, group=group),
         jnp.zeros((CHUNK,), bool))
-    flat = jnp.where(slot < ex.count, out, keep.shape[0])
-    return keep.at[flat].set(~removed, mode="drop")
+    return removed
 
 
 def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src.compaction import WORD_BITS, word_locator
-from jaxdepth._src.outlier_exact import ExactTest, Grouped, _read, exact_test
+from jaxdepth._src.outlier_exact import CHUNK, ExactTest, Grouped, candidates_removed
 from jaxdepth._src.outliers import _row_block, window_half_sizes
 
 
@@ -35,7 +35,7 @@ def _by_group(images: tuple):
 
 
 def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str, down: bool) -> tuple:
-    """Phase 3 of Step 2 for every camera of a rig at once, the cameras' candidates pooled into one list.
+    """Phase 3 of Step 2 for every camera of a rig in one loop.
 
     Args:
       parts: one :class:`~jaxdepth._src.outliers.KeepParts` per size group, each leaf with a leading axis of
@@ -47,47 +47,58 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
 
     Returns:
       One (n_g, h, w) bool keep mask per group, each camera's as its group's own ``_keep_mask`` gives it.
+
+    Each camera's candidates fill ``ceil(count / CHUNK)`` chunks of slots, listed camera after camera; a loop
+    step tests C of them at once (C cameras: one lane each, ``vmap``), each lane with its chunk's camera's
+    parameters: the loop runs ``ceil(all chunks / C)`` steps (the lanes in lockstep, to the largest window walk
+    among them), not each group's largest chunk count.
     """
     counts = [p.depth.shape[0] for p in parts]
-    pixels = tuple(h * w for h, w in sizes)
+    n_cam, pixels = sum(counts), tuple(h * w for h, w in sizes)
     longest = lambda f: max(int(np.prod(f(p).shape[1:])) for p in parts)
     n_pix, n_words, n_columns = max(pixels), longest(lambda p: p.words), longest(lambda p: p.columns)
     cat = lambda f: jnp.concatenate([f(p) for p in parts])
-    per_camera = lambda values, dtype=np.int32: jnp.asarray(np.repeat(np.asarray(values, dtype), counts, axis=0))
+    per_camera = lambda values: jnp.asarray(np.repeat(np.asarray(values, np.int32), counts, axis=0))
     size, row_words = per_camera(sizes), per_camera([p.words.shape[-1] for p in parts])
-    group = per_camera(np.arange(len(parts)))
-    member = jnp.asarray(np.concatenate([np.arange(n, dtype=np.int32) for n in counts]))
+    group, member = per_camera(np.arange(len(parts))), jnp.asarray(np.concatenate([np.arange(n) for n in counts]))
     K, t, eps, k_max = cat(lambda p: p.K), cat(lambda p: p.t), cat(lambda p: p.eps), cat(lambda p: p.k_max)
     cell_u, cell_v, h_max = cat(lambda p: p.cell_u), cat(lambda p: p.cell_v), cat(lambda p: p.h_max)
-    source = _by_group(tuple(p.source for p in parts))
-    count, locate_bit = word_locator(cat(lambda p: _flat(p.words, n_words)))
+    columns = cat(lambda p: _flat(p.columns, n_columns)).reshape(-1)
+    images = (_by_group(tuple(p.depth for p in parts)), tuple(_by_group(tuple(p.points[c] for p in parts))
+                                                              for c in range(3)))
+    nearer, source = _by_group(tuple(p.nearer for p in parts)), _by_group(tuple(p.source for p in parts))
+    _, locate_bit = word_locator(cat(lambda p: _flat(p.words, n_words)), runs=n_cam)
+    count = cat(lambda p: jax.lax.population_count(p.words).astype(jnp.int32).reshape(p.words.shape[0], -1).sum(1))
+    chunks = (count + CHUNK - 1) // CHUNK
+    chunk_end = jnp.cumsum(chunks)
+    first_slot = jnp.cumsum(count) - count
 
-    def locate(at):   # the slot's camera, its candidate, that camera's parameters (outlier_exact.Grouped)
-        bit = locate_bit(at)
-        cam = bit // (n_words * WORD_BITS)
+    def lane(j, cam):   # the j-th chunk of all (camera ``cam``'s): its slots' removed flags and keep indices
+        c = j - (chunk_end[cam] - chunks[cam])
+        slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
+        bit = locate_bit(first_slot[cam] + jnp.minimum(slot, jnp.maximum(count[cam] - 1, 0)))
         bit, rw = bit - cam * (n_words * WORD_BITS), row_words[cam]
         if down:       # words down the columns (outliers._compact)
             row, col = (bit // WORD_BITS // rw) * WORD_BITS + bit % WORD_BITS, bit // WORD_BITS % rw
         else:
             row, col = bit // (rw * WORD_BITS), bit % (rw * WORD_BITS)
         h, w = size[cam, 0], size[cam, 1]
-        row, col = jnp.minimum(row, h - 1), jnp.minimum(col, w - 1)     # no candidate: a padding slot's
-        flat = row * w + col
-        grouped = Grouped(group[cam], member[cam], pixels, cam * n_columns, cam * n_pix)
-        slot = ex._replace(K=jnp.moveaxis(K[cam], 0, -1), eps=eps[cam], k_max=k_max[cam], cell_u=cell_u[cam],
-                           cell_v=cell_v[cam], h_max=h_max[cam], shape=(h, w), grouped=grouped, source=None)
-        if source is None:
-            origin = t[cam]
-        else:           # each candidate's own LiDAR origin: its source's row of its camera's (S, 3) table
-            origin = t[cam, jnp.clip(_read(slot, source, flat), 0, t.shape[1] - 1)]
-        return row, col, flat, slot._replace(t=origin.T[:, None, :])
+        row, col = jnp.clip(row, 0, h - 1), jnp.clip(col, 0, w - 1)     # no candidate: a slot past the words
+        ex = ExactTest(*images, columns, K[cam], t[cam], eps[cam], k_max[cam], cell_u[cam], cell_v[cam], h_max[cam],
+                       count[cam], None, hh=hh, hw=hw, test=test, nearer=nearer, source=source, shape=(h, w),
+                       grouped=Grouped(group[cam], member[cam], pixels, cam * n_columns))
+        removed = candidates_removed(ex, row, col, row * w + col)
+        return removed, jnp.where((slot < count[cam]) & (j < chunk_end[-1]), cam * n_pix + row * w + col,
+                                  n_cam * n_pix)
 
-    ex = ExactTest(_by_group(tuple(p.depth for p in parts)),
-                   tuple(_by_group(tuple(p.points[c] for p in parts)) for c in range(3)),
-                   cat(lambda p: _flat(p.columns, n_columns)).reshape(-1), K, t, eps, k_max, cell_u, cell_v, h_max,
-                   count, locate, hh=hh, hw=hw, test=test, nearer=_by_group(tuple(p.nearer for p in parts)),
-                   source=source, grouped=Grouped(group, member, pixels, None, None))
-    keep = exact_test(cat(lambda p: _flat(p.valid, n_pix)).reshape(-1), ex).reshape(-1, n_pix)
+    def step(i, keep):
+        j = i * n_cam + jnp.arange(n_cam, dtype=jnp.int32)
+        cam = jnp.minimum(jnp.sum(chunk_end[None, :] <= j[:, None], axis=1), n_cam - 1)
+        removed, at = jax.vmap(lane)(j, cam)
+        return keep.at[at.reshape(-1)].set(~removed.reshape(-1), mode="drop")
+
+    keep = jax.lax.fori_loop(0, (chunk_end[-1] + n_cam - 1) // n_cam, step, cat(lambda p: _flat(p.valid, n_pix)).reshape(-1))
+    keep = keep.reshape(n_cam, n_pix)
     out, first = [], 0
     for n, (h, w) in zip(counts, sizes):
         out.append(keep[first:first + n, :h * w].reshape(n, h, w))
