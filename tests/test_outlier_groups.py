@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdepth._src import outliers
+from jaxdepth._src import compaction, outliers
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.rig import size_groups, stack_cameras
@@ -110,3 +110,16 @@ def test_sources_rig_of_two_sizes_with_one_loop_equals_one_canvas():
             window = (Ellipsis, slice(cam.height), slice(cam.width))
             np.testing.assert_array_equal(np.asarray(getattr(grouped, name)[i])[window],
                                           np.asarray(getattr(one_canvas, name)[i])[window], err_msg=f"{i} {name}")
+
+
+def test_word_locator_in_runs_past_float32_exact_range_equals_brute_force():
+    # 4 runs of 140,000 words: 17.9 M bits, past float32's exact 2^24, so the prefix sums run per run (runs=4).
+    rng = np.random.default_rng(5)
+    words = np.where(rng.random(4 * 140_000) < 0.01, rng.integers(1, 2 ** 32, 4 * 140_000, dtype=np.uint64), 0)
+    words = words.astype(np.uint32)
+    bits = np.flatnonzero(np.unpackbits(words.view(np.uint8), bitorder="little"))
+    slots = np.concatenate([[0, len(bits) - 1], rng.integers(0, len(bits), 2000)]).astype(np.int32)
+    count, located = jax.jit(lambda w, s: (lambda c, f: (c, f(s)))(*compaction.word_locator(w, runs=4)))(
+        jnp.asarray(words), jnp.asarray(slots))
+    assert int(count) == len(bits)
+    np.testing.assert_array_equal(np.asarray(located), bits[slots])

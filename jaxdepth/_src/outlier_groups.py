@@ -3,13 +3,14 @@
 Contract: the rig's Step 2 in per-group pieces in, the same keep masks out, bit for bit. Phases 1-2
 (prefilter, compaction: dense passes of the image's own shape) stay per size group
 (``outliers._keep_mask(..., defer=True)`` under each group's ``vmap``); phase 3, the exact-test loop
-(:mod:`~jaxdepth._src.outlier_exact`), reads its images only at flat pixel indices, so it runs once, one
-``vmap`` over every camera: each camera's (h, w) is data, its candidate and column words are padded to the
-longest camera's, and the images stay in their groups' buffers (:class:`~jaxdepth._src.outlier_exact.Grouped`:
-each read gathers from every group's buffer at the camera's index or 0 and keeps its own; no copy of the
-images into one). The loop compiles once instead of once per group (the Argoverse 2 rig: the portrait
-camera's copy), and the cameras run it in lockstep: to the largest chunk count among all of them (a camera's
-extra chunks test no slot), not each group's own.
+(:mod:`~jaxdepth._src.outlier_exact`), reads its images only at flat pixel indices, so it runs once for every
+camera: each camera's (h, w) is data, its candidate and column words are padded to the longest camera's, and
+the images stay in their groups' buffers (:class:`~jaxdepth._src.outlier_exact.Grouped`: each read gathers
+from every group's buffer at the camera's index or 0 and keeps its own; no copy of the images into one).
+The loop compiles once instead of once per group (the Argoverse 2 rig: the portrait camera's copy). Each
+camera's candidates fill chunks of :data:`~jaxdepth._src.outlier_exact.CHUNK` slots, listed camera after
+camera, and a loop step tests one chunk per lane, as many lanes as cameras (docs/speed.md, "Step 2's exact
+test once for every camera").
 """
 
 from __future__ import annotations

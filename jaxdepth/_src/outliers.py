@@ -67,7 +67,9 @@ leaves.
    by rank), gather their depths (and points) from the image, recompute the LiDAR view, and
    evaluate conditions 1 and 2 in float32; removed candidates are cleared in the mask. Every
    (candidate, point) pair gets the float32 operations of a dense sweep over the window, so the
-   ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
+   ``"paper"`` form is bit-identical to the dense sweep of earlier versions. A rig's size groups run
+   phases 1-2 each (``_keep_mask(..., defer=True)``) and phase 3 once for all cameras
+   (:mod:`jaxdepth._src.outlier_groups`).
 
 The prefilter's key is computed on the image and padded as uint16 (``_ZNONE``); nothing is
 padded in float32.

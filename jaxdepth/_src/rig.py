@@ -9,7 +9,8 @@ landscape cameras on 1550 x 2048 and the portrait one on 2048 x 1550, not seven
 on 2048 x 2048); the results are padded back onto the (C, H, W) canvas in camera
 order (:func:`vmap_by_size`). The projection's per-point part (each point's pixel and
 camera-frame values, no (h, w) array) runs once, one vmap of every camera
-(:func:`map_by_size_shared`: one set of kernels, not one per size group). Every stage uses the camera's own size, never the canvas's:
+(:func:`map_by_size_shared`: one set of kernels, not one per size group), and so does Step 2's exact-test loop
+(:func:`keep_by_size`, the multi-source path's). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
