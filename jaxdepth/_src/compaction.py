@@ -150,11 +150,14 @@ def compact_indices(valid: jax.Array, capacity: int, token):
     return jnp.where(slot < total, word * WORD_BITS + bit, n), total
 
 
-def word_locator(words: jax.Array):
+def word_locator(words: jax.Array, *, runs: int = 1):
     """Slots for the set bits of packed words, found on demand.
 
     Args:
       words: (..., m) uint32 packed masks (:func:`pack_bits`), read in raster order.
+      runs: static; the flat words as this many runs of equal length (e.g. several images' words one
+        after another): past 2^24 bits in all, the prefix sums run per run in float32 when each run's
+        bits are fewer, plus the runs' offsets (``cumsum`` of the words was ~6x slower on XLA:CPU).
 
     Returns:
       ``(count, locate)``: int32 number of set bits, and ``locate(slot)``
@@ -167,6 +170,9 @@ def word_locator(words: jax.Array):
     popc = jax.lax.population_count(words).astype(jnp.int32)
     if popc.shape[0] * WORD_BITS < 2 ** 24:  # exact in float32
         word_end = inclusive_prefix(popc.astype(jnp.float32)).astype(jnp.int32)
+    elif runs > 1 and popc.shape[0] // runs * WORD_BITS < 2 ** 24:
+        ends = jax.vmap(inclusive_prefix)(popc.reshape(runs, -1).astype(jnp.float32)).astype(jnp.int32)
+        word_end = (ends + (jnp.cumsum(ends[:, -1]) - ends[:, -1])[:, None]).reshape(-1)
     else:
         word_end = jnp.cumsum(popc)
     n_words = word_end.shape[0]

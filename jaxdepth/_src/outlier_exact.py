@@ -154,18 +154,54 @@ class ExactTest(NamedTuple):
     test: str
     nearer: jax.Array | None = None   # (H, W) bool: pixels removed by condition 2 alone (or None)
     source: jax.Array | None = None   # (H, W) int32: each pixel's row of ``t``, then the (S, 3) origins (or None)
+    shape: tuple | None = None        # traced int32 (h, w) of a camera of :class:`Grouped` images (None: depth's)
+    grouped: Grouped | None = None    # images of several size groups (:class:`Grouped`), or None
+
+
+class Grouped(NamedTuple):
+    """Where one camera's images sit among several size groups' (one exact-test loop for a rig's cameras,
+    :mod:`~jaxdepth._src.outlier_groups`).
+
+    With it, ``depth``, ``nearer``, ``source`` and each channel of ``points`` are tuples with one flat
+    (n_g h_g w_g,) array per group (the group's cameras one after another; not copied together), ``columns``
+    every camera's words flat, the camera's ((ceil(h / 32) w,)) from ``columns_at``, and ``shape`` its traced (h, w).
+    """
+
+    group: jax.Array       # int32: the camera's group
+    member: jax.Array      # int32: its index within the group
+    pixels: tuple          # static h_g w_g of each group
+    columns_at: jax.Array  # int32: where the camera's column words start in ``columns``
+
+
+def _shape(ex: ExactTest):
+    """(height, width) of the image: static ints, or the camera's traced ones (:class:`Grouped`)."""
+    return ex.depth.shape if ex.grouped is None else ex.shape
+
+
+def _read(ex: ExactTest, image, flat):
+    """``image`` at int32 flat pixel indices ``flat``: an (H, W) array's element, or (:class:`Grouped`) the
+    camera's own from its group's flat array (each group read at an index of its own, 0 for the other groups'
+    cameras, then the camera's value selected: no copy of the groups' images into one)."""
+    if ex.grouped is None:
+        return image.reshape(-1).at[flat].get(mode=_PIB)
+    out = None
+    for g, (array, pixels) in enumerate(zip(image, ex.grouped.pixels)):
+        here = ex.grouped.group == g
+        value = array.at[jnp.where(here, ex.grouped.member * pixels + flat, 0)].get(mode=_PIB)
+        out = value if out is None else jnp.where(here, value, out)
+    return out
 
 
 def _view(ex: ExactTest, flat, row, col):
     """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
     z (inf where empty)."""
-    d = ex.depth.reshape(-1).at[flat].get(mode=_PIB)
+    d = _read(ex, ex.depth, flat)
     # One element gather per channel. A stacked (3, H, W) array is read through its flat view at
     # ``flat + c H W``: slicing the channels apart first would copy each (3 passes over the image), and one
     # gather of (3, 1) slices is not vectorised by XLA:CPU (~7x the rank step's time on an Argoverse 2
     # crop; docs/speed.md, "Step 2, kernel by kernel"). Channels given apart (rigs' views): one by one.
     if isinstance(ex.points, tuple):
-        p = tuple(channel.reshape(-1).at[flat].get(mode=_PIB) for channel in ex.points)
+        p = tuple(_read(ex, channel, flat) for channel in ex.points)
     elif ex.points is not None:
         size = ex.depth.size
         p = tuple(ex.points.reshape(-1).at[flat + c * size].get(mode=_PIB) for c in range(3))
@@ -181,7 +217,10 @@ def _window_words(ex: ExactTest, row, col, start=None, block=None):
     the J words covering rows ``row - hh .. row + hh``, with each word's first row (J, 1, n) int32, and
     the block's columns: (B, 1) offsets ``start .. start + B - 1`` and (B, n) indices. The candidates are
     the minor axis (see :func:`_column_block`). Default: the whole window, ``start = -hw``, ``B = 2 hw + 1``."""
-    n_words, width = ex.columns.shape
+    if ex.grouped is None:
+        n_words, width = ex.columns.shape
+    else:
+        width, n_words = ex.shape[1], (ex.shape[0] + WORD_BITS - 1) // WORD_BITS
     start = -ex.hw if start is None else start
     block = 2 * ex.hw + 1 if block is None else block
     du = start + jnp.arange(block, dtype=jnp.int32)[:, None]
@@ -197,7 +236,10 @@ def _window_words(ex: ExactTest, row, col, start=None, block=None):
     # Every word at once, stacked on a leading axis (one gather, one mask: fewer kernels than a list).
     m = first[None] + jnp.arange(-(-(2 * ex.hh + 1) // WORD_BITS) + 1, dtype=jnp.int32)[:, None, None]
     bases = m * WORD_BITS
-    word = ex.columns.at[jnp.clip(m, 0, n_words - 1), col_q[None]].get(mode=_PIB)
+    if ex.grouped is None:
+        word = ex.columns.at[jnp.clip(m, 0, n_words - 1), col_q[None]].get(mode=_PIB)
+    else:           # the camera's words flat: row m of its (ceil(h / 32), w) words
+        word = ex.columns.at[ex.grouped.columns_at + jnp.clip(m, 0, n_words - 1) * width + col_q[None]].get(mode=_PIB)
     keep = below(jnp.clip(bottom - bases, 0, WORD_BITS)) & ~below(jnp.clip(top - bases, 0, WORD_BITS))
     words = jnp.where(in_cols & (m >= 0) & (m < n_words), word & keep, jnp.uint32(0))
     return words, bases, du, col_q
@@ -213,16 +255,24 @@ def origins_of(table, source):
 def _test_chunk(c, keep, *, ex: ExactTest):
     """Exact test of the candidate slots ``c CHUNK ...`` (int32 chunk index ``c``); clears the removed
     ones in ``keep``, the (H W,) bool mask."""
-    height, width = ex.depth.shape
+    width = ex.depth.shape[1]
     slot = c * CHUNK + jnp.arange(CHUNK, dtype=jnp.int32)
     row, col = ex.locate(jnp.minimum(slot, jnp.maximum(ex.count - 1, 0)))
     flat_p = row * width + col
+    removed = candidates_removed(ex, row, col, flat_p)
+    flat = jnp.where(slot < ex.count, flat_p, keep.shape[0])
+    return keep.at[flat].set(~removed, mode="drop")
+
+
+def candidates_removed(ex: ExactTest, row, col, flat_p):
+    """(CHUNK,) bool: which candidates at int32 rows ``row``, columns ``col`` (flat pixel ``flat_p``) the
+    paper's conditions remove (:func:`_column_block` over their window's blocks of columns)."""
     if ex.source is not None:   # each candidate's own LiDAR origin (its source's), shared by its window
-        src = ex.source.reshape(-1).at[flat_p].get(mode=_PIB)
+        src = _read(ex, ex.source, flat_p)
         ex = ex._replace(t=jnp.stack(origins_of(ex.t, src))[:, None, :])
     elif ex.t.ndim == 3:        # each candidate's own LiDAR origin, shared by its window
         ex = ex._replace(t=ex.t.reshape(3, -1).at[:, flat_p].get(mode=_PIB)[:, None, :])
-    nearer_p = None if ex.nearer is None else ex.nearer.reshape(-1).at[flat_p].get(mode=_PIB)[None, :]
+    nearer_p = None if ex.nearer is None else _read(ex, ex.nearer, flat_p)[None, :]
     view_p, z_p = _view(ex, flat_p[None, :], row[None, :], col[None, :])
     group = max(min(ex.hw, _GROUP), 0)
     block = 2 * group + 1
@@ -230,8 +280,7 @@ def _test_chunk(c, keep, *, ex: ExactTest):
     removed = jax.lax.fori_loop(0, n_blocks, functools.partial(
         _column_block, ex=ex, row=row, col=col, view_p=view_p, z_p=z_p, nearer_p=nearer_p, group=group),
         jnp.zeros((CHUNK,), bool))
-    flat = jnp.where(slot < ex.count, flat_p, height * width)
-    return keep.at[flat].set(~removed, mode="drop")
+    return removed
 
 
 def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p, group):
@@ -244,7 +293,7 @@ def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p,
     fused pair test over the candidates (laid out (CHUNK, B), it looped over the B columns of each
     candidate in scalar code: ~8x the time per rank step on the KITTI frame; docs/speed.md, "Step 2's cost").
     """
-    width = ex.depth.shape[1]
+    width = _shape(ex)[1]
     block = 2 * group + 1
     start = jnp.clip(b * block - ex.k_max, -ex.hw, ex.hw - 2 * group)
     words, bases, du, col_q = _window_words(ex, row, col, start, block)
@@ -280,11 +329,11 @@ def _column_block(b, removed, *, ex: ExactTest, row, col, view_p, z_p, nearer_p,
 def exact_test(valid: jax.Array, ex: ExactTest) -> jax.Array:
     """Phase 3: the paper's conditions at every candidate, per chunk of :data:`CHUNK` slots.
 
-    Returns the (H, W) bool keep mask: ``valid`` with the removed candidates cleared.
+    Returns the (H, W) bool keep mask: ``valid`` with the removed candidates cleared (``valid`` flat, as
+    :class:`Grouped` cameras' (the padding past the camera's pixels never read): flat).
     """
-    height, width = valid.shape
     # Under vmap, the batch's largest chunk count for every member (a member's extra chunks test no slot):
     # a batched trip count would select the whole (B, H W) mask between old and new after every chunk.
     first, n_chunks = shared_loop_bounds(jnp.int32(0), (ex.count + CHUNK - 1) // CHUNK)
     keep = jax.lax.fori_loop(first, n_chunks, functools.partial(_test_chunk, ex=ex), valid.reshape(-1))
-    return keep.reshape(height, width)
+    return keep.reshape(valid.shape)

@@ -67,7 +67,9 @@ leaves.
    by rank), gather their depths (and points) from the image, recompute the LiDAR view, and
    evaluate conditions 1 and 2 in float32; removed candidates are cleared in the mask. Every
    (candidate, point) pair gets the float32 operations of a dense sweep over the window, so the
-   ``"paper"`` form is bit-identical to the dense sweep of earlier versions.
+   ``"paper"`` form is bit-identical to the dense sweep of earlier versions. A rig's size groups run
+   phases 1-2 each (``_keep_mask(..., defer=True)``) and phase 3 once for all cameras
+   (:mod:`jaxdepth._src.outlier_groups`).
 
 The prefilter's key is computed on the image and padded as uint16 (``_ZNONE``); nothing is
 padded in float32.
@@ -291,7 +293,7 @@ def _prefilter_words(k, low, key, eps, *, hw, width, hh=0, reach=None, low_reach
     return pack_bits(cand)
 
 
-def _compact(words: jax.Array, *, down: bool = False):
+def _compact(words: jax.Array, *, down: bool = False, row_words=None):
     """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words
     (``down``: (ceil(H / 32), W) words packed down the columns; the slots then run word row by word row,
     column by column, down each word's 32 rows).
@@ -299,15 +301,17 @@ def _compact(words: jax.Array, *, down: bool = False):
     Returns ``(count, locate)``: the int32 number of candidates, and
     ``locate(slot) -> (row, column)`` (int32 pixel coordinates) of the slot-th
     candidate in raster order, for int32 slots in ``[0, count)`` of any shape
-    (:func:`~jaxdepth._src.compaction.word_locator`: no scatter, no ``nonzero``).
+    (:func:`~jaxdepth._src.compaction.word_locator`: no scatter, no ``nonzero``). ``row_words``: words per
+    row of words (default ``words.shape[1]``; a traced int32 for a camera's words given flat).
     """
-    row_bits = words.shape[1] * 32
+    row_words = words.shape[1] if row_words is None else row_words
+    row_bits = row_words * 32
     count, locate_bit = word_locator(words)
 
     def locate_down(slot):
         flat = locate_bit(slot)
         word = flat // WORD_BITS
-        return (word // words.shape[1]) * WORD_BITS + flat % WORD_BITS, word % words.shape[1]
+        return (word // row_words) * WORD_BITS + flat % WORD_BITS, word % row_words
 
     def locate(slot):
         flat = locate_bit(slot)
@@ -476,10 +480,30 @@ def _prefilter(depth, eps, bounds: _Bounds, *, hh: int, hw: int, columns=None, r
                  (bounds.k_max, low, low_reach, padded, eps, reach), token)
 
 
-@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test"))
+class KeepParts(NamedTuple):
+    """Phases 1-2 of one image (``_keep_mask(..., defer=True)``): what phase 3 reads, arrays only
+    (:class:`~jaxdepth._src.outlier_exact.ExactTest`'s fields; ``words``: the candidates packed as the prefilter's)."""
+
+    valid: jax.Array
+    depth: jax.Array
+    points: object
+    columns: jax.Array
+    words: jax.Array
+    K: jax.Array
+    t: jax.Array
+    eps: jax.Array
+    k_max: jax.Array
+    cell_u: jax.Array
+    cell_v: jax.Array
+    h_max: jax.Array | None
+    nearer: jax.Array | None
+    source: jax.Array | None
+
+
+@functools.partial(jax.jit, static_argnames=("beams", "half_width", "half_height", "test", "defer"))
 def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=None, *, beams, half_width,
                half_height, test="footprint", origins=None, nearer=None, image_size=None, window_pixels=None,
-               pixel_source=None):
+               pixel_source=None, defer=False):
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
@@ -496,7 +520,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     ``window_pixels``: optional (H, W) bool, the N of ``W L / N`` (default: ``valid``). ``pixel_source``: optional
     (H, W) int32, clipped to [0, S) where read: ``origins`` is then the (S, 3) table of the sources' origins and pixel i's origin
     ``origins[pixel_source[i]]``, read where used by the exact test (no (3, H, W) map is stored). Returns the
-    keep mask.
+    keep mask; with ``defer`` (static) phases 1-2's :class:`KeepParts` instead (:mod:`~jaxdepth._src.outlier_groups`
+    runs phase 3 once for a rig's size groups).
     """
     depth = sparse_depth.astype(jnp.float32)
     if isinstance(points_cam, (tuple, list)):        # three channels apart (rigs' views): kept apart
@@ -522,6 +547,9 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     if nearer is not None:      # tested even outside ``candidates`` (the prefilter's condition 2 keeps them)
         nearer = nearer & valid
         words = words | pack(nearer)
+    if defer:
+        return KeepParts(valid, depth, points, columns, words, K, t, eps, bounds.k_max, bounds.cell_u, bounds.cell_v,
+                         bounds.h_max, nearer, pixel_source)
     count, locate = _compact(words, down=down)
     ex = ExactTest(depth, points, columns, K, t,
                    eps, bounds.k_max, bounds.cell_u, bounds.cell_v, bounds.h_max, count, locate, hh=half_height,

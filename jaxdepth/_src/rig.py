@@ -9,7 +9,8 @@ landscape cameras on 1550 x 2048 and the portrait one on 2048 x 1550, not seven
 on 2048 x 2048); the results are padded back onto the (C, H, W) canvas in camera
 order (:func:`vmap_by_size`). The projection's per-point part (each point's pixel and
 camera-frame values, no (h, w) array) runs once, one vmap of every camera
-(:func:`map_by_size_shared`: one set of kernels, not one per size group). Every stage uses the camera's own size, never the canvas's:
+(:func:`map_by_size_shared`: one set of kernels, not one per size group), and so does Step 2's exact-test loop
+(:func:`keep_by_size`, the multi-source path's). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
 padding never read). A camera's result is therefore the single-camera call's
@@ -60,6 +61,7 @@ from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.images import unit_float_image
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.config import DEFAULT_CONFIG
+from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.pipeline import _complete_tail, clear_outside_window, project_winners, winners_apart
 from jaxdepth._src.types import LidarSpec, Stages
@@ -263,6 +265,30 @@ def map_by_size_shared(shared, per_camera, cameras: RigCameras) -> tuple:
                                                                          cameras.image_size, jnp.asarray(bound))
     return map_by_size(per_camera, cameras, None,
                        tuple(jax.tree.map(lambda x, idx=idx: _cameras_at(x, idx), parts) for _, idx in groups))
+
+
+def keep_by_size(per_camera, cameras: RigCameras, views: tuple, *, beams: int, config: SGMConfig,
+                 shared: bool = True) -> tuple:
+    """Step 2 of every camera: :func:`map_by_size` of ``per_camera(K, T, size, image, view, keep=None, *, height,
+    width, defer=False)`` over ``views`` (one per group), its (h, w) keep masks per group.
+
+    ``shared`` and several size groups with the same static window (:func:`~jaxdepth._src.outlier_groups.
+    shared_windows` of the LiDAR's ``beams`` and ``config``): ``per_camera(..., defer=True)`` returns each
+    camera's phases 1-2 (``outliers.KeepParts``), the exact test runs once for all cameras
+    (:func:`~jaxdepth._src.outlier_groups.exact_test_groups`), and ``per_camera(..., keep=)`` finishes each camera
+    from its mask (the same masks as each group's own loop).
+    """
+    groups = size_groups(cameras)
+    windows = shared_windows(tuple(size for size, _ in groups), beams=beams, config=config) if shared else None
+    if windows is None:
+        return map_by_size(per_camera, cameras, None, views)
+    parts = map_by_size(functools.partial(per_camera, defer=True), cameras, None, views)
+    keeps = exact_test_groups(parts, tuple(size for size, _ in groups), **windows)
+
+    def finish(K, T, size, image, view_keep, *, height, width):
+        return per_camera(K, T, size, image, view_keep[0], view_keep[1], height=height, width=width)
+
+    return map_by_size(finish, cameras, None, tuple(zip(views, keeps)))
 
 
 def _cameras_at(x: jax.Array, idx: np.ndarray) -> jax.Array:

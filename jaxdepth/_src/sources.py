@@ -54,7 +54,7 @@ from jaxdepth._src.outliers import _keep_mask, window_half_sizes
 from jaxdepth._src.pipeline import project_winners, winners_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
-                              map_by_size, map_by_size_shared)
+                              keep_by_size, map_by_size_shared)
 from jaxdepth._src.types import LidarSpec, Stages
 from jaxdepth._src.xla_tuning import entry_jit
 
@@ -377,7 +377,7 @@ def free_space_keep(sources: Sources, **options) -> jax.Array:
 
 def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *, beams: int,
                      config: SGMConfig = DEFAULT_CONFIG, pixel_shadow=None, image_size=None,
-                     source_sweep=None, all_sweep=None) -> jax.Array:
+                     source_sweep=None, all_sweep=None, defer=False) -> jax.Array:
     """Step 2 per source: (H, W) bool keep mask of a camera image holding several sources' points.
 
     Args:
@@ -400,6 +400,7 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
       all_sweep: optional static tuple of S ints, each source's sweep (0 = reference), for
         ``config.older_sweeps_test="paper"``: with several sweeps, the older sweeps' pixels are also judged by
         the paper form of condition 1 (same window, origins and epsilon; the reference sweep's are not).
+      defer: static; True (one sweep only): the pass's phases 1-2 (``outliers.KeepParts``, for ``rig.keep_by_size``).
 
     Algorithm 1 tests each pixel's point with that point's own source origin as the
     viewpoint compared with the camera's; every pixel of the image is a possible occluder
@@ -418,7 +419,7 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     origins = T_cam_sources[:, :3, 3]       # (S, 3): pixel i's origin is origins[safe[i]], read where used
     nearer = None if pixel_shadow is None else valid & pixel_shadow
     keep = _keep_mask(  # within ``valid`` already; the source clipped where read (``origins_of``)
-        sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw, half_height=hh,
+        sparse_depth, K, T_cam_sources[0], points_cam, eps, beams=int(beams), half_width=hw, half_height=hh, defer=defer,
         test=config.outlier_test, origins=origins, nearer=nearer, image_size=image_size, pixel_source=pixel_source)
     if (config.older_sweeps_test == "paper" and config.outlier_test != "paper" and all_sweep is not None
             and len(set(all_sweep)) > 1):      # older sweeps' points: the paper form too
@@ -539,17 +540,17 @@ def _camera_view(won, n: int, per_source: int, shadow, *, height, width) -> Came
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow[0] if pixel_shadow else None)
 
 
-def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, *, beams, config, image_size=None, reference=None,
-                 sweep=None, all_sweep=None) -> jax.Array:
-    """Step 2 for one camera's :class:`CameraView`: the sources' mask (:func:`source_keep_mask`) and the top-line
-    rule (``reference``: (S,) bool, the reference sweep's sources)."""
+def _camera_keep(view: CameraView, T_ref_source, K, T_cam_ref, keep=None, *, beams, config, image_size=None,
+                 reference=None, sweep=None, all_sweep=None, defer=False) -> jax.Array:
+    """Step 2 for one camera's :class:`CameraView`: :func:`source_keep_mask` (``defer``: its) or the ``keep`` given,
+    then the top-line rule (``reference``: (S,) bool, the reference sweep's sources; None with one sweep)."""
     K = jnp.asarray(K, jnp.float32)
     T = jnp.asarray(T_cam_ref, jnp.float32)
     sparse_depth, pixel_source = view.sparse_depth, view.pixel_source
     T_cam_sources = jnp.einsum("ij,sjk->sik", T, T_ref_source)
-    keep = source_keep_mask(sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams, config=config,
-                            pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep,
-                            all_sweep=all_sweep)
+    keep = keep if keep is not None else source_keep_mask(
+        sparse_depth, pixel_source, view.points_cam, K, T_cam_sources, beams=beams, config=config, defer=defer,
+        pixel_shadow=view.pixel_shadow, image_size=image_size, source_sweep=sweep, all_sweep=all_sweep)
     if reference is not None:     # other sweeps' near pixels above the reference sweep's top scan line: no seeds
         own = keep & reference[jnp.maximum(pixel_source, 0)]
         keep = own | (keep & top_line_keep(own, sparse_depth, beams=beams, epsilon_m=config.epsilon_m,
@@ -615,11 +616,11 @@ def sources_stage_keep(views: tuple, sources: Sources, cameras: RigCameras, *, c
     sweep = sources.sweep if per_sweep_applies(sources, config.outlier_sweeps) else None
     T_ref_source = jnp.asarray(sources.T_ref_source, jnp.float32)
 
-    def per_camera(K, T, size, image, view, *, height, width):
-        return _camera_keep(view, T_ref_source, K, T, beams=beams, config=config, image_size=size,
+    def per_camera(K, T, size, image, view, keep=None, *, height, width, defer=False):
+        return _camera_keep(view, T_ref_source, K, T, keep, beams=beams, config=config, image_size=size, defer=defer,
                             reference=reference, sweep=sweep, all_sweep=tuple(int(x) for x in sources.sweep))
 
-    return map_by_size(per_camera, cameras, None, views)
+    return keep_by_size(per_camera, cameras, views, beams=beams, config=config, shared=len(set(sources.sweep)) == 1)
 
 
 @functools.partial(entry_jit, static_argnames=("config", "beams"))
