@@ -470,7 +470,8 @@ def put_row(buf: jax.Array, row: jax.Array, i) -> jax.Array:
     ``dynamic_update_slice`` as a scatter, which XLA:CPU turns back into one guarded by an in-bounds
     select that reads the buffer's old row at every step (the rigs' row loops under the size groups'
     ``vmap``: the seed search's sweeps, the column bracket's running maxima). The same values: ``i`` is in
-    range. Plain: ``lax.dynamic_update_index_in_dim``.
+    range. Plain: ``lax.dynamic_update_index_in_dim``. Not for float buffers that are differentiated: reverse mode
+    does not go through its ``custom_vmap`` outside ``vmap`` (jaxdepth writes integer keys with it).
     """
     if not enabled():
         return _plain_put_row(buf, row, i)
