@@ -32,7 +32,17 @@ library with its ``nearest_seed`` and with the form before branch rigdt (``_prev
 transposing copy, instead of inside the passes' first loops), outputs compared byte for byte, per-round ratios
 library / previous.
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped] [--gather-forms | --dt-forms | --depth-forms] [--json PATH]
+``--bracket-forms``: the same, with the column bracket alone (``vmap6``, ``one``; ``depth_raw`` the sparse depth), the
+library's ``hypotheses._column_keys`` against the keys built inside its loop (``_loop_column_keys`` here, tried on
+branch rigtail10: no key images built before the loop, but two fresh fills written by it).
+
+``--put-forms``: the same, with the column bracket alone and the distance transform alone, the library's row update
+of the loops (``xla_tuning.put_row``, one ``dynamic_update_slice`` under ``vmap``) against JAX's batching of it
+(``_scatter_put_row`` here, set as ``distance.put_row`` and ``hypotheses.put_row``: a scatter, which XLA:CPU runs
+as an update guarded by an in-bounds select).
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped]
+        [--gather-forms | --dt-forms | --depth-forms | --bracket-forms | --put-forms] [--json PATH]
 """
 
 from __future__ import annotations
@@ -196,9 +206,51 @@ def _previous_nearest_seed(seed_mask, *, metric, horizontal_cost):
                        du=jnp.where(has_seed, du, 0), dv=jnp.where(has_seed, dv, 0), has_seed=has_seed)
 
 
-def _forms(inputs, whole, rig, options, forms: dict, seed_part=None) -> dict:
-    """``{case/form: (executable, args, real pixels)}``: each whole tail (and, given ``seed_part``, the distance
-    transform alone) traced with every form's module attributes set (``forms[form] = {(module, name): value}``)."""
+def _loop_column_keys(kept_depth, *, max_gap, height=None):
+    """``hypotheses._column_keys`` with each row's keys built inside the running-max loop from the row of ``kept_depth``
+    it reads (tried on branch rigtail10, not kept): the two key images are then fresh fills the loop writes."""
+    import jax.numpy as jnp
+    from jax import lax
+
+    from jaxdepth._src.hypotheses import _depth_bits
+    from jaxdepth._src.xla_tuning import put_row
+    h, w = kept_depth.shape
+    depth_bits, scale, top = _depth_bits(h if height is None else height)
+    last = h - 1 if height is None else jnp.asarray(height, jnp.int32) - 1
+
+    def key(order, row):
+        level = jnp.clip(jnp.round(row * scale), 1, top).astype(jnp.int32)
+        return jnp.where(row > 0, (order << depth_bits) | level, -1)
+
+    def step(i, state):
+        c_fwd, c_bwd, fwd, bwd = state
+        j = h - 1 - i
+        get = functools.partial(lax.dynamic_index_in_dim, kept_depth, axis=0, keepdims=False,
+                                allow_negative_indices=False)
+        c_fwd = jnp.maximum(c_fwd, key(i, get(i)))
+        c_bwd = jnp.maximum(c_bwd, key(last - j, get(j)))
+        return c_fwd, c_bwd, put_row(fwd, c_fwd, i), put_row(bwd, c_bwd, j)
+
+    init = jnp.full((w,), -1, jnp.int32)
+    _, _, up, down = lax.fori_loop(0, h, step, (init, init, jnp.full((h, w), -1, jnp.int32),
+                                                jnp.full((h, w), -2, jnp.int32)))
+    rows = jnp.arange(h, dtype=jnp.int32)[:, None]
+    g = int(max_gap)
+    up = jnp.where(rows - (up >> depth_bits) <= g, up, -1)
+    down = jnp.where(last - (down >> depth_bits) - rows <= g, down, -1)
+    return up, down, depth_bits, scale, top, last
+
+
+def _scatter_put_row(buf, row, i):
+    """``xla_tuning.put_row`` before branch rigtail10: JAX's batching of the row update (a scatter under ``vmap``)."""
+    from jax import lax
+    return lax.dynamic_update_index_in_dim(buf, row, i, 0, allow_negative_indices=False)
+
+
+def _forms(inputs, whole, rig, options, forms: dict, alone=None, *, wholes: bool = True) -> dict:
+    """``{case/form: (executable, args, real pixels)}``: each whole tail (and, given ``alone = (label, part, names)``,
+    ``part`` alone on the inputs ``names`` as ``case_label``) traced with every form's module attributes set
+    (``forms[form] = {(module, name): value}``)."""
     import jax
 
     from benchmarks.bench_stage_programs import _case_inputs
@@ -219,11 +271,14 @@ def _forms(inputs, whole, rig, options, forms: dict, seed_part=None) -> dict:
                 px = 1550 * 2048.0 * (6 if case == "vmap6" else 1)
                 a = (x["sparse"], x["normals"], x["points"], x["keep"], x["K"], x["T"], x["size"])
                 fn = jax.vmap(whole) if case == "vmap6" else (lambda *b: whole(*b[:-1], None))
-                runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
-                if seed_part is not None:
-                    runs[f"{case}_seed/{form}"] = (_compile(lambda k: seed_part(k, None), (x["keep"],),
-                                                            case == "vmap6", options), (x["keep"],), px)
-            for case, (fn, a, px) in (("av2_rig", rig), ("nuscenes_rig", nuscenes)):
+                if wholes:
+                    runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
+                if alone is not None:
+                    label, part, names = alone
+                    b = tuple(x[n] for n in names)
+                    runs[f"{case}_{label}/{form}"] = (_compile(lambda *c: part(*c, None), b, case == "vmap6",
+                                                               options), b, px)
+            for case, (fn, a, px) in (("av2_rig", rig), ("nuscenes_rig", nuscenes)) if wholes else ():
                 runs[f"{case}/{form}"] = (jax.jit(fn).lower(*a).compile(options), a, px)
         finally:
             for (module, name), value in saved.items():
@@ -244,6 +299,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--gather-forms", action="store_true", help="the seed gather's two forms (module docs)")
     parser.add_argument("--dt-forms", action="store_true", help="the distance transform's two forms (module docs)")
+    parser.add_argument("--bracket-forms", action="store_true", help="the column bracket's two forms (module docs)")
+    parser.add_argument("--put-forms", action="store_true", help="the loops' two row updates (module docs)")
     parser.add_argument("--depth-forms", action="store_true", help="the seed depth's two reads (module docs)")
     parser.add_argument("--capped", action="store_true", help='SGMConfig(above_scan="capped"), the AV2 job\'s tail')
     parser.add_argument("--json", default=None, help="default results/rig_tail_parts.json (--gather-forms: "
@@ -251,7 +308,9 @@ def main(argv=None) -> int:
     args, t0 = parser.parse_args(argv), time.time()
     args.json = args.json or str(RESULTS / ("rig_tail_gather_forms.json" if args.gather_forms else
                                             "rig_tail_dt_forms.json" if args.dt_forms else
-                                            "rig_tail_depth_forms.json" if args.depth_forms else "rig_tail_parts.json"))
+                                            "rig_tail_depth_forms.json" if args.depth_forms else
+                                            "rig_tail_bracket_forms.json" if args.bracket_forms else
+                                            "rig_tail_put_forms.json" if args.put_forms else "rig_tail_parts.json"))
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
 
@@ -266,8 +325,20 @@ def main(argv=None) -> int:
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "seed depth", "masked")
     if args.dt_forms:
         forms = {"library": {}, "previous": {(pipeline, "nearest_seed"): _previous_nearest_seed}}
-        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, parts["seed"]), args, t0,
-                           "the distance transform", "previous")
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",))),
+                           args, t0, "the distance transform", "previous")
+    if args.bracket_forms or args.put_forms:
+        from jaxdepth._src import distance, hypotheses
+        other = "loop_keys" if args.bracket_forms else "scatter"
+        forms = {"library": {}, other: {(hypotheses, "_column_keys"): _loop_column_keys} if args.bracket_forms else
+                 {(hypotheses, "put_row"): _scatter_put_row, (distance, "put_row"): _scatter_put_row}}
+        alone = ("bracket", lambda s, k, n, K, size: parts["bracket"](s, s, k, n, K, size),
+                 ("sparse", "keep", "normals", "K"))
+        runs = _forms(inputs, whole, rig, COMPILER_OPTIONS, forms, alone)
+        if args.put_forms:
+            runs.update(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",)),
+                               wholes=False))
+        return _time_forms(runs, args, t0, "row updates" if args.put_forms else "column bracket's keys", other)
     runs, same = {}, {}             # runs[name] = (executable, args, real pixels)
     for case, x in inputs.items():
         batched, px = case == "vmap6", 1550 * 2048.0 * (6 if case == "vmap6" else 1)

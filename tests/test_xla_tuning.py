@@ -116,6 +116,19 @@ def test_helpers_reduce_to_the_plain_computation():
             # tuned: a gather from the flattened batch, no batching dimension (which XLA:CPU expands to pairs)
             jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.take_last))(values, at))
             assert ("operand_batching_dims=(0,)" in jaxpr) == (mode == "plain"), jaxpr
+            buf, rows, i = rng.integers(-9, 9, (4, 6, 5)), rng.integers(-9, 9, (4, 5)), jnp.int32(4)
+            for b_axis, r_axis in ((0, 0), (0, None), (None, 0)):   # row i replaced, member by member: NumPy's
+                got = jax.vmap(xla_tuning.put_row, in_axes=(b_axis, r_axis, None))(
+                    buf if b_axis == 0 else buf[0], rows if r_axis == 0 else rows[0], i)
+                want = np.stack([buf[b if b_axis == 0 else 0] for b in range(4)])
+                want[:, 4] = rows if r_axis == 0 else rows[0]
+                np.testing.assert_array_equal(got, want)
+            got = jax.jit(jax.vmap(xla_tuning.put_row))(buf, rows, jnp.int32([0, 5, 2, 1]))   # a row per member
+            np.testing.assert_array_equal(got, [np.vstack([b[:k], r[None], b[k + 1:]]) for b, r, k in
+                                                zip(buf, rows, [0, 5, 2, 1])])
+            # tuned: one dynamic_update_slice of the batch, no scatter (which XLA:CPU guards by a select)
+            jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.put_row, in_axes=(0, 0, None)))(buf, rows, i))
+            assert ("scatter" in jaxpr) == (mode == "plain"), jaxpr
 
 
 def test_stage_token_is_the_first_values_bits_and_the_only_one_written():

@@ -67,7 +67,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import shared_loop_bounds
+from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -151,7 +151,7 @@ def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
         row = lax.dynamic_index_in_dim(buf if source is None else source, i, 0, keepdims=False,
                                        allow_negative_indices=False)
         carry = step(i, row, carry)
-        return carry, lax.dynamic_update_index_in_dim(buf, carry, i, 0, allow_negative_indices=False)
+        return carry, put_row(buf, carry, i)
 
     return lax.fori_loop(0, n, body, (init, buf))[1]
 

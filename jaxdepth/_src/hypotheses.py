@@ -38,7 +38,7 @@ from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.geometry import pixel_grid
-from jaxdepth._src.xla_tuning import fence, pack_pair, take_pair
+from jaxdepth._src.xla_tuning import fence, pack_pair, put_row, take_pair
 
 _DEFAULTS = DEFAULT_CONFIG
 
@@ -104,13 +104,12 @@ def _running_max_rows(forward: jax.Array, backward: jax.Array):
 
     # Indices in range: no negative-index wrap (a compare and select kernel per access and step on XLA:CPU).
     get = functools.partial(lax.dynamic_index_in_dim, axis=0, keepdims=False, allow_negative_indices=False)
-    put = functools.partial(lax.dynamic_update_index_in_dim, axis=0, allow_negative_indices=False)
 
     def step(i, state):
         c_fwd, c_bwd, fwd, bwd = state
         c_fwd = jnp.maximum(c_fwd, get(fwd, i))
         c_bwd = jnp.maximum(c_bwd, get(bwd, h - 1 - i))
-        return c_fwd, c_bwd, put(fwd, c_fwd, i), put(bwd, c_bwd, h - 1 - i)
+        return c_fwd, c_bwd, put_row(fwd, c_fwd, i), put_row(bwd, c_bwd, h - 1 - i)
 
     _, _, forward, backward = lax.fori_loop(0, h, step, (init, init, forward, backward))
     return forward, backward
