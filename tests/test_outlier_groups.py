@@ -47,14 +47,14 @@ def _masks(groups, sizes, *, beams, shared, test="footprint"):
                                    half_width=windows["hw"], half_height=windows["hh"], test=test, origins=origins,
                                    image_size=size, pixel_source=source, defer=defer)
 
-    out = []
-    for (depth, points, source, K, origins), (h, w) in zip(groups, sizes):
-        size = jnp.broadcast_to(jnp.asarray([h, w], jnp.int32), (depth.shape[0], 2))
-        run = jax.vmap(lambda *a: one(*a, defer=shared))
-        out.append(run(depth, points, source, K, origins, size))
-    if shared:
-        out = exact_test_groups(tuple(out), sizes, **windows)
-    return [np.asarray(m) for m in out]
+    def every_group(groups):   # one jit (one compile, not one per primitive); disable_jit: op by op
+        out = []
+        for (depth, points, source, K, origins), (h, w) in zip(groups, sizes):
+            size = jnp.broadcast_to(jnp.asarray([h, w], jnp.int32), (depth.shape[0], 2))
+            out.append(jax.vmap(lambda *a: one(*a, defer=shared))(depth, points, source, K, origins, size))
+        return exact_test_groups(tuple(out), sizes, **windows) if shared else out
+
+    return [np.asarray(m) for m in jax.jit(every_group)(groups)]
 
 
 @pytest.mark.parametrize("test", ["footprint", "paper"])
