@@ -293,7 +293,7 @@ def _prefilter_words(k, low, key, eps, *, hw, width, hh=0, reach=None, low_reach
     return pack_bits(cand)
 
 
-def _compact(words: jax.Array, *, down: bool = False, row_words=None):
+def _compact(words: jax.Array, *, down: bool = False):
     """Phase 2: slots for the candidates of the packed (H, ceil(W / 32)) uint32 candidate words
     (``down``: (ceil(H / 32), W) words packed down the columns; the slots then run word row by word row,
     column by column, down each word's 32 rows).
@@ -301,17 +301,15 @@ def _compact(words: jax.Array, *, down: bool = False, row_words=None):
     Returns ``(count, locate)``: the int32 number of candidates, and
     ``locate(slot) -> (row, column)`` (int32 pixel coordinates) of the slot-th
     candidate in raster order, for int32 slots in ``[0, count)`` of any shape
-    (:func:`~jaxdepth._src.compaction.word_locator`: no scatter, no ``nonzero``). ``row_words``: words per
-    row of words (default ``words.shape[1]``; a traced int32 for a camera's words given flat).
+    (:func:`~jaxdepth._src.compaction.word_locator`: no scatter, no ``nonzero``).
     """
-    row_words = words.shape[1] if row_words is None else row_words
-    row_bits = row_words * 32
+    row_bits = words.shape[1] * 32
     count, locate_bit = word_locator(words)
 
     def locate_down(slot):
         flat = locate_bit(slot)
         word = flat // WORD_BITS
-        return (word // row_words) * WORD_BITS + flat % WORD_BITS, word % row_words
+        return (word // words.shape[1]) * WORD_BITS + flat % WORD_BITS, word % words.shape[1]
 
     def locate(slot):
         flat = locate_bit(slot)
