@@ -71,6 +71,7 @@ def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams, test):
     assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0   # some removed
 
 
+@pytest.mark.slow  # op by op (~12 s CPU); the quick equality tests above run the same loop jitted
 def test_one_loop_jit_equals_eager():
     sizes = ((96, 128), (128, 96))
     rng = np.random.default_rng(3)
