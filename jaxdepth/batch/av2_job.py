@@ -33,9 +33,9 @@ each camera at its own size (the ``nearest`` / ``ip_basic`` columns of
 
 Scheduling (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`): a reader thread pool loads
 sweeps ahead (Feather decoding, pose maths) and builds each sweep's program inputs (the sources
-pytree: padding, the LiDARs' spec estimates); the main thread dispatches a sweep's program on the
-default device before it reads back the previous sweep's depth; writer threads encode and write
-the PNGs.
+pytree: padding, the LiDARs' spec estimates); the main thread runs each sweep's program on the
+default device and reads its depth back before it dispatches the next (two programs in flight ran
+slower on 2 cores); writer threads encode and write the PNGs.
 """
 
 from __future__ import annotations
@@ -208,8 +208,8 @@ def _validity_fn(lidar, metric: str, max_seed_distance_px):
 
 def completion(*, method: str, config, extras) -> Callable:
     """``prepare(cloud, rig) -> call`` of :func:`run_cloud_jobs` for ``method``: ``call()`` returns
-    ``(depth, valid, distance)`` (device arrays of the SGM, read back by the job once the next sweep is
-    dispatched; NumPy of a baseline); the validity mask and seed distance (``extras.needs_seeds``, SGM
+    ``(depth, valid, distance)`` (device arrays of the SGM, read back by the job
+    (:func:`~jaxdepth.batch.cloud_runner.read_back`); NumPy of a baseline); the validity mask and seed distance (``extras.needs_seeds``, SGM
     only) use the rig's LiDAR spec."""
     import jaxdepth
     from jaxdepth.batch.cloud_runner import cloud_preparation

@@ -2,8 +2,9 @@
 
 The shared loop of the dataset jobs that complete several sources at once (Argoverse 2
 logs, KITTI raw drives with ``--sweeps``): a reader thread pool loads frames ahead (each
-job's ``load`` returns the frame's cloud and rig), :func:`complete_sources` completes every
-camera of the rig, and writer threads write one KITTI depth PNG per camera, atomically. A
+job's ``load`` returns the frame's cloud and rig) and builds each frame's program inputs
+(:func:`cloud_preparation`), the main thread runs the program (:func:`complete_sources`' SGM or a baseline
+of the same points) for every camera of the rig, and writer threads write one KITTI depth PNG per camera, atomically. A
 frame that cannot be read or completed is reported and the rest carries on; a frame is
 recorded done once all its PNGs are in place.
 
@@ -137,7 +138,7 @@ def read_back(outputs) -> tuple:
 
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
-                   io_threads: int = 2, complete: Callable | None = None, prepare: Callable | None = None,
+                   io_threads: int = 2, prepare: Callable | None = None,
                    extras=None, overwrite: bool = True) -> None:
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
@@ -148,8 +149,8 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
     ``distance`` None unless ``extras`` needs them), device arrays or NumPy, read back (:func:`read_back`)
     at once: the next frame's program is not dispatched before (two programs of the rig in flight ran
     slower on the 2-core CPU, docs/speed.md "The multi-source jobs' host work on the reader threads").
-    Default: :func:`cloud_preparation`'s SGM; ``complete(cloud, rig) -> (depth, valid, distance)``, when
-    given, runs whole on the main thread instead. A (Jaxdepth or Value) error of either step fails its frame
+    Default: :func:`cloud_preparation`'s SGM (a ``prepare`` that returns ``lambda: f(cloud, rig)`` runs ``f``
+    whole on the main thread). A (Jaxdepth or Value) error of either step fails its frame
     as "completion failed: ..."; frames are completed and handed to the writers in ``todo``'s order.
     ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
     ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
@@ -162,10 +163,7 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
     ledger = Ledger(summary, notify)
     extras = extra_outputs.NONE if extras is None else extras
     written = []                  # the writers' futures
-    if complete is not None:
-        def prepare(cloud, rig):
-            return lambda: complete(cloud, rig)
-    elif prepare is None:
+    if prepare is None:
         prepare = cloud_preparation("sgm", config=config)
 
     def load_prepared(job):
