@@ -306,21 +306,21 @@ def main(argv=None) -> int:
         doc["settings"] = {"other_twins": args.other_twins, "twin_seeds": args.twin_seeds, "scale": args.scale,
                            "far_m": FAR_M}
         doc["other_twins"] = other_twins(args.other_twins, args.twin_seeds, args.scale, config)
-        write_results(args.json, doc, config, t0)
+        write_results(args.json, doc, config, t0, indent=None)
         return 0
     if not args.skip_real:
         doc["real_sample"] = real_sample(args.seeds, config)
         r = doc["real_sample"]
         print(f"real ({time.time() - t0:.0f} s): far edge share {r['far_edge_share']:.4f} "
               f"uncovered {r['uncovered_rmse_mae_mm']}", flush=True)
-        write_results(args.json, doc, config, t0)
+        write_results(args.json, doc, config, t0, indent=None)
     doc["twins"] = []
     for layout in args.layouts:
         for s in args.twin_seeds:
             doc["twins"].append(twin_case(layout, s, args.seeds, args.scale, config))
             print(f"{layout} seed {s} done ({time.time() - t0:.0f} s)", flush=True)
-            write_results(args.json, doc, config, t0)
-    write_results(args.json, doc, config, t0)
+            write_results(args.json, doc, config, t0, indent=None)
+    write_results(args.json, doc, config, t0, indent=None)
     return 0
 
 
