@@ -194,6 +194,72 @@ def ground_noise(points_up: np.ndarray, origin: np.ndarray, *, cell_m: float = 1
     return {"noise_m": 1.4826 * mad, "points": int(res.size), "cells": len(residuals)}
 
 
+# ---------------------------------------------------------------- scene statistics
+
+#: Depth bins (m) of :func:`scene_statistics`: camera depth of the points, range of an edge's far side.
+SCENE_DEPTH_BINS_M = (0.0, 5.0, 10.0, 20.0, 30.0, 40.0, 60.0, 80.0, np.inf)
+SCENE_EDGE_BINS_M = (0.0, 10.0, 20.0, 40.0, np.inf)
+
+
+def camera_depths(points: np.ndarray, K: np.ndarray, T_cam_lidar: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Camera-frame depth (m) of the points that project into the (width, height) image (z > 0.1 m)."""
+    p = np.asarray(points, np.float64)
+    T, K = np.asarray(T_cam_lidar, np.float64), np.asarray(K, np.float64)
+    q = p @ T[:3, :3].T + T[:3, 3]
+    ahead = q[:, 2] > 0.1
+    uv = (q @ K.T)[:, :2] / np.where(ahead, q[:, 2], 1.0)[:, None]
+    inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+    return q[inside, 2]
+
+
+def scene_statistics(points: np.ndarray, ring: np.ndarray, cameras) -> dict:
+    """The far-structure statistics of one spinning LiDAR's sweep (its own frame) seen by ``cameras``
+    (objects with ``name``, ``K``, ``T_cam_lidar``, ``width``, ``height``).
+
+    - ``cameras``: per camera, the points projecting into it: ``count``, ``depth_share`` (the share per
+      :data:`SCENE_DEPTH_BINS_M` bin of camera depth), ``share_ge_20m``, ``share_ge_40m``; ``all``: the same
+      over every camera's points (a point seen by two cameras counts twice).
+    - ``edges``: along each ring (:func:`ring_sequences`), consecutive returns one azimuth step apart
+      (no gap: step < 1.5 x the ring's median) whose ranges differ by more than max(1 m, 5 % of the
+      nearer): per :data:`SCENE_EDGE_BINS_M` bin of the farther return's range, ``per_line`` (edges
+      per ring) and ``per_1000_pairs`` (edges per 1000 such neighbour pairs whose farther return lies
+      in the bin); ``lines``: rings counted.
+    """
+    out = {"cameras": {}}
+    every = []
+    for cam in cameras:
+        z = camera_depths(points, cam.K, cam.T_cam_lidar, cam.width, cam.height)
+        every.append(z)
+        out["cameras"][cam.name] = _depth_shares(z)
+    out["all"] = _depth_shares(np.concatenate(every))
+    bins = np.asarray(SCENE_EDGE_BINS_M)
+    edges = np.zeros(len(bins) - 1)
+    pairs = np.zeros(len(bins) - 1)
+    lines = 0
+    for az, r, _ in ring_sequences(points, ring):
+        lines += 1
+        d = np.diff(az)
+        tight = d < 1.5 * np.median(d)
+        far = np.maximum(r[:-1], r[1:])
+        edge = tight & ~_similar(r[:-1], r[1:], 0.05, 1.0)
+        b = np.digitize(far, bins[1:-1])
+        edges += np.bincount(b[edge], minlength=len(edges))
+        pairs += np.bincount(b[tight], minlength=len(pairs))
+    names = [f"{a:g}-{c:g}" for a, c in zip(bins, bins[1:])]
+    out["edges"] = {"lines": lines,
+                    "per_line": dict(zip(names, (edges / max(lines, 1)).tolist())),
+                    "per_1000_pairs": dict(zip(names, (1000 * edges / np.maximum(pairs, 1)).tolist()))}
+    return out
+
+
+def _depth_shares(z: np.ndarray) -> dict:
+    bins = np.asarray(SCENE_DEPTH_BINS_M)
+    hist = np.histogram(z, bins)[0] / max(len(z), 1)
+    return {"count": int(len(z)), "share_ge_20m": float(np.mean(z >= 20.0)) if len(z) else 0.0,
+            "share_ge_40m": float(np.mean(z >= 40.0)) if len(z) else 0.0,
+            "depth_share": {f"{a:g}-{c:g}": float(h) for a, c, h in zip(bins, bins[1:], hist)}}
+
+
 def _fmt(a) -> str:
     a = np.asarray(a, np.float64)
     if a.ndim == 1:

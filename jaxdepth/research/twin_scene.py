@@ -14,6 +14,15 @@ along the street, y left, z up, metres). The static street is
 - thin poles: six sign posts, radius 2.5-5 cm;
 - a fence: 28 slats 8 cm wide with 7 cm gaps between two rails.
 
+Layouts (:data:`LAYOUTS`; ``layout=`` of :func:`twin_scene`, :func:`twin_spheres` and
+:func:`~jaxdepth.research.twins.make_twin`): ``"street"`` (default) is the street above, a canyon
+whose side walls stand 8-11 m from the centre line; ``"open"`` opens its right side (y < 0) as the
+real nuScenes sample's (``benchmarks.studies.nuscenes_far_twin``): the right row and its angled
+building stand 22-40 m further back, :data:`OPEN_TREES` large trees (canopy of
+:data:`OPEN_CANOPY_SPHERES` spheres) and :data:`OPEN_POSTS` lamp posts stand on the open ground
+between (12-35 m and 9-25 m from the centre line), and two of the six left-row buildings stand
+12-20 m further back (gaps with far facades).
+
 Every seed gives the same primitive counts (one compilation per rig); the same seed gives the
 same bytes.
 """
@@ -33,6 +42,12 @@ _LANE_CAR_BOXES = np.arange(39, 45)
 SWEEP_DT_S = 0.1
 #: Counts of the added primitives (fixed for every seed).
 PEDESTRIANS, HEDGE_BOXES, HEDGE_BUSHES, CANOPY_SPHERES, SLATS, SIGN_POSTS = 4, 12, 6, 6, 28, 6
+#: The scene layouts (see the module docstring).
+LAYOUTS: tuple = ("street", "open")
+#: Counts of the ``"open"`` layout's added trees, their canopy spheres and lamp posts.
+OPEN_TREES, OPEN_CANOPY_SPHERES, OPEN_POSTS = 30, 4, 24
+#: Rows of the street's buildings in ``street_scene_arrays``: the left row, the right row (each 6 and an angled one).
+_LEFT_ROW, _RIGHT_ROW = np.arange(0, 6), np.arange(7, 14)
 
 
 def _movers(seed: int):
@@ -111,9 +126,11 @@ def _trees(seed: int):
             for i in range(3)]
 
 
-def twin_spheres(seed: int) -> np.ndarray:
+def twin_spheres(seed: int, layout: str = "street") -> np.ndarray:
     """(S, 4) float32 ``[cx, cy, cz, radius]`` of the vegetation's spheres (static; frame ``W``):
-    each tree's canopy of overlapping spheres and the bushes bulging out of the two hedges."""
+    each tree's canopy of overlapping spheres and the bushes bulging out of the two hedges (and in
+    the ``"open"`` layout its trees' canopies, appended)."""
+    check_layout(layout)
     rng = np.random.default_rng([seed, 37, 4])
     out = []
     for tx, ty, trunk_h in _trees(seed):
@@ -126,19 +143,57 @@ def twin_spheres(seed: int) -> np.ndarray:
             r = rng.uniform(0.35, 0.75)
             out.append([x_start + rng.uniform(0.0, 0.7 * 0.85 * HEDGE_BOXES), side * rng.uniform(6.3, 6.9),
                         rng.uniform(0.3, 1.0), r])
+    if layout == "open":
+        crown = np.random.default_rng([seed, 37, 7])
+        for tx, ty, _, trunk_h in _open_trees(seed):
+            for _ in range(OPEN_CANOPY_SPHERES):
+                r = crown.uniform(1.5, 2.8)
+                out.append([tx + crown.uniform(-2.0, 2.0), ty + crown.uniform(-2.0, 2.0),
+                            trunk_h + r + crown.uniform(-0.8, 0.8), r])
     return np.asarray(out, np.float32)
 
 
-def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArrays:
-    """The world at sweep ``sweep`` (0 = reference; the movers ``sweep * dt_s`` seconds earlier), frame ``W``.
+def check_layout(layout: str) -> None:
+    if layout not in LAYOUTS:
+        raise ValueError(f"field 'layout' expected one of {LAYOUTS}, got {layout!r}")
+
+
+def _open_trees(seed: int):
+    """(x, y, trunk radius, trunk height) of the ``"open"`` layout's trees on the right side."""
+    rng = np.random.default_rng([seed, 37, 5])
+    return [(rng.uniform(-45.0, 75.0), -rng.uniform(12.0, 35.0), rng.uniform(0.2, 0.35), rng.uniform(2.5, 4.0))
+            for _ in range(OPEN_TREES)]
+
+
+def _open_street(seed: int, static: np.ndarray):
+    """The ``"open"`` layout: (the static boxes with the buildings moved, the added cylinders)."""
+    rng = np.random.default_rng([seed, 37, 6])
+    boxes = static.copy()
+    boxes[_RIGHT_ROW, 1] -= rng.uniform(14.0, 28.0, size=_RIGHT_ROW.size)
+    back = rng.choice(_LEFT_ROW, size=2, replace=False)
+    boxes[back, 1] += rng.uniform(12.0, 20.0, size=2)
+    cyls = [[x, y, r, 0.0, h + 0.5] for x, y, r, h in _open_trees(seed)]
+    for _ in range(OPEN_POSTS):
+        cyls.append([rng.uniform(-40.0, 70.0), -rng.uniform(9.0, 25.0), rng.uniform(0.08, 0.12), 0.0,
+                     rng.uniform(6.0, 9.0)])
+    return boxes, cyls
+
+
+def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S, layout: str = "street") -> SceneArrays:
+    """The world at sweep ``sweep`` (0 = reference; the movers ``sweep * dt_s`` seconds earlier), frame ``W``,
+    in scene layout ``layout`` (:data:`LAYOUTS`).
 
     Returns:
-      :class:`SceneArrays` (ground plane ``z = 0``), the same shapes for every seed and sweep.
+      :class:`SceneArrays` (ground plane ``z = 0``), the same shapes for every seed and sweep of a layout.
     """
+    check_layout(layout)
     base = street_scene_arrays(seed, lidar_height_m=0.0)
     static = np.delete(np.asarray(base.boxes), _LANE_CAR_BOXES, axis=0)
     mover_boxes, mover_cyls = _mover_prims(seed, sweep * dt_s)
     clutter_boxes, clutter_cyls = _clutter(seed)
+    if layout == "open":
+        static, open_cyls = _open_street(seed, static)
+        clutter_cyls = clutter_cyls + open_cyls
     boxes = np.concatenate([static, np.asarray(mover_boxes + clutter_boxes, np.float64)])
     cyls = np.concatenate([np.asarray(base.cylinders), np.asarray(mover_cyls + clutter_cyls, np.float64)])
     return scene_arrays(planes=base.planes, boxes=boxes, cylinders=cyls)
@@ -150,4 +205,4 @@ def mover_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S) -> SceneArra
     return scene_arrays(boxes=boxes, cylinders=cyls)
 
 
-__all__ = ["SWEEP_DT_S", "mover_scene", "twin_scene", "twin_spheres"]
+__all__ = ["LAYOUTS", "SWEEP_DT_S", "mover_scene", "twin_scene", "twin_spheres"]

@@ -58,7 +58,7 @@ class Twin:
       point_exact: (N, 3) float32 each point's exact first hit (no noise, no blend).
       point_mixed: (N,) bool points that are mixed returns.
       point_ring: (N,) int32 each point's row on its unit's scan grid (laser, scan line; 0 for a rosette).
-      unit_names: name of each unit index. effects: the rates used. seed, scale: as given.
+      unit_names: name of each unit index. effects: the rates used. seed, scale, layout: as given.
     """
 
     name: str
@@ -78,6 +78,7 @@ class Twin:
     effects: SensorEffects = NO_EFFECTS
     seed: int = 0
     scale: float = 1.0
+    layout: str = "street"
 
 
 def ego_pose(rig: RigDef, sweep: int) -> np.ndarray:
@@ -141,14 +142,14 @@ def _moved(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return (np.asarray(p, np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
 
 
-def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects):
+def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects, layout: str = "street"):
     """(SourceCloud in the reference frame, per-point oracle arrays) of every sweep of every unit."""
     T_ref_world = np.linalg.inv(T_world_points[0])
     parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
     poses, specs, sweep_ids, names = [], [], [], []
-    spheres = twin_scene.twin_spheres(seed)
+    spheres = twin_scene.twin_spheres(seed, layout)
     for k, T_world_k in enumerate(T_world_points):
-        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s)
+        scene = twin_scene.twin_scene(seed, k, dt_s=rdef.dt_s, layout=layout)
         T_ref_points = T_ref_world @ T_world_k
         if not rdef.per_unit_sources:
             poses.append(T_ref_points)
@@ -180,7 +181,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
 
 
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
-              step_m: float | None = None, laser_phases: bool = False) -> Twin:
+              step_m: float | None = None, laser_phases: bool = False, layout: str = "street") -> Twin:
     """A digital twin of a real rig (see the module docstring and ``docs/twins.md``).
 
     Args:
@@ -194,11 +195,14 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
       laser_phases: each laser of a spinning unit samples at its own azimuth phase
         (:func:`~jaxdepth.research.twin_sensors.stagger_lasers`, unit ``u`` drawn from seed ``u``), as real
         spinning LiDARs do; False (default): the lasers share one phase, as the published results.
+      layout: the street's layout (:data:`~jaxdepth.research.twin_scene.LAYOUTS`): ``"street"`` (default)
+        or ``"open"`` (the right side open to 20-60 m, as the real nuScenes sample).
 
     Returns:
       :class:`Twin`.
     """
     _check(rig, sweeps, seed, scale)
+    twin_scene.check_layout(layout)
     rates = SensorEffects(**SENSOR_EFFECTS[rig]) if effects is True else NO_EFFECTS if effects is False else effects
     if not isinstance(rates, SensorEffects):
         raise ValueError(f"make_twin: field 'effects' expected a bool or SensorEffects, got {type(effects).__name__}")
@@ -211,11 +215,11 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         units = tuple((lambda k, mk=mk, u=u: stagger_lasers(mk(k), seed=u), T) for u, (mk, T) in enumerate(rdef.units))
         rdef = dataclasses.replace(rdef, units=units)
     T_world_points = [ego_pose(rdef, k) @ rdef.T_ego_points for k in range(int(sweeps))]
-    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates)
+    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates, layout)
     T_ref_world = np.linalg.inv(T_world_points[0])
     rig_cams, world_cams = _cameras(rdef, float(scale), T_world_points[0])
-    scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s)
-    spheres = twin_scene.twin_spheres(int(seed))
+    scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s, layout=layout)
+    spheres = twin_scene.twin_spheres(int(seed), layout)
     depths = tuple(np.asarray(render_twin_depth(cam, scene0, spheres, np.float32(CAMERA_MAX_RANGE_M)))
                    for cam in world_cams)
     H, W = max(d.shape[0] for d in depths), max(d.shape[1] for d in depths)
@@ -228,7 +232,8 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
                 dense_depth=canvas, point_unit=cat["unit"], point_origin=cat["origin"], depths=depths,
                 sweep_poses=sweep_poses, ego_step_m=steps, point_exact=cat["exact"], point_mixed=cat["mixed"],
                 point_ring=cat["ring"],
-                unit_names=tuple(unit(0).name for unit, _ in rdef.units), effects=rates, seed=int(seed), scale=float(scale))
+                unit_names=tuple(unit(0).name for unit, _ in rdef.units), effects=rates, seed=int(seed), scale=float(scale),
+                layout=layout)
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
