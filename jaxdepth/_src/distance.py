@@ -67,7 +67,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds
+from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds, take_last
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -306,7 +306,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     def follow(below, entry):
         # Entry under ``entry`` (garbage where it is empty; callers select it away).
         at = unpack(entry)[1] * w + col
-        return tuple(b.reshape(-1).at[at].get(mode=_PIB) for b in below)
+        return tuple(take_last(b.reshape(-1), at) for b in below)
 
     def select(pred, a, b):
         return tuple(jnp.where(pred, x, y) for x, y in zip(a, b))
@@ -338,7 +338,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
             quot = lax.div(num, den)
         start = 1 + quot
         push = valid & (~nonempty | (start < h))
-        below = tuple(lax.dynamic_update_index_in_dim(b, e, i, 0) for b, e in zip(below, top))
+        below = tuple(put_row(b, e, i, wrap=True) for b, e in zip(below, top))
         new = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
         return select(push, new, top), below
 
@@ -359,7 +359,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
         current = select(unpack(current)[0] > v, follow(below, current), current)
         _, s, right, g = unpack(current)
         # Fits in int32: g < W <= 2**15 and s < 2**rb <= 2**15.
-        return current, lax.dynamic_update_index_in_dim(out, (g << (rb + 1)) | (s << 1) | right, v, 0)
+        return current, put_row(out, (g << (rb + 1)) | (s << 1) | right, v, wrap=True)
 
     _, packed = lax.fori_loop(0, h, walk, (top, jnp.zeros((h, w), jnp.int32)))
     return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, top[0][0] >= 0
