@@ -41,8 +41,21 @@ of the loops (``xla_tuning.put_row``, one ``dynamic_update_slice`` under ``vmap`
 (``_scatter_put_row`` here, set as ``distance.put_row`` and ``hypotheses.put_row``: a scatter, which XLA:CPU runs
 as an update guarded by an in-bounds select).
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped]
-        [--gather-forms | --dt-forms | --depth-forms | --bracket-forms | --put-forms] [--json PATH]
+``--l2``: every program with ``SGMConfig(distance_metric="l2")``. ``--l2-forms`` (implies ``--l2``): the whole tails and the
+distance transform alone, the library's L2 column pass (rows written by ``xla_tuning.put_row``, pops read by
+``xla_tuning.take_last``) against the form before branch rigtail11 (``_previous_l2_column_pass`` here: JAX's batching of
+the row writes, a scatter, and of the pops' gathers, (camera, index) pairs).
+
+Forms tried on branch rigtail11 and not kept (each against the library, outputs compared): ``--offset-forms``, the
+capped tail's seed gather at ``du``, ``dv`` as a flat gather (``_flat_gather_at_seed``, set as
+``pipeline.gather_at_seed``; it moves the capped plane's rounding); ``--strided-forms row|column|both``, the seed
+search's first loops reading strided columns of the untransposed source (``_strided_passes``: no transposing copies);
+``--unroll-forms K``, the sweeps' ``fori_loop`` unrolled K times (``_unrolled_sweep``); ``--rows-forms K [--rows-write
+stack|rows]``, K rows a loop step (``_block_sweep``).
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped] [--l2]
+        [--gather-forms | --dt-forms | --depth-forms | --bracket-forms | --put-forms | --l2-forms | --offset-forms
+         | --strided-forms WHICH | --unroll-forms K | --rows-forms K] [--json PATH]
 """
 
 from __future__ import annotations
@@ -254,24 +267,8 @@ def _strided_passes(row: bool, column: bool):
 
 def _unrolled_sweep(k: int):
     """``distance._sweep`` with ``lax.fori_loop(..., unroll=k)`` (tried on branch rigtail11, not kept)."""
-    from jax import lax
-
-    from jaxdepth._src.xla_tuning import put_row
-
-    def sweep(buf, init, step, *, reverse=False, source=None):
-        n = buf.shape[0]
-
-        def body(j, state):
-            carry, buf = state
-            i = n - 1 - j if reverse else j
-            row = lax.dynamic_index_in_dim(buf if source is None else source, i, 0, keepdims=False,
-                                           allow_negative_indices=False)
-            carry = step(i, row, carry)
-            return carry, put_row(buf, carry, i)
-
-        return lax.fori_loop(0, n, body, (init, buf), unroll=k)[1]
-
-    return sweep
+    from jaxdepth._src import distance
+    return functools.partial(distance._sweep, unroll=k)
 
 
 def _block_sweep(k: int, write: str):

@@ -48,7 +48,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   guarded by an in-bounds select that reads the buffer's old row every step (and ~5 more small kernels a
   step); a ``custom_vmap`` writes the batch's rows with one ``dynamic_update_slice`` (the rigs' seed search
   and column bracket loops under the size groups' ``vmap``: the Argoverse 2 tail 0.97-0.98x, the nuScenes
-  tail 0.95-0.99x, docs/speed.md "The loops' row writes under vmap"). Plain: ``lax.dynamic_update_index_in_dim``.
+  tail 0.95-0.99x, docs/speed.md "The loops' row writes under vmap"; the L2 column pass's rows with
+  ``take_last`` for its pops: its seed search under ``vmap`` 0.87x, docs/speed.md "The seed search's loops, the
+  capped tail's gather and the L2 pass under vmap"). Plain: ``lax.dynamic_update_index_in_dim``.
 * **Wrap padding as one gather** (:func:`wrap_pad`). XLA:CPU compiles each slice feeding a
   concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
   Plain: slices and concatenates (:func:`wrap_pad_slices`).
