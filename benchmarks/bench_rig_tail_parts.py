@@ -41,8 +41,21 @@ of the loops (``xla_tuning.put_row``, one ``dynamic_update_slice`` under ``vmap`
 (``_scatter_put_row`` here, set as ``distance.put_row`` and ``hypotheses.put_row``: a scatter, which XLA:CPU runs
 as an update guarded by an in-bounds select).
 
-    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped]
-        [--gather-forms | --dt-forms | --depth-forms | --bracket-forms | --put-forms] [--json PATH]
+``--l2``: every program with ``SGMConfig(distance_metric="l2")``. ``--l2-forms`` (implies ``--l2``): the whole tails and the
+distance transform alone, the library's L2 column pass (rows written by ``xla_tuning.put_row``, pops read by
+``xla_tuning.take_last``) against the form before branch rigtail11 (``_previous_l2_column_pass`` here: JAX's batching of
+the row writes, a scatter, and of the pops' gathers, (camera, index) pairs).
+
+Forms tried on branch rigtail11 and not kept (each against the library, outputs compared): ``--offset-forms``, the
+capped tail's seed gather at ``du``, ``dv`` as a flat gather (``_flat_gather_at_seed``, set as
+``pipeline.gather_at_seed``; it moves the capped plane's rounding); ``--strided-forms row|column|both``, the seed
+search's first loops reading strided columns of the untransposed source (``_strided_passes``: no transposing copies);
+``--unroll-forms K``, the sweeps' ``fori_loop`` unrolled K times (``_unrolled_sweep``); ``--rows-forms K [--rows-write
+stack|rows]``, K rows a loop step (``_block_sweep``).
+
+    python -m benchmarks.bench_rig_tail_parts [--rounds 7] [--capped] [--l2]
+        [--gather-forms | --dt-forms | --depth-forms | --bracket-forms | --put-forms | --l2-forms | --offset-forms
+         | --strided-forms WHICH | --unroll-forms K | --rows-forms K] [--json PATH]
 """
 
 from __future__ import annotations
@@ -125,7 +138,7 @@ def _parts(config, beams: int) -> dict:
     return dict(seed=seed, gather=gather, residual=residual, bracket=bracket, cap=cap, blur=blur, final=final)
 
 
-def _cases(capped: bool = False) -> tuple:
+def _cases(capped: bool = False, l2: bool = False) -> tuple:
     """``(cases, rig)``: ``{case: {part: (jitted, arg builder)}, ...}`` and the rig program (module docs); ``capped``:
     every program with ``SGMConfig(above_scan="capped")``, the Argoverse 2 job's resolved ``"auto"``."""
     import dataclasses
@@ -137,8 +150,8 @@ def _cases(capped: bool = False) -> tuple:
     from jaxdepth._src.pipeline import _complete_tail, clear_outside_window
     g = av2_landscape_group()
     config, beams, sizes, view, keep, K, T = (g[k] for k in ("config", "beams", "sizes", "view", "keep", "K", "T"))
-    if capped:
-        config = dataclasses.replace(config, above_scan="capped")
+    if capped or l2:
+        config = dataclasses.replace(config, **_config_change(capped, l2))
         g["statics"] = {**g["statics"], "config": config}
     parts = _parts(config, beams)
 
@@ -155,6 +168,30 @@ def _cases(capped: bool = False) -> tuple:
     return inputs, parts, whole, rig
 
 
+def _config_change(capped: bool, l2: bool) -> dict:
+    """``SGMConfig`` fields of ``--capped`` and ``--l2``."""
+    return {**({"above_scan": "capped"} if capped else {}), **({"distance_metric": "l2"} if l2 else {})}
+
+
+def _previous_l2_column_pass(row_key_t, far):
+    """``distance._l2_column_pass`` before branch rigtail11: its row writes by ``lax.dynamic_update_index_in_dim`` (a
+    scatter under ``vmap``) and its pops' gathers by JAX's batching (``(camera, index)`` pairs), not ``put_row`` and
+    ``take_last`` (the library's function traced with those two swapped back)."""
+    from jax import lax
+
+    from jaxdepth._src import distance
+    saved = distance.put_row, distance.take_last
+    distance.put_row = lambda buf, row, i, wrap: lax.dynamic_update_index_in_dim(buf, row, i, 0)
+    distance.take_last = lambda values, index: values.at[..., index].get(mode="promise_in_bounds")
+    try:
+        return _LIBRARY_L2[0](row_key_t, far)
+    finally:
+        distance.put_row, distance.take_last = saved
+
+
+_LIBRARY_L2 = []
+
+
 def _pairs_gather(sparse_depth, keep, normals, at, has_seed):
     """The seed gather before branch rigtail8: two complex64 pairs (``xla_tuning.pack_pair``), XLA:CPU mode."""
     import jax.numpy as jnp
@@ -164,6 +201,121 @@ def _pairs_gather(sparse_depth, keep, normals, at, has_seed):
     xy, zd = pack_pair(normals[0], normals[1]), pack_pair(normals[2], seed_field)
     (nx, ny), (nz, depth) = unpack_pair(at(xy)), unpack_pair(at(zd))
     return depth, jnp.stack([nx, ny, nz])
+
+
+def _flat_gather_at_seed(field, du, dv):
+    """``distance.gather_at_seed`` as a flat gather (tried on branch rigtail11 for the capped tail, not kept): under a
+    rig's ``vmap`` one 1-D gather per channel at the flat index computed in its fusion (``xla_tuning.take_last``),
+    no (camera, index) pairs; the same values, but the capped plane's float32 rounding moves (docs/speed.md)."""
+    from jaxdepth._src.distance import seed_index
+    from jaxdepth._src.xla_tuning import take_last
+    h, w = field.shape[-2:]
+    return take_last(field.reshape(field.shape[:-2] + (h * w,)), seed_index(du, dv))
+
+
+def _strided_passes(row: bool, column: bool):
+    """``(distance._row_pass, distance._l1_column_pass)`` whose first loops read their source by strided columns of
+    the untransposed array (tried on branch rigtail11, not kept): ``row``, the row pass's forward loop reads column i
+    of the (H, W) mask (no bool transposing copy); ``column``, the column pass's forward loop reads column i of the
+    (W, H) row keys (no int16 transposing copy). The same values."""
+    import jax.numpy as jnp
+    from jax import lax
+
+    from jaxdepth._src import distance
+    from jaxdepth._src.xla_tuning import put_row
+
+    def sweep_read(buf, init, step, read):
+        def body(i, state):
+            carry, buf = state
+            carry = step(i, read(i), carry)
+            return carry, put_row(buf, carry, i)
+        return lax.fori_loop(0, buf.shape[0], body, (init, buf))[1]
+
+    def column(a, i):
+        return lax.dynamic_slice_in_dim(a, i, 1, axis=1)[:, 0]
+
+    library_row, library_column = distance._row_pass, distance._l1_column_pass
+
+    def row_pass(seed_mask):
+        h, w = seed_mask.shape
+        far = h + w
+        dtype = jnp.int16 if 2 * (far + w) + 1 <= distance._INT16_MAX else jnp.int32
+        init = jnp.full((h,), 2 * far, dtype)
+        no_seed = jnp.asarray(2 * (far + w) + 1, dtype)
+        buf = sweep_read(jnp.zeros((w, h), dtype), init,
+                         lambda i, r, carry: jnp.minimum(jnp.where(r, jnp.zeros((), dtype), no_seed), carry + 2),
+                         lambda i: column(seed_mask, i))
+        return distance._sweep(buf, init, lambda i, r, carry: jnp.minimum(r, (carry + 2) | 1), reverse=True)
+
+    def column_pass(row_key_t, far, horizontal_cost=1):
+        assert horizontal_cost == 1
+        w, h = row_key_t.shape
+        cb = distance._bits(h) + 1
+        step = 1 << cb
+        init = jnp.full((w,), far << cb, jnp.int32)
+
+        def forward(i, hk, carry):
+            hk = hk.astype(jnp.int32)
+            return jnp.minimum((jnp.minimum(hk >> 1, far) << cb) | (i << 1) | (hk & 1), carry + step)
+
+        key = sweep_read(jnp.zeros((h, w), jnp.int32), init, forward, lambda i: column(row_key_t, i))
+        key = distance._sweep(key, init, lambda i, r, carry: jnp.minimum(r, carry + step), reverse=True)
+        return key, cb
+
+    return (row_pass if row else library_row), (column_pass if column else library_column)
+
+
+def _unrolled_sweep(k: int):
+    """``distance._sweep`` with ``lax.fori_loop(..., unroll=k)`` (tried on branch rigtail11, not kept)."""
+    from jaxdepth._src import distance
+    return functools.partial(distance._sweep, unroll=k)
+
+
+def _block_sweep(k: int, write: str):
+    """``distance._sweep`` with ``k`` rows a loop step (tried on branch rigtail11, not kept): one ``k``-row block read;
+    written as one block (``write="stack"``: the carries stacked, one ``dynamic_update_slice``, under ``vmap`` of the
+    batch) or row by row (``"rows"``: ``k`` ``put_row`` calls a step). The same values."""
+    import jax.numpy as jnp
+    from jax import custom_batching, lax
+
+    from jaxdepth._src.xla_tuning import put_row
+
+    @custom_batching.custom_vmap
+    def put_rows(buf, rows, i):
+        return lax.dynamic_update_slice_in_dim(buf, rows, i, 0)
+
+    @put_rows.def_vmap
+    def _put_rows_vmap(axis_size, in_batched, buf, rows, i):
+        assert not in_batched[2]
+        buf, rows = (x if b else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, b in zip((buf, rows), in_batched))
+        return lax.dynamic_update_slice_in_dim(buf, rows, i, 1), True
+
+    def sweep(buf, init, step, *, reverse=False, source=None):
+        n = buf.shape[0]
+        m, r = divmod(n, k)
+
+        def block(start, rows, carry, buf, size):
+            out = [None] * size
+            for t in (range(size - 1, -1, -1) if reverse else range(size)):
+                carry = out[t] = step(start + t, rows[t], carry)
+                if write == "rows":
+                    buf = put_row(buf, carry, start + t)
+            return carry, (buf if write == "rows" else put_rows(buf, jnp.stack(out), start))
+
+        def body(j, state):
+            carry, buf = state
+            start = (n - (j + 1) * k) if reverse else (j * k)
+            return block(start, lax.dynamic_slice_in_dim(buf if source is None else source, start, k, 0), carry, buf,
+                         k)
+
+        carry, buf = lax.fori_loop(0, m, body, (init, buf))
+        if r:
+            start = 0 if reverse else m * k
+            rows = lax.slice_in_dim(buf if source is None else source, start, start + r, axis=0)
+            carry, buf = block(jnp.int32(start), rows, carry, buf, r)
+        return buf
+
+    return sweep
 
 
 def _masked_gather(sparse_depth, keep, normals, at, has_seed):
@@ -247,14 +399,19 @@ def _scatter_put_row(buf, row, i):
     return lax.dynamic_update_index_in_dim(buf, row, i, 0, allow_negative_indices=False)
 
 
-def _forms(inputs, whole, rig, options, forms: dict, alone=None, *, wholes: bool = True) -> dict:
+def _forms(inputs, whole, rig, options, forms: dict, alone=None, *, wholes: bool = True,
+           config_change: dict | None = None) -> dict:
     """``{case/form: (executable, args, real pixels)}``: each whole tail (and, given ``alone = (label, part, names)``,
     ``part`` alone on the inputs ``names`` as ``case_label``) traced with every form's module attributes set
     (``forms[form] = {(module, name): value}``)."""
     import jax
 
     from benchmarks.bench_stage_programs import _case_inputs
+    import dataclasses
     stages, args, statics, _, one_args = _case_inputs("nuscenes")
+    if config_change:       # the tail's config only (Steps 1-2 as the case's)
+        statics = list(statics)
+        statics[2] = {**statics[2], "config": dataclasses.replace(statics[2]["config"], **config_change)}
     views = jax.jit(functools.partial(stages[0], **statics[0]))(*args[0])
     keeps = jax.jit(functools.partial(stages[1], **statics[1]))(*args[1](views))
     sizes = np.asarray(one_args[-1].image_size).tolist()
@@ -301,7 +458,20 @@ def main(argv=None) -> int:
     parser.add_argument("--dt-forms", action="store_true", help="the distance transform's two forms (module docs)")
     parser.add_argument("--bracket-forms", action="store_true", help="the column bracket's two forms (module docs)")
     parser.add_argument("--put-forms", action="store_true", help="the loops' two row updates (module docs)")
+    parser.add_argument("--unroll-forms", type=int, default=0, metavar="K",
+                        help="the seed search's sweeps with K loop bodies per iteration against the library's")
+    parser.add_argument("--rows-forms", type=int, default=0, metavar="K",
+                        help="the seed search's sweeps with K-row blocks per loop step against the library's")
+    parser.add_argument("--rows-write", choices=("stack", "rows"), default="stack",
+                        help="--rows-forms: a block written as one (stack) or row by row (rows)")
+    parser.add_argument("--strided-forms", choices=("row", "column", "both"), default=None,
+                        help="the seed search's first loops reading strided columns, no transposing copy (module docs)")
+    parser.add_argument("--offset-forms", action="store_true",
+                        help="the capped tail's seed gather at du, dv: the library's pairs against a flat gather (module docs)")
     parser.add_argument("--depth-forms", action="store_true", help="the seed depth's two reads (module docs)")
+    parser.add_argument("--l2", action="store_true", help='SGMConfig(distance_metric="l2")')
+    parser.add_argument("--l2-forms", action="store_true",
+                        help="the L2 column pass's row writes and pops: put_row / take_last against before (module docs)")
     parser.add_argument("--capped", action="store_true", help='SGMConfig(above_scan="capped"), the AV2 job\'s tail')
     parser.add_argument("--json", default=None, help="default results/rig_tail_parts.json (--gather-forms: "
                                                         "rig_tail_gather_forms.json, --dt-forms: rig_tail_dt_forms.json)")
@@ -310,16 +480,27 @@ def main(argv=None) -> int:
                                             "rig_tail_dt_forms.json" if args.dt_forms else
                                             "rig_tail_depth_forms.json" if args.depth_forms else
                                             "rig_tail_bracket_forms.json" if args.bracket_forms else
-                                            "rig_tail_put_forms.json" if args.put_forms else "rig_tail_parts.json"))
+                                            "rig_tail_put_forms.json" if args.put_forms else
+                                            "rig_tail_unroll_forms.json" if args.unroll_forms else
+                                            "rig_tail_rows_forms.json" if args.rows_forms else
+                                            "rig_tail_offset_forms.json" if args.offset_forms else
+                                            "rig_tail_strided_forms.json" if args.strided_forms else
+                                            "rig_tail_l2_forms.json" if args.l2_forms else
+                                            "rig_tail_parts.json"))
     from jaxdepth.batch.devices import keep_freed_memory
     keep_freed_memory()          # before JAX starts its threads, as the jaxdepth command (else page faults decide)
 
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
-    inputs, parts, whole, rig = _cases(args.capped)
+    args.l2 = args.l2 or args.l2_forms
+    inputs, parts, whole, rig = _cases(args.capped, args.l2)
     from jaxdepth._src import pipeline
     if args.gather_forms:
         forms = {"library": {}, "pairs": {(pipeline, "_gather_seeds"): _pairs_gather}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "the seed gather", "pairs")
+    if args.offset_forms:
+        forms = {"library": {}, "flat": {(pipeline, "gather_at_seed"): _flat_gather_at_seed}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "seed gather at du, dv",
+                           "flat")
     if args.depth_forms:
         forms = {"library": {}, "masked": {(pipeline, "_gather_seeds"): _masked_gather}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms), args, t0, "seed depth", "masked")
@@ -327,6 +508,28 @@ def main(argv=None) -> int:
         forms = {"library": {}, "previous": {(pipeline, "nearest_seed"): _previous_nearest_seed}}
         return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",))),
                            args, t0, "the distance transform", "previous")
+    if args.l2_forms:
+        from jaxdepth._src import distance
+        _LIBRARY_L2[:] = [distance._l2_column_pass]
+        forms = {"library": {}, "previous": {(distance, "_l2_column_pass"): _previous_l2_column_pass}}
+        runs = _forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",)),
+                      config_change=_config_change(args.capped, True))
+        return _time_forms(runs, args, t0, "L2 column pass", "previous")
+    if args.strided_forms:
+        from jaxdepth._src import distance
+        row_pass, column_pass = _strided_passes(args.strided_forms in ("row", "both"),
+                                                args.strided_forms in ("column", "both"))
+        other = f"strided_{args.strided_forms}"
+        forms = {"library": {}, other: {(distance, "_row_pass"): row_pass, (distance, "_l1_column_pass"): column_pass}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",))),
+                           args, t0, "seed search's first loops", other)
+    if args.unroll_forms or args.rows_forms:
+        from jaxdepth._src import distance
+        other = f"unroll{args.unroll_forms}" if args.unroll_forms else f"rows{args.rows_forms}"
+        forms = {"library": {}, other: {(distance, "_sweep"): _unrolled_sweep(args.unroll_forms)} if args.unroll_forms
+                 else {(distance, "_sweep"): _block_sweep(args.rows_forms, args.rows_write)}}
+        return _time_forms(_forms(inputs, whole, rig, COMPILER_OPTIONS, forms, ("seed", parts["seed"], ("keep",))),
+                           args, t0, "seed search's sweeps", other)
     if args.bracket_forms or args.put_forms:
         from jaxdepth._src import distance, hypotheses
         other = "loop_keys" if args.bracket_forms else "scatter"

@@ -300,7 +300,8 @@ def test_kitti_tie_rule_sampled_brute_force(metric, kitti):
 def test_l2_vmap_keeps_row_loops_unbatched():
     """Under vmap the l2 build loop shares its bounds across the batch (a batched loop
     counter would turn every row read and write into gathers and scatters, ~5x slower),
-    and nested vmap == loop."""
+    its rows are written by ``put_row`` and its pops read by ``take_last`` (no scatter, no
+    (member, index) pairs), and nested vmap == loop."""
     from jaxdepth._src.xla_tuning import forced, shared_loop_bounds
 
     with forced("cpu"):
@@ -316,6 +317,9 @@ def test_l2_vmap_keeps_row_loops_unbatched():
     masks[1, :5] = False  # different first seeded rows per member
     masks[2, 12:] = False
     fn = jax.vmap(lambda m: nearest_seed(m, metric="l2"))
+    with forced("cpu"):
+        jaxpr = str(jax.make_jaxpr(fn)(jnp.asarray(masks)))
+        assert "scatter" not in jaxpr and "operand_batching_dims=(0" not in jaxpr, jaxpr
     nested = jax.vmap(fn)(jnp.asarray(masks.reshape(2, 2, 16, 21)))
     for i, mask in enumerate(masks):
         single = nearest_seed(jnp.asarray(mask), metric="l2")

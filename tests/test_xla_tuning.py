@@ -17,6 +17,9 @@ run (slow) keeps the real density and candidate counts. The maths is the same, b
 
 from __future__ import annotations
 
+import functools
+import itertools
+
 import numpy as np
 import pytest
 
@@ -117,12 +120,17 @@ def test_helpers_reduce_to_the_plain_computation():
             jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.take_last))(values, at))
             assert ("operand_batching_dims=(0,)" in jaxpr) == (mode == "plain"), jaxpr
             buf, rows, i = rng.integers(-9, 9, (4, 6, 5)), rng.integers(-9, 9, (4, 5)), jnp.int32(4)
-            for b_axis, r_axis in ((0, 0), (0, None), (None, 0)):   # row i replaced, member by member: NumPy's
-                got = jax.vmap(xla_tuning.put_row, in_axes=(b_axis, r_axis, None))(
+            for (b_axis, r_axis), wrap in itertools.product(((0, 0), (0, None), (None, 0)), (False, True)):
+                # row i replaced, member by member: NumPy's (wrap: the single-camera form's index wrap, the same rows)
+                got = jax.vmap(functools.partial(xla_tuning.put_row, wrap=wrap), in_axes=(b_axis, r_axis, None))(
                     buf if b_axis == 0 else buf[0], rows if r_axis == 0 else rows[0], i)
                 want = np.stack([buf[b if b_axis == 0 else 0] for b in range(4)])
                 want[:, 4] = rows if r_axis == 0 else rows[0]
                 np.testing.assert_array_equal(got, want)
+            for wrap in (False, True):      # unbatched: NumPy's
+                want = buf[0].copy()
+                want[4] = rows[0]
+                np.testing.assert_array_equal(xla_tuning.put_row(buf[0], rows[0], i, wrap=wrap), want)
             got = jax.jit(jax.vmap(xla_tuning.put_row))(buf, rows, jnp.int32([0, 5, 2, 1]))   # a row per member
             np.testing.assert_array_equal(got, [np.vstack([b[:k], r[None], b[k + 1:]]) for b, r, k in
                                                 zip(buf, rows, [0, 5, 2, 1])])

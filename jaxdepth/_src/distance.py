@@ -36,8 +36,12 @@ the leading axis of a row-major array (all other pixels vectorised):
      down per row.  The start row uses a float32 division where that is exact.
      Under ``vmap`` the seeded-row bounds are shared by the batch
      (:func:`~jaxdepth._src.xla_tuning.shared_loop_bounds`), so the loop
-     counter stays a scalar and row accesses stay row slices.  What remains
-     is ~2 gathers per seeded row in the build and one per row in the walk.
+     counter stays a scalar and row accesses stay row slices; the rows are
+     written by :func:`~jaxdepth._src.xla_tuning.put_row` (one update of the
+     batch, not a guarded scatter) and a pop reads the batch by one flat
+     gather (:func:`~jaxdepth._src.xla_tuning.take_last`, no (member, index)
+     pairs).  What remains is ~2 gathers per seeded row in the build and one
+     per row in the walk.
 
 The forward/backward loops are ``lax.fori_loop`` over one buffer updated in
 place (the backward loop reads the forward result and overwrites it): on CPU
@@ -67,7 +71,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds
+from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds, take_last
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -127,13 +131,15 @@ def _check(seed_mask: jax.Array, metric: str, horizontal_cost: int = 1) -> None:
 
 
 def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
-           source: jax.Array | None = None) -> jax.Array:
+           source: jax.Array | None = None, unroll: int = 1) -> jax.Array:
     """``buf`` with row i replaced by ``carry = step(i, source[i], carry)``, rows in order (or reversed), in place.
 
     Args:
       buf: (N, ...) array, written row by row; init: the first carry, ``buf[0]``'s shape and dtype; step:
         elementwise ``(i, row, carry) -> carry`` (``i`` the int32 row index); source: (N, ...) array read row
-        by row, any dtype (default ``buf`` itself).
+        by row, any dtype (default ``buf`` itself); unroll: ``lax.fori_loop``'s (more than 1 made XLA:CPU copy
+        ``buf`` every iteration: docs/speed.md, "The seed search's loops, the capped tail's gather and the L2 pass
+        under vmap").
 
     XLA:CPU runs each scalar op of a loop step as a kernel of its own, and a sweep has N steps: the row
     read and write skip ``lax``'s negative-index wrap (a compare and select per index; every index here
@@ -153,7 +159,7 @@ def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
         carry = step(i, row, carry)
         return carry, put_row(buf, carry, i)
 
-    return lax.fori_loop(0, n, body, (init, buf))[1]
+    return lax.fori_loop(0, n, body, (init, buf), unroll=unroll)[1]
 
 
 def _row_pass(seed_mask: jax.Array) -> jax.Array:
@@ -306,7 +312,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
     def follow(below, entry):
         # Entry under ``entry`` (garbage where it is empty; callers select it away).
         at = unpack(entry)[1] * w + col
-        return tuple(b.reshape(-1).at[at].get(mode=_PIB) for b in below)
+        return tuple(take_last(b.reshape(-1), at) for b in below)
 
     def select(pred, a, b):
         return tuple(jnp.where(pred, x, y) for x, y in zip(a, b))
@@ -338,7 +344,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
             quot = lax.div(num, den)
         start = 1 + quot
         push = valid & (~nonempty | (start < h))
-        below = tuple(lax.dynamic_update_index_in_dim(b, e, i, 0) for b, e in zip(below, top))
+        below = tuple(put_row(b, e, i, wrap=True) for b, e in zip(below, top))
         new = pack(jnp.where(nonempty, start, 0), jnp.broadcast_to(i, (w,)), x & 1, g)
         return select(push, new, top), below
 
@@ -359,7 +365,7 @@ def _l2_column_pass(row_key_t: jax.Array, far: int):
         current = select(unpack(current)[0] > v, follow(below, current), current)
         _, s, right, g = unpack(current)
         # Fits in int32: g < W <= 2**15 and s < 2**rb <= 2**15.
-        return current, lax.dynamic_update_index_in_dim(out, (g << (rb + 1)) | (s << 1) | right, v, 0)
+        return current, put_row(out, (g << (rb + 1)) | (s << 1) | right, v, wrap=True)
 
     _, packed = lax.fori_loop(0, h, walk, (top, jnp.zeros((h, w), jnp.int32)))
     return (packed >> 1) & ((1 << rb) - 1), packed >> (rb + 1), packed & 1, top[0][0] >= 0

@@ -48,7 +48,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   guarded by an in-bounds select that reads the buffer's old row every step (and ~5 more small kernels a
   step); a ``custom_vmap`` writes the batch's rows with one ``dynamic_update_slice`` (the rigs' seed search
   and column bracket loops under the size groups' ``vmap``: the Argoverse 2 tail 0.97-0.98x, the nuScenes
-  tail 0.95-0.99x, docs/speed.md "The loops' row writes under vmap"). Plain: ``lax.dynamic_update_index_in_dim``.
+  tail 0.95-0.99x, docs/speed.md "The loops' row writes under vmap"; the L2 column pass's rows with
+  ``take_last`` for its pops: its seed search under ``vmap`` 0.87x, docs/speed.md "The seed search's loops, the
+  capped tail's gather and the L2 pass under vmap"). Plain: ``lax.dynamic_update_index_in_dim``.
 * **Wrap padding as one gather** (:func:`wrap_pad`). XLA:CPU compiles each slice feeding a
   concatenate as a kernel of its own; a ``take`` with static indices becomes one pad-like kernel.
   Plain: slices and concatenates (:func:`wrap_pad_slices`).
@@ -446,23 +448,34 @@ def _plain_put_row(buf: jax.Array, row: jax.Array, i: jax.Array):
     return lax.dynamic_update_index_in_dim(buf, row, i, 0, allow_negative_indices=False)
 
 
-_put_row = custom_batching.custom_vmap(_plain_put_row)
+def _wrapping_put_row(buf: jax.Array, row: jax.Array, i: jax.Array):
+    return lax.dynamic_update_index_in_dim(buf, row, i, 0)
 
 
-@_put_row.def_vmap
-def _put_row_vmap(axis_size, in_batched, buf, row, i):
-    buf_batched, row_batched, i_batched = in_batched
-    if i_batched:                                   # a row per member: JAX's batching rule (a scatter)
-        return jax.vmap(_plain_put_row, in_axes=(0 if buf_batched else None, 0 if row_batched else None, 0))(
-            buf, row, i), True
-    if not buf_batched:
-        buf = jnp.broadcast_to(buf, (axis_size,) + buf.shape)
-    if not row_batched:
-        row = jnp.broadcast_to(row, (axis_size,) + row.shape)
-    return lax.dynamic_update_index_in_dim(buf, row, i, 1, allow_negative_indices=False), True
+def _batched_put_row(plain):
+    """``plain`` as a ``custom_vmap`` whose batch rule writes the batch's rows with one ``dynamic_update_slice``."""
+    put = custom_batching.custom_vmap(plain)
+
+    @put.def_vmap
+    def put_vmap(axis_size, in_batched, buf, row, i):
+        buf_batched, row_batched, i_batched = in_batched
+        if i_batched:                                   # a row per member: JAX's batching rule (a scatter)
+            return jax.vmap(plain, in_axes=(0 if buf_batched else None, 0 if row_batched else None, 0))(
+                buf, row, i), True
+        if not buf_batched:
+            buf = jnp.broadcast_to(buf, (axis_size,) + buf.shape)
+        if not row_batched:
+            row = jnp.broadcast_to(row, (axis_size,) + row.shape)
+        return lax.dynamic_update_index_in_dim(buf, row, i, 1, allow_negative_indices=False), True
+
+    return put
 
 
-def put_row(buf: jax.Array, row: jax.Array, i) -> jax.Array:
+_put_row = _batched_put_row(_plain_put_row)
+_put_row_wrapping = _batched_put_row(_wrapping_put_row)
+
+
+def put_row(buf: jax.Array, row: jax.Array, i, *, wrap: bool = False) -> jax.Array:
     """``buf`` with row ``i`` (int32 scalar, in range: ``0 <= i < N``) replaced by ``row``: (N, ...) and (...) arrays.
 
     Under ``vmap`` with the tricks on and ``i`` unbatched (a loop's row counter), one
@@ -472,10 +485,14 @@ def put_row(buf: jax.Array, row: jax.Array, i) -> jax.Array:
     ``vmap``: the seed search's sweeps, the column bracket's running maxima). The same values: ``i`` is in
     range. Plain: ``lax.dynamic_update_index_in_dim``. Not for float buffers that are differentiated: reverse mode
     does not go through its ``custom_vmap`` outside ``vmap`` (jaxdepth writes integer keys with it).
+    ``wrap`` (static): outside ``vmap``, ``lax``'s negative-index wrap kept (a compare and select of ``i``; the
+    same values), so that a single-camera program stays the one it was where its reads wrap ``i`` too (XLA
+    computes the wrapped index once for both; the L2 column pass).
     """
+    plain, put = (_wrapping_put_row, _put_row_wrapping) if wrap else (_plain_put_row, _put_row)
     if not enabled():
-        return _plain_put_row(buf, row, i)
-    return _put_row(buf, row, jnp.asarray(i, jnp.int32))
+        return plain(buf, row, i)
+    return put(buf, row, jnp.asarray(i, jnp.int32))
 
 
 def entry_jit(fun=None, **jit_kwargs):
