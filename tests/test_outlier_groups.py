@@ -39,36 +39,43 @@ def _group(rng, n, h, w, n_sources=2):
                  tuple(jnp.asarray(np.stack(c)) for c in zip(*x)) for x in zip(*cams))
 
 
-def _masks(groups, sizes, *, beams, shared, test="footprint"):
+def _group_masks(groups, sizes, *, beams, shared, test):
+    """The masks of every group: one loop for all groups (``shared``) or each group's own ``_keep_mask``."""
     windows = dict(shared_windows(sizes, beams=beams, config=DEFAULT_CONFIG), test=test)
 
-    def one(depth, points, source, K, origins, size, *, defer):
+    def one(depth, points, source, K, origins, size):
         return outliers._keep_mask(depth, K, jnp.eye(4, dtype=jnp.float32), points, jnp.float32(1.0), beams=beams,
                                    half_width=windows["hw"], half_height=windows["hh"], test=test, origins=origins,
-                                   image_size=size, pixel_source=source, defer=defer)
+                                   image_size=size, pixel_source=source, defer=shared)
 
-    def every_group(groups):   # one jit (one compile, not one per primitive); disable_jit: op by op
-        out = []
-        for (depth, points, source, K, origins), (h, w) in zip(groups, sizes):
-            size = jnp.broadcast_to(jnp.asarray([h, w], jnp.int32), (depth.shape[0], 2))
-            out.append(jax.vmap(lambda *a: one(*a, defer=shared))(depth, points, source, K, origins, size))
-        return exact_test_groups(tuple(out), sizes, **windows) if shared else out
-
-    return [np.asarray(m) for m in jax.jit(every_group)(groups)]
+    out = []
+    for (depth, points, source, K, origins), (h, w) in zip(groups, sizes):
+        size = jnp.broadcast_to(jnp.asarray([h, w], jnp.int32), (depth.shape[0], 2))
+        out.append(jax.vmap(one)(depth, points, source, K, origins, size))
+    return exact_test_groups(tuple(out), sizes, **windows) if shared else out
 
 
-@pytest.mark.parametrize("test", ["footprint", "paper"])
+def _masks(groups, sizes, *, beams, shared, test="footprint"):
+    """:func:`_group_masks` in one jit (one compile, not one per primitive); under disable_jit: op by op."""
+    return [np.asarray(m) for m in jax.jit(lambda g: _group_masks(g, sizes, beams=beams, shared=shared,
+                                                                   test=test))(groups)]
+
+
 @pytest.mark.parametrize("sizes, beams", [(((96, 128), (128, 96)), 2),    # tall windows: words down the columns
                                           (((64, 72), (60, 80)), 8)])     # short windows: words along the rows
-def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams, test):
+def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams):
+    # both condition-1 tests, the one loop and each group's own, in one program (one compile, where four
+    # programs took 2.4 s of CPU each; one of them 7 s): the same masks as four jits (checked)
     rng = np.random.default_rng(7)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
-    want = _masks(groups, sizes, beams=beams, shared=False, test=test)
-    got = _masks(groups, sizes, beams=beams, shared=True, test=test)
-    for g, (a, b) in enumerate(zip(got, want)):
-        assert a.shape == b.shape
-        np.testing.assert_array_equal(a, b, err_msg=f"group {g}")
-    assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0   # some removed
+    every = jax.jit(lambda g: {(test, shared): _group_masks(g, sizes, beams=beams, shared=shared, test=test)
+                               for test in ("footprint", "paper") for shared in (False, True)})(groups)
+    for test in ("footprint", "paper"):
+        want, got = ([np.asarray(m) for m in every[test, shared]] for shared in (False, True))
+        for g, (a, b) in enumerate(zip(got, want)):
+            assert a.shape == b.shape
+            np.testing.assert_array_equal(a, b, err_msg=f"{test} group {g}")
+        assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0, test  # removed
 
 
 @pytest.mark.slow  # op by op (~12 s CPU); the quick equality tests above run the same loop jitted

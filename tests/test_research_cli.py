@@ -200,6 +200,7 @@ def nuscenes_rig(tmp_path_factory, nuscenes_sample):
     return path, rig
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker: the hidden-point program is test_rig's too
 @pytest.mark.slow  # real nuScenes sweep, six 225 x 400 cameras, five methods
 def test_hidden_eval_matches_hidden_point_scores(capsys, nuscenes_sample, nuscenes_rig, tmp_path):
     rig_path, rig = nuscenes_rig

@@ -53,6 +53,7 @@ def test_cameras_of_different_sizes_share_a_padded_canvas():
         assert np.all(depth[:cam.height, :cam.width] > 0)
 
 
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker: the hidden-point program is test_research_cli's too
 @pytest.mark.slow  # real nuScenes sweep, six 225 x 400 cameras: programs of their own
 def test_nuscenes_six_cameras_in_one_call(nuscenes_sample):
     from jaxdepth.io import nuscenes as nusc
