@@ -14,8 +14,8 @@ Two parts, one JSON:
   1 ms sleep (its threads' wake-up and spin over), a 1 ms sleep alone, a 5.6 ms NumPy memset (``fill``) on the
   calling thread; and ``--idle-cpu`` the process CPU burnt during a 2 ms sleep right after each predecessor
   (threads left spinning: OpenCV's pthreads pool, XLA's Eigen workers), measured apart from the frame.
-  ``--fill-mb 1 4 16 64``: instead, a frame, IP_Basic, a sleep and one NumPy fill of each size (how much of
-  the caches' refill the order costs). ``--cv2-threads N``: ``cv2.setNumThreads(N)`` for the whole probe process (a diagnosis of the cause, never
+  ``--fill-mb 1 4 16 64``: instead, a frame, IP_Basic, IP_Basic on a 64 x 256 crop (the same OpenCV calls,
+  little memory), a sleep and one NumPy fill of each size (how much of the caches' refill the order costs). ``--cv2-threads N``: ``cv2.setNumThreads(N)`` for the whole probe process (a diagnosis of the cause, never
   the bench's IP_Basic setting); OpenCV's own ``OPENCV_THREAD_POOL_*`` variables may be set on the command line.
 
     python -m benchmarks.studies.frame_order [--reanalyse FILE ...] [--rounds 300] [--cv2-threads N]
@@ -122,7 +122,9 @@ def predecessors(rounds: int, *, idle_cpu: bool = False, sizes: tuple = ()) -> d
               "ip_basic_then_sleep_1ms": lambda: (ip_basic_opencv(sparse, blur_type="gaussian"), time.sleep(0.001)),
               "sleep_1ms": lambda: time.sleep(0.001), "numpy_fill_5.6ms": lambda: busy_fill(0.0056)}
     if sizes:
-        before = {"frame": frame, "ip_basic": before["ip_basic"], "sleep_5.6ms": before["sleep_5.6ms"]}
+        small = np.ascontiguousarray(sparse[-64:, 512:768])
+        before = {"frame": frame, "ip_basic": before["ip_basic"], "sleep_5.6ms": before["sleep_5.6ms"],
+                  "ip_basic_64x256_crop": lambda: ip_basic_opencv(small, blur_type="gaussian")}
         for mb in sizes:
             before[f"numpy_fill_{mb}MB"] = lambda mb=mb: big[:mb << 18].fill(1.0)
 
