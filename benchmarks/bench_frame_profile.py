@@ -10,9 +10,12 @@ length of the union of their intervals (the wall while any of them runs; equal t
 kernels overlap), the kernel count and launches per frame, and the time split by the trace's threads (XLA's two Eigen workers,
 the PjRt client's). The profiler adds a cost to every kernel, so the sums exceed the unprofiled frame,
 most where kernels are many and small (loops); ``--rounds`` unprofiled calls give the frame's wall and
-process CPU beside them.
+process CPU beside them. ``--stage-rounds N`` (branch kitti12): the stages unprofiled, each jitted alone on the
+frame and called in shuffled order N rounds in one process beside the frame and IP_Basic (Step 1 ``pixel_normals``,
+Step 2 ``keep_mask_for_config``, Step 3 ``nearest_seed`` of Step 2's kept pixels; the tail is the frame
+minus the three): the loops' kernels are not inflated there, the profiler's per-kernel cost is.
 
-    python -m benchmarks.bench_frame_profile [--runs 20] [--rounds 40] [--top 25]
+    python -m benchmarks.bench_frame_profile [--runs 20] [--rounds 40] [--top 25] [--stage-rounds 0]
         [--json benchmarks/results/frame_profile.json]
 """
 
@@ -66,11 +69,44 @@ def _origins(hlo_text: str) -> dict:
     return out
 
 
+def _stage_split(d, k, t, sparse, rounds: int) -> dict:
+    """Medians (ms) of the frame, Steps 1-3 jitted alone and IP_Basic, in shuffled order each round; the tail
+    (Step 4: gathers, residual, bracket, blur) as the frame's medians minus the three steps'."""
+    import jax
+    import numpy as np
+
+    import jaxdepth
+    from benchmarks.bench_frame_against_checkout import _program
+    from jaxdepth._src import distance, outliers, presets
+    from jaxdepth.research.baselines import ip_basic_opencv
+    keep = jax.jit(lambda d, k, t: outliers.keep_mask_for_config(d, k, t, beams=presets.KITTI_HDL64.beams,
+                                                                 config=jaxdepth.SGMConfig()))(d, k, t)
+    seek = jax.jit(distance.nearest_seed)     # the pipeline's seeds are Step 2's kept pixels
+    calls = {"frame": _program("jaxdepth", "frame", d, k, t), "step 1 normals": _program("jaxdepth", "normals", d, k, t),
+             "step 2 outliers": _program("jaxdepth", "outliers", d, k, t),
+             "step 3 seed search": lambda: jax.block_until_ready(seek(keep)),
+             "ip_basic": lambda: ip_basic_opencv(sparse, blur_type="gaussian")}
+    for fn in calls.values():
+        for _ in range(3):
+            fn()
+    runs, rng = {n: [] for n in calls}, np.random.default_rng(0)
+    for _ in range(rounds):
+        for n in rng.permutation(list(calls)):
+            runs[n].append(wall_and_cpu_ms(calls[n]))
+    out = {n: {"wall_ms": statistics.median(w for w, _ in v), "cpu_ms": statistics.median(c for _, c in v)}
+           for n, v in runs.items()}
+    steps = ("step 1 normals", "step 2 outliers", "step 3 seed search")
+    out["step 4 tail (frame minus steps 1-3)"] = {m: out["frame"][m] - sum(out[s][m] for s in steps)
+                                                  for m in ("wall_ms", "cpu_ms")}
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--rounds", type=int, default=40)
     parser.add_argument("--top", type=int, default=25)
+    parser.add_argument("--stage-rounds", type=int, default=0, help="rounds of the unprofiled stage split (0: skip)")
     parser.add_argument("--json", default=str(RESULTS / "frame_profile.json"))
     args, t0 = parser.parse_args(argv), time.time()
     import jax
@@ -148,6 +184,10 @@ def main(argv=None) -> int:
         print(f"  {kn['ms_per_frame']:6.3f} ms {kn['calls_per_frame']:6.0f}x {kn['kernel'][:28]:28s} "
               f"{kn['stage'][:2]} {kn['op'][-70:]}")
     print("execute events:", doc["execute_events_ms_per_frame"], "load", doc["load_average"])
+    if args.stage_rounds:
+        doc["unprofiled_stages"] = _stage_split(d, k, t, sparse, args.stage_rounds)
+        print("unprofiled, one process, shuffled rounds (medians): " + ", ".join(
+            f"{n} CPU {v['cpu_ms']:.2f} / wall {v['wall_ms']:.2f} ms" for n, v in doc["unprofiled_stages"].items()))
     write_results(args.json, doc, None, t0)
     return 0
 

@@ -119,6 +119,9 @@ def test_helpers_reduce_to_the_plain_computation():
             # tuned: a gather from the flattened batch, no batching dimension (which XLA:CPU expands to pairs)
             jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.take_last))(values, at))
             assert ("operand_batching_dims=(0,)" in jaxpr) == (mode == "plain"), jaxpr
+            # tuned: the indices (all in bounds) are not wrapped, no compare with 0 before the gather
+            single = str(jax.make_jaxpr(xla_tuning.take_last)(values[1], at[2]))
+            assert (" lt " in jaxpr, " lt " in single) == ((mode == "plain"),) * 2, (jaxpr, single)
             buf, rows, i = rng.integers(-9, 9, (4, 6, 5)), rng.integers(-9, 9, (4, 5)), jnp.int32(4)
             for (b_axis, r_axis), wrap in itertools.product(((0, 0), (0, None), (None, 0)), (False, True)):
                 # row i replaced, member by member: NumPy's (wrap: the single-camera form's index wrap, the same rows)

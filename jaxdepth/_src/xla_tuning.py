@@ -34,7 +34,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   from the flattened batch (member ``b`` at ``b N + index``) computes its index inside the gather's
   fusion (the seed gathers of the rigs' tails, ``pipeline._at_seed_index``: with the seed search's one
   flat index image, the nuScenes tail 0.84-0.90x; docs/speed.md, "The seed search's one flat index and
-  the seed depth's read"). Plain: the batched gather.
+  the seed depth's read"). Its indices are not wrapped (all in bounds): JAX's negative-index wrap is a
+  compare, an add and a select per element inside the gathers' fusions (the KITTI frame 0.97x CPU without
+  it). Plain: the batched gather, wrapped.
 * **Scheduling dependence** (:func:`after`). A value made to depend on a result that is
   always the same but not provably so at compile time is scheduled after that result: the
   column bracket's inputs would otherwise be scheduled before the seed search, stay live
@@ -410,7 +412,7 @@ def shared_loop_bounds(first: jax.Array, stop: jax.Array):
 
 @custom_batching.custom_vmap
 def _take_last(values: jax.Array, index: jax.Array):
-    return values.at[..., index].get(mode=_PIB)
+    return values.at[..., index].get(mode=_PIB, wrap_negative_indices=False)
 
 
 @_take_last.def_vmap
@@ -423,10 +425,10 @@ def _take_last_vmap(axis_size, in_batched, values, index):
         values = jnp.broadcast_to(values, (axis_size,) + values.shape)
     rows, n = int(np.prod(values.shape[:-1])), values.shape[-1]      # batch x channels: one flat row each
     if rows * n > _INT32_MAX:                                         # past int32: the batched gather
-        return jax.vmap(lambda v, i: v.at[..., i].get(mode=_PIB))(values, index), True
+        return jax.vmap(lambda v, i: v.at[..., i].get(mode=_PIB, wrap_negative_indices=False))(values, index), True
     row = jnp.arange(rows, dtype=jnp.int32).reshape(values.shape[:-1] + (1,) * (index.ndim - 1)) * n
     at = row + index.reshape(index.shape[:1] + (1,) * (values.ndim - 2) + index.shape[1:]).astype(jnp.int32)
-    return values.reshape(-1).at[at].get(mode=_PIB), True
+    return values.reshape(-1).at[at].get(mode=_PIB, wrap_negative_indices=False), True
 
 
 def take_last(values: jax.Array, index: jax.Array) -> jax.Array:
@@ -435,8 +437,10 @@ def take_last(values: jax.Array, index: jax.Array) -> jax.Array:
     Under ``vmap`` with the tricks on, a batched index reads the batch with one flat 1-D gather (member
     ``b``'s row at ``b N + index[b]``, int32; fused into its consumer), where JAX's batching rule gives
     XLA a gather of (member, index) pairs, which XLA:CPU writes out first as an int32 (B, ..., 2) array
-    (the rig tail's seed gather: 152 MB per group of six 1550 x 2048 cameras). The same elements. Plain:
-    ``values[..., index]``.
+    (the rig tail's seed gather: 152 MB per group of six 1550 x 2048 cameras). With the tricks on, the index is
+    not wrapped (``wrap_negative_indices=False``: every index is in bounds, so no compare, add and select per
+    element in the gathers' fusions; the KITTI frame 0.97x CPU, docs/speed.md "One frame now"). The same
+    elements. Plain: ``values[..., index]``.
     """
     values, index = jnp.asarray(values), jnp.asarray(index)
     if not enabled():
