@@ -271,6 +271,36 @@ def fence(*arrays, token=None):
     return stage(lambda *a: a, arrays, token)
 
 
+def small_matmul(lhs: jax.Array, rhs: jax.Array) -> jax.Array:
+    """``jnp.matmul(lhs, rhs)`` of float32 ``(..., N, K) @ (..., K, M)`` with a small K (3-vectors by 3 x 3
+    matrices), as products and sums.
+
+    XLA:CPU hands such a dot to YNNPACK, which takes ~9 ms for (2, 65536, 3) @ (2, 3, 3) (0.1 ms
+    elementwise). Its result is each product rounded to float32, summed in order (k = 0, 1, ...),
+    no FMA: the products here are fenced (:func:`fence`), so XLA cannot fuse a multiply into the
+    add, and the sums run in that order: the dot's bits (``tests/test_xla_tuning.py``). Plain: the
+    dot itself.
+    """
+    if not enabled():
+        return jnp.matmul(lhs, rhs)
+    products = fence(*(lhs[..., :, k, None] * rhs[..., None, k, :] for k in range(lhs.shape[-1])))
+    return functools.reduce(jnp.add, products)
+
+
+def scatter_onto_fill(size: int, fill, slot: jax.Array, values: jax.Array) -> jax.Array:
+    """``jnp.full((size,), fill, values.dtype).at[slot].set(values, mode="drop")`` on a canvas of its own.
+
+    XLA merges equal fills (one constant broadcast) into one buffer, which each scatter into it then
+    copies before writing (the rigs' six float32 channels of a camera: one fill read by six copies);
+    inside its own conditional (:func:`stage`, token ``slot[0]``) each fill has the scatter as its only
+    reader and is written where the scatter writes. Plain: the scatter.
+    """
+    def run(slot, values):
+        return jnp.full((size,), fill, values.dtype).at[slot].set(values, mode="drop")
+
+    return stage(run, (slot, values), slot[0]) if enabled() else run(slot, values)
+
+
 def cond_all(pred, true_fn, false_fn, *operands):
     """``lax.cond(pred, true_fn, false_fn, *operands)`` that stays a conditional under ``vmap``.
 
