@@ -52,7 +52,8 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     Each camera's candidates fill ``ceil(count / CHUNK)`` chunks of slots, listed camera after camera; a loop
     step tests C of them at once (C cameras: one lane each, ``vmap``), each lane with its chunk's camera's
     parameters: the loop runs ``ceil(all chunks / C)`` steps (the lanes in lockstep, to the largest window walk
-    among them), not each group's largest chunk count.
+    among them), not each group's largest chunk count. The loop carries each group's own keep buffer (its
+    ``valid``): a lane's removals go to its camera's group, so no mask is concatenated and sliced back.
     """
     counts = [p.depth.shape[0] for p in parts]
     n_cam, pixels = sum(counts), tuple(h * w for h, w in sizes)
