@@ -38,6 +38,20 @@ def test_scatter_argmin_equals_brute_force_with_lowest_index_on_ties(dtype):
     np.testing.assert_array_equal(np.asarray(eager_idx), np.asarray(idx))
 
 
+def test_scatter_winners_are_the_brute_force_winners_with_lowest_index_on_ties():
+    """``scatter_winners`` (one int32 canvas) gives each entry its slot exactly where the NumPy argmin (smallest
+    key, then smallest index) picks it: ties, infinite keys, the dump slot; jit == eager."""
+    rng = np.random.default_rng(5)
+    n, size = 700, 45
+    slot = rng.integers(0, size + 1, n).astype(np.int32)   # size = the dump slot
+    key = rng.choice(np.float32([0.25, 1.0, np.nextafter(np.float32(1.0), np.float32(2.0)), 3.0, np.inf]), n)
+    _, want_idx = _brute_argmin(slot, key.astype(np.float64), size)
+    want = np.where((slot < size) & (want_idx[np.minimum(slot, size - 1)] == np.arange(n)), slot, size)
+    f = lambda s, k: geometry.scatter_winners(s, k, size)
+    np.testing.assert_array_equal(np.asarray(jax.jit(f)(jnp.asarray(slot), jnp.asarray(key))), want)
+    np.testing.assert_array_equal(np.asarray(f(jnp.asarray(slot), jnp.asarray(key))), want)
+
+
 def test_zbuffer_winners_write_the_brute_force_zbuffer_with_lowest_index_on_ties():
     """``winners_image`` of ``zbuffer_winners`` (the rigs' projection, point by point) == a NumPy z-buffer
     (nearest, then lowest index; points at equal depth on one pixel: ties), == ``zbuffer_image``'s depth and

@@ -142,6 +142,30 @@ def test_helpers_reduce_to_the_plain_computation():
             assert ("scatter" in jaxpr) == (mode == "plain"), jaxpr
 
 
+def test_small_matmul_is_the_dots_bits_and_scatter_onto_fill_the_scatter():
+    """``small_matmul`` == ``jnp.matmul`` bit for bit at this process's flags in both modes (3-vectors of
+    mixed scales, one and two groups, vmapped as the sources' frames use it); ``scatter_onto_fill`` ==
+    the fill-then-scatter it replaces (dropped slots past the canvas), vmapped too."""
+    import jax
+    import jax.numpy as jnp
+    rng = np.random.default_rng(11)
+    for g, p in ((1, 300), (2, 4099)):
+        lhs = (rng.standard_normal((g, p, 3)) * rng.choice([1e-3, 1.0, 40.0], (g, p, 1))).astype(np.float32)
+        rhs = rng.standard_normal((g, 3, 3)).astype(np.float32)
+        want = np.asarray(jax.jit(jnp.matmul)(lhs, rhs))
+        slot = rng.integers(0, 60, p).astype(np.int32)        # 50.. past a 50-slot canvas: dropped
+        vals = rng.standard_normal((g, p)).astype(np.float32)
+        want_img = jax.jit(jax.vmap(lambda v: jnp.full((50,), -2.0).at[slot].set(v, mode="drop")))(vals)
+        for mode in ("cpu", "plain"):
+            with xla_tuning.forced(mode):
+                got = jax.jit(xla_tuning.small_matmul)(lhs, rhs)
+                np.testing.assert_array_equal(np.asarray(got).view(np.int32), want.view(np.int32))
+                got = jax.jit(jax.vmap(xla_tuning.small_matmul))(lhs, rhs)
+                np.testing.assert_array_equal(np.asarray(got).view(np.int32), want.view(np.int32))
+                img = jax.jit(jax.vmap(lambda v: xla_tuning.scatter_onto_fill(50, -2.0, slot, v)))(vals)
+                np.testing.assert_array_equal(img, want_img)
+
+
 def test_stage_token_is_the_first_values_bits_and_the_only_one_written():
     """stage_token: the int32 bits of the first value as float32 (NumPy's view; NaN, infinities, -0.0,
     subnormals and other dtypes too), jit == eager, vmap == loop, a fence token in both modes; and no module

@@ -24,6 +24,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from jaxdepth._src.xla_tuning import scatter_onto_fill, small_matmul
+
 #: int32 mask that clears the low 12 of a float32's 23 stored significand bits.
 _HIGH_HALF = -4096   # 0xFFFFF000
 
@@ -54,6 +56,29 @@ def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill, full: bo
     ids = jnp.arange(n, dtype=jnp.int32)
     idx = jnp.full((size + 1,), n, jnp.int32).at[jnp.where(win, slot, size)].min(ids, mode="promise_in_bounds")
     return (best, idx) if full else (best[:size], idx[:size])
+
+
+def scatter_winners(slot: jax.Array, key: jax.Array, size: int) -> jax.Array:
+    """Each entry's slot where it wins :func:`scatter_argmin` (smallest key, then smallest index), else ``size``.
+
+    Args: ``slot`` (N,) int32 in ``[0, size]`` (``size``: the dump slot, no winner there); ``key`` (N,)
+    float32, > 0 (or ``inf``) wherever ``slot < size``.
+
+    One int32 canvas of ``size + 1`` where :func:`scatter_argmin` fills two: the minima of the keys' bits
+    (a float32 > 0 orders as its bits do), and then, in place, the minimum of ``index + INT32_MIN`` over
+    the entries that hold a slot's minimum. That tag is negative, below the bits of any key, so it
+    replaces the key at every slot with a winner, and an entry won its slot when the slot holds its own
+    tag: the same winners.
+    """
+    n = slot.shape[0]
+    bits = lax.bitcast_convert_type(jnp.asarray(key, jnp.float32), jnp.int32)
+    best = jnp.full((size + 1,), lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32), jnp.int32)
+    best = best.at[slot].min(bits, mode="promise_in_bounds")
+    win = bits == best.at[slot].get(mode="promise_in_bounds")
+    tag = jnp.arange(n, dtype=jnp.int32) + jnp.int32(jnp.iinfo(jnp.int32).min)
+    owner = best.at[jnp.where(win, slot, size)].min(tag, mode="promise_in_bounds")
+    won = owner.at[slot].get(mode="promise_in_bounds") == tag
+    return jnp.where(won & (slot < size), slot, size)
 
 
 def split_halves(x: jax.Array):
@@ -116,10 +141,11 @@ def transform_points(T: jax.Array, points: jax.Array) -> jax.Array:
     """Applies a (4, 4) rigid transform to (N, 3) points; returns (N, 3).
 
     A plain float32 product (its rounding may differ between a vmapped and an unbatched call);
-    the projection uses :func:`camera_points`.
+    the projection uses :func:`camera_points`. The product as ``xla_tuning.small_matmul`` (the dot's bits,
+    without XLA:CPU's slow small-K dot).
     """
     T = jnp.asarray(T, jnp.float32)
-    return points @ T[:3, :3].T + T[:3, 3]
+    return small_matmul(points, T[:3, :3].T) + T[:3, 3]
 
 
 def invert_rigid(T: jax.Array) -> jax.Array:
@@ -178,24 +204,24 @@ def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, he
     ``group_size``: optional traced (2,) int32 (h, w), the image's own size, its pixels the first h w of
     the H W flat slots (row stride w): slots ``v w + u`` (``H W`` for none), the bounds h and w, the same
     winners as ``height=h, width=w`` (cameras of several sizes in one ``vmap``; ``H W`` >= h w).
+    The winners come from :func:`scatter_winners` (one (H W + 1,) canvas, not :func:`scatter_argmin`'s two).
     """
+    if not min_depth_m >= 0:    # scatter_winners: every key of a real slot > 0
+        raise ValueError(f"zbuffer_winners: field 'min_depth_m' expected >= 0, got {min_depth_m!r}")
     u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
-    flat, _, idx = _pixel_argmin(u, v, z, ok & valid.astype(bool), height=height, width=width, valid_size=valid_size,
-                                 group_size=group_size)
-    n = flat.shape[0]
-    won = idx.at[flat].get(mode="fill", fill_value=-1) == jnp.arange(n, dtype=jnp.int32)
-    return jnp.where(won, flat, height * width), z
+    inside = ok & valid.astype(bool)
+    flat, inside = _pixel_slots(u, v, inside, height=height, width=width, valid_size=valid_size, group_size=group_size)
+    return scatter_winners(flat, jnp.where(inside, z, jnp.inf), height * width), z
 
 
 def winners_image(slot: jax.Array, values: jax.Array, fill, *, height: int, width: int) -> jax.Array:
     """(H, W) image of per-point ``values`` (N,) written at the pixels they won (``slot`` from
     :func:`zbuffer_winners`; slots past the image dropped), ``fill`` (of ``values``' dtype) elsewhere."""
-    image = jnp.full((height * width,), fill, values.dtype)
-    return image.at[slot].set(values, mode="drop").reshape(height, width)
+    return scatter_onto_fill(height * width, fill, slot, values).reshape(height, width)
 
 
-def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None, group_size=None):
-    """:func:`pixel_zbuffer`'s flat (N,) slots (``H W`` = no pixel) and flat (H W,) :func:`scatter_argmin`
+def _pixel_slots(u, v, ok, *, height: int, width: int, valid_size=None, group_size=None):
+    """``(flat, inside)``: each point's flat (N,) slot (``H W`` = no pixel) and whether it has one
     (``group_size``: as :func:`zbuffer_winners`)."""
     ui = jnp.round(u)
     vi = jnp.round(v)
@@ -205,8 +231,14 @@ def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None, grou
         valid_size = jnp.asarray(valid_size)
         inside = inside & (vi <= valid_size[0] - 1) & (ui <= valid_size[1] - 1)
     dump = height * width
-    flat = jnp.where(inside, vi.astype(jnp.int32) * w + ui.astype(jnp.int32), dump)
-    zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), dump, fill=jnp.inf)
+    return jnp.where(inside, vi.astype(jnp.int32) * w + ui.astype(jnp.int32), dump), inside
+
+
+def _pixel_argmin(u, v, z, ok, *, height: int, width: int, valid_size=None, group_size=None):
+    """:func:`pixel_zbuffer`'s flat (N,) slots (``H W`` = no pixel) and flat (H W,) :func:`scatter_argmin`
+    (``group_size``: as :func:`zbuffer_winners`)."""
+    flat, inside = _pixel_slots(u, v, ok, height=height, width=width, valid_size=valid_size, group_size=group_size)
+    zbuf, idx = scatter_argmin(flat, jnp.where(inside, z, jnp.inf), height * width, fill=jnp.inf)
     return flat, zbuf, idx
 
 

@@ -52,12 +52,13 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     Each camera's candidates fill ``ceil(count / CHUNK)`` chunks of slots, listed camera after camera; a loop
     step tests C of them at once (C cameras: one lane each, ``vmap``), each lane with its chunk's camera's
     parameters: the loop runs ``ceil(all chunks / C)`` steps (the lanes in lockstep, to the largest window walk
-    among them), not each group's largest chunk count.
+    among them), not each group's largest chunk count. The loop carries each group's own keep buffer (its
+    ``valid``): a lane's removals go to its camera's group, so no mask is concatenated and sliced back.
     """
     counts = [p.depth.shape[0] for p in parts]
     n_cam, pixels = sum(counts), tuple(h * w for h, w in sizes)
     longest = lambda f: max(int(np.prod(f(p).shape[1:])) for p in parts)
-    n_pix, n_words, n_columns = max(pixels), longest(lambda p: p.words), longest(lambda p: p.columns)
+    n_words, n_columns = longest(lambda p: p.words), longest(lambda p: p.columns)
     cat = lambda f: jnp.concatenate([f(p) for p in parts])
     per_camera = lambda values: jnp.asarray(np.repeat(np.asarray(values, np.int32), counts, axis=0))
     size, row_words = per_camera(sizes), per_camera([p.words.shape[-1] for p in parts])
@@ -89,22 +90,22 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
                        count[cam], None, hh=hh, hw=hw, test=test, nearer=nearer, source=source, shape=(h, w),
                        grouped=Grouped(group[cam], member[cam], pixels, cam * n_columns))
         removed = candidates_removed(ex, row, col, row * w + col)
-        return removed, jnp.where((slot < count[cam]) & (j < chunk_end[-1]), cam * n_pix + row * w + col,
-                                  n_cam * n_pix)
+        at = jnp.where((slot < count[cam]) & (j < chunk_end[-1]), row * w + col, -1)   # -1: no candidate
+        return removed, at, group[cam], member[cam]
 
-    def step(i, keep):
+    def step(i, keeps):     # each group's own keep buffer: no copy of the masks into one and out again
         j = i * n_cam + jnp.arange(n_cam, dtype=jnp.int32)
         cam = jnp.minimum(jnp.sum(chunk_end[None, :] <= j[:, None], axis=1), n_cam - 1)
-        removed, at = jax.vmap(lane)(j, cam)
-        return keep.at[at.reshape(-1)].set(~removed.reshape(-1), mode="drop")
+        removed, at, g, m = jax.vmap(lane)(j, cam)
+        out = []
+        for k, keep in enumerate(keeps):    # another group's slots (and none) past the buffer: dropped
+            mine = (g[:, None] == k) & (at >= 0)
+            flat = jnp.where(mine, m[:, None] * pixels[k] + at, keep.shape[0])
+            out.append(keep.at[flat.reshape(-1)].set(~removed.reshape(-1), mode="drop"))
+        return tuple(out)
 
-    keep = jax.lax.fori_loop(0, (chunk_end[-1] + n_cam - 1) // n_cam, step, cat(lambda p: _flat(p.valid, n_pix)).reshape(-1))
-    keep = keep.reshape(n_cam, n_pix)
-    out, first = [], 0
-    for n, (h, w) in zip(counts, sizes):
-        out.append(keep[first:first + n, :h * w].reshape(n, h, w))
-        first += n
-    return tuple(out)
+    keeps = jax.lax.fori_loop(0, (chunk_end[-1] + n_cam - 1) // n_cam, step, tuple(p.valid.reshape(-1) for p in parts))
+    return tuple(keep.reshape(n, h, w) for keep, n, (h, w) in zip(keeps, counts, sizes))
 
 
 def shared_windows(sizes: tuple, *, beams: int, config) -> dict | None:

@@ -56,7 +56,7 @@ from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
                               keep_by_size, map_by_size_shared)
 from jaxdepth._src.types import LidarSpec, Stages
-from jaxdepth._src.xla_tuning import entry_jit
+from jaxdepth._src.xla_tuning import entry_jit, small_matmul
 
 # The multi-source constants are SGMConfig fields (recorded in run records, settable from the CLI);
 # these names keep their defaults for the functions that take them one by one.
@@ -174,7 +174,7 @@ def source_normals(sources: Sources, *, smoothing: int = DEFAULT_CONFIG.normal_s
             n = jax.vmap(normals)(local, sources.valid[idx])
         else:
             n = jax.vmap(lambda p, v, r: normals(p, v, rows=r))(local, sources.valid[idx], sources.rows[idx])
-        out = out.at[idx].set(jnp.einsum("gij,gpj->gpi", T[:, :3, :3], n))
+        out = out.at[idx].set(small_matmul(n, jnp.swapaxes(T[:, :3, :3], 1, 2)))     # each n @ R.T
     return out
 
 

@@ -73,6 +73,12 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   image-sized (the capped plane's top scan line and point count; with its window rows fenced, the Argoverse 2
   tail under ``capped`` 0.70x main's CPU, docs/speed.md "The capped plane on the Argoverse 2 job"). Plain: a
   min and a sum.
+* **Small dots as products and sums** (:func:`small_matmul`). XLA:CPU hands a 3-vector by 3 x 3 dot to
+  YNNPACK, ~9 ms for the Argoverse 2 sweep's (2, 65536, 3) rotations against 0.1 ms elementwise; the fenced
+  products summed in order are its bits (docs/speed.md, "The rig's projection: small dots"). Plain: the dot.
+* **Fills of their own** (:func:`scatter_onto_fill`). XLA merges equal fills into one buffer and copies it
+  for each scatter into it (the rigs' six channels a camera); each fill in its own conditional is written
+  once, where its scatter writes. Plain: the fill and the scatter.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -273,6 +279,36 @@ def fence(*arrays, token=None):
             first = jnp.real(first)
         token = first.astype(jnp.int32)  # any int32 value will do
     return stage(lambda *a: a, arrays, token)
+
+
+def small_matmul(lhs: jax.Array, rhs: jax.Array) -> jax.Array:
+    """``jnp.matmul(lhs, rhs)`` of float32 ``(..., N, K) @ (..., K, M)`` with a small K (3-vectors by 3 x 3
+    matrices), as products and sums.
+
+    XLA:CPU hands such a dot to YNNPACK, which takes ~9 ms for (2, 65536, 3) @ (2, 3, 3) (0.1 ms
+    elementwise). Its result is each product rounded to float32, summed in order (k = 0, 1, ...),
+    no FMA: the products here are fenced (:func:`fence`), so XLA cannot fuse a multiply into the
+    add, and the sums run in that order: the dot's bits (``tests/test_xla_tuning.py``). Plain: the
+    dot itself.
+    """
+    if not enabled():
+        return jnp.matmul(lhs, rhs)
+    products = fence(*(lhs[..., :, k, None] * rhs[..., None, k, :] for k in range(lhs.shape[-1])))
+    return functools.reduce(jnp.add, products)
+
+
+def scatter_onto_fill(size: int, fill, slot: jax.Array, values: jax.Array) -> jax.Array:
+    """``jnp.full((size,), fill, values.dtype).at[slot].set(values, mode="drop")`` on a canvas of its own.
+
+    XLA merges equal fills (one constant broadcast) into one buffer, which each scatter into it then
+    copies before writing (the rigs' six float32 channels of a camera: one fill read by six copies);
+    inside its own conditional (:func:`stage`, token ``slot[0]``) each fill has the scatter as its only
+    reader and is written where the scatter writes. Plain: the scatter.
+    """
+    def run(slot, values):
+        return jnp.full((size,), fill, values.dtype).at[slot].set(values, mode="drop")
+
+    return stage(run, (slot, values), slot[0]) if enabled() else run(slot, values)
 
 
 def cond_all(pred, true_fn, false_fn, *operands):
