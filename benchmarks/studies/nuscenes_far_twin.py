@@ -4,12 +4,17 @@
         [--layouts street open] [--twin-seeds 0 1] [--seeds 0 1 2 3 4] [--scale 1] [--skip-real] \
         [--json benchmarks/results/nuscenes_far_twin_nusc11.json]
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --tables benchmarks/results/nuscenes_far_twin_nusc11.json
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --layouts cluttered --skip-real \
+        --json benchmarks/results/nuscenes_far_twin_nusc12.json      # nusc12: near clutter, denser far vegetation
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --tables benchmarks/results/nuscenes_far_twin_nusc11.json \
+        benchmarks/results/nuscenes_far_twin_nusc12.json
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --other-twins kitti raster rosette --scale 0.25 \
         --json benchmarks/results/nuscenes_far_twin_others_nusc11.json
 
 1. **Scene statistics** (:func:`jaxdepth.research.twin_measure.scene_statistics`) of the real nuScenes
    sample and of the nuScenes twin in each scene layout (``make_twin(layout=)``; ``"street"`` the
-   default canyon, ``"open"`` the right side open as the real sample's): per camera the depth histogram
+   default canyon, ``"open"`` the right side open as the real sample's, ``"cluttered"`` (nusc12) the open
+   one with the real sample's near clutter and denser far vegetation): per camera the depth histogram
    of the LiDAR points and their share beyond 20 / 40 m, depth edges per scan line by the far side's
    range; and per hold-out draw (``hidden-eval``'s protocol, 20 % of the points at >= 1 m) the share of
    the targets covered (a nearer point within the 9 x 9 window) and the **far edge targets**:
@@ -291,12 +296,18 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_far_twin_nusc11.json"))
     parser.add_argument("--other-twins", nargs="+", default=[], metavar="RIG",
                         help="only the rules on these twins (1 sweep, whole input, exact depth), --twin-seeds, --scale")
-    parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
+    parser.add_argument("--tables", nargs="+", metavar="JSON",
+                        help="print the docs' tables of result files (their twins side by side, the first real "
+                             "sample) and exit")
     args = parser.parse_args(argv)
     if args.tables:
         import json
-        with open(args.tables) as f:
-            print(tables(json.load(f)))
+        docs = []
+        for path in args.tables:
+            with open(path) as f:
+                docs.append(json.load(f))
+        real = next((d["real_sample"] for d in docs if "real_sample" in d), None)
+        print(tables({"twins": [c for d in docs for c in d.get("twins", [])], **({"real_sample": real} if real else {})}))
         return 0
     config = SGMConfig()
     t0 = time.time()

@@ -26,7 +26,7 @@ near clutter and denser far vegetation (``benchmarks.studies.nuscenes_far_twin``
 the ego :data:`NEAR_BARRIERS` barriers, :data:`NEAR_BOLLARDS` bollards, :data:`NEAR_PEOPLE` people
 standing, :data:`NEAR_BLOCKS` irregular low blocks (planters, bins; random size and yaw) and
 :data:`NEAR_BUSHES` bushes (spheres), and :data:`FAR_SHRUBS` shrubs (spheres) on the open right side
-20-45 m out.
+20-70 m out.
 
 Every seed gives the same primitive counts (one compilation per rig); the same seed gives the
 same bytes.
