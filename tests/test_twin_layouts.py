@@ -114,12 +114,16 @@ def test_open_layout_has_fixed_shapes_and_its_points_on_its_surfaces(open_exact)
     shapes = {(twin_scene(s, 0, layout="open").boxes.shape, twin_scene(s, 0, layout="open").cylinders.shape,
                twin_spheres(s, "open").shape) for s in range(3)}
     assert len(shapes) == 1
-    rng = np.random.default_rng(0)
-    pick = rng.choice(len(open_exact.cloud.points), size=3000, replace=False)
-    p = _to_world(open_exact, open_exact.cloud.points[pick])
+    _assert_on_surfaces(open_exact, "open", 0)
+
+
+def _assert_on_surfaces(tw, layout, draw):
+    """3000 of the seed-1 twin's exact points lie on the layout's surfaces (NumPy distance oracle)."""
+    pick = np.random.default_rng(draw).choice(len(tw.cloud.points), size=3000, replace=False)
+    p = _to_world(tw, tw.cloud.points[pick])
     dt = RIG_BUILDERS["nuscenes"](NO_EFFECTS).dt_s
-    dist, inside = _surface_distance(p, twin_scene(1, 0, dt_s=dt, layout="open"), twin_spheres(1, "open"))
-    tol = 1e-4 + 2e-6 * np.linalg.norm(open_exact.cloud.points[pick], axis=1)
+    dist, inside = _surface_distance(p, twin_scene(1, 0, dt_s=dt, layout=layout), twin_spheres(1, layout))
+    tol = 1e-4 + 2e-6 * np.linalg.norm(tw.cloud.points[pick], axis=1)
     assert np.all(dist <= tol) and np.all(inside <= tol)
 
 
@@ -161,13 +165,7 @@ def test_cluttered_layout_is_the_open_one_plus_its_clutter():
 
 
 def test_cluttered_layout_points_on_its_surfaces(cluttered_exact):
-    rng = np.random.default_rng(1)
-    pick = rng.choice(len(cluttered_exact.cloud.points), size=3000, replace=False)
-    p = _to_world(cluttered_exact, cluttered_exact.cloud.points[pick])
-    dt = RIG_BUILDERS["nuscenes"](NO_EFFECTS).dt_s
-    dist, inside = _surface_distance(p, twin_scene(1, 0, dt_s=dt, layout="cluttered"), twin_spheres(1, "cluttered"))
-    tol = 1e-4 + 2e-6 * np.linalg.norm(cluttered_exact.cloud.points[pick], axis=1)
-    assert np.all(dist <= tol) and np.all(inside <= tol)
+    _assert_on_surfaces(cluttered_exact, "cluttered", 1)
 
 
 def test_cluttered_layout_near_edges_by_a_plain_count(cluttered_exact, open_exact):
