@@ -27,7 +27,8 @@
    pixel, at the held-out pixels and under both protocols (all targets, `uncovered`); the baselines
    fill the prepared frame's points (as ``benchmarks.accuracy_twins``). At the far edge targets the
    MAE difference SGM minus city-block fill against the targets and against the exact depth (the
-   same weights as ``nuscenes_uncovered_gap``: each target 1 / (images x its image's targets)).
+   same weights as ``nuscenes_uncovered_gap``: each target 1 / (images x its image's targets)); the
+   difference elsewhere also split by target depth (:data:`REST_BANDS_M`, nusc12).
 3. **Far-edge rules, checked** (:data:`RULES`, study patches, not library options): the SGM's depth
    except at the far edge pixels (:func:`far_pixels`: the SGM and the city-block fill more than
    max(1 m, 5 %) apart and the farther of them >= 20 m, chosen without the truth), where the rule takes
@@ -58,11 +59,22 @@ METHODS = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic", "sgm_fa
 RULES = ("sgm_far_fill", "sgm_far_raw", "sgm_far_near", "sgm_far_far")
 PROTOCOLS = ("exact_dense", "exact_held_out", "hidden_all", "hidden_uncovered")
 FAR_M = 20.0
+#: Target depth bands (m) of the "elsewhere" difference's split (nusc12).
+REST_BANDS_M = (0.0, 10.0, 20.0, np.inf)
 
 
 def _off(a, b):
     """|a - b| > max(1 m, 5 % of b) (another surface)."""
     return np.abs(a - b) > np.maximum(1.0, 0.05 * b)
+
+
+def rest_by_range(diff: np.ndarray, w: np.ndarray, far: np.ndarray, z: np.ndarray) -> dict:
+    """The weighted sum (mm) of ``diff`` away from the far edges per :data:`REST_BANDS_M` band of target depth."""
+    out = {}
+    for lo, hi in zip(REST_BANDS_M, REST_BANDS_M[1:]):
+        sel = ~far & (z >= lo) & (z < hi)
+        out[f"{lo:g}-{hi:g}"] = float(1000 * np.sum((diff * w)[sel]))
+    return out
 
 
 def far_pixels(sgm: np.ndarray, fill: np.ndarray) -> np.ndarray:
@@ -127,7 +139,8 @@ def far_edges(preds: dict, target: list, covered: list, exact: list) -> dict:
         diff = np.abs(p["sgm"] - p[truth]) - np.abs(p["nearest"] - p[truth])
         name = "targets" if truth == "z" else "exact"
         out[f"against_{name}"] = {"sgm_minus_fill_far_mm": float(1000 * np.sum((diff * w)[far])),
-                                  "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far]))}
+                                  "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far])),
+                                  "sgm_minus_fill_rest_by_range_mm": rest_by_range(diff, w, far, p["z"])}
         for k in RULES:
             rule = np.abs(p[k] - p[truth]) - np.abs(p["sgm"] - p[truth])
             out[f"against_{name}"][f"{k}_minus_sgm_mm"] = float(1000 * np.sum(rule * w))
@@ -221,7 +234,8 @@ def real_sample(draws, config: SGMConfig) -> dict:
                 "uncovered_rmse_mae_mm": {"sgm": rm(p["sgm"]), "nearest": rm(p["nearest"]),
                                           **{k: rm(v) for k, v in checked.items()}},
                 "sgm_minus_fill_far_mm": float(1000 * np.sum((diff * w)[far])),
-                "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far]))})
+                "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far])),
+                "sgm_minus_fill_rest_by_range_mm": rest_by_range(diff, w, far, p["z"])})
     return row
 
 
