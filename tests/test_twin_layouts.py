@@ -11,7 +11,17 @@ import pytest
 
 from jaxdepth.research.twin_measure import SCENE_EDGE_BINS_M, scene_statistics
 from jaxdepth.research.twin_rigs import RIG_BUILDERS
-from jaxdepth.research.twin_scene import LAYOUTS, twin_scene, twin_spheres
+from jaxdepth.research.twin_scene import (
+    FAR_SHRUBS,
+    LAYOUTS,
+    NEAR_BARRIERS,
+    NEAR_BLOCKS,
+    NEAR_BOLLARDS,
+    NEAR_BUSHES,
+    NEAR_PEOPLE,
+    twin_scene,
+    twin_spheres,
+)
 from jaxdepth.research.twin_sensors import NO_EFFECTS
 from jaxdepth.research.twins import make_twin
 from tests.test_twins import _surface_distance, _to_world
@@ -104,12 +114,16 @@ def test_open_layout_has_fixed_shapes_and_its_points_on_its_surfaces(open_exact)
     shapes = {(twin_scene(s, 0, layout="open").boxes.shape, twin_scene(s, 0, layout="open").cylinders.shape,
                twin_spheres(s, "open").shape) for s in range(3)}
     assert len(shapes) == 1
-    rng = np.random.default_rng(0)
-    pick = rng.choice(len(open_exact.cloud.points), size=3000, replace=False)
-    p = _to_world(open_exact, open_exact.cloud.points[pick])
+    _assert_on_surfaces(open_exact, "open", 0)
+
+
+def _assert_on_surfaces(tw, layout, draw):
+    """3000 of the seed-1 twin's exact points lie on the layout's surfaces (NumPy distance oracle)."""
+    pick = np.random.default_rng(draw).choice(len(tw.cloud.points), size=3000, replace=False)
+    p = _to_world(tw, tw.cloud.points[pick])
     dt = RIG_BUILDERS["nuscenes"](NO_EFFECTS).dt_s
-    dist, inside = _surface_distance(p, twin_scene(1, 0, dt_s=dt, layout="open"), twin_spheres(1, "open"))
-    tol = 1e-4 + 2e-6 * np.linalg.norm(open_exact.cloud.points[pick], axis=1)
+    dist, inside = _surface_distance(p, twin_scene(1, 0, dt_s=dt, layout=layout), twin_spheres(1, layout))
+    tol = 1e-4 + 2e-6 * np.linalg.norm(tw.cloud.points[pick], axis=1)
     assert np.all(dist <= tol) and np.all(inside <= tol)
 
 
@@ -123,3 +137,48 @@ def test_open_layout_sees_far_on_the_right(open_exact):
         assert far / seen > 0.25 > 0.1 > far_street / seen_street
         st = scene_statistics(open_exact.cloud.points, open_exact.cloud.ring, [cam])
         assert st["cameras"][name]["share_ge_20m"] == pytest.approx(far / seen)
+
+
+@pytest.fixture(scope="module")
+def cluttered_exact():
+    return make_twin("nuscenes", sweeps=1, seed=1, scale=SCALE, effects=False, layout="cluttered")
+
+
+def test_cluttered_layout_is_the_open_one_plus_its_clutter():
+    """Every seed: the same shapes; the open layout's primitives first and unchanged, then the added ones,
+    the near clutter within 10 m of the ego (footprint centres) and the far shrubs 20-70 m to the right."""
+    shapes = set()
+    for s in range(3):
+        op, cl = twin_scene(s, 0, layout="open"), twin_scene(s, 0, layout="cluttered")
+        so, sc = twin_spheres(s, "open"), twin_spheres(s, "cluttered")
+        shapes.add((cl.boxes.shape, cl.cylinders.shape, sc.shape))
+        np.testing.assert_array_equal(cl.boxes[:len(op.boxes)], op.boxes)
+        np.testing.assert_array_equal(cl.cylinders[:len(op.cylinders)], op.cylinders)
+        np.testing.assert_array_equal(sc[:len(so)], so)
+        near = np.concatenate([cl.boxes[len(op.boxes):, :2], cl.cylinders[len(op.cylinders):, :2],
+                               sc[len(so):len(so) + NEAR_BUSHES, :2]])
+        assert np.all(np.hypot(near[:, 0], near[:, 1]) < 10.0)
+        assert len(near) == NEAR_BARRIERS + NEAR_BLOCKS + NEAR_BOLLARDS + 2 * NEAR_PEOPLE + NEAR_BUSHES
+        far = sc[len(so) + NEAR_BUSHES:]
+        assert len(far) == FAR_SHRUBS and np.all((far[:, 1] <= -20.0) & (far[:, 1] >= -70.0))
+    assert len(shapes) == 1
+
+
+def test_cluttered_layout_points_on_its_surfaces(cluttered_exact):
+    _assert_on_surfaces(cluttered_exact, "cluttered", 1)
+
+
+def test_cluttered_layout_near_edges_by_a_plain_count(cluttered_exact, open_exact):
+    """Its statistics equal a plain per-ring count, and the near clutter adds depth edges within 10 m
+    (the real sample: 2.7 per scan line; the open layout 0.2-0.5)."""
+    lo, hi = 8, 14           # rings 8-13 of 32 (those that reach the ground within 10 m): a small scene
+    out = {}
+    for name, tw in (("open", open_exact), ("cluttered", cluttered_exact)):
+        sel = (tw.cloud.ring >= lo) & (tw.cloud.ring < hi)
+        pts, ring = tw.cloud.points[sel], tw.cloud.ring[sel]
+        st = scene_statistics(pts, ring, tw.rig.cameras[:1])
+        per_line, lines = _ring_edges(pts, ring)
+        assert st["edges"]["lines"] == lines
+        np.testing.assert_allclose(list(st["edges"]["per_line"].values()), per_line)
+        out[name] = per_line[0]
+    assert out["cluttered"] > out["open"] + 1.0

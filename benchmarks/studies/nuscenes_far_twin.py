@@ -4,12 +4,17 @@
         [--layouts street open] [--twin-seeds 0 1] [--seeds 0 1 2 3 4] [--scale 1] [--skip-real] \
         [--json benchmarks/results/nuscenes_far_twin_nusc11.json]
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --tables benchmarks/results/nuscenes_far_twin_nusc11.json
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --layouts cluttered --skip-real \
+        --json benchmarks/results/nuscenes_far_twin_nusc12.json      # nusc12: near clutter, denser far vegetation
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --tables benchmarks/results/nuscenes_far_twin_nusc11.json \
+        benchmarks/results/nuscenes_far_twin_nusc12.json
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --other-twins kitti raster rosette --scale 0.25 \
         --json benchmarks/results/nuscenes_far_twin_others_nusc11.json
 
 1. **Scene statistics** (:func:`jaxdepth.research.twin_measure.scene_statistics`) of the real nuScenes
    sample and of the nuScenes twin in each scene layout (``make_twin(layout=)``; ``"street"`` the
-   default canyon, ``"open"`` the right side open as the real sample's): per camera the depth histogram
+   default canyon, ``"open"`` the right side open as the real sample's, ``"cluttered"`` (nusc12) the open
+   one with the real sample's near clutter and denser far vegetation): per camera the depth histogram
    of the LiDAR points and their share beyond 20 / 40 m, depth edges per scan line by the far side's
    range; and per hold-out draw (``hidden-eval``'s protocol, 20 % of the points at >= 1 m) the share of
    the targets covered (a nearer point within the 9 x 9 window) and the **far edge targets**:
@@ -22,7 +27,8 @@
    pixel, at the held-out pixels and under both protocols (all targets, `uncovered`); the baselines
    fill the prepared frame's points (as ``benchmarks.accuracy_twins``). At the far edge targets the
    MAE difference SGM minus city-block fill against the targets and against the exact depth (the
-   same weights as ``nuscenes_uncovered_gap``: each target 1 / (images x its image's targets)).
+   same weights as ``nuscenes_uncovered_gap``: each target 1 / (images x its image's targets)); the
+   difference elsewhere also split by target depth (:data:`REST_BANDS_M`, nusc12).
 3. **Far-edge rules, checked** (:data:`RULES`, study patches, not library options): the SGM's depth
    except at the far edge pixels (:func:`far_pixels`: the SGM and the city-block fill more than
    max(1 m, 5 %) apart and the farther of them >= 20 m, chosen without the truth), where the rule takes
@@ -53,11 +59,22 @@ METHODS = ("sgm", "sgm_no_removal", "nearest", "nearest_l2", "ip_basic", "sgm_fa
 RULES = ("sgm_far_fill", "sgm_far_raw", "sgm_far_near", "sgm_far_far")
 PROTOCOLS = ("exact_dense", "exact_held_out", "hidden_all", "hidden_uncovered")
 FAR_M = 20.0
+#: Target depth bands (m) of the "elsewhere" difference's split (nusc12).
+REST_BANDS_M = (0.0, 10.0, 20.0, np.inf)
 
 
 def _off(a, b):
     """|a - b| > max(1 m, 5 % of b) (another surface)."""
     return np.abs(a - b) > np.maximum(1.0, 0.05 * b)
+
+
+def rest_by_range(diff: np.ndarray, w: np.ndarray, far: np.ndarray, z: np.ndarray) -> dict:
+    """The weighted sum (mm) of ``diff`` away from the far edges per :data:`REST_BANDS_M` band of target depth."""
+    out = {}
+    for lo, hi in zip(REST_BANDS_M, REST_BANDS_M[1:]):
+        sel = ~far & (z >= lo) & (z < hi)
+        out[f"{lo:g}-{hi:g}"] = float(1000 * np.sum((diff * w)[sel]))
+    return out
 
 
 def far_pixels(sgm: np.ndarray, fill: np.ndarray) -> np.ndarray:
@@ -122,7 +139,8 @@ def far_edges(preds: dict, target: list, covered: list, exact: list) -> dict:
         diff = np.abs(p["sgm"] - p[truth]) - np.abs(p["nearest"] - p[truth])
         name = "targets" if truth == "z" else "exact"
         out[f"against_{name}"] = {"sgm_minus_fill_far_mm": float(1000 * np.sum((diff * w)[far])),
-                                  "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far]))}
+                                  "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far])),
+                                  "sgm_minus_fill_rest_by_range_mm": rest_by_range(diff, w, far, p["z"])}
         for k in RULES:
             rule = np.abs(p[k] - p[truth]) - np.abs(p["sgm"] - p[truth])
             out[f"against_{name}"][f"{k}_minus_sgm_mm"] = float(1000 * np.sum(rule * w))
@@ -216,7 +234,8 @@ def real_sample(draws, config: SGMConfig) -> dict:
                 "uncovered_rmse_mae_mm": {"sgm": rm(p["sgm"]), "nearest": rm(p["nearest"]),
                                           **{k: rm(v) for k, v in checked.items()}},
                 "sgm_minus_fill_far_mm": float(1000 * np.sum((diff * w)[far])),
-                "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far]))})
+                "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far])),
+                "sgm_minus_fill_rest_by_range_mm": rest_by_range(diff, w, far, p["z"])})
     return row
 
 
@@ -291,12 +310,18 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_far_twin_nusc11.json"))
     parser.add_argument("--other-twins", nargs="+", default=[], metavar="RIG",
                         help="only the rules on these twins (1 sweep, whole input, exact depth), --twin-seeds, --scale")
-    parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
+    parser.add_argument("--tables", nargs="+", metavar="JSON",
+                        help="print the docs' tables of result files (their twins side by side, the first real "
+                             "sample) and exit")
     args = parser.parse_args(argv)
     if args.tables:
         import json
-        with open(args.tables) as f:
-            print(tables(json.load(f)))
+        docs = []
+        for path in args.tables:
+            with open(path) as f:
+                docs.append(json.load(f))
+        real = next((d["real_sample"] for d in docs if "real_sample" in d), None)
+        print(tables({"twins": [c for d in docs for c in d.get("twins", [])], **({"real_sample": real} if real else {})}))
         return 0
     config = SGMConfig()
     t0 = time.time()

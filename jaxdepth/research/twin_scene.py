@@ -21,7 +21,12 @@ real nuScenes sample's (``benchmarks.studies.nuscenes_far_twin``): the right row
 building stand 22-40 m further back, :data:`OPEN_TREES` large trees (canopy of
 :data:`OPEN_CANOPY_SPHERES` spheres) and :data:`OPEN_POSTS` lamp posts stand on the open ground
 between (12-35 m and 9-25 m from the centre line), and two of the six left-row buildings stand
-12-20 m further back (gaps with far facades).
+12-20 m further back (gaps with far facades). ``"cluttered"`` is ``"open"`` with the real sample's
+near clutter and denser far vegetation (``benchmarks.studies.nuscenes_far_twin``): within 10 m of
+the ego :data:`NEAR_BARRIERS` barriers, :data:`NEAR_BOLLARDS` bollards, :data:`NEAR_PEOPLE` people
+standing, :data:`NEAR_BLOCKS` irregular low blocks (planters, bins; random size and yaw) and
+:data:`NEAR_BUSHES` bushes (spheres), and :data:`FAR_SHRUBS` shrubs (spheres) on the open right side
+20-70 m out.
 
 Every seed gives the same primitive counts (one compilation per rig); the same seed gives the
 same bytes.
@@ -43,9 +48,12 @@ SWEEP_DT_S = 0.1
 #: Counts of the added primitives (fixed for every seed).
 PEDESTRIANS, HEDGE_BOXES, HEDGE_BUSHES, CANOPY_SPHERES, SLATS, SIGN_POSTS = 4, 12, 6, 6, 28, 6
 #: The scene layouts (see the module docstring).
-LAYOUTS: tuple = ("street", "open")
+LAYOUTS: tuple = ("street", "open", "cluttered")
 #: Counts of the ``"open"`` layout's added trees, their canopy spheres and lamp posts.
 OPEN_TREES, OPEN_CANOPY_SPHERES, OPEN_POSTS = 30, 4, 24
+#: Counts of the ``"cluttered"`` layout's near clutter (within 10 m) and far shrubs (set against the real
+#: sample's point statistics only: ``benchmarks.studies.nuscenes_far_twin``).
+NEAR_BARRIERS, NEAR_BOLLARDS, NEAR_PEOPLE, NEAR_BLOCKS, NEAR_BUSHES, FAR_SHRUBS = 3, 5, 3, 4, 6, 160
 #: Rows of the street's buildings in ``street_scene_arrays``: the left row, the right row (each 6 and an angled one).
 _LEFT_ROW, _RIGHT_ROW = np.arange(0, 6), np.arange(7, 14)
 
@@ -143,13 +151,15 @@ def twin_spheres(seed: int, layout: str = "street") -> np.ndarray:
             r = rng.uniform(0.35, 0.75)
             out.append([x_start + rng.uniform(0.0, 0.7 * 0.85 * HEDGE_BOXES), side * rng.uniform(6.3, 6.9),
                         rng.uniform(0.3, 1.0), r])
-    if layout == "open":
+    if layout in ("open", "cluttered"):
         crown = np.random.default_rng([seed, 37, 7])
         for tx, ty, _, trunk_h in _open_trees(seed):
             for _ in range(OPEN_CANOPY_SPHERES):
                 r = crown.uniform(1.5, 2.8)
                 out.append([tx + crown.uniform(-2.0, 2.0), ty + crown.uniform(-2.0, 2.0),
                             trunk_h + r + crown.uniform(-0.8, 0.8), r])
+    if layout == "cluttered":
+        out += _clutter_spheres(seed)
     return np.asarray(out, np.float32)
 
 
@@ -179,6 +189,49 @@ def _open_street(seed: int, static: np.ndarray):
     return boxes, cyls
 
 
+def _near_xy(rng, lo: float, hi: float):
+    """A spot beside the road within 9.5 m of the ego: |y| in [lo, hi] m, then x within the circle."""
+    y = rng.uniform(lo, hi)
+    return rng.uniform(-1.0, 1.0) * math.sqrt(9.5 ** 2 - y ** 2), rng.choice([1.0, -1.0]) * y
+
+
+def _near_clutter(seed: int):
+    """The ``"cluttered"`` layout's near clutter: (boxes, cylinders)."""
+    rng = np.random.default_rng([seed, 37, 8])
+    boxes, cyls = [], []
+    for _ in range(NEAR_BARRIERS):
+        x, y = _near_xy(rng, 3.2, 4.5)
+        boxes.append(box_row(x, y, 0.0, rng.uniform(1.2, 2.5), rng.uniform(0.3, 0.6), rng.uniform(0.8, 1.1),
+                             math.radians(rng.uniform(-20.0, 20.0))))
+    for _ in range(NEAR_BOLLARDS):
+        x, y = _near_xy(rng, 3.2, 6.0)
+        cyls.append([x, y, rng.uniform(0.06, 0.12), 0.0, rng.uniform(0.8, 1.2)])
+    for _ in range(NEAR_PEOPLE):
+        x, y = _near_xy(rng, 4.0, 8.0)
+        h, yaw = rng.uniform(1.55, 1.9), rng.uniform(0.0, math.pi)
+        boxes.append(box_row(x, y, 0.0, 0.25, 0.38, 0.83 * h, yaw))
+        cyls.append([x, y, 0.1, 0.83 * h, h])
+    for _ in range(NEAR_BLOCKS):
+        x, y = _near_xy(rng, 3.5, 8.0)
+        boxes.append(box_row(x, y, 0.0, rng.uniform(0.3, 1.2), rng.uniform(0.3, 1.0), rng.uniform(0.3, 1.3),
+                             rng.uniform(0.0, math.pi)))
+    return boxes, cyls
+
+
+def _clutter_spheres(seed: int) -> list:
+    """The ``"cluttered"`` layout's spheres: near bushes, then the far shrubs on the open right side."""
+    rng = np.random.default_rng([seed, 37, 9])
+    out = []
+    for _ in range(NEAR_BUSHES):
+        x, y = _near_xy(rng, 4.5, 8.0)
+        r = rng.uniform(0.3, 0.8)
+        out.append([x, y, r * rng.uniform(0.3, 0.9), r])
+    for _ in range(FAR_SHRUBS):
+        r = rng.uniform(0.6, 1.8)
+        out.append([rng.uniform(-60.0, 90.0), -rng.uniform(20.0, 70.0), r * rng.uniform(0.3, 0.9), r])
+    return out
+
+
 def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S, layout: str = "street") -> SceneArrays:
     """The world at sweep ``sweep`` (0 = reference; the movers ``sweep * dt_s`` seconds earlier), frame ``W``,
     in scene layout ``layout`` (:data:`LAYOUTS`).
@@ -191,9 +244,12 @@ def twin_scene(seed: int, sweep: int, *, dt_s: float = SWEEP_DT_S, layout: str =
     static = np.delete(np.asarray(base.boxes), _LANE_CAR_BOXES, axis=0)
     mover_boxes, mover_cyls = _mover_prims(seed, sweep * dt_s)
     clutter_boxes, clutter_cyls = _clutter(seed)
-    if layout == "open":
+    if layout in ("open", "cluttered"):
         static, open_cyls = _open_street(seed, static)
         clutter_cyls = clutter_cyls + open_cyls
+    if layout == "cluttered":
+        near_boxes, near_cyls = _near_clutter(seed)
+        clutter_boxes, clutter_cyls = clutter_boxes + near_boxes, clutter_cyls + near_cyls
     boxes = np.concatenate([static, np.asarray(mover_boxes + clutter_boxes, np.float64)])
     cyls = np.concatenate([np.asarray(base.cylinders), np.asarray(mover_cyls + clutter_cyls, np.float64)])
     return scene_arrays(planes=base.planes, boxes=boxes, cylinders=cyls)

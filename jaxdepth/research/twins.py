@@ -196,7 +196,8 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         (:func:`~jaxdepth.research.twin_sensors.stagger_lasers`, unit ``u`` drawn from seed ``u``), as real
         spinning LiDARs do; False (default): the lasers share one phase, as the published results.
       layout: the street's layout (:data:`~jaxdepth.research.twin_scene.LAYOUTS`): ``"street"`` (default)
-        or ``"open"`` (the right side open to 20-60 m, as the real nuScenes sample).
+        ``"open"`` (the right side open to 20-60 m, as the real nuScenes sample) or ``"cluttered"``
+        (``"open"`` with near clutter within 10 m and denser far vegetation).
 
     Returns:
       :class:`Twin`.
