@@ -121,13 +121,13 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
     stage table's (its compilation is read back from the session's compilation cache)."""
     from jaxdepth._src import pipeline
     traces = []
-    real = pipeline.pixel_normals
+    real = pipeline.pixel_normals_slots
 
     def counted(*args, **kwargs):
         traces.append(1)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "pixel_normals", counted)
+    monkeypatch.setattr(pipeline, "pixel_normals_slots", counted)
     (d0, K0, T), (d1, K1, _) = [tiny_frame(s) for s in (6, 7)]
     pipeline._complete_stages.clear_cache()
     complete_stages(d0, K0, T, lidar=SMALL_LIDAR).depth.block_until_ready()
