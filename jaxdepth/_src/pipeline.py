@@ -7,6 +7,8 @@ in a different module for each:
   input). Step 1 runs in :func:`~jaxdepth._src.pixel_normals.pixel_normals`: the
   pixels back-projected through K, carried into the LiDAR frame with
   ``T_cam_lidar`` (KITTI camera 2 by default) and binned into the range image.
+  Its normals stay listed (:func:`~jaxdepth._src.pixel_normals.pixel_normals_slots`: a slot
+  image and a small table; the dense fallback is chosen in the tail, :func:`_listed_plane`).
 * :func:`complete_points_stages` takes a raw sweep and a camera. Step 1 runs in
   :func:`~jaxdepth._src.normals.point_normals` on the sweep's true range image, and
   outlier removal uses the exact point angles.
@@ -100,7 +102,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     bracket's h / L, the blur's border), so inside the window the result is that
     of the (h, w) image alone (tests/test_rig.py); outside it, any value.
     ``normals_cam`` and ``points_cam``: (3, H, W), or three (H, W) channels each (a rig's views,
-    :func:`project_with_normals` with ``apart``); ``Stages.normals`` is (3, H, W) either way.
+    :func:`project_with_normals` with ``apart``); ``normals_cam`` may also be a
+    :class:`~jaxdepth._src.pixel_normals.ListedNormals` (the frame); ``Stages.normals`` is (3, H, W) in every case.
     """
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
