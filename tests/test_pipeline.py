@@ -121,13 +121,13 @@ def test_complete_stages_traces_once_whichever_keywords(monkeypatch):
     stage table's (its compilation is read back from the session's compilation cache)."""
     from jaxdepth._src import pipeline
     traces = []
-    real = pipeline.pixel_normals
+    real = pipeline.pixel_normals_slots
 
     def counted(*args, **kwargs):
         traces.append(1)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "pixel_normals", counted)
+    monkeypatch.setattr(pipeline, "pixel_normals_slots", counted)
     (d0, K0, T), (d1, K1, _) = [tiny_frame(s) for s in (6, 7)]
     pipeline._complete_stages.clear_cache()
     complete_stages(d0, K0, T, lidar=SMALL_LIDAR).depth.block_until_ready()
@@ -224,3 +224,34 @@ def test_kitti_sgm_beats_ip_basic(kitti_frames, kitti_sgm_metrics):
                                                config=SGMConfig(outlier_removal=False)), gt))
     mean = lambda rows, k: float(np.mean([float(r[k]) for r in rows]))
     assert mean(sgm, "rmse") < mean(ipb, "rmse") and mean(sgm, "mae") < mean(ipb, "mae")
+
+
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+def test_listed_normals_give_the_same_stages_whichever_branch():
+    """Step 1 kept listed (``pixel_normals_slots``, the frame's program): the tail's conditional gives the same
+    Stages bytes whether it reads the slot image and table (the frame fits) or the dense fallback's normals,
+    and those of ``pixel_normals``' (3, H, W) image passed as it is (the form the rigs' tail takes). Every
+    fourth row and column of a tiny frame: 63 pixels with depth, under the listed path's 96 slots."""
+    from jaxdepth._src import pipeline
+    from jaxdepth._src.pixel_normals import pixel_normals, pixel_normals_slots
+    sparse, K, T = tiny_frame(6)
+    grid = np.zeros(sparse.shape, bool)
+    grid[::4, ::4] = True
+    sparse = np.where(grid, sparse, 0.0).astype(np.float32)
+    config = SGMConfig()
+    opts = dict(lidar=SMALL_LIDAR, smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
+
+    def stages(form):
+        def run(d, K, T):
+            d = jnp.where(d > 0, d, 0.0)
+            listed = pixel_normals_slots(d, K, T, **opts)
+            normals = {"image": lambda: pixel_normals(d, K, T, **opts), "listed": lambda: listed,
+                       "fallback": lambda: listed._replace(fits=jnp.bool_(False))}[form]()
+            return pipeline._complete_tail(d, normals, None, K, T, beams=SMALL_LIDAR.beams, config=config), listed.fits
+        out, fits = jax.jit(run)(sparse, K, T)
+        return [np.asarray(a) for a in out], bool(fits)
+
+    (image, _), (listed, fits), (fallback, _) = (stages(f) for f in ("image", "listed", "fallback"))
+    assert fits  # the listed branch ran
+    for field, a, b, c in zip(pipeline.Stages._fields, image, listed, fallback):
+        assert a.tobytes() == b.tobytes() == c.tobytes(), field

@@ -7,6 +7,8 @@ in a different module for each:
   input). Step 1 runs in :func:`~jaxdepth._src.pixel_normals.pixel_normals`: the
   pixels back-projected through K, carried into the LiDAR frame with
   ``T_cam_lidar`` (KITTI camera 2 by default) and binned into the range image.
+  Its normals stay listed (:func:`~jaxdepth._src.pixel_normals.pixel_normals_slots`: a slot
+  image and a small table; the dense fallback is chosen in the tail, :func:`_listed_plane`).
 * :func:`complete_points_stages` takes a raw sweep and a camera. Step 1 runs in
   :func:`~jaxdepth._src.normals.point_normals` on the sweep's true range image, and
   outlier removal uses the exact point angles.
@@ -35,11 +37,11 @@ from jaxdepth._src.images import guidance_image
 from jaxdepth._src.geometry import camera_points, winners_image, zbuffer_image, zbuffer_winners
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
-from jaxdepth._src.pixel_normals import pixel_normals, pixel_normals_listed
+from jaxdepth._src.pixel_normals import ListedNormals, pixel_normals_listed, pixel_normals_slots
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
-from jaxdepth._src.xla_tuning import after, enabled, fence, entry_jit, stage_token, take_last
+from jaxdepth._src.xla_tuning import after, cond_all, enabled, fence, entry_jit, stage_token, take_last
 from jaxdepth._src.validity import seed_distance
 from jaxdepth._src.types import Camera, LidarSpec, Stages
 
@@ -100,7 +102,8 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     bracket's h / L, the blur's border), so inside the window the result is that
     of the (h, w) image alone (tests/test_rig.py); outside it, any value.
     ``normals_cam`` and ``points_cam``: (3, H, W), or three (H, W) channels each (a rig's views,
-    :func:`project_with_normals` with ``apart``); ``Stages.normals`` is (3, H, W) either way.
+    :func:`project_with_normals` with ``apart``); ``normals_cam`` may also be a
+    :class:`~jaxdepth._src.pixel_normals.ListedNormals` (the frame); ``Stages.normals`` is (3, H, W) in every case.
     """
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
@@ -116,30 +119,96 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         # du and dv, read by gathers of (v + dv, u + du): the flat index below moved the capped plane's float32
         # rounding in the Argoverse 2 depth program (a few ulps at 0.7-1 % of its pixels; docs/speed.md, "The seed
         # search's one flat index and the seed depth's read").
-        du, dv = fence(seeds.du, seeds.dv, token=token)
-        at = functools.partial(gather_at_seed, du=du, dv=dv)
+        seed_args = fence(seeds.du, seeds.dv, token=token)
     else:
         # One int32 image out of the seed search, the seed's flat index (du and dv: two, and under a rig's vmap the
         # gathers' (camera, index) pairs a third); du and dv are recomputed from it where they are read.
-        seed_at, = fence(seed_index(seeds.du, seeds.dv), token=token)
-        du, dv = seed_offsets(seed_at)
-        at = _at_seed_index(seed_at)
-    seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, seeds.has_seed)
-    residual = plane_residual(seed_depth, seed_normal, du, dv, K,
-                              min_abs_denom=config.min_abs_denom,
-                              max_residual_ratio=config.max_residual_ratio)
-    has_seed = seed_depth > 0
-    depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
-    if config.column_bracket:
-        # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
-        bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
-        distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
-        depth_raw = column_hypotheses(
-            depth_raw, bracket_input, distance, normals_cam, K,
-            window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
-            materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
-            max_residual_ratio=config.max_residual_ratio, image_size=image_size,
-            image_gap=None if image_size is None else image_size[0] // beams)
+        seed_args = fence(seed_index(seeds.du, seeds.dv), token=token)
+    if isinstance(normals_cam, ListedNormals) and (config.blend_hypotheses or config.above_scan == "capped"):
+        normals_cam = _listed_image(normals_cam)  # (the blend and the capped rule read the normals' image)
+    return _tail_after_seeds(sparse_depth, keep, normals_cam, K, seeds.has_seed, *seed_args, beams=beams,
+                             config=config, image_size=image_size)
+
+
+def _seed_reader(capped: bool, seed_args):
+    """``(at, du, dv)`` from the seed search's fenced output: du, dv when ``capped``, else the flat seed index."""
+    if capped:
+        du, dv = seed_args
+        return functools.partial(gather_at_seed, du=du, dv=dv), du, dv
+    seed_at, = seed_args
+    du, dv = seed_offsets(seed_at)
+    return _at_seed_index(seed_at), du, dv
+
+
+def _listed_image(listed: ListedNormals):
+    """The (3, H, W) normals image of Step 1 kept listed: the table read at the slot image, or the dense fallback."""
+    def from_slots(slot, table, *inputs):
+        return jnp.stack([take_last(table[i], slot) for i in range(3)])
+
+    return cond_all(listed.fits, from_slots, lambda slot, table, *inputs: listed.dense(*inputs),
+                    listed.slot, listed.table, *listed.inputs)
+
+
+def _listed_plane(listed: ListedNormals, sparse_depth, has_seed, K, seed_at, *, config: SGMConfig):
+    """Step 4's residual and plane depth from Step 1 kept listed: where it fits, the seed's slot is gathered and
+    then its normal from the small table; else the dense fallback's normals at the seed. Only the residual and
+    the depth leave the conditional (the seed depth and offsets are recomputed inside it: fewer buffers live
+    across it, as the fallback's own take ~27 MB)."""
+    def plane(seed_normal, seed_depth, du, dv, K):
+        residual = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
+                                  max_residual_ratio=config.max_residual_ratio)
+        depth_raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + residual, config.min_depth_m,
+                                                       config.max_depth_m), 0.0)
+        return residual, depth_raw
+
+    def branch(listed_form):
+        def run(slot, table, depth, K_, T, sparse_depth, has_seed, K, seed_at):
+            at = _at_seed_index(seed_at)
+            if listed_form:
+                index = at(slot)
+                seed_normal = jnp.stack([take_last(table[i], index) for i in range(3)])
+            else:
+                seed_normal = jnp.stack([at(channel) for channel in listed.dense(depth, K_, T)])
+            return plane(seed_normal, jnp.where(has_seed, at(sparse_depth), 0.0), *seed_offsets(seed_at), K)
+        return run
+
+    return cond_all(listed.fits, branch(True), branch(False), listed.slot, listed.table, *listed.inputs,
+                    sparse_depth, has_seed, K, seed_at)
+
+
+def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, beams: int, config: SGMConfig,
+                      image_size=None) -> Stages:
+    """Step 4 from the seed search's output (``seed_args``: du, dv when ``above_scan`` is "capped", else the
+    flat seed index): gathers at the seed, residual, bracket, above-scan rule, blur. ``has_seed``: the seed
+    search's (a scalar). ``normals_cam``: (3, H, W), three channels or :class:`ListedNormals`."""
+    at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
+    if isinstance(normals_cam, ListedNormals):  # (not with the blend or the capped rule: _complete_tail)
+        residual, depth_raw = _listed_plane(normals_cam, sparse_depth, has_seed, K, *seed_args, config=config)
+        seed_depth = jnp.where(has_seed, at(sparse_depth), 0.0)
+        has_seed = seed_depth > 0
+        if config.column_bracket:  # the bracket's loop after the conditional (its buffers not live across it)
+            depth_raw = column_hypotheses(depth_raw, after(jnp.where(keep, sparse_depth, 0.0), depth_raw), None,
+                                          None, K, window_px=sparse_depth.shape[0] / beams,
+                                          min_abs_denom=config.min_abs_denom,
+                                          max_residual_ratio=config.max_residual_ratio)
+    else:
+        seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, has_seed)
+        residual = plane_residual(seed_depth, seed_normal, du, dv, K,
+                                  min_abs_denom=config.min_abs_denom,
+                                  max_residual_ratio=config.max_residual_ratio)
+        has_seed = seed_depth > 0
+        depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m),
+                              0.0)
+        if config.column_bracket:
+            # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
+            bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
+            distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
+            depth_raw = column_hypotheses(
+                depth_raw, bracket_input, distance, normals_cam, K,
+                window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
+                materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
+                max_residual_ratio=config.max_residual_ratio, image_size=image_size,
+                image_gap=None if image_size is None else image_size[0] // beams)
     if config.above_scan == "background":
         depth_raw = background_above_scan(depth_raw, seed_depth, keep, sparse_depth > 0, beams=beams,
                                           max_half_width_px=config.outlier_max_half_width_px,
@@ -157,7 +226,10 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)
-    normals = jnp.stack(normals_cam) if isinstance(normals_cam, tuple) else normals_cam
+    if isinstance(normals_cam, ListedNormals):  # (a conditional of its own: dropped where only the depth leaves)
+        normals = _listed_image(normals_cam)
+    else:
+        normals = jnp.stack(normals_cam) if isinstance(normals_cam, tuple) else normals_cam
     return Stages(sparse_depth=sparse_depth, normals=normals, inlier_mask=keep, seed_depth=seed_depth,
                   du=du, dv=dv, residual=residual, depth_raw=depth_raw, depth=depth)
 
@@ -208,8 +280,10 @@ def _complete_stages(sparse_depth, K, T_cam_lidar, image=None, *, config: SGMCon
                                                  smoothing=config.normal_smoothing,
                                                  fill_max_gap=config.range_fill_max_gap)
     else:
-        normals_cam = pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=config.normal_smoothing,
-                                    fill_max_gap=config.range_fill_max_gap)
+        # Kept listed (a slot image and a small table; pixel_normals' dense fallback chosen in the tail):
+        # the same values as pixel_normals, without its 5 MB (3, H W) fill (docs/speed.md, kitti13).
+        normals_cam = pixel_normals_slots(sparse_depth, K, T_cam_lidar, lidar=lidar,
+                                          smoothing=config.normal_smoothing, fill_max_gap=config.range_fill_max_gap)
     stages = _complete_tail(sparse_depth, normals_cam, None, K, T_cam_lidar, beams=lidar.beams, config=config,
                             image=image)
     return (stages, fits) if listed_only else stages

@@ -131,7 +131,8 @@ def _pixel_points(pix, depth, K, T, col0, token, *, lidar: LidarSpec, window_col
 
 
 def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpec, window_cols: int,
-                             smoothing: int, fill_max_gap: int, identity: bool, with_dump: bool = False):
+                             smoothing: int, fill_max_gap: int, identity: bool, with_dump: bool = False,
+                             slots: bool = False):
     """Camera-frame (3, H, W) normals of the listed pixels (from :func:`_pixel_points`), zeros elsewhere.
 
     Every point's cell must lie in the window ``col0 .. col0 + window_cols - 1``
@@ -139,7 +140,8 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
     (unless the window is the whole image): then the neighbour search and the
     smoothing never reach the edges and the result equals that of the whole
     range image. ``identity``: ``pix`` is ``arange(H W)`` (the output needs no scatter). ``with_dump``:
-    returns ``(normals, dump_key)`` (:func:`window_range_image`).
+    returns ``(normals, dump_key)`` (:func:`window_range_image`). ``slots``: the normals kept listed,
+    ``(slot, table)`` of :class:`ListedNormals`, in place of the (3, H, W) image.
     """
     slot, key = pts.slot, pts.key
     ok = key != jnp.iinfo(jnp.int32).max
@@ -152,7 +154,12 @@ def _pixel_normals_of_points(pix, pts, col0, R, shape, token, *, lidar: LidarSpe
     px, py, pz, sign = normals_at_points(nxy, nz, slot, ok, xyz, token)
     n_cam = jnp.stack([(R[i, 0] * px + R[i, 1] * py + R[i, 2] * pz) * sign for i in range(3)])
     h, w = shape
-    if identity:
+    if slots:  # (H, W) int32 slot image (1.7 MB on KITTI) in place of the (3, H W) float32 fill (5 MB)
+        n = n_cam.shape[1]
+        slot = jnp.full((h * w,), n, jnp.int32).at[jnp.where(ok, pix, h * w)].set(
+            jnp.arange(n, dtype=jnp.int32), mode="drop")
+        out = (slot.reshape(h, w), jnp.concatenate([n_cam, jnp.zeros((3, 1), jnp.float32)], 1))
+    elif identity:
         out = n_cam.reshape(3, h, w)
     else:
         out = jnp.zeros((3, h * w), jnp.float32).at[:, jnp.where(ok, pix, h * w)].set(n_cam, mode="drop")
@@ -212,6 +219,28 @@ def _window_start(K, T, height: int, width: int, lidar: LidarSpec, window_cols: 
     n_cols = lidar.columns
     centre = jnp.floor((PI - theta) * (n_cols / (2 * PI))).astype(jnp.int32)
     return jnp.mod(centre - window_cols // 2, n_cols).astype(jnp.int32)
+
+
+class ListedNormals(NamedTuple):
+    """Step 1's normals kept listed (the frame's tail, :func:`pixel_normals_slots`): pixel ``p``'s normal is
+    ``table[:, slot[p]]`` where ``fits``; ``dense(*inputs)`` gives :func:`pixel_normals`' (3, H, W) otherwise."""
+    slot: jax.Array  # (H, W) int32: the pixel's column of table; the last column (zeros) where it has no normal
+    table: jax.Array  # (3, capacity + 1) float32 camera-frame normals of the listed pixels, then a zero column
+    fits: jax.Array  # () bool: the listed path holds (pixel_normals' fallback choice)
+    inputs: tuple  # (depth, K, T) of the fallback
+    dense: object  # the fallback: (depth, K, T) -> (3, H, W), :func:`dense_pixel_normals` with its options
+
+
+def dense_pixel_normals(depth, K, T, *, lidar: LidarSpec, smoothing: int, fill_max_gap: int):
+    """:func:`pixel_normals`' dense path: every pixel is a point slot and the whole range image is used
+    (as fast as the listed path only when most pixels have depth)."""
+    h, w = depth.shape
+    token = stage_token(depth)  # (a branch may not close over tracers)
+    pix = jnp.arange(h * w, dtype=jnp.int32)
+    options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
+    pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=lidar.columns, margin=0)
+    return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=lidar.columns,
+                                    identity=True, **options)
 
 
 @functools.partial(jax.jit, static_argnames=("lidar", "smoothing", "fill_max_gap", "window_columns", "max_points"))
@@ -275,8 +304,17 @@ def pixel_normals_listed(sparse_depth: jax.Array, K: jax.Array, T_cam_lidar: jax
                           window_columns=None, max_points=None, listed_only=True)
 
 
+def pixel_normals_slots(sparse_depth, K, T_cam_lidar, *, lidar: LidarSpec, smoothing: int,
+                        fill_max_gap: int) -> ListedNormals:
+    """:func:`pixel_normals` kept listed (traced inside the frame's program, :func:`~jaxdepth._src.pipeline.complete`):
+    the listed path's normals as a :class:`ListedNormals` slot image and table, ``fits`` its fallback choice.
+    Equal values: ``table[:, slot]`` is :func:`pixel_normals`' output where ``fits`` (docs/speed.md, kitti13)."""
+    return _pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap,
+                          window_columns=None, max_points=None, listed_only="slots")
+
+
 def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_gap, window_columns, max_points,
-                   listed_only: bool):
+                   listed_only):  # False, True (pixel_normals_listed) or "slots" (pixel_normals_slots)
     check_lidar(lidar)
     check_options(smoothing, fill_max_gap)
     sparse_depth = jnp.asarray(sparse_depth)
@@ -300,18 +338,14 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
     options = dict(lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap)
     margin = max(1 + fill_max_gap, smoothing)
 
-    def dense(depth, K, T):
-        # Every pixel is a point slot and the whole range image is used (as
-        # fast as the listed path only when most pixels have depth).
-        token = stage_token(depth)  # (a branch may not close over tracers)
-        pix = jnp.arange(n_pix, dtype=jnp.int32)
-        pts = _pixel_points(pix, depth, K, T, jnp.int32(0), token, lidar=lidar, window_cols=n_cols, margin=0)
-        return _pixel_normals_of_points(pix, pts, jnp.int32(0), T[:3, :3], (h, w), token, window_cols=n_cols,
-                                        identity=True, **options)
-
+    dense = functools.partial(dense_pixel_normals, **options)
     capacity = -(-n_pix // 16) if max_points is None else int(max_points)
     capacity = min(max(capacity, 1), n_pix)
     if capacity == n_pix:
+        if listed_only == "slots":  # every pixel its own slot, a zero row last
+            table = jnp.concatenate([dense(depth, K, T).reshape(3, n_pix), jnp.zeros((3, 1), jnp.float32)], 1)
+            return ListedNormals(jnp.arange(n_pix, dtype=jnp.int32).reshape(h, w), table, jnp.bool_(True),
+                                 (depth, K, T), dense)
         return (dense(depth, K, T), jnp.bool_(True)) if listed_only else dense(depth, K, T)
     pix, total = compact_indices((jnp.isfinite(depth) & (depth > 0)).reshape(-1), capacity, token)
     wc = default_window_columns(lidar) if window_columns is None else int(window_columns)
@@ -341,8 +375,11 @@ def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_g
 
     if listed_only:
         normals, dump_key = _pixel_normals_of_points(pix, pts, col0, R, (h, w), token, window_cols=wc,
-                                                     identity=False, with_dump=True, **options)
+                                                     identity=False, with_dump=True,
+                                                     slots=listed_only == "slots", **options)
         if dump_edge:  # no point in the dump slot: every point kept the margin (and had a cell)
             fits = (total <= capacity) & (dump_key == jnp.iinfo(jnp.int32).max)
+        if listed_only == "slots":
+            return ListedNormals(*normals, fits, (depth, K, T), dense)
         return normals, fits
     return cond_all(fits, listed, fallback, pix, col0, R, depth, K, T, *pts)
