@@ -140,10 +140,23 @@ def _seed_reader(capped: bool, seed_args):
     return _at_seed_index(seed_at), du, dv
 
 
+def _table_at(table, index):
+    """(3, ...) normals of the listed table (3, capacity + 1) at the slots ``index``."""
+    return jnp.stack([take_last(table[i], index) for i in range(3)])
+
+
+def _plane_depth(seed_depth, seed_normal, du, dv, K, *, config: SGMConfig):
+    """Step 4's ``(residual, depth_raw)``: the seed's plane at each pixel, clipped, 0 where there is no seed."""
+    residual = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
+                              max_residual_ratio=config.max_residual_ratio)
+    depth_raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m), 0.0)
+    return residual, depth_raw
+
+
 def _listed_image(listed: ListedNormals):
     """The (3, H, W) normals image of Step 1 kept listed: the table read at the slot image, or the dense fallback."""
     def from_slots(slot, table, *inputs):
-        return jnp.stack([take_last(table[i], slot) for i in range(3)])
+        return _table_at(table, slot)
 
     return cond_all(listed.fits, from_slots, lambda slot, table, *inputs: listed.dense(*inputs),
                     listed.slot, listed.table, *listed.inputs)
@@ -154,22 +167,15 @@ def _listed_plane(listed: ListedNormals, sparse_depth, has_seed, K, seed_at, *, 
     then its normal from the small table; else the dense fallback's normals at the seed. Only the residual and
     the depth leave the conditional (the seed depth and offsets are recomputed inside it: fewer buffers live
     across it, as the fallback's own take ~27 MB)."""
-    def plane(seed_normal, seed_depth, du, dv, K):
-        residual = plane_residual(seed_depth, seed_normal, du, dv, K, min_abs_denom=config.min_abs_denom,
-                                  max_residual_ratio=config.max_residual_ratio)
-        depth_raw = jnp.where(seed_depth > 0, jnp.clip(seed_depth + residual, config.min_depth_m,
-                                                       config.max_depth_m), 0.0)
-        return residual, depth_raw
-
     def branch(listed_form):
         def run(slot, table, depth, K_, T, sparse_depth, has_seed, K, seed_at):
             at = _at_seed_index(seed_at)
             if listed_form:
-                index = at(slot)
-                seed_normal = jnp.stack([take_last(table[i], index) for i in range(3)])
+                seed_normal = _table_at(table, at(slot))
             else:
                 seed_normal = jnp.stack([at(channel) for channel in listed.dense(depth, K_, T)])
-            return plane(seed_normal, jnp.where(has_seed, at(sparse_depth), 0.0), *seed_offsets(seed_at), K)
+            return _plane_depth(jnp.where(has_seed, at(sparse_depth), 0.0), seed_normal, *seed_offsets(seed_at), K,
+                                config=config)
         return run
 
     return cond_all(listed.fits, branch(True), branch(False), listed.slot, listed.table, *listed.inputs,
@@ -193,12 +199,8 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
                                           max_residual_ratio=config.max_residual_ratio)
     else:
         seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, has_seed)
-        residual = plane_residual(seed_depth, seed_normal, du, dv, K,
-                                  min_abs_denom=config.min_abs_denom,
-                                  max_residual_ratio=config.max_residual_ratio)
+        residual, depth_raw = _plane_depth(seed_depth, seed_normal, du, dv, K, config=config)
         has_seed = seed_depth > 0
-        depth_raw = jnp.where(has_seed, jnp.clip(seed_depth + residual, config.min_depth_m, config.max_depth_m),
-                              0.0)
         if config.column_bracket:
             # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
             bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)
