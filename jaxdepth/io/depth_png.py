@@ -29,7 +29,8 @@ _UP_FILTER = 2  # PNG row filter type "Up": each byte minus the byte above it
 
 #: zlib level of the depth PNGs jaxdepth writes (0 = stored, 9 = smallest; any level decodes to
 #: the same values, and KITTI's devkit reads them all). Level 1 encodes much faster than OpenCV's
-#: level 3 for a few per cent more bytes; level 0 is fastest and ~2.5x the bytes. See docs/cli.md.
+#: level 3 for a few per cent more bytes; level 0 is fastest and ~2.5x the bytes. See docs/cli.md; other
+#: filters, zlib strategies and libraries measured on the jobs' outputs: docs/speed.md, branch pngfast.
 DEFAULT_PNG_COMPRESSION = 1
 
 
