@@ -133,10 +133,11 @@ def _three_origins():
 
 
 @pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
-def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
+@pytest.mark.parametrize("label", [np.int32, np.int8])     # int8: the rigs' source label canvas
+def test_source_keep_mask_tests_each_pixel_from_its_own_origin(label):
     """One pass over the image for all sources equals one pass of Algorithm 1 per source origin."""
     depth, pixel_source, points_cam, K, T3, _, _, want = _three_origins()
-    got = source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32)
+    got = source_keep_mask(depth, pixel_source.astype(label), points_cam, K, T3, beams=32)
     np.testing.assert_array_equal(np.asarray(got), want)
 
 
