@@ -12,8 +12,7 @@ import pytest
 
 from jaxdepth._src import compaction, outliers
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.outlier_exact import pack_columns
-from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows, unpack_columns
+from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.rig import size_groups, stack_cameras
 from jaxdepth._src.sources import complete_sources_stages, make_sources
 from jaxdepth._src import synthetic
@@ -89,20 +88,6 @@ def test_one_loop_jit_equals_eager():
         eager = _masks(groups, sizes, beams=2, shared=True)
     for a, b in zip(fast, eager):
         np.testing.assert_array_equal(a, b)
-
-
-@pytest.mark.parametrize("height", [64, 70, 31, 1])     # whole words, a short last word, one word short, one row
-def test_unpack_columns_inverts_pack_columns_and_vmap_equals_loop(height):
-    rng = np.random.default_rng(height)
-    masks = rng.random((3, height, 37)) < 0.3
-    words = jax.vmap(pack_columns)(jnp.asarray(masks))
-    got = np.asarray(jax.jit(unpack_columns, static_argnums=1)(words, height))
-    np.testing.assert_array_equal(got, masks)
-    # NumPy oracle of the layout: bit b of word m in column c is row 32 m + b
-    bits = (np.asarray(words)[:, :, None, :] >> np.arange(32, dtype=np.uint32)[None, None, :, None]) & 1
-    np.testing.assert_array_equal(bits.reshape(3, -1, 37)[:, :height].astype(bool), masks)
-    for i in range(3):
-        np.testing.assert_array_equal(np.asarray(unpack_columns(words[i], height)), got[i])
 
 
 def test_shared_windows_only_where_every_group_agrees():

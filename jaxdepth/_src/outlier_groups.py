@@ -30,17 +30,6 @@ def _flat(x: jax.Array, length: int) -> jax.Array:
     return jnp.pad(x, ((0, 0), (0, length - x.shape[1])))
 
 
-def unpack_columns(columns: jax.Array, height: int) -> jax.Array:
-    """:func:`~jaxdepth._src.outlier_exact.pack_columns`' inverse: (..., ceil(H / 32), W) uint32 -> (..., H, W) bool
-    (bit b of word m in column c is row 32 m + b). Step 2's ``valid`` read back from its packed columns, so
-    the loop's keep buffers start from 1/32 of the bytes and ``valid`` is computed once, from the depth, by the
-    packing (not a second time for the buffers)."""
-    *lead, n_words, width = columns.shape
-    shift = jnp.arange(WORD_BITS, dtype=jnp.uint32)[:, None]
-    bits = (columns[..., :, None, :] >> shift) & jnp.uint32(1)
-    return (bits != 0).reshape(*lead, n_words * WORD_BITS, width)[..., :height, :]
-
-
 def _by_group(images: tuple):
     """One group-flat array per group (:class:`~jaxdepth._src.outlier_exact.Grouped`), or None."""
     return None if images[0] is None else tuple(x.reshape(-1) for x in images)
@@ -64,8 +53,7 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     step tests C of them at once (C cameras: one lane each, ``vmap``), each lane with its chunk's camera's
     parameters: the loop runs ``ceil(all chunks / C)`` steps (the lanes in lockstep, to the largest window walk
     among them), not each group's largest chunk count. The loop carries each group's own keep buffer (its
-    ``valid``, unpacked from its packed columns: :func:`unpack_columns`): a lane's removals go to its camera's
-    group, so no mask is concatenated and sliced back.
+    ``valid``): a lane's removals go to its camera's group, so no mask is concatenated and sliced back.
     """
     counts = [p.depth.shape[0] for p in parts]
     n_cam, pixels = sum(counts), tuple(h * w for h, w in sizes)
@@ -116,8 +104,7 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
             out.append(keep.at[flat.reshape(-1)].set(~removed.reshape(-1), mode="drop"))
         return tuple(out)
 
-    start = tuple(unpack_columns(p.columns, h).reshape(-1) for p, (h, _) in zip(parts, sizes))    # each ``valid``
-    keeps = jax.lax.fori_loop(0, (chunk_end[-1] + n_cam - 1) // n_cam, step, start)
+    keeps = jax.lax.fori_loop(0, (chunk_end[-1] + n_cam - 1) // n_cam, step, tuple(p.valid.reshape(-1) for p in parts))
     return tuple(keep.reshape(n, h, w) for keep, n, (h, w) in zip(keeps, counts, sizes))
 
 
