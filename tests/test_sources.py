@@ -13,7 +13,7 @@ import pytest
 import jaxdepth
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import outlier_keep_mask
-from jaxdepth._src.sources import (camera_witness, complete_sources, complete_sources_stages, free_space_keep,
+from jaxdepth._src.sources import (_camera_view, camera_witness, complete_sources, complete_sources_stages, free_space_keep,
                                    free_space_margin, make_sources, reference_view, source_keep_mask, source_normals)
 from jaxdepth._src.poses import rotation_rpy
 from jaxdepth._src.scene import scene_arrays
@@ -133,10 +133,11 @@ def _three_origins():
 
 
 @pytest.mark.xdist_group("sources_keep_mask")  # one worker compiles their shared program once
-def test_source_keep_mask_tests_each_pixel_from_its_own_origin():
+@pytest.mark.parametrize("label", [np.int32, np.int8])     # int8: the rigs' source label canvas
+def test_source_keep_mask_tests_each_pixel_from_its_own_origin(label):
     """One pass over the image for all sources equals one pass of Algorithm 1 per source origin."""
     depth, pixel_source, points_cam, K, T3, _, _, want = _three_origins()
-    got = source_keep_mask(depth, pixel_source, points_cam, K, T3, beams=32)
+    got = source_keep_mask(depth, pixel_source.astype(label), points_cam, K, T3, beams=32)
     np.testing.assert_array_equal(np.asarray(got), want)
 
 
@@ -718,3 +719,24 @@ def test_rule_6_runs_by_default_for_one_reference_scan_filling_its_rows():
     assert top_line_applies(sources((0, 0, -1, -1)), "on")
     assert not top_line_applies(sources((0, -1), witnesses=(other, other)))   # a grid of its own
     assert top_line_applies(sources((0, -1), witnesses=(SPEC, other)))        # the reference fills its rows
+
+
+@pytest.mark.parametrize("n_sources, label", [(3, np.int8), (130, np.int32)])   # int8 while the sources fit
+def test_camera_view_source_label_equals_numpy_and_vmap_equals_loop(n_sources, label):
+    h, w, per_source = 6, 7, 2
+    n = n_sources * per_source
+    rng = np.random.default_rng(n_sources)
+    slots = np.full((2, n), h * w, np.int32)      # two cameras; each pixel won by one point at most, H W = none
+    for c in range(2):
+        won = rng.permutation(n)[:min(n, h * w) // 2]
+        slots[c, won] = rng.permutation(h * w)[:len(won)]
+    channels = rng.normal(size=(2, 6, n)).astype(np.float32)
+    won = lambda c: (jnp.asarray(slots[c]), *(jnp.asarray(x) for x in channels[c]))
+    view = lambda *a: _camera_view(a, n, per_source, None, height=h, width=w).pixel_source
+    batched = np.asarray(jax.vmap(view)(*(jnp.stack(x) for x in zip(won(0), won(1)))))
+    assert batched.dtype == label
+    for c in range(2):
+        want = np.full(h * w + 1, -1, np.int64)
+        want[slots[c]] = np.arange(n) // per_source
+        np.testing.assert_array_equal(batched[c], want[:h * w].reshape(h, w))
+        np.testing.assert_array_equal(np.asarray(view(*won(c))), batched[c])

@@ -529,6 +529,8 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     K = K.astype(jnp.float32)
     eps = jnp.asarray(epsilon_m, jnp.float32)
     valid = (depth > 0) & jnp.isfinite(depth)
+    if defer:   # the shared loop's keep buffer: one buffer that the packing reads too (not recomputed there)
+        valid = stage(lambda v: (v,), (valid,), stage_token(depth))[0]
     t = T_cam_lidar.astype(jnp.float32)[:3, 3] if origins is None else origins.astype(jnp.float32)
     columns = pack_columns(valid)
     bounds = _bounds(valid if window_pixels is None else window_pixels, beams=beams, half_width=half_width,
