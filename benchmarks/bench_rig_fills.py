@@ -131,6 +131,22 @@ def run_case(case: str, runs: int, min_elements: int) -> dict:
             "executed_ms": sum(r["ms"] for r in executed)}
 
 
+def _interleaved(exes: dict, mask, rounds: int) -> tuple:
+    """Two compiled forms ``{name: exe}`` of one function of ``mask``: (every output the same, ``{name: [process
+    CPU s a round]}``), ``rounds`` rounds, the order alternating."""
+    import jax
+    import numpy as np
+    outs = [jax.block_until_ready(e(mask)) for e in exes.values()]
+    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(*outs))
+    cpu = {k: [] for k in exes}
+    for r in range(rounds):
+        for k in (list(exes) if r % 2 == 0 else list(exes)[::-1]):
+            t = time.process_time()
+            jax.block_until_ready(exes[k](mask))
+            cpu[k].append(time.process_time() - t)
+    return same, cpu
+
+
 def column_pass_probe(rounds: int) -> dict:
     import jax
     import jax.numpy as jnp
@@ -161,14 +177,7 @@ def column_pass_probe(rounds: int) -> dict:
             exes[name] = fn.lower(mask).compile(COMPILER_OPTIONS)
     finally:
         D._l1_column_pass = library
-    outs = {k: jax.block_until_ready(e(mask)) for k, e in exes.items()}
-    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(outs["library"], outs["widened"]))
-    cpu = {k: [] for k in exes}
-    for r in range(rounds):
-        for k in (("library", "widened") if r % 2 == 0 else ("widened", "library")):
-            t = time.process_time()
-            jax.block_until_ready(exes[k](mask))
-            cpu[k].append(time.process_time() - t)
+    same, cpu = _interleaved(exes, mask, rounds)
     ratios = [b / a for a, b in zip(cpu["library"], cpu["widened"])]
     out = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
            "ratio_widened_over_library": statistics.median(ratios), "ratios": ratios}
@@ -199,14 +208,7 @@ def transposes_probe(rounds: int) -> dict:
                 exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
         finally:
             D.mask_columns, D.mask_column = forms["library"]
-        outs = {k: jax.block_until_ready(e(mask)) for k, e in exes.items()}
-        same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(outs["library"], outs["before"]))
-        cpu = {k: [] for k in exes}
-        for r in range(rounds):
-            for k in (("library", "before") if r % 2 == 0 else ("before", "library")):
-                t = time.process_time()
-                jax.block_until_ready(exes[k](mask))
-                cpu[k].append(time.process_time() - t)
+        same, cpu = _interleaved(exes, mask, rounds)
         ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
         key = "x".join(map(str, shape))
         out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
