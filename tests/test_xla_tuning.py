@@ -148,7 +148,7 @@ def test_helpers_reduce_to_the_plain_computation():
                     got = jax.vmap(xla_tuning.mask_column, in_axes=(0, None))(columns, jnp.int32(u))
                     np.testing.assert_array_equal(got, masks[:, :, u])
                 np.testing.assert_array_equal(xla_tuning.mask_column(xla_tuning.mask_columns(jnp.asarray(masks[1])),
-                                                                     jnp.int32(w - 1)), masks[1, :, w - 1])
+                                                                     w - 1), masks[1, :, w - 1])  # an int (eager loops)
 
 
 def test_small_matmul_is_the_dots_bits_and_scatter_onto_fill_the_scatter():

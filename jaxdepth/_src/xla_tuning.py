@@ -82,8 +82,10 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
 * **A bool mask's columns as bits** (:func:`mask_columns`, :func:`mask_column`). XLA:CPU transposes a
   bool array element by element, ~1.5 ns a byte (the distance transform's row pass reads the seed mask's
   columns: the Argoverse 2 landscape group's (6, 1550, 2048) mask 26-30 ms a sweep, rigtail12's list); packed
-  as 32 columns' bits in a uint32 (one fusion reading the mask in order), the transpose moves 1/32 of the
-  elements and a loop step takes its column's bit. Plain: the transposed mask and its rows.
+  as 32 columns' bits in a uint32 (one reduce fusion reading the mask in order), the transpose moves 1/32 of
+  the elements and a loop step takes its column's bit (the distance transform alone 0.82x on that group, the
+  Argoverse 2 tail stage 0.95x; docs/speed.md, "The distance transform's transposes"). Plain: the transposed
+  mask and its rows.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
 
@@ -510,9 +512,10 @@ def mask_columns(mask: jax.Array) -> jax.Array:
 
 
 def mask_column(columns: jax.Array, u) -> jax.Array:
-    """Column ``u`` (an int32 scalar, ``0 <= u < W``) of the mask of :func:`mask_columns`: (H,) bool."""
+    """Column ``u`` (an int32 scalar or int, ``0 <= u < W``) of the mask of :func:`mask_columns`: (H,) bool."""
     if not enabled():
         return lax.dynamic_index_in_dim(columns, u, 0, keepdims=False, allow_negative_indices=False)
+    u = jnp.asarray(u, jnp.int32)  # (a Python int when the loop runs eagerly)
     shift = _COLUMN_BITS.bit_length() - 1
     word = lax.dynamic_index_in_dim(columns, u >> shift, 0, keepdims=False, allow_negative_indices=False)
     return ((word >> (u & (_COLUMN_BITS - 1)).astype(jnp.uint32)) & 1) != 0
