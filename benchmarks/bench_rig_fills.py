@@ -10,6 +10,13 @@ taken) and the JAX operation it comes from. Then, after three warm runs, ``--run
 trace (the process keeping freed memory as the ``jaxdepth`` command does): each listed instruction's kernel time
 (mean ms a run; kernels split over threads add up their parts) and calls a run (0: never executed).
 
+``--transposes ROUNDS``: the distance transform alone (``nearest_seed``, L1) with the seed mask's columns
+packed 32 to a uint32 before their transpose (:func:`~jaxdepth._src.xla_tuning.mask_columns`, the library) against
+the transposed bool mask (the form before, set as ``distance.mask_columns`` / ``mask_column``), on random 1 % masks
+of the Argoverse 2 groups' shapes under ``vmap`` ((6, 1550, 2048), (1, 2048, 1550)) and random 5 % masks of the
+KITTI frame's (352, 1216); outputs compared, process CPU of interleaved rounds, the median of per-round ratios
+library / before.
+
 ``--column-pass ROUNDS``: a probe of one way to drop the distance transform's int32 zero fill: the L1
 column pass's first sweep writing into the row keys transposed and widened to int32 (one transposing
 convert) instead of into a zero-filled buffer read from the int16 transpose (the library), on random 1 %
@@ -17,7 +24,7 @@ masks of the Argoverse 2 landscape group's shape (6, 1550, 2048) under ``vmap``;
 CPU of interleaved rounds, ratio variant / library.
 
     python -m benchmarks.bench_rig_fills [--cases av2 nuscenes] [--runs 3] [--min-elements 1000000]
-        [--column-pass 9] [--json benchmarks/results/rig_fills.json]
+        [--column-pass 9] [--transposes 15] [--json benchmarks/results/rig_fills.json]
 """
 
 from __future__ import annotations
@@ -124,6 +131,22 @@ def run_case(case: str, runs: int, min_elements: int) -> dict:
             "executed_ms": sum(r["ms"] for r in executed)}
 
 
+def _interleaved(exes: dict, mask, rounds: int) -> tuple:
+    """Two compiled forms ``{name: exe}`` of one function of ``mask``: (every output the same, ``{name: [process
+    CPU s a round]}``), ``rounds`` rounds, the order alternating."""
+    import jax
+    import numpy as np
+    outs = [jax.block_until_ready(e(mask)) for e in exes.values()]
+    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(*outs))
+    cpu = {k: [] for k in exes}
+    for r in range(rounds):
+        for k in (list(exes) if r % 2 == 0 else list(exes)[::-1]):
+            t = time.process_time()
+            jax.block_until_ready(exes[k](mask))
+            cpu[k].append(time.process_time() - t)
+    return same, cpu
+
+
 def column_pass_probe(rounds: int) -> dict:
     import jax
     import jax.numpy as jnp
@@ -154,14 +177,7 @@ def column_pass_probe(rounds: int) -> dict:
             exes[name] = fn.lower(mask).compile(COMPILER_OPTIONS)
     finally:
         D._l1_column_pass = library
-    outs = {k: jax.block_until_ready(e(mask)) for k, e in exes.items()}
-    same = all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(outs["library"], outs["widened"]))
-    cpu = {k: [] for k in exes}
-    for r in range(rounds):
-        for k in (("library", "widened") if r % 2 == 0 else ("widened", "library")):
-            t = time.process_time()
-            jax.block_until_ready(exes[k](mask))
-            cpu[k].append(time.process_time() - t)
+    same, cpu = _interleaved(exes, mask, rounds)
     ratios = [b / a for a, b in zip(cpu["library"], cpu["widened"])]
     out = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
            "ratio_widened_over_library": statistics.median(ratios), "ratios": ratios}
@@ -169,11 +185,44 @@ def column_pass_probe(rounds: int) -> dict:
     return out
 
 
+def transposes_probe(rounds: int) -> dict:
+    import jax
+    import numpy as np
+    from jax import lax
+
+    from jaxdepth._src import distance as D
+    from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
+
+    def before_column(columns, u):
+        return lax.dynamic_index_in_dim(columns, u, 0, keepdims=False, allow_negative_indices=False)
+
+    forms = {"library": (D.mask_columns, D.mask_column), "before": (lambda m: m.T, before_column)}
+    out = {}
+    for shape, density in (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((352, 1216), 0.05)):
+        mask = jax.numpy.asarray(np.random.default_rng(0).random(shape) < density)
+        exes = {}
+        try:
+            for name, (columns, column) in forms.items():
+                D.mask_columns, D.mask_column = columns, column
+                fn = lambda m: tuple(D.nearest_seed.__wrapped__(m))  # noqa: E731
+                exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
+        finally:
+            D.mask_columns, D.mask_column = forms["library"]
+        same, cpu = _interleaved(exes, mask, rounds)
+        ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
+        key = "x".join(map(str, shape))
+        out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
+                    "ratio_library_over_before": statistics.median(ratios),
+                    "rounds_below_1": sum(x < 1 for x in ratios), "ratios": ratios}
+        print("transposes probe:", key, {k: v for k, v in out[key].items() if k != "ratios"}, flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    for flag, default in (("--runs", 3), ("--min-elements", 1_000_000), ("--column-pass", 0)):
+    for flag, default in (("--runs", 3), ("--min-elements", 1_000_000), ("--column-pass", 0), ("--transposes", 0)):
         parser.add_argument(flag, type=int, default=default)
-    parser.add_argument("--cases", nargs="+", default=["av2", "nuscenes"], choices=("av2", "nuscenes"))
+    parser.add_argument("--cases", nargs="*", default=["av2", "nuscenes"], choices=("av2", "nuscenes"))
     parser.add_argument("--json", help="result path (default results/rig_fills.json)")
     a = parser.parse_args(argv, argparse.Namespace(json=str(RESULTS / "rig_fills.json")))
     from jaxdepth.batch.devices import keep_freed_memory
@@ -182,6 +231,8 @@ def main(argv=None) -> int:
     doc = {"cases": {case: run_case(case, a.runs, a.min_elements) for case in a.cases}}
     if a.column_pass:
         doc["column_pass_probe"] = column_pass_probe(a.column_pass)
+    if a.transposes:
+        doc["transposes_probe"] = transposes_probe(a.transposes)
     with open("/proc/loadavg") as f:
         doc["loadavg_end"] = f.read().split()[:3]
     write_results(a.json, doc, None, t0)

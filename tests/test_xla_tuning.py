@@ -140,6 +140,15 @@ def test_helpers_reduce_to_the_plain_computation():
             # tuned: one dynamic_update_slice of the batch, no scatter (which XLA:CPU guards by a select)
             jaxpr = str(jax.make_jaxpr(jax.vmap(xla_tuning.put_row, in_axes=(0, 0, None)))(buf, rows, i))
             assert ("scatter" in jaxpr) == (mode == "plain"), jaxpr
+            for w in (1, 31, 32, 33, 67):    # a mask's columns (tuned: 32 to a uint32): NumPy's column u, member by member
+                masks = rng.random((2, 5, w)) < 0.4
+                columns = jax.vmap(xla_tuning.mask_columns)(jnp.asarray(masks))
+                assert columns.shape == ((2, w, 5) if mode == "plain" else (2, -(-w // 32), 5))
+                for u in range(w):
+                    got = jax.vmap(xla_tuning.mask_column, in_axes=(0, None))(columns, jnp.int32(u))
+                    np.testing.assert_array_equal(got, masks[:, :, u])
+                np.testing.assert_array_equal(xla_tuning.mask_column(xla_tuning.mask_columns(jnp.asarray(masks[1])),
+                                                                     w - 1), masks[1, :, w - 1])  # an int (eager loops)
 
 
 def test_small_matmul_is_the_dots_bits_and_scatter_onto_fill_the_scatter():

@@ -49,9 +49,11 @@ faster than ``lax.scan`` with stacked outputs followed by a minimum of the
 two directions (benchmarks/bench_distance.py), and packing every decision into one int32
 key keeps each step to a couple of fused ops. The first loop of each pass
 builds its values from the narrow input row by row (the row pass from the
-transposed bool mask, the L1 column pass from the row keys transposed as
-int16), not from a full-image pass before the loop (docs/speed.md, "The
-distance transform's full-image passes").
+mask's columns, with the tricks on packed 32 to a uint32 before their transpose
+(:func:`~jaxdepth._src.xla_tuning.mask_columns`); the L1 column pass from the
+row keys transposed as int16), not from a full-image pass before the loop
+(docs/speed.md, "The distance transform's full-image passes", "The distance
+transform's transposes").
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
@@ -71,7 +73,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import put_row, shared_loop_bounds, take_last
+from jaxdepth._src.xla_tuning import mask_column, mask_columns, put_row, shared_loop_bounds, take_last
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -131,15 +133,15 @@ def _check(seed_mask: jax.Array, metric: str, horizontal_cost: int = 1) -> None:
 
 
 def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
-           source: jax.Array | None = None, unroll: int = 1) -> jax.Array:
+           source: jax.Array | None = None, read=None, unroll: int = 1) -> jax.Array:
     """``buf`` with row i replaced by ``carry = step(i, source[i], carry)``, rows in order (or reversed), in place.
 
     Args:
       buf: (N, ...) array, written row by row; init: the first carry, ``buf[0]``'s shape and dtype; step:
         elementwise ``(i, row, carry) -> carry`` (``i`` the int32 row index); source: (N, ...) array read row
-        by row, any dtype (default ``buf`` itself); unroll: ``lax.fori_loop``'s (more than 1 made XLA:CPU copy
-        ``buf`` every iteration: docs/speed.md, "The seed search's loops, the capped tail's gather and the L2 pass
-        under vmap").
+        by row, any dtype (default ``buf`` itself); read: ``(source, i) -> row`` (default: row ``i`` of
+        ``source``); unroll: ``lax.fori_loop``'s (more than 1 made XLA:CPU copy ``buf`` every iteration:
+        docs/speed.md, "The seed search's loops, the capped tail's gather and the L2 pass under vmap").
 
     XLA:CPU runs each scalar op of a loop step as a kernel of its own, and a sweep has N steps: the row
     read and write skip ``lax``'s negative-index wrap (a compare and select per index; every index here
@@ -154,8 +156,11 @@ def _sweep(buf: jax.Array, init: jax.Array, step, *, reverse: bool = False,
     def body(j, state):
         carry, buf = state
         i = n - 1 - j if reverse else j
-        row = lax.dynamic_index_in_dim(buf if source is None else source, i, 0, keepdims=False,
-                                       allow_negative_indices=False)
+        if read is None:
+            row = lax.dynamic_index_in_dim(buf if source is None else source, i, 0, keepdims=False,
+                                           allow_negative_indices=False)
+        else:
+            row = read(source, i)
         carry = step(i, row, carry)
         return carry, put_row(buf, carry, i)
 
@@ -179,12 +184,13 @@ def _row_pass(seed_mask: jax.Array) -> jax.Array:
     dtype = jnp.int16 if 2 * (far + w) + 1 <= _INT16_MAX else jnp.int32
     init = jnp.full((h,), 2 * far, dtype)
     no_seed = jnp.asarray(2 * (far + w) + 1, dtype)
-    # Forward, on the transposed bool mask (one byte a pixel), into a fresh buffer: 0 at a seed, else
+    # Forward, on the mask's columns (xla_tuning.mask_columns: 32 columns' bits a uint32, so the transposing
+    # copy moves 1/32 of the elements; plain: the transposed bool mask), into a fresh buffer: 0 at a seed, else
     # the carry + 2; the carry never exceeds 2 (far + w), so a seed's 0 and a non-seed's
     # 2 (far + w) + 1 under a minimum give exactly that.
     buf = _sweep(jnp.zeros((w, h), dtype), init,
                  lambda i, row, carry: jnp.minimum(jnp.where(row, jnp.zeros((), dtype), no_seed), carry + 2),
-                 source=seed_mask.T)
+                 source=mask_columns(seed_mask), read=mask_column)
     # Backward: moving one column left from the seed of column i + 1 puts it on the right; a left
     # seed of column i + 1 can never win here.
     return _sweep(buf, init, lambda i, row, carry: jnp.minimum(row, (carry + 2) | 1), reverse=True)
