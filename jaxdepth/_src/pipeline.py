@@ -190,8 +190,10 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
     if isinstance(normals_cam, ListedNormals):  # (not with the blend or the capped rule: _complete_tail)
         residual, depth_raw = _listed_plane(normals_cam, sparse_depth, has_seed, K, *seed_args, config=config)
-        seed_depth = jnp.where(has_seed, at(sparse_depth), 0.0)
-        has_seed = seed_depth > 0
+        seed_depth = jnp.where(has_seed, at(sparse_depth), 0.0)  # (for Stages; the depth does not read it)
+        # seed_depth > 0 is the seed search's scalar at every pixel: with a seed, each pixel's is a kept pixel
+        # (nearest_seed), and a kept pixel has a finite positive depth (the mask is a subset of sparse_depth > 0).
+        # The scalar spares the depth's last kernel a gather at the seed (docs/speed.md, kitti14).
         if config.column_bracket:  # the bracket's loop after the conditional (its buffers not live across it)
             depth_raw = column_hypotheses(depth_raw, after(jnp.where(keep, sparse_depth, 0.0), depth_raw), None,
                                           None, K, window_px=sparse_depth.shape[0] / beams,
