@@ -54,6 +54,22 @@ def load_frame():
     return sparse, K, presets.KITTI_T_CAM2_LIDAR, "random 4 % sparse 352x1216 (shared data missing)"
 
 
+#: glibc's largest dynamic mmap threshold (``DEFAULT_MMAP_THRESHOLD_MAX`` on 64-bit, 32 MiB): XLA:CPU takes a
+#: program's temporary from ``malloc``; past this size it is a fresh ``mmap`` page-faulted in on every call
+#: (1.8-2.5x slower frames, docs/speed.md, "Step 1's normals kept listed").
+MMAP_CLIFF_BYTES = 32 * 2**20
+
+
+def program_memory(compiled) -> dict:
+    """A compiled program's buffers (``memory_analysis``) in MB (10^6 bytes): temp, arguments, output; the
+    temporary's room below :data:`MMAP_CLIFF_BYTES` (33.55 MB; negative: over it) and whether it is over."""
+    m = compiled.memory_analysis()
+    temp = m.temp_size_in_bytes
+    return {"temp_mb": temp / 1e6, "argument_mb": m.argument_size_in_bytes / 1e6,
+            "output_mb": m.output_size_in_bytes / 1e6, "room_below_mmap_cliff_mb": (MMAP_CLIFF_BYTES - temp) / 1e6,
+            "over_mmap_cliff": temp >= MMAP_CLIFF_BYTES}
+
+
 def write_results(path, doc: dict, config, t0: float, *, indent: int | None = 2) -> None:
     """``doc`` plus the config (none for a tool that runs no configuration), run time and environment,
     atomically as JSON at ``path`` (``indent=None``: one line, for results of many per-target records)."""

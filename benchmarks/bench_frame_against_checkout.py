@@ -12,7 +12,8 @@ in which the SGM called first in the rotation follows IP_Basic in 2 rounds of 3 
 Process CPU (user + system of every thread) and wall of each call; reported: the medians, the ratio of
 CPU sums SGM / IP_Basic and the ratio of wall medians SGM / IP_Basic for each library, the median of the
 per-round ratios this / checkout, and each arm's medians by place and by the arm called before it
-(``_common.order_effects``: how much the order moves the same code). ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
+(``_common.order_effects``: how much the order moves the same code), and both frame programs' buffer sizes
+(``_common.program_memory``: the temporary and its room below the 32 MiB mmap cliff; branch kitti14). ``--stage outliers``: Step 2 alone (``outlier_keep_mask`` with the default options)
 instead of the whole frame, against IP_Basic all the same; ``--stage normals``: Step 1 alone (``pixel_normals``,
 the frame's range image and normals, the default options). ``--above-scan background``: both libraries'
 frames with ``SGMConfig(above_scan="background")`` (Step 4c) instead of the default.
@@ -34,8 +35,8 @@ import time
 
 import numpy as np
 
-from benchmarks._common import (RESULTS, balanced_orders, load_frame, order_effects, rotated_orders,
-                                write_results)
+from benchmarks._common import (RESULTS, balanced_orders, load_frame, order_effects, program_memory,
+                                rotated_orders, write_results)
 from benchmarks.bench_end_to_end import wall_and_cpu_ms
 from benchmarks.bench_rig_against_checkout import BASE, _copy_as_base
 
@@ -61,6 +62,15 @@ def _program(package: str, stage: str, d, k, t, *, above_scan: str = "plane"):
     methods = importlib.import_module(f"{package}._src.methods")
     return lambda: methods.complete_with(d, k, t, method="sgm", config=config,
                                          lidar=presets.KITTI_HDL64).block_until_ready()
+
+
+def _frame_memory(package: str, d, k, t, *, above_scan: str = "plane") -> dict:
+    """:func:`~benchmarks._common.program_memory` of ``package``'s compiled frame program (the one ``_program`` calls)."""
+    lib = importlib.import_module(package)
+    presets = importlib.import_module(f"{package}._src.presets")
+    methods = importlib.import_module(f"{package}._src.methods")
+    return program_memory(methods.complete_with.lower(d, k, t, method="sgm", config=lib.SGMConfig(above_scan=above_scan),
+                                                      lidar=presets.KITTI_HDL64).compile())
 
 
 def main(argv=None) -> int:
@@ -91,6 +101,11 @@ def main(argv=None) -> int:
     if not same:
         print("bench_frame_against_checkout: the outputs differ", file=sys.stderr)
         return 1
+    memory = {n: _frame_memory(p, d, k, t, above_scan=args.above_scan) for n, p in (("this", "jaxdepth"), ("checkout", BASE))}
+    for n, m in memory.items():
+        print(f"{n:9s} frame program: temp {m['temp_mb']:.2f} MB ({m['room_below_mmap_cliff_mb']:+.2f} MB below the "
+              f"32 MiB mmap cliff{'; OVER IT: every call page-faults its temporary' if m['over_mmap_cliff'] else ''})",
+              flush=True)
     for fn in calls.values():
         fn()
     names = list(calls)
@@ -117,7 +132,7 @@ def main(argv=None) -> int:
            "wall_ratio_this_to_checkout_median": statistics.median(a / b for a, b in zip(wall["this"], wall["checkout"])),
            "wall_by_order": order_effects([(n, p, w) for n, p, w, _ in timed], names),
            "cpu_by_order": order_effects([(n, p, c) for n, p, _, c in timed], names),
-           "load_average": os.getloadavg(), "runs_cpu_s": cpu, "runs_wall_s": wall,
+           "frame_program_memory": memory, "load_average": os.getloadavg(), "runs_cpu_s": cpu, "runs_wall_s": wall,
            "run_order": [n for n, *_ in timed]}
     for n in names:
         print(f"{n:9s} CPU {doc['cpu_ms_median'][n]:6.2f} ms  wall {doc['wall_ms_median'][n]:6.2f} ms (medians)")

@@ -2,7 +2,8 @@
 
 The compiled frame runs ``--runs`` times under ``jax.profiler`` (a Perfetto trace). Every XLA:CPU kernel
 event (loops and conditionals left out: their kernels are counted) is attributed to a stage by the
-``op_name`` of its HLO instruction in the compiled program (the named jits: ``pixel_normals`` Step 1,
+``op_name`` of its HLO instruction in the compiled program (the named jits and scopes: ``pixel_normals`` or
+``pixel_normals_slots`` Step 1,
 ``_keep_mask`` Step 2, ``nearest_seed`` Step 3, the rest of ``_complete_stages`` Step 4's tail: seed
 gathers, residual, column bracket, blur, clip; no op_name (copies XLA inserted): "input and output").
 Per stage: the kernels' exclusive time per frame (loop bodies' kernels summed over their steps), the
@@ -11,7 +12,8 @@ kernels overlap), the kernel count and launches per frame, and the time split by
 the PjRt client's). The profiler adds a cost to every kernel, so the sums exceed the unprofiled frame,
 most where kernels are many and small (loops); ``--rounds`` unprofiled calls give the frame's wall and
 process CPU beside them. ``--stage-rounds N`` (branch kitti12): the stages unprofiled, each jitted alone on the
-frame and called in shuffled order N rounds in one process beside the frame and IP_Basic (Step 1 ``pixel_normals``,
+frame and called in shuffled order N rounds in one process beside the frame and IP_Basic (Step 1 ``pixel_normals_slots``
+as the frame runs it, the listed form (kitti14; ``pixel_normals`` before),
 Step 2 ``keep_mask_for_config``, Step 3 ``nearest_seed`` of Step 2's kept pixels; the tail is the frame
 minus the three): the loops' kernels are not inflated there, the profiler's per-kernel cost is.
 
@@ -33,11 +35,11 @@ import sys
 import tempfile
 import time
 
-from benchmarks._common import RESULTS, load_frame, write_results
+from benchmarks._common import RESULTS, load_frame, program_memory, write_results
 from benchmarks.bench_end_to_end import wall_and_cpu_ms
 
 #: (keyword in the HLO op_name, stage), the first match wins: the named jits of each step's functions.
-STAGES = (("jit(pixel_normals)", "1 normals"), ("jit(_keep_mask)", "2 outliers"),
+STAGES = (("jit(pixel_normals)", "1 normals"), ("pixel_normals_slots", "1 normals"), ("jit(_keep_mask)", "2 outliers"),
           ("jit(nearest_seed)", "3 distance transform"), ("jit(_complete_stages)", "4 tail (gathers, residual, bracket, blur)"),
           ("", "0 input and output"))
 CONTAINERS = ("while", "cond", "conditional", "call")
@@ -78,11 +80,16 @@ def _stage_split(d, k, t, sparse, rounds: int) -> dict:
     import jaxdepth
     from benchmarks.bench_frame_against_checkout import _program
     from jaxdepth._src import distance, outliers, presets
+    from jaxdepth._src.pixel_normals import pixel_normals_slots
     from jaxdepth.research.baselines import ip_basic_opencv
     keep = jax.jit(lambda d, k, t: outliers.keep_mask_for_config(d, k, t, beams=presets.KITTI_HDL64.beams,
                                                                  config=jaxdepth.SGMConfig()))(d, k, t)
     seek = jax.jit(distance.nearest_seed)     # the pipeline's seeds are Step 2's kept pixels
-    calls = {"frame": _program("jaxdepth", "frame", d, k, t), "step 1 normals": _program("jaxdepth", "normals", d, k, t),
+    slots = jax.jit(lambda d, k, t: (lambda n: (n.slot, n.table, n.fits))(pixel_normals_slots(
+        d, k, t, lidar=presets.KITTI_HDL64, smoothing=jaxdepth.SGMConfig().normal_smoothing,
+        fill_max_gap=jaxdepth.SGMConfig().range_fill_max_gap)))
+    calls = {"frame": _program("jaxdepth", "frame", d, k, t),
+             "step 1 normals": lambda: jax.block_until_ready(slots(d, k, t)),
              "step 2 outliers": _program("jaxdepth", "outliers", d, k, t),
              "step 3 seed search": lambda: jax.block_until_ready(seek(keep)),
              "ip_basic": lambda: ip_basic_opencv(sparse, blur_type="gaussian")}
@@ -119,6 +126,9 @@ def main(argv=None) -> int:
     d, k, t = jnp.asarray(sparse), jnp.asarray(K), jnp.asarray(T)
     kw = {"method": "sgm", "config": jaxdepth.SGMConfig(), "lidar": presets.KITTI_HDL64}
     exe = complete_with.lower(d, k, t, **kw).compile()
+    memory = program_memory(exe)
+    print(f"{label}: the frame program's temp {memory['temp_mb']:.2f} MB ({memory['room_below_mmap_cliff_mb']:+.2f} MB "
+          f"below the 32 MiB mmap cliff)", flush=True)
     origin = _origins(exe.as_text())
     call = lambda: exe(d, k, t).block_until_ready()
     for _ in range(3):
@@ -158,7 +168,7 @@ def main(argv=None) -> int:
     doc = {"what": "one KITTI frame's compiled program under jax.profiler: kernels' exclusive time per frame by stage "
                    "and thread (profiler overhead included), the union of the stage's kernel intervals (wall "
                    "while any of its kernels runs), and the unprofiled frame's wall / process CPU",
-           "frame": label, "runs": args.runs, "rounds": args.rounds,
+           "frame": label, "runs": args.runs, "rounds": args.rounds, "frame_program_memory": memory,
            "unprofiled_ms_median": {"wall": statistics.median(walls), "cpu": statistics.median(cpus)},
            "kernels_ms_per_frame_total": sum(kernel_us.values()) / per,
            "kernels_union_ms_per_frame": _union_us([iv for v in spans.values() for iv in v]) / per,

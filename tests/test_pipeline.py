@@ -255,3 +255,25 @@ def test_listed_normals_give_the_same_stages_whichever_branch():
     assert fits  # the listed branch ran
     for field, a, b, c in zip(pipeline.Stages._fields, image, listed, fallback):
         assert a.tobytes() == b.tobytes() == c.tobytes(), field
+
+
+@pytest.mark.slow  # a whole pipeline program of its own (docs/testing.md)
+def test_every_pixel_seed_has_depth_exactly_when_the_search_found_one():
+    """The single-camera tail masks by the seed search's scalar ``has_seed`` in place of ``seed_depth > 0`` at
+    each pixel (kitti14's ``scalar_mask``). The invariant it rests on, on its own: with any kept pixel, every
+    pixel's seed depth is finite and positive; with none, every pixel's is 0 and so is the depth. A tiny frame
+    with NaN, infinite, negative and -0 values planted, an empty one and one with no positive value; outlier
+    removal on and off."""
+    sparse, K, T = tiny_frame(6)
+    dirty = sparse.copy()
+    dirty[0, :3] = np.nan, np.inf, -2.0
+    dirty[-1, -3:] = -np.inf, -0.0, np.nan
+    for config in (SGMConfig(), SGMConfig(outlier_removal=False)):
+        for d in (dirty, np.zeros_like(sparse), np.where(np.isfinite(dirty), -np.abs(dirty), np.nan)):
+            stages = complete_stages(d, K, T, config=config, lidar=SMALL_LIDAR)
+            found = bool(np.asarray(stages.inlier_mask).any())
+            assert found == bool((np.isfinite(d) & (d > 0)).any())
+            seed_depth = np.asarray(stages.seed_depth)
+            assert np.array_equal(seed_depth > 0, np.full(d.shape, found))
+            assert np.all(np.isfinite(seed_depth))
+            assert found or not np.asarray(stages.depth).any()

@@ -105,6 +105,9 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     :func:`project_with_normals` with ``apart``); ``normals_cam`` may also be a
     :class:`~jaxdepth._src.pixel_normals.ListedNormals` (the frame); ``Stages.normals`` is (3, H, W) in every case.
     """
+    # One camera whose Step 2 runs here: each pixel's seed (a kept pixel, nearest_seed) has a finite positive
+    # depth whenever the search found a seed, so seed_depth > 0 is the search's scalar at every pixel.
+    scalar_mask = keep is None and image_size is None
     if keep is None:
         keep = keep_mask_for_config(sparse_depth, K, T_cam_lidar, beams=beams, config=config,
                                     points_cam=points_cam, image_size=image_size)
@@ -127,7 +130,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     if isinstance(normals_cam, ListedNormals) and (config.blend_hypotheses or config.above_scan == "capped"):
         normals_cam = _listed_image(normals_cam)  # (the blend and the capped rule read the normals' image)
     return _tail_after_seeds(sparse_depth, keep, normals_cam, K, seeds.has_seed, *seed_args, beams=beams,
-                             config=config, image_size=image_size)
+                             config=config, image_size=image_size, scalar_mask=scalar_mask)
 
 
 def _seed_reader(capped: bool, seed_args):
@@ -183,15 +186,18 @@ def _listed_plane(listed: ListedNormals, sparse_depth, has_seed, K, seed_at, *, 
 
 
 def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, beams: int, config: SGMConfig,
-                      image_size=None) -> Stages:
+                      image_size=None, scalar_mask: bool = False) -> Stages:
     """Step 4 from the seed search's output (``seed_args``: du, dv when ``above_scan`` is "capped", else the
     flat seed index): gathers at the seed, residual, bracket, above-scan rule, blur. ``has_seed``: the seed
-    search's (a scalar). ``normals_cam``: (3, H, W), three channels or :class:`ListedNormals`."""
+    search's (a scalar). ``normals_cam``: (3, H, W), three channels or :class:`ListedNormals`.
+    ``scalar_mask`` (static): ``keep`` is a subset of ``sparse_depth > 0`` (Step 2 ran in the tail) and the image
+    is the whole array, so ``seed_depth > 0`` equals ``has_seed`` at every pixel: the masks read the scalar, and
+    the depth's last kernel no gather at the seed (the listed path) nor the seed depth's buffer (kitti14)."""
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
     if isinstance(normals_cam, ListedNormals):  # (not with the blend or the capped rule: _complete_tail)
         residual, depth_raw = _listed_plane(normals_cam, sparse_depth, has_seed, K, *seed_args, config=config)
         seed_depth = jnp.where(has_seed, at(sparse_depth), 0.0)
-        has_seed = seed_depth > 0
+        has_seed = has_seed if scalar_mask else seed_depth > 0
         if config.column_bracket:  # the bracket's loop after the conditional (its buffers not live across it)
             depth_raw = column_hypotheses(depth_raw, after(jnp.where(keep, sparse_depth, 0.0), depth_raw), None,
                                           None, K, window_px=sparse_depth.shape[0] / beams,
@@ -200,7 +206,7 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
     else:
         seed_depth, seed_normal = _gather_seeds(sparse_depth, keep, normals_cam, at, has_seed)
         residual, depth_raw = _plane_depth(seed_depth, seed_normal, du, dv, K, config=config)
-        has_seed = seed_depth > 0
+        has_seed = has_seed if scalar_mask else seed_depth > 0
         if config.column_bracket:
             # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
             bracket_input = after(jnp.where(keep, sparse_depth, 0.0), du)

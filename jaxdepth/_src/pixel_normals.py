@@ -308,9 +308,11 @@ def pixel_normals_slots(sparse_depth, K, T_cam_lidar, *, lidar: LidarSpec, smoot
                         fill_max_gap: int) -> ListedNormals:
     """:func:`pixel_normals` kept listed (traced inside the frame's program, :func:`~jaxdepth._src.pipeline.complete`):
     the listed path's normals as a :class:`ListedNormals` slot image and table, ``fits`` its fallback choice.
-    Equal values: ``table[:, slot]`` is :func:`pixel_normals`' output where ``fits`` (docs/speed.md, kitti13)."""
-    return _pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=smoothing, fill_max_gap=fill_max_gap,
-                          window_columns=None, max_points=None, listed_only="slots")
+    Equal values: ``table[:, slot]`` is :func:`pixel_normals`' output where ``fits`` (docs/speed.md, kitti13).
+    Its ops carry the name ``pixel_normals_slots`` (metadata only: ``bench_frame_profile``'s Step 1)."""
+    with jax.named_scope("pixel_normals_slots"):
+        return _pixel_normals(sparse_depth, K, T_cam_lidar, lidar=lidar, smoothing=smoothing,
+                              fill_max_gap=fill_max_gap, window_columns=None, max_points=None, listed_only="slots")
 
 
 def _pixel_normals(sparse_depth, K, T_cam_lidar, *, lidar, smoothing, fill_max_gap, window_columns, max_points,
