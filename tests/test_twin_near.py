@@ -147,3 +147,54 @@ def test_range_bands_are_off_by_default_and_change_only_their_band():
     d_far = np.linalg.norm(default.point_exact, axis=1) >= 10.0
     np.testing.assert_array_equal(tw.cloud.points[exact_r >= 10.0], default.cloud.points[d_far])
     assert (exact_r < 10.0).sum() > (np.linalg.norm(default.point_exact, axis=1) < 10.0).sum()
+
+
+def _firing_order_sweep(cols=1084, rings=32):
+    """A sweep stored as nuScenes stores it (column by column, every ring): 10 m everywhere except ring 0's
+    first 50 columns at 0.6 m (the ego's body) and ring 1's columns 100-109 stored at a fixed point
+    (0, -0.45, 0) (invalid returns)."""
+    k = np.repeat(np.arange(cols), rings)
+    b = np.tile(np.arange(rings), cols)
+    az = np.pi - 2.0 * np.pi * (k + 0.5) / cols
+    r = np.where((b == 0) & (k < 50), 0.6, 10.0)
+    el = np.radians(-30.0 + b)
+    p = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)
+    invalid = (b == 1) & (k >= 100) & (k < 110)
+    p[invalid] = (0.0, -0.45, 0.0)
+    return p, b, az, invalid
+
+
+def test_ego_table_puts_every_return_at_its_column_azimuth():
+    from jaxdepth.research.twin_measure import ego_table
+    p, b, az, invalid = _firing_order_sweep()
+    tab = ego_table(p, b)
+    a1, r1 = tab[1]
+    want = np.sort(np.angle(np.exp(1j * az[b == 1])))
+    np.testing.assert_allclose(a1, want, atol=1e-9)
+    # The invalid returns sit at their own columns' azimuths, at 0.45 m.
+    near = np.isin(np.round(a1, 9), np.round(np.angle(np.exp(1j * az[invalid])), 9))
+    assert near.sum() == 10 and np.allclose(r1[near], 0.45)
+
+
+def test_ego_returns_replace_only_the_ego_rays():
+    from jaxdepth.research.twin_measure import ego_table
+    p, b, _, _ = _firing_order_sweep()
+    base = SensorEffects(**SENSOR_EFFECTS["nuscenes"])
+    plain = _twin(base)
+    tw = make_twin("nuscenes", sweeps=1, seed=0, scale=0.05, effects=base, ego=ego_table(p, b))
+    r = np.linalg.norm(tw.cloud.points, axis=1)
+    ego = r < 2.0
+    # Ring 0's first 50 columns and ring 1's 10 invalid columns (1088 twin columns against 1084: 49-51 and 9-11).
+    assert 58 <= ego.sum() <= 62 and set(tw.cloud.ring[ego].tolist()) == {0, 1}
+    np.testing.assert_allclose(r[ego & (tw.cloud.ring == 0)], 0.6, rtol=1e-5)
+    np.testing.assert_array_equal(tw.point_exact[ego], tw.cloud.points[ego])
+    # Every other return is the plain twin's, draw for draw.
+    pr = np.linalg.norm(plain.cloud.points, axis=1)
+    a_ego = np.arctan2(tw.cloud.points[ego, 1], tw.cloud.points[ego, 0])
+    a_plain = np.arctan2(plain.cloud.points[:, 1], plain.cloud.points[:, 0])
+    hit = np.zeros(len(pr), bool)
+    for ring, a in zip(tw.cloud.ring[ego], a_ego):
+        hit |= (plain.cloud.ring == ring) & (np.abs(np.angle(np.exp(1j * (a_plain - a)))) < 1e-4)
+    np.testing.assert_array_equal(tw.cloud.points[~ego], plain.cloud.points[~hit])
+    with pytest.raises(ValueError, match="ego"):
+        make_twin("av2", sweeps=1, seed=0, scale=0.05, ego=ego_table(p, b))

@@ -147,7 +147,7 @@ def far_edges(preds: dict, target: list, covered: list, exact: list) -> dict:
     return out
 
 
-def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConfig, effects=True) -> dict:
+def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConfig, effects=True, ego=None) -> dict:
     from benchmarks.accuracy_twins import (
         cover_half_height,
         exact_truth,
@@ -158,7 +158,7 @@ def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConf
     )
     from jaxdepth.research.twin_measure import scene_statistics
     from jaxdepth.research.twins import make_twin, write_twin
-    tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale, layout=layout, effects=effects)
+    tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale, layout=layout, effects=effects, ego=ego)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps"][0], paths["rig"])
@@ -217,6 +217,15 @@ def real_near_effects():
     points, extra = read_points(glob.glob(str(DATA / "nuscenes" / "sample" / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
     near = near_statistics(points, ring_column(extra, 5))
     return band_effects(near, SensorEffects(**SENSOR_EFFECTS["nuscenes"])), near
+
+
+def real_ego_table() -> dict:
+    """The real sweep's returns per ring for ``make_twin(ego=)`` (nusc13, ``--ego``)."""
+    from jaxdepth.io import read_points
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.research.twin_measure import ego_table
+    points, extra = read_points(glob.glob(str(DATA / "nuscenes" / "sample" / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    return ego_table(points, ring_column(extra, 5))
 
 
 def real_sample(draws, config: SGMConfig) -> dict:
@@ -366,6 +375,9 @@ def main(argv=None) -> int:
                         help="nusc13: the twin's noise and dropouts per near range band (0-5, 5-10, 10-20 m) as "
                              "measured on the real sweep (twin_measure.band_effects)")
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_far_twin_nusc11.json"))
+    parser.add_argument("--ego", action="store_true",
+                        help="nusc13: the twin's rays whose real return is the ego's body (or an invalid return) "
+                             "return that (make_twin(ego=))")
     parser.add_argument("--near-only", action="store_true",
                         help="nusc13: only the near statistics of the real sweep and the twin (--layouts, --twin-seeds)")
     parser.add_argument("--other-twins", nargs="+", default=[], metavar="RIG",
@@ -407,6 +419,8 @@ def main(argv=None) -> int:
         effects, near = real_near_effects()
         doc["settings"]["effects"] = dataclasses.asdict(effects)
         doc["real_near_statistics"] = near
+    ego = real_ego_table() if args.ego else None
+    doc["settings"]["ego"] = bool(args.ego)
     if not args.skip_real:
         doc["real_sample"] = real_sample(args.seeds, config)
         r = doc["real_sample"]
@@ -416,7 +430,7 @@ def main(argv=None) -> int:
     doc["twins"] = []
     for layout in args.layouts:
         for s in args.twin_seeds:
-            doc["twins"].append(twin_case(layout, s, args.seeds, args.scale, config, effects))
+            doc["twins"].append(twin_case(layout, s, args.seeds, args.scale, config, effects, ego))
             print(f"{layout} seed {s} done ({time.time() - t0:.0f} s)", flush=True)
             write_results(args.json, doc, config, t0, indent=None)
     write_results(args.json, doc, config, t0, indent=None)

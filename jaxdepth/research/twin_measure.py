@@ -347,6 +347,38 @@ def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
     return out
 
 
+def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
+    """``{ring: (azimuth (n,) rad ascending, range (n,) m)}`` of every return of one spinning LiDAR's sweep
+    (its own frame) **in firing order** (the file's order, as nuScenes stores it: one return per laser and
+    column), for :func:`jaxdepth.research.twins.ego_returns` (which rays return the ego's body).
+
+    A return's azimuth is its column's (the k-th return of its ring is in column k): the circular mean of
+    the column's returns beyond :data:`EGO_M`, interpolated over columns without one; invalid returns stored
+    at a fixed position near the sensor thus keep the azimuth at which they were fired.
+    """
+    p = np.asarray(points, np.float64)
+    ring = np.asarray(ring)
+    az, rng = np.arctan2(p[:, 1], p[:, 0]), np.linalg.norm(p, axis=1)
+    col = np.zeros(len(p), np.int64)
+    for b in np.unique(ring):
+        sel = ring == b
+        col[sel] = np.arange(int(sel.sum()))
+    n = int(col.max()) + 1 if len(p) else 0
+    ok = rng > EGO_M
+    z = np.bincount(col[ok], np.cos(az[ok]), minlength=n) + 1j * np.bincount(col[ok], np.sin(az[ok]), minlength=n)
+    has = np.abs(z) > 0
+    k = np.arange(n)
+    unwrapped = np.unwrap(np.angle(z[has]))
+    col_az = np.angle(np.exp(1j * np.interp(k, k[has], unwrapped)))
+    out = {}
+    for b in np.unique(ring[ring >= 0]):
+        sel = np.flatnonzero(ring == b)
+        a = col_az[col[sel]]
+        order = np.argsort(a, kind="stable")
+        out[int(b)] = (a[order], rng[sel][order])
+    return out
+
+
 def band_effects(near: dict, base):
     """``base`` (a :class:`~jaxdepth.research.twin_sensors.SensorEffects`) with range bands measured by
     :func:`near_statistics` (``near``, on a real sweep): per :data:`NEAR_BANDS_M` band the noise
