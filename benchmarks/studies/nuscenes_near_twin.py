@@ -1,7 +1,7 @@
 """The nuScenes twin's near range with the real sweep's near-range rates (issue 37, nusc13): existing options.
 
-    PYTHONPATH=. python -m benchmarks.studies.nuscenes_near_twin [--layouts cluttered] [--twin-seeds 0 1] [--scale 1] \
-        [--json benchmarks/results/nuscenes_near_twin_nusc13.json]
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_near_twin [--layouts cluttered] [--twin-seeds 0 1] \
+        [--scale 1] [--ego] [--json benchmarks/results/nuscenes_near_twin_nusc13.json]
 
 On the nuScenes twin (1 sweep, full size, the single-sweep path of a user's point file and rig JSON), with
 the twin's rates (``SENSOR_EFFECTS``) and with the range bands measured on the real sweep
@@ -10,7 +10,8 @@ the twin's rates (``SENSOR_EFFECTS``) and with the range bands measured on the r
 existing options (:data:`VARIANTS`: no removal, the normals' smoothing, Step 4's Gaussian), the city-block
 and Euclidean fills, and scored (RMSE / MAE mm, mean over images) against the exact depth of every pixel, of
 the pixels whose exact depth is within :data:`NEAR_M` and of those beyond it.
-No default is changed here; the exact depth is read only to score.
+``--ego``: both with the real sweep's ego returns (``make_twin(ego=)``). No default is changed here; the
+exact depth is read only to score.
 """
 
 from __future__ import annotations
@@ -43,11 +44,11 @@ def split_scores(pred: list, exact: list) -> dict:
     return out
 
 
-def case(layout: str, seed: int, effects, config: SGMConfig, scale: float = 1.0) -> dict:
+def case(layout: str, seed: int, effects, config: SGMConfig, scale: float = 1.0, ego=None) -> dict:
     from benchmarks.accuracy_twins import crops, exact_truth, read_user_input, single_path, z_buffers
     from jaxdepth._src.methods import complete_with
     from jaxdepth.research.twins import make_twin, write_twin
-    tw = make_twin("nuscenes", sweeps=1, seed=seed, scale=scale, layout=layout, effects=effects)
+    tw = make_twin("nuscenes", sweeps=1, seed=seed, scale=scale, layout=layout, effects=effects, ego=ego)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps"][0], paths["rig"])
@@ -89,6 +90,7 @@ def main(argv=None) -> int:
     parser.add_argument("--layouts", nargs="+", default=["cluttered"])
     parser.add_argument("--twin-seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--ego", action="store_true", help="the twin's ego returns (nuscenes_far_twin --ego)")
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_near_twin_nusc13.json"))
     parser.add_argument("--table", metavar="JSON", help="print the docs' table of a result file and exit")
     args = parser.parse_args(argv)
@@ -99,17 +101,18 @@ def main(argv=None) -> int:
         return 0
     import dataclasses
 
-    from benchmarks.studies.nuscenes_far_twin import real_near_effects
+    from benchmarks.studies.nuscenes_far_twin import real_ego_table, real_near_effects
     bands, _ = real_near_effects()
+    ego = real_ego_table() if args.ego else None
     config = SGMConfig()
     t0 = time.time()
-    doc = {"settings": {"layouts": args.layouts, "twin_seeds": args.twin_seeds, "scale": args.scale, "near_m": NEAR_M, "variants": VARIANTS,
+    doc = {"settings": {"layouts": args.layouts, "twin_seeds": args.twin_seeds, "scale": args.scale, "ego": bool(args.ego), "near_m": NEAR_M, "variants": VARIANTS,
                         "band_effects": dataclasses.asdict(bands)}, "runs": []}
     for layout in args.layouts:
         for seed in args.twin_seeds:
             for tag, eff in (("twin rates", True), ("real near bands", bands)):
                 doc["runs"].append({"layout": layout, "seed": seed, "effects_tag": tag,
-                                    "scores": case(layout, seed, eff, config, args.scale)})
+                                    "scores": case(layout, seed, eff, config, args.scale, ego)})
                 s = doc["runs"][-1]["scores"]
                 print(f"{layout} {seed} {tag} ({time.time() - t0:.0f} s): "
                       + ", ".join(f"{m} {v['near']['mae']:.1f}" for m, v in s.items()), flush=True)
