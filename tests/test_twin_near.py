@@ -168,16 +168,18 @@ def test_ego_table_puts_every_return_at_its_column_azimuth():
     from jaxdepth.research.twin_measure import ego_table
     p, b, az, invalid = _firing_order_sweep()
     tab = ego_table(p, b)
-    a1, r1 = tab[1]
+    a1, r1, p1 = tab[1]
     want = np.sort(np.angle(np.exp(1j * az[b == 1])))
     np.testing.assert_allclose(a1, want, atol=1e-9)
-    # The invalid returns sit at their own columns' azimuths, at 0.45 m.
+    # The invalid returns sit at their own columns' azimuths, at 0.45 m, and keep their stored point.
     near = np.isin(np.round(a1, 9), np.round(np.angle(np.exp(1j * az[invalid])), 9))
-    assert near.sum() == 10 and np.allclose(r1[near], 0.45)
+    assert near.sum() == 10 and np.allclose(r1[near], 0.45) and np.allclose(p1[near], (0.0, -0.45, 0.0))
 
 
 def test_ego_returns_replace_only_the_ego_rays():
     from jaxdepth.research.twin_measure import ego_table
+    from jaxdepth.research.twin_rigs import RIG_BUILDERS
+    from jaxdepth.research.twins import ego_returns
     p, b, _, _ = _firing_order_sweep()
     base = SensorEffects(**SENSOR_EFFECTS["nuscenes"])
     plain = _twin(base)
@@ -187,13 +189,17 @@ def test_ego_returns_replace_only_the_ego_rays():
     # Ring 0's first 50 columns and ring 1's 10 invalid columns (1088 twin columns against 1084: 49-51 and 9-11).
     assert 58 <= ego.sum() <= 62 and set(tw.cloud.ring[ego].tolist()) == {0, 1}
     np.testing.assert_allclose(r[ego & (tw.cloud.ring == 0)], 0.6, rtol=1e-5)
+    np.testing.assert_allclose(tw.cloud.points[ego & (tw.cloud.ring == 1)], [[0.0, -0.45, 0.0]] * 10, atol=1e-6)
     np.testing.assert_array_equal(tw.point_exact[ego], tw.cloud.points[ego])
-    # Every other return is the plain twin's, draw for draw.
-    pr = np.linalg.norm(plain.cloud.points, axis=1)
-    a_ego = np.arctan2(tw.cloud.points[ego, 1], tw.cloud.points[ego, 0])
+    # Every other return is the plain twin's, draw for draw (the twin's rays: apex at the origin).
+    unit = RIG_BUILDERS["nuscenes"](base).units[0][0](0)
+    rays = np.isfinite(ego_returns(unit, ego_table(p, b))[:, 0])
+    assert rays.sum() == ego.sum()
+    d = unit.directions[rays]
+    a_rays = np.arctan2(d[:, 1], d[:, 0])
     a_plain = np.arctan2(plain.cloud.points[:, 1], plain.cloud.points[:, 0])
-    hit = np.zeros(len(pr), bool)
-    for ring, a in zip(tw.cloud.ring[ego], a_ego):
+    hit = np.zeros(len(a_plain), bool)
+    for ring, a in zip(unit.ring[rays], a_rays):
         hit |= (plain.cloud.ring == ring) & (np.abs(np.angle(np.exp(1j * (a_plain - a)))) < 1e-4)
     np.testing.assert_array_equal(tw.cloud.points[~ego], plain.cloud.points[~hit])
     with pytest.raises(ValueError, match="ego"):

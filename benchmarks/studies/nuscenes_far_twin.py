@@ -273,19 +273,37 @@ NEAR_ROWS = (("points_share", "share of all points", 1.0), ("ground_second_diff_
              ("spike_far_share", "far spikes per smooth triple", 1.0))
 
 
+def _camera_near(points, cameras) -> dict:
+    """Per camera, the points projecting into it within 4 and 5 m of camera depth."""
+    from jaxdepth.research.twin_measure import camera_depths
+    out = {}
+    for c in cameras:
+        z = camera_depths(points, c.K, c.T_cam_lidar, c.width, c.height)
+        out[c.name] = [int((z < 4.0).sum()), int((z < 5.0).sum())]
+    return out
+
+
 def near_only(layouts, seeds) -> dict:
-    """nusc13: :func:`~jaxdepth.research.twin_measure.near_statistics` of the real sweep and of the nuScenes
-    twin (sweep 0, camera scale 0.05: the LiDAR does not depend on it) in each layout, with the twin's
-    rates and with the range bands measured on the real sweep."""
+    """nusc13: :func:`~jaxdepth.research.twin_measure.near_statistics` (and the points within 4 / 5 m of the real
+    cameras' depth)
+    of the real sweep and of the nuScenes twin (sweep 0, camera scale 0.05: the LiDAR does not depend on it)
+    in each layout, with the twin's rates, with the range bands measured on the real sweep, and with those
+    and the real sweep's ego returns."""
+    from jaxdepth.io import read_points, rig_from_nuscenes_calibration
     from jaxdepth.research.twin_measure import near_statistics
     from jaxdepth.research.twins import make_twin
     bands, real = real_near_effects()
-    cols = {"real": real}
+    ego = real_ego_table()
+    nus = DATA / "nuscenes" / "sample"
+    points, extra = read_points(glob.glob(str(nus / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    cams = rig_from_nuscenes_calibration(nus / "calibration.json").cameras     # the twin's points frame is the LiDAR's
+    cols = {"real": dict(real, camera_near=_camera_near(points, cams))}
     for layout in layouts:
         for seed in seeds:
-            for tag, eff in (("", True), (" bands", bands)):
-                tw = make_twin("nuscenes", sweeps=1, seed=seed, scale=0.05, layout=layout, effects=eff)
-                cols[f"{layout} {seed}{tag}"] = near_statistics(tw.cloud.points, tw.cloud.ring)
+            for tag, eff, e in (("", True, None), (" bands", bands, None), (" bands ego", bands, ego)):
+                tw = make_twin("nuscenes", sweeps=1, seed=seed, scale=0.05, layout=layout, effects=eff, ego=e)
+                cols[f"{layout} {seed}{tag}"] = dict(near_statistics(tw.cloud.points, tw.cloud.ring),
+                                                     camera_near=_camera_near(tw.cloud.points, cams))
     return {"columns": cols}
 
 
@@ -295,6 +313,9 @@ def near_table(cols: dict) -> str:
     lines = ["| band, statistic | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|",
              "| points nearer than 2 m (ego, housing, invalid) | "
              + " | ".join(f"{cols[n]['within_ego_m']:.3f}" for n in names) + " |"]
+    for cam in cols[names[0]].get("camera_near", {}):
+        lines.append(f"| camera points within 4 / 5 m, {cam} | "
+                     + " | ".join("{} / {}".format(*cols[n]["camera_near"][cam]) for n in names) + " |")
     for band in cols[names[0]]["bands"]:
         for key, label, k in NEAR_ROWS:
             cells = [cols[n]["bands"][band][key] * k for n in names]

@@ -348,9 +348,9 @@ def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
 
 
 def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
-    """``{ring: (azimuth (n,) rad ascending, range (n,) m)}`` of every return of one spinning LiDAR's sweep
-    (its own frame) **in firing order** (the file's order, as nuScenes stores it: one return per laser and
-    column), for :func:`jaxdepth.research.twins.ego_returns` (which rays return the ego's body).
+    """``{ring: (azimuth (n,) rad ascending, range (n,) m, point (n, 3) m)}`` of every return of one spinning
+    LiDAR's sweep (its own frame) **in firing order** (the file's order, as nuScenes stores it: one return per
+    laser and column), for :func:`jaxdepth.research.twins.ego_returns` (which rays return the ego's body).
 
     A return's azimuth is its column's (the k-th return of its ring is in column k): the circular mean of
     the column's returns beyond :data:`EGO_M`, interpolated over columns without one; invalid returns stored
@@ -375,7 +375,7 @@ def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
         sel = np.flatnonzero(ring == b)
         a = col_az[col[sel]]
         order = np.argsort(a, kind="stable")
-        out[int(b)] = (a[order], rng[sel][order])
+        out[int(b)] = (a[order], rng[sel][order], p[sel][order])
     return out
 
 

@@ -143,35 +143,37 @@ def _moved(T: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def ego_returns(unit, table) -> np.ndarray:
-    """(rows * cols,) float64 range of each of ``unit``'s rays that returns the ego's body, nan elsewhere.
+    """(rows * cols, 3) float64: for each of ``unit``'s rays that returns the ego's body, that return (the
+    unit's frame); nan elsewhere.
 
-    ``table``: ``{ring: (azimuth (n,) rad ascending, range (n,) m)}`` of a real sweep's returns in the
-    LiDAR's own frame (:func:`jaxdepth.research.twin_measure.ego_table`); a ray returns the ego when the
-    real return nearest in azimuth on its ring is nearer than :data:`~jaxdepth.research.twin_measure.EGO_M`,
-    and then at that return's range (the ego moves with the sensor: the same rays every sweep).
+    ``table``: a real sweep's returns per ring in the LiDAR's own frame
+    (:func:`jaxdepth.research.twin_measure.ego_table`); a ray returns the ego when the real return nearest in
+    azimuth on its ring is nearer than :data:`~jaxdepth.research.twin_measure.EGO_M`, and then returns that
+    very point (the ego moves with the sensor: the same rays every sweep; invalid returns stay where the
+    real file stores them, which no camera sees).
     """
     from jaxdepth.research.twin_measure import EGO_M
     d = np.asarray(unit.directions, np.float64)
     az = np.arctan2(d[:, 1], d[:, 0])
-    out = np.full(len(d), np.nan)
-    for b, (a_real, r_real) in table.items():
+    out = np.full((len(d), 3), np.nan)
+    for b, (a_real, r_real, p_real) in table.items():
         sel = np.flatnonzero(unit.ring == b)
         if not sel.size or not len(a_real):
             continue
         i = np.searchsorted(a_real, az[sel]) % len(a_real)
         j = (i - 1) % len(a_real)
         gap = lambda k: np.abs(np.angle(np.exp(1j * (a_real[k] - az[sel]))))  # noqa: E731
-        r = np.where(gap(i) <= gap(j), r_real[i], r_real[j])
-        out[sel] = np.where(r < EGO_M, r, np.nan)
+        k = np.where(gap(i) <= gap(j), i, j)
+        near = r_real[k] < EGO_M
+        out[sel[near]] = p_real[k[near]]
     return out
 
 
-def _with_ego(out: dict, ego: np.ndarray, unit, T_world_unit: np.ndarray) -> dict:
-    """``cast_unit``'s output with the ego rays (``ego`` finite) returning the ego's body at those ranges."""
-    hit = np.isfinite(ego)
+def _with_ego(out: dict, ego: np.ndarray, T_world_unit: np.ndarray) -> dict:
+    """``cast_unit``'s output with the ego rays (``ego`` finite) returning the ego's body (those points)."""
+    hit = np.isfinite(ego[:, 0])
     T = np.asarray(T_world_unit, np.float64)
-    d = np.asarray(unit.directions, np.float64)[hit] @ T[:3, :3].T
-    p = (out["origin"] + d * ego[hit, None]).astype(np.float32)
+    p = (ego[hit] @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
     out = dict(out, points=out["points"].copy(), valid=out["valid"].copy(), exact=out["exact"].copy(),
                mixed=out["mixed"].copy())
     out["points"][hit], out["exact"][hit], out["valid"][hit], out["mixed"][hit] = p, p, True, False
@@ -197,7 +199,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
             unit = make_unit(k)
             out = cast_unit(scene, spheres, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
             if ego is not None:
-                out = _with_ego(out, ego_returns(unit, ego), unit, T_world_k @ T_points_unit)
+                out = _with_ego(out, ego_returns(unit, ego), T_world_k @ T_points_unit)
             if rdef.per_unit_sources:
                 poses.append(T_ref_points @ T_points_unit)
                 specs.append(rdef.stated[u])
@@ -239,8 +241,8 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         (``"open"`` with near clutter within 10 m and denser far vegetation).
       ego: None (default: no ego body) or a real sweep's returns per ring
         (:func:`~jaxdepth.research.twin_measure.ego_table`, the rig's one spinning unit): the rays whose real
-        return is the ego's body, housing or an invalid return (nearer than 2 m) return that instead of the
-        scene (:func:`ego_returns`; nusc13). The cameras' exact depth is unchanged (no real camera sees them).
+        return is the ego's body, housing or an invalid return (nearer than 2 m) return that real point instead
+        of the scene (:func:`ego_returns`; nusc13). The cameras' exact depth is unchanged (no real camera sees them).
 
     Returns:
       :class:`Twin`.
