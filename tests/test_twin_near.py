@@ -150,16 +150,16 @@ def test_range_bands_are_off_by_default_and_change_only_their_band():
 
 
 def _firing_order_sweep(cols=1084, rings=32):
-    """A sweep stored as nuScenes stores it (column by column, every ring): 10 m everywhere except ring 0's
-    first 50 columns at 0.6 m (the ego's body) and ring 1's columns 100-109 stored at a fixed point
-    (0, -0.45, 0) (invalid returns)."""
+    """A sweep stored as nuScenes stores it (column by column, every ring; ring b at -30 + b deg): 10 m
+    everywhere except ring 0's first 50 columns at 0.6 m (the ego's body) and columns 100-109 of ring 1 (aimed
+    at the road) and ring 31 (above the horizon) stored at a fixed point (0, -0.45, 0) (invalid returns)."""
     k = np.repeat(np.arange(cols), rings)
     b = np.tile(np.arange(rings), cols)
     az = np.pi - 2.0 * np.pi * (k + 0.5) / cols
     r = np.where((b == 0) & (k < 50), 0.6, 10.0)
     el = np.radians(-30.0 + b)
     p = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], 1)
-    invalid = (b == 1) & (k >= 100) & (k < 110)
+    invalid = np.isin(b, (1, 31)) & (k >= 100) & (k < 110)
     p[invalid] = (0.0, -0.45, 0.0)
     return p, b, az, invalid
 
@@ -168,12 +168,17 @@ def test_ego_table_puts_every_return_at_its_column_azimuth():
     from jaxdepth.research.twin_measure import ego_table
     p, b, az, invalid = _firing_order_sweep()
     tab = ego_table(p, b)
-    a1, r1, p1 = tab[1]
-    want = np.sort(np.angle(np.exp(1j * az[b == 1])))
-    np.testing.assert_allclose(a1, want, atol=1e-9)
-    # The invalid returns sit at their own columns' azimuths, at 0.45 m, and keep their stored point.
-    near = np.isin(np.round(a1, 9), np.round(np.angle(np.exp(1j * az[invalid])), 9))
-    assert near.sum() == 10 and np.allclose(r1[near], 0.45) and np.allclose(p1[near], (0.0, -0.45, 0.0))
+    cols = np.round(np.angle(np.exp(1j * az[invalid & (b == 1)])), 9)
+    for ring, want_r in ((1, 0.45), (31, np.inf)):
+        a1, r1, p1 = tab[ring]
+        np.testing.assert_allclose(a1, np.sort(np.angle(np.exp(1j * az[b == ring]))), atol=1e-9)
+        # The invalid returns (a fixed point, far off their columns' azimuths) sit at their columns' azimuths;
+        # on a laser aimed at the road they are the ego (0.45 m), above the horizon no echo (inf).
+        near = np.isin(np.round(a1, 9), cols)
+        assert near.sum() == 10 and np.all(r1[near] == pytest.approx(want_r))
+        assert np.allclose(p1[near], (0.0, -0.45, 0.0))
+    a0, r0, p0 = tab[0]
+    assert (r0 < 2.0).sum() == 50 and np.allclose(np.linalg.norm(p0[r0 < 2.0], axis=1), 0.6)
 
 
 def test_ego_returns_replace_only_the_ego_rays():
@@ -186,7 +191,8 @@ def test_ego_returns_replace_only_the_ego_rays():
     tw = make_twin("nuscenes", sweeps=1, seed=0, scale=0.05, effects=base, ego=ego_table(p, b))
     r = np.linalg.norm(tw.cloud.points, axis=1)
     ego = r < 2.0
-    # Ring 0's first 50 columns and ring 1's 10 invalid columns (1088 twin columns against 1084: 49-51 and 9-11).
+    # Ring 0's first 50 columns and ring 1's 10 invalid returns (1088 twin columns against 1084: 49-51, 9-11);
+    # ring 31's invalid returns are no ego.
     assert 58 <= ego.sum() <= 62 and set(tw.cloud.ring[ego].tolist()) == {0, 1}
     np.testing.assert_allclose(r[ego & (tw.cloud.ring == 0)], 0.6, rtol=1e-5)
     np.testing.assert_allclose(tw.cloud.points[ego & (tw.cloud.ring == 1)], [[0.0, -0.45, 0.0]] * 10, atol=1e-6)

@@ -347,14 +347,24 @@ def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
     return out
 
 
+#: A near return this far (deg) in azimuth from its column is an invalid return, not the ego (:func:`ego_table`).
+INVALID_DEG = 5.0
+#: Lasers aimed below this (deg) see the road unless the ego hides it (:func:`ego_table`).
+GROUND_LASER_DEG = -10.0
+
+
 def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
     """``{ring: (azimuth (n,) rad ascending, range (n,) m, point (n, 3) m)}`` of every return of one spinning
     LiDAR's sweep (its own frame) **in firing order** (the file's order, as nuScenes stores it: one return per
     laser and column), for :func:`jaxdepth.research.twins.ego_returns` (which rays return the ego's body).
 
     A return's azimuth is its column's (the k-th return of its ring is in column k): the circular mean of
-    the column's returns beyond :data:`EGO_M`, interpolated over columns without one; invalid returns stored
-    at a fixed position near the sensor thus keep the azimuth at which they were fired.
+    the column's returns beyond :data:`EGO_M`, interpolated over columns without one. A return nearer than
+    :data:`EGO_M` whose own azimuth lies more than :data:`INVALID_DEG` from its column's is an invalid return
+    (stored at a fixed point near the sensor). On a laser aimed below :data:`GROUND_LASER_DEG` (the median
+    elevation of its returns beyond :data:`EGO_M`) it stands for the ego too (the road would have echoed);
+    on the others it means no echo (sky, a black surface), not the ego: its range is given as inf (the
+    twin's ray then keeps what it hits).
     """
     p = np.asarray(points, np.float64)
     ring = np.asarray(ring)
@@ -370,6 +380,10 @@ def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
     k = np.arange(n)
     unwrapped = np.unwrap(np.angle(z[has]))
     col_az = np.angle(np.exp(1j * np.interp(k, k[has], unwrapped)))
+    off = np.degrees(np.abs(np.angle(np.exp(1j * (az - col_az[col])))))
+    low = np.isin(ring, [b for b, e in enumerate(_medians(_elevation_deg(p), ring, rng, int(ring.max()) + 1))
+                         if e < GROUND_LASER_DEG])
+    rng = np.where((rng < EGO_M) & (off > INVALID_DEG) & ~low, np.inf, rng)
     out = {}
     for b in np.unique(ring[ring >= 0]):
         sel = np.flatnonzero(ring == b)

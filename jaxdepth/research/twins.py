@@ -149,8 +149,8 @@ def ego_returns(unit, table) -> np.ndarray:
     ``table``: a real sweep's returns per ring in the LiDAR's own frame
     (:func:`jaxdepth.research.twin_measure.ego_table`); a ray returns the ego when the real return nearest in
     azimuth on its ring is nearer than :data:`~jaxdepth.research.twin_measure.EGO_M`, and then returns that
-    very point (the ego moves with the sensor: the same rays every sweep; invalid returns stay where the
-    real file stores them, which no camera sees).
+    very point (the ego moves with the sensor: the same rays every sweep). Invalid returns (inf in the
+    table) are no ego: the twin's ray keeps what it hits.
     """
     from jaxdepth.research.twin_measure import EGO_M
     d = np.asarray(unit.directions, np.float64)
@@ -241,8 +241,9 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         (``"open"`` with near clutter within 10 m and denser far vegetation).
       ego: None (default: no ego body) or a real sweep's returns per ring
         (:func:`~jaxdepth.research.twin_measure.ego_table`, the rig's one spinning unit): the rays whose real
-        return is the ego's body, housing or an invalid return (nearer than 2 m) return that real point instead
-        of the scene (:func:`ego_returns`; nusc13). The cameras' exact depth is unchanged (no real camera sees them).
+        return is the ego's body or the sensor's housing (nearer than 2 m, not an invalid return) return that real
+        point instead of the scene (:func:`ego_returns`; nusc13). The cameras' exact depth is unchanged (no real
+        camera sees them).
 
     Returns:
       :class:`Twin`.
