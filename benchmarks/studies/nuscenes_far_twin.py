@@ -10,6 +10,10 @@
         benchmarks/results/nuscenes_far_twin_nusc12.json
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --other-twins kitti raster rosette --scale 0.25 \
         --json benchmarks/results/nuscenes_far_twin_others_nusc11.json
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --near-only --layouts open cluttered \
+        --json benchmarks/results/nuscenes_near_stats_nusc13.json                   # nusc13: near statistics
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --layouts open cluttered --skip-real --near-bands \
+        --ego --json benchmarks/results/nuscenes_far_twin_ego_nusc13.json           # nusc13: real near returns
 
 1. **Scene statistics** (:func:`jaxdepth.research.twin_measure.scene_statistics`) of the real nuScenes
    sample and of the nuScenes twin in each scene layout (``make_twin(layout=)``; ``"street"`` the
@@ -36,6 +40,11 @@
    (``sgm_far_near``, a Step 3 side choice) or the farther (``sgm_far_far``) of the two. Scored as the
    methods above, on the real sample's `uncovered` targets of the same draws, and (``--other-twins``)
    on other twins' exact depth.
+
+4. **Near range** (nusc13): ``--near-only`` measures :func:`~jaxdepth.research.twin_measure.near_statistics`
+   on the real sweep and the twin; ``--near-bands`` gives the twin the real sweep's noise and dropouts per
+   near range band (:func:`~jaxdepth.research.twin_measure.band_effects`), ``--ego`` its ego returns
+   (``make_twin(ego=)``), for the scores of 2.
 
 Nothing here changes a default; the twins' exact depth is read only to score.
 """
