@@ -10,6 +10,10 @@
         benchmarks/results/nuscenes_far_twin_nusc12.json
     PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --other-twins kitti raster rosette --scale 0.25 \
         --json benchmarks/results/nuscenes_far_twin_others_nusc11.json
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --near-only --layouts open cluttered \
+        --json benchmarks/results/nuscenes_near_stats_nusc13.json                   # nusc13: near statistics
+    PYTHONPATH=. python -m benchmarks.studies.nuscenes_far_twin --layouts open cluttered --skip-real --near-bands \
+        --ego --json benchmarks/results/nuscenes_far_twin_ego_nusc13.json           # nusc13: real near returns
 
 1. **Scene statistics** (:func:`jaxdepth.research.twin_measure.scene_statistics`) of the real nuScenes
    sample and of the nuScenes twin in each scene layout (``make_twin(layout=)``; ``"street"`` the
@@ -36,6 +40,11 @@
    (``sgm_far_near``, a Step 3 side choice) or the farther (``sgm_far_far``) of the two. Scored as the
    methods above, on the real sample's `uncovered` targets of the same draws, and (``--other-twins``)
    on other twins' exact depth.
+
+4. **Near range** (nusc13): ``--near-only`` measures :func:`~jaxdepth.research.twin_measure.near_statistics`
+   on the real sweep and the twin; ``--near-bands`` gives the twin the real sweep's noise and dropouts per
+   near range band (:func:`~jaxdepth.research.twin_measure.band_effects`), ``--ego`` its ego returns
+   (``make_twin(ego=)``), for the scores of 2.
 
 Nothing here changes a default; the twins' exact depth is read only to score.
 """
@@ -147,7 +156,7 @@ def far_edges(preds: dict, target: list, covered: list, exact: list) -> dict:
     return out
 
 
-def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConfig) -> dict:
+def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConfig, effects=True, ego=None) -> dict:
     from benchmarks.accuracy_twins import (
         cover_half_height,
         exact_truth,
@@ -158,7 +167,7 @@ def twin_case(layout: str, scene_seed: int, draws, scale: float, config: SGMConf
     )
     from jaxdepth.research.twin_measure import scene_statistics
     from jaxdepth.research.twins import make_twin, write_twin
-    tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale, layout=layout)
+    tw = make_twin("nuscenes", sweeps=1, seed=scene_seed, scale=scale, layout=layout, effects=effects, ego=ego)
     with tempfile.TemporaryDirectory(prefix="twin_") as tmp:
         paths = write_twin(tw, tmp)
         inp = read_user_input(paths["sweeps"][0], paths["rig"])
@@ -206,6 +215,28 @@ def other_twins(rigs, seeds, scale: float, config: SGMConfig) -> list:
     return out
 
 
+def real_near_effects():
+    """(the nuScenes twin's rates with range bands measured on the real sweep, the real sweep's
+    :func:`~jaxdepth.research.twin_measure.near_statistics`) (nusc13, ``--near-bands``)."""
+    from jaxdepth.io import read_points
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.research.twin_measure import band_effects, near_statistics
+    from jaxdepth.research.twin_sensors import SensorEffects
+    from jaxdepth.research.twin_tables import SENSOR_EFFECTS
+    points, extra = read_points(glob.glob(str(DATA / "nuscenes" / "sample" / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    near = near_statistics(points, ring_column(extra, 5))
+    return band_effects(near, SensorEffects(**SENSOR_EFFECTS["nuscenes"])), near
+
+
+def real_ego_table() -> dict:
+    """The real sweep's returns per ring for ``make_twin(ego=)`` (nusc13, ``--ego``)."""
+    from jaxdepth.io import read_points
+    from jaxdepth.io.points import ring_column
+    from jaxdepth.research.twin_measure import ego_table
+    points, extra = read_points(glob.glob(str(DATA / "nuscenes" / "sample" / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    return ego_table(points, ring_column(extra, 5))
+
+
 def real_sample(draws, config: SGMConfig) -> dict:
     from benchmarks.studies.nuscenes_uncovered_gap import _concat, draw_pixels
     from jaxdepth.io import read_points, rig_from_nuscenes_calibration
@@ -237,6 +268,69 @@ def real_sample(draws, config: SGMConfig) -> dict:
                 "sgm_minus_fill_rest_mm": float(1000 * np.sum((diff * w)[~far])),
                 "sgm_minus_fill_rest_by_range_mm": rest_by_range(diff, w, far, p["z"])})
     return row
+
+
+#: The near statistics' rows in :func:`near_table` (key, label, scale to print).
+NEAR_ROWS = (("points_share", "share of all points", 1.0), ("ground_second_diff_m", "ground second difference, mm", 1000.0),
+             ("ground_second_diff_p90_m", "same, 90th percentile of |.|, mm", 1000.0),
+             ("second_diff_m", "every smooth triple's second difference, mm", 1000.0),
+             ("second_diff_p90_m", "same, 90th percentile of |.|, mm", 1000.0),
+             ("dropout", "dropouts where the surface continues", 1.0),
+             ("edge_triples", "edge triples (ends apart > max(1 m, 10 %))", 1.0),
+             ("mixed_share", "of those, mixed (middle between)", 1.0),
+             ("spike_near_share", "near spikes per smooth triple", 1.0),
+             ("spike_far_share", "far spikes per smooth triple", 1.0))
+
+
+def _camera_near(points, cameras) -> dict:
+    """Per camera, the points projecting into it within 4 and 5 m of camera depth."""
+    from jaxdepth.research.twin_measure import camera_depths
+    out = {}
+    for c in cameras:
+        z = camera_depths(points, c.K, c.T_cam_lidar, c.width, c.height)
+        out[c.name] = [int((z < 4.0).sum()), int((z < 5.0).sum())]
+    return out
+
+
+def near_only(layouts, seeds) -> dict:
+    """nusc13: :func:`~jaxdepth.research.twin_measure.near_statistics` (and the points within 4 / 5 m of the real
+    cameras' depth)
+    of the real sweep and of the nuScenes twin (sweep 0, camera scale 0.05: the LiDAR does not depend on it)
+    in each layout, with the twin's rates, with the range bands measured on the real sweep, and with those
+    and the real sweep's ego returns."""
+    from jaxdepth.io import read_points, rig_from_nuscenes_calibration
+    from jaxdepth.research.twin_measure import near_statistics
+    from jaxdepth.research.twins import make_twin
+    bands, real = real_near_effects()
+    ego = real_ego_table()
+    nus = DATA / "nuscenes" / "sample"
+    points, extra = read_points(glob.glob(str(nus / "*LIDAR_TOP*.pcd.bin"))[0], columns=5)
+    cams = rig_from_nuscenes_calibration(nus / "calibration.json").cameras     # the twin's points frame is the LiDAR's
+    cols = {"real": dict(real, camera_near=_camera_near(points, cams))}
+    for layout in layouts:
+        for seed in seeds:
+            for tag, eff, e in (("", True, None), (" bands", bands, None), (" bands ego", bands, ego)):
+                tw = make_twin("nuscenes", sweeps=1, seed=seed, scale=0.05, layout=layout, effects=eff, ego=e)
+                cols[f"{layout} {seed}{tag}"] = dict(near_statistics(tw.cloud.points, tw.cloud.ring),
+                                                     camera_near=_camera_near(tw.cloud.points, cams))
+    return {"columns": cols}
+
+
+def near_table(cols: dict) -> str:
+    """The docs' table of :func:`near_only`'s columns (markdown)."""
+    names = list(cols)
+    lines = ["| band, statistic | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|",
+             "| points nearer than 2 m (ego, housing, invalid) | "
+             + " | ".join(f"{cols[n]['within_ego_m']:.3f}" for n in names) + " |"]
+    for cam in cols[names[0]].get("camera_near", {}):
+        lines.append(f"| camera points within 4 / 5 m, {cam} | "
+                     + " | ".join("{} / {}".format(*cols[n]["camera_near"][cam]) for n in names) + " |")
+    for band in cols[names[0]]["bands"]:
+        for key, label, k in NEAR_ROWS:
+            cells = [cols[n]["bands"][band][key] * k for n in names]
+            fmt = "{:.0f}" if key == "edge_triples" else "{:.1f}" if k > 1 else "{:.4f}"
+            lines.append(f"| {band} m: {label} | " + " | ".join(fmt.format(c) for c in cells) + " |")
+    return "\n".join(lines)
 
 
 def _pooled(case: dict, key: str) -> float:
@@ -307,7 +401,15 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4], help="hold-out draws")
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--skip-real", action="store_true")
+    parser.add_argument("--near-bands", action="store_true",
+                        help="nusc13: the twin's noise and dropouts per near range band (0-5, 5-10, 10-20 m) as "
+                             "measured on the real sweep (twin_measure.band_effects)")
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_far_twin_nusc11.json"))
+    parser.add_argument("--ego", action="store_true",
+                        help="nusc13: the twin's rays whose real return is the ego's body (or an invalid return) "
+                             "return that (make_twin(ego=))")
+    parser.add_argument("--near-only", action="store_true",
+                        help="nusc13: only the near statistics of the real sweep and the twin (--layouts, --twin-seeds)")
     parser.add_argument("--other-twins", nargs="+", default=[], metavar="RIG",
                         help="only the rules on these twins (1 sweep, whole input, exact depth), --twin-seeds, --scale")
     parser.add_argument("--tables", nargs="+", metavar="JSON",
@@ -321,18 +423,34 @@ def main(argv=None) -> int:
             with open(path) as f:
                 docs.append(json.load(f))
         real = next((d["real_sample"] for d in docs if "real_sample" in d), None)
+        if all("columns" in d for d in docs):
+            print(near_table({k: v for d in docs for k, v in d["columns"].items()}))
+            return 0
         print(tables({"twins": [c for d in docs for c in d.get("twins", [])], **({"real_sample": real} if real else {})}))
         return 0
     config = SGMConfig()
     t0 = time.time()
     doc = {"settings": {"layouts": args.layouts, "twin_seeds": args.twin_seeds, "draws": args.seeds,
                         "scale": args.scale, "far_m": FAR_M}}
+    if args.near_only:
+        doc.update(near_only(args.layouts, args.twin_seeds))
+        write_results(args.json, doc, config, t0, indent=None)
+        print(near_table(doc["columns"]))
+        return 0
     if args.other_twins:
         doc["settings"] = {"other_twins": args.other_twins, "twin_seeds": args.twin_seeds, "scale": args.scale,
                            "far_m": FAR_M}
         doc["other_twins"] = other_twins(args.other_twins, args.twin_seeds, args.scale, config)
         write_results(args.json, doc, config, t0, indent=None)
         return 0
+    effects = True
+    if args.near_bands:
+        import dataclasses
+        effects, near = real_near_effects()
+        doc["settings"]["effects"] = dataclasses.asdict(effects)
+        doc["real_near_statistics"] = near
+    ego = real_ego_table() if args.ego else None
+    doc["settings"]["ego"] = bool(args.ego)
     if not args.skip_real:
         doc["real_sample"] = real_sample(args.seeds, config)
         r = doc["real_sample"]
@@ -342,7 +460,7 @@ def main(argv=None) -> int:
     doc["twins"] = []
     for layout in args.layouts:
         for s in args.twin_seeds:
-            doc["twins"].append(twin_case(layout, s, args.seeds, args.scale, config))
+            doc["twins"].append(twin_case(layout, s, args.seeds, args.scale, config, effects, ego))
             print(f"{layout} seed {s} done ({time.time() - t0:.0f} s)", flush=True)
             write_results(args.json, doc, config, t0, indent=None)
     write_results(args.json, doc, config, t0, indent=None)

@@ -224,6 +224,8 @@ def scene_statistics(points: np.ndarray, ring: np.ndarray, cameras) -> dict:
       nearer): per :data:`SCENE_EDGE_BINS_M` bin of the farther return's range, ``per_line`` (edges
       per ring) and ``per_1000_pairs`` (edges per 1000 such neighbour pairs whose farther return lies
       in the bin); ``lines``: rings counted.
+    - ``near``: :func:`near_statistics` (range noise, ground roughness, spikes, mixed returns and
+      dropouts per near range band; nusc13).
     """
     out = {"cameras": {}}
     every = []
@@ -249,7 +251,160 @@ def scene_statistics(points: np.ndarray, ring: np.ndarray, cameras) -> dict:
     out["edges"] = {"lines": lines,
                     "per_line": dict(zip(names, (edges / max(lines, 1)).tolist())),
                     "per_1000_pairs": dict(zip(names, (1000 * edges / np.maximum(pairs, 1)).tolist()))}
+    out["near"] = near_statistics(points, ring)
     return out
+
+
+#: Range bands (m) of :func:`near_statistics` (range about the LiDAR origin).
+NEAR_BANDS_M = (0.0, 5.0, 10.0, 20.0)
+#: Points nearer than this are counted apart (:func:`near_statistics`' ``within_ego_m``: the ego's body,
+#: the sensor's housing, invalid returns), metres.
+EGO_M = 2.0
+
+
+def _spread(x: np.ndarray) -> float:
+    """1.4826 x the median absolute deviation (a robust standard deviation), nan if empty."""
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
+
+
+def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
+    """Near-range return statistics of one spinning LiDAR's sweep (its own frame, z up), per
+    :data:`NEAR_BANDS_M` band of range about the origin. Along each ring (:func:`ring_sequences`, returns
+    beyond 1 m; azimuth steps ``k = round(gap / the ring's median step)``), for consecutive triples
+    ``a, m, c`` one step apart, binned by the middle return's range:
+
+    - ``smooth``: triples whose ends agree within max(1 m, 10 %) (no depth edge); ``second_diff_m``: the
+      robust spread (1.4826 MAD) of ``a - 2 m + c`` over them (range noise x sqrt(6) on a surface whose
+      range changes linearly along the ring), ``second_diff_p90_m``: the 90th percentile of its magnitude
+      (the tails: roughness, clutter);
+    - the same on the ground (``ground_*``): all three within 0.2 m of the ground height (the densest
+      0.05 m height band between -4 and 0 m of the points 3-12 m out horizontally, as :func:`ground_noise`);
+    - ``spike_near_share`` / ``spike_far_share``: smooth triples whose middle is nearer / farther than
+      both ends by more than max(1 m, 10 %) of the nearer (isolated returns: spray, thin clutter; holes);
+    - ``edge_triples``, ``mixed_share``: triples whose ends differ by more than max(1 m, 10 %) and the
+      share whose middle lies strictly between, more than max(0.3 m, 3 %) from both (:func:`ring_rates`);
+    - ``dropout``: :func:`ring_rates`' dropout, each pair binned by its nearer return.
+
+    Also ``points_share`` (the band's share of all points) and ``within_ego_m``: the share of all points
+    nearer than :data:`EGO_M` (no scene surface is: the ego's body, housing or invalid returns).
+    """
+    p = np.asarray(points, np.float64)
+    rng_all = np.linalg.norm(p, axis=1)
+    horiz = np.hypot(p[:, 0], p[:, 1])
+    band = (horiz > 3.0) & (horiz < 12.0)
+    hist, h_edges = np.histogram(p[band, 2], bins=np.arange(-4.0, 0.0, 0.05))
+    z0 = h_edges[np.argmax(hist)] + 0.025 if hist.sum() else -np.inf
+    ground_all = np.abs(p[:, 2] - z0) < 0.2
+    bins = np.asarray(NEAR_BANDS_M)
+    nb = len(bins) - 1
+    acc = {k: [[] for _ in range(nb)] for k in ("sd", "gsd")}
+    cnt = {k: np.zeros(nb) for k in ("smooth", "ground", "near", "far", "edge", "between", "lost", "kept")}
+
+    def binned(r):
+        b = np.digitize(r, bins) - 1
+        return np.where((r >= bins[0]) & (r < bins[-1]), b, -1)
+
+    for az, r, order in ring_sequences(p, ring):
+        k = np.rint(np.diff(az) / np.median(np.diff(az)))
+        same = _similar(r[:-1], r[1:], 0.05, 0.3)
+        pb = binned(np.minimum(r[:-1], r[1:]))
+        gap = (k >= 2) & (k <= 10) & same
+        for j in range(nb):
+            cnt["lost"][j] += (k[gap & (pb == j)] - 1).sum()
+            cnt["kept"][j] += ((k == 1) & same & (pb == j)).sum()
+        tight = (k[:-1] == 1) & (k[1:] == 1)
+        a, m, c = r[:-2], r[1:-1], r[2:]
+        ends = _similar(a, c, 0.10, 1.0)
+        smooth, edge = tight & ends, tight & ~ends
+        lo, hi = np.minimum(a, c), np.maximum(a, c)
+        between = edge & (m > lo) & (m < hi) & ~_similar(m, lo, 0.03, 0.3) & ~_similar(m, hi, 0.03, 0.3)
+        near = smooth & (m < lo) & ~_similar(m, lo, 0.10, 1.0)
+        far = smooth & (m > hi) & ~_similar(m, hi, 0.10, 1.0)
+        g = ground_all[order]
+        on_ground = smooth & g[:-2] & g[1:-1] & g[2:]
+        sd = a - 2.0 * m + c
+        mb = binned(m)
+        for j in range(nb):
+            sel = mb == j
+            acc["sd"][j].append(sd[smooth & sel])
+            acc["gsd"][j].append(sd[on_ground & sel])
+            for key, mask in (("smooth", smooth), ("ground", on_ground), ("near", near), ("far", far),
+                              ("edge", edge), ("between", between)):
+                cnt[key][j] += (mask & sel).sum()
+    out = {"within_ego_m": float(np.mean(rng_all < EGO_M)) if len(p) else 0.0, "ground_z_m": float(z0), "bands": {}}
+    for j, (lo_m, hi_m) in enumerate(zip(bins, bins[1:])):
+        sd, gsd = np.concatenate(acc["sd"][j]), np.concatenate(acc["gsd"][j])
+        out["bands"][f"{lo_m:g}-{hi_m:g}"] = {
+            "points_share": float(np.mean((rng_all >= lo_m) & (rng_all < hi_m))) if len(p) else 0.0,
+            "smooth": int(cnt["smooth"][j]), "second_diff_m": _spread(sd),
+            "second_diff_p90_m": float(np.percentile(np.abs(sd), 90)) if sd.size else float("nan"),
+            "ground": int(cnt["ground"][j]), "ground_second_diff_m": _spread(gsd),
+            "ground_second_diff_p90_m": float(np.percentile(np.abs(gsd), 90)) if gsd.size else float("nan"),
+            "spike_near_share": float(cnt["near"][j] / max(cnt["smooth"][j], 1)),
+            "spike_far_share": float(cnt["far"][j] / max(cnt["smooth"][j], 1)),
+            "edge_triples": int(cnt["edge"][j]), "mixed_share": float(cnt["between"][j] / max(cnt["edge"][j], 1)),
+            "dropout": float(cnt["lost"][j] / max(cnt["lost"][j] + cnt["kept"][j], 1))}
+    return out
+
+
+#: A near return this far (deg) in azimuth from its column is an invalid return, not the ego (:func:`ego_table`).
+INVALID_DEG = 5.0
+#: Lasers aimed below this (deg) see the road unless the ego hides it (:func:`ego_table`).
+GROUND_LASER_DEG = -10.0
+
+
+def ego_table(points: np.ndarray, ring: np.ndarray) -> dict:
+    """``{ring: (azimuth (n,) rad ascending, range (n,) m, point (n, 3) m)}`` of every return of one spinning
+    LiDAR's sweep (its own frame) **in firing order** (the file's order, as nuScenes stores it: one return per
+    laser and column), for :func:`jaxdepth.research.twins.ego_returns` (which rays return the ego's body).
+
+    A return's azimuth is its column's (the k-th return of its ring is in column k): the circular mean of
+    the column's returns beyond :data:`EGO_M`, interpolated over columns without one. A return nearer than
+    :data:`EGO_M` whose own azimuth lies more than :data:`INVALID_DEG` from its column's is an invalid return
+    (stored at a fixed point near the sensor). On a laser aimed below :data:`GROUND_LASER_DEG` (the median
+    elevation of its returns beyond :data:`EGO_M`) it stands for the ego too (the road would have echoed);
+    on the others it means no echo (sky, a black surface), not the ego: its range is given as inf (the
+    twin's ray then keeps what it hits).
+    """
+    p = np.asarray(points, np.float64)
+    ring = np.asarray(ring)
+    az, rng = np.arctan2(p[:, 1], p[:, 0]), np.linalg.norm(p, axis=1)
+    col = np.zeros(len(p), np.int64)
+    for b in np.unique(ring):
+        sel = ring == b
+        col[sel] = np.arange(int(sel.sum()))
+    n = int(col.max()) + 1 if len(p) else 0
+    ok = rng > EGO_M
+    z = np.bincount(col[ok], np.cos(az[ok]), minlength=n) + 1j * np.bincount(col[ok], np.sin(az[ok]), minlength=n)
+    has = np.abs(z) > 0
+    k = np.arange(n)
+    unwrapped = np.unwrap(np.angle(z[has]))
+    col_az = np.angle(np.exp(1j * np.interp(k, k[has], unwrapped)))
+    off = np.degrees(np.abs(np.angle(np.exp(1j * (az - col_az[col])))))
+    low = np.isin(ring, [b for b, e in enumerate(_medians(_elevation_deg(p), ring, rng, int(ring.max()) + 1))
+                         if e < GROUND_LASER_DEG])
+    rng = np.where((rng < EGO_M) & (off > INVALID_DEG) & ~low, np.inf, rng)
+    out = {}
+    for b in np.unique(ring[ring >= 0]):
+        sel = np.flatnonzero(ring == b)
+        a = col_az[col[sel]]
+        order = np.argsort(a, kind="stable")
+        out[int(b)] = (a[order], rng[sel][order], p[sel][order])
+    return out
+
+
+def band_effects(near: dict, base):
+    """``base`` (a :class:`~jaxdepth.research.twin_sensors.SensorEffects`) with range bands measured by
+    :func:`near_statistics` (``near``, on a real sweep): per :data:`NEAR_BANDS_M` band the noise
+    ``ground_second_diff_m / sqrt(6)`` (the second difference of three independent draws has sqrt(6)
+    times their spread) and the band's ``dropout``; beyond the last band ``base``'s rates."""
+    import dataclasses
+
+    names = [f"{a:g}-{c:g}" for a, c in zip(NEAR_BANDS_M, NEAR_BANDS_M[1:])]
+    b = [near["bands"][n] for n in names]
+    return dataclasses.replace(base, band_upper_m=tuple(float(x) for x in NEAR_BANDS_M[1:]),
+                               band_noise_m=tuple(round(float(x["ground_second_diff_m"]) / 6.0 ** 0.5, 5) for x in b),
+                               band_dropout=tuple(round(float(x["dropout"]), 4) for x in b))
 
 
 def _depth_shares(z: np.ndarray) -> dict:

@@ -13,7 +13,10 @@ Sensor effects (:class:`SensorEffects`), applied to each ray's exact first hit `
   probability ``mixed``, and it then returns ``r + w (r_neighbour - r)`` with ``w ~ U(0.1, 0.9)``
   (the share of the footprint on the other surface) instead of ``r``;
 - range noise: ``+ noise_m * N(0, 1)`` along the ray;
-- dropouts: each return is lost with probability ``dropout``.
+- dropouts: each return is lost with probability ``dropout``;
+- range bands (optional, nusc13): a ray whose exact range lies below ``band_upper_m[i]`` (the first
+  such band) takes ``band_noise_m[i]`` and ``band_dropout[i]`` instead of ``noise_m`` and ``dropout``
+  (the real nuScenes sweep's near returns are less noisy and drop less than its far ones).
 
 With all three rates 0 every point lies exactly on a scene surface. Random draws come from
 ``numpy.random.default_rng`` on the host, keyed by the caller (deterministic).
@@ -43,6 +46,9 @@ class SensorEffects:
       mixed: probability that a ray at a depth edge returns a blend of the two depths.
       edge_m, edge_rel: two neighbouring returns are on different surfaces when their ranges
         differ by more than ``max(edge_m, edge_rel * range)``.
+      band_upper_m, band_noise_m, band_dropout: range bands (ascending upper limits, metres) with their
+        own noise and dropout rates, by the ray's exact range; beyond the last band (and by default:
+        no bands) ``noise_m`` and ``dropout``.
     """
 
     noise_m: float = 0.0
@@ -50,6 +56,21 @@ class SensorEffects:
     mixed: float = 0.0
     edge_m: float = 0.3
     edge_rel: float = 0.03
+    band_upper_m: tuple = ()
+    band_noise_m: tuple = ()
+    band_dropout: tuple = ()
+
+    def __post_init__(self):
+        n = len(self.band_upper_m)
+        if len(self.band_noise_m) != n or len(self.band_dropout) != n:
+            raise ValueError("SensorEffects: fields 'band_upper_m', 'band_noise_m', 'band_dropout' expected one "
+                             f"length, got {n}, {len(self.band_noise_m)}, {len(self.band_dropout)}")
+        if any(b <= a for a, b in zip(self.band_upper_m, self.band_upper_m[1:])):
+            raise ValueError(f"SensorEffects: field 'band_upper_m' expected ascending, got {self.band_upper_m!r}")
+
+    def bands(self) -> np.ndarray:
+        """(B, 3) float32 rows ``(upper_m, noise_m, dropout)`` of the range bands (B = 0 by default)."""
+        return np.array(list(zip(self.band_upper_m, self.band_noise_m, self.band_dropout)), np.float32).reshape(-1, 3)
 
 
 NO_EFFECTS = SensorEffects()
@@ -195,7 +216,7 @@ def render_twin_depth(camera, scene: SceneArrays, spheres, max_range_m) -> jax.A
 
 
 @functools.partial(jax.jit, static_argnames=("rows", "cols"))
-def _cast_unit(scene: SceneArrays, spheres, origin, R, directions, draws, rates, *, rows: int, cols: int):
+def _cast_unit(scene: SceneArrays, spheres, origin, R, directions, draws, rates, bands, *, rows: int, cols: int):
     """Exact ranges and the returned ranges of one unit's rays (see :func:`cast_unit`)."""
     d = directions @ R.T
     t = first_hits(origin, d, scene, spheres)
@@ -217,6 +238,10 @@ def _cast_unit(scene: SceneArrays, spheres, origin, R, directions, draws, rates,
     at_edge = edge(left) | edge(right)
     blend = at_edge & (coin < mixed)
     r_safe = jnp.where(jnp.isfinite(r), r, 0.0)
+    # Range bands (none by default: the scalar rates, the same ops as before): the first band above r wins.
+    for i in reversed(range(bands.shape[0])):
+        inside = r < bands[i, 0]
+        noise_m, dropout = jnp.where(inside, bands[i, 1], noise_m), jnp.where(inside, bands[i, 2], dropout)
     measured = jnp.where(blend, r_safe + w * (jnp.where(blend, other, 0.0) - r_safe), r_safe) + noise_m * gauss
     valid = jnp.isfinite(r) & (drop >= dropout) & (measured > 0)
     d = d.reshape(rows, cols, 3)
@@ -246,7 +271,8 @@ def cast_unit(scene: SceneArrays, spheres: np.ndarray, unit: Unit, T_world_unit:
     rates = np.array([unit.max_range_m, effects.noise_m, effects.dropout, effects.mixed, effects.edge_m,
                       effects.edge_rel], np.float32)
     pts, valid, exact, mixed = _cast_unit(scene, np.asarray(spheres, np.float32), origin.astype(np.float32), T[:3, :3].astype(np.float32),
-                                          unit.directions, draws, rates, rows=unit.rows, cols=unit.cols)
+                                          unit.directions, draws, rates, effects.bands(), rows=unit.rows,
+                                          cols=unit.cols)
     return {"points": np.asarray(pts), "valid": np.asarray(valid), "exact": np.asarray(exact),
             "mixed": np.asarray(mixed), "ring": unit.ring, "origin": origin}
 

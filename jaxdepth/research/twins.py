@@ -142,7 +142,46 @@ def _moved(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return (np.asarray(p, np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
 
 
-def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects, layout: str = "street"):
+def ego_returns(unit, table) -> np.ndarray:
+    """(rows * cols, 3) float64: for each of ``unit``'s rays that returns the ego's body, that return (the
+    unit's frame); nan elsewhere.
+
+    ``table``: a real sweep's returns per ring in the LiDAR's own frame
+    (:func:`jaxdepth.research.twin_measure.ego_table`); a ray returns the ego when the real return nearest in
+    azimuth on its ring is nearer than :data:`~jaxdepth.research.twin_measure.EGO_M`, and then returns that
+    very point (the ego moves with the sensor: the same rays every sweep). Invalid returns (inf in the
+    table) are no ego: the twin's ray keeps what it hits.
+    """
+    from jaxdepth.research.twin_measure import EGO_M
+    d = np.asarray(unit.directions, np.float64)
+    az = np.arctan2(d[:, 1], d[:, 0])
+    out = np.full((len(d), 3), np.nan)
+    for b, (a_real, r_real, p_real) in table.items():
+        sel = np.flatnonzero(unit.ring == b)
+        if not sel.size or not len(a_real):
+            continue
+        i = np.searchsorted(a_real, az[sel]) % len(a_real)
+        j = (i - 1) % len(a_real)
+        gap = lambda k: np.abs(np.angle(np.exp(1j * (a_real[k] - az[sel]))))  # noqa: E731
+        k = np.where(gap(i) <= gap(j), i, j)
+        near = r_real[k] < EGO_M
+        out[sel[near]] = p_real[k[near]]
+    return out
+
+
+def _with_ego(out: dict, ego: np.ndarray, T_world_unit: np.ndarray) -> dict:
+    """``cast_unit``'s output with the ego rays (``ego`` finite) returning the ego's body (those points)."""
+    hit = np.isfinite(ego[:, 0])
+    T = np.asarray(T_world_unit, np.float64)
+    p = (ego[hit] @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+    out = dict(out, points=out["points"].copy(), valid=out["valid"].copy(), exact=out["exact"].copy(),
+               mixed=out["mixed"].copy())
+    out["points"][hit], out["exact"][hit], out["valid"][hit], out["mixed"][hit] = p, p, True, False
+    return out
+
+
+def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEffects, layout: str = "street",
+                 ego=None):
     """(SourceCloud in the reference frame, per-point oracle arrays) of every sweep of every unit."""
     T_ref_world = np.linalg.inv(T_world_points[0])
     parts = {"points": [], "source": [], "ring": [], "unit": [], "origin": [], "exact": [], "mixed": []}
@@ -159,6 +198,8 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
         for u, (make_unit, T_points_unit) in enumerate(rdef.units):
             unit = make_unit(k)
             out = cast_unit(scene, spheres, unit, T_world_k @ T_points_unit, rates, [seed, k, u, 37])
+            if ego is not None:
+                out = _with_ego(out, ego_returns(unit, ego), T_world_k @ T_points_unit)
             if rdef.per_unit_sources:
                 poses.append(T_ref_points @ T_points_unit)
                 specs.append(rdef.stated[u])
@@ -181,7 +222,7 @@ def _cast_sweeps(rdef: RigDef, T_world_points: list, seed: int, rates: SensorEff
 
 
 def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, effects: bool | SensorEffects = True,
-              step_m: float | None = None, laser_phases: bool = False, layout: str = "street") -> Twin:
+              step_m: float | None = None, laser_phases: bool = False, layout: str = "street", ego=None) -> Twin:
     """A digital twin of a real rig (see the module docstring and ``docs/twins.md``).
 
     Args:
@@ -198,6 +239,11 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
       layout: the street's layout (:data:`~jaxdepth.research.twin_scene.LAYOUTS`): ``"street"`` (default)
         ``"open"`` (the right side open to 20-60 m, as the real nuScenes sample) or ``"cluttered"``
         (``"open"`` with near clutter within 10 m and denser far vegetation).
+      ego: None (default: no ego body) or a real sweep's returns per ring
+        (:func:`~jaxdepth.research.twin_measure.ego_table`, the rig's one spinning unit): the rays whose real
+        return is the ego's body or the sensor's housing (nearer than 2 m, not an invalid return) return that real
+        point instead of the scene (:func:`ego_returns`; nusc13). The cameras' exact depth is unchanged (no real
+        camera sees them).
 
     Returns:
       :class:`Twin`.
@@ -216,7 +262,9 @@ def make_twin(rig: str, *, sweeps: int = 1, seed: int = 0, scale: float = 1.0, e
         units = tuple((lambda k, mk=mk, u=u: stagger_lasers(mk(k), seed=u), T) for u, (mk, T) in enumerate(rdef.units))
         rdef = dataclasses.replace(rdef, units=units)
     T_world_points = [ego_pose(rdef, k) @ rdef.T_ego_points for k in range(int(sweeps))]
-    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates, layout)
+    if ego is not None and (rdef.sensor_class != "spinning" or len(rdef.units) != 1):
+        raise ValueError(f"make_twin: field 'ego' expected a rig with one spinning LiDAR, got {rig!r}")
+    cloud, cat = _cast_sweeps(rdef, T_world_points, int(seed), rates, layout, ego)
     T_ref_world = np.linalg.inv(T_world_points[0])
     rig_cams, world_cams = _cameras(rdef, float(scale), T_world_points[0])
     scene0 = twin_scene.twin_scene(seed, 0, dt_s=rdef.dt_s, layout=layout)
@@ -292,4 +340,4 @@ def write_twin(twin: Twin, folder) -> dict:
     return {"sweeps": sweep_paths, "rig": rig_path, "sweeps_json": sweeps_json, "depth": depth}
 
 
-__all__ = ["TWIN_RIGS", "Twin", "make_twin", "write_twin", "ego_pose"]
+__all__ = ["TWIN_RIGS", "Twin", "make_twin", "write_twin", "ego_pose", "ego_returns"]
