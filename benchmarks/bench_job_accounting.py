@@ -26,10 +26,13 @@ hashed (SHA-256 of the relative paths and file bytes, ``png_sha256``): two check
 Runs on another checkout's library too: ``cd <checkout> && PYTHONPATH=<checkout> python
 <this file> ...`` (the wrapped names exist there; the JSON records which ``jaxdepth`` ran).
 
-``--png-zlib isal`` (a probe, branch pngfast) has ``encode_depth_png`` call ISA-L's ``compress`` (the ``isal``
-package, installed by hand: ``pip install --target DIR isal`` and ``DIR`` on ``PYTHONPATH``) instead of zlib's.
+``--png-zlib``: ``default`` (the installation's encoder: ISA-L for levels 1-3 with the extra ``fast-png``
+since branch pngisal, else zlib); ``zlib`` forces Python's zlib; ``isal`` on a checkout without
+``jaxdepth.io.png_encoder`` (before pngisal) is the pngfast probe: ``encode_depth_png`` calls ISA-L's
+``compress`` (package ``isal`` importable) instead of zlib's. The JSON's ``png_encoder`` says which wrote.
 
-    python -m benchmarks.bench_job_accounting [--job av2|nuscenes|both] [--sweeps 10] [--rounds 2] [--png-zlib zlib|isal]
+    python -m benchmarks.bench_job_accounting [--job av2|nuscenes|both] [--sweeps 10] [--rounds 2]
+        [--png-zlib default|zlib|isal]
         [--json PATH]
 """
 
@@ -206,9 +209,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sweeps", type=int, default=10, help="sweeps of the Argoverse 2 log / nuScenes samples (>= 8)")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "job_accounting.json")
-    ap.add_argument("--png-zlib", choices=("zlib", "isal"), default="zlib",
-                    help="isal: a probe, encode_depth_png's zlib.compress replaced by ISA-L's (the isal package "
-                         "on PYTHONPATH, not a dependency): other PNG bytes, the same values")
+    ap.add_argument("--png-zlib", choices=("default", "zlib", "isal"), default="default",
+                    help="default: the installation's PNG encoder; zlib: Python's zlib forced; isal: ISA-L (before "
+                         "branch pngisal a probe replacing encode_depth_png's zlib.compress): the same values")
     args = ap.parse_args(argv)
     if args.sweeps < 8:
         ap.error("--sweeps must be at least 8")
@@ -217,14 +220,23 @@ def main(argv=None) -> int:
     from jaxdepth.batch import devices
     devices.quiet_jax_start()
     devices.keep_freed_memory()
-    if args.png_zlib == "isal":
+    import jaxdepth.io.depth_png as depth_png
+    png_encoder = getattr(depth_png, "png_encoder", None)
+    if args.png_zlib == "zlib" and png_encoder is not None:
+        depth_png._isal_zlib = None
+    elif args.png_zlib == "isal" and png_encoder is None:
         import types
         import zlib
 
         from isal import isal_zlib
-
-        import jaxdepth.io.depth_png as depth_png
         depth_png.zlib = types.SimpleNamespace(compress=isal_zlib.compress, crc32=zlib.crc32)
+    elif args.png_zlib == "isal" and not png_encoder().startswith("isal"):
+        ap.error("--png-zlib isal: the package isal is not installed (pip install -e '.[fast-png]')")
+    if png_encoder is not None:
+        encoder = png_encoder()
+    else:
+        import zlib
+        encoder = "isal (probe)" if args.png_zlib == "isal" else f"zlib {zlib.ZLIB_RUNTIME_VERSION}"
     accounts = Accounts()
     install(accounts)
     jobs = {}
@@ -239,7 +251,7 @@ def main(argv=None) -> int:
            "jaxdepth": str(pathlib.Path(jaxdepth.__file__).parent), "sweeps": args.sweeps,
            "method": "one process, warm; per sweep = run / sweeps; parts: thread CPU of the wrapped host functions; "
                      "program_and_other_threads = process CPU - main thread - reader and writer threads",
-           "png_zlib": args.png_zlib, "jobs": jobs, "load_average": os.getloadavg()}
+           "png_zlib": args.png_zlib, "png_encoder": encoder, "jobs": jobs, "load_average": os.getloadavg()}
     write_results(args.json, doc, None, t0)
     return 0
 

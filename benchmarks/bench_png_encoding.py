@@ -17,7 +17,8 @@ big-endian bytes as PNG defines them, one filter for every row) x zlib level x s
 "strategy" named ``isal`` or ``libdeflate``, another library's zlib stream at that level (ISA-L through the
 ``isal`` package, libdeflate through ``deflate``: not dependencies of jaxdepth; put them on ``PYTHONPATH``,
 e.g. ``pip install --target DIR isal deflate``). ``up-1-default`` is
-the encoding of main 937654c (``encode_depth_png``: ``zlib.compress`` at level 1, memLevel 8), byte for byte.
+the encoding of main 937654c (``encode_depth_png``: ``zlib.compress`` at level 1, memLevel 8), byte for byte
+(and of ``encode_depth_png`` without the extra ``fast-png``; with it, ``up-1-isal`` is, branch pngisal).
 
     python -m benchmarks.bench_png_encoding [--outputs /tmp/pngfast] [--rounds 5] [--json PATH]
 """

@@ -485,7 +485,8 @@ def _add_complete_command(sub) -> None:
     p.add_argument("--png-compression", type=int, choices=range(10), default=_PNG_COMPRESSION_DEFAULT,
                    metavar="0-9",
                    help=f"zlib level of the output PNGs (default {_PNG_COMPRESSION_DEFAULT}: fast; 9: smallest, "
-                        "slowest; 0: no compression, ~2.5x the bytes); the depth values are the same at every level")
+                        "slowest; 0: no compression, ~2.5x the bytes; 1-3 by ISA-L with the fast-png extra); "
+                        "the depth values are the same at every level")
     p.add_argument("--cpu-devices", type=int, default=0, metavar="N",
                    help="on CPU, split the cores into N host devices that each complete their own frames "
                         "(default 0: one per core; 1: off; ignored if XLA_FLAGS sets a device count)")

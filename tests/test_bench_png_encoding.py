@@ -33,7 +33,9 @@ def test_every_variant_decodes_with_opencv_to_the_same_array(kind, kitti_frame):
             assert encode(array.copy(), *variant) == data              # the same array, the same bytes
 
 
-def test_filter_type_bytes_and_the_library_encoding(kitti_frame):
+def test_filter_type_bytes_and_the_library_encoding(kitti_frame, monkeypatch):
+    from jaxdepth.io import depth_png
+    monkeypatch.setattr(depth_png, "_isal_zlib", None)  # the library's zlib path (the extra fast-png off)
     array = _arrays(kitti_frame)["kitti"]
     h, w = array.shape
     for code, kind in enumerate(("none", "sub", "up", "avg", "paeth")):

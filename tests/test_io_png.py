@@ -269,3 +269,100 @@ def test_encode_depth_png_rejects_bad_levels_and_arrays(tmp_path):
         encode_depth_png(np.zeros((2, 2), np.float32))
     with pytest.raises(OutputError, match="ending in .png"):
         write_depth_png(tmp_path / "x.jpg", np.zeros((2, 2), np.float32))
+
+
+# --- the PNG encoder: ISA-L (the optional extra fast-png) or Python's zlib (issue 38) ---------------
+
+def _idat(data: bytes) -> bytes:
+    """The IDAT payload of a one-IDAT PNG (as encode_depth_png writes), its CRC checked."""
+    length = struct.unpack(">I", data[33:37])[0]
+    assert data[37:41] == b"IDAT"
+    payload = data[41:41 + length]
+    assert struct.unpack(">I", data[41 + length:45 + length])[0] == zlib.crc32(payload, zlib.crc32(b"IDAT"))
+    return payload
+
+
+def _force_zlib(monkeypatch):
+    from jaxdepth.io import depth_png
+    monkeypatch.setattr(depth_png, "_isal_zlib", None)
+
+
+_ENCODER_ARRAYS = [
+    np.random.default_rng(0).integers(0, 65536, (37, 53), dtype=np.uint16),  # random, odd sizes
+    np.zeros((5, 7), np.uint16), np.full((5, 7), 65535, np.uint16),  # the edge values
+    np.array([[0, 65535, 1, 65534, 256, 255]], np.uint16),  # one row
+    np.array([[0], [65535], [1], [300], [65535]], np.uint16),  # one column
+    np.where(np.random.default_rng(1).random((64, 99)) < 0.06,  # sparse LiDAR-like
+             np.random.default_rng(2).integers(1, 65536, (64, 99)), 0).astype(np.uint16),
+]
+
+
+@pytest.mark.parametrize("index", range(len(_ENCODER_ARRAYS)))
+@pytest.mark.parametrize("level", [1, 2, 3])
+def test_both_encoders_decode_to_the_same_array_and_repeat_their_bytes(monkeypatch, index, level):
+    """ISA-L's bytes differ from zlib's, their values never: OpenCV (an independent decoder) reads both
+    to the input array; each encoder gives the same bytes twice."""
+    from jaxdepth.io import encode_depth_png
+    array = _ENCODER_ARRAYS[index]
+    first = encode_depth_png(array, compression=level)
+    assert encode_depth_png(array.copy(), compression=level) == first
+    with monkeypatch.context() as m:
+        _force_zlib(m)
+        plain = encode_depth_png(array, compression=level)
+        assert encode_depth_png(array.copy(), compression=level) == plain
+        assert zlib.decompressobj().decompress(_idat(plain)) == zlib.decompress(_idat(first))
+    for data in (first, plain):
+        decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert decoded.dtype == np.uint16
+        np.testing.assert_array_equal(decoded, array)
+
+
+def test_png_encoder_names_the_library_that_writes(monkeypatch):
+    from jaxdepth.io import depth_png, png_encoder
+    try:
+        from isal import isal_zlib
+    except ImportError:
+        isal_zlib = None
+    if isal_zlib is None:
+        assert png_encoder() == f"zlib {zlib.ZLIB_RUNTIME_VERSION}"
+    else:
+        import isal
+        assert png_encoder() == f"isal {isal.__version__}"
+        array = _ENCODER_ARRAYS[0]
+        assert _idat(depth_png.encode_depth_png(array, compression=1)) == isal_zlib.compress(_filtered_rows(array), 1)
+    _force_zlib(monkeypatch)
+    assert png_encoder() == f"zlib {zlib.ZLIB_RUNTIME_VERSION}"
+
+
+def _filtered_rows(array: np.ndarray) -> np.ndarray:
+    """The PNG rows with filter Up, written independently of the library (NumPy int arithmetic)."""
+    be = array.astype(">u2").view(np.uint8).reshape(array.shape[0], -1).astype(np.int64)
+    up = np.vstack([be[:1], (be[1:] - be[:-1]) % 256])
+    return np.hstack([np.full((array.shape[0], 1), 2), up]).astype(np.uint8)
+
+
+@pytest.mark.parametrize("level", [0, 4, 5, 6, 7, 8, 9])
+def test_levels_0_and_4_to_9_are_zlib_s_bytes(monkeypatch, level):
+    """ISA-L writes levels 1-3 only (its level 0 is not "stored"): the other levels are Python's zlib,
+    installed extra or not."""
+    from jaxdepth.io import encode_depth_png
+    array = _ENCODER_ARRAYS[5]
+    expected = zlib.compress(_filtered_rows(array), level)
+    assert _idat(encode_depth_png(array, compression=level)) == expected
+    _force_zlib(monkeypatch)
+    assert _idat(encode_depth_png(array, compression=level)) == expected
+
+
+def test_the_run_record_names_the_png_encoder_and_a_change_of_encoder_resumes(monkeypatch, tmp_path):
+    """The encoder is recorded, but is neither a setting nor the output version: the values are the same."""
+    from jaxdepth.batch.run_record import claim_folder, make_record
+    from jaxdepth.io import png_encoder
+    record = make_record({"method": "sgm"}, inputs=[], command=["jaxdepth", "complete"])
+    assert record["png_encoder"] == png_encoder()
+    claim_folder(tmp_path, record, overwrite=False)
+    write_depth_png(tmp_path / "a.png", np.ones((4, 4)))
+    _force_zlib(monkeypatch)
+    other = make_record({"method": "sgm"}, inputs=[], command=["jaxdepth", "complete"])
+    assert other["png_encoder"].startswith("zlib ")
+    assert claim_folder(tmp_path, other, overwrite=False) == []  # resumed: same settings, output version
+    assert (tmp_path / "a.png").exists()

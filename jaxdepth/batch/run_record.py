@@ -4,7 +4,7 @@ Every output folder of ``jaxdepth complete`` (every dataset layout, the nuScenes
 the local and the Ray engine) and ``complete-rig`` holds one ``jaxdepth_run.json``,
 written atomically before the first output::
 
-    {"jaxdepth_version": "0.1.0", "output_version": "de5d6c957fb7",
+    {"jaxdepth_version": "0.1.0", "output_version": "de5d6c957fb7", "png_encoder": "zlib 1.3.1",
      "command": "jaxdepth complete raw/ out/ --distance l2",
      "inputs": ["/abs/path/raw"],
      "settings": {"method": "sgm", "distance_metric": "l2", ..., "zero_invalid": false},
@@ -150,13 +150,18 @@ def output_version() -> str:
 def make_record(settings: dict, *, inputs: list, command: list | None = None) -> dict:
     """The record's JSON object: versions, command line (default ``sys.argv``), inputs (absolute), settings.
 
+    ``png_encoder`` (:func:`jaxdepth.io.png_encoder`, e.g. ``"isal 1.9.1"``) says which library
+    compressed the PNGs: their file bytes depend on it, their values do not, so it is neither a
+    setting nor part of the output version (a re-run with another encoder resumes).
+
     The per-output input identities are added by :func:`claim_folder` (its ``outputs``)."""
     from jaxdepth import __version__
     argv = list(sys.argv if command is None else command)
     if argv:
         argv[0] = "jaxdepth"
+    from jaxdepth.io.depth_png import png_encoder
     return {"jaxdepth_version": __version__, "output_version": output_version(),
-            "command": shlex.join(str(a) for a in argv),
+            "png_encoder": png_encoder(), "command": shlex.join(str(a) for a in argv),
             "inputs": [os.path.abspath(os.fspath(p)) for p in inputs], "settings": settings}
 
 

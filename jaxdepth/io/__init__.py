@@ -17,6 +17,7 @@ from jaxdepth.io.calib import read_kitti_object_calib as read_kitti_object_calib
 from jaxdepth.io.calib import read_kitti_raw_calib as read_kitti_raw_calib
 from jaxdepth.io.depth_png import encode_depth_png as encode_depth_png
 from jaxdepth.io.depth_png import encode_depth_uint16 as encode_depth_uint16
+from jaxdepth.io.depth_png import png_encoder as png_encoder
 from jaxdepth.io.depth_png import read_depth_png as read_depth_png
 from jaxdepth.io.depth_png import write_depth_png as write_depth_png
 from jaxdepth.io.errors import InputError as InputError
@@ -87,6 +88,7 @@ __all__ = [
     "list_depth_completion_folder",
     "load_kitti_frame",
     "pad_points",
+    "png_encoder",
     "read_depth_png",
     "read_intrinsics_txt",
     "read_kitti_object_calib",

@@ -33,6 +33,33 @@ _UP_FILTER = 2  # PNG row filter type "Up": each byte minus the byte above it
 #: filters, zlib strategies and libraries measured on the jobs' outputs: docs/speed.md, branch pngfast.
 DEFAULT_PNG_COMPRESSION = 1
 
+# The one choice of the IDAT's zlib encoder (the optional extra ``fast-png``, docs/speed.md): ISA-L's
+# zlib stream for levels 1-3 (about 0.3x the CPU of zlib level 1, about the same bytes) when the package
+# ``isal`` imports; Python's zlib otherwise and for levels 0 and 4-9 (ISA-L's level 0 is not "stored").
+try:
+    import isal
+    from isal import isal_zlib as _isal_zlib
+except ImportError:  # pragma: no cover - depends on the installation
+    _isal_zlib = None
+    _ISAL_VERSION = None
+else:
+    _ISAL_VERSION = getattr(isal, "__version__", "?")
+_ISAL_LEVELS = (1, 2, 3)
+
+
+def png_encoder() -> str:
+    """Which library compresses the depth PNGs at the default level: ``"isal 1.9.1"`` (the optional
+    extra ``fast-png``) or ``"zlib 1.3.1"`` (Python's zlib; its runtime version)."""
+    if _isal_zlib is not None:
+        return f"isal {_ISAL_VERSION}"
+    return f"zlib {zlib.ZLIB_RUNTIME_VERSION}"
+
+
+def _compress(data: np.ndarray, level: int) -> bytes:
+    if _isal_zlib is not None and level in _ISAL_LEVELS:
+        return _isal_zlib.compress(data, level)
+    return zlib.compress(data, level)
+
 
 def _read_bytes(path: pathlib.Path) -> bytes:
     return read_input_bytes(path, expected="a PNG file")
@@ -148,13 +175,15 @@ def encode_depth_png(depth_u16: np.ndarray, *, compression: int = DEFAULT_PNG_CO
     Args:
       depth_u16: (H, W) uint16 (KITTI: metres * 256), e.g. from :func:`encode_depth_uint16`.
       compression: zlib level 0-9 (0 stores the rows uncompressed, 9 is the smallest
-        and slowest); every level decodes to the same values.
+        and slowest); every level decodes to the same values. Levels 1-3 use ISA-L's
+        zlib stream when the optional extra ``fast-png`` (package ``isal``) is installed
+        (:func:`png_encoder` says which), Python's zlib otherwise; 0 and 4-9 always zlib.
 
     Returns:
       The PNG file's bytes: IHDR, one IDAT, IEND. Every row uses the PNG filter "Up"
       (the difference to the row above, which suits depth maps), then one zlib
       stream at ``compression``: the same array and level always give the same bytes.
-      NumPy filters and zlib compresses (releasing the GIL), so threads encode in
+      NumPy filters and zlib (or ISA-L) compresses (releasing the GIL), so threads encode in
       parallel; OpenCV's encoder tries five filters per row and is slower.
 
     Raises:
@@ -173,7 +202,7 @@ def encode_depth_png(depth_u16: np.ndarray, *, compression: int = DEFAULT_PNG_CO
     rows[0, 1:] = big_endian[0]
     np.subtract(big_endian[1:], big_endian[:-1], out=rows[1:, 1:])  # uint8: modulo 256, as PNG wants
     header = struct.pack(">IIBBBBB", w, h, 16, 0, 0, 0, 0)  # 16-bit greyscale, no interlace
-    return (_PNG_SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", zlib.compress(rows, int(compression)))
+    return (_PNG_SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", _compress(rows, int(compression)))
             + _chunk(b"IEND", b""))
 
 
@@ -203,4 +232,4 @@ def write_depth_png(path: PathLike, depth_m: np.ndarray, *, overwrite: bool = Tr
 
 
 __all__ = ["read_depth_png", "write_depth_png", "encode_depth_uint16", "encode_depth_png",
-           "DEFAULT_PNG_COMPRESSION"]
+           "DEFAULT_PNG_COMPRESSION", "png_encoder"]
