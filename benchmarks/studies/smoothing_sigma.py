@@ -21,7 +21,7 @@ def _load(paths: list) -> list:
 
 
 def merge(kitti: list, twins: list) -> dict:
-    """``{"kitti": {sigma: {rmse, mae, irmse, imae}}, "twins": {sigma: {rig: {sweeps: {sgm, nearest}}}}}``."""
+    """``{"kitti": {sigma: {rmse, mae, irmse, imae}}, "twins": {sigma: {"rig, scale s": {sweeps: {sgm, nearest}}}}}``."""
     out = {"kitti": {}, "twins": {}, "twin_settings": {}}
     for d in kitti:
         out["kitti"][f"{d['config']['smoothing_sigma_px']:g}"] = d["mean"]["with_outlier_removal"]
@@ -29,8 +29,9 @@ def merge(kitti: list, twins: list) -> dict:
         sigma = f"{d['settings']['smoothing_sigma_px']:g}"
         per = out["twins"].setdefault(sigma, {})
         for rig, rows in d["summary"].items():
+            key = f"{rig}, scale {d['settings']['scales'][rig]:g}"     # a twin at two scales: two rows
             for n, row in rows.items():
-                per.setdefault(rig, {})[n] = {m: row[m] for m in ("sgm", "nearest")}
+                per.setdefault(key, {})[n] = {m: row[m] for m in ("sgm", "nearest")}
         out["twin_settings"].setdefault(sigma, []).append(
             {k: d["settings"][k] for k in ("rigs", "sweeps", "seeds", "scales", "camera_sizes")})
     return out
