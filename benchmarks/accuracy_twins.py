@@ -41,7 +41,8 @@ Oracle bound (as docs/multi_source.md): the SGM on the input without every point
 depth shows wrong at its pixel in some camera (by more than 0.5 m, or seeing sky), free-space rules
 off; its gain over the default SGM on 1 sweep is what more sweeps could give at best with perfect
 point removal. Nothing here chooses a default. ``--above-scan`` sets ``SGMConfig.above_scan`` of every
-SGM method (the baselines have no such step); the settings record it.
+SGM method (the baselines have no such step); ``--smoothing-sigma`` sets ``SGMConfig.smoothing_sigma_px``
+(Step 4's Gaussian) the same way; the settings record both.
 """
 
 from __future__ import annotations
@@ -507,6 +508,8 @@ def main(argv=None) -> int:
                         help="spinning twins' lasers each at their own azimuth phase (make_twin(laser_phases=True))")
     parser.add_argument("--above-scan", choices=("plane", "background", "capped"), default=SGMConfig().above_scan,
                         help="SGMConfig.above_scan of every SGM method (default: the library's)")
+    parser.add_argument("--smoothing-sigma", type=float, default=SGMConfig().smoothing_sigma_px,
+                        help="SGMConfig.smoothing_sigma_px of every SGM method (default: the library's)")
     parser.add_argument("--tables", metavar="JSON", help="print the docs' tables of a result file and exit")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="write --json from the cases of these result files and exit; a later file's cases "
@@ -531,7 +534,7 @@ def main(argv=None) -> int:
         doc = document(cases, args, complete=all(d["complete"] for d in parts))
         write_results(args.json, dict(doc, merged_from=merged_from), SGMConfig(), t0)
         return 0
-    config = SGMConfig(above_scan=args.above_scan)
+    config = SGMConfig(above_scan=args.above_scan, smoothing_sigma_px=args.smoothing_sigma)
     from jaxdepth.research.twins import make_twin, write_twin
     if args.laser_phases:
         import functools
@@ -607,8 +610,10 @@ def document(cases: list, args, *, complete: bool) -> dict:
                         "hidden_seeds": args.hidden_seeds, "scale": args.scale, "scales": scales(cases),
                         "camera_sizes": sizes, "fraction": FRACTION,
                         "min_range_m": MIN_RANGE_M,
-                        "defaults_chosen_on": "none (every option is the library default)",
+                        "defaults_chosen_on": "none (every option is the library default but --above-scan and "
+                                              "--smoothing-sigma, recorded here)",
                         "above_scan": getattr(args, "above_scan", SGMConfig().above_scan),
+                        "smoothing_sigma_px": getattr(args, "smoothing_sigma", SGMConfig().smoothing_sigma_px),
                         "laser_phases": bool(getattr(args, "laser_phases", False))},
            "methods": list(METHODS), "protocols": list(PROTOCOLS), "summary": table,
            "targets": targets_check(table), "agreement": agreement(cases), "complete": complete, "cases": cases}
