@@ -20,6 +20,7 @@ from __future__ import annotations
 import glob
 import json
 import pathlib
+from typing import NamedTuple
 
 import numpy as np
 
@@ -126,6 +127,36 @@ def _similar(a, b, rel, abs_m):
     return np.abs(a - b) <= np.maximum(abs_m, rel * np.minimum(a, b))
 
 
+class _RingSteps(NamedTuple):
+    k: np.ndarray        # (n - 1,) azimuth steps between consecutive returns
+    same: np.ndarray     # (n - 1,) the two on one surface: within max(0.3 m, 5 %)
+    lost: np.ndarray     # (n - 1,) returns lost in the gap (k - 1 where 2 <= k <= 10 and same, else 0)
+    kept: np.ndarray     # (n - 1,) one step apart on one surface (a continuing stretch)
+    tight: np.ndarray    # (n - 2,) the triple a, m, c one step apart each
+    edge: np.ndarray     # (n - 2,) tight, ends differing by more than max(1 m, 10 %): a depth edge
+    between: np.ndarray  # (n - 2,) edge, the middle strictly between, more than max(0.3 m, 3 %) from both
+
+
+def _ring_steps(az: np.ndarray, r: np.ndarray) -> _RingSteps:
+    """One ring's consecutive pairs and triples (:func:`ring_rates`' and :func:`near_statistics`' counts)."""
+    k = np.rint(np.diff(az) / np.median(np.diff(az)))
+    same = _similar(r[:-1], r[1:], 0.05, 0.3)
+    gap = (k >= 2) & (k <= 10) & same
+    tight = (k[:-1] == 1) & (k[1:] == 1)
+    a, m, c = r[:-2], r[1:-1], r[2:]
+    edge = tight & ~_similar(a, c, 0.10, 1.0)
+    lo, hi = np.minimum(a, c), np.maximum(a, c)
+    between = edge & (m > lo) & (m < hi) & ~_similar(m, lo, 0.03, 0.3) & ~_similar(m, hi, 0.03, 0.3)
+    return _RingSteps(k, same, np.where(gap, k - 1, 0), (k == 1) & same, tight, edge, between)
+
+
+def _ground_height(z: np.ndarray) -> tuple[float, int]:
+    """The densest 0.05 m band of heights ``z`` between -4 and 0 m (the ground, z up): its centre (the lowest
+    band's with no height there) and how many heights fell between -4 and 0 m."""
+    hist, edges = np.histogram(z, bins=np.arange(-4.0, 0.0, 0.05))
+    return edges[np.argmax(hist)] + 0.025, int(hist.sum())
+
+
 def ring_rates(points: np.ndarray, ring: np.ndarray) -> dict:
     """Dropouts and mixed returns along the rings of one LiDAR's sweep (its own frame).
 
@@ -141,20 +172,11 @@ def ring_rates(points: np.ndarray, ring: np.ndarray) -> dict:
     """
     lost = kept = spans = between = 0
     for az, r, _ in ring_sequences(points, ring):
-        d = np.diff(az)
-        step = np.median(d)
-        k = np.rint(d / step)
-        same = _similar(r[:-1], r[1:], 0.05, 0.3)
-        gap = (k >= 2) & (k <= 10) & same
-        lost += int((k[gap] - 1).sum())
-        kept += int(((k == 1) & same).sum())
-        tight = (k[:-1] == 1) & (k[1:] == 1)
-        a, m, c = r[:-2], r[1:-1], r[2:]
-        edge = tight & ~_similar(a, c, 0.10, 1.0)
-        lo, hi = np.minimum(a, c), np.maximum(a, c)
-        mid = edge & (m > lo) & (m < hi) & ~_similar(m, lo, 0.03, 0.3) & ~_similar(m, hi, 0.03, 0.3)
-        spans += int(edge.sum())
-        between += int(mid.sum())
+        s = _ring_steps(az, r)
+        lost += int(s.lost.sum())
+        kept += int(s.kept.sum())
+        spans += int(s.edge.sum())
+        between += int(s.between.sum())
     return {"dropout": lost / max(1, lost + kept), "lost": lost, "continuing": kept,
             "mixed_share": between / max(1, spans), "edge_triples": spans}
 
@@ -173,8 +195,7 @@ def ground_noise(points_up: np.ndarray, origin: np.ndarray, *, cell_m: float = 1
     p = np.asarray(points_up, np.float64) - origin
     horiz = np.hypot(p[:, 0], p[:, 1])
     band = (horiz > near_m) & (horiz < far_m)
-    hist, edges = np.histogram(p[band, 2], bins=np.arange(-4.0, 0.0, 0.05))
-    z0 = edges[np.argmax(hist)] + 0.025
+    z0, _ = _ground_height(p[band, 2])
     g = p[band & (np.abs(p[:, 2] - z0) < 0.25)]
     cells = np.floor(g[:, :2] / cell_m).astype(np.int64)
     _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
@@ -292,8 +313,8 @@ def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
     rng_all = np.linalg.norm(p, axis=1)
     horiz = np.hypot(p[:, 0], p[:, 1])
     band = (horiz > 3.0) & (horiz < 12.0)
-    hist, h_edges = np.histogram(p[band, 2], bins=np.arange(-4.0, 0.0, 0.05))
-    z0 = h_edges[np.argmax(hist)] + 0.025 if hist.sum() else -np.inf
+    z0, heights = _ground_height(p[band, 2])
+    z0 = z0 if heights else -np.inf
     ground_all = np.abs(p[:, 2] - z0) < 0.2
     bins = np.asarray(NEAR_BANDS_M)
     nb = len(bins) - 1
@@ -305,19 +326,14 @@ def near_statistics(points: np.ndarray, ring: np.ndarray) -> dict:
         return np.where((r >= bins[0]) & (r < bins[-1]), b, -1)
 
     for az, r, order in ring_sequences(p, ring):
-        k = np.rint(np.diff(az) / np.median(np.diff(az)))
-        same = _similar(r[:-1], r[1:], 0.05, 0.3)
+        st = _ring_steps(az, r)
         pb = binned(np.minimum(r[:-1], r[1:]))
-        gap = (k >= 2) & (k <= 10) & same
         for j in range(nb):
-            cnt["lost"][j] += (k[gap & (pb == j)] - 1).sum()
-            cnt["kept"][j] += ((k == 1) & same & (pb == j)).sum()
-        tight = (k[:-1] == 1) & (k[1:] == 1)
+            cnt["lost"][j] += st.lost[pb == j].sum()
+            cnt["kept"][j] += (st.kept & (pb == j)).sum()
         a, m, c = r[:-2], r[1:-1], r[2:]
-        ends = _similar(a, c, 0.10, 1.0)
-        smooth, edge = tight & ends, tight & ~ends
+        smooth, edge, between = st.tight & ~st.edge, st.edge, st.between
         lo, hi = np.minimum(a, c), np.maximum(a, c)
-        between = edge & (m > lo) & (m < hi) & ~_similar(m, lo, 0.03, 0.3) & ~_similar(m, hi, 0.03, 0.3)
         near = smooth & (m < lo) & ~_similar(m, lo, 0.10, 1.0)
         far = smooth & (m > hi) & ~_similar(m, hi, 0.10, 1.0)
         g = ground_all[order]
