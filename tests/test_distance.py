@@ -390,3 +390,54 @@ def test_gather_validation():
         gather_at_seed(jnp.zeros((5,)), jnp.zeros((5,), jnp.int32), jnp.zeros((5,), jnp.int32))
     with pytest.raises(ValueError, match=r"du expected shape \(4, 5\), got \(5, 4\)"):
         gather_at_seed(jnp.zeros((4, 5)), jnp.zeros((5, 4), jnp.int32), jnp.zeros((4, 5), jnp.int32))
+
+
+@pytest.mark.parametrize("shape", [(16, 21), (7, 9), (2, 1), (130, 67)])
+def test_l1_paired_row_keys_against_brute_force(shape, monkeypatch):
+    """The L1 column pass reading the row keys as two int16 rows an int32 word (``xla_tuning.key_rows``: on
+    images of >= 2**20 pixels; here at every size): the brute force's du, dv (tie rule) with random, empty and
+    full masks, even and odd heights (odd: the int16 rows), jit == eager, vmap == loop. Fresh ``jit`` programs:
+    not the module's cached ones."""
+    from jaxdepth._src import xla_tuning
+
+    monkeypatch.setattr(xla_tuning, "_PAIRED_MIN_PIXELS", 1)
+    masks = np.stack([_random_mask(shape, d, seed=40 + i) for i, d in enumerate([0.0, 0.05, 0.3, 1.0])])
+    with xla_tuning.forced("cpu"):
+        fn = jax.jit(lambda m: tuple(nearest_seed.__wrapped__(m, metric="l1")))
+        batched = jax.jit(jax.vmap(lambda m: tuple(nearest_seed.__wrapped__(m, metric="l1"))))(jnp.asarray(masks))
+        for i, mask in enumerate(masks):
+            res = NearestSeed(*fn(jnp.asarray(mask)))
+            _check_result(res, mask, "l1")
+            if mask.any():
+                _, bdu, bdv = _brute_force(mask, "l1")
+                np.testing.assert_array_equal(np.asarray(res.du), bdu)
+                np.testing.assert_array_equal(np.asarray(res.dv), bdv)
+            for name, a, b in zip(NearestSeed._fields, batched, res):
+                np.testing.assert_array_equal(np.asarray(a)[i], np.asarray(b), err_msg=name)
+        if shape == (16, 21):
+            with jax.disable_jit():
+                eager = nearest_seed.__wrapped__(jnp.asarray(masks[1]), metric="l1")
+            for name, a, b in zip(NearestSeed._fields, eager, fn(jnp.asarray(masks[1]))):
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+
+
+def test_l1_large_image_paired_rows_sampled_brute_force():
+    """A 1024 x 1024 mask (>= 2**20 pixels, even height: the row keys go as int32 pairs with the CPU tricks on,
+    the Argoverse 2 and nuScenes cameras' path): OpenCV's distances, every du, dv a seed at that distance, and an
+    exhaustive search (tie rule) on sampled pixels, borders included."""
+    from jaxdepth._src import xla_tuning
+
+    mask = _random_mask((1024, 1024), 0.002, seed=77)
+    mask[:40] = False                    # seedless top rows, as a LiDAR image has
+    with xla_tuning.forced("cpu"):
+        res = NearestSeed(*jax.jit(lambda m: tuple(nearest_seed.__wrapped__(m, metric="l1")))(jnp.asarray(mask)))
+    _check_result(res, mask, "l1")
+    rng = np.random.default_rng(6)
+    pv = np.concatenate([rng.integers(0, 1024, 400), np.zeros(50, int), np.full(50, 1023), rng.integers(0, 1024, 100)])
+    pu = np.concatenate([rng.integers(0, 1024, 500), np.zeros(50, int), np.full(50, 1023)])
+    sv, su = (a.astype(np.int32) for a in np.nonzero(mask))  # raster order
+    dv = sv[None, :] - pv[:, None].astype(np.int32)
+    du = su[None, :] - pu[:, None].astype(np.int32)
+    best = np.argmin(np.abs(dv) + np.abs(du), axis=1)  # first minimum = smallest seed row, then column
+    np.testing.assert_array_equal(np.asarray(res.dv)[pv, pu], dv[np.arange(len(pv)), best])
+    np.testing.assert_array_equal(np.asarray(res.du)[pv, pu], du[np.arange(len(pv)), best])

@@ -149,6 +149,26 @@ def test_helpers_reduce_to_the_plain_computation():
                     np.testing.assert_array_equal(got, masks[:, :, u])
                 np.testing.assert_array_equal(xla_tuning.mask_column(xla_tuning.mask_columns(jnp.asarray(masks[1])),
                                                                      w - 1), masks[1, :, w - 1])  # an int (eager loops)
+            # the row keys' rows (tuned: two int16 rows a word on images of >= 2**20 pixels with an even height):
+            # NumPy's row v, widened, member by member and for an int (eager loops)
+            for h, dtype, big in ((8, jnp.int16, True), (7, jnp.int16, True), (8, jnp.int32, True), (8, jnp.int16, False)):
+                keys_t = rng.integers(0, 2**15 if dtype == jnp.int16 else 2**31, (3, 5, h)).astype(dtype)
+                cut = 1 if big else 2**20
+                with pytest.MonkeyPatch.context() as patch:
+                    patch.setattr(xla_tuning, "_PAIRED_MIN_PIXELS", cut)
+                    rows = jax.vmap(xla_tuning.key_rows)(jnp.asarray(keys_t))
+                    paired = mode == "cpu" and big and h % 2 == 0 and dtype == jnp.int16
+                    assert rows.shape == ((3, h // 2, 5) if paired else (3, h, 5))
+                    assert rows.dtype == (jnp.int32 if paired else dtype)
+                    for v in range(h):
+                        got = jax.vmap(functools.partial(xla_tuning.key_row, h=h), in_axes=(0, None))(rows, jnp.int32(v))
+                        assert got.dtype == jnp.int32
+                        np.testing.assert_array_equal(got, keys_t[:, :, v])
+                        np.testing.assert_array_equal(xla_tuning.key_row(rows[2], v, h), keys_t[2, :, v])
+            big = jax.eval_shape(xla_tuning.key_rows, jax.ShapeDtypeStruct((2048, 1550), jnp.int16))
+            assert (big.shape, big.dtype) == (((775, 2048), jnp.int32) if mode == "cpu" else ((1550, 2048), jnp.int16))
+            kitti = jax.eval_shape(xla_tuning.key_rows, jax.ShapeDtypeStruct((1216, 352), jnp.int16))
+            assert (kitti.shape, kitti.dtype) == ((352, 1216), jnp.int16)    # the KITTI frame keeps its int16 rows
 
 
 def test_small_matmul_is_the_dots_bits_and_scatter_onto_fill_the_scatter():

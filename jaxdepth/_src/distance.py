@@ -51,9 +51,11 @@ key keeps each step to a couple of fused ops. The first loop of each pass
 builds its values from the narrow input row by row (the row pass from the
 mask's columns, with the tricks on packed 32 to a uint32 before their transpose
 (:func:`~jaxdepth._src.xla_tuning.mask_columns`); the L1 column pass from the
-row keys transposed as int16), not from a full-image pass before the loop
-(docs/speed.md, "The distance transform's full-image passes", "The distance
-transform's transposes").
+row keys transposed as int16, with the tricks on and on images of >= 2**20
+pixels two rows' keys an int32 word (:func:`~jaxdepth._src.xla_tuning.key_rows`)),
+not from a full-image pass before the loop (docs/speed.md, "The distance
+transform's full-image passes", "The distance transform's transposes", "The
+distance transform's int16 row keys as int32 pairs").
 
 Oracles: ``cv2.distanceTransform(src, cv2.DIST_L1, 3)`` (OpenCV's L1 mask is
 exact) and ``scipy.ndimage.distance_transform_edt``.  Both measure the distance
@@ -73,7 +75,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxdepth._src.config import DEFAULT_CONFIG, DISTANCE_METRICS
-from jaxdepth._src.xla_tuning import mask_column, mask_columns, put_row, shared_loop_bounds, take_last
+from jaxdepth._src.xla_tuning import (key_row, key_rows, mask_column, mask_columns, put_row, shared_loop_bounds,
+                                      take_last)
 
 _INT32_MAX = 2**31 - 1
 _INT16_MAX = 2**15 - 1
@@ -215,12 +218,13 @@ def _l1_column_pass(row_key_t: jax.Array, far: int, horizontal_cost: int = 1) ->
     init = jnp.full((w,), far << cb, jnp.int32)
 
     def forward(i, hk, carry):
-        # Row i's keys built inside the loop from the row keys transposed in their narrow dtype.
-        hk = hk.astype(jnp.int32)
+        # Row i's keys built inside the loop from the row keys transposed in their narrow dtype (widened by
+        # key_row; xla_tuning.key_rows: on large images two int16 rows a word, transposed as int32).
         g = hk >> 1 if horizontal_cost == 1 else horizontal_cost * (hk >> 1)
         return jnp.minimum((jnp.minimum(g, far) << cb) | (i << 1) | (hk & 1), carry + step)
 
-    key = _sweep(jnp.zeros((h, w), jnp.int32), init, forward, source=row_key_t.T)
+    key = _sweep(jnp.zeros((h, w), jnp.int32), init, forward, source=key_rows(row_key_t),
+                 read=functools.partial(key_row, h=h))
     key = _sweep(key, init, lambda i, row, carry: jnp.minimum(row, carry + step), reverse=True)
     return key, cb
 
