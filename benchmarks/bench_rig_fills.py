@@ -17,6 +17,12 @@ of the Argoverse 2 groups' shapes under ``vmap`` ((6, 1550, 2048), (1, 2048, 155
 KITTI frame's (352, 1216); outputs compared, process CPU of interleaved rounds, the median of per-round ratios
 library / before.
 
+``--row-keys ROUNDS``: the distance transform alone (``nearest_seed``, L1) with the row keys transposed as int32
+pairs on images of >= 2**20 pixels (:func:`~jaxdepth._src.xla_tuning.key_rows`, the library, branch rigtail13)
+against the int16 transpose at every size (the form before, ``distance.key_rows`` set to ``keys.T``), at the
+Argoverse 2 groups', the nuScenes group's ((6, 900, 1600), 1 %) and the KITTI frame's shapes (the frame: the
+same program in both, the pairs start at 2**20 pixels); outputs compared, CPU ratio library / before.
+
 ``--column-pass ROUNDS``: a probe of one way to drop the distance transform's int32 zero fill: the L1
 column pass's first sweep writing into the row keys transposed and widened to int32 (one transposing
 convert) instead of into a zero-filled buffer read from the int16 transpose (the library), on random 1 %
@@ -24,7 +30,7 @@ masks of the Argoverse 2 landscape group's shape (6, 1550, 2048) under ``vmap``;
 CPU of interleaved rounds, ratio variant / library.
 
     python -m benchmarks.bench_rig_fills [--cases av2 nuscenes] [--runs 3] [--min-elements 1000000]
-        [--column-pass 9] [--transposes 15] [--json benchmarks/results/rig_fills.json]
+        [--column-pass 9] [--transposes 15] [--row-keys 21] [--json benchmarks/results/rig_fills.json]
 """
 
 from __future__ import annotations
@@ -218,9 +224,40 @@ def transposes_probe(rounds: int) -> dict:
     return out
 
 
+def row_keys_probe(rounds: int) -> dict:
+    import jax
+    import numpy as np
+
+    from jaxdepth._src import distance as D
+    from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
+
+    library = D.key_rows
+    out = {}
+    for shape, density in (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((6, 900, 1600), 0.01),
+                           ((352, 1216), 0.05)):
+        mask = jax.numpy.asarray(np.random.default_rng(0).random(shape) < density)
+        exes = {}
+        try:
+            for name, rows in (("library", library), ("before", lambda keys_t: keys_t.T)):
+                D.key_rows = rows
+                fn = lambda m: tuple(D.nearest_seed.__wrapped__(m))  # noqa: E731
+                exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
+        finally:
+            D.key_rows = library
+        same, cpu = _interleaved(exes, mask, rounds)
+        ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
+        key = "x".join(map(str, shape))
+        out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
+                    "ratio_library_over_before": statistics.median(ratios),
+                    "rounds_below_1": sum(x < 1 for x in ratios), "ratios": ratios}
+        print("row keys probe:", key, {k: v for k, v in out[key].items() if k != "ratios"}, flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    for flag, default in (("--runs", 3), ("--min-elements", 1_000_000), ("--column-pass", 0), ("--transposes", 0)):
+    for flag, default in (("--runs", 3), ("--min-elements", 1_000_000), ("--column-pass", 0), ("--transposes", 0),
+                          ("--row-keys", 0)):
         parser.add_argument(flag, type=int, default=default)
     parser.add_argument("--cases", nargs="*", default=["av2", "nuscenes"], choices=("av2", "nuscenes"))
     parser.add_argument("--json", help="result path (default results/rig_fills.json)")
@@ -233,6 +270,8 @@ def main(argv=None) -> int:
         doc["column_pass_probe"] = column_pass_probe(a.column_pass)
     if a.transposes:
         doc["transposes_probe"] = transposes_probe(a.transposes)
+    if a.row_keys:
+        doc["row_keys_probe"] = row_keys_probe(a.row_keys)
     with open("/proc/loadavg") as f:
         doc["loadavg_end"] = f.read().split()[:3]
     write_results(a.json, doc, None, t0)
