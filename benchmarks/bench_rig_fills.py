@@ -191,67 +191,54 @@ def column_pass_probe(rounds: int) -> dict:
     return out
 
 
-def transposes_probe(rounds: int) -> dict:
+def _distance_forms_probe(label: str, names: tuple, before: tuple, shapes: tuple, rounds: int) -> dict:
+    """``nearest_seed`` (L1) compiled with ``distance``'s functions ``names`` as the library has them and set to
+    ``before``, on random masks of ``shapes`` ((shape, density); 3-D: under ``vmap``): outputs compared, process
+    CPU of interleaved rounds, the median of per-round ratios library / before."""
     import jax
     import numpy as np
-    from jax import lax
 
     from jaxdepth._src import distance as D
     from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
+
+    forms = {"library": tuple(getattr(D, n) for n in names), "before": before}
+    out = {}
+    for shape, density in shapes:
+        mask = jax.numpy.asarray(np.random.default_rng(0).random(shape) < density)
+        exes = {}
+        try:
+            for name, values in forms.items():
+                for attr, value in zip(names, values):
+                    setattr(D, attr, value)
+                fn = lambda m: tuple(D.nearest_seed.__wrapped__(m))  # noqa: E731
+                exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
+        finally:
+            for attr, value in zip(names, forms["library"]):
+                setattr(D, attr, value)
+        same, cpu = _interleaved(exes, mask, rounds)
+        ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
+        key = "x".join(map(str, shape))
+        out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
+                    "ratio_library_over_before": statistics.median(ratios),
+                    "rounds_below_1": sum(x < 1 for x in ratios), "ratios": ratios}
+        print(f"{label} probe:", key, {k: v for k, v in out[key].items() if k != "ratios"}, flush=True)
+    return out
+
+
+def transposes_probe(rounds: int) -> dict:
+    from jax import lax
 
     def before_column(columns, u):
         return lax.dynamic_index_in_dim(columns, u, 0, keepdims=False, allow_negative_indices=False)
 
-    forms = {"library": (D.mask_columns, D.mask_column), "before": (lambda m: m.T, before_column)}
-    out = {}
-    for shape, density in (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((352, 1216), 0.05)):
-        mask = jax.numpy.asarray(np.random.default_rng(0).random(shape) < density)
-        exes = {}
-        try:
-            for name, (columns, column) in forms.items():
-                D.mask_columns, D.mask_column = columns, column
-                fn = lambda m: tuple(D.nearest_seed.__wrapped__(m))  # noqa: E731
-                exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
-        finally:
-            D.mask_columns, D.mask_column = forms["library"]
-        same, cpu = _interleaved(exes, mask, rounds)
-        ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
-        key = "x".join(map(str, shape))
-        out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
-                    "ratio_library_over_before": statistics.median(ratios),
-                    "rounds_below_1": sum(x < 1 for x in ratios), "ratios": ratios}
-        print("transposes probe:", key, {k: v for k, v in out[key].items() if k != "ratios"}, flush=True)
-    return out
+    return _distance_forms_probe("transposes", ("mask_columns", "mask_column"), (lambda m: m.T, before_column),
+                                 (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((352, 1216), 0.05)), rounds)
 
 
 def row_keys_probe(rounds: int) -> dict:
-    import jax
-    import numpy as np
-
-    from jaxdepth._src import distance as D
-    from jaxdepth._src.xla_tuning import COMPILER_OPTIONS
-
-    library = D.key_rows
-    out = {}
-    for shape, density in (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((6, 900, 1600), 0.01),
-                           ((352, 1216), 0.05)):
-        mask = jax.numpy.asarray(np.random.default_rng(0).random(shape) < density)
-        exes = {}
-        try:
-            for name, rows in (("library", library), ("before", lambda keys_t: keys_t.T)):
-                D.key_rows = rows
-                fn = lambda m: tuple(D.nearest_seed.__wrapped__(m))  # noqa: E731
-                exes[name] = jax.jit(jax.vmap(fn) if len(shape) == 3 else fn).lower(mask).compile(COMPILER_OPTIONS)
-        finally:
-            D.key_rows = library
-        same, cpu = _interleaved(exes, mask, rounds)
-        ratios = [a / b for a, b in zip(cpu["library"], cpu["before"])]
-        key = "x".join(map(str, shape))
-        out[key] = {"same_bytes": same, "cpu_ms_median": {k: statistics.median(v) * 1e3 for k, v in cpu.items()},
-                    "ratio_library_over_before": statistics.median(ratios),
-                    "rounds_below_1": sum(x < 1 for x in ratios), "ratios": ratios}
-        print("row keys probe:", key, {k: v for k, v in out[key].items() if k != "ratios"}, flush=True)
-    return out
+    return _distance_forms_probe("row keys", ("key_rows",), (lambda keys_t: keys_t.T,),
+                                 (((6, 1550, 2048), 0.01), ((1, 2048, 1550), 0.01), ((6, 900, 1600), 0.01),
+                                  ((352, 1216), 0.05)), rounds)
 
 
 def main(argv=None) -> int:
