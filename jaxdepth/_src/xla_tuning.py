@@ -88,9 +88,9 @@ Why the tricks (measured with jax 0.10.2 on XLA:CPU; figures in benchmarks/resul
   mask and its rows.
 * **Row keys as int32 pairs** (:func:`key_rows`, :func:`key_row`). The row pass's int16 keys, transposed for
   the L1 column pass, go as two rows' keys in one int32 word (a bitcast, then a transpose of half the
-  elements) on images of >= 2**20 pixels with an even height: the distance transform alone 0.83x on the
-  Argoverse 2 portrait group (1, 2048, 1550), 0.93-0.95x on the nuScenes group (6, 900, 1600), even on the
-  landscape group (6, 1550, 2048); not on the KITTI frame (0.92-1.10x across runs), which keeps its int16
+  elements) on images of >= 2**20 pixels with an even height: the distance transform alone 0.83-0.90x on the
+  Argoverse 2 portrait group (1, 2048, 1550), 0.91-0.95x on the nuScenes group (6, 900, 1600), 0.98-1.03x on
+  the landscape group (6, 1550, 2048); not on the KITTI frame (0.92-1.10x across runs), which keeps its int16
   transpose (docs/speed.md, "The distance transform's int16 row keys as int32 pairs"). Plain: the transposed keys.
 * **Bool reductions** (:func:`any_true`). A long ``any`` compiles to a large kernel; an int32
   maximum of the same mask is a small one. Plain: ``jnp.any``.
