@@ -13,7 +13,10 @@ camera-frame values, no (h, w) array) runs once, one vmap of every camera
 (:func:`keep_by_size`, the multi-source path's). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
-padding never read). A camera's result is therefore the single-camera call's
+padding never read). With the sizes known a group's canvas is its cameras' size, so the one-source
+program drops the window (:func:`window`) but for the blur's border and reads the depth's masks from
+the seed search's scalar, as one camera does (the same bytes; docs/speed.md, "The one-source rig's size
+groups"). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
 the z-buffer, the mask and the seeds bit for bit, the depths to float32 rounding
 (Step 4's vmapped body is fused differently; tests/test_rig_sizes.py). The projection
@@ -343,6 +346,13 @@ class CameraView(NamedTuple):
     pixel_shadow: jax.Array | None = None
 
 
+def window(size: jax.Array, cameras: RigCameras):
+    """A camera's window as its group's stages take it: None (the whole array) when ``cameras.sizes`` is known,
+    as each size group then runs on a canvas of exactly its cameras' size (:func:`map_by_size`), else ``size``.
+    The one camera's specialisations apply then (:func:`~jaxdepth._src.pipeline._complete_tail`)."""
+    return size if cameras.sizes is None else None
+
+
 def call_stage(stage, *args, **statics):
     """How :func:`run_rig_stages` calls a stage program by default: ``stage(*args, **statics)`` (its ``jit``);
     :mod:`jaxdepth.batch.program_cache` passes one that serves each stage from its on-disk cache."""
@@ -369,7 +379,8 @@ def rig_stage_projection(points, valid, cameras: RigCameras, *, config: SGMConfi
 
     def winners(K, T, size, group_size, *, height, width):       # one vmap of every camera (map_by_size_shared)
         return project_winners(points, valid, normals_lidar, jnp.asarray(T, jnp.float32), jnp.asarray(K, jnp.float32),
-                               height=height, width=width, image_size=size, group_size=group_size)
+                               height=height, width=width, group_size=group_size,
+                               image_size=size if group_size is not None else window(size, cameras))
 
     def per_camera(K, T, size, image, won, *, height, width):     # one vmap per camera size
         sparse_depth, points_cam, normals_cam, _ = winners_apart(won, height=height, width=width)
@@ -384,16 +395,20 @@ def rig_stage_keep(views: tuple, cameras: RigCameras, *, config: SGMConfig, beam
     group (``views``: :func:`rig_stage_projection`'s; ``beams``: the LiDAR's L)."""
     def per_camera(K, T, size, image, view, *, height, width):
         return keep_mask_for_config(view.sparse_depth, jnp.asarray(K, jnp.float32), jnp.asarray(T, jnp.float32),
-                                    beams=beams, config=config, points_cam=view.points_cam, image_size=size)
+                                    beams=beams, config=config, points_cam=view.points_cam,
+                                    image_size=window(size, cameras))
 
     return map_by_size(per_camera, cameras, None, views)
 
 
 def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig, beams: int,
-                 where: str) -> Stages:
+                 where: str, one_source: bool = False) -> Stages:
     """Steps 3-4 of every camera from its :class:`CameraView` and Step 2 mask (per size group), on the canvas.
 
     ``images``: as :func:`complete_rig_stages` (checked here, ``where`` names the entry point in errors).
+    ``one_source`` (static; :func:`rig_stage_tail`): ``keeps`` are :func:`rig_stage_keep`'s masks of the views'
+    own depth and the windows are :func:`window`'s, so the tail takes the one camera's forms (its masks read the
+    seed search's scalar, no window); the same bytes (tests/test_rig_sizes.py).
     Returns :class:`Stages` with a leading C axis, 0 (False) beyond each camera's window (:func:`to_canvas`).
     """
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where=where)
@@ -402,10 +417,11 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
         view, keep = view_keep
         if image is not None:
             image = _window_only(image, size)
+        whole = one_source and window(size, cameras) is None
         stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
                                 jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
-                                image_size=size)
-        return clear_outside_window(stages, size)
+                                image_size=size, keep_is_step2=one_source, whole_window=whole)
+        return clear_outside_window(stages, None if whole else size)
 
     return to_canvas(map_by_size(per_camera, cameras, images, tuple(zip(views, keeps))), cameras)
 
@@ -414,7 +430,8 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
 def rig_stage_tail(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *, config: SGMConfig,
                    beams: int) -> Stages:
     """Stage program 3 of :func:`complete_rig_stages`: Steps 3-4 on the canvas (:func:`camera_tails`)."""
-    return camera_tails(views, keeps, cameras, images, config=config, beams=beams, where="complete_rig")
+    return camera_tails(views, keeps, cameras, images, config=config, beams=beams, where="complete_rig",
+                        one_source=True)
 
 
 def run_rig_stages(points, valid, cameras: RigCameras, images=None, *, config: SGMConfig, lidar: LidarSpec,
