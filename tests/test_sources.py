@@ -731,10 +731,7 @@ def test_camera_view_source_label_equals_numpy_and_vmap_equals_loop(n_sources, l
         won = rng.permutation(n)[:min(n, h * w) // 2]
         slots[c, won] = rng.permutation(h * w)[:len(won)]
     channels = rng.normal(size=(2, 6, n)).astype(np.float32)
-    canvas = np.full((2, h * w + 1), np.float32(np.inf).view(np.int32), np.int32)   # scatter_winners' canvas:
-    for c in range(2):                                                           # winners' tags, inf's bits
-        canvas[c, slots[c]] = np.arange(n, dtype=np.int64) + np.iinfo(np.int32).min
-    won = lambda c: (jnp.asarray(slots[c]), *(jnp.asarray(x) for x in channels[c]), jnp.asarray(canvas[c]))
+    won = lambda c: (jnp.asarray(slots[c]), *(jnp.asarray(x) for x in channels[c]))
     view = lambda *a: _camera_view(a, n, per_source, None, height=h, width=w).pixel_source
     batched = np.asarray(jax.vmap(view)(*(jnp.stack(x) for x in zip(won(0), won(1)))))
     assert batched.dtype == label

@@ -445,18 +445,16 @@ def project_apart(points, valid, normals, T, K, *, height: int, width: int, imag
     return winners_apart(won, labels, height=height, width=width)
 
 
-def project_winners(points, valid, normals, T, K, *, height: int, width: int, image_size=None, group_size=None,
-                    canvas: bool = False):
+def project_winners(points, valid, normals, T, K, *, height: int, width: int, image_size=None, group_size=None):
     """:func:`project_apart`'s per-point half: ``(slot, x, y, z, nx, ny, nz)``, seven (N,) arrays, each point's
     :func:`~jaxdepth._src.geometry.zbuffer_winners` slot (``group_size``: as there) and its camera-frame point
     and normal channels (float32), each a real buffer (fused into the scatters, the exact transform would run
-    once per channel). Nothing (H, W): cameras of several sizes share one ``vmap`` of it. ``canvas``: and the
-    z-buffer's flat (H W + 1,) canvas of winner tags last (:func:`~jaxdepth._src.geometry.winner_index`)."""
+    once per channel). Nothing (H, W): cameras of several sizes share one ``vmap`` of it."""
     p_cam = camera_points(T, points)
-    slot, _, *tags = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size,
-                                     group_size=group_size, canvas=canvas)
+    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size,
+                              group_size=group_size)
     n_cam = camera_points(T, normals, translate=False)
-    return fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3))) + tuple(tags)
+    return fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
 
 
 def winners_apart(won, labels=(), *, height: int, width: int):

@@ -48,7 +48,7 @@ import numpy as np
 
 from jaxdepth._src.above_scan import resolved_config, top_line_keep
 from jaxdepth._src.config import DEFAULT_CONFIG, SGMConfig
-from jaxdepth._src.geometry import invert_rigid, transform_points, winner_index
+from jaxdepth._src.geometry import invert_rigid, transform_points
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.outliers import _keep_mask, window_half_sizes
 from jaxdepth._src.pipeline import project_winners, winners_apart
@@ -531,15 +531,15 @@ def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweep
 
 
 def _camera_view(won, n: int, per_source: int, shadow, *, height, width) -> CameraView:
-    """Step 1's projection for one camera from :func:`~jaxdepth._src.pipeline.project_winners` (``canvas``) of all
-    sources' ``n`` points (``per_source`` a source, one after another), with each pixel's source (and its shadow
-    flag). The source label is read from the z-buffer canvas's winner tags (no canvas of its own), int8 while the
-    sources fit (its readers index with it: the same values), else int32."""
-    *won, canvas = won
+    """Step 1's projection for one camera from :func:`~jaxdepth._src.pipeline.project_winners` of all sources' ``n``
+    points (``per_source`` a source, one after another), with each pixel's source (and its shadow flag).
+    The source label is int8 while the sources fit (a quarter of an int32 canvas's bytes to fill and read;
+    its readers index with it: the same values), else int32."""
     label = jnp.int8 if n // per_source <= np.iinfo(np.int8).max else jnp.int32
-    pixel_source = winner_index(canvas, height=height, width=width, divisor=per_source, dtype=label)
-    sparse_depth, points_cam, normals_cam, pixel_shadow = winners_apart(
-        won, () if shadow is None else ((shadow, False),), height=height, width=width)
+    labels = (((jnp.arange(n, dtype=jnp.int32) // per_source).astype(label), -1),)      # each point's source
+    labels += () if shadow is None else ((shadow, False),)
+    sparse_depth, points_cam, normals_cam, (pixel_source, *pixel_shadow) = winners_apart(
+        won, labels, height=height, width=width)
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow[0] if pixel_shadow else None)
 
 
@@ -599,7 +599,7 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return project_winners(flat_points, cam_valid, flat_normals, jnp.asarray(T, jnp.float32), jnp.asarray(
-            K, jnp.float32), height=height, width=width, image_size=size, group_size=group_size, canvas=True)
+            K, jnp.float32), height=height, width=width, image_size=size, group_size=group_size)
 
     def per_camera(K, T, size, image, won, *, height, width):     # one vmap per camera size
         return _camera_view(won, flat_points.shape[0], p, shadow, height=height, width=width)
