@@ -535,11 +535,13 @@ def _rows() -> list[Row]:
     from test_validity import LIDAR as VALIDITY_LIDAR
     return [
         # step 1
+        # the 16 x 64 sensor's 1024-point programs, and the op-by-op runs' primitives, are test_normals' small
+        # clouds': one worker (suite18)
         Row("range_image", RI.range_image, lambda: _sweeps()[2], static=dict(lidar=SMALL), ulps=2,
-            oracle=_range_image_oracle, select=lambda ri: (ri.r, ri.index), oracle_ulps=2),
+            oracle=_range_image_oracle, select=lambda ri: (ri.r, ri.index), oracle_ulps=2, group="normals_small_cloud"),
         Row("point_normals", N.point_normals, lambda: _sweeps()[2], static=dict(lidar=SMALL), ulps=NORMAL_ULPS,
-            check=_planes_check),
-        Row("range_image_normals", N.range_image_normals, _range_images, ulps=NORMAL_ULPS),
+            check=_planes_check, group="normals_small_cloud"),
+        Row("range_image_normals", N.range_image_normals, _range_images, ulps=NORMAL_ULPS, group="normals_small_cloud"),
         Row("pixel_normals", PN.pixel_normals, _ground_depths, static=dict(lidar=SMALL_LIDAR, max_points=8192),
             ulps=NORMAL_ULPS, check=_ground_check),
         # step 2

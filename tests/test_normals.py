@@ -559,6 +559,7 @@ def test_pixel_normals_equal_point_normals_of_backprojected_pixels():
         np.testing.assert_allclose(norms, 1.0, atol=1e-5)
 
 
+@pytest.mark.xdist_group("pixel_normals_96x160")  # the 96 x 160 LISTED pixel_normals program: one worker compiles it
 def test_pixel_normals_of_a_camera_facing_backwards():
     """A camera facing backwards (96 x 160, f = 120 px: 67 degrees, inside the 100-degree window) has
     its window across the range image's 360-degree seam, where the window's azimuths jump by 2 pi
@@ -575,6 +576,7 @@ def test_pixel_normals_of_a_camera_facing_backwards():
         assert stable[depth > 0].mean() > 0.99
 
 
+@pytest.mark.xdist_group("pixel_normals_96x160")  # the 96 x 160 LISTED pixel_normals program: one worker compiles it
 def test_pixel_normals_whole_range_image_window_and_options():
     """A window as wide as the range image (the listed path without a window) with other smoothing /
     gap options: one compiled program, on a sparse frame (the listed path) and on a dense one (more
@@ -590,6 +592,7 @@ def test_pixel_normals_whole_range_image_window_and_options():
         assert stable[depth > 0].mean() > 0.99
 
 
+@pytest.mark.xdist_group("pixel_normals_96x160")  # the 96 x 160 LISTED pixel_normals program: one worker compiles it
 def test_pixel_normals_listed_fits_is_the_per_point_margin_test():
     """``pixel_normals_listed`` (the KITTI job's program: no dense fallback) reads its ``fits`` from the
     range image's dump slot. Oracle: the per-point flags of the listed path (every pixel with depth at

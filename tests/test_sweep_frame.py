@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import jax.numpy as jnp
@@ -124,10 +125,17 @@ from jaxdepth.io.lidar_estimate import estimate_lidar_geometry  # noqa: E402
 from jaxdepth._src.types import LidarSpec  # noqa: E402
 
 
+@functools.lru_cache(maxsize=None)
+def _street(spec):
+    """The street seen by ``spec`` at 1/4 scale, made once per module (its HDL-32 frame serves three cases)."""
+    return make_street_scene(0, lidar=spec, image_scale=0.25)
+
+
+@pytest.mark.xdist_group("sweep_frame_hdl32")  # the HDL-32 street's render programs: one worker (suite18)
 @pytest.mark.parametrize("spec", [LidarSpec(beams=16, fov_up_deg=15.0, fov_down_deg=-15.0, columns=1800),
                                   presets.NUSCENES_HDL32, presets.KITTI_HDL64])
 def test_spinning_sweep_in_its_frame_is_recognised(spec):
-    frame = make_street_scene(0, lidar=spec, image_scale=0.25)
+    frame = _street(spec)
     points = frame.points[frame.valid]
     est = estimate_lidar_geometry(points)
     assert est.spinning and np.array_equal(est.origin_m, np.zeros(3))
@@ -140,9 +148,10 @@ def test_spinning_sweep_in_its_frame_is_recognised(spec):
     assert abs(with_ring.fov_down_deg - spec.fov_down_deg) < 0.05
 
 
+@pytest.mark.xdist_group("sweep_frame_hdl32")
 @pytest.mark.parametrize("offset", [(1.2, -0.1, 1.8), (-0.9, 0.0, 1.6)])
 def test_vehicle_frame_and_cones_are_not_trusted(offset):
-    frame = make_street_scene(0, lidar=presets.NUSCENES_HDL32, image_scale=0.25)
+    frame = _street(presets.NUSCENES_HDL32)
     points = frame.points[frame.valid] + np.asarray(offset, np.float32)
     ring = np.repeat(np.arange(32), presets.NUSCENES_HDL32.columns)[frame.valid]
     assert not estimate_lidar_geometry(points).spinning
