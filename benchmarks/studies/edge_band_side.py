@@ -303,45 +303,22 @@ def twin_case(name: str, scene_seed: int, hidden_seed: int, scale: float) -> dic
 
 
 def _draw(points, ring, rig, seed: int, rules, K, sizes) -> dict:
-    """One ``hidden-eval`` draw of the real sample (as ``nuscenes_uncovered_gap.draw_pixels``): per protocol
-    (``all``, ``uncovered``) the targets' depth, image and every rule's depth, the library's SGM and the
+    """One ``hidden-eval`` draw of the real sample (``nuscenes_uncovered_gap.draw_pixels``): per protocol
+    (``all``, ``uncovered``) the targets' camera, depth and every rule's depth, the library's SGM and the
     city-block fill (the seeds of the run without removal)."""
-    import jax
-    import jax.numpy as jnp
     from scipy.ndimage import maximum_filter
 
-    from benchmarks.studies.nuscenes_uncovered_gap import FRACTION, MIN_RANGE_M
-    from jaxdepth._src.rig import complete_rig_stages, stack_cameras
-    from jaxdepth.io import pad_points, prepare_sweep
-    from jaxdepth.research.hidden import _z_buffers, covered_targets, default_cover_half_height_px, hidden_point_mask
-    config = SGMConfig()
-    frame = prepare_sweep(points, rig, ring=ring)
-    if not frame.outlier_removal_trusted:
-        config = config.replace(outlier_removal=False)
-    padded, valid = pad_points(frame.points)
-    with np.errstate(invalid="ignore", over="ignore"):
-        valid &= np.linalg.norm(padded.astype(np.float64), axis=1) >= MIN_RANGE_M
-    cams = stack_cameras([c.as_camera() for c in frame.rig.cameras])
-    hidden = hidden_point_mask(valid, fraction=FRACTION, seed=seed)
-    given, pts = jnp.asarray(valid & ~hidden), jnp.asarray(padded)
-    sgm = complete_rig_stages(pts, given, cams, config=config, lidar=frame.rig.lidar)
-    plain = np.asarray(complete_rig_stages(pts, given, cams, config=config.replace(outlier_removal=False),
-                                           lidar=frame.rig.lidar).seed_depth)
-    size = dict(height=cams.height, width=cams.width)
-    zb = lambda m: _z_buffers(pts, jnp.asarray(m), cams.K, cams.T_cam_lidar, cams.image_size, **size)  # noqa: E731
-    target, full = zb(hidden), zb(valid)
-    half = default_cover_half_height_px(cams.K, frame.rig.lidar)
-    covered = np.asarray(jax.vmap(lambda t, f: covered_targets(t, f, half_height_px=half))(target, full))
-    target = np.asarray(target)
-    st = {f: np.asarray(getattr(sgm, f)) for f in FIELDS}
-    only = maximum_filter(target > 0, size=(1, 7, 7))                  # the Gaussian's reach of a target
-    band, chosen, where = band_choices(st, K, sizes, None, only=only)
-    depths = rule_depths(st, band, {r: chosen[r] for r in rules}, where)
-    out = {}
-    for protocol, keep in (("all", target > 0), ("uncovered", (target > 0) & ~covered)):
-        out[protocol] = {"cam": np.nonzero(keep)[0], "z": target[keep], "sgm": st["depth"][keep],
-                         "nearest": plain[keep], **{r: d[keep] for r, d in depths.items()}}
-    return out
+    from benchmarks.studies.nuscenes_uncovered_gap import draw_pixels
+
+    def extra(sgm, keep):
+        st = {f: np.asarray(getattr(sgm, f)) for f in FIELDS}
+        only = maximum_filter(keep, size=(1, 7, 7))                  # the Gaussian's reach of a target
+        band, chosen, where = band_choices(st, K, sizes, None, only=only)
+        return {r: d[keep] for r, d in rule_depths(st, band, {r: chosen[r] for r in rules}, where).items()}
+
+    p = draw_pixels(points, ring, rig, seed, SGMConfig(), extra=extra, all_targets=True)
+    return {protocol: {k: p[k][sel] for k in ("cam", "z", "sgm", "nearest", *rules)}
+            for protocol, sel in (("all", np.ones(len(p["z"]), bool)), ("uncovered", ~p["covered"]))}
 
 
 def real_check(seeds, rules=None) -> dict:
@@ -411,6 +388,8 @@ def summary(cases: list) -> dict:
 def main(argv=None) -> int:
     import json
     import pathlib
+
+    from benchmarks.studies.step4_edge_rules import print_summary
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--twin", default="nuscenes", help="the twin (1 sweep, single-sweep path): nuscenes, kitti")
     parser.add_argument("--twin-seeds", nargs="+", type=int, default=[0, 1])
@@ -424,24 +403,17 @@ def main(argv=None) -> int:
     parser.add_argument("--json", default=str(RESULTS / "edge_band_side_bandside.json"))
     args = parser.parse_args(argv)
     t0 = time.time()
-    if args.kitti_check is not None:
-        doc = json.loads(pathlib.Path(args.json).read_text())
-        doc["kitti_check"] = {**kitti_check(args.kitti_check or None), "seconds": time.time() - t0}
-        for m, v in doc["kitti_check"].items():
-            if m != "seconds":
-                print(f"  {m:16s} {v['rmse']:8.1f} / {v['mae']:6.1f}")
-        write_results(args.json, {k: v for k, v in doc.items() if k not in ("config", "seconds", "environment")},
-                      SGMConfig(), t0)
-        return 0
-    if args.real_check is not None:
-        doc = json.loads(pathlib.Path(args.json).read_text())
-        doc.setdefault("twin_seconds", doc.get("seconds"))
-        doc["real_check"] = {"seeds": [0, 1, 2, 3, 4], **real_check([0, 1, 2, 3, 4], args.real_check or None)}
-        doc["real_check"]["seconds"] = time.time() - t0
-        for p in ("all", "uncovered"):
-            print(p)
-            for m, v in doc["real_check"][p].items():
-                print(f"  {m:16s} {v['rmse']:8.1f} / {v['mae']:6.1f}")
+    if args.kitti_check is not None or args.real_check is not None:
+        if args.kitti_check is not None:
+            key, tables = "kitti_check", {"ground truth": kitti_check(args.kitti_check or None)}
+            value = {**tables["ground truth"], "seconds": time.time() - t0}
+        else:
+            key, tables = "real_check", real_check([0, 1, 2, 3, 4], args.real_check or None)
+            value = {"seeds": [0, 1, 2, 3, 4], **tables, "seconds": time.time() - t0}
+        for name, rows in tables.items():
+            print(name + "\n" + "\n".join(f"  {m:16s} {v['rmse']:8.1f} / {v['mae']:6.1f}" for m, v in rows.items()))
+        doc = json.loads(pathlib.Path(args.json).read_text())    # kept: what the runs before wrote
+        doc[key] = value
         write_results(args.json, {k: v for k, v in doc.items() if k not in ("config", "seconds", "environment")},
                       SGMConfig(), t0)
         return 0
@@ -457,14 +429,7 @@ def main(argv=None) -> int:
                         "window_rows_cols": [2 * RV + 1, 2 * RU + 1], "seeds_read": SEEDS, "k_nearest": TOPK},
            "cases": cases, "summary": summary(cases)}
     write_results(args.json, doc, SGMConfig(), t0)
-    for p, rows in doc["summary"].items():
-        print(p)
-        if p == "right_share":
-            print("  " + ", ".join(f"{r} {v:.4f}" for r, v in rows.items()))
-            continue
-        for r, v in rows.items():
-            print(f"  {r:16s} {v['rmse']:8.1f} / {v['mae']:6.1f}  ({v['rmse_change_pct']:+.2f} / "
-                  f"{v['mae_change_pct']:+.2f} %){'  wins both' if v['wins_both_every_seed'] else ''}")
+    print_summary(doc["summary"], 16)
     return 0
 
 
