@@ -2,7 +2,9 @@
 
     PYTHONPATH=. python -m benchmarks.studies.edge_band_side [--twin-seeds 0 1] [--scale 1] \
         [--json benchmarks/results/edge_band_side_bandside.json]
-    PYTHONPATH=. python -m benchmarks.studies.edge_band_side --real-check [RULE ...]   # then: the real sample
+    PYTHONPATH=. python -m benchmarks.studies.edge_band_side --twin kitti --scale 0.25 --json ...  # another twin
+    PYTHONPATH=. python -m benchmarks.studies.edge_band_side --kitti-check [RULE ...] --json ...  # KITTI's GT
+    PYTHONPATH=. python -m benchmarks.studies.edge_band_side --real-check [RULE ...] --json ...   # the real sample
 
 A throw-away post-process of the SGM's own stages (as ``step4_edge_rules``): in the edge band (pixels whose
 7 x 7 window of ``depth_raw`` holds a depth more than max(1 m, 5 %) off their own,
