@@ -86,12 +86,14 @@ def _finish(depth: np.ndarray, stages, keep: np.ndarray) -> np.ndarray:
     return np.clip(depth, cfg.min_depth_m, cfg.max_depth_m)
 
 
-def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, extra=None) -> dict:
+def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, extra=None,
+                all_targets: bool = False) -> dict:
     """Per target pixel of one draw (every camera): the columns the splits read.
 
     Follows :func:`jaxdepth.research.cli.hidden_eval` (one draw) step by step, keeping the stages.
     ``extra``: optional function of (the SGM's (C, H, W) stages, the (C, H, W) target mask) giving more
-    columns ({name: (n,) array}).
+    columns ({name: (n,) array}). ``all_targets``: every target, not only the uncovered ones, with a
+    ``covered`` column (the ``weight`` column then counts every target).
     """
     import jax
 
@@ -119,7 +121,7 @@ def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, ext
     half = default_cover_half_height_px(cams.K, frame.rig.lidar)
     covered = np.asarray(jax.vmap(lambda t, f: covered_targets(t, f, half_height_px=half))(target, full))
     target = np.asarray(target)
-    keep = (target > 0) & ~covered
+    keep = (target > 0) if all_targets else (target > 0) & ~covered
     cam, v, u = np.nonzero(keep)
     counts = keep.sum(axis=(1, 2))
     out = {"cam": cam, "row": v, "z": target[keep],
@@ -139,6 +141,8 @@ def draw_pixels(points, ring, rig, seed: int, config: SGMConfig, exact=None, ext
         for i, e in enumerate(exact):
             ex[i, :e.shape[0], :e.shape[1]] = e
         out["exact"] = ex[keep]
+    if all_targets:
+        out["covered"] = covered[keep]
     if extra is not None:
         out.update(extra(sgm, keep))
     return out

@@ -252,6 +252,19 @@ def summary(cases: list) -> dict:
     return out
 
 
+def print_summary(summary: dict, width: int = 24) -> None:
+    """Print a :func:`summary` (per protocol, per rule: mean RMSE / MAE, change, wins); lists of other
+    entries (no ``rmse``) as one line."""
+    for p, rows in summary.items():
+        print(p)
+        for r, v in rows.items():
+            if not isinstance(v, dict):
+                print(f"  {r:{width}s} {v:.4f}")
+                continue
+            print(f"  {r:{width}s} {v['rmse']:8.1f} / {v['mae']:6.1f}  ({v['rmse_change_pct']:+.2f} / "
+                  f"{v['mae_change_pct']:+.2f} %){'  wins both' if v['wins_both_every_seed'] else ''}")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--twin-seeds", nargs="+", type=int, default=[0, 1])
@@ -298,11 +311,7 @@ def main(argv=None) -> int:
                         "hidden_seed": args.hidden_seed, "rules": list(RULES)},
            "cases": cases, "summary": summary(cases)}
     write_results(args.json, doc, SGMConfig(), t0)
-    for p, rows in doc["summary"].items():
-        print(p)
-        for r, v in rows.items():
-            print(f"  {r:24s} {v['rmse']:8.1f} / {v['mae']:6.1f}  ({v['rmse_change_pct']:+.2f} / "
-                  f"{v['mae_change_pct']:+.2f} %){'  wins both' if v['wins_both_every_seed'] else ''}")
+    print_summary(doc["summary"])
     return 0
 
 
