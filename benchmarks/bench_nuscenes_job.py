@@ -117,12 +117,15 @@ def build_dataroot(root: pathlib.Path, samples: int, sweeps: int) -> None:
 
 
 def run_once(root: pathlib.Path, out: pathlib.Path, *, method: str, sweeps: int, samples: int) -> tuple:
-    """(wall s, process CPU s) of one :func:`run_nuscenes` over the dataroot; every camera written."""
+    """(wall s, process CPU s) of one :func:`run_nuscenes` over the dataroot; every camera written.
+    ``method``: the job's method, or ``"sgm@N"``: the default method dealt round robin to N host devices."""
     from jaxdepth.batch import devices
     from jaxdepth.batch.nuscenes_job import run_nuscenes
 
+    method, _, count = method.partition("@")
     cpu, start = time.process_time(), time.perf_counter()
-    summary = run_nuscenes(root, out, version=VERSION, sweeps=sweeps, method=method, io_threads=devices.io_threads())
+    summary = run_nuscenes(root, out, version=VERSION, sweeps=sweeps, method=method, io_threads=devices.io_threads(),
+                           devices=int(count or 1))
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     written = len(list(out.rglob("*.png")))
     if summary.failed or written != 6 * samples:
@@ -192,14 +195,62 @@ def parts(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
     return times
 
 
+def overlap(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
+    """Whether XLA:CPU runs two executions of the job's SGM program at once (module docstring, ``--overlap``):
+    median wall of one call, of two calls dispatched back to back on device 0 (the job's second sample in
+    flight), of two threads each calling it on device 0, and (with 2 host devices) of one call on each device;
+    every form blocked on all its results before the clock stops, in interleaved rounds."""
+    import concurrent.futures as cf
+
+    import jax
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+
+    tables = nusc.load_tables(root, VERSION)
+    job = nuscenes_job.plan(tables, out, overwrite=True, summary=RunSummary(), notify=lambda *a: None)[0]
+    padded, valid, rig, _, _ = nuscenes_job._load(tables, job, sweeps=1, ego_motion=True)
+    fn = nuscenes_job._depth_fn(SGMConfig(), rig.lidar)
+    targets = jax.local_devices()[:2]
+    args = [jax.device_put((padded, valid, stack_cameras(rig.cameras)), d) for d in targets]
+    pool = cf.ThreadPoolExecutor(2)
+    forms = {"one_call": lambda: [fn(*args[0])],
+             "two_dispatched_one_device": lambda: [fn(*args[0]), fn(*args[0])],
+             "two_threads_one_device": lambda: [f.result() for f in [pool.submit(fn, *args[0]) for _ in range(2)]]}
+    if len(targets) > 1:
+        forms["two_devices"] = lambda: [fn(*args[0]), fn(*args[1])]
+    for form in forms.values():   # compiles (each device its own copy) and warms
+        jax.block_until_ready(form())
+    times, cpus = {k: [] for k in forms}, {k: [] for k in forms}
+    for _ in range(repeats):
+        for name, form in forms.items():
+            cpu, start = time.process_time(), time.perf_counter()
+            jax.block_until_ready(form())
+            times[name].append(time.perf_counter() - start)
+            cpus[name].append(time.process_time() - cpu)
+    pool.shutdown()
+    rec = {k: statistics.median(v) for k, v in times.items()}
+    rec.update({f"{k}_over_one_call": rec[k] / rec["one_call"] for k in forms if k != "one_call"})
+    return {"median_wall_s": rec, "median_cpu_s": {k: statistics.median(v) for k, v in cpus.items()},
+            "devices": len(targets), "repeats": repeats}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10, help="samples (one key-frame sweep each), >= 8")
     ap.add_argument("--sweeps", type=int, default=1, help="sweeps per sample (the job's --sweeps)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--ip-basic", action="store_true", help="also --method ip-basic in every round")
+    ap.add_argument("--devices", type=int, default=1, metavar="N",
+                    help="also the default method dealt round robin to N host devices (the CPU split into N "
+                         "before JAX starts), 'sgm@N' in every round")
     ap.add_argument("--parts", type=int, default=0, metavar="N",
                     help="instead: one sample's parts, N timed calls each (module docstring)")
+    ap.add_argument("--overlap", type=int, default=0, metavar="N",
+                    help="instead: whether two executions of the SGM program run at once, N rounds (module docstring)")
     ap.add_argument("--json", type=pathlib.Path, default=None,
                     help="default: results/nuscenes_job.json (--parts: results/nuscenes_job_parts.json)")
     args = ap.parse_args(argv)
@@ -212,7 +263,20 @@ def main(argv=None) -> int:
     from jaxdepth.batch import devices
     devices.quiet_jax_start()
     devices.keep_freed_memory()
+    if args.devices > 1:
+        devices.split_cpu_into_devices(args.devices)
     t0 = time.time()
+    if args.overlap:
+        with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscoverlap-") as tmp_name:
+            tmp = pathlib.Path(tmp_name)
+            build_dataroot(tmp / "data", 8, 1)
+            rec = overlap(tmp / "data", tmp / "out", args.overlap)
+        print(json.dumps(rec, indent=1))
+        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
+               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
+               "overlap": rec, "load_average": os.getloadavg()}
+        write_results(args.json, doc, None, t0)
+        return 0
     if args.parts:
         with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscparts-") as tmp_name:
             tmp = pathlib.Path(tmp_name)
@@ -226,7 +290,8 @@ def main(argv=None) -> int:
                "parts": times, "load_average": os.getloadavg()}
         write_results(args.json, doc, None, t0)
         return 0
-    methods = ["sgm", "nearest"] + (["ip-basic"] if args.ip_basic else [])
+    methods = (["sgm"] + ([f"sgm@{args.devices}"] if args.devices > 1 else []) + ["nearest"]
+               + (["ip-basic"] if args.ip_basic else []))
     rounds, first = [], {}
     with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscjob-") as tmp_name:
         tmp = pathlib.Path(tmp_name)
@@ -241,15 +306,22 @@ def main(argv=None) -> int:
             per = {m: {"wall_s": w / args.samples, "cpu_s": c / args.samples} for m, (w, c) in times.items()}
             per["ratio_wall"] = per["sgm"]["wall_s"] / per["nearest"]["wall_s"]
             per["ratio_cpu"] = per["sgm"]["cpu_s"] / per["nearest"]["cpu_s"]
+            if args.devices > 1:
+                many = f"sgm@{args.devices}"
+                per["ratio_wall_devices"] = per[many]["wall_s"] / per["nearest"]["wall_s"]
+                per["ratio_cpu_devices"] = per[many]["cpu_s"] / per["nearest"]["cpu_s"]
+                per["devices_over_one_wall"] = per[many]["wall_s"] / per["sgm"]["wall_s"]
             rounds.append(per)
             print(f"round {r}: " + ", ".join(f"{m} {per[m]['wall_s']:.3f} s/sweep" for m in methods)
                   + f", ratio {per['ratio_wall']:.2f} (CPU {per['ratio_cpu']:.2f})", flush=True)
     median = {m: {k: statistics.median(r[m][k] for r in rounds) for k in ("wall_s", "cpu_s")} for m in methods}
-    ratios = {k: statistics.median(r[k] for r in rounds) for k in ("ratio_wall", "ratio_cpu")}
+    ratios = {k: statistics.median(r[k] for r in rounds) for k in rounds[0] if k.startswith(("ratio", "devices"))}
     print(f"median per sweep: sgm {median['sgm']['wall_s']:.3f} s, nearest {median['nearest']['wall_s']:.3f} s; "
-          f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU")
+          f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU" + "".join(
+              f"; {k} {v:.3f}" for k, v in ratios.items() if k not in ("ratio_wall", "ratio_cpu")))
     doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
            "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": args.samples, "sweeps": args.sweeps,
+                    "devices": args.devices,
                     "cameras": 6, "camera_size": [1600, 900]},
            "method": "one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
                      "over samples; ratio default (sgm) / nearest within each round, median",

@@ -350,6 +350,11 @@ def _cmd_complete_nuscenes(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     args.sweeps = 1 if args.sweeps is None else args.sweeps
+    # --cpu-devices N > 1 (local engine): N host devices, whole samples dealt to them round robin (N programs at
+    # once); the default (0) and 1 keep one device, which already spreads a sample over the cores
+    sample_devices = args.cpu_devices if args.engine == "local" and args.cpu_devices > 1 else 1
+    if sample_devices > 1:
+        devices.split_cpu_into_devices(sample_devices)   # the job uses the devices there are, at most N
     dst = pathlib.Path(args.dst)
     _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc
@@ -370,7 +375,8 @@ def _cmd_complete_nuscenes(args) -> int:
         summary = scale.run_nuscenes_ray(args.src, dst, batch_size=args.batch_size, address=args.ray_address,
                                          **options)
     else:
-        summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), method=args.method, **options)
+        summary = run_nuscenes(args.src, dst, io_threads=devices.io_threads(), method=args.method,
+                               devices=sample_devices, **options)
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="samples")
 
