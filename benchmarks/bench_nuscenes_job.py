@@ -238,6 +238,35 @@ def overlap(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
             "devices": len(targets), "repeats": repeats}
 
 
+def cold(tmp: pathlib.Path, rounds: int, count: int) -> dict:
+    """``--cold R``: fresh ``jaxdepth complete DATAROOT OUT --nusc-version v1.0-mini`` processes on a 2-sample
+    dataroot, one device and ``--cpu-devices count``, each first with an empty cache folder of its own (``cold``:
+    every program compiled; the process's wall is start-up + both samples), then again in that folder with
+    ``--overwrite`` (``warm``: do both devices' programs load from the persistent cache?); the number of files
+    the run left in the XLA cache and the programs folder. Variants alternate within each round."""
+    from benchmarks.bench_rig_coldstart import _run
+
+    build_dataroot(tmp / "cold-data", 2, 1)
+    variants = {"one_device": [], f"devices_{count}": ["--cpu-devices", str(count)]}
+    rec = {k: {"cold": [], "warm": [], "cache_files": None} for k in variants}
+    for r in range(rounds):
+        for name, flags in variants.items():
+            cache, out = tmp / f"cache-{name}-{r}", tmp / f"out-{name}-{r}"
+            argv = ["complete", tmp / "cold-data", out, "--nusc-version", VERSION, "-q", *flags]
+            rec[name]["cold"].append(_run(argv, cache))
+            rec[name]["warm"].append(_run(argv + ["--overwrite"], cache))
+            rec[name]["cache_files"] = {sub.name: len([f for f in sub.iterdir() if f.is_file()])
+                                        for sub in [cache / "jaxdepth" / "xla", cache / "jaxdepth" / "xla" / "programs"]
+                                        if sub.is_dir()}
+            print(f"round {r} {name}: cold {rec[name]['cold'][-1][0]:.1f} s, warm {rec[name]['warm'][-1][0]:.1f} s "
+                  f"wall; cache {rec[name]['cache_files']}", flush=True)
+    for v in rec.values():
+        for key in ("cold", "warm"):
+            v[f"{key}_median"] = {"wall_s": statistics.median(w for w, _ in v[key]),
+                                  "cpu_s": statistics.median(c for _, c in v[key])}
+    return rec
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10, help="samples (one key-frame sweep each), >= 8")
@@ -251,6 +280,8 @@ def main(argv=None) -> int:
                     help="instead: one sample's parts, N timed calls each (module docstring)")
     ap.add_argument("--overlap", type=int, default=0, metavar="N",
                     help="instead: whether two executions of the SGM program run at once, N rounds (module docstring)")
+    ap.add_argument("--cold", type=int, default=0, metavar="R",
+                    help="instead: R rounds of cold and warm CLI processes, one device and --devices (module docstring)")
     ap.add_argument("--json", type=pathlib.Path, default=None,
                     help="default: results/nuscenes_job.json (--parts: results/nuscenes_job_parts.json)")
     args = ap.parse_args(argv)
@@ -266,6 +297,14 @@ def main(argv=None) -> int:
     if args.devices > 1:
         devices.split_cpu_into_devices(args.devices)
     t0 = time.time()
+    if args.cold:
+        with tempfile.TemporaryDirectory(prefix="jaxdepth-nusccold-") as tmp_name:
+            rec = cold(pathlib.Path(tmp_name), args.cold, max(2, args.devices))
+        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
+               "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": 2, "cameras": 6},
+               "cold": rec, "load_average": os.getloadavg()}
+        write_results(args.json, doc, None, t0)
+        return 0
     if args.overlap:
         with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscoverlap-") as tmp_name:
             tmp = pathlib.Path(tmp_name)

@@ -312,7 +312,8 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")
-        for count, (job, (loaded, message)) in enumerate(loaded_samples):
+        dispatched = 0   # SGM samples dealt to the devices so far
+        for job, (loaded, message) in loaded_samples:
             if message is not None:
                 run.fail(job.token, message)
                 continue
@@ -335,10 +336,13 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             # here would wait for the sample in flight, and the next sample could not be dispatched before.
             cameras = stack_cameras(rig.cameras)
             args = (padded, valid, cameras) + (() if images is None else (images,))
+            if 0 < dispatched < len(targets):  # a device's first call compiles its copy here: hand the samples
+                run.finish_in_flight(writers)    # done so far to the writers first (the cold first sample)
             try:
                 fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
                       else _depth_fn(config, rig.lidar))
-                out = fn(*jax.device_put(args, targets[count % len(targets)]))
+                out = fn(*jax.device_put(args, targets[dispatched % len(targets)]))
+                dispatched += 1
             except Exception as err:
                 run.fail(job.token, f"completion failed: {err}")
                 continue
@@ -403,9 +407,12 @@ class _SampleRun:
             return
         self.written.append(writers.submit(self.write, job, rig, *arrays))
 
-    def finish(self, writers):
+    def finish_in_flight(self, writers):
         while self.in_flight:
             self.collect(writers)
+
+    def finish(self, writers):
+        self.finish_in_flight(writers)
         for f in self.written:
             f.result()
 
