@@ -166,6 +166,16 @@ def _multi_source_usage(args, what: str) -> str | None:
     return None
 
 
+def _job_devices(args) -> int:
+    """The devices of a rig job (nuScenes, Argoverse 2): ``--cpu-devices N`` > 1 on the local engine splits the
+    CPU into N host devices (before JAX starts) and the job deals whole samples / sweeps to them round robin,
+    N programs at once; the default (0) and 1 keep one device, which spreads a sample over the cores."""
+    if args.engine != "local" or args.cpu_devices <= 1:
+        return 1
+    devices.split_cpu_into_devices(args.cpu_devices)   # the job uses the devices there are, at most N
+    return args.cpu_devices
+
+
 def _cmd_complete_av2(args) -> int:
     """``jaxdepth complete ROOT DST``: Argoverse 2 logs (exit 0 ok, 1 failed, 2 usage)."""
     from jaxdepth.batch import run_record
@@ -181,13 +191,14 @@ def _cmd_complete_av2(args) -> int:
     _claim_output_folder(dst, args, inputs=[args.src], sweeps=args.sweeps or 0, time=time_,
                          cameras=None if cameras is None else ",".join(cameras),
                          above_scan=run_record.lidars_above_scan(_config_from(args).above_scan, lidars=2))
+    sweep_devices = _job_devices(args)
     total = sum(len(list((log / "sensors" / "lidar").glob("*.feather"))) for log in find_logs(args.src))
     progress = _progress(args, total, "sweeps")
     summary = run_av2(args.src, dst, sweeps=args.sweeps or 0, cameras=cameras, config=_config_from(args),
                       overwrite=args.overwrite, png_compression=args.png_compression,
                       io_threads=devices.io_threads(), on_progress=progress.update, force=args.force,
                       time=time_, method=args.method, extras=_extras_from(args),
-                      on_note=lambda text: print(f"jaxdepth: note: {text}", file=sys.stderr))
+                      on_note=lambda text: print(f"jaxdepth: note: {text}", file=sys.stderr), devices=sweep_devices)
     progress.close()
     return _report(summary, args.quiet, t_start=getattr(args, "t_start", None), unit="sweeps")
 
@@ -350,11 +361,7 @@ def _cmd_complete_nuscenes(args) -> int:
         print(f"jaxdepth: error: {usage}", file=sys.stderr)
         return 2
     args.sweeps = 1 if args.sweeps is None else args.sweeps
-    # --cpu-devices N > 1 (local engine): N host devices, whole samples dealt to them round robin (N programs at
-    # once); the default (0) and 1 keep one device, which already spreads a sample over the cores
-    sample_devices = args.cpu_devices if args.engine == "local" and args.cpu_devices > 1 else 1
-    if sample_devices > 1:
-        devices.split_cpu_into_devices(sample_devices)   # the job uses the devices there are, at most N
+    sample_devices = _job_devices(args)
     dst = pathlib.Path(args.dst)
     _ensure_writable_dir(dst)
     from jaxdepth.io import nuscenes as nusc

@@ -589,6 +589,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
     assert (ray_options.pop("address"), ray_options.pop("batch_size")) == ("HEAD:6379", 3)
     local_options.pop("io_threads")
     assert local_options.pop("method") == "sgm"  # the baselines run on the local engine only
+    assert local_options.pop("devices") == 1  # one device unless --cpu-devices N > 1 (local engine)
     for options in (ray_options, local_options):
         options.pop("on_progress")
         options["tables"] = options["tables"].version
