@@ -326,8 +326,9 @@ def _add_nuscenes_options(parser) -> None:
     group = parser.add_argument_group(
         "nuScenes", "with --nusc-version, SRC is a nuScenes dataroot and DST an output root: one uint16 depth PNG "
                     "per camera image, DST/<version>/<CAM_CHANNEL>/<sample_data_token>.png (--engine local "
-                    "or ray, same bytes; --method nearest / ip-basic: the baselines of the same points, local engine; --batch-size and --cpu-devices have no effect on the local engine: one "
-                    "sample's cameras are one batch; on Ray --batch-size is samples per actor call); with "
+                    "or ray, same bytes; --method nearest / ip-basic: the baselines of the same points, local engine; --batch-size has no effect on the local engine: one "
+                    "sample's cameras are one batch; --cpu-devices N > 1 deals whole samples to N host devices "
+                    "(same bytes, each compiles its own copy; default: one device); on Ray --batch-size is samples per actor call); with "
                     "--guidance-weight W > 0 every sample's camera JPEGs (samples/CAM_*/...) are read for "
                     "image-guided seeds, and a missing or bad image fails its sample")
     group.add_argument("--nusc-version", default=None, metavar="VERSION",
@@ -502,7 +503,8 @@ def _add_complete_command(sub) -> None:
                         "the depth values are the same at every level")
     p.add_argument("--cpu-devices", type=int, default=0, metavar="N",
                    help="on CPU, split the cores into N host devices that each complete their own frames "
-                        "(default 0: one per core; 1: off; ignored if XLA_FLAGS sets a device count)")
+                        "(default 0: one per core; 1: off; ignored if XLA_FLAGS sets a device count); nuScenes "
+                        "and Argoverse 2 jobs: one device unless N > 1, then whole samples / sweeps dealt to N")
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local threads + device (default) or a Ray cluster (pip install 'jaxdepth[ray]')")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local one)")

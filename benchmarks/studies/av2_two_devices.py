@@ -18,6 +18,12 @@ first (compiling) call (``ru_maxrss``: the peak is kept, so each figure includes
 first calls' wall (the second device's compile). Needs ``free -g`` >= 10 GB (two programs' buffers).
 
     python -m benchmarks.studies.av2_two_devices [--rounds 5] [--json PATH]
+    python -m benchmarks.studies.av2_two_devices --cold R [--json PATH]
+
+``--cold R``: the cold first sweep with two devices. R rounds of fresh ``jaxdepth complete LOG OUT -q``
+processes on the shared 2-sweep log (LiDAR time), one device and ``--cpu-devices 2`` alternating, each with an
+empty cache folder of its own: seconds from the process's start until the first sweep's 7 PNGs exist (polled
+every 50 ms) and the process's wall (the second sweep on the second device compiles a copy of its own).
 """
 
 from __future__ import annotations
@@ -39,14 +45,58 @@ def _peak_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
 
 
+def cold(rounds: int) -> dict:
+    """``{variant: [{"first_sweep_s", "wall_s"}, ...]}`` of ``--cold`` (module docstring)."""
+    import subprocess
+
+    from jaxdepth.io import av2
+    first_ts = min(int(p.stem) for p in (LOG / "sensors" / "lidar").glob("*.feather"))
+    out = {"one_device": [], "devices_2": []}
+    for r in range(rounds):
+        for name, flags in (("one_device", []), ("devices_2", ["--cpu-devices", "2"])):
+            with tempfile.TemporaryDirectory(prefix="jaxdepth-av2cold2-") as tmp:
+                dst = pathlib.Path(tmp) / "out"
+                env = {k: v for k, v in os.environ.items()
+                       if not k.startswith(("JAX_COMPILATION_CACHE", "JAXDEPTH_COMPILE"))}
+                env["XDG_CACHE_HOME"] = str(pathlib.Path(tmp) / "cache")
+                firsts = [dst / LOG.name / c / f"{first_ts}.png" for c in av2.RING_CAMERAS]
+                start = time.perf_counter()
+                proc = subprocess.Popen([sys.executable, "-m", "jaxdepth.cli", "complete", str(LOG), str(dst), "-q",
+                                         "--lidar-time", *flags], env=env, stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.PIPE, text=True)
+                first = None
+                while proc.poll() is None:
+                    if first is None and all(f.exists() for f in firsts):
+                        first = time.perf_counter() - start
+                    time.sleep(0.05)
+                wall = time.perf_counter() - start
+                if proc.returncode != 0:
+                    raise SystemExit(proc.stderr.read()[-2000:])
+                first = wall if first is None else first
+                out[name].append({"first_sweep_s": first, "wall_s": wall})
+                print(f"round {r} {name}: first sweep {first:.1f} s, process {wall:.1f} s", flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "av2_two_devices_devices2.json")
+    ap.add_argument("--cold", type=int, default=0, metavar="R", help="instead: R rounds of cold processes")
     args = ap.parse_args(argv)
     if not LOG.exists():
         print(f"shared Argoverse 2 log missing: {LOG}", file=sys.stderr)
         return 1
+    if args.cold:
+        t0 = time.time()
+        rec = cold(args.cold)
+        med = {k: {m: statistics.median(r[m] for r in v) for m in ("first_sweep_s", "wall_s")} for k, v in rec.items()}
+        print(f"medians {med}")
+        doc = {"command": "python -m benchmarks.studies.av2_two_devices " + " ".join(
+            sys.argv[1:] if argv is None else argv), "log": str(LOG), "runs": rec, "medians": med,
+            "load_average": os.getloadavg()}
+        write_results(args.json, doc, None, t0)
+        return 0
     from jaxdepth.batch import devices
     devices.quiet_jax_start()
     devices.keep_freed_memory()

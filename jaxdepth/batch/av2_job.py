@@ -35,7 +35,10 @@ Scheduling (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`): a reader thread
 sweeps ahead (Feather decoding, pose maths) and builds each sweep's program inputs (the sources
 pytree: padding, the LiDARs' spec estimates); the main thread runs each sweep's program on the
 default device and reads its depth back before it dispatches the next (two programs in flight ran
-slower on 2 cores); writer threads encode and write the PNGs.
+slower on 2 cores); writer threads encode and write the PNGs. ``devices`` N > 1 (the CLI's
+``--cpu-devices N``): sweeps dealt round robin to N (host) devices, one in flight on each, each device
+compiling its own copy; same bytes, no faster on 2 cores (docs/speed.md, "Whole samples on two host
+devices").
 """
 
 from __future__ import annotations
