@@ -26,8 +26,11 @@ codes' jobs interleaved, not in two runs minutes apart at another load.
 ``--release-memory`` adds both jobs with ``JAXDEPTH_KEEP_MEMORY=0`` (glibc's default malloc: the process
 before :func:`jaxdepth.batch.devices.keep_freed_memory`) to every round, with their ratios.
 
+``--devices N`` adds ``default-devices``, the default job with ``--cpu-devices N`` (whole sweeps dealt to N host
+devices), to every round, with its ratios to nearest and to the one-device job.
+
     python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--release-memory]
-                                       [--checkout PATH] [--json PATH]
+                                       [--checkout PATH] [--devices N] [--json PATH]
 """
 
 from __future__ import annotations

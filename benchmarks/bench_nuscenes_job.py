@@ -25,8 +25,18 @@ program without outlier removal (projection, Step 1, Steps 3-4) and with it (the
 the depth's copy to the host and the six PNG writes. Step 2 = default - without removal; Steps 1 and
 3-4 = without removal - projection. Writes benchmarks/results/nuscenes_job_parts.json.
 
+``--devices N`` (branch devices2): the CPU is split into N host devices before JAX starts, and every round
+also runs ``sgm@N``, the default job dealing whole samples to the N devices (``run_nuscenes(devices=N)``,
+the CLI's ``--cpu-devices N``); ``--threads`` also runs ``sgm~threads``, a probe: the job's SGM calls on two
+dispatch threads of one device. ``--overlap R``: instead, the SGM program of one sample alone, one call, two
+calls dispatched back to back on device 0, two threads each calling on device 0, one call on each of two
+devices, R interleaved rounds, medians (wall and process CPU). ``--cold R``: instead, fresh CLI processes on
+a 2-sample dataroot, one device and ``--cpu-devices N``, cold (an empty cache folder each) then warm.
+
     python -m benchmarks.bench_nuscenes_job [--samples 10] [--sweeps 1] [--rounds 3] [--ip-basic] [--json PATH]
     python -m benchmarks.bench_nuscenes_job --parts 5 [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --devices 2 [--threads] --samples 20 --rounds 5 [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --devices 2 --overlap 15 | --cold 2 [--json PATH]
 """
 
 from __future__ import annotations
