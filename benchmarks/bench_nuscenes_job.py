@@ -345,38 +345,33 @@ def main(argv=None) -> int:
     if args.devices > 1:
         devices.split_cpu_into_devices(args.devices)
     t0 = time.time()
+    command = "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv)
+
+    def save(data: dict, **rec) -> int:
+        write_results(args.json, {"command": command, "data": {"source": str(SAMPLE.relative_to(DATA)), **data},
+                                  **rec, "load_average": os.getloadavg()}, None, t0)
+        return 0
+
+    one_sample = {"cameras": 6, "camera_size": [1600, 900]}
     if args.cold:
         with tempfile.TemporaryDirectory(prefix="jaxdepth-nusccold-") as tmp_name:
             rec = cold(pathlib.Path(tmp_name), args.cold, max(2, args.devices))
-        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-               "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": 2, "cameras": 6},
-               "cold": rec, "load_average": os.getloadavg()}
-        write_results(args.json, doc, None, t0)
-        return 0
-    if args.overlap:
-        with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscoverlap-") as tmp_name:
-            tmp = pathlib.Path(tmp_name)
-            build_dataroot(tmp / "data", 8, 1)
-            rec = overlap(tmp / "data", tmp / "out", args.overlap)
-        print(json.dumps(rec, indent=1))
-        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
-               "overlap": rec, "load_average": os.getloadavg()}
-        write_results(args.json, doc, None, t0)
-        return 0
-    if args.parts:
+        return save({"samples": 2, "cameras": 6}, cold=rec)
+    if args.overlap or args.parts:
         with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscparts-") as tmp_name:
             tmp = pathlib.Path(tmp_name)
             build_dataroot(tmp / "data", 8, 1)
-            times = parts(tmp / "data", tmp / "out", args.parts)
+            if args.overlap:
+                rec = overlap(tmp / "data", tmp / "out", args.overlap)
+            else:
+                times = parts(tmp / "data", tmp / "out", args.parts)
+        if args.overlap:
+            print(json.dumps(rec, indent=1))
+            return save(one_sample, overlap=rec)
         for k, v in times.items():
             print(k, json.dumps(v))
-        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
-               "method": "one process, each part after a warm-up call, median of --parts calls, block_until_ready",
-               "parts": times, "load_average": os.getloadavg()}
-        write_results(args.json, doc, None, t0)
-        return 0
+        return save(one_sample, parts=times,
+                    method="one process, each part after a warm-up call, median of --parts calls, block_until_ready")
     methods = (["sgm"] + ([f"sgm@{args.devices}"] if args.devices > 1 else [])
                + (["sgm~threads"] if args.threads else []) + ["nearest"]
                + (["ip-basic"] if args.ip_basic else []))
@@ -410,16 +405,11 @@ def main(argv=None) -> int:
     print(f"median per sweep: sgm {median['sgm']['wall_s']:.3f} s, nearest {median['nearest']['wall_s']:.3f} s; "
           f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU" + "".join(
               f"; {k} {v:.3f}" for k, v in ratios.items() if k not in ("ratio_wall", "ratio_cpu")))
-    doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-           "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": args.samples, "sweeps": args.sweeps,
-                    "devices": args.devices,
-                    "cameras": 6, "camera_size": [1600, 900]},
-           "method": "one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
-                     "over samples; ratio default (sgm) / nearest within each round, median",
-           "warmup_runs": {m: {"wall_s": w, "cpu_s": c} for m, (w, c) in first.items()},
-           "rounds": rounds, "median_per_sweep": median, "median_ratios": ratios, "load_average": os.getloadavg()}
-    write_results(args.json, doc, None, t0)
-    return 0
+    return save({"samples": args.samples, "sweeps": args.sweeps, "devices": args.devices, **one_sample},
+                method="one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
+                       "over samples; ratio default (sgm) / nearest within each round, median",
+                warmup_runs={m: {"wall_s": w, "cpu_s": c} for m, (w, c) in first.items()},
+                rounds=rounds, median_per_sweep=median, median_ratios=ratios)
 
 
 if __name__ == "__main__":

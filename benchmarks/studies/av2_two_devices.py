@@ -92,11 +92,7 @@ def main(argv=None) -> int:
         rec = cold(args.cold)
         med = {k: {m: statistics.median(r[m] for r in v) for m in ("first_sweep_s", "wall_s")} for k, v in rec.items()}
         print(f"medians {med}")
-        doc = {"command": "python -m benchmarks.studies.av2_two_devices " + " ".join(
-            sys.argv[1:] if argv is None else argv), "log": str(LOG), "runs": rec, "medians": med,
-            "load_average": os.getloadavg()}
-        write_results(args.json, doc, None, t0)
-        return 0
+        return _save(args, argv, t0, None, log=str(LOG), runs=rec, medians=med)
     from jaxdepth.batch import devices
     devices.quiet_jax_start()
     devices.keep_freed_memory()
@@ -144,12 +140,15 @@ def main(argv=None) -> int:
     cpu = {k: statistics.median(v) for k, v in cpus.items()}
     ratios = {f"{k}_over_two_calls": wall[k] / (2 * wall["one_call"]) for k in forms if k != "one_call"}
     print(f"median wall {wall}; ratios {ratios}")
-    doc = {"command": "python -m benchmarks.studies.av2_two_devices " + " ".join(sys.argv[1:] if argv is None else argv),
-           "data": {"log": str(LOG), "sweep": int(todo[0].source[1]), "cameras": len(rig.cameras), "time": "lidar"},
-           "devices": len(targets), "rounds": args.rounds, "median_wall_s": wall, "median_cpu_s": cpu,
-           "ratios": ratios, "first_call_wall_s": first, "peak_rss_gb_after_first": peaks,
-           "load_average": os.getloadavg()}
-    write_results(args.json, doc, config, t0)
+    return _save(args, argv, t0, config, devices=len(targets), rounds=args.rounds, median_wall_s=wall,
+                 median_cpu_s=cpu, ratios=ratios, first_call_wall_s=first, peak_rss_gb_after_first=peaks,
+                 data={"log": str(LOG), "sweep": int(todo[0].source[1]), "cameras": len(rig.cameras), "time": "lidar"})
+
+
+def _save(args, argv, t0: float, config, **rec) -> int:
+    """Writes the study's JSON (``rec`` with the command and the load average); exit code 0."""
+    command = "python -m benchmarks.studies.av2_two_devices " + " ".join(sys.argv[1:] if argv is None else argv)
+    write_results(args.json, {"command": command, **rec, "load_average": os.getloadavg()}, config, t0)
     return 0
 
 
