@@ -26,8 +26,11 @@ codes' jobs interleaved, not in two runs minutes apart at another load.
 ``--release-memory`` adds both jobs with ``JAXDEPTH_KEEP_MEMORY=0`` (glibc's default malloc: the process
 before :func:`jaxdepth.batch.devices.keep_freed_memory`) to every round, with their ratios.
 
+``--devices N`` adds ``default-devices``, the default job with ``--cpu-devices N`` (whole sweeps dealt to N host
+devices), to every round, with its ratios to nearest and to the one-device job.
+
     python -m benchmarks.bench_av2_log [--sweeps 10] [--rounds 2] [--no-camera-images] [--release-memory]
-                                       [--checkout PATH] [--json PATH]
+                                       [--checkout PATH] [--devices N] [--json PATH]
 """
 
 from __future__ import annotations
@@ -52,10 +55,13 @@ METHODS = {"default": [], "nearest": ["--method", "nearest"]}
 RELEASE = {"JAXDEPTH_KEEP_MEMORY": "0"}
 
 
-def variants(release: bool, checkout: pathlib.Path | None = None) -> dict:
+def variants(release: bool, checkout: pathlib.Path | None = None, devices: int = 1) -> dict:
     """``{name: (flags, environment)}`` of the runs of one round (``checkout``: also ``default-base``, the
-    default job with that checkout's code first on ``PYTHONPATH``)."""
+    default job with that checkout's code first on ``PYTHONPATH``; ``devices`` > 1: also ``default-devices``,
+    the default job with ``--cpu-devices devices``)."""
     out = {name: (flags, {}) for name, flags in METHODS.items()}
+    if devices > 1:
+        out["default-devices"] = (["--cpu-devices", str(devices)], {})
     if release:
         out.update({f"{name}-release": (flags, RELEASE) for name, flags in METHODS.items()})
     if checkout is not None:
@@ -120,6 +126,11 @@ def per_sweep(times: dict, sweeps: int, runs=METHODS) -> dict:
         out["default_over_base_cpu"] = out["default"]["cpu_s"] / out["default-base"]["cpu_s"]
         out["default_over_base_wall"] = out["default"]["wall_s"] / out["default-base"]["wall_s"]
         out["base_ratio_cpu"] = out["default-base"]["cpu_s"] / out["nearest"]["cpu_s"]
+    if "default-devices" in runs:
+        out["devices_ratio_wall"] = out["default-devices"]["wall_s"] / out["nearest"]["wall_s"]
+        out["devices_ratio_cpu"] = out["default-devices"]["cpu_s"] / out["nearest"]["cpu_s"]
+        out["devices_over_one_wall"] = out["default-devices"]["wall_s"] / out["default"]["wall_s"]
+        out["devices_over_one_cpu"] = out["default-devices"]["cpu_s"] / out["default"]["cpu_s"]
     if "default-release" in runs:
         out["release_ratio_wall"] = out["default-release"]["wall_s"] / out["nearest-release"]["wall_s"]
         out["release_ratio_cpu"] = out["default-release"]["cpu_s"] / out["nearest-release"]["cpu_s"]
@@ -138,6 +149,8 @@ def main(argv=None) -> int:
                     help="also both jobs with JAXDEPTH_KEEP_MEMORY=0 (glibc's default malloc), same rounds")
     ap.add_argument("--checkout", type=pathlib.Path, default=None,
                     help="also the default job with this checkout's code (PYTHONPATH), same rounds")
+    ap.add_argument("--devices", type=int, default=1, metavar="N",
+                    help="also the default job with --cpu-devices N (sweeps dealt to N host devices), same rounds")
     ap.add_argument("--json", type=pathlib.Path, default=RESULTS / "av2_log.json")
     args = ap.parse_args(argv)
     args.json = args.json.resolve()
@@ -161,9 +174,10 @@ def main(argv=None) -> int:
         # PYTHONPATH, so from a checkout's folder `default-base` would import that checkout's jaxdepth.
         here = os.getcwd()
         os.chdir(tmp)
-        runs = variants(args.release_memory, args.checkout)
+        runs = variants(args.release_memory, args.checkout, args.devices)
         for method, (flags, env) in {**{m: (f, {}) for m, f in METHODS.items()},
-                                     **{k: v for k, v in runs.items() if k == "default-base"}}.items():
+                                     **{k: v for k, v in runs.items() if k in ("default-base", "default-devices")}
+                                     }.items():
             wall, cpu = _run(["complete", logs["short"], tmp / f"warmup-{method}", "-q", *flags], cache, env)
             print(f"warm-up {method} short: {wall:.1f} s wall, {cpu:.1f} s CPU", flush=True)
         rounds = []

@@ -25,13 +25,24 @@ program without outlier removal (projection, Step 1, Steps 3-4) and with it (the
 the depth's copy to the host and the six PNG writes. Step 2 = default - without removal; Steps 1 and
 3-4 = without removal - projection. Writes benchmarks/results/nuscenes_job_parts.json.
 
+``--devices N`` (branch devices2): the CPU is split into N host devices before JAX starts, and every round
+also runs ``sgm@N``, the default job dealing whole samples to the N devices (``run_nuscenes(devices=N)``,
+the CLI's ``--cpu-devices N``); ``--threads`` also runs ``sgm~threads``, a probe: the job's SGM calls on two
+dispatch threads of one device. ``--overlap R``: instead, the SGM program of one sample alone, one call, two
+calls dispatched back to back on device 0, two threads each calling on device 0, one call on each of two
+devices, R interleaved rounds, medians (wall and process CPU). ``--cold R``: instead, fresh CLI processes on
+a 2-sample dataroot, one device and ``--cpu-devices N``, cold (an empty cache folder each) then warm.
+
     python -m benchmarks.bench_nuscenes_job [--samples 10] [--sweeps 1] [--rounds 3] [--ip-basic] [--json PATH]
     python -m benchmarks.bench_nuscenes_job --parts 5 [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --devices 2 [--threads] --samples 20 --rounds 5 [--json PATH]
+    python -m benchmarks.bench_nuscenes_job --devices 2 --overlap 15 | --cold 2 [--json PATH]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import pathlib
@@ -117,17 +128,54 @@ def build_dataroot(root: pathlib.Path, samples: int, sweeps: int) -> None:
 
 
 def run_once(root: pathlib.Path, out: pathlib.Path, *, method: str, sweeps: int, samples: int) -> tuple:
-    """(wall s, process CPU s) of one :func:`run_nuscenes` over the dataroot; every camera written."""
+    """(wall s, process CPU s) of one :func:`run_nuscenes` over the dataroot; every camera written.
+    ``method``: the job's method, or ``"sgm@N"``: the default method dealt round robin to N host devices."""
     from jaxdepth.batch import devices
     from jaxdepth.batch.nuscenes_job import run_nuscenes
 
+    threads = method == "sgm~threads"
+    method, _, count = method.partition("@")
     cpu, start = time.process_time(), time.perf_counter()
-    summary = run_nuscenes(root, out, version=VERSION, sweeps=sweeps, method=method, io_threads=devices.io_threads())
+    with _dispatch_threads(threads):
+        summary = run_nuscenes(root, out, version=VERSION, sweeps=sweeps, method=method.partition("~")[0],
+                               io_threads=devices.io_threads(), devices=int(count or 1))
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     written = len(list(out.rglob("*.png")))
     if summary.failed or written != 6 * samples:
         raise SystemExit(f"{method}: {written} PNGs written (expected {6 * samples}), failed: {summary.failed[:2]}")
     return wall, cpu
+
+
+class _Later:
+    """A program call running on a dispatch thread: ``np.asarray`` waits for it (the job's read-back)."""
+
+    def __init__(self, future):
+        self.future = future
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self.future.result())
+
+
+@contextlib.contextmanager
+def _dispatch_threads(on: bool):
+    """``--threads`` (a probe, not the job's code): the job's SGM program called on one of two dispatch threads,
+    not on the main thread, so the two samples the job keeps in flight on its one device can execute at once."""
+    if not on:
+        yield
+        return
+    import concurrent.futures as cf
+
+    from jaxdepth.batch import nuscenes_job
+    real = nuscenes_job._depth_fn
+    with cf.ThreadPoolExecutor(2) as pool:
+        def wrapped(config, lidar):
+            fn = real(config, lidar)
+            return lambda *args: _Later(pool.submit(fn, *args))
+        nuscenes_job._depth_fn = wrapped
+        try:
+            yield
+        finally:
+            nuscenes_job._depth_fn = real
 
 
 def _part(fn, repeats: int) -> dict:
@@ -192,14 +240,96 @@ def parts(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
     return times
 
 
+def overlap(root: pathlib.Path, out: pathlib.Path, repeats: int) -> dict:
+    """Whether XLA:CPU runs two executions of the job's SGM program at once (module docstring, ``--overlap``):
+    median wall of one call, of two calls dispatched back to back on device 0 (the job's second sample in
+    flight), of two threads each calling it on device 0, and (with 2 host devices) of one call on each device;
+    every form blocked on all its results before the clock stops, in interleaved rounds."""
+    import concurrent.futures as cf
+
+    import jax
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth._src.rig import stack_cameras
+    from jaxdepth.batch import nuscenes_job
+    from jaxdepth.batch.runner import RunSummary
+    from jaxdepth.io import nuscenes as nusc
+
+    tables = nusc.load_tables(root, VERSION)
+    job = nuscenes_job.plan(tables, out, overwrite=True, summary=RunSummary(), notify=lambda *a: None)[0]
+    padded, valid, rig, _, _ = nuscenes_job._load(tables, job, sweeps=1, ego_motion=True)
+    fn = nuscenes_job._depth_fn(SGMConfig(), rig.lidar)
+    targets = jax.local_devices()[:2]
+    args = [jax.device_put((padded, valid, stack_cameras(rig.cameras)), d) for d in targets]
+    pool = cf.ThreadPoolExecutor(2)
+    forms = {"one_call": lambda: [fn(*args[0])],
+             "two_dispatched_one_device": lambda: [fn(*args[0]), fn(*args[0])],
+             "two_threads_one_device": lambda: [f.result() for f in [pool.submit(fn, *args[0]) for _ in range(2)]]}
+    if len(targets) > 1:
+        forms["two_devices"] = lambda: [fn(*args[0]), fn(*args[1])]
+    for form in forms.values():   # compiles (each device its own copy) and warms
+        jax.block_until_ready(form())
+    times, cpus = {k: [] for k in forms}, {k: [] for k in forms}
+    for _ in range(repeats):
+        for name, form in forms.items():
+            cpu, start = time.process_time(), time.perf_counter()
+            jax.block_until_ready(form())
+            times[name].append(time.perf_counter() - start)
+            cpus[name].append(time.process_time() - cpu)
+    pool.shutdown()
+    rec = {k: statistics.median(v) for k, v in times.items()}
+    rec.update({f"{k}_over_one_call": rec[k] / rec["one_call"] for k in forms if k != "one_call"})
+    return {"median_wall_s": rec, "median_cpu_s": {k: statistics.median(v) for k, v in cpus.items()},
+            "devices": len(targets), "repeats": repeats}
+
+
+def cold(tmp: pathlib.Path, rounds: int, count: int) -> dict:
+    """``--cold R``: fresh ``jaxdepth complete DATAROOT OUT --nusc-version v1.0-mini`` processes on a 2-sample
+    dataroot, one device and ``--cpu-devices count``, each first with an empty cache folder of its own (``cold``:
+    every program compiled; the process's wall is start-up + both samples), then again in that folder with
+    ``--overwrite`` (``warm``: do both devices' programs load from the persistent cache?); the number of files
+    the run left in the XLA cache and the programs folder. Variants alternate within each round."""
+    from benchmarks.bench_rig_coldstart import _run
+
+    build_dataroot(tmp / "cold-data", 2, 1)
+    variants = {"one_device": [], f"devices_{count}": ["--cpu-devices", str(count)]}
+    rec = {k: {"cold": [], "warm": [], "cache_files": None} for k in variants}
+    for r in range(rounds):
+        for name, flags in variants.items():
+            cache, out = tmp / f"cache-{name}-{r}", tmp / f"out-{name}-{r}"
+            argv = ["complete", tmp / "cold-data", out, "--nusc-version", VERSION, "-q", *flags]
+            rec[name]["cold"].append(_run(argv, cache))
+            rec[name]["warm"].append(_run(argv + ["--overwrite"], cache))
+            rec[name]["cache_files"] = {sub.name: len([f for f in sub.iterdir() if f.is_file()])
+                                        for sub in [cache / "jaxdepth" / "xla", cache / "jaxdepth" / "xla" / "programs"]
+                                        if sub.is_dir()}
+            print(f"round {r} {name}: cold {rec[name]['cold'][-1][0]:.1f} s, warm {rec[name]['warm'][-1][0]:.1f} s "
+                  f"wall; cache {rec[name]['cache_files']}", flush=True)
+    for v in rec.values():
+        for key in ("cold", "warm"):
+            v[f"{key}_median"] = {"wall_s": statistics.median(w for w, _ in v[key]),
+                                  "cpu_s": statistics.median(c for _, c in v[key])}
+    return rec
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10, help="samples (one key-frame sweep each), >= 8")
     ap.add_argument("--sweeps", type=int, default=1, help="sweeps per sample (the job's --sweeps)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--ip-basic", action="store_true", help="also --method ip-basic in every round")
+    ap.add_argument("--devices", type=int, default=1, metavar="N",
+                    help="also the default method dealt round robin to N host devices (the CPU split into N "
+                         "before JAX starts), 'sgm@N' in every round")
     ap.add_argument("--parts", type=int, default=0, metavar="N",
                     help="instead: one sample's parts, N timed calls each (module docstring)")
+    ap.add_argument("--threads", action="store_true",
+                    help="also 'sgm~threads' in every round: a probe, the job's SGM calls on two dispatch threads, "
+                         "one device")
+    ap.add_argument("--overlap", type=int, default=0, metavar="N",
+                    help="instead: whether two executions of the SGM program run at once, N rounds (module docstring)")
+    ap.add_argument("--cold", type=int, default=0, metavar="R",
+                    help="instead: R rounds of cold and warm CLI processes, one device and --devices (module docstring)")
     ap.add_argument("--json", type=pathlib.Path, default=None,
                     help="default: results/nuscenes_job.json (--parts: results/nuscenes_job_parts.json)")
     args = ap.parse_args(argv)
@@ -212,21 +342,39 @@ def main(argv=None) -> int:
     from jaxdepth.batch import devices
     devices.quiet_jax_start()
     devices.keep_freed_memory()
+    if args.devices > 1:
+        devices.split_cpu_into_devices(args.devices)
     t0 = time.time()
-    if args.parts:
+    command = "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv)
+
+    def save(data: dict, **rec) -> int:
+        write_results(args.json, {"command": command, "data": {"source": str(SAMPLE.relative_to(DATA)), **data},
+                                  **rec, "load_average": os.getloadavg()}, None, t0)
+        return 0
+
+    one_sample = {"cameras": 6, "camera_size": [1600, 900]}
+    if args.cold:
+        with tempfile.TemporaryDirectory(prefix="jaxdepth-nusccold-") as tmp_name:
+            rec = cold(pathlib.Path(tmp_name), args.cold, max(2, args.devices))
+        return save({"samples": 2, "cameras": 6}, cold=rec)
+    if args.overlap or args.parts:
         with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscparts-") as tmp_name:
             tmp = pathlib.Path(tmp_name)
             build_dataroot(tmp / "data", 8, 1)
-            times = parts(tmp / "data", tmp / "out", args.parts)
+            if args.overlap:
+                rec = overlap(tmp / "data", tmp / "out", args.overlap)
+            else:
+                times = parts(tmp / "data", tmp / "out", args.parts)
+        if args.overlap:
+            print(json.dumps(rec, indent=1))
+            return save(one_sample, overlap=rec)
         for k, v in times.items():
             print(k, json.dumps(v))
-        doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-               "data": {"source": str(SAMPLE.relative_to(DATA)), "cameras": 6, "camera_size": [1600, 900]},
-               "method": "one process, each part after a warm-up call, median of --parts calls, block_until_ready",
-               "parts": times, "load_average": os.getloadavg()}
-        write_results(args.json, doc, None, t0)
-        return 0
-    methods = ["sgm", "nearest"] + (["ip-basic"] if args.ip_basic else [])
+        return save(one_sample, parts=times,
+                    method="one process, each part after a warm-up call, median of --parts calls, block_until_ready")
+    methods = (["sgm"] + ([f"sgm@{args.devices}"] if args.devices > 1 else [])
+               + (["sgm~threads"] if args.threads else []) + ["nearest"]
+               + (["ip-basic"] if args.ip_basic else []))
     rounds, first = [], {}
     with tempfile.TemporaryDirectory(prefix="jaxdepth-nuscjob-") as tmp_name:
         tmp = pathlib.Path(tmp_name)
@@ -241,22 +389,27 @@ def main(argv=None) -> int:
             per = {m: {"wall_s": w / args.samples, "cpu_s": c / args.samples} for m, (w, c) in times.items()}
             per["ratio_wall"] = per["sgm"]["wall_s"] / per["nearest"]["wall_s"]
             per["ratio_cpu"] = per["sgm"]["cpu_s"] / per["nearest"]["cpu_s"]
+            if args.threads:
+                per["threads_over_one_wall"] = per["sgm~threads"]["wall_s"] / per["sgm"]["wall_s"]
+                per["ratio_wall_threads"] = per["sgm~threads"]["wall_s"] / per["nearest"]["wall_s"]
+            if args.devices > 1:
+                many = f"sgm@{args.devices}"
+                per["ratio_wall_devices"] = per[many]["wall_s"] / per["nearest"]["wall_s"]
+                per["ratio_cpu_devices"] = per[many]["cpu_s"] / per["nearest"]["cpu_s"]
+                per["devices_over_one_wall"] = per[many]["wall_s"] / per["sgm"]["wall_s"]
             rounds.append(per)
             print(f"round {r}: " + ", ".join(f"{m} {per[m]['wall_s']:.3f} s/sweep" for m in methods)
                   + f", ratio {per['ratio_wall']:.2f} (CPU {per['ratio_cpu']:.2f})", flush=True)
     median = {m: {k: statistics.median(r[m][k] for r in rounds) for k in ("wall_s", "cpu_s")} for m in methods}
-    ratios = {k: statistics.median(r[k] for r in rounds) for k in ("ratio_wall", "ratio_cpu")}
+    ratios = {k: statistics.median(r[k] for r in rounds) for k in rounds[0] if k.startswith(("ratio", "devices"))}
     print(f"median per sweep: sgm {median['sgm']['wall_s']:.3f} s, nearest {median['nearest']['wall_s']:.3f} s; "
-          f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU")
-    doc = {"command": "python -m benchmarks.bench_nuscenes_job " + " ".join(sys.argv[1:] if argv is None else argv),
-           "data": {"source": str(SAMPLE.relative_to(DATA)), "samples": args.samples, "sweeps": args.sweeps,
-                    "cameras": 6, "camera_size": [1600, 900]},
-           "method": "one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
-                     "over samples; ratio default (sgm) / nearest within each round, median",
-           "warmup_runs": {m: {"wall_s": w, "cpu_s": c} for m, (w, c) in first.items()},
-           "rounds": rounds, "median_per_sweep": median, "median_ratios": ratios, "load_average": os.getloadavg()}
-    write_results(args.json, doc, None, t0)
-    return 0
+          f"ratio {ratios['ratio_wall']:.2f} wall, {ratios['ratio_cpu']:.2f} CPU" + "".join(
+              f"; {k} {v:.3f}" for k, v in ratios.items() if k not in ("ratio_wall", "ratio_cpu")))
+    return save({"samples": args.samples, "sweeps": args.sweeps, "devices": args.devices, **one_sample},
+                method="one process, warm (a warm-up run per method first); per sweep = run wall / CPU seconds "
+                       "over samples; ratio default (sgm) / nearest within each round, median",
+                warmup_runs={m: {"wall_s": w, "cpu_s": c} for m, (w, c) in first.items()},
+                rounds=rounds, median_per_sweep=median, median_ratios=ratios)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ from __future__ import annotations
 import collections
 import threading
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -83,8 +84,9 @@ class _Unreadable:
         raise InputError("frame 2 broken at read-back")
 
 
+@pytest.mark.parametrize("devices", [1, 2])
 @pytest.mark.parametrize("step", ["load", "prepare", "call", "read-back"])
-def test_a_bad_frame_in_the_middle_fails_alone_named_and_the_rest_is_written(tmp_path, step):
+def test_a_bad_frame_in_the_middle_fails_alone_named_and_the_rest_is_written(tmp_path, step, devices):
     jobs = _jobs(tmp_path, 5)
     bad = 2
 
@@ -108,7 +110,8 @@ def test_a_bad_frame_in_the_middle_fails_alone_named_and_the_rest_is_written(tmp
         return call
 
     summary = RunSummary()
-    run_cloud_jobs(jobs, load, summary, lambda name, status: None, config=None, png_compression=1, prepare=prepare)
+    run_cloud_jobs(jobs, load, summary, lambda name, status: None, config=None, png_compression=1, prepare=prepare,
+                   targets=jax.local_devices()[:1] * devices)   # 2: one device twice, two frames in flight
     assert sorted(summary.done) == ["f0", "f1", "f3", "f4"]
     prefix = "" if step == "load" else "completion failed: "
     assert summary.failed == [("f2", f"{prefix}frame 2 broken at {step}")]
@@ -124,3 +127,42 @@ def test_prepared_and_serial_loops_write_the_same_bytes(tmp_path):
     for a, s in zip(ahead, serial):
         for (_, pa), (_, ps) in zip(a.outputs, s.outputs):
             assert pa.read_bytes() == ps.read_bytes()
+
+
+class _Traced:
+    """Frame ``i``'s depth as a program output whose read-back is recorded."""
+
+    def __init__(self, i, events):
+        self.i, self.events = i, events
+
+    def __array__(self, dtype=None, copy=None):
+        self.events.append(("read", self.i))
+        return _depth(self.i)
+
+
+def test_frames_dealt_to_two_devices_two_in_flight_the_first_written_before_the_second_device_compiles(tmp_path):
+    """``targets`` of two devices (here the one device twice): frame k's call under ``jax.default_device`` of
+    ``targets[k % 2]``, two frames in flight, each read back once the next is dispatched, except the first:
+    read back before the second device's first call (its compile); the one-device loop's files."""
+    events, devices = [], []
+    device = jax.local_devices()[0]
+
+    def prepare(cloud, rig):
+        def call():
+            events.append(("call", cloud))
+            devices.append(jnp.zeros(()).devices())
+            return _Traced(cloud, events), None, None
+        return call
+
+    (tmp_path / "two").mkdir()
+    (tmp_path / "one").mkdir()
+    two, one = _jobs(tmp_path / "two", 5), _jobs(tmp_path / "one", 5)
+    summary = _run(two, prepare=prepare, targets=[device, device])
+    assert sorted(summary.done) == [j.name for j in two] and not summary.failed
+    assert events == [("call", 0), ("read", 0), ("call", 1), ("call", 2), ("read", 1), ("call", 3), ("read", 2),
+                      ("call", 4), ("read", 3), ("read", 4)]
+    assert devices == [{device}] * 5
+    _run(one, prepare=lambda cloud, rig: lambda: (_depth(cloud), None, None))
+    for a, b in zip(two, one):
+        for (_, pa), (_, pb) in zip(a.outputs, b.outputs):
+            assert pa.read_bytes() == pb.read_bytes()

@@ -12,8 +12,11 @@ library path (``rig_from_nuscenes_calibration`` -> ``read_points`` ->
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import shutil
+import subprocess
+import sys
 
 import cv2
 import jax
@@ -392,6 +395,50 @@ def test_output_tree_resume_and_bad_sample(dataroot, first_run, rig_traces):
     assert not [p for p in dst.rglob("*") if p.name.startswith(".") or p.suffix != ".png" and p.is_file()]
 
 
+TWO_DEVICES = """
+import sys
+import jax
+from jaxdepth import cli
+placed = set()
+real_put = jax.device_put
+def put(x, device=None, *a, **k):
+    if device is not None:
+        placed.add(str(device))
+    return real_put(x, device, *a, **k)
+jax.device_put = put
+argv = ["complete", {root!r}, {dst!r}, "--nusc-version", "v1.0-mini", "-q", "--cpu-devices", "2"]
+first = cli.main(argv)
+stamps = sorted((p.name, p.stat().st_mtime_ns) for p in __import__("pathlib").Path({dst!r}).rglob("*.png"))
+again = cli.main(argv)
+later = sorted((p.name, p.stat().st_mtime_ns) for p in __import__("pathlib").Path({dst!r}).rglob("*.png"))
+print("devices", len(jax.local_devices()), "placed", len(placed), "exits", first, again, "same", stamps == later,
+      "pngs", len(later), flush=True)
+"""
+
+
+@pytest.mark.slow  # two whole-pipeline compiles in a subprocess (one per host device)
+@pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
+def test_two_host_devices_write_the_same_files_and_resume(dataroot, first_run, tmp_path):
+    """``--cpu-devices 2`` (a subprocess: the split must come before JAX starts): whole samples dealt to two host
+    devices, s1 to one and s2 to the other, write the files of the one-device run byte for byte (s3's sweep is
+    missing: exit 1 both times); run again, every sample is skipped and no file is rewritten."""
+    root, _, _ = dataroot
+    one_dst, _, _ = first_run
+    dst = tmp_path / "two"
+    env = dict(os.environ)  # the suite's compile flags (tests/conftest.py), but no device count
+    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    env["JAX_PLATFORMS"] = "cpu"
+    script = TWO_DEVICES.format(root=str(root), dst=str(dst))
+    result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900,
+                            cwd=pathlib.Path(__file__).parent.parent)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "devices 2 placed 2 exits 1 1 same True pngs 12" in result.stdout, (result.stdout, result.stderr[-2000:])
+    ones = sorted(p.relative_to(one_dst) for p in one_dst.rglob("*.png"))
+    assert ones == sorted(p.relative_to(dst) for p in dst.rglob("*.png")) and len(ones) == 12
+    for rel in ones:
+        assert (dst / rel).read_bytes() == (one_dst / rel).read_bytes(), rel
+
+
 @pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 @pytest.mark.slow  # real nuScenes multi-sweep completion, six cameras
 @pytest.mark.production_flags  # bit for bit at the production codegen; at the suite's level 0 the one-source rig's tail (nusc14: no window, the seed search's scalar masks) rounds Step 4's blur 1 ulp apart from the sources path's
@@ -543,6 +590,7 @@ def test_command_line_ray_engine_reaches_run_nuscenes_ray(dataroot, tmp_path, mo
     assert (ray_options.pop("address"), ray_options.pop("batch_size")) == ("HEAD:6379", 3)
     local_options.pop("io_threads")
     assert local_options.pop("method") == "sgm"  # the baselines run on the local engine only
+    assert local_options.pop("devices") == 1  # one device unless --cpu-devices N > 1 (local engine)
     for options in (ray_options, local_options):
         options.pop("on_progress")
         options["tables"] = options["tables"].version

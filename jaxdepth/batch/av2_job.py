@@ -35,7 +35,10 @@ Scheduling (:func:`jaxdepth.batch.cloud_runner.run_cloud_jobs`): a reader thread
 sweeps ahead (Feather decoding, pose maths) and builds each sweep's program inputs (the sources
 pytree: padding, the LiDARs' spec estimates); the main thread runs each sweep's program on the
 default device and reads its depth back before it dispatches the next (two programs in flight ran
-slower on 2 cores); writer threads encode and write the PNGs.
+slower on 2 cores); writer threads encode and write the PNGs. ``devices`` N > 1 (the CLI's
+``--cpu-devices N``): sweeps dealt round robin to N (host) devices, one in flight on each, each device
+compiling its own copy; same bytes, 0.885x the wall on 2 idle cores, ~1.3 GB more memory, a
+second compile (docs/speed.md, "Whole samples on two host devices").
 """
 
 from __future__ import annotations
@@ -244,7 +247,7 @@ def _check_options(sweeps, cameras, time, method, extras) -> None:
 def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite: bool = False,
             png_compression: int | None = None, io_threads: int = 2,
             on_progress: Callable[[str, str], None] | None = None, force: bool = False, time: str = "camera",
-            method: str = "sgm", extras=None, on_note: Callable[[str], None] | None = None):
+            method: str = "sgm", extras=None, on_note: Callable[[str], None] | None = None, devices: int = 1):
     """Completes every sweep of the Argoverse 2 log(s) at ``root`` into ``<dst>/<log_id>/<camera>/<ts>.png``.
 
     Args:
@@ -265,6 +268,8 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
       extras: :class:`jaxdepth.batch.extras.ExtraOutputs` beside each PNG (default none); validity,
         seed distance and zero-invalid need ``method="sgm"``.
       on_note: called with each note (a clamped ``sweeps``, cameras without images); default: logged.
+      devices: local devices to deal sweeps out to, round robin, one sweep in flight on each (default 1;
+        on CPU the CLI's ``--cpu-devices N`` makes N host devices first; each compiles its own copy).
 
     Returns:
       :class:`jaxdepth.batch.runner.RunSummary` over sweep names (never raises for a bad sweep or log).
@@ -282,6 +287,8 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     cameras = av2.RING_CAMERAS if cameras is None else tuple(cameras)
     extras = NONE if extras is None else extras
     _check_options(sweeps, cameras, time, method, extras)
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"run_av2: field 'devices' expected an integer >= 1, got {devices!r}")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     summary = RunSummary(started_at=_time.perf_counter())
@@ -294,8 +301,16 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     run_cloud_jobs(todo, functools.partial(_load, tables=tables, cameras=cameras, force=force), summary, notify,
                    config=config, png_compression=png_compression, io_threads=io_threads,
                    prepare=completion(method=method, config=config, extras=extras), extras=extras,
-                   overwrite=overwrite)
+                   overwrite=overwrite, targets=_targets(devices) if method == "sgm" else None)
     return summary
+
+
+def _targets(devices: int):
+    """The first ``devices`` local devices, or None (the default device) for one."""
+    if devices == 1:
+        return None
+    import jax
+    return jax.local_devices()[:devices]
 
 
 def warm_av2(root, *, sweeps: int = 0, cameras=None, config=None, time: str = "camera", method: str = "sgm",

@@ -139,7 +139,7 @@ def read_back(outputs) -> tuple:
 
 def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compression: int,
                    io_threads: int = 2, prepare: Callable | None = None,
-                   extras=None, overwrite: bool = True) -> None:
+                   extras=None, overwrite: bool = True, targets=None) -> None:
     """Completes ``todo`` (:class:`CloudJob` s, output folders existing) into their PNGs.
 
     ``load(job) -> (SourceCloud, Rig)``; every output's camera name must be a camera of the rig.
@@ -154,8 +154,17 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
     as "completion failed: ..."; frames are completed and handed to the writers in ``todo``'s order.
     ``extras``: :class:`jaxdepth.batch.extras.ExtraOutputs` written beside each PNG (default none);
     ``overwrite``: replace files that exist (default True: the jobs list only outputs to write).
+    ``targets``: devices (default None: JAX's default device, the above). With N > 1 of them, frame ``k``'s
+    ``call()`` runs under ``jax.default_device(targets[k % N])`` and N frames are in flight, one per device
+    (each device compiles its own copy; before a device's first call the frames in flight are read back and
+    handed to the writers, so the first frame is not held behind the next device's compile).
     Records each job in ``summary`` as done or failed (never raises for a bad frame).
     """
+    import collections
+    import contextlib
+
+    import jax
+
     from jaxdepth.batch import extras as extra_outputs
     from jaxdepth.batch.runner import Ledger, read_ahead, write_failure
     from jaxdepth.io.errors import JaxdepthError
@@ -187,19 +196,41 @@ def run_cloud_jobs(todo, load: Callable, summary, notify, *, config, png_compres
                 return
         ledger.done(job.name)
 
+    targets = [None] if not targets else list(targets)
+    in_flight = collections.deque()   # (job, rig, call() outputs), dispatched, not read back
+
+    def collect(writers):
+        job, rig, outputs = in_flight.popleft()
+        try:
+            outputs = read_back(outputs)
+        except (JaxdepthError, ValueError) as err:
+            ledger.fail(job.name, f"completion failed: {err}")
+            return
+        written.append(writers.submit(write, job, rig, *outputs))
+
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
+        dispatched = 0
         for job, (loaded, message) in read_ahead(todo, readers, window=READ_AHEAD, load=load_prepared,
                                                  os_error=lambda job, err: f"cannot read: {err}"):
             rig, call, message = loaded if message is None else (None, None, message)
             if message is not None:
                 ledger.fail(job.name, message)
                 continue
+            while in_flight and 0 < dispatched < len(targets):   # a device's first call compiles its copy here
+                collect(writers)
+            target = targets[dispatched % len(targets)]
             try:
-                outputs = read_back(call())
+                with contextlib.nullcontext() if target is None else jax.default_device(target):
+                    outputs = call()
             except (JaxdepthError, ValueError) as err:
                 ledger.fail(job.name, f"completion failed: {err}")
                 continue
-            written.append(writers.submit(write, job, rig, *outputs))
+            dispatched += 1
+            in_flight.append((job, rig, outputs))
+            if len(in_flight) >= len(targets):
+                collect(writers)
+        while in_flight:
+            collect(writers)
         for f in written:
             f.result()
 

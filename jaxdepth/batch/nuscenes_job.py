@@ -42,11 +42,13 @@ distance, zero-invalid) need ``sweeps = 1``.
 
 Scheduling: a reader thread pool loads samples ahead; each sample is dispatched
 (asynchronously) before the previous result is collected; writer threads encode
-and write the PNGs. One device by default (``devices``: round robin over several,
-each compiling its own copy); the CLI does not split the CPU into host devices
-for this job (``--cpu-devices`` has no effect): XLA already spreads one sample
-over the cores, and splitting the cameras of a sample over two host devices
-is no faster on 2 cores.
+and write the PNGs. One device by default (``devices``: whole samples dealt round
+robin over several, one in flight on each beyond the one being dispatched, each device
+compiling its own copy; the CLI's ``--cpu-devices N`` > 1 splits the CPU into N host
+devices for it): XLA already spreads one sample over the cores (one call: ~1.7 cores
+busy), splitting the cameras of a sample over two host devices is no faster on 2 cores,
+and a whole sample on each of two gains 6.5 % of the wall at idle for a second compile
+(same bytes; docs/speed.md, "Whole samples on two host devices").
 
 The Ray engine (:func:`jaxdepth.batch.scale.run_nuscenes_ray`) plans the same way
 (:func:`plan`) and runs :func:`complete_samples`, this module's per-sample path,
@@ -225,9 +227,9 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
       config: :class:`~jaxdepth.SGMConfig` (default: the library's).
       overwrite: recompute outputs that exist (default False: resume).
       png_compression: zlib level 0-9 of the PNGs (default: the library's fast level).
-      devices: local devices to deal samples out to, round robin (default 1: each device
+      devices: local devices to deal whole samples out to, round robin (default 1: each device
         compiles its own copy, and on CPU one device already uses every core within a sample;
-        sharding a sample's cameras over 2 host devices is no faster).
+        sharding a sample's cameras over 2 host devices is no faster, whole samples 0.935x the wall).
       on_progress: called once per sample with (sample token, "done" / "skipped" / "failed: ...").
       tables: the version's :class:`~jaxdepth.io.nuscenes.NuScenesTables` if already loaded
         (default: read from ``dataroot``).
@@ -312,7 +314,8 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     with cf.ThreadPoolExecutor(io_threads) as readers, cf.ThreadPoolExecutor(io_threads) as writers:
         loaded_samples = read_ahead(todo, readers, window=READ_AHEAD, load=load,
                                     os_error=lambda job, err: f"cannot read: {err}")
-        for count, (job, (loaded, message)) in enumerate(loaded_samples):
+        dispatched = 0   # SGM samples dealt to the devices so far
+        for job, (loaded, message) in loaded_samples:
             if message is not None:
                 run.fail(job.token, message)
                 continue
@@ -335,10 +338,13 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
             # here would wait for the sample in flight, and the next sample could not be dispatched before.
             cameras = stack_cameras(rig.cameras)
             args = (padded, valid, cameras) + (() if images is None else (images,))
+            if 0 < dispatched < len(targets):  # a device's first call compiles its copy here: hand the samples
+                run.finish_in_flight(writers)    # done so far to the writers first (the cold first sample)
             try:
                 fn = (_depth_and_validity_fn(config, rig.lidar, extras.max_seed_distance_px) if extras.needs_seeds
                       else _depth_fn(config, rig.lidar))
-                out = fn(*jax.device_put(args, targets[count % len(targets)]))
+                out = fn(*jax.device_put(args, targets[dispatched % len(targets)]))
+                dispatched += 1
             except Exception as err:
                 run.fail(job.token, f"completion failed: {err}")
                 continue
@@ -403,9 +409,12 @@ class _SampleRun:
             return
         self.written.append(writers.submit(self.write, job, rig, *arrays))
 
-    def finish(self, writers):
+    def finish_in_flight(self, writers):
         while self.in_flight:
             self.collect(writers)
+
+    def finish(self, writers):
+        self.finish_in_flight(writers)
         for f in self.written:
             f.result()
 
