@@ -69,26 +69,35 @@ def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams):
     # programs took 2.4 s of CPU each; one of them 7 s): the same masks as four jits (checked)
     rng = np.random.default_rng(7)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
-    every = jax.jit(lambda g: {(test, shared): _group_masks(g, sizes, beams=beams, shared=shared, test=test)
-                               for test in ("footprint", "paper") for shared in (False, True)})(groups)
+    listed = _listed(rng, groups)       # and the one loop reading x, y, z by winner index (WinnerPoints)
+    every = jax.jit(lambda g, li: {(test, form): _group_masks(g, sizes, beams=beams, shared=form == "one", test=test)
+                                   for test in ("footprint", "paper") for form in ("own", "one")} | {
+        (test, "listed"): _group_masks(li, sizes, beams=beams, shared=True, test=test) for test in ("footprint", "paper")})(
+        groups, listed)
     for test in ("footprint", "paper"):
-        want, got = ([np.asarray(m) for m in every[test, shared]] for shared in (False, True))
-        for g, (a, b) in enumerate(zip(got, want)):
-            assert a.shape == b.shape
-            np.testing.assert_array_equal(a, b, err_msg=f"{test} group {g}")
+        want = [np.asarray(m) for m in every[test, "own"]]
+        for form in ("one", "listed"):
+            for g, (a, b) in enumerate(zip([np.asarray(m) for m in every[test, form]], want)):
+                assert a.shape == b.shape
+                np.testing.assert_array_equal(a, b, err_msg=f"{test} {form} group {g}")
         assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0, test  # removed
 
 
-@pytest.mark.slow  # op by op (~12 s CPU); the quick equality tests above run the same loop jitted
+@pytest.mark.slow  # op by op (~12 s CPU a form); the quick equality tests above run the same loop jitted
 def test_one_loop_jit_equals_eager():
+    # the channel images, and x, y, z by winner index (WinnerPoints), op by op: the jitted images' masks
     sizes = ((96, 128), (128, 96))
     rng = np.random.default_rng(3)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((2, 1), sizes)]
     fast = _masks(groups, sizes, beams=2, shared=True)
+    listed = _listed(rng, groups)
+    np.testing.assert_array_equal(np.concatenate([m.ravel() for m in _masks(listed, sizes, beams=2, shared=True)]),
+                                  np.concatenate([m.ravel() for m in fast]))
     with jax.disable_jit():
-        eager = _masks(groups, sizes, beams=2, shared=True)
-    for a, b in zip(fast, eager):
-        np.testing.assert_array_equal(a, b)
+        for form in (groups, listed):
+            eager = _masks(form, sizes, beams=2, shared=True)
+            for a, b in zip(fast, eager):
+                np.testing.assert_array_equal(a, b)
 
 
 def test_shared_windows_only_where_every_group_agrees():
@@ -134,12 +143,11 @@ def test_word_locator_in_runs_past_float32_exact_range_equals_brute_force():
     np.testing.assert_array_equal(np.asarray(located), bits[slots])
 
 
-def _winner_points(rng, points, extra=3):
+def _winner_points(rng, points, n, extra=3):
     """A camera's x, y, z channels as :class:`WinnerPoints`: each pixel with depth won by a point of a shuffled list
-    (with points that won nothing), a canvas of ``h w + extra`` slots (``inf``'s bits where no point won)."""
+    of ``n`` (with points that won nothing), a canvas of ``h w + extra`` slots (``inf``'s bits where no point won)."""
     x, y, z = (np.asarray(c) for c in points)
     won = np.flatnonzero(z.reshape(-1) > 0)
-    n = z.size + 7      # the same N for every camera of a size (a group's rows)
     index = rng.permutation(n)[:won.size]
     xs, ys, zs = rng.normal(size=(3, n)).astype(np.float32)     # the points that won nothing: any value
     xs[index], ys[index], zs[index] = x.reshape(-1)[won], y.reshape(-1)[won], z.reshape(-1)[won]
@@ -148,6 +156,16 @@ def _winner_points(rng, points, extra=3):
     return canvas, xs, ys, zs
 
 
+def _listed(rng, groups):
+    """``groups`` (:func:`_group`'s) with each camera's points as :class:`WinnerPoints` (canvas lengths differ by group)."""
+    listed, n = [], max(int(np.prod(depth.shape[1:])) for depth, *_ in groups) + 7     # one N: the rig's points
+    for g, (depth, points, *rest) in enumerate(groups):
+        cams = [_winner_points(rng, [c[i] for c in points], n, extra=1 + 4 * g) for i in range(depth.shape[0])]
+        listed.append((depth, WinnerPoints(*(jnp.asarray(np.stack(x)) for x in zip(*cams))), *rest))
+    return listed
+
+
+@pytest.mark.slow  # eight programs (the quick test above checks the one loop's listed form)
 def test_exact_test_with_winner_points_equals_the_channel_images():
     # Step 2 with x, y, z read by winner index (WinnerPoints: canvas tag, then the point's x, y, z) against the
     # same image's channel images and depth, bit for bit: each group's own loop and the one loop (Grouped: rows of each
@@ -155,10 +173,7 @@ def test_exact_test_with_winner_points_equals_the_channel_images():
     sizes, beams = ((96, 128), (128, 96)), 2
     rng = np.random.default_rng(7)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
-    listed = []
-    for g, (depth, points, *rest) in enumerate(groups):
-        cams = [_winner_points(rng, [c[i] for c in points], extra=1 + 4 * g) for i in range(depth.shape[0])]
-        listed.append((depth, WinnerPoints(*(jnp.asarray(np.stack(x)) for x in zip(*cams))), *rest))
+    listed = _listed(rng, groups)
     every = jax.jit(lambda a, b: {(test, shared, form): _group_masks(g, sizes, beams=beams, shared=shared, test=test)
                                   for test in ("footprint", "paper") for shared in (False, True)
                                   for form, g in (("images", a), ("listed", b))})(groups, listed)
