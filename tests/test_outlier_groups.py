@@ -10,9 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxdepth._src import compaction, outlier_exact, outliers, pipeline
+from jaxdepth._src import compaction, outliers
 from jaxdepth._src.config import DEFAULT_CONFIG
-from jaxdepth._src.outlier_exact import ExactTest, Grouped, WinnerPoints
 from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.rig import size_groups, stack_cameras
 from jaxdepth._src.sources import complete_sources_stages, make_sources
@@ -69,35 +68,26 @@ def test_one_loop_for_all_groups_equals_each_groups_own(sizes, beams):
     # programs took 2.4 s of CPU each; one of them 7 s): the same masks as four jits (checked)
     rng = np.random.default_rng(7)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
-    listed = _listed(rng, groups)       # and the one loop reading x, y, z by winner index (WinnerPoints)
-    every = jax.jit(lambda g, li: {(test, form): _group_masks(g, sizes, beams=beams, shared=form == "one", test=test)
-                                   for test in ("footprint", "paper") for form in ("own", "one")} | {
-        (test, "listed"): _group_masks(li, sizes, beams=beams, shared=True, test=test) for test in ("footprint", "paper")})(
-        groups, listed)
+    every = jax.jit(lambda g: {(test, shared): _group_masks(g, sizes, beams=beams, shared=shared, test=test)
+                               for test in ("footprint", "paper") for shared in (False, True)})(groups)
     for test in ("footprint", "paper"):
-        want = [np.asarray(m) for m in every[test, "own"]]
-        for form in ("one", "listed"):
-            for g, (a, b) in enumerate(zip([np.asarray(m) for m in every[test, form]], want)):
-                assert a.shape == b.shape
-                np.testing.assert_array_equal(a, b, err_msg=f"{test} {form} group {g}")
+        want, got = ([np.asarray(m) for m in every[test, shared]] for shared in (False, True))
+        for g, (a, b) in enumerate(zip(got, want)):
+            assert a.shape == b.shape
+            np.testing.assert_array_equal(a, b, err_msg=f"{test} group {g}")
         assert sum(int((~b & (np.asarray(groups[g][0]) > 0)).sum()) for g, b in enumerate(want)) > 0, test  # removed
 
 
-@pytest.mark.slow  # op by op (~12 s CPU a form); the quick equality tests above run the same loop jitted
+@pytest.mark.slow  # op by op (~12 s CPU); the quick equality tests above run the same loop jitted
 def test_one_loop_jit_equals_eager():
-    # the channel images, and x, y, z by winner index (WinnerPoints), op by op: the jitted images' masks
     sizes = ((96, 128), (128, 96))
     rng = np.random.default_rng(3)
     groups = [_group(rng, n, h, w) for n, (h, w) in zip((2, 1), sizes)]
     fast = _masks(groups, sizes, beams=2, shared=True)
-    listed = _listed(rng, groups)
-    np.testing.assert_array_equal(np.concatenate([m.ravel() for m in _masks(listed, sizes, beams=2, shared=True)]),
-                                  np.concatenate([m.ravel() for m in fast]))
     with jax.disable_jit():
-        for form in (groups, listed):
-            eager = _masks(form, sizes, beams=2, shared=True)
-            for a, b in zip(fast, eager):
-                np.testing.assert_array_equal(a, b)
+        eager = _masks(groups, sizes, beams=2, shared=True)
+    for a, b in zip(fast, eager):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_shared_windows_only_where_every_group_agrees():
@@ -141,90 +131,3 @@ def test_word_locator_in_runs_past_float32_exact_range_equals_brute_force():
         jnp.asarray(words), jnp.asarray(slots))
     assert int(count) == len(bits)
     np.testing.assert_array_equal(np.asarray(located), bits[slots])
-
-
-def _winner_points(rng, points, n, extra=3):
-    """A camera's x, y, z channels as :class:`WinnerPoints`: each pixel with depth won by a point of a shuffled list
-    of ``n`` (with points that won nothing), a canvas of ``h w + extra`` slots (``inf``'s bits where no point won)."""
-    x, y, z = (np.asarray(c) for c in points)
-    won = np.flatnonzero(z.reshape(-1) > 0)
-    index = rng.permutation(n)[:won.size]
-    xs, ys, zs = rng.normal(size=(3, n)).astype(np.float32)     # the points that won nothing: any value
-    xs[index], ys[index], zs[index] = x.reshape(-1)[won], y.reshape(-1)[won], z.reshape(-1)[won]
-    canvas = np.full(z.size + extra, np.float32(np.inf).view(np.int32), np.int32)
-    canvas[won] = index + np.iinfo(np.int32).min
-    return canvas, xs, ys, zs
-
-
-def _listed(rng, groups):
-    """``groups`` (:func:`_group`'s) with each camera's points as :class:`WinnerPoints` (canvas lengths differ by group)."""
-    listed, n = [], max(int(np.prod(depth.shape[1:])) for depth, *_ in groups) + 7     # one N: the rig's points
-    for g, (depth, points, *rest) in enumerate(groups):
-        cams = [_winner_points(rng, [c[i] for c in points], n, extra=1 + 4 * g) for i in range(depth.shape[0])]
-        listed.append((depth, WinnerPoints(*(jnp.asarray(np.stack(x)) for x in zip(*cams))), *rest))
-    return listed
-
-
-@pytest.mark.slow  # eight programs (the quick test above checks the one loop's listed form)
-def test_exact_test_with_winner_points_equals_the_channel_images():
-    # Step 2 with x, y, z read by winner index (WinnerPoints: canvas tag, then the point's x, y, z) against the
-    # same image's channel images and depth, bit for bit: each group's own loop and the one loop (Grouped: rows of each
-    # group's (n_g, length) arrays, a canvas length of each group's own), footprint and paper forms.
-    sizes, beams = ((96, 128), (128, 96)), 2
-    rng = np.random.default_rng(7)
-    groups = [_group(rng, n, h, w) for n, (h, w) in zip((3, 1), sizes)]
-    listed = _listed(rng, groups)
-    every = jax.jit(lambda a, b: {(test, shared, form): _group_masks(g, sizes, beams=beams, shared=shared, test=test)
-                                  for test in ("footprint", "paper") for shared in (False, True)
-                                  for form, g in (("images", a), ("listed", b))})(groups, listed)
-    for key in every:
-        if key[2] == "listed":
-            for g, (a, b) in enumerate(zip(every[key], every[key[:2] + ("images",)])):
-                np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=f"{key} group {g}")
-
-
-@pytest.mark.parametrize("grouped", [False, True])
-def test_winner_points_read_each_pixels_winner_as_numpy_and_the_channel_images(grouped):
-    # The projection's winners (pipeline.project_winners, canvas=True) read by index (outlier_exact.points_at)
-    # at every pixel with depth: the nearest point's x, y, then the smallest index among equal depths (repeated
-    # points: ties), as a NumPy z-buffer gives and as the x, y channel images hold; points outside the image or
-    # invalid win nothing. Grouped: three cameras of two sizes in one vmap (group_size, the rigs' shared
-    # projection), the canvas read from its group's rows at its member, x and y from every camera's at its index.
-    rng = np.random.default_rng(4)
-    sizes = ((5, 9), (9, 5), (5, 9))           # groups 0, 1, 0 (member 1 of group 0: the third camera)
-    u, v = rng.integers(-1, 10, 120), rng.integers(-1, 10, 120)
-    z = rng.choice(np.float32([2.0, 4.0]), 120)
-    pts = np.stack([u * z / 2, v * z / 2, z], axis=1).astype(np.float32)[rng.integers(0, 120, 200)]   # repeats
-    normals = rng.normal(size=pts.shape).astype(np.float32)
-    valid = rng.random((3, 200)) < 0.8
-    K = jnp.asarray([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 1.0]], jnp.float32)
-    eye = jnp.eye(4, dtype=jnp.float32)
-
-    def project(ok, size):
-        return pipeline.project_winners(jnp.asarray(pts), ok, jnp.asarray(normals), eye, K, height=45, width=1,
-                                        group_size=size, canvas=True)
-
-    won = jax.vmap(project)(jnp.asarray(valid), jnp.asarray(np.array(sizes, np.int32)))
-    for c, (h, w) in enumerate(sizes):
-        one = tuple(x[c] for x in won)
-        depth, (x_img, y_img, _), *_ = pipeline.winners_apart(one[:-1], height=h, width=w)
-        flat = np.flatnonzero(np.asarray(depth).reshape(-1) > 0)
-        ex = ExactTest(depth, pipeline.winners_apart(one, height=h, width=w, listed=True)[1], *([None] * 10),
-                       hh=0, hw=0, test="paper")
-        if grouped:         # groups' rows: (n_g, length); camera c is member c // 2 of group c % 2
-            rows = lambda f: tuple(jnp.stack([f(won)[i] for i in members]) for members in ((0, 2), (1,)))
-            ex = ex._replace(points=WinnerPoints(rows(lambda t: t[-1]), *won[1:4]),   # x, y, z: (C, N)
-                             grouped=Grouped(jnp.int32(c % 2), jnp.int32(c // 2), (45, 45), jnp.int32(0), jnp.int32(c)))
-        d, got = outlier_exact.points_at(ex, jnp.asarray(flat, jnp.int32))
-        np.testing.assert_array_equal(np.asarray(d), np.asarray(depth).reshape(-1)[flat])
-        np.testing.assert_array_equal(np.asarray(got[2]), np.asarray(d))
-        inside = valid[c] & (pts[:, 0] * 2 / pts[:, 2] < w) & (pts[:, 1] * 2 / pts[:, 2] < h) & (pts[:, :2] >= 0).all(1)
-        slot = np.where(inside, (pts[:, 1] * 2 / pts[:, 2]).astype(int) * w + (pts[:, 0] * 2 / pts[:, 2]).astype(int),
-                        -1)
-        for k, pixel in enumerate(flat):     # the nearest, then the smallest index
-            mine = np.flatnonzero(slot == pixel)
-            best = mine[np.lexsort((mine, pts[mine, 2]))[0]]
-            assert tuple(float(c[k]) for c in got) == tuple(pts[best])
-        assert set(flat) == set(slot[slot >= 0])       # every pixel a point won has depth
-        np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(x_img).reshape(-1)[flat])
-        np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(y_img).reshape(-1)[flat])

@@ -58,7 +58,7 @@ def scatter_argmin(slot: jax.Array, key: jax.Array, size: int, *, fill, full: bo
     return (best, idx) if full else (best[:size], idx[:size])
 
 
-def scatter_winners(slot: jax.Array, key: jax.Array, size: int, *, canvas: bool = False):
+def scatter_winners(slot: jax.Array, key: jax.Array, size: int) -> jax.Array:
     """Each entry's slot where it wins :func:`scatter_argmin` (smallest key, then smallest index), else ``size``.
 
     Args: ``slot`` (N,) int32 in ``[0, size]`` (``size``: the dump slot, no winner there); ``key`` (N,)
@@ -68,8 +68,7 @@ def scatter_winners(slot: jax.Array, key: jax.Array, size: int, *, canvas: bool 
     (a float32 > 0 orders as its bits do), and then, in place, the minimum of ``index + INT32_MIN`` over
     the entries that hold a slot's minimum. That tag is negative, below the bits of any key, so it
     replaces the key at every slot with a winner, and an entry won its slot when the slot holds its own
-    tag: the same winners. ``canvas``: ``(slots, canvas)``, the (size + 1,) canvas too (a winner's slot holds
-    its tag, an empty one the bits of ``inf``; read by :class:`~jaxdepth._src.outlier_exact.WinnerPoints`).
+    tag: the same winners.
     """
     n = slot.shape[0]
     bits = lax.bitcast_convert_type(jnp.asarray(key, jnp.float32), jnp.int32)
@@ -79,8 +78,7 @@ def scatter_winners(slot: jax.Array, key: jax.Array, size: int, *, canvas: bool 
     tag = jnp.arange(n, dtype=jnp.int32) + jnp.int32(jnp.iinfo(jnp.int32).min)
     owner = best.at[jnp.where(win, slot, size)].min(tag, mode="promise_in_bounds")
     won = owner.at[slot].get(mode="promise_in_bounds") == tag
-    slots = jnp.where(won & (slot < size), slot, size)
-    return (slots, owner) if canvas else slots
+    return jnp.where(won & (slot < size), slot, size)
 
 
 def split_halves(x: jax.Array):
@@ -193,8 +191,7 @@ def zbuffer_image(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, heig
 
 
 def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, height: int, width: int,
-                    min_depth_m: float = 0.1, valid_size: jax.Array | None = None, group_size: jax.Array | None = None,
-                    canvas: bool = False):
+                    min_depth_m: float = 0.1, valid_size: jax.Array | None = None, group_size: jax.Array | None = None):
     """:func:`zbuffer_image` per point: the pixel each point wins, for writing values onto the image.
 
     Args as :func:`zbuffer_image`. Returns ``(slot, z)``: (N,) int32 flat pixel ``v W + u`` of the
@@ -207,16 +204,14 @@ def zbuffer_winners(points_cam: jax.Array, valid: jax.Array, K: jax.Array, *, he
     ``group_size``: optional traced (2,) int32 (h, w), the image's own size, its pixels the first h w of
     the H W flat slots (row stride w): slots ``v w + u`` (``H W`` for none), the bounds h and w, the same
     winners as ``height=h, width=w`` (cameras of several sizes in one ``vmap``; ``H W`` >= h w).
-    The winners come from :func:`scatter_winners` (one (H W + 1,) canvas, not :func:`scatter_argmin`'s two);
-    ``canvas``: ``(slot, z, canvas)``, that canvas too (:func:`scatter_winners`).
+    The winners come from :func:`scatter_winners` (one (H W + 1,) canvas, not :func:`scatter_argmin`'s two).
     """
     if not min_depth_m >= 0:    # scatter_winners: every key of a real slot > 0
         raise ValueError(f"zbuffer_winners: field 'min_depth_m' expected >= 0, got {min_depth_m!r}")
     u, v, z, ok = project_pixels(points_cam, K, min_depth_m=min_depth_m)
     inside = ok & valid.astype(bool)
     flat, inside = _pixel_slots(u, v, inside, height=height, width=width, valid_size=valid_size, group_size=group_size)
-    won = scatter_winners(flat, jnp.where(inside, z, jnp.inf), height * width, canvas=canvas)
-    return (won[0], z, won[1]) if canvas else (won, z)
+    return scatter_winners(flat, jnp.where(inside, z, jnp.inf), height * width), z
 
 
 def winners_image(slot: jax.Array, values: jax.Array, fill, *, height: int, width: int) -> jax.Array:

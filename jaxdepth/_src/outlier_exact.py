@@ -134,29 +134,11 @@ def pack_columns(valid: jax.Array) -> jax.Array:
     return packed
 
 
-class WinnerPoints(NamedTuple):
-    """An image's camera-frame points as its z-buffer's winners hold them, with no (H, W) x or y channel
-    (a rig's several-sources views, :func:`~jaxdepth._src.pipeline.winners_apart` with ``listed``): at a pixel,
-    its winner's index from the canvas, then the winner's x, y and z (its depth: 0 where no point won).
-
-    ``canvas``: :func:`~jaxdepth._src.geometry.scatter_winners`' int32 canvas, flat (a won pixel ``v w + u`` holds
-    ``index + INT32_MIN``, an empty one the bits of ``inf``); ``x``, ``y``, ``z``: (N,) float32, each point's.
-    They are the values the channel images and the depth image hold at every pixel. With :class:`Grouped`,
-    ``canvas`` is a tuple of one (n_g, length) array per group (the camera's row: ``member``), ``x``, ``y``
-    and ``z`` each one (C, N) array of every camera's (row ``camera``: small, so copied together).
-    """
-
-    canvas: object
-    x: object
-    y: object
-    z: object
-
-
 class ExactTest(NamedTuple):
     """Everything phase 3 reads (traced arrays) and its static options."""
 
     depth: jax.Array          # (H, W) float32 metres; read only where ``columns`` has a bit
-    points: object            # (3, H, W) float32 camera-frame x, y, z, three (H, W) channels, a WinnerPoints or None
+    points: object            # (3, H, W) float32 camera-frame x, y, z, three (H, W) channels, or None (back-projected)
     columns: jax.Array        # (ceil(H / 32), W) uint32: pixels with depth packed down the columns
     K: jax.Array
     t: jax.Array              # (3,) LiDAR origin, (3, H, W) each pixel's own, or (S, 3) with ``source`` (camera frame)
@@ -189,7 +171,6 @@ class Grouped(NamedTuple):
     member: jax.Array      # int32: its index within the group
     pixels: tuple          # static h_g w_g of each group
     columns_at: jax.Array  # int32: where the camera's column words start in ``columns``
-    camera: jax.Array | None = None   # int32: its index among every group's cameras (rows of WinnerPoints' x, y, z)
 
 
 def _shape(ex: ExactTest):
@@ -198,17 +179,15 @@ def _shape(ex: ExactTest):
 
 
 def _read(ex: ExactTest, image, flat):
-    """``image`` at int32 flat indices ``flat``: an array's element, or (:class:`Grouped`) the camera's own from
-    its group's array, flat (n_g h_g w_g,) or (n_g, length) rows (:class:`WinnerPoints`), each group read at an
-    index of its own, 0 for the other groups' cameras, then the camera's value selected: no copy of the groups'
-    arrays into one, nor of a group's row."""
+    """``image`` at int32 flat pixel indices ``flat``: an (H, W) array's element, or (:class:`Grouped`) the
+    camera's own from its group's flat array (each group read at an index of its own, 0 for the other groups'
+    cameras, then the camera's value selected: no copy of the groups' images into one)."""
     if ex.grouped is None:
         return image.reshape(-1).at[flat].get(mode=_PIB)
     out = None
     for g, (array, pixels) in enumerate(zip(image, ex.grouped.pixels)):
         here = ex.grouped.group == g
-        stride = array.shape[1] if array.ndim == 2 else pixels
-        value = array.reshape(-1).at[jnp.where(here, ex.grouped.member * stride + flat, 0)].get(mode=_PIB)
+        value = array.at[jnp.where(here, ex.grouped.member * pixels + flat, 0)].get(mode=_PIB)
         out = value if out is None else jnp.where(here, value, out)
     return out
 
@@ -216,34 +195,21 @@ def _read(ex: ExactTest, image, flat):
 def _view(ex: ExactTest, flat, row, col):
     """LiDAR view of the pixels at flat indices ``flat`` (rows ``row``, columns ``col``, int32) and their
     z (inf where empty)."""
-    d, p = points_at(ex, flat)
-    view_fn = lidar_view if ex.test == "footprint" else lidar_angles
-    return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
-        jnp.where(d > 0, d, jnp.float32(jnp.inf))
-
-
-def points_at(ex: ExactTest, flat):
-    """Depth and camera-frame (x, y, z) of the pixels at flat indices ``flat`` (None: back-projected)."""
-    if isinstance(ex.points, WinnerPoints):     # the winner's index from the canvas, its x, y and z (the depth)
-        tag = _read(ex, ex.points.canvas, flat)
-        won = tag < 0
-        index = jnp.where(won, tag - jnp.int32(jnp.iinfo(jnp.int32).min), 0)
-        if ex.grouped is not None:      # every camera's (C, N) points: one gather each, no select between groups
-            index = ex.grouped.camera * ex.points.x.shape[-1] + index
-        x, y, z = (c.reshape(-1).at[index].get(mode=_PIB) for c in ex.points[1:])
-        d = jnp.where(won, z, 0.0)
-        return d, (x, y, d)
     d = _read(ex, ex.depth, flat)
     # One element gather per channel. A stacked (3, H, W) array is read through its flat view at
     # ``flat + c H W``: slicing the channels apart first would copy each (3 passes over the image), and one
     # gather of (3, 1) slices is not vectorised by XLA:CPU (~7x the rank step's time on an Argoverse 2
     # crop; docs/speed.md, "Step 2, kernel by kernel"). Channels given apart (rigs' views): one by one.
     if isinstance(ex.points, tuple):
-        return d, tuple(_read(ex, channel, flat) for channel in ex.points)
-    if ex.points is not None:
+        p = tuple(_read(ex, channel, flat) for channel in ex.points)
+    elif ex.points is not None:
         size = ex.depth.size
-        return d, tuple(ex.points.reshape(-1).at[flat + c * size].get(mode=_PIB) for c in range(3))
-    return d, None
+        p = tuple(ex.points.reshape(-1).at[flat + c * size].get(mode=_PIB) for c in range(3))
+    else:
+        p = None
+    view_fn = lidar_view if ex.test == "footprint" else lidar_angles
+    return view_fn(d, ex.K, ex.t, p, row.astype(jnp.float32), col.astype(jnp.float32)), \
+        jnp.where(d > 0, d, jnp.float32(jnp.inf))
 
 
 def _window_words(ex: ExactTest, row, col, start=None, block=None):

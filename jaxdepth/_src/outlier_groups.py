@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxdepth._src.compaction import WORD_BITS, word_locator
-from jaxdepth._src.outlier_exact import CHUNK, ExactTest, Grouped, WinnerPoints, candidates_removed
+from jaxdepth._src.outlier_exact import CHUNK, ExactTest, Grouped, candidates_removed
 from jaxdepth._src.outliers import _row_block, window_half_sizes
 
 
@@ -41,7 +41,7 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     Args:
       parts: one :class:`~jaxdepth._src.outliers.KeepParts` per size group, each leaf with a leading axis of
         the group's cameras (``_keep_mask(..., defer=True)`` under the group's ``vmap``); ``points`` three
-        channels apart (a rig's views) or a :class:`~jaxdepth._src.outlier_exact.WinnerPoints`; ``h_max`` given (``image_size``: the camera's own bounds).
+        channels apart (a rig's views); ``h_max`` given (``image_size``: the camera's own bounds).
       sizes: static (h, w) of each group's images.
       hh, hw, test, down: the static window half sizes, condition-1 form and word layout, the same for
         every group.
@@ -66,12 +66,8 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
     K, t, eps, k_max = cat(lambda p: p.K), cat(lambda p: p.t), cat(lambda p: p.eps), cat(lambda p: p.k_max)
     cell_u, cell_v, h_max = cat(lambda p: p.cell_u), cat(lambda p: p.cell_v), cat(lambda p: p.h_max)
     columns = cat(lambda p: _flat(p.columns, n_columns)).reshape(-1)
-    points = tuple(zip(*(p.points for p in parts)))
-    if isinstance(parts[0].points, WinnerPoints):   # the canvas in (n_g, length) rows, the (N,) points together
-        points = WinnerPoints(points[0], *(jnp.concatenate(x) for x in points[1:]))
-    else:
-        points = tuple(map(_by_group, points))
-    images = (_by_group(tuple(p.depth for p in parts)), points)
+    images = (_by_group(tuple(p.depth for p in parts)), tuple(_by_group(tuple(p.points[c] for p in parts))
+                                                              for c in range(3)))
     nearer, source = _by_group(tuple(p.nearer for p in parts)), _by_group(tuple(p.source for p in parts))
     _, locate_bit = word_locator(cat(lambda p: _flat(p.words, n_words)), runs=n_cam)
     count = cat(lambda p: jax.lax.population_count(p.words).astype(jnp.int32).reshape(p.words.shape[0], -1).sum(1))
@@ -92,7 +88,7 @@ def exact_test_groups(parts: tuple, sizes: tuple, *, hh: int, hw: int, test: str
         row, col = jnp.clip(row, 0, h - 1), jnp.clip(col, 0, w - 1)     # no candidate: a slot past the words
         ex = ExactTest(*images, columns, K[cam], t[cam], eps[cam], k_max[cam], cell_u[cam], cell_v[cam], h_max[cam],
                        count[cam], None, hh=hh, hw=hw, test=test, nearer=nearer, source=source, shape=(h, w),
-                       grouped=Grouped(group[cam], member[cam], pixels, cam * n_columns, cam))
+                       grouped=Grouped(group[cam], member[cam], pixels, cam * n_columns))
         removed = candidates_removed(ex, row, col, row * w + col)
         at = jnp.where((slot < count[cam]) & (j < chunk_end[-1]), row * w + col, -1)   # -1: no candidate
         return removed, at, group[cam], member[cam]

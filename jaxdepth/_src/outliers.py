@@ -97,7 +97,7 @@ import numpy as np
 from jaxdepth._src.compaction import WORD_BITS, pack_bits, word_locator
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_exact import CHUNK as _CHUNK  # noqa: F401  (candidate slots per step; tests read it here)
-from jaxdepth._src.outlier_exact import ExactTest, WinnerPoints, exact_test, pack_columns
+from jaxdepth._src.outlier_exact import ExactTest, exact_test, pack_columns
 from jaxdepth._src.xla_tuning import stage, stage_token
 
 
@@ -505,7 +505,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     """Algorithm 1 in three phases: prefilter, compaction, exact test (see the module docstring).
 
     Arguments as :func:`outlier_keep_mask`, already checked: (H, W) depth,
-    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam (its three channels, a WinnerPoints) or None, traced float32
+    (3, 3) K, (4, 4) T_cam_lidar, (3, H, W) points_cam (or its three channels) or None, traced float32
     epsilon_m (metres); static beams, half window sizes (pixels) and test form.
     ``candidates``: optional (H, W) bool, the only pixels that may be removed (the
     pixels of one source, whose LiDAR sits at ``T_cam_lidar``'s origin; every
@@ -522,9 +522,7 @@ def _keep_mask(sparse_depth, K, T_cam_lidar, points_cam, epsilon_m, candidates=N
     runs phase 3 once for a rig's size groups).
     """
     depth = sparse_depth.astype(jnp.float32)
-    if isinstance(points_cam, WinnerPoints):          # x, y by winner index (several sources' views): as given
-        points = points_cam
-    elif isinstance(points_cam, (tuple, list)):      # three channels apart (rigs' views): kept apart
+    if isinstance(points_cam, (tuple, list)):        # three channels apart (rigs' views): kept apart
         points = tuple(jnp.asarray(channel, jnp.float32) for channel in points_cam)
     else:
         points = None if points_cam is None else points_cam.astype(jnp.float32)

@@ -38,7 +38,6 @@ from jaxdepth._src.geometry import camera_points, winners_image, zbuffer_image, 
 from jaxdepth._src.hypotheses import column_hypotheses
 from jaxdepth._src.normals import point_normals
 from jaxdepth._src.pixel_normals import ListedNormals, pixel_normals_listed, pixel_normals_slots
-from jaxdepth._src.outlier_exact import WinnerPoints
 from jaxdepth._src.outliers import keep_mask_for_config
 from jaxdepth._src.residual import plane_residual
 from jaxdepth._src.smoothing import gaussian_blur
@@ -457,32 +456,22 @@ def project_apart(points, valid, normals, T, K, *, height: int, width: int, imag
     return winners_apart(won, labels, height=height, width=width)
 
 
-def project_winners(points, valid, normals, T, K, *, height: int, width: int, image_size=None, group_size=None,
-                    canvas: bool = False):
+def project_winners(points, valid, normals, T, K, *, height: int, width: int, image_size=None, group_size=None):
     """:func:`project_apart`'s per-point half: ``(slot, x, y, z, nx, ny, nz)``, seven (N,) arrays, each point's
     :func:`~jaxdepth._src.geometry.zbuffer_winners` slot (``group_size``: as there) and its camera-frame point
     and normal channels (float32), each a real buffer (fused into the scatters, the exact transform would run
-    once per channel). Nothing (H, W): cameras of several sizes share one ``vmap`` of it. ``canvas``: and the
-    z-buffer's flat (H W + 1,) canvas of winner tags last (:func:`~jaxdepth._src.geometry.scatter_winners`)."""
+    once per channel). Nothing (H, W): cameras of several sizes share one ``vmap`` of it."""
     p_cam = camera_points(T, points)
-    slot, _, *tags = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size,
-                                     group_size=group_size, canvas=canvas)
+    slot, _ = zbuffer_winners(p_cam, valid, K, height=height, width=width, valid_size=image_size,
+                              group_size=group_size)
     n_cam = camera_points(T, normals, translate=False)
-    return fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3))) + tuple(tags)
+    return fence(slot, *(p_cam[:, k] for k in range(3)), *(n_cam[:, k] for k in range(3)))
 
 
-def winners_apart(won, labels=(), *, height: int, width: int, listed: bool = False):
-    """:func:`project_apart`'s (H, W) half from :func:`project_winners`' ``won``: its return value. ``listed``
-    (``won`` from ``project_winners(..., canvas=True)``): ``points_cam`` is a
-    :class:`~jaxdepth._src.outlier_exact.WinnerPoints` (no x and y images: the exact test, their only reader,
-    reads them, and z, by winner index), the depth image the z channel's."""
+def winners_apart(won, labels=(), *, height: int, width: int):
+    """:func:`project_apart`'s (H, W) half from :func:`project_winners`' ``won``: its return value."""
     slot, *channels = won
     image = functools.partial(winners_image, slot, height=height, width=width)
-    if listed:
-        *channels, canvas = channels
-        depth = image(channels[2], 0.0)
-        return (depth, WinnerPoints(canvas, *channels[:3]), tuple(image(c, 0.0) for c in channels[3:]),
-                tuple(image(v, fill) for v, fill in labels))
     points_cam = tuple(image(c, 0.0) for c in channels[:3])
     # A winner's depth is its point's z (both read p_cam; winners lie in front): the z channel is the depth image.
     return (points_cam[2], points_cam, tuple(image(c, 0.0) for c in channels[3:]),

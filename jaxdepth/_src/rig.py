@@ -335,8 +335,7 @@ class CameraView(NamedTuple):
     ``points_cam`` and ``normals_cam`` three (h, w) float32 channels each, x, y, z (0 where empty;
     apart, not a (3, h, w) array: under ``vmap`` a stacked (C, 3, h, w) channel array cost transposes
     and copies between the stages, docs/speed.md, "The rig's channels apart"); with several sources
-    (:mod:`~jaxdepth._src.sources`) ``points_cam`` is an ``outlier_exact.WinnerPoints`` (x, y by winner index, no
-    images of them) and also ``pixel_source`` int8 (int32 past 127 sources; -1 = empty) and ``pixel_shadow``
+    (:mod:`~jaxdepth._src.sources`) also ``pixel_source`` int8 (int32 past 127 sources; -1 = empty) and ``pixel_shadow``
     bool or None; None for a single sweep.
     """
 

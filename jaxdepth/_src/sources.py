@@ -383,7 +383,7 @@ def source_keep_mask(sparse_depth, pixel_source, points_cam, K, T_cam_sources, *
     Args:
       sparse_depth: (H, W) float32 z-buffer of all sources' points (0 = empty).
       pixel_source: (H, W) int8 or int32 source of each pixel's point (any value where empty).
-      points_cam: (3, H, W) float32 camera-frame coordinates of each pixel's point (three (H, W) channels, a WinnerPoints).
+      points_cam: (3, H, W) float32 camera-frame coordinates of each pixel's point (or three (H, W) channels).
       K: (3, 3). T_cam_sources: (S, 4, 4) pose of each source's LiDAR in the camera frame
         (only the translations, the LiDARs' origins, are used).
       beams: static L of the window bounds (H / L, W L / N): the beams of one sweep of the rig.
@@ -531,15 +531,15 @@ def per_sweep_applies(sources: Sources, mode: str = DEFAULT_CONFIG.outlier_sweep
 
 
 def _camera_view(won, n: int, per_source: int, shadow, *, height, width) -> CameraView:
-    """Step 1's projection for one camera from ``project_winners(..., canvas=True)`` of all sources' ``n`` points
-    (``per_source`` a source, one after another), with each pixel's source (and its shadow flag). ``points_cam``
-    is a WinnerPoints (x, y read by winner index by Step 2's exact test, no x and y images). The source label
-    is int8 while the sources fit (a quarter of an int32 canvas's bytes; its readers index with it), else int32."""
+    """Step 1's projection for one camera from :func:`~jaxdepth._src.pipeline.project_winners` of all sources' ``n``
+    points (``per_source`` a source, one after another), with each pixel's source (and its shadow flag).
+    The source label is int8 while the sources fit (a quarter of an int32 canvas's bytes to fill and read;
+    its readers index with it: the same values), else int32."""
     label = jnp.int8 if n // per_source <= np.iinfo(np.int8).max else jnp.int32
     labels = (((jnp.arange(n, dtype=jnp.int32) // per_source).astype(label), -1),)      # each point's source
     labels += () if shadow is None else ((shadow, False),)
     sparse_depth, points_cam, normals_cam, (pixel_source, *pixel_shadow) = winners_apart(
-        won, labels, height=height, width=width, listed=True)
+        won, labels, height=height, width=width)
     return CameraView(sparse_depth, points_cam, normals_cam, pixel_source, pixel_shadow[0] if pixel_shadow else None)
 
 
@@ -599,7 +599,7 @@ def sources_stage_projection(sources: Sources, cameras: RigCameras, *, config: S
                                           max_baseline_m=config.occlusion_max_baseline_m)
             cam_valid = cam_valid & ~(hidden[rank] & usable)
         return project_winners(flat_points, cam_valid, flat_normals, jnp.asarray(T, jnp.float32), jnp.asarray(
-            K, jnp.float32), height=height, width=width, image_size=size, group_size=group_size, canvas=True)
+            K, jnp.float32), height=height, width=width, image_size=size, group_size=group_size)
 
     def per_camera(K, T, size, image, won, *, height, width):     # one vmap per camera size
         return _camera_view(won, flat_points.shape[0], p, shadow, height=height, width=width)
