@@ -92,9 +92,9 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_si
         canvas beyond never read): inside the window the result equals the blur
         of the (h, w) image alone, bit for bit; outside it, any value.
       copies: static, with ``image_size`` None: the border's rows and columns are
-        copies of the image's (both axes padded before the taps), so the result
-        is bit for bit that of ``image_size`` = the image's own (h, w), at the cost
-        of the default static border. The default fuses the column padding into
+        copies of the image's (the vertical taps read both axes' pads of the image),
+        so the result is bit for bit that of ``image_size`` = the image's own
+        (h, w), at less than the default's cost. The default fuses the column padding into
         the vertical pass: XLA:CPU emits the mirrored columns' taps apart from the
         interior's and may round them 1 ulp apart from the columns they mirror
         (docs/speed.md, "The one-source rig's blur border as copies").
@@ -128,9 +128,9 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_si
     image = image.astype(jnp.float32)
     token = stage_token(image)
     if image_size is None and copies:
-        padded = stage(lambda a: (_reflect101_pad(_reflect101_pad(a, radius, rows), radius, cols),), (image,),
-                       token)[0]
-        vertical = stage(lambda p: (_taps(p, weights, rows),), (padded,), token)[0]
+        # The taps read the pads' copies of the materialised image (no arithmetic inside the concatenates)
+        vertical = stage(lambda a: (_taps(_reflect101_pad(_reflect101_pad(a, radius, rows), radius, cols), weights,
+                                          rows),), (image,), token)[0]
         return _taps(vertical, weights, cols)
     if image_size is None:
         padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
