@@ -140,3 +140,28 @@ def test_window_padding_is_numpy_reflect_of_the_window(radius):
             for got in (np.asarray(pad(canvas, radius, axis, n)), got_batched):
                 got = np.take(got, np.arange(n + 2 * radius), axis=axis)
                 np.testing.assert_array_equal(got, want, err_msg=f"axis {axis}, window {n}")
+
+
+@pytest.mark.parametrize("shape", [(24, 40), (40, 24), (31, 33), (2, 9), (9, 2)])
+def test_border_by_copies_is_the_whole_window_bit_for_bit(shape):
+    """``copies=True`` (the one-source rig tail's blur: both axes padded on the input, then the taps) equals, bit
+    for bit, the window form with the window the whole image (the rig's bytes), jit and eager, under ``vmap`` and
+    in a loop; and OpenCV's BORDER_REFLECT_101 blur within the rounding budget where its kernel fits."""
+    sigma, radius = 1.4, 3
+    rng = np.random.default_rng(sum(shape))
+    images = (rng.uniform(0, 80, (3,) + shape) * (rng.uniform(size=(3,) + shape) > 0.1)).astype(np.float32)
+    size = np.asarray(shape, np.int32)
+    copies = jax.jit(jax.vmap(lambda a: gaussian_blur(a, sigma_px=sigma, radius_px=radius, copies=True)))
+    window = jax.jit(jax.vmap(lambda a: gaussian_blur(a, sigma_px=sigma, radius_px=radius, image_size=size)))
+    got = np.asarray(copies(images))
+    np.testing.assert_array_equal(got, np.asarray(window(images)))
+    one = jax.jit(lambda a: gaussian_blur(a, sigma_px=sigma, radius_px=radius, copies=True))
+    for i, image in enumerate(images):
+        np.testing.assert_array_equal(np.asarray(one(image)), got[i], err_msg=f"vmap == loop, image {i}")
+        if min(shape) > radius:  # OpenCV's reflect-101 needs the kernel to fit
+            assert_close(got[i], _cv2_blur(image, sigma_px=sigma, radius_px=radius), ulps=_blur_ulps(radius),
+                         scale=80.0)
+        assert_close(got[i], _scipy_blur(image, sigma, radius_px=radius), ulps=_blur_ulps(radius), scale=80.0)
+    # op by op nothing is fused (no multiply-add contracted): equal within the rounding budget
+    eager = np.asarray(gaussian_blur(images[0], sigma_px=sigma, radius_px=radius, copies=True))
+    assert_close(eager, got[0], ulps=_blur_ulps(radius), scale=80.0, err_msg="jit == eager")

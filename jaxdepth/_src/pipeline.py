@@ -108,9 +108,10 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
     ``keep_is_step2`` (static): the caller's ``keep`` is Step 2's mask of this ``sparse_depth`` (a rig's own
     stage), so a kept pixel has a finite positive depth, as when Step 2 runs here. ``whole_window`` (static):
     ``image_size`` is the array's own (H, W) (a rig's size group): the column bracket, the above-scan rules and
-    the depth's masks take the one camera's forms, the blur keeps the window's (its static border pads round a
-    few pixels of the small test rigs apart at production flags). With both, the depth's masks read the seed
-    search's scalar (``scalar_mask`` of :func:`_tail_after_seeds`).
+    the depth's masks take the one camera's forms, and the blur pads by copies (``copies`` of
+    :func:`gaussian_blur`: the window form's bytes; the default static border rounds a few border pixels of the
+    small test rigs 1 ulp apart). With both, the depth's masks read the seed search's scalar (``scalar_mask`` of
+    :func:`_tail_after_seeds`).
     """
     # One camera whose Step 2 runs here: each pixel's seed (a kept pixel, nearest_seed) has a finite positive
     # depth whenever the search found a seed, so seed_depth > 0 is the search's scalar at every pixel.
@@ -139,7 +140,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         normals_cam = _listed_image(normals_cam)  # (the blend and the capped rule read the normals' image)
     return _tail_after_seeds(sparse_depth, keep, normals_cam, K, seeds.has_seed, *seed_args, beams=beams,
                              config=config, image_size=None if whole_window else image_size, scalar_mask=scalar_mask,
-                             blur_size=image_size)
+                             blur_copies=whole_window)
 
 
 def _seed_reader(capped: bool, seed_args):
@@ -195,15 +196,15 @@ def _listed_plane(listed: ListedNormals, sparse_depth, has_seed, K, seed_at, *, 
 
 
 def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, beams: int, config: SGMConfig,
-                      image_size=None, scalar_mask: bool = False, blur_size=None) -> Stages:
+                      image_size=None, scalar_mask: bool = False, blur_copies: bool = False) -> Stages:
     """Step 4 from the seed search's output (``seed_args``: du, dv when ``above_scan`` is "capped", else the
     flat seed index): gathers at the seed, residual, bracket, above-scan rule, blur. ``has_seed``: the seed
     search's (a scalar). ``normals_cam``: (3, H, W), three channels or :class:`ListedNormals`.
     ``scalar_mask`` (static): ``keep`` is Step 2's mask (a subset of ``sparse_depth > 0``, finite depths) and the
     image is the whole array, so ``seed_depth > 0`` equals ``has_seed`` at every pixel: the masks read the scalar, and
     the depth's last kernel no gather at the seed (the listed path) nor the seed depth's buffer (kitti14).
-    ``blur_size``: the blur's window (``image_size`` when not given)."""
-    blur_size = image_size if blur_size is None else blur_size
+    ``blur_copies`` (static, with no window): the blur pads by copies (``copies`` of :func:`gaussian_blur`: bit for
+    bit its form with a window that is the whole array)."""
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
     if isinstance(normals_cam, ListedNormals):  # (not with the blend or the capped rule: _complete_tail)
         residual, depth_raw = _listed_plane(normals_cam, sparse_depth, has_seed, K, *seed_args, config=config)
@@ -241,7 +242,7 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
                                       max_residual_ratio=config.max_residual_ratio, image_size=image_size)
         depth_raw = jnp.where(has_seed, jnp.clip(depth_raw, config.min_depth_m, config.max_depth_m), 0.0)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
-                          image_size=blur_size)
+                          image_size=image_size, copies=blur_copies)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)

@@ -78,7 +78,8 @@ def _taps(padded: jax.Array, weights: np.ndarray, axis: int) -> jax.Array:
     return out
 
 
-def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_size=None) -> jax.Array:
+def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_size=None,
+                  copies: bool = False) -> jax.Array:
     """Separable Gaussian blur of an (H, W) image (BORDER_REFLECT_101).
 
     Args:
@@ -90,6 +91,13 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_si
         is then the window's own (mirrored at row h - 1 and column w - 1, the
         canvas beyond never read): inside the window the result equals the blur
         of the (h, w) image alone, bit for bit; outside it, any value.
+      copies: static, with ``image_size`` None: the border's rows and columns are
+        copies of the image's (the vertical taps read both axes' pads of the image),
+        so the result is bit for bit that of ``image_size`` = the image's own
+        (h, w), at less than the default's cost. The default fuses the column padding into
+        the vertical pass: XLA:CPU emits the mirrored columns' taps apart from the
+        interior's and may round them 1 ulp apart from the columns they mirror
+        (docs/speed.md, "The one-source rig's blur border as copies").
 
     Returns:
       (H, W) float32.
@@ -119,6 +127,11 @@ def gaussian_blur(image: jax.Array, *, sigma_px: float, radius_px: int, image_si
     radius = (len(weights) - 1) // 2
     image = image.astype(jnp.float32)
     token = stage_token(image)
+    if image_size is None and copies:
+        # The taps read the pads' copies of the materialised image (no arithmetic inside the concatenates)
+        vertical = stage(lambda a: (_taps(_reflect101_pad(_reflect101_pad(a, radius, rows), radius, cols), weights,
+                                          rows),), (image,), token)[0]
+        return _taps(vertical, weights, cols)
     if image_size is None:
         padded = stage(lambda a: (_reflect101_pad(a, radius, rows),), (image,), token)[0]
         vertical = stage(lambda p: (_reflect101_pad(_taps(p, weights, rows), radius, cols),), (padded,), token)[0]
