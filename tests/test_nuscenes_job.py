@@ -19,7 +19,6 @@ import subprocess
 import sys
 
 import cv2
-import jax
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -451,20 +450,13 @@ def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.rig import Rig, RigCamera
     from jaxdepth._src.presets import NUSCENES_HDL32
+
+    from _harness import compiled_programs
     root, tables, _ = dataroot
     single, _, _ = first_run
     dst = tmp_path / "multi"
-    compiled = []
-
-    def on_compile(event, secs, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration" and "_program" in str(kwargs.get("fun_name")):
-            compiled.append(kwargs.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(on_compile)
-    try:
+    with compiled_programs() as compiled:
         summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(on_compile)
     assert sorted(summary.done) == ["s1", "s2"]
     # s2 runs the window's program; s1 (the scene's first sample: one sweep at the origin) complete_rig's, as
     # without the window (complete_sources' dispatch); either may have compiled earlier in the session

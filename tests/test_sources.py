@@ -21,6 +21,7 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
+from _harness import compiled_programs
 from scenes import SMALL_LIDAR, edge_size_rig, stereo_cameras
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
@@ -311,17 +312,8 @@ def test_one_source_at_the_origin_runs_complete_rigs_program():
     stages = jaxdepth.complete_rig_stages(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
     src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
-    compiled = []
-
-    def on_compile(event, secs, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration" and "_program" in str(kwargs.get("fun_name")):
-            compiled.append(kwargs.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(on_compile)
-    try:
+    with compiled_programs() as compiled:
         got, got_stages = complete_sources(src, cams), complete_sources_stages(src, cams)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(on_compile)
     assert compiled == []
     np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
     jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, got_stages), jax.tree.map(np.asarray, stages))
@@ -525,8 +517,8 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
 @pytest.mark.slow  # the one-source program of the test above (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical; the edge rig, the test above's program). Two
-    # sweeps: every point removed by the occlusion rule is an earlier sweep's.
+    # One sweep: the option changes nothing (bit-identical; the edge rig, complete_rig's program, which one source
+    # at the origin runs: the rule needs two sweeps). Two sweeps: every point it removes is an earlier sweep's.
     points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
     one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))

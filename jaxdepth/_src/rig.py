@@ -527,10 +527,11 @@ def at_origin(T) -> bool:
 
 def one_sweep_lidar(sources, beams: int | None = None) -> LidarSpec | None:
     """The LiDAR spec when ``sources`` (:class:`~jaxdepth._src.sources.Sources`) is one sweep as
-    :func:`~jaxdepth.complete_rig` takes it, else None (host, static): one source of the reference sweep at the reference origin (:func:`at_origin`, a pose known on the
-    host), rows from elevation (``rows`` None: the rig has no laser rows), Step 2's L its beams. Free space,
-    occlusion, the top-line and per-sweep rules need two sweeps, ``above_scan="auto"`` is ``"plane"`` for one
-    LiDAR on both paths: the entry points then run the rig's program (one compiled program, the same bytes)."""
+    :func:`~jaxdepth.complete_rig` takes it, else None (host, static): one source of the reference sweep at the
+    reference origin (:func:`at_origin`, a pose known on the host), rows from elevation (``rows`` None: the rig
+    has no laser rows), Step 2's L its beams. Free space, occlusion, the top-line and per-sweep rules need two
+    sweeps, ``above_scan="auto"`` is ``"plane"`` for one LiDAR on both paths: the entry points then run the
+    rig's program (one compiled program, the same bytes; docs/multi_source.md)."""
     spec = sources.lidars[0]
     if (sources.count != 1 or sources.sweep != (0,) or sources.rows is not None or beams not in (None, spec.beams)
             or isinstance(sources.T_ref_source, jax.core.Tracer)):

@@ -33,7 +33,7 @@ As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is writte
 (:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion, each
 camera's z-buffer), :func:`sources_stage_keep` (Step 2, the top-line rule), :func:`sources_stage_tail` (Steps 3-4).
 
-One source at the points' origin: :func:`complete_sources` runs :func:`~jaxdepth.complete_rig`'s program (rig.one_sweep_call).
+One source at the points' origin: :func:`complete_sources` runs ``complete_rig``'s program (``rig.one_sweep_call``).
 """
 
 from __future__ import annotations
