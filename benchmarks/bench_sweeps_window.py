@@ -1,10 +1,11 @@
 """Multi-sweep jobs at a scene's start: programs compiled with and without the job's sweep window.
 
 A nuScenes ``--sweeps 3`` run meets samples holding 1, 2 and 3 sweeps (a scene's first, second and
-later samples). Without a window each count is a program of its own (the one-sweep sample even takes
+later samples). Without a window each count is a program of its own (the one-sweep sample takes
 the single-source rig program); with the window (``complete_cloud(..., window=(0, -1, -2))``, what the
-job now passes) the first two are spread over three sources with empty ones
-(:func:`jaxdepth.batch.sources_job.fit_to_window`) and run the three-sweep program. Data: the shared
+job now passes) the two-sweep sample is spread over three sources with empty ones
+(:func:`jaxdepth.batch.sources_job.fit_to_window`) and runs the three-sweep program; the one-sweep sample
+runs the rig program there too (branch onesource: ``complete_rig``'s program for one source at the origin). Data: the shared
 nuScenes sample (6 cameras of 1600 x 900); its one sweep stands in for the earlier sweeps too, moved
 1.5 m back per sweep (a stand-in: only the program count and bytes are measured, not accuracy).
 

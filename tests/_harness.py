@@ -31,6 +31,7 @@ infinities must match exactly.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 from typing import Any, Callable, Sequence
@@ -98,6 +99,23 @@ def _count_trace(event: str, duration_secs: float, **kwargs) -> None:
 
 
 jax.monitoring.register_event_duration_secs_listener(_count_trace)
+
+
+@contextlib.contextmanager
+def compiled_programs():
+    """The names of the pipeline programs (``jit(..._program)``) XLA compiles inside the block, as
+    ``jax.monitoring``'s backend-compile events report them (a program the session's caches serve is none)."""
+    names = []
+
+    def on_compile(event: str, duration_secs: float, **kwargs) -> None:
+        if event == "/jax/core/compile/backend_compile_duration" and "_program" in str(kwargs.get("fun_name")):
+            names.append(kwargs.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(on_compile)
+    try:
+        yield names
+    finally:
+        jax.monitoring.unregister_event_duration_listener(on_compile)
 
 
 def _is_jitted(fn) -> bool:

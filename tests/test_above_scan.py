@@ -421,9 +421,8 @@ def test_complete_rig_records_the_rule_its_sources_resolve(tmp_path, monkeypatch
 
 @pytest.mark.slow  # four whole-pipeline programs (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # its complete_rig and one-source programs are test_sources' edge-rig test's
-@pytest.mark.production_flags  # bit for bit at the production codegen; at the suite's level 0 the one-source rig's tail (nusc14: no window, the seed search's scalar masks) rounds Step 4's blur 1 ulp apart from the sources path's
 def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_path():
-    """The same cloud: as one source its default equals the single-sweep path's (``complete_rig``, both the
+    """The same cloud: as one source its default is the single-sweep path's (``complete_rig``'s program, both the
     plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and is
     its program (resolved on the host, before the ``jit``: no trace of its own), and an explicit ``plane``
     there is not the default's output."""

@@ -181,6 +181,22 @@ def test_a_single_frame_is_not_padded_to_the_default_batch(tmp_path, frames, mon
     assert buckets == [(1, False)]  # compiled for a batch of one frame, not four (a baseline: no listed program)
 
 
+@pytest.mark.parametrize("bad", [0, -1, 1.0, True, "2"])
+def test_job_device_lists_come_from_one_helper(tmp_path, bad):
+    """The rig jobs' device lists (batch.devices): the first N local devices, all there are when fewer (N > the
+    devices there are is no error, as before), and a count that is not an integer >= 1 fails naming the job."""
+    import jax
+
+    from jaxdepth.batch.av2_job import run_av2
+    from jaxdepth.batch.devices import check_device_count, first_devices
+    assert first_devices(1) == jax.local_devices()[:1] and first_devices(64) == jax.local_devices()
+    assert check_device_count(3, where="job") == 3
+    with pytest.raises(ValueError, match=r"^run_nuscenes: field 'devices' expected an integer >= 1"):
+        check_device_count(bad, where="run_nuscenes")
+    with pytest.raises(ValueError, match=r"^run_av2: field 'devices' expected an integer >= 1"):
+        run_av2(tmp_path / "logs", tmp_path / "out", devices=bad)
+
+
 DEVICES = r"""
 import os, sys
 sys.path.insert(0, {tests!r})

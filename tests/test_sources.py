@@ -21,6 +21,7 @@ from jaxdepth._src.synthetic import make_street_scene
 from jaxdepth._src.synthetic_sequences import _cast_sweep, make_street_sequence
 from jaxdepth._src.types import LidarSpec
 
+from _harness import compiled_programs
 from scenes import SMALL_LIDAR, edge_size_rig, stereo_cameras
 
 SPEC = LidarSpec(beams=32, fov_up_deg=10.0, fov_down_deg=-25.0, columns=512)
@@ -271,17 +272,51 @@ def test_each_sweep_is_judged_alone_for_a_scan_without_scan_lines():
         jaxdepth.SGMConfig(outlier_sweeps="all")
 
 
-@pytest.mark.slow  # whole-pipeline equality: complete_sources and complete_rig programs (test_rig_sizes' edge rig)
+def test_one_sweep_as_complete_rig_takes_it():
+    """rig.one_sweep_lidar, the entry points' host dispatch: one source of the reference sweep at the origin, rows
+    from elevation, Step 2's L its beams; anything else (a pose off the origin or known only under a trace, laser
+    rows, another L, another sweep, two sources) keeps the multi-source program. A dispatched call checks its
+    images as complete_sources (no compile: the check is an eval_shape)."""
+    import dataclasses
+
+    from jaxdepth._src.rig import one_sweep_lidar
+    pts, valid = np.zeros((1, 8, 3), np.float32), np.ones((1, 8), bool)
+    one = make_sources(pts, valid, np.eye(4)[None], lidars=(SPEC,))
+    assert one_sweep_lidar(one) == SPEC and one_sweep_lidar(one, SPEC.beams) == SPEC
+    moved = np.eye(4)[None].copy()
+    moved[0, 0, 3] = 1e-3
+    assert one_sweep_lidar(make_sources(pts, valid, moved, lidars=(SPEC,))) is None
+    assert one_sweep_lidar(one, SPEC.beams + 1) is None
+    assert one_sweep_lidar(make_sources(pts, valid, np.eye(4)[None], lidars=(SPEC,), rows=np.zeros((1, 8)))) is None
+    assert one_sweep_lidar(make_sources(pts, valid, np.eye(4)[None], lidars=(SPEC,), sweep=(1,))) is None
+    two = make_sources(np.concatenate([pts] * 2), np.concatenate([valid] * 2), np.stack([np.eye(4)] * 2),
+                       lidars=(SPEC,) * 2)
+    assert one_sweep_lidar(two) is None
+    traced = []
+    jax.jit(lambda T: traced.append(one_sweep_lidar(dataclasses.replace(one, T_ref_source=T))) or T)(one.T_ref_source)
+    assert traced == [None]
+    cams = jaxdepth.stack_cameras(edge_size_rig()[2])
+    with pytest.raises(ValueError, match="complete_sources.*images"):
+        complete_sources(one, cams, config=jaxdepth.SGMConfig(guidance_weight=1.0))
+
+
+@pytest.mark.slow  # complete_rig's whole program (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
-@pytest.mark.production_flags  # bit for bit at the production codegen; at the suite's level 0 the one-source rig's tail (nusc14: no window, the seed search's scalar masks) rounds Step 4's blur 1 ulp apart from the sources path's
-def test_one_source_at_the_origin_equals_complete_rig():
-    # scenes.edge_size_rig: three turned cameras, points on pixel rounding edges (test_rig_sizes' programs)
-    points, valid, cameras = edge_size_rig()
+def test_one_source_at_the_origin_runs_complete_rigs_program():
+    """complete_sources and complete_sources_stages of one source at the origin run complete_rig's (and
+    complete_rig_stages') own programs: nothing compiles after the rig's calls, and the bytes are the rig's at any
+    XLA level (the suite's level 0 too, where the multi-source program rounded Step 4's blur 1 ulp apart)."""
+    points, valid, cameras = edge_size_rig()        # scenes.edge_size_rig: three turned cameras, edge points
     cams = jaxdepth.stack_cameras(cameras)
     want = jaxdepth.complete_rig(points, valid, cams, lidar=SMALL_LIDAR)
+    stages = jaxdepth.complete_rig_stages(points, valid, cams, lidar=SMALL_LIDAR)
     assert (np.asarray(want) > 0).mean() > 0.5
     src = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))
-    np.testing.assert_array_equal(np.asarray(complete_sources(src, cams)), np.asarray(want))
+    with compiled_programs() as compiled:
+        got, got_stages = complete_sources(src, cams), complete_sources_stages(src, cams)
+    assert compiled == []
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    jax.tree.map(np.testing.assert_array_equal, jax.tree.map(np.asarray, got_stages), jax.tree.map(np.asarray, stages))
 
 
 # ---------------------------------------------------------------- free space
@@ -482,8 +517,8 @@ def test_a_camera_takes_the_nearest_reference_lidar_as_witness():
 @pytest.mark.slow  # the one-source program of the test above (test_rig_sizes' edge rig)
 @pytest.mark.xdist_group("rig_mixed_sizes")  # on the worker of test_rig_sizes' edge-rig tests: compiled once
 def test_occlusion_never_touches_one_sweep_or_the_reference_sweep():
-    # One sweep: the option changes nothing (bit-identical; the edge rig, the test above's program). Two
-    # sweeps: every point removed by the occlusion rule is an earlier sweep's.
+    # One sweep: the option changes nothing (bit-identical; the edge rig, complete_rig's program, which one source
+    # at the origin runs: the rule needs two sweeps). Two sweeps: every point it removes is an earlier sweep's.
     points, valid, cameras = edge_size_rig()
     cams = jaxdepth.stack_cameras(cameras)
     one = make_sources(points[None], valid[None], np.eye(4)[None], lidars=(SMALL_LIDAR,))

@@ -112,3 +112,44 @@ def test_complete_rig_gives_the_same_bytes_for_a_file_and_a_one_entry_sweeps_jso
         assert main(["complete-rig", str(points), str(rig), str(tmp_path / out), "--point-columns", "4"]) == 0
     a, b = (tmp_path / "a" / "cam.png").read_bytes(), (tmp_path / "b" / "cam.png").read_bytes()
     assert a == b
+    settings = [json.loads((tmp_path / out / "jaxdepth_run.json").read_text())["settings"] for out in "ab"]
+    assert settings[0] == settings[1]          # the run records too (the decision, the above-scan rule, ...)
+
+
+@pytest.mark.parametrize("kind", ["spinning", "merged"])
+def test_a_file_and_a_one_entry_sweeps_json_call_one_program(tmp_path, monkeypatch, kind):
+    """The invariant under the same bytes: complete-rig's host work for a point file (the single path) and for a
+    one-entry sweeps JSON (the multi-source path: prepare_cloud, complete_cloud's dispatch) ends in one call of one
+    program: the same compile-cache key (program_cache.program_key of its name, static options (config, spec),
+    input structure and shapes) and the same input values. The calls are recorded, not run (nothing compiles)."""
+    import jax
+
+    from jaxdepth._src.config import SGMConfig
+    from jaxdepth.batch import program_cache, rig_job
+
+    calls = []
+
+    def record(stage, *args, **statics):
+        leaves, treedef = jax.tree_util.tree_flatten(args)
+        key = program_cache.program_key(stage.__name__, tuple(sorted(statics.items())), treedef,
+                                        program_cache._signature(leaves))
+        calls.append((stage.__name__, key, statics["config"], [np.asarray(x) for x in leaves]))
+
+    monkeypatch.setattr(program_cache, "program_folder", lambda: tmp_path)      # rig_stages -> cached_stage
+    monkeypatch.setattr(program_cache, "cached_stage", record)
+    _cloud(kind).tofile(tmp_path / "sweep.bin")
+    rig_path = _rig(tmp_path)
+    rig = read_rig_json(rig_path)
+    for path in (tmp_path / "sweep.bin", _sweeps(tmp_path, [("sweep.bin", np.eye(4))])):
+        multi = path.suffix == ".json"
+        prepared = rig_job.prepare_rig_sweep(path, rig, config=SGMConfig(), multi=multi, point_columns=4,
+                                             columns=rig_job.point_columns_of(rig, path, 4, multi=multi),
+                                             estimate=True, force=False, report=lambda kind, text: None)
+        assert prepared.multi is multi
+        rig_job._depth_call(prepared)()
+    (name_a, key_a, config_a, leaves_a), (name_b, key_b, config_b, leaves_b) = calls
+    assert name_a == name_b == "rig_depth_program" and key_a == key_b
+    assert config_a.outlier_removal is (kind == "spinning") and config_a == config_b      # the same decision
+    assert len(leaves_a) == len(leaves_b)
+    for a, b in zip(leaves_a, leaves_b):
+        np.testing.assert_array_equal(a, b)

@@ -518,3 +518,33 @@ def complete_rig(points: jax.Array, valid: jax.Array, cameras: RigCameras, *,
     ``complete_rig_stages(...).depth`` at XLA's default optimisation level, the suite's level 0 may
     round the two programs' blur 1 ulp apart: docs/speed.md, "The jobs' depth programs")."""
     return rig_depth_program(points, valid, cameras, images, config=config, lidar=lidar)
+
+
+def at_origin(T) -> bool:
+    """Whether a (4, 4) pose (NumPy or concrete) is the identity within 1e-9: a source at the reference origin."""
+    return bool(np.allclose(np.asarray(T, np.float64), np.eye(4), atol=1e-9))
+
+
+def one_sweep_lidar(sources, beams: int | None = None) -> LidarSpec | None:
+    """The LiDAR spec when ``sources`` (:class:`~jaxdepth._src.sources.Sources`) is one sweep as
+    :func:`~jaxdepth.complete_rig` takes it, else None (host, static): one source of the reference sweep at the
+    reference origin (:func:`at_origin`, a pose known on the host), rows from elevation (``rows`` None: the rig
+    has no laser rows), Step 2's L its beams. Free space, occlusion, the top-line and per-sweep rules need two
+    sweeps, ``above_scan="auto"`` is ``"plane"`` for one LiDAR on both paths: the entry points then run the
+    rig's program (one compiled program, the same bytes; docs/multi_source.md)."""
+    spec = sources.lidars[0]
+    if (sources.count != 1 or sources.sweep != (0,) or sources.rows is not None or beams not in (None, spec.beams)
+            or isinstance(sources.T_ref_source, jax.core.Tracer)):
+        return None
+    return spec if at_origin(sources.T_ref_source[0]) else None
+
+
+def one_sweep_call(program, sources, cameras: RigCameras, images=None, *, config: SGMConfig, beams=None):
+    """``program(points, valid, cameras, images, config=, lidar=)`` (:func:`rig_program`, :func:`rig_depth_program`)
+    of ``sources`` when :func:`one_sweep_lidar` takes them for one sweep (``images`` checked as
+    ``complete_sources``'), else None: the multi-source entry points' dispatch on the host."""
+    lidar = one_sweep_lidar(sources, beams)
+    if lidar is None:
+        return None
+    check_images(images, cameras, config, where="complete_sources")
+    return program(sources.points[0], sources.valid[0], cameras, images, config=config, lidar=lidar)

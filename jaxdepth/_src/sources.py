@@ -33,7 +33,7 @@ As the rig's (:func:`~jaxdepth._src.rig.run_rig_stages`), the pipeline is writte
 (:func:`run_sources_stages`): :func:`sources_stage_projection` (Step 1 per source, free space, occlusion, each
 camera's z-buffer), :func:`sources_stage_keep` (Step 2, the top-line rule), :func:`sources_stage_tail` (Steps 3-4).
 
-With one source at the points' origin, :func:`complete_sources` equals :func:`~jaxdepth.complete_rig` (tests/test_sources.py).
+One source at the points' origin: :func:`complete_sources` runs ``complete_rig``'s program (``rig.one_sweep_call``).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ from jaxdepth._src.outliers import _keep_mask, window_half_sizes
 from jaxdepth._src.pipeline import project_winners, winners_apart
 from jaxdepth._src.range_image import angles_xyz, range_image_and_slots, row_col
 from jaxdepth._src.rig import (CameraView, RigCameras, call_stage, camera_tails, check_images, depth_output,
-                              keep_by_size, map_by_size_shared)
+                              keep_by_size, map_by_size_shared, one_sweep_call, rig_depth_program, rig_program)
 from jaxdepth._src.types import LidarSpec, Stages
 from jaxdepth._src.xla_tuning import entry_jit, small_matmul
 
@@ -668,23 +668,20 @@ def complete_sources_stages(sources: Sources, cameras: RigCameras, *, config: SG
     """SGM completion of several sources for C cameras; every :class:`Stages` field gains a leading C axis.
 
     Args:
-      sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs).
-      cameras: :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
-      config: static :class:`SGMConfig`; its ``free_space_*`` and ``occlusion_max_baseline_m`` fields
-        set the free-space and occlusion rules (:func:`reference_view`, :func:`camera_witness`);
-        ``reference_top_line`` drops other sweeps' near seeds above the reference sweep's top scan line.
-      free_space: static; remove earlier sweeps' points that lie in another sweep's free space
-        (:func:`free_space_keep`).
-      beams: static L of Step 2's window bounds; default :func:`default_beams`.
-      images: optional camera images on the rig's canvas, as :func:`~jaxdepth.complete_rig`.
-      occlusion: static; with ``free_space``, also remove for each camera the other sweeps' points
-        hidden from the reference-sweep LiDAR next to it (``hidden`` of :func:`reference_view`,
-        witness :func:`camera_witness`).
+      sources: :class:`Sources` (reference-frame points of S sources, their LiDAR poses and specs). cameras:
+        :class:`RigCameras`; ``T_cam_lidar`` maps reference-frame points into each camera.
+      config: static :class:`SGMConfig`; its ``free_space_*``, ``occlusion_max_baseline_m`` and ``reference_top_line``
+        fields set the free-space, occlusion and top-line rules (:func:`reference_view`, :func:`camera_witness`).
+      free_space: static; remove earlier sweeps' points in another sweep's free space (:func:`free_space_keep`).
+      beams: static L of Step 2's window bounds (default :func:`default_beams`). images: as ``complete_rig``'s.
+      occlusion: static; with ``free_space``, also remove for each camera the other sweeps' points hidden from
+        the reference-sweep LiDAR next to it (``hidden`` of :func:`reference_view`, :func:`camera_witness`).
 
-    Returns:
-      :class:`Stages` with (C, H, W) fields. ``inlier_mask`` is the Step-2 mask of the merged
-      image (free-space points never reach the image).
-    """
+    Returns :class:`Stages` with (C, H, W) fields; ``inlier_mask``: the merged image's Step-2 mask. Runs
+    :func:`sources_program`; one sweep as ``complete_rig`` takes it: ``rig_program`` (``rig.one_sweep_call``)."""
+    one = one_sweep_call(rig_program, sources, cameras, images, config=config, beams=beams)
+    if one is not None:
+        return one
     beams = default_beams(sources) if beams is None else int(beams)
     return sources_program(sources, cameras, images, config=resolved_config(config, sources),
                            free_space=bool(free_space), beams=beams, occlusion=bool(occlusion))
@@ -694,7 +691,10 @@ def complete_sources(sources: Sources, cameras: RigCameras, *, config: SGMConfig
                      free_space: bool = True, beams: int | None = None,
                      images: jax.Array | None = None, occlusion: bool = True) -> jax.Array:
     """(C, H, W) float32 dense depth for every camera from several sources; see :func:`complete_sources_stages`
-    (:func:`sources_depth_program`, as :func:`~jaxdepth.complete_rig` runs the rig's depth program)."""
+    (:func:`sources_depth_program`; one sweep as ``complete_rig`` takes it: its ``rig_depth_program``)."""
+    one = one_sweep_call(rig_depth_program, sources, cameras, images, config=config, beams=beams)
+    if one is not None:
+        return one
     beams = default_beams(sources) if beams is None else int(beams)
     return sources_depth_program(sources, cameras, images, config=resolved_config(config, sources),
                                  free_space=bool(free_space), beams=beams, occlusion=bool(occlusion))

@@ -50,6 +50,7 @@ import time as _time
 from typing import Callable
 
 from jaxdepth.batch.cloud_runner import METHODS, CloudJob, check_method, cloud_baseline_depth, read_back, run_cloud_jobs
+from jaxdepth.batch.devices import check_device_count, first_devices
 
 log = logging.getLogger("jaxdepth")
 
@@ -287,8 +288,7 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
     cameras = av2.RING_CAMERAS if cameras is None else tuple(cameras)
     extras = NONE if extras is None else extras
     _check_options(sweeps, cameras, time, method, extras)
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"run_av2: field 'devices' expected an integer >= 1, got {devices!r}")
+    check_device_count(devices, where="run_av2")
     config = SGMConfig() if config is None else config
     png_compression = DEFAULT_PNG_COMPRESSION if png_compression is None else png_compression
     summary = RunSummary(started_at=_time.perf_counter())
@@ -306,11 +306,9 @@ def run_av2(root, dst, *, sweeps: int = 0, cameras=None, config=None, overwrite:
 
 
 def _targets(devices: int):
-    """The first ``devices`` local devices, or None (the default device) for one."""
-    if devices == 1:
-        return None
-    import jax
-    return jax.local_devices()[:devices]
+    """The first ``devices`` local devices (:func:`~jaxdepth.batch.devices.first_devices`), or None (the default
+    device) for one."""
+    return None if devices == 1 else first_devices(devices)
 
 
 def warm_av2(root, *, sweeps: int = 0, cameras=None, config=None, time: str = "camera", method: str = "sgm",

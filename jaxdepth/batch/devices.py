@@ -41,6 +41,20 @@ def split_cpu_into_devices(count: int | None = None) -> int:
     return count
 
 
+def check_device_count(count, *, where: str) -> int:
+    """A job's ``devices`` (its ``where`` names it in the ValueError), an integer >= 1."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ValueError(f"{where}: field 'devices' expected an integer >= 1, got {count!r}")
+    return count
+
+
+def first_devices(count: int) -> list:
+    """The first ``count`` local devices a job or batch deals its work to (all there are when fewer: the CLI's
+    ``--cpu-devices N`` asks for N host devices, :func:`split_cpu_into_devices`, and a job uses those there are)."""
+    import jax
+    return jax.local_devices()[:count]
+
+
 _COMPILE_CACHE_MAX_BYTES = 1 << 30
 
 

@@ -69,6 +69,7 @@ from typing import Callable
 import numpy as np
 
 from jaxdepth.batch.cloud_runner import check_method
+from jaxdepth.batch.devices import check_device_count, first_devices
 
 log = logging.getLogger("jaxdepth")
 
@@ -246,8 +247,6 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     Raises:
       InputError: the version folder or one of its tables is missing or malformed. ValueError: bad options.
     """
-    import jax
-
     from jaxdepth._src.config import SGMConfig
     from jaxdepth.io import nuscenes as nusc
     from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION
@@ -271,11 +270,10 @@ def run_nuscenes(dataroot, dst, *, version: str, sweeps: int = 1, ego_motion: bo
     if not todo:
         return summary
     make_folders(todo)
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"run_nuscenes: field 'devices' expected an integer >= 1, got {devices!r}")
+    check_device_count(devices, where="run_nuscenes")
     complete_samples(tables, todo, summary, notify, sweeps=sweeps, ego_motion=ego_motion, config=config,
                      extras=extras, overwrite=overwrite, png_compression=png_compression,
-                     targets=jax.local_devices()[:devices], io_threads=io_threads, force=force, method=method)
+                     targets=first_devices(devices), io_threads=io_threads, force=force, method=method)
     return summary
 
 
@@ -307,7 +305,7 @@ def complete_samples(tables, todo, summary, notify, *, sweeps: int, ego_motion: 
     from jaxdepth.batch.runner import is_guided, read_ahead
     from jaxdepth.io.errors import JaxdepthError
 
-    targets = jax.local_devices()[:1] if targets is None else targets
+    targets = first_devices(1) if targets is None else targets
     run = _SampleRun(summary, notify, extras=extras, overwrite=overwrite, png_compression=png_compression)
     load = functools.partial(_load, tables, sweeps=sweeps, ego_motion=ego_motion,
                              guided=is_guided(config), force=force)

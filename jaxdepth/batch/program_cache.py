@@ -256,9 +256,15 @@ def sources_stages(sources, cameras, *, config, free_space: bool = True, beams: 
     """:func:`jaxdepth._src.sources.complete_sources_stages` (same arguments, same bytes): its program
     (:func:`jaxdepth._src.sources.sources_program`) through the program cache (when the cache is off, the
     plain ``jit`` call). ``depth_only``: the depth alone, from
-    :func:`jaxdepth._src.sources.sources_depth_program` (and ``seen``: as :func:`rig_stages`)."""
+    :func:`jaxdepth._src.sources.sources_depth_program` (and ``seen``: as :func:`rig_stages`). One sweep as
+    ``complete_rig`` takes it (:func:`jaxdepth._src.rig.one_sweep_lidar`): :func:`rig_stages`, as the entry points."""
     from jaxdepth._src.above_scan import resolved_config
+    from jaxdepth._src.rig import one_sweep_lidar
     from jaxdepth._src.sources import default_beams, sources_depth_program, sources_program
+    lidar = one_sweep_lidar(sources, beams)
+    if lidar is not None:        # one sweep as complete_rig takes it: its program, as complete_sources runs
+        return rig_stages(sources.points[0], sources.valid[0], cameras, config=config, lidar=lidar, images=images,
+                          depth_only=depth_only, seen=seen)
     program = sources_depth_program if depth_only else sources_program
     call = program if program_folder() is None else functools.partial(cached_stage, program)
     beams = default_beams(sources) if beams is None else int(beams)

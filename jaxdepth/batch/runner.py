@@ -38,6 +38,7 @@ from jaxdepth._src import presets
 from jaxdepth._src.config import SGMConfig
 from jaxdepth._src.types import LidarSpec
 from jaxdepth._src.xla_tuning import entry_jit
+from jaxdepth.batch.devices import first_devices
 from jaxdepth.io import errors as io_errors
 from jaxdepth.io.calib import read_intrinsics_txt
 from jaxdepth.io.depth_png import DEFAULT_PNG_COMPRESSION, read_depth_png
@@ -222,7 +223,7 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
     """
     if strategy == "loop":
         single = entry_jit(one)
-        targets = jax.local_devices()[:devices]
+        targets = first_devices(devices)
 
         def run(*args):
             if first_shape is not None and args[0].shape != first_shape:
@@ -242,7 +243,7 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
 
     def sharded(*args):
         if devices > 1:
-            mesh = Mesh(np.array(jax.local_devices()[:devices]), ("batch",))
+            mesh = Mesh(np.array(first_devices(devices)), ("batch",))
             fn = jax.shard_map(per_device, mesh=mesh, in_specs=(PartitionSpec("batch"),) * arity,
                                out_specs=out_specs, check_vma=False)
             return fn(*args)
@@ -253,7 +254,7 @@ def _batched(one: Callable, *, arity: int, batch_size: int, strategy: str, devic
     from jaxdepth.batch.program_cache import Program
 
     def in_shardings(exported):      # the batch axis over the devices, as shard_map splits it
-        mesh = Mesh(np.array(jax.local_devices()[:exported.nr_devices]), ("batch",))
+        mesh = Mesh(np.array(first_devices(exported.nr_devices)), ("batch",))
         return (NamedSharding(mesh, PartitionSpec("batch")),) * len(exported.in_avals)
 
     return Program(entry_jit(sharded), name=program[0], statics=program[1], in_shardings=in_shardings)
