@@ -440,10 +440,10 @@ def test_two_host_devices_write_the_same_files_and_resume(dataroot, first_run, t
 
 @pytest.mark.xdist_group("jobs_nuscenes")  # one worker runs the module's first_run job and compiles its programs once
 @pytest.mark.slow  # real nuScenes multi-sweep completion, six cameras
+@pytest.mark.production_flags  # bit for bit at the production codegen; at the suite's level 0 the one-source rig's tail (nusc14: no window, the seed search's scalar masks) rounds Step 4's blur 1 ulp apart from the sources path's
 def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     """sweeps=2: each sample's sweeps (s1: one, the scene's first; s2: two) go through complete_cloud as one
-    source per sweep (s1's one at the origin: complete_rig's program); the job's bytes are a direct call's, and
-    s2's differ from the single-sweep job's."""
+    source per sweep; the job's bytes are a direct call's, and s2's differ from the single-sweep job's."""
     from jaxdepth.batch.nuscenes_job import run_nuscenes
     from jaxdepth.batch.sources_job import complete_cloud
     from jaxdepth.io import encode_depth_uint16
@@ -458,10 +458,8 @@ def test_multisweep_job_completes_sources(dataroot, first_run, tmp_path):
     with compiled_programs() as compiled:
         summary = run_nuscenes(root, dst, version=VERSION, sweeps=2)
     assert sorted(summary.done) == ["s1", "s2"]
-    # s2 runs the window's program; s1 (the scene's first sample: one sweep at the origin) complete_rig's, as
-    # without the window (complete_sources' dispatch); either may have compiled earlier in the session
-    assert len(compiled) == len(set(compiled)) and set(compiled) <= {"jit(sources_depth_program)",
-                                                                      "jit(rig_depth_program)"}, compiled
+    # s1 (the scene's first sample: one sweep) runs s2's program, its one source in a window of two
+    assert compiled in ([], ["jit(sources_depth_program)"]), compiled     # [] when compiled earlier in the session
     t = nusc.load_tables(root, VERSION)
     changed = 0
     for sample, count in (("s1", 1), ("s2", 2)):

@@ -110,11 +110,9 @@ def _on_compile(event, secs, **kwargs):
 jax.monitoring.register_event_duration_secs_listener(_on_compile)
 
 
-@pytest.mark.slow  # three small whole-pipeline programs: the window's, the two-sweep frame's own and complete_rig's
+@pytest.mark.slow  # three small whole-pipeline programs: the window's, and the two- and one-sweep frames' own
+@pytest.mark.production_flags  # bit for bit at the production codegen; at the suite's level 0 the one-source rig's tail (nusc14: no window, the seed search's scalar masks) rounds Step 4's blur 1 ulp apart from the sources path's
 def test_frames_of_fewer_sweeps_run_the_windows_program_with_the_same_bytes():
-    """Frames of two and three sweeps run the window's one program with their own programs' bytes; a frame of one
-    sweep (its one source at the origin) runs complete_rig's program, as without the window (complete_sources'
-    dispatch, rig.one_sweep_lidar): bit for bit at the suite's level 0 too."""
     sq = make_street_sequence(1, sweeps=3, lidars=1, image_scale=0.125, noise_std_m=0.0)
     cam = sq.camera
     rig = Rig(lidar=sq.lidars[0], cameras=(RigCamera("cam", cam.width, cam.height, np.asarray(cam.K),
@@ -123,13 +121,11 @@ def test_frames_of_fewer_sweeps_run_the_windows_program_with_the_same_bytes():
     frames = [_subset(sq, 3), _subset(sq, 3, drop_every=7), _subset(sq, 2), _subset(sq, 1)]
     assert len({f.points.shape[0] for f in frames}) == 4          # four point counts, one bucket
     _COMPILES.clear()
-    got = [complete_cloud(f, rig, window=window) for f in frames[:3]]
-    assert _COMPILES == ["jit(sources_depth_program)"], _COMPILES    # one program for every frame of 2-3 sweeps
-    got.append(complete_cloud(frames[3], rig, window=window))
+    got = [complete_cloud(f, rig, window=window) for f in frames]
     windowed = list(_COMPILES)
-    assert windowed[1:] in ([], ["jit(rig_depth_program)"]), windowed    # [] when compiled earlier in the session
+    assert len(windowed) == 1, windowed                                # one program for every frame
     for frame, depth in zip(frames, got):
         want = complete_cloud(frame, rig)                              # the frame's own program
         assert (want > 0).mean() > 0.3
         np.testing.assert_array_equal(depth, want)
-    assert _COMPILES[len(windowed):] == ["jit(sources_depth_program)"], _COMPILES   # the 2-sweep frame's own
+    assert len(_COMPILES) == 3, _COMPILES    # without the window the 2- and 1-sweep frames compiled their own

@@ -203,10 +203,7 @@ def fit_to_window(sources, index, window: tuple):
 
 
 def _single_origin(cloud) -> bool:
-    """One source at the reference origin: one sweep as :func:`~jaxdepth.complete_rig` takes it
-    (:func:`~jaxdepth._src.rig.one_sweep_lidar`'s pose rule)."""
-    from jaxdepth._src.rig import at_origin
-    return cloud.num_sources == 1 and at_origin(cloud.T_ref_source[0])
+    return cloud.num_sources == 1 and np.allclose(cloud.T_ref_source[0], np.eye(4), atol=1e-9)
 
 
 def _config_sources(cloud, rig, config: SGMConfig):
@@ -252,14 +249,20 @@ def cloud_call(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space: bo
         config = config.replace(free_space_neighbour_sweeps=neighbour_sweeps)
     cameras = jaxdepth.stack_cameras(rig.cameras)     # the values RigCamera.as_camera's would hold
     options = dict(config=config, images=images, depth_only=not stages, seen=seen)
-    spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
-    if _single_origin(cloud) and beams in (None, spec.beams):   # complete_rig's program, in a job's window too
-        from jaxdepth.io import pad_points                      # (complete_sources' dispatch, rig.one_sweep_lidar)
-        return functools.partial(rig_stages, *pad_points(cloud.points), cameras, lidar=spec, **options)
-    sources, index = _config_sources(cloud, rig, config)
+    sources = fitted = None
     if (window is not None and free_space and config.free_space_neighbour_sweeps == 0
             and cloud.num_sources <= len(window) and all(spec is not None for spec in cloud.lidars)):
-        sources = (fit_to_window(sources, index, window) or (sources,))[0]
+        sources, index = _config_sources(cloud, rig, config)
+        fitted = fit_to_window(sources, index, window)
+    if fitted is not None:
+        sources = fitted[0]
+    elif _single_origin(cloud):
+        from jaxdepth.io import pad_points
+        padded, valid = pad_points(cloud.points)
+        spec = cloud.lidars[0] if cloud.lidars[0] is not None else rig.lidar
+        return functools.partial(rig_stages, padded, valid, cameras, lidar=spec, **options)
+    elif sources is None:         # not built for the window above
+        sources, _ = _config_sources(cloud, rig, config)
     return functools.partial(sources_stages, sources, cameras, free_space=free_space, beams=beams,
                              occlusion=occlusion, **options)
 
@@ -289,16 +292,15 @@ def complete_cloud(cloud, rig, *, config: SGMConfig = DEFAULT_CONFIG, free_space
         cloud of fewer sources is spread over that window with empty sources (:func:`fit_to_window`), so
         every frame of the job runs one compiled program, same outputs; used with ``free_space`` on and
         ``free_space_neighbour_sweeps = 0`` (the default) when every source's spec is stated and the
-        sources fit, else ignored. A frame of one source at the reference origin runs complete_rig's
-        program instead (a job with such frames compiles that program too).
+        sources fit, else ignored.
       seen: without ``stages``, return ``(depth, seen)``: ``seen`` (C,) the pixels of each camera a point
         projects into (:func:`~jaxdepth._src.rig.seen_pixels`), from the same depth program.
 
     Returns:
       (C, H_max, W_max) float32 NumPy depth, metres, 0 = no depth: camera ``i``'s image in the
       top-left ``rig.cameras[i].height x width`` corner of the canvas, zeros beyond (one array,
-      as :func:`~jaxdepth.complete_rig`). A cloud of one source at the reference origin runs
-      :func:`~jaxdepth.complete_rig`'s program (with its spec, else the rig's; ``beams`` None or its beams).
+      as :func:`~jaxdepth.complete_rig`). A cloud of one source at the reference origin gives
+      exactly :func:`~jaxdepth.complete_rig`'s result (with the rig's LiDAR spec).
     """
     out = cloud_call(cloud, rig, config=config, free_space=free_space, images=images, beams=beams, stages=stages,
                      neighbour_sweeps=neighbour_sweeps, occlusion=occlusion, window=window, seen=seen)()
