@@ -3,8 +3,15 @@
     PYTHONPATH=. python -m benchmarks.studies.edge_band_side [--twin-seeds 0 1] [--scale 1] \
         [--json benchmarks/results/edge_band_side_bandside.json]
     PYTHONPATH=. python -m benchmarks.studies.edge_band_side --twin kitti --scale 0.25 --json ...  # another twin
+    PYTHONPATH=. python -m benchmarks.studies.edge_band_side --twin av2 --scale 0.25 --window scanline --json ...
     PYTHONPATH=. python -m benchmarks.studies.edge_band_side --kitti-check [RULE ...] --json ...  # KITTI's GT
     PYTHONPATH=. python -m benchmarks.studies.edge_band_side --real-check [RULE ...] --json ...   # the real sample
+
+``--window`` (:func:`window_radii`): the seed window and the band test in pixels as set on the full-size
+nuScenes twin (``pixels``, the default), or scaled with the image, the angle or the scan-line spacing. The
+twins of several LiDARs (``av2``, ``raster``, ``rosette``) run the multi-source path (``complete_cloud``'s
+stages). ``--real-check`` also keeps each draw's scores and method-independent parts of each rule's MAE
+difference (:func:`draw_scores`); the twins split their held-out targets by the same :func:`edge_class`.
 
 A throw-away post-process of the SGM's own stages (as ``step4_edge_rules``): in the edge band (pixels whose
 7 x 7 window of ``depth_raw`` holds a depth more than max(1 m, 5 %) off their own,
@@ -261,16 +268,22 @@ def band_choices(stages: dict, K: np.ndarray, sizes, exact: list | None = None, 
 
 def rule_depths(stages: dict, band, rules: dict, where) -> dict:
     """{rule: (C, H, W) final depth}: the band's chosen depths into ``depth_raw``, then Step 4's Gaussian and
-    tail (``step4_edge_rules``' own)."""
+    tail (``step4_edge_rules``' own); the library's depth where that tail does not reproduce it."""
     from benchmarks.studies.step4_edge_rules import weighted_blur
     kept, sparse = stages["inlier_mask"], stages["sparse_depth"]
     has_seed = stages["seed_depth"] > 0
+
+    def finish(raw):
+        depth = np.where(kept, sparse, weighted_blur(raw))
+        return np.where(has_seed, np.clip(depth, _CFG.min_depth_m, _CFG.max_depth_m), 0.0).astype(np.float32)
+    # where the library's tail does more than Step 4 (the multi-source path's capped rule above the top scan
+    # line), every rule keeps the library's depth
+    other = np.abs(finish(stages["depth_raw"]) - stages["depth"]) > 1e-3
     out = {}
     for r, chosen in rules.items():
         raw = stages["depth_raw"].copy()
         raw[where] = chosen
-        depth = np.where(kept, sparse, weighted_blur(raw))
-        out[r] = np.where(has_seed, np.clip(depth, _CFG.min_depth_m, _CFG.max_depth_m), 0.0).astype(np.float32)
+        out[r] = np.where(other, stages["depth"], finish(raw))
     return out
 
 
