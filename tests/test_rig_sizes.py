@@ -11,7 +11,8 @@ size (the mask and seeds bit for bit, depths to float32 rounding), on the street
 unbatched float32 product put points into other pixels, issue 37). Plus jit == eager of the
 mixed-size rig, and the cameras grouped by size (one vmap per size on a canvas of that size) against
 the same program with every camera on the padded canvas (``RigCameras.sizes=None``): bit for bit
-inside each window, every field 0 (False) beyond it.
+inside each window, every field 0 (False) beyond it. And the one-source tail's column bracket against the NumPy
+bracket of tests/helpers.py.
 """
 
 from __future__ import annotations
