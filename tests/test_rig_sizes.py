@@ -443,6 +443,7 @@ def test_depth_programs_equal_the_stages_programs_depth(pipeline, mixed_rig):
     np.testing.assert_array_equal(np.asarray(got_seen[1]), np.count_nonzero(np.asarray(want.sparse_depth), axis=(1, 2)))
 
 
+@pytest.mark.slow  # the tail's program, op by op and vmapped (~15 s)
 def test_one_source_tail_bracket_after_the_seed_index_equals_numpy():
     """The one-source rig's tail (three normal channels, ``whole_window``, the masks from the seed search's
     scalar): its bracket's input ordered after the seed search's own index buffer (nusc16) gives the plane
