@@ -106,7 +106,11 @@ def directed_cover(target, full, K, T_cam_ref, origin, offsets, *, side: int = -
     return out
 
 
-def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMConfig) -> dict:
+def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMConfig, variants=VARIANTS,
+             extra=None) -> dict:
+    """One twin case. ``extra(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)``, if given, may
+    add variant masks (to each camera's dict of ``masks``) and records (to ``draw``) before ``variants`` are
+    scored."""
     from benchmarks.accuracy_twins import (METHODS, cover_half_height, exact_truth, hold_out, predictions,
                                            read_user_input, score)
     from jaxdepth.research.twins import make_twin, write_twin
@@ -138,7 +142,9 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
         n_wrong = sum(int(w.sum()) for w in wrong)
         draw = {"hidden_seed": hs, "targets": n, "wrong_targets": n_wrong,
                 "scores": {"exact_dense": {m: score(preds[m], exact) for m in METHODS}}, "variants": {}}
-        for v in VARIANTS:
+        if extra is not None:
+            extra(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)
+        for v in variants:
             drop = [m[v] for m in masks]
             d_wrong = sum(int((d & w).sum()) for d, w in zip(drop, wrong))
             d_all = sum(int(d.sum()) for d in drop)
@@ -154,15 +160,16 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
     return case
 
 
-def summarise(cases: list) -> dict:
+def summarise(cases: list, variants=None) -> dict:
     """{rig or "overall": {variant: {wrong_dropped, right_dropped, dropped_share (means over hold-outs),
-    agree_rmse_pct, agree_mae_pct, pairs}}}."""
+    agree_rmse_pct, agree_mae_pct, pairs}}} (``variants``: default those the first draw scored)."""
     from benchmarks.accuracy_twins import METHODS, _sign
+    variants = list(cases[0]["held_out"][0]["variants"]) if variants is None else variants
     out = {}
     for key in list(dict.fromkeys(c["rig"] for c in cases)) + ["overall"]:
         mine = [d for c in cases if key in (c["rig"], "overall") for d in c["held_out"]]
         row = {}
-        for v in VARIANTS:
+        for v in variants:
             r = {k: float(np.mean([d["variants"][v][k] for d in mine]))
                  for k in ("wrong_dropped", "right_dropped", "dropped_share", "wrong_left_share")}
             for metric, ref_key, name in [(m, r, n) for r, n in (("exact_dense", "agree"), ("exact_kept", "agree_kept"))
@@ -188,7 +195,7 @@ def summarise(cases: list) -> dict:
 
 def table(summary: dict) -> str:
     lines = ["| variant | " + " | ".join(summary) + " |", "|---|" + "---|" * len(summary)]
-    for v in VARIANTS:
+    for v in next(iter(summary.values())):
         cells = [f"{r[v]['wrong_dropped'] * 100:.0f} / {r[v]['right_dropped'] * 100:.1f} % ; "
                  f"{r[v]['agree_rmse_pct']:.0f} / {r[v]['agree_mae_pct']:.0f} %" for r in summary.values()]
         lines.append(f"| `{v}` | " + " | ".join(cells) + " |")
