@@ -24,9 +24,6 @@ is hidden from the camera, LiDAR-camera parallax), with two additions:
 
 from __future__ import annotations
 
-import argparse
-import json
-import pathlib
 import time
 
 import jax.numpy as jnp
@@ -135,11 +132,28 @@ def class_table(cases: list) -> str:
     return "\n".join(lines)
 
 
+def held_out_agreement(cases: list) -> dict:
+    """{rig or "overall": {variant: {"agree_{rmse,mae}_pct", "pairs"}}}: pairs each variant ranks as the exact
+    depth at every held-out pixel (``exact_kept/all``) does (tied pairs there left out)."""
+    from benchmarks.studies.cover_tests import pair_agreement
+    out = {}
+    for key in list(dict.fromkeys(c["rig"] for c in cases)) + ["overall"]:
+        draws = [d for c in cases if key in (c["rig"], "overall") for d in c["held_out"]]
+        out[key] = {}
+        for v in VARIANTS:
+            r = {}
+            for metric in ("rmse", "mae"):
+                agree, pairs = pair_agreement(((d["scores"]["exact_kept/all"], d["scores"][v]) for d in draws), metric)
+                r[f"agree_{metric}_pct"], r["pairs"] = 100.0 * agree / max(pairs, 1), pairs
+            out[key][v] = r
+    return out
+
+
 def class_agreement(cases: list) -> dict:
     """{rig: {class: {variant: {"agree_{rmse,mae}_pct": against the exact depth at the class's every target,
     "agree_kept_{rmse,mae}_pct": at the pixels the variant keeps, "pairs", "sgm_minus_nearest_mae_mm":
     {"targets", "exact_kept"} (mean over draws)}}}} (pairs tied under the reference left out)."""
-    from benchmarks.accuracy_twins import METHODS, _sign
+    from benchmarks.studies.cover_tests import pair_agreement
     out = {}
     for rig in dict.fromkeys(c["rig"] for c in cases):
         draws = [d for c in cases if c["rig"] == rig for d in c["held_out"]]
@@ -155,14 +169,7 @@ def class_agreement(cases: list) -> dict:
                     for w, p in (("targets", v), ("exact_kept", f"exact/{v}"))}}
                 for ref_name, ref_key in (("agree", "exact/all"), ("agree_kept", f"exact/{v}")):
                     for metric in ("rmse", "mae"):
-                        agree = pairs = 0
-                        for s in sc:
-                            for i, a in enumerate(METHODS):
-                                for b in METHODS[i + 1:]:
-                                    ref = _sign(s[ref_key][a][metric], s[ref_key][b][metric])
-                                    if ref:
-                                        pairs += 1
-                                        agree += int(_sign(s[v][a][metric], s[v][b][metric]) == ref)
+                        agree, pairs = pair_agreement(((s[ref_key], s[v]) for s in sc), metric)
                         r[f"{ref_name}_{metric}_pct"] = 100.0 * agree / max(pairs, 1)
                         r["pairs"] = pairs
                 row[v] = r
@@ -171,33 +178,24 @@ def class_agreement(cases: list) -> dict:
 
 
 def main(argv=None) -> int:
-    from benchmarks.studies.cover_tests import run_twin, summarise, table
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rigs", nargs="+", default=["nuscenes", "kitti"])
-    parser.add_argument("--scales", nargs="+", type=float, default=[0.5, 0.5],
-                        help="camera scale of each rig of --rigs, in order")
-    parser.add_argument("--scene-seeds", nargs="+", type=int, default=[0, 1])
-    parser.add_argument("--hidden-seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--merge", nargs="+", metavar="JSON", help="write --json from these files' cases and exit")
-    parser.add_argument("--json", default=str(RESULTS / "cover_scan_coverscan_half.json"))
+    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
+    parser = study_parser(__doc__.splitlines()[0], ("nuscenes", "kitti"), (0.5, 0.5),
+                          RESULTS / "cover_scan_coverscan_half.json")
     args = parser.parse_args(argv)
     t0 = time.time()
     config = SGMConfig()
-    if args.merge:
-        cases = [c for f in args.merge for c in json.loads(pathlib.Path(f).read_text())["cases"]]
-    else:
-        if len(args.scales) != len(args.rigs):
-            parser.error(f"--scales: expected one per rig ({len(args.rigs)}), got {len(args.scales)}")
-        cases = []
-        for rig, scale in zip(args.rigs, args.scales):
-            for scene in args.scene_seeds:
-                cases.append(run_twin(rig, scale, scene, args.hidden_seeds, config, VARIANTS, add_scan))
-                print(f"{rig} scale {scale:g} scene {scene} done ({time.time() - t0:.0f} s)", flush=True)
+    cases, merged_from = collect_cases(args, parser, config, t0, VARIANTS, add_scan)
     doc = {"settings": {"sweeps": 1, "fraction": 0.2, "min_range_m": 1.0, "variants": list(VARIANTS),
                         "scales": {c["rig"]: c["scale"] for c in cases}},
-           "summary": summarise(cases, VARIANTS), "class_agreement": class_agreement(cases), "cases": cases}
+           "summary": summarise(cases, VARIANTS), "held_out_agreement": held_out_agreement(cases),
+           "class_agreement": class_agreement(cases), "cases": cases}
+    if merged_from:
+        doc["merged_from"] = merged_from
     print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
     print(table(doc["summary"]))
+    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
+    for key, row in doc["held_out_agreement"].items():
+        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}" for v, r in row.items()))
     print("by class (wrong dropped / right dropped, %):")
     print(class_table(cases))
     print("by class: agreement with the exact depth at the class's targets / at the kept pixels (RMSE / MAE), "

@@ -160,10 +160,24 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
     return case
 
 
+def pair_agreement(ref_got, metric: str) -> tuple:
+    """(agreeing, pairs) over ``ref_got`` ((reference, scored) {method: {metric}} dicts, e.g. one per draw): the
+    method pairs the reference does not tie, and those the scored dict ranks the same way."""
+    from benchmarks.accuracy_twins import METHODS, _sign
+    agree = pairs = 0
+    for ref, got in ref_got:
+        for i, a in enumerate(METHODS):
+            for b in METHODS[i + 1:]:
+                s = _sign(ref[a][metric], ref[b][metric])
+                if s:
+                    pairs += 1
+                    agree += int(_sign(got[a][metric], got[b][metric]) == s)
+    return agree, pairs
+
+
 def summarise(cases: list, variants=None) -> dict:
     """{rig or "overall": {variant: {wrong_dropped, right_dropped, dropped_share (means over hold-outs),
     agree_rmse_pct, agree_mae_pct, pairs}}} (``variants``: default those the first draw scored)."""
-    from benchmarks.accuracy_twins import METHODS, _sign
     variants = list(cases[0]["held_out"][0]["variants"]) if variants is None else variants
     out = {}
     for key in list(dict.fromkeys(c["rig"] for c in cases)) + ["overall"]:
@@ -176,16 +190,8 @@ def summarise(cases: list, variants=None) -> dict:
                                           for m in ("rmse", "mae")]:
                 if any(f"exact_kept/{v}" not in d["scores"] for d in mine) and ref_key == "exact_kept":
                     continue
-                agree = pairs = 0
-                for d in mine:
-                    ref = d["scores"]["exact_dense" if ref_key == "exact_dense" else f"exact_kept/{v}"]
-                    got = d["scores"][v]
-                    for i, a in enumerate(METHODS):
-                        for b in METHODS[i + 1:]:
-                            s = _sign(ref[a][metric], ref[b][metric])
-                            if s:
-                                pairs += 1
-                                agree += int(_sign(got[a][metric], got[b][metric]) == s)
+                agree, pairs = pair_agreement(((d["scores"]["exact_dense" if ref_key == "exact_dense"
+                                                          else f"exact_kept/{v}"], d["scores"][v]) for d in mine), metric)
                 r[f"{name}_{metric}_pct"] = 100.0 * agree / max(pairs, 1)
                 r["pairs" if name == "agree" else "pairs_kept"] = pairs
             row[v] = r
@@ -202,31 +208,42 @@ def table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rigs", nargs="+", default=["kitti", "nuscenes", "av2"])
-    parser.add_argument("--scales", nargs="+", type=float, default=[1.0, 1.0, 0.5],
+def study_parser(description: str, rigs, scales, json_path) -> argparse.ArgumentParser:
+    """The command line of this study and of those that reuse its runs (:mod:`benchmarks.studies.cover_scan`)."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--rigs", nargs="+", default=list(rigs))
+    parser.add_argument("--scales", nargs="+", type=float, default=list(scales),
                         help="camera scale of each rig of --rigs, in order")
     parser.add_argument("--scene-seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--hidden-seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--merge", nargs="+", metavar="JSON", help="write --json from these files' cases and exit")
-    parser.add_argument("--json", default=str(RESULTS / "cover_tests.json"))
+    parser.add_argument("--json", default=str(json_path))
+    return parser
+
+
+def collect_cases(args, parser, config: SGMConfig, t0: float, variants=VARIANTS, extra=None) -> tuple:
+    """(cases, merged_from): ``--merge``'s files' cases, else one :func:`run_twin` per rig and scene seed."""
+    if args.merge:
+        parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
+        return ([c for part in parts for c in part["cases"]],
+                [{"rigs": sorted({c["rig"] for c in part["cases"]}), "seconds": part["seconds"]} for part in parts])
+    if len(args.scales) != len(args.rigs):
+        parser.error(f"--scales: expected one per rig ({len(args.rigs)}), got {len(args.scales)}")
+    cases = []
+    for rig, scale in zip(args.rigs, args.scales):
+        for scene in args.scene_seeds:
+            cases.append(run_twin(rig, scale, scene, args.hidden_seeds, config, variants, extra))
+            print(f"{rig} scale {scale:g} scene {scene} done ({time.time() - t0:.0f} s)", flush=True)
+    return cases, []
+
+
+def main(argv=None) -> int:
+    parser = study_parser(__doc__.splitlines()[0], ("kitti", "nuscenes", "av2"), (1.0, 1.0, 0.5),
+                          RESULTS / "cover_tests.json")
     args = parser.parse_args(argv)
     t0 = time.time()
     config = SGMConfig()
-    merged_from = []
-    if args.merge:
-        parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
-        cases = [c for part in parts for c in part["cases"]]
-        merged_from = [{"rigs": sorted({c["rig"] for c in part["cases"]}), "seconds": part["seconds"]} for part in parts]
-    else:
-        if len(args.scales) != len(args.rigs):
-            parser.error(f"--scales: expected one per rig ({len(args.rigs)}), got {len(args.scales)}")
-        cases = []
-        for rig, scale in zip(args.rigs, args.scales):
-            for scene in args.scene_seeds:
-                cases.append(run_twin(rig, scale, scene, args.hidden_seeds, config))
-                print(f"{rig} scale {scale:g} scene {scene} done ({time.time() - t0:.0f} s)", flush=True)
+    cases, merged_from = collect_cases(args, parser, config, t0)
     doc = {"settings": {"sweeps": 1, "fraction": 0.2, "min_range_m": 1.0,
                         "variants": list(VARIANTS)},
            "summary": summarise(cases), "cases": cases}
