@@ -106,7 +106,11 @@ def directed_cover(target, full, K, T_cam_ref, origin, offsets, *, side: int = -
     return out
 
 
-def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMConfig) -> dict:
+def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMConfig, variants=VARIANTS,
+             extra=None) -> dict:
+    """One twin case. ``extra(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)``, if given, may
+    add variant masks (to each camera's dict of ``masks``) and records (to ``draw``) before ``variants`` are
+    scored."""
     from benchmarks.accuracy_twins import (METHODS, cover_half_height, exact_truth, hold_out, predictions,
                                            read_user_input, score)
     from jaxdepth.research.twins import make_twin, write_twin
@@ -138,7 +142,9 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
         n_wrong = sum(int(w.sum()) for w in wrong)
         draw = {"hidden_seed": hs, "targets": n, "wrong_targets": n_wrong,
                 "scores": {"exact_dense": {m: score(preds[m], exact) for m in METHODS}}, "variants": {}}
-        for v in VARIANTS:
+        if extra is not None:
+            extra(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)
+        for v in variants:
             drop = [m[v] for m in masks]
             d_wrong = sum(int((d & w).sum()) for d, w in zip(drop, wrong))
             d_all = sum(int(d.sum()) for d in drop)
@@ -154,31 +160,38 @@ def run_twin(rig: str, scale: float, scene_seed: int, hidden_seeds, config: SGMC
     return case
 
 
-def summarise(cases: list) -> dict:
-    """{rig or "overall": {variant: {wrong_dropped, right_dropped, dropped_share (means over hold-outs),
-    agree_rmse_pct, agree_mae_pct, pairs}}}."""
+def pair_agreement(ref_got, metric: str) -> tuple:
+    """(agreeing, pairs) over ``ref_got`` ((reference, scored) {method: {metric}} dicts, e.g. one per draw): the
+    method pairs the reference does not tie, and those the scored dict ranks the same way."""
     from benchmarks.accuracy_twins import METHODS, _sign
+    agree = pairs = 0
+    for ref, got in ref_got:
+        for i, a in enumerate(METHODS):
+            for b in METHODS[i + 1:]:
+                s = _sign(ref[a][metric], ref[b][metric])
+                if s:
+                    pairs += 1
+                    agree += int(_sign(got[a][metric], got[b][metric]) == s)
+    return agree, pairs
+
+
+def summarise(cases: list, variants=None) -> dict:
+    """{rig or "overall": {variant: {wrong_dropped, right_dropped, dropped_share (means over hold-outs),
+    agree_rmse_pct, agree_mae_pct, pairs}}} (``variants``: default those the first draw scored)."""
+    variants = list(cases[0]["held_out"][0]["variants"]) if variants is None else variants
     out = {}
     for key in list(dict.fromkeys(c["rig"] for c in cases)) + ["overall"]:
         mine = [d for c in cases if key in (c["rig"], "overall") for d in c["held_out"]]
         row = {}
-        for v in VARIANTS:
+        for v in variants:
             r = {k: float(np.mean([d["variants"][v][k] for d in mine]))
                  for k in ("wrong_dropped", "right_dropped", "dropped_share", "wrong_left_share")}
             for metric, ref_key, name in [(m, r, n) for r, n in (("exact_dense", "agree"), ("exact_kept", "agree_kept"))
                                           for m in ("rmse", "mae")]:
                 if any(f"exact_kept/{v}" not in d["scores"] for d in mine) and ref_key == "exact_kept":
                     continue
-                agree = pairs = 0
-                for d in mine:
-                    ref = d["scores"]["exact_dense" if ref_key == "exact_dense" else f"exact_kept/{v}"]
-                    got = d["scores"][v]
-                    for i, a in enumerate(METHODS):
-                        for b in METHODS[i + 1:]:
-                            s = _sign(ref[a][metric], ref[b][metric])
-                            if s:
-                                pairs += 1
-                                agree += int(_sign(got[a][metric], got[b][metric]) == s)
+                agree, pairs = pair_agreement(((d["scores"]["exact_dense" if ref_key == "exact_dense"
+                                                          else f"exact_kept/{v}"], d["scores"][v]) for d in mine), metric)
                 r[f"{name}_{metric}_pct"] = 100.0 * agree / max(pairs, 1)
                 r["pairs" if name == "agree" else "pairs_kept"] = pairs
             row[v] = r
@@ -188,38 +201,49 @@ def summarise(cases: list) -> dict:
 
 def table(summary: dict) -> str:
     lines = ["| variant | " + " | ".join(summary) + " |", "|---|" + "---|" * len(summary)]
-    for v in VARIANTS:
+    for v in next(iter(summary.values())):
         cells = [f"{r[v]['wrong_dropped'] * 100:.0f} / {r[v]['right_dropped'] * 100:.1f} % ; "
                  f"{r[v]['agree_rmse_pct']:.0f} / {r[v]['agree_mae_pct']:.0f} %" for r in summary.values()]
         lines.append(f"| `{v}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rigs", nargs="+", default=["kitti", "nuscenes", "av2"])
-    parser.add_argument("--scales", nargs="+", type=float, default=[1.0, 1.0, 0.5],
+def study_parser(description: str, rigs, scales, json_path) -> argparse.ArgumentParser:
+    """The command line of this study and of those that reuse its runs (:mod:`benchmarks.studies.cover_scan`)."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--rigs", nargs="+", default=list(rigs))
+    parser.add_argument("--scales", nargs="+", type=float, default=list(scales),
                         help="camera scale of each rig of --rigs, in order")
     parser.add_argument("--scene-seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--hidden-seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--merge", nargs="+", metavar="JSON", help="write --json from these files' cases and exit")
-    parser.add_argument("--json", default=str(RESULTS / "cover_tests.json"))
+    parser.add_argument("--json", default=str(json_path))
+    return parser
+
+
+def collect_cases(args, parser, config: SGMConfig, t0: float, variants=VARIANTS, extra=None) -> tuple:
+    """(cases, merged_from): ``--merge``'s files' cases, else one :func:`run_twin` per rig and scene seed."""
+    if args.merge:
+        parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
+        return ([c for part in parts for c in part["cases"]],
+                [{"rigs": sorted({c["rig"] for c in part["cases"]}), "seconds": part["seconds"]} for part in parts])
+    if len(args.scales) != len(args.rigs):
+        parser.error(f"--scales: expected one per rig ({len(args.rigs)}), got {len(args.scales)}")
+    cases = []
+    for rig, scale in zip(args.rigs, args.scales):
+        for scene in args.scene_seeds:
+            cases.append(run_twin(rig, scale, scene, args.hidden_seeds, config, variants, extra))
+            print(f"{rig} scale {scale:g} scene {scene} done ({time.time() - t0:.0f} s)", flush=True)
+    return cases, []
+
+
+def main(argv=None) -> int:
+    parser = study_parser(__doc__.splitlines()[0], ("kitti", "nuscenes", "av2"), (1.0, 1.0, 0.5),
+                          RESULTS / "cover_tests.json")
     args = parser.parse_args(argv)
     t0 = time.time()
     config = SGMConfig()
-    merged_from = []
-    if args.merge:
-        parts = [json.loads(pathlib.Path(f).read_text()) for f in args.merge]
-        cases = [c for part in parts for c in part["cases"]]
-        merged_from = [{"rigs": sorted({c["rig"] for c in part["cases"]}), "seconds": part["seconds"]} for part in parts]
-    else:
-        if len(args.scales) != len(args.rigs):
-            parser.error(f"--scales: expected one per rig ({len(args.rigs)}), got {len(args.scales)}")
-        cases = []
-        for rig, scale in zip(args.rigs, args.scales):
-            for scene in args.scene_seeds:
-                cases.append(run_twin(rig, scale, scene, args.hidden_seeds, config))
-                print(f"{rig} scale {scale:g} scene {scene} done ({time.time() - t0:.0f} s)", flush=True)
+    cases, merged_from = collect_cases(args, parser, config, t0)
     doc = {"settings": {"sweeps": 1, "fraction": 0.2, "min_range_m": 1.0,
                         "variants": list(VARIANTS)},
            "summary": summarise(cases), "cases": cases}
