@@ -14,7 +14,8 @@ from jaxdepth._src import compaction, outliers
 from jaxdepth._src.config import DEFAULT_CONFIG
 from jaxdepth._src.outlier_groups import exact_test_groups, shared_windows
 from jaxdepth._src.rig import size_groups, stack_cameras
-from jaxdepth._src.sources import complete_sources_stages, make_sources
+from jaxdepth._src.above_scan import resolved_config
+from jaxdepth._src.sources import default_beams, make_sources, sources_program
 from jaxdepth._src import synthetic
 
 from scenes import SMALL_LIDAR, lidar_to_camera, small_camera
@@ -110,8 +111,12 @@ def test_sources_rig_of_two_sizes_with_one_loop_equals_one_canvas():
     cameras = stack_cameras(cams)
     sizes = tuple(size for size, _ in size_groups(cameras))
     assert shared_windows(sizes, beams=SMALL_LIDAR.beams, config=DEFAULT_CONFIG) is not None
-    grouped = complete_sources_stages(sources, cameras)
-    one_canvas = complete_sources_stages(sources, dataclasses.replace(cameras, sizes=None))
+    # sources_program itself: complete_sources_stages runs complete_rig's program for one source at the origin
+    def several_sources(cams_):
+        return sources_program(sources, cams_, None, config=resolved_config(DEFAULT_CONFIG, sources), free_space=True,
+                               beams=default_beams(sources), occlusion=True)
+    grouped = several_sources(cameras)
+    one_canvas = several_sources(dataclasses.replace(cameras, sizes=None))
     assert int((np.asarray(grouped.sparse_depth) > 0).sum() - np.asarray(grouped.inlier_mask).sum()) > 0  # removed
     for name in grouped._fields:
         for i, cam in enumerate(cams):
