@@ -108,10 +108,10 @@ def _two_sweeps(points, valid, *, second_valid):
 @pytest.mark.parametrize("scene", ["mixed_rig", "edge_rig"])
 def test_sources_rig_camera_equals_its_own_single_camera_call(scene, request):
     points, valid, cams = request.getfixturevalue(scene)
-    # One source at the points' origin: complete_sources equals complete_rig (docs/multi_source.md),
-    # through Step 2 per source (each pixel's own origin) and the free-space path's projection. On the
-    # mixed rig with an earlier sweep that has no valid point (it removes and adds nothing): the
-    # two-sweep program of test_sources_grouped_by_size_equals_one_canvas, not one of its own.
+    # Edge rig: one source at the points' origin, which complete_sources runs through complete_rig's program
+    # (docs/multi_source.md). Mixed rig: with an earlier sweep that has no valid point (it removes and adds
+    # nothing), the several-sources program (Step 2 per source, each pixel's own origin, the free-space path's
+    # projection) of test_sources_grouped_by_size_equals_one_canvas, not one of its own.
     if scene == "mixed_rig":
         sources = _two_sweeps(points, valid, second_valid=np.zeros_like(valid))
     else:
