@@ -406,9 +406,12 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
     """Steps 3-4 of every camera from its :class:`CameraView` and Step 2 mask (per size group), on the canvas.
 
     ``images``: as :func:`complete_rig_stages` (checked here, ``where`` names the entry point in errors).
+    With ``cameras.sizes`` known (:func:`window` None) every group, one source's or several's, runs on the whole
+    array: no window, the one camera's column bracket and above-scan rules, the blur's border as copies.
     ``one_source`` (static; :func:`rig_stage_tail`): ``keeps`` are :func:`rig_stage_keep`'s masks of the views'
-    own depth and the windows are :func:`window`'s, so the tail takes the one camera's forms (its masks read the
-    seed search's scalar, no window); the same bytes (tests/test_rig_sizes.py).
+    own depth, so the depth's masks also read the seed search's scalar. Several sources keep the per-pixel
+    masks: their scalar form moved 1-643 depths of 12 of the 14 Argoverse 2 PNGs by one unit (docs/speed.md,
+    "The several-sources tail"). The same bytes (tests/test_rig_sizes.py, tests/test_sources.py).
     Returns :class:`Stages` with a leading C axis, 0 (False) beyond each camera's window (:func:`to_canvas`).
     """
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where=where)
@@ -417,7 +420,7 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
         view, keep = view_keep
         if image is not None:
             image = _window_only(image, size)
-        whole = one_source and window(size, cameras) is None
+        whole = window(size, cameras) is None
         stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
                                 jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
                                 image_size=size, keep_is_step2=one_source, whole_window=whole)
