@@ -13,10 +13,10 @@ camera-frame values, no (h, w) array) runs once, one vmap of every camera
 (:func:`keep_by_size`, the multi-source path's). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
-padding never read). With the sizes known a group's canvas is its cameras' size, so the one-source
-program drops the window (:func:`window`) but for the blur's border and reads the depth's masks from
-the seed search's scalar, as one camera does (the same bytes; docs/speed.md, "The one-source rig's size
-groups"). A camera's result is therefore the single-camera call's
+padding never read). With the sizes known a group's canvas is its cameras' size, so the tail drops the
+window (:func:`window`; the blur's border as copies), one source's and several sources', and the one-source
+program reads the depth's masks from the seed search's scalar, as one camera does (the same bytes; docs/speed.md,
+"The one-source rig's size groups", "The several-sources tail"). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
 the z-buffer, the mask and the seeds bit for bit, the depths to float32 rounding
 (Step 4's vmapped body is fused differently; tests/test_rig_sizes.py). The projection
