@@ -13,10 +13,10 @@ camera-frame values, no (h, w) array) runs once, one vmap of every camera
 (:func:`keep_by_size`, the multi-source path's). Every stage uses the camera's own size, never the canvas's:
 Step 2's window bounds (W L / N, H / L), the column bracket's H / L, the
 above-scan window and the blur's border (mirrored at the window's edge, the
-padding never read). With the sizes known a group's canvas is its cameras' size, so the one-source
-program drops the window (:func:`window`) but for the blur's border and reads the depth's masks from
-the seed search's scalar, as one camera does (the same bytes; docs/speed.md, "The one-source rig's size
-groups"). A camera's result is therefore the single-camera call's
+padding never read). With the sizes known a group's canvas is its cameras' size, so the tail drops the
+window (:func:`window`; the blur's border as copies), one source's and several sources', and the one-source
+program reads the depth's masks from the seed search's scalar, as one camera does (the same bytes; docs/speed.md,
+"The one-source rig's size groups", "The several-sources tail"). A camera's result is therefore the single-camera call's
 (``complete_points`` with its K, pose and size) whatever the other cameras:
 the z-buffer, the mask and the seeds bit for bit, the depths to float32 rounding
 (Step 4's vmapped body is fused differently; tests/test_rig_sizes.py). The projection
@@ -406,9 +406,12 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
     """Steps 3-4 of every camera from its :class:`CameraView` and Step 2 mask (per size group), on the canvas.
 
     ``images``: as :func:`complete_rig_stages` (checked here, ``where`` names the entry point in errors).
+    With ``cameras.sizes`` known (:func:`window` None) every group, one source's or several's, runs on the whole
+    array: no window, the one camera's column bracket and above-scan rules, the blur's border as copies.
     ``one_source`` (static; :func:`rig_stage_tail`): ``keeps`` are :func:`rig_stage_keep`'s masks of the views'
-    own depth and the windows are :func:`window`'s, so the tail takes the one camera's forms (its masks read the
-    seed search's scalar, no window); the same bytes (tests/test_rig_sizes.py).
+    own depth, so the depth's masks also read the seed search's scalar. Several sources keep the per-pixel
+    masks: their scalar form moved 1-643 depths of 12 of the 14 Argoverse 2 PNGs by one unit (docs/speed.md,
+    "The several-sources tail"). The same bytes (tests/test_rig_sizes.py, tests/test_sources.py).
     Returns :class:`Stages` with a leading C axis, 0 (False) beyond each camera's window (:func:`to_canvas`).
     """
     images = _rig_images(images, cameras, guided=config.guidance_weight > 0, where=where)
@@ -417,7 +420,7 @@ def camera_tails(views: tuple, keeps: tuple, cameras: RigCameras, images=None, *
         view, keep = view_keep
         if image is not None:
             image = _window_only(image, size)
-        whole = one_source and window(size, cameras) is None
+        whole = window(size, cameras) is None
         stages = _complete_tail(view.sparse_depth, view.normals_cam, view.points_cam, jnp.asarray(K, jnp.float32),
                                 jnp.asarray(T, jnp.float32), beams=beams, config=config, image=image, keep=keep,
                                 image_size=size, keep_is_step2=one_source, whole_window=whole)
