@@ -203,7 +203,7 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
     ``scalar_mask`` (static): ``keep`` is Step 2's mask (a subset of ``sparse_depth > 0``, finite depths) and the
     image is the whole array, so ``seed_depth > 0`` equals ``has_seed`` at every pixel: the masks read the scalar, and
     the depth's last kernel no gather at the seed (the listed path) nor the seed depth's buffer (kitti14).
-    ``blur_copies`` (static, with no window; the one-source rig): the blur pads by copies (``copies`` of
+    ``blur_copies`` (static, with no window; a rig's size groups): the blur pads by copies (``copies`` of
     :func:`gaussian_blur`: bit for bit its form with a window that is the whole array), and the bracket's input is
     ordered after the seed search's output buffer rather than after ``du`` (no ``du`` image written)."""
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
@@ -222,9 +222,10 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
         has_seed = has_seed if scalar_mask else seed_depth > 0
         if config.column_bracket:
             # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
-            # The one-source rig (blur_copies): ordered by the search's own output buffer; ordered by du, XLA
-            # wrote du out as an int32 image (read again by the last kernel) instead of computing it where the
-            # residual reads it (docs/speed.md, nusc16). The single-camera programs keep du (not measured there).
+            # A rig's whole-window group (blur_copies; one source or several since rigtail14): ordered by the
+            # search's own output buffer; ordered by du, XLA wrote du out as an int32 image (read again by the last
+            # kernel) instead of computing it where the residual reads it (docs/speed.md, nusc16). The
+            # single-camera programs keep du (not measured there).
             bracket_input = after(jnp.where(keep, sparse_depth, 0.0), seed_args[0] if blur_copies else du)
             distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
             depth_raw = column_hypotheses(
