@@ -425,7 +425,8 @@ def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_p
     """The same cloud: as one source its default is the single-sweep path's (``complete_rig``'s program, both the
     plane); as two LiDARs of one sweep (the same points twice) its default equals explicit ``capped``, and is
     its program (resolved on the host, before the ``jit``: no trace of its own), and an explicit ``plane``
-    there is not the default's output."""
+    there resolves to the plane."""
+    from jaxdepth._src.above_scan import resolved_config
     from jaxdepth._src.sources import complete_sources, make_sources
 
     from _harness import _top_level_traces
@@ -441,8 +442,12 @@ def test_multi_source_default_follows_the_rule_and_one_lidar_equals_the_single_p
     traces = _top_level_traces[0]
     np.testing.assert_array_equal(np.asarray(complete_sources(two, cams)), capped)
     assert _top_level_traces[0] == traces                    # the default ran explicit capped's program
-    plane = np.asarray(complete_sources(two, cams, config=jaxdepth.SGMConfig(above_scan="plane")))
-    assert not np.array_equal(capped, plane)                 # the explicit plane is not the default's rule
+    # The explicit plane stays the plane (its own rule, resolved on the host). On this rig the two rules' depths
+    # differ only by rounding (63 pixels by 1 ulp at the production flags, none at level 0 since the whole-window
+    # tail, rigtail14): their outputs cannot tell the rules apart here (test_capped_through_the_pipeline_changes_only_above_the_scan does).
+    assert resolved_config(jaxdepth.SGMConfig(), two).above_scan == "capped"
+    assert resolved_config(jaxdepth.SGMConfig(above_scan="plane"), two).above_scan == "plane"
+    assert resolved_config(jaxdepth.SGMConfig(), one).above_scan == "plane"
 
 
 def test_complete_rig_sweeps_record_the_first_sweeps_rule_and_fail_a_sweep_that_resolves_another(tmp_path, monkeypatch,
