@@ -140,7 +140,7 @@ def _complete_tail(sparse_depth, normals_cam, points_cam, K, T_cam_lidar, *, bea
         normals_cam = _listed_image(normals_cam)  # (the blend and the capped rule read the normals' image)
     return _tail_after_seeds(sparse_depth, keep, normals_cam, K, seeds.has_seed, *seed_args, beams=beams,
                              config=config, image_size=None if whole_window else image_size, scalar_mask=scalar_mask,
-                             blur_copies=whole_window)
+                             whole_window=whole_window)
 
 
 def _seed_reader(capped: bool, seed_args):
@@ -196,14 +196,14 @@ def _listed_plane(listed: ListedNormals, sparse_depth, has_seed, K, seed_at, *, 
 
 
 def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, beams: int, config: SGMConfig,
-                      image_size=None, scalar_mask: bool = False, blur_copies: bool = False) -> Stages:
+                      image_size=None, scalar_mask: bool = False, whole_window: bool = False) -> Stages:
     """Step 4 from the seed search's output (``seed_args``: du, dv when ``above_scan`` is "capped", else the
     flat seed index): gathers at the seed, residual, bracket, above-scan rule, blur. ``has_seed``: the seed
     search's (a scalar). ``normals_cam``: (3, H, W), three channels or :class:`ListedNormals`.
     ``scalar_mask`` (static): ``keep`` is Step 2's mask (a subset of ``sparse_depth > 0``, finite depths) and the
     image is the whole array, so ``seed_depth > 0`` equals ``has_seed`` at every pixel: the masks read the scalar, and
     the depth's last kernel no gather at the seed (the listed path) nor the seed depth's buffer (kitti14).
-    ``blur_copies`` (static, with no window; a rig's size groups): the blur pads by copies (``copies`` of
+    ``whole_window`` (static, ``image_size`` None; a rig's size group): the blur pads by copies (``copies`` of
     :func:`gaussian_blur`: bit for bit its form with a window that is the whole array), and the bracket's input is
     ordered after the seed search's output buffer rather than after ``du`` (no ``du`` image written)."""
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
@@ -222,11 +222,11 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
         has_seed = has_seed if scalar_mask else seed_depth > 0
         if config.column_bracket:
             # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
-            # A rig's whole-window group (blur_copies; one source or several since rigtail14): ordered by the
+            # A rig's whole-window group (one source or several since rigtail14): ordered by the
             # search's own output buffer; ordered by du, XLA wrote du out as an int32 image (read again by the last
             # kernel) instead of computing it where the residual reads it (docs/speed.md, nusc16). The
             # single-camera programs keep du (not measured there).
-            bracket_input = after(jnp.where(keep, sparse_depth, 0.0), seed_args[0] if blur_copies else du)
+            bracket_input = after(jnp.where(keep, sparse_depth, 0.0), seed_args[0] if whole_window else du)
             distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
             depth_raw = column_hypotheses(
                 depth_raw, bracket_input, distance, normals_cam, K,
@@ -247,7 +247,7 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
                                       max_residual_ratio=config.max_residual_ratio, image_size=image_size)
         depth_raw = jnp.where(has_seed, jnp.clip(depth_raw, config.min_depth_m, config.max_depth_m), 0.0)
     depth = gaussian_blur(depth_raw, sigma_px=config.smoothing_sigma_px, radius_px=config.smoothing_radius_px,
-                          image_size=image_size, copies=blur_copies)
+                          image_size=image_size, copies=whole_window)
     if config.keep_measured_depth:
         depth = jnp.where(keep, sparse_depth, depth)
     depth = jnp.where(has_seed, jnp.clip(depth, config.min_depth_m, config.max_depth_m), 0.0)

@@ -203,7 +203,8 @@ def fit_to_window(sources, index, window: tuple):
 
 
 def _single_origin(cloud) -> bool:
-    return cloud.num_sources == 1 and np.allclose(cloud.T_ref_source[0], np.eye(4), atol=1e-9)
+    from jaxdepth._src.rig import at_origin
+    return cloud.num_sources == 1 and at_origin(cloud.T_ref_source[0])
 
 
 def _config_sources(cloud, rig, config: SGMConfig):
