@@ -47,13 +47,10 @@ def _copy_as_base(checkout: pathlib.Path, folder: pathlib.Path) -> None:
     sys.path.insert(0, str(folder))
 
 
-def _program(package: str, case: str, depth_only: bool, stages: bool = False, above_scan=None):
-    """``(compiled program, args, real pixels)`` of ``case`` with the library ``package``; with ``stages``, a
-    dict of them, one per stage program (``projection``, ``keep``, ``tail``; the tail's ``depth`` alone with
-    ``depth_only``), each on the previous stages' outputs of the same library. ``above_scan``: that
-    ``SGMConfig.above_scan`` (None: the library's default)."""
-    import jax
-
+def case_run(package: str, case: str, above_scan=None):
+    """``(run, args, real pixels)`` of ``case`` with the library ``package``: ``run(*args, call=...)`` runs the
+    pipeline's three stage programs through ``call`` (``rig.call_stage``'s signature) and returns its ``Stages``.
+    ``above_scan``: that ``SGMConfig.above_scan`` (None: the library's default)."""
     from benchmarks.bench_rigs import AV2_LOG, NUSCENES
     lib = importlib.import_module(package)
     R, S = (importlib.import_module(f"{package}._src.{m}") for m in ("rig", "sources"))
@@ -79,9 +76,20 @@ def _program(package: str, case: str, depth_only: bool, stages: bool = False, ab
 
         def run(p, v, cams, call=R.call_stage):
             return R.run_rig_stages(p, v, cams, config=config, lidar=rig.lidar, call=call)
-    pixels = float(sum(int(h) * int(w) for h, w in np.asarray(cameras.image_size)))
+    return run, args, float(sum(int(h) * int(w) for h, w in np.asarray(cameras.image_size)))
+
+
+def _program(package: str, case: str, depth_only: bool, stages: bool = False, above_scan=None):
+    """``(compiled program, args, real pixels)`` of ``case`` with the library ``package``; with ``stages``, a
+    dict of them, one per stage program (``projection``, ``keep``, ``tail``; the tail's ``depth`` alone with
+    ``depth_only``), each on the previous stages' outputs of the same library. ``above_scan``: as
+    :func:`case_run`."""
+    import jax
+
+    run, args, pixels = case_run(package, case, above_scan)
     if stages:
         return _stage_programs(run, args, depth_only, pixels)
+    S, R = (importlib.import_module(f"{package}._src.{m}") for m in ("sources", "rig"))
     fn = (lambda *a: run(*a).depth) if depth_only else run
     program = S.sources_depth_program if case == "av2" else R.rig_depth_program
     return jax.jit(fn).lower(*args).compile(_options(program)), args, pixels
@@ -92,10 +100,9 @@ def _options(program):
     return getattr(program, "compiler_options", None)
 
 
-def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
-    """``{stage: (compiled, args, pixels)}``: the pipeline's three stage programs, each compiled apart on the
-    inputs the previous ones gave (``run`` called once with a recording ``call``)."""
-    import jax
+def record_stages(run, args) -> list:
+    """``[(stage, stage_args, statics)]`` of the pipeline's three stage programs, as ``run`` (:func:`case_run`'s)
+    called them (each on the previous ones' outputs)."""
     recorded = []
 
     def call(stage, *stage_args, **statics):
@@ -103,8 +110,15 @@ def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
         return stage(*stage_args, **statics)
 
     run(*args, call=call)
+    return recorded
+
+
+def _stage_programs(run, args, depth_only: bool, pixels: float) -> dict:
+    """``{stage: (compiled, args, pixels)}``: the pipeline's three stage programs, each compiled apart on the
+    inputs the previous ones gave (:func:`record_stages`)."""
+    import jax
     out = {}
-    for name, (stage, stage_args, statics) in zip(("projection", "keep", "tail"), recorded):
+    for name, (stage, stage_args, statics) in zip(("projection", "keep", "tail"), record_stages(run, args)):
         fn = functools.partial(stage, **statics)
         if name == "tail" and depth_only:
             fn = (lambda f: lambda *a: f(*a).depth)(fn)
