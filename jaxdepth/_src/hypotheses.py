@@ -86,17 +86,18 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None, one_key_im
     depth_bits, scale, top = _depth_bits(h if height is None else height)
     last = h - 1 if height is None else jnp.asarray(height, jnp.int32) - 1
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
+    level = jnp.clip(jnp.round(kept_depth * scale), 1, top)
+    one_image = one_key_image and height is None and depth_bits <= 23
+    level = (lax.bitcast_convert_type(level + float(2 ** 23), jnp.int32) - 0x4B000000 if one_image
+             else level.astype(jnp.int32))
     kept = kept_depth > 0
     # The row sits in the key's high bits, so the max over the rows up to v (from v on) is the key of
     # the nearest kept row above (below); dropping those more than max_gap rows away gives the max
     # over the window of max_gap + 1 rows, bit for bit.
-    level = jnp.clip(jnp.round(kept_depth * scale), 1, top)
-    if one_key_image and height is None and depth_bits <= 23:
-        level = lax.bitcast_convert_type(level + float(2 ** 23), jnp.int32) - 0x4B000000
+    if one_image:
         up_keys = jnp.where(kept, (rows << depth_bits) | level, -1)
         up, down = _running_max_rows(up_keys, up_keys, down_from_up=(depth_bits, top))
     else:
-        level = level.astype(jnp.int32)
         up, down = _running_max_rows(jnp.where(kept, (rows << depth_bits) | level, -1),
                                      jnp.where(kept, ((last - rows) << depth_bits) | level, -1))
     g = int(max_gap)
