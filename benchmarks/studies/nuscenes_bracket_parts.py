@@ -32,12 +32,10 @@ from __future__ import annotations
 import argparse
 import functools
 import math
-import os
 import statistics
 import time
 
 from benchmarks._common import RESULTS, write_results
-from benchmarks.bench_end_to_end import wall_and_cpu_ms
 
 
 def _in_place(depth_raw, kept_depth, *, window_px):
@@ -123,8 +121,8 @@ def _forms():
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rounds", type=int, default=9)
-    parser.add_argument("--calls", type=int, default=3)
+    for flag, default in (("--rounds", 9), ("--calls", 3)):
+        parser.add_argument(flag, type=int, default=default)
     parser.add_argument("--json", default=str(RESULTS / "nuscenes_bracket_parts.json"))
     args, t0 = parser.parse_args(argv), time.time()
     from jaxdepth.batch.devices import keep_freed_memory
@@ -132,7 +130,7 @@ def main(argv=None) -> int:
     import jax
     import numpy as np
 
-    from benchmarks.studies.nuscenes_tail_parts import _tail_inputs
+    from benchmarks.studies.nuscenes_tail_parts import _tail_inputs, time_forms
     from jaxdepth._src import pipeline as P
     stage, stage_args, statics, pixels = _tail_inputs()
     options = getattr(stage, "compiler_options", None)
@@ -149,14 +147,7 @@ def main(argv=None) -> int:
     outs = {n: np.asarray(e(*stage_args)) for n, e in exes.items()}
     same = {n: bool(np.array_equal(o, outs["library"])) for n, o in outs.items()}
     print("equal to the library's depth:", same)
-    names, res, load = list(exes), {n: [] for n in exes}, [os.getloadavg()]
-    for r in range(args.rounds):
-        for n in names if r % 2 == 0 else names[::-1]:
-            wall, cpu = wall_and_cpu_ms(lambda: jax.block_until_ready([exes[n](*stage_args)
-                                                                        for _ in range(args.calls)]))
-            res[n].append((cpu / args.calls, wall / args.calls))
-        print(r, {n: round(v[-1][0], 1) for n, v in res.items()}, "CPU ms", os.getloadavg(), flush=True)
-    load.append(os.getloadavg())
+    names, (res, load) = list(exes), time_forms(exes, stage_args, rounds=args.rounds, calls=args.calls)
     base = res["none"]
     rows = {n: {"cpu_ms": statistics.median(c for c, _ in res[n]), "wall_ms": statistics.median(w for _, w in res[n]),
                 "cpu_ms_over_none": statistics.median(a[0] - b[0] for a, b in zip(res[n], base)),
