@@ -1,6 +1,8 @@
 """Column bracket and blended hypotheses (Step 4b, beyond the paper): a brute-force NumPy
 oracle, exactness on analytic planes, the bound on a wrong normal, jit / vmap via _harness."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -223,3 +225,40 @@ def test_bracket_bounds_quantisation_is_below_a_fifth_of_a_millimetre():
         assert step < 2e-4
         np.testing.assert_allclose(lo[found], np.minimum(z_up, z_dn)[found], rtol=0, atol=step / 2 + 1e-5)
         np.testing.assert_allclose(hi[found], np.maximum(z_up, z_dn)[found], rtol=0, atol=step / 2 + 1e-5)
+
+
+def test_one_key_image_equals_two_key_images_bit_for_bit():
+    """``one_key_image=True`` (a rig's whole-window tail, H > 128: one key image, the backward running max over
+    its copy with each row turned into down keys, the level's int from the float's bits) equals the two key
+    images' form bit for bit: neighbours and clipped depth, depths past the keys' 256 m and huge ones included;
+    within the keys' quantisation of the NumPy oracle; jit == eager, vmap == loop. H <= 128 keeps two images."""
+    from helpers import numpy_column_hypotheses
+    rng = np.random.default_rng(38)
+    two = jax.jit(column_hypotheses, static_argnames=("window_px", "one_key_image"))
+    neighbours = jax.jit(column_neighbours, static_argnames=("max_gap", "one_key_image"))
+    for h, w, window in ((129, 16, 3.0), (200, 24, 5.5), (301, 12, 9.9), (900, 16, 28.1), (1550, 8, 24.0), (64, 8, 4.0)):
+        for frac in (0.02, 0.3, 0.95):
+            kept = np.where(rng.random((h, w)) < frac, rng.uniform(0.01, 150.0, (h, w)), 0.0).astype(np.float32)
+            raw = np.where(rng.random((h, w)) < 0.9, rng.uniform(0.1, 150.0, (h, w)), 0.0).astype(np.float32)
+            oracle = numpy_column_hypotheses(raw, kept, int(window))
+            far = kept.copy()
+            far[rng.random((h, w)) < 0.05] = 1e3
+            far[0, 0], far[-1, -1] = 1e30, 300.0
+            for k in (kept, far):
+                a = np.asarray(two(raw, k, None, None, None, window_px=window))
+                b = np.asarray(two(raw, k, None, None, None, window_px=window, one_key_image=True))
+                np.testing.assert_array_equal(b, a)
+                for x, y in zip(neighbours(k, max_gap=int(window)), neighbours(k, max_gap=int(window), one_key_image=True)):
+                    np.testing.assert_array_equal(np.asarray(y), np.asarray(x))
+            b = np.asarray(two(raw, kept, None, None, None, window_px=window, one_key_image=True))
+            np.testing.assert_allclose(b, oracle, rtol=0, atol=150.0 / 2 ** 19)
+            assert frac < 0.1 or (b != raw).mean() > 0.05               # the bracket moves pixels
+    kept = np.where(rng.random((3, 131, 10)) < 0.2, rng.uniform(0.5, 80.0, (3, 131, 10)), 0.0).astype(np.float32)
+    raw = rng.uniform(0.1, 100.0, (3, 131, 10)).astype(np.float32)
+    one = functools.partial(column_hypotheses, seed_distance=None, normals=None, K=None, window_px=6.0,
+                            one_key_image=True)
+    batched = np.asarray(jax.jit(jax.vmap(one))(raw, kept))
+    for i in range(3):
+        np.testing.assert_array_equal(batched[i], np.asarray(jax.jit(one)(raw[i], kept[i])))
+        np.testing.assert_array_equal(batched[i], np.asarray(two(raw[i], kept[i], None, None, None, window_px=6.0)))
+    np.testing.assert_array_equal(np.asarray(one(raw[0], kept[0])), batched[0])     # eager

@@ -134,6 +134,23 @@ def _hlo_counts(text: str) -> dict:
     return counts
 
 
+def time_forms(exes: dict, stage_args, *, rounds: int, calls: int):
+    """``({name: [(CPU ms, wall ms) a call, per round]}, [load averages])``: each compiled form run twice, then
+    ``rounds`` interleaved rounds (the order reversed every other round) of ``calls`` calls each."""
+    import jax
+    for exe in exes.values():
+        for _ in range(2):
+            jax.block_until_ready(exe(*stage_args))
+    names, res, load = list(exes), {n: [] for n in exes}, [os.getloadavg()]
+    for r in range(rounds):
+        for n in names if r % 2 == 0 else names[::-1]:
+            wall, cpu = wall_and_cpu_ms(lambda: jax.block_until_ready([exes[n](*stage_args) for _ in range(calls)]))
+            res[n].append((cpu / calls, wall / calls))
+        print(r, {n: round(v[-1][0], 1) for n, v in res.items()}, "CPU ms", os.getloadavg(), flush=True)
+    load.append(os.getloadavg())
+    return res, load
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", choices=("nuscenes", "av2"), default="nuscenes")
@@ -166,17 +183,7 @@ def main(argv=None) -> int:
                 setattr(mod, attr, orig)
         print("compiled", name, round(time.time() - t0), "s", flush=True)
     jax.clear_caches()
-    for exe in exes.values():
-        for _ in range(2):
-            jax.block_until_ready(exe(*stage_args))
-    names, res, load = list(exes), {n: [] for n in exes}, [os.getloadavg()]
-    for r in range(args.rounds):
-        for n in names if r % 2 == 0 else names[::-1]:
-            wall, cpu = wall_and_cpu_ms(lambda: jax.block_until_ready([exes[n](*stage_args)
-                                                                        for _ in range(args.calls)]))
-            res[n].append((cpu / args.calls, wall / args.calls))
-        print(r, {n: round(v[-1][0], 1) for n, v in res.items()}, "CPU ms", os.getloadavg(), flush=True)
-    load.append(os.getloadavg())
+    names, (res, load) = list(exes), time_forms(exes, stage_args, rounds=args.rounds, calls=args.calls)
     whole = res[names[0]]
     rows = {n: {"cpu_ms": statistics.median(c for c, _ in res[n]), "wall_ms": statistics.median(w for _, w in res[n]),
                 "cpu_ns_px": statistics.median(c for c, _ in res[n]) * 1e6 / pixels,

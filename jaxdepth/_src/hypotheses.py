@@ -64,11 +64,17 @@ def _depth_bits(h):
     return depth_bits, table[depth_bits], (jnp.int32(1) << depth_bits) - 1
 
 
-def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
+def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None, one_key_image: bool = False):
     """Packed keys of the nearest kept pixel above and below every pixel (see :func:`column_neighbours`).
 
     ``height``: optional traced int32 h, the image as the top h rows of ``kept_depth`` (the
     keys are then those of the (h, W) image: its own depth quantisation and row order).
+    ``one_key_image`` (static): with ``height`` None and H > 128 (``top < 2**23``), the same keys from one key
+    image (see :func:`_running_max_rows`), its integer level read from the float's bits (``round`` then
+    ``clip`` to [1, top] give an integral float v < 2**23, whose bits with 2**23 added are ``0x4B000000 +
+    v``: the conversion's value without its range checks); else ignored. (For H <= 64, ``top`` rounds up
+    to 2**depth_bits in float32, so a depth past 256 m carries into the row bits: the two key images' rule,
+    which one image's down keys would not follow.)
 
     Returns:
       (up, down, depth_bits, scale, top, last): (H, W) int32 keys, -1 where there is no kept
@@ -80,24 +86,36 @@ def _column_keys(kept_depth: jax.Array, *, max_gap: int, height=None):
     depth_bits, scale, top = _depth_bits(h if height is None else height)
     last = h - 1 if height is None else jnp.asarray(height, jnp.int32) - 1
     rows = jnp.arange(h, dtype=jnp.int32)[:, None]
-    level = jnp.clip(jnp.round(kept_depth * scale), 1, top).astype(jnp.int32)
+    level = jnp.clip(jnp.round(kept_depth * scale), 1, top)
+    one_image = one_key_image and height is None and depth_bits <= 23
+    level = (lax.bitcast_convert_type(level + float(2 ** 23), jnp.int32) - 0x4B000000 if one_image
+             else level.astype(jnp.int32))
     kept = kept_depth > 0
     # The row sits in the key's high bits, so the max over the rows up to v (from v on) is the key of
     # the nearest kept row above (below); dropping those more than max_gap rows away gives the max
     # over the window of max_gap + 1 rows, bit for bit.
-    up, down = _running_max_rows(jnp.where(kept, (rows << depth_bits) | level, -1),
-                                 jnp.where(kept, ((last - rows) << depth_bits) | level, -1))
+    if one_image:
+        up_keys = jnp.where(kept, (rows << depth_bits) | level, -1)
+        up, down = _running_max_rows(up_keys, up_keys, down_from_up=(depth_bits, top))
+    else:
+        up, down = _running_max_rows(jnp.where(kept, (rows << depth_bits) | level, -1),
+                                     jnp.where(kept, ((last - rows) << depth_bits) | level, -1))
     g = int(max_gap)
     up = jnp.where(rows - (up >> depth_bits) <= g, up, -1)                 # above: the largest row wins
     down = jnp.where(last - (down >> depth_bits) - rows <= g, down, -1)    # below: the smallest row wins
     return up, down, depth_bits, scale, top, last
 
 
-def _running_max_rows(forward: jax.Array, backward: jax.Array):
+def _running_max_rows(forward: jax.Array, backward: jax.Array, *, down_from_up=None):
     """(H, W) int32 running maxima along the rows: of ``forward`` from row 0 down, of ``backward``
     from the last row up. One loop of in-place row updates: its cost is per pixel whatever the search
     range (a ``lax.reduce_window`` over ``max_gap + 1`` rows reads each pixel ``max_gap + 1`` times,
     and on XLA:CPU grew to ~25 ns per pixel at 1550 x 2048, 24 rows, against ~0.6 at 375 x 1242).
+
+    ``down_from_up`` (static ``(depth_bits, top)``): ``backward`` holds up keys (those of
+    :func:`_column_keys`), each row's read turned into its down key (the same depth, the row counted from
+    the bottom) before the max. With ``backward`` the array ``forward`` is, XLA:CPU copies the one key image
+    for the second in-place buffer (a copy, not a second key kernel: docs/speed.md, nusc17).
     """
     h, w = forward.shape
     init = jnp.full((w,), -1, jnp.int32)
@@ -105,17 +123,24 @@ def _running_max_rows(forward: jax.Array, backward: jax.Array):
     # Indices in range: no negative-index wrap (a compare and select kernel per access and step on XLA:CPU).
     get = functools.partial(lax.dynamic_index_in_dim, axis=0, keepdims=False, allow_negative_indices=False)
 
+    def read_down(bwd, i):
+        key = get(bwd, i)
+        if down_from_up is None:
+            return key
+        bits, top = down_from_up
+        return jnp.where(key >= 0, ((h - 1 - i) << bits) | (key & top), -1)
+
     def step(i, state):
         c_fwd, c_bwd, fwd, bwd = state
         c_fwd = jnp.maximum(c_fwd, get(fwd, i))
-        c_bwd = jnp.maximum(c_bwd, get(bwd, h - 1 - i))
+        c_bwd = jnp.maximum(c_bwd, read_down(bwd, h - 1 - i))
         return c_fwd, c_bwd, put_row(fwd, c_fwd, i), put_row(bwd, c_bwd, h - 1 - i)
 
     _, _, forward, backward = lax.fori_loop(0, h, step, (init, init, forward, backward))
     return forward, backward
 
 
-def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=None):
+def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=None, one_key_image: bool = False):
     """The nearest kept LiDAR pixels straight above and below every pixel: their rows and depths.
 
     A LiDAR pixel is its own neighbour (gap 0). Each direction is the max over
@@ -132,13 +157,16 @@ def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=N
         ``kept_depth`` (a window of a rig's canvas; the rest is empty) and its search range
         is ``gap <= max_gap`` rows. The result on those rows is that of the
         (height, W) image alone with ``max_gap=gap``, bit for bit.
+      one_key_image: static; without ``height`` and for H > 128, the keys from one key image (the same
+        values; :func:`_column_keys`); else ignored.
 
     Returns:
       (row_up, z_up, row_down, z_down): (H, W) int32 rows, -1 where there is no
       kept pixel within ``max_gap`` rows on that side, and (H, W) float32 depths,
       0 there.
     """
-    up, down, depth_bits, scale, mask, last = _column_keys(kept_depth, max_gap=max_gap, height=height)
+    up, down, depth_bits, scale, mask, last = _column_keys(kept_depth, max_gap=max_gap, height=height,
+                                                           one_key_image=one_key_image)
     if gap is not None:             # the image's own search range (the keys' row bits give the distance)
         rows = jnp.arange(kept_depth.shape[0], dtype=jnp.int32)[:, None]
         up = jnp.where((up >= 0) & (rows - (up >> depth_bits) <= gap), up, -1)
@@ -150,7 +178,7 @@ def column_neighbours(kept_depth: jax.Array, *, max_gap: int, height=None, gap=N
 
 def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance: jax.Array,
                       normals: jax.Array, K: jax.Array, *, window_px: float, blend: bool = False,
-                      materialise: bool = True, image_size=None, image_gap=None,
+                      materialise: bool = True, image_size=None, image_gap=None, one_key_image: bool = False,
                       min_abs_denom: float = _DEFAULTS.min_abs_denom,
                       max_residual_ratio: float = _DEFAULTS.max_residual_ratio) -> jax.Array:
     """The bracket (and optionally the blend) of the module docstring.
@@ -173,6 +201,8 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
         image is the top-left h x w window of the arrays (a rig's canvas), ``window_px`` is then
         the canvas's H / L (a static bound) and the window used is the image's own
         ``image_gap`` rows (see :func:`column_neighbours`); both or neither.
+      one_key_image: static; the neighbour search from one key image (``column_neighbours``'s: the same
+        values; without ``image_size``, H > 128). A rig's whole-window tail (docs/speed.md, nusc17).
 
     Returns:
       (H, W) float32 metres: ``depth_raw`` clipped to the bracket (and blended)
@@ -183,7 +213,8 @@ def column_hypotheses(depth_raw: jax.Array, kept_depth: jax.Array, seed_distance
     max_gap = int(math.floor(window_px))
     h, w = kept_depth.shape
     row_up, z_up, row_dn, z_dn = column_neighbours(kept_depth, max_gap=max_gap, gap=image_gap,
-                                                   height=None if image_size is None else image_size[0])
+                                                   height=None if image_size is None else image_size[0],
+                                                   one_key_image=one_key_image)
     if blend and materialise:
         row_up, z_up, row_dn, z_dn = fence(row_up, z_up, row_dn, z_dn)
     bracketed = (row_up >= 0) & (row_dn >= 0) & (depth_raw > 0)

@@ -205,7 +205,8 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
     the depth's last kernel no gather at the seed (the listed path) nor the seed depth's buffer (kitti14).
     ``whole_window`` (static, ``image_size`` None; a rig's size group): the blur pads by copies (``copies`` of
     :func:`gaussian_blur`: bit for bit its form with a window that is the whole array), and the bracket's input is
-    ordered after the seed search's output buffer rather than after ``du`` (no ``du`` image written)."""
+    ordered after the seed search's output buffer rather than after ``du`` (no ``du`` image written) and its
+    neighbour search reads one key image (``column_hypotheses(one_key_image=True)``: the same values)."""
     at, du, dv = _seed_reader(config.above_scan == "capped", seed_args)
     if isinstance(normals_cam, ListedNormals):  # (not with the blend or the capped rule: _complete_tail)
         residual, depth_raw = _listed_plane(normals_cam, sparse_depth, has_seed, K, *seed_args, config=config)
@@ -224,8 +225,8 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
             # XLA:CPU: the bracket's input comes after the seed search (else its buffers live across the loops).
             # A rig's whole-window group (one source or several since rigtail14): ordered by the
             # search's own output buffer; ordered by du, XLA wrote du out as an int32 image (read again by the last
-            # kernel) instead of computing it where the residual reads it (docs/speed.md, nusc16). The
-            # single-camera programs keep du (not measured there).
+            # kernel) instead of computing it where the residual reads it (docs/speed.md, nusc16); one key image
+            # copied, not two key kernels (nusc17). The single-camera programs keep du and two (not measured there).
             bracket_input = after(jnp.where(keep, sparse_depth, 0.0), seed_args[0] if whole_window else du)
             distance = jnp.where(has_seed, seed_distance(du, dv, seed_depth, metric=config.distance_metric), 0.0)
             depth_raw = column_hypotheses(
@@ -233,7 +234,7 @@ def _tail_after_seeds(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, 
                 window_px=sparse_depth.shape[0] / beams, blend=config.blend_hypotheses,
                 materialise=config.guidance_weight == 0, min_abs_denom=config.min_abs_denom,
                 max_residual_ratio=config.max_residual_ratio, image_size=image_size,
-                image_gap=None if image_size is None else image_size[0] // beams)
+                image_gap=None if image_size is None else image_size[0] // beams, one_key_image=whole_window)
     if config.above_scan == "background":
         depth_raw = background_above_scan(depth_raw, seed_depth, keep, sparse_depth > 0, beams=beams,
                                           max_half_width_px=config.outlier_max_half_width_px,
