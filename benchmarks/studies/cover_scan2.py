@@ -143,6 +143,40 @@ def add_all(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact) 
                         class_variants=CLASS_VARIANTS)
 
 
+def seed_agreement(cases: list, variants=VARIANTS) -> dict:
+    """{rig: {variant: {scene seed: [agree RMSE %, agree MAE %, pairs]}}}: pairs each variant ranks as the exact
+    dense depth does, per scene seed (its draws pooled): the seeds' spread."""
+    from benchmarks.studies.cover_tests import pair_agreement
+    out = {}
+    for c in cases:
+        row = out.setdefault(c["rig"], {})
+        for v in variants:
+            got = []
+            for metric in ("rmse", "mae"):
+                agree, pairs = pair_agreement(((d["scores"]["exact_dense"], d["scores"][v]) for d in c["held_out"]),
+                                              metric)
+                got.append(100.0 * agree / max(pairs, 1))
+            row.setdefault(v, {})[str(c["scene_seed"])] = got + [pairs]
+    return out
+
+
+def twin_table(doc: dict, variants) -> str:
+    """Per twin and variant: wrong / right dropped %, agreement with the exact dense depth (RMSE / MAE %,
+    per scene seed in brackets) and with the exact depth at every held-out pixel."""
+    lines = []
+    for rig, row in doc["summary"].items():
+        if rig == "overall":
+            continue
+        lines.append(f"{rig}:")
+        for v in variants:
+            r, h = row[v], doc["held_out_agreement"][rig][v]
+            seeds = "; ".join(f"{a:.0f} / {b:.0f}" for a, b, _ in doc["seed_agreement"][rig][v].values())
+            lines.append(f"  {v:32s} {100 * r['wrong_dropped']:3.0f} / {100 * r['right_dropped']:4.1f} %; dense "
+                         f"{r['agree_rmse_pct']:3.0f} / {r['agree_mae_pct']:3.0f} % ({seeds}); held-out "
+                         f"{h['agree_rmse_pct']:3.0f} / {h['agree_mae_pct']:3.0f} % ({r['pairs']} pairs)")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
     parser = study_parser(__doc__.splitlines()[0], ("kitti", "nuscenes", "av2", "raster", "rosette"),
@@ -157,7 +191,8 @@ def main(argv=None) -> int:
                         "hidden_seeds": sorted({d["hidden_seed"] for c in cases for d in c["held_out"]})},
            "summary": summarise(cases, VARIANTS),
            "held_out_agreement": cover_scan.held_out_agreement(cases, VARIANTS),
-           "class_agreement": cover_scan.class_agreement(cases, CLASS_VARIANTS), "cases": cases}
+           "class_agreement": cover_scan.class_agreement(cases, CLASS_VARIANTS),
+           "seed_agreement": seed_agreement(cases, VARIANTS), "cases": cases}
     if merged_from:
         doc["merged_from"] = merged_from
     print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
@@ -168,6 +203,8 @@ def main(argv=None) -> int:
                                        for v, r in row.items()))
     print("by class (wrong dropped / right dropped, %):")
     print(cover_scan.class_table(cases, VARIANTS))
+    print("per twin: wrong / right dropped; agreement, dense (per scene seed) and at the held-out pixels:")
+    print(twin_table(doc, VARIANTS))
     write_results(args.json, doc, config, t0, indent=None)
     return 0
 
