@@ -177,6 +177,15 @@ def twin_table(doc: dict, variants) -> str:
     return "\n".join(lines)
 
 
+def slim(obj):
+    """``obj`` without the per-camera scores (the pooled ones stay): the five twins' cases in a few MB."""
+    if isinstance(obj, dict):
+        return {k: slim(v) for k, v in obj.items() if k != "per_camera"}
+    if isinstance(obj, list):
+        return [slim(v) for v in obj]
+    return obj
+
+
 def main(argv=None) -> int:
     from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
     parser = study_parser(__doc__.splitlines()[0], ("kitti", "nuscenes", "av2", "raster", "rosette"),
@@ -205,7 +214,7 @@ def main(argv=None) -> int:
     print(cover_scan.class_table(cases, VARIANTS))
     print("per twin: wrong / right dropped; agreement, dense (per scene seed) and at the held-out pixels:")
     print(twin_table(doc, VARIANTS))
-    write_results(args.json, doc, config, t0, indent=None)
+    write_results(args.json, slim(doc), config, t0, indent=None)
     return 0
 
 
