@@ -61,16 +61,22 @@ def _brute(target, full, K, T, origin, ks, reach, width):
 
 @pytest.mark.parametrize("seed, width", [(0, 1), (1, 2), (2, 0)])
 def test_parallax_cover_brute_force(seed, width):
+    """Scan lines every 3 rows (a point kept with probability 0.8) over two depth layers, every third point
+    held out as a target; a LiDAR 1.5 m above, 0.4 m beside and 0.3 m behind the camera."""
     rng = np.random.default_rng(seed)
-    H, W = 22, 29
-    full = np.where(rng.random((H, W)) < 0.3, rng.uniform(2.0, 40.0, (H, W)), 0.0).astype(np.float32)
-    target = np.where((full > 0) & (rng.random((H, W)) < 0.5), full, 0.0).astype(np.float32)
+    full = np.zeros((22, 29), np.float32)
+    rows = np.arange(1, 22, 3)
+    depth = np.where(rng.random((len(rows), 29)) < 0.4, rng.uniform(2.0, 8.0, (len(rows), 29)),
+                     rng.uniform(12.0, 40.0, (len(rows), 29)))
+    full[rows] = np.where(rng.random((len(rows), 29)) < 0.8, depth, 0.0)
+    target = np.where((full > 0) & (rng.random(full.shape) < 0.34), full, 0.0).astype(np.float32)
     K = np.array([[30.0, 0.0, 14.0], [0.0, 30.0, 11.0], [0.0, 0.0, 1.0]])
     T = np.eye(4)
     T[:3, 3] = [0.4, -1.5, -0.3]
     origin = np.zeros(3)
     got = cs2.parallax_cover(target, full, K, T, origin, (0.5, 1), 6, width)
     want = _brute(target, full, K, T, origin, (0.5, 1), 6, width)
+    assert 0 < want[1].sum() < (target > 0).sum()
     for k in (0.5, 1):
         np.testing.assert_array_equal(got[k], want[k], err_msg=str(k))
 

@@ -178,8 +178,20 @@ def class_agreement(cases: list, class_variants=CLASS_VARIANTS) -> dict:
     return out
 
 
+def print_report(doc: dict, cases: list, variants=VARIANTS) -> None:
+    """Print the summary table, the agreement at the held-out pixels and the per-class drops."""
+    from benchmarks.studies.cover_tests import table
+    print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
+    print(table(doc["summary"]))
+    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
+    for key, row in doc["held_out_agreement"].items():
+        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}" for v, r in row.items()))
+    print("by class (wrong dropped / right dropped, %):")
+    print(class_table(cases, variants))
+
+
 def main(argv=None) -> int:
-    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
+    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise
     parser = study_parser(__doc__.splitlines()[0], ("nuscenes", "kitti"), (0.5, 0.5),
                           RESULTS / "cover_scan_coverscan_half.json")
     args = parser.parse_args(argv)
@@ -192,13 +204,7 @@ def main(argv=None) -> int:
            "class_agreement": class_agreement(cases), "cases": cases}
     if merged_from:
         doc["merged_from"] = merged_from
-    print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
-    print(table(doc["summary"]))
-    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
-    for key, row in doc["held_out_agreement"].items():
-        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}" for v, r in row.items()))
-    print("by class (wrong dropped / right dropped, %):")
-    print(class_table(cases))
+    print_report(doc, cases)
     print("by class: agreement with the exact depth at the class's targets / at the kept pixels (RMSE / MAE), "
           "SGM - city block MAE, mm, targets / exact at the kept pixels:")
     for rig, rows in doc["class_agreement"].items():

@@ -187,7 +187,7 @@ def slim(obj):
 
 
 def main(argv=None) -> int:
-    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
+    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise
     parser = study_parser(__doc__.splitlines()[0], ("kitti", "nuscenes", "av2", "raster", "rosette"),
                           (0.5,) * 5, RESULTS / "cover_scan2_coverscan2_half.json")
     args = parser.parse_args(argv)
@@ -204,14 +204,7 @@ def main(argv=None) -> int:
            "seed_agreement": seed_agreement(cases, VARIANTS), "cases": cases}
     if merged_from:
         doc["merged_from"] = merged_from
-    print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
-    print(table(doc["summary"]))
-    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
-    for key, row in doc["held_out_agreement"].items():
-        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}"
-                                       for v, r in row.items()))
-    print("by class (wrong dropped / right dropped, %):")
-    print(cover_scan.class_table(cases, VARIANTS))
+    cover_scan.print_report(doc, cases, VARIANTS)
     print("per twin: wrong / right dropped; agreement, dense (per scene seed) and at the held-out pixels:")
     print(twin_table(doc, VARIANTS))
     write_results(args.json, slim(doc), config, t0, indent=None)
