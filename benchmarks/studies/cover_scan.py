@@ -69,10 +69,11 @@ def scan_masks(target: np.ndarray, full: np.ndarray, half: int, K, T_cam_ref, or
     return out
 
 
-def add_scan(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact) -> None:
-    """``cover_tests.run_twin``'s hook: the :data:`SCAN` masks and the per-class counts of one hold-out, and per
-    class every method's score on the targets each of :data:`CLASS_VARIANTS` keeps (``V``) and on the exact
-    depth at those pixels (``exact/V``)."""
+def add_scan(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact, *, variants=VARIANTS,
+             class_variants=CLASS_VARIANTS) -> None:
+    """``cover_tests.run_twin``'s hook: the :data:`SCAN` masks and the per-class counts of one hold-out (of
+    ``variants``, already in ``masks`` but for :data:`SCAN`), and per class every method's score on the targets
+    each of ``class_variants`` keeps (``V``) and on the exact depth at those pixels (``exact/V``)."""
     from benchmarks.accuracy_twins import METHODS, score, z_buffers
     from benchmarks.studies.edge_band_side import edge_class, window_radii
     K = np.stack([np.asarray(c.K, np.float64) for c in inp.rig.cameras])
@@ -92,7 +93,7 @@ def add_scan(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)
             r = counts[name]
             r["targets"] += int(at.sum())
             r["wrong"] += int((at & w).sum())
-            for v in VARIANTS:
+            for v in variants:
                 r["dropped_wrong"][v] = r["dropped_wrong"].get(v, 0) + int((at & w & m[v]).sum())
                 r["dropped_right"][v] = r["dropped_right"].get(v, 0) + int((at & ~w & m[v]).sum())
     for m, t, e in zip(masks, targets, exact):
@@ -101,7 +102,7 @@ def add_scan(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)
         if not counts[name]["targets"]:
             continue
         truths = {}
-        for v in CLASS_VARIANTS:
+        for v in class_variants:
             keep = [(c == k) & ~m[v] for c, m in zip(classes, masks)]
             truths[v] = [np.where(a, t, 0.0) for a, t in zip(keep, targets)]
             truths[f"exact/{v}"] = [np.where(a, e, 0.0) for a, e in zip(keep, exact)]
@@ -111,7 +112,7 @@ def add_scan(masks, targets, full, wrong, inp, hidden, half, draw, preds, exact)
     draw["by_class"] = counts
 
 
-def class_table(cases: list) -> str:
+def class_table(cases: list, variants=VARIANTS) -> str:
     """Per rig and class, summed over draws: share of targets, wrong share, and the share of the wrong ones
     ``both_sides`` (today's ``uncovered``) keeps, then wrong / right dropped by each scan variant."""
     lines = []
@@ -122,7 +123,7 @@ def class_table(cases: list) -> str:
         for name in CLASSES:
             tot = {k: sum(d["by_class"][name][k] for d in draws) for k in ("targets", "wrong")}
             drop = {v: (sum(d["by_class"][name]["dropped_wrong"][v] for d in draws),
-                        sum(d["by_class"][name]["dropped_right"][v] for d in draws)) for v in VARIANTS}
+                        sum(d["by_class"][name]["dropped_right"][v] for d in draws)) for v in variants}
             nt, nw = max(tot["targets"], 1), max(tot["wrong"], 1)
             lines.append(f"  {name}: {100 * tot['targets'] / max(n_all, 1):.1f} % of targets, "
                          f"{100 * tot['wrong'] / nt:.1f} % wrong, uncovered keeps "
@@ -132,7 +133,7 @@ def class_table(cases: list) -> str:
     return "\n".join(lines)
 
 
-def held_out_agreement(cases: list) -> dict:
+def held_out_agreement(cases: list, variants=VARIANTS) -> dict:
     """{rig or "overall": {variant: {"agree_{rmse,mae}_pct", "pairs"}}}: pairs each variant ranks as the exact
     depth at every held-out pixel (``exact_kept/all``) does (tied pairs there left out)."""
     from benchmarks.studies.cover_tests import pair_agreement
@@ -140,7 +141,7 @@ def held_out_agreement(cases: list) -> dict:
     for key in list(dict.fromkeys(c["rig"] for c in cases)) + ["overall"]:
         draws = [d for c in cases if key in (c["rig"], "overall") for d in c["held_out"]]
         out[key] = {}
-        for v in VARIANTS:
+        for v in variants:
             r = {}
             for metric in ("rmse", "mae"):
                 agree, pairs = pair_agreement(((d["scores"]["exact_kept/all"], d["scores"][v]) for d in draws), metric)
@@ -149,7 +150,7 @@ def held_out_agreement(cases: list) -> dict:
     return out
 
 
-def class_agreement(cases: list) -> dict:
+def class_agreement(cases: list, class_variants=CLASS_VARIANTS) -> dict:
     """{rig: {class: {variant: {"agree_{rmse,mae}_pct": against the exact depth at the class's every target,
     "agree_kept_{rmse,mae}_pct": at the pixels the variant keeps, "pairs", "sgm_minus_nearest_mae_mm":
     {"targets", "exact_kept"} (mean over draws)}}}} (pairs tied under the reference left out)."""
@@ -163,7 +164,7 @@ def class_agreement(cases: list) -> dict:
             if not sc:
                 continue
             row = {}
-            for v in CLASS_VARIANTS:
+            for v in class_variants:
                 r = {"sgm_minus_nearest_mae_mm": {
                     w: float(np.mean([s[p]["sgm"]["mae"] - s[p]["nearest"]["mae"] for s in sc]))
                     for w, p in (("targets", v), ("exact_kept", f"exact/{v}"))}}
@@ -177,8 +178,20 @@ def class_agreement(cases: list) -> dict:
     return out
 
 
+def print_report(doc: dict, cases: list, variants=VARIANTS) -> None:
+    """Print the summary table, the agreement at the held-out pixels and the per-class drops."""
+    from benchmarks.studies.cover_tests import table
+    print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
+    print(table(doc["summary"]))
+    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
+    for key, row in doc["held_out_agreement"].items():
+        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}" for v, r in row.items()))
+    print("by class (wrong dropped / right dropped, %):")
+    print(class_table(cases, variants))
+
+
 def main(argv=None) -> int:
-    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise, table
+    from benchmarks.studies.cover_tests import collect_cases, study_parser, summarise
     parser = study_parser(__doc__.splitlines()[0], ("nuscenes", "kitti"), (0.5, 0.5),
                           RESULTS / "cover_scan_coverscan_half.json")
     args = parser.parse_args(argv)
@@ -191,13 +204,7 @@ def main(argv=None) -> int:
            "class_agreement": class_agreement(cases), "cases": cases}
     if merged_from:
         doc["merged_from"] = merged_from
-    print("cells: wrong dropped / right dropped ; agreement with the exact dense depth, RMSE / MAE")
-    print(table(doc["summary"]))
-    print("agreement with the exact depth at every held-out pixel, RMSE / MAE:")
-    for key, row in doc["held_out_agreement"].items():
-        print(f"  {key}: " + ", ".join(f"{v} {r['agree_rmse_pct']:.0f} / {r['agree_mae_pct']:.0f}" for v, r in row.items()))
-    print("by class (wrong dropped / right dropped, %):")
-    print(class_table(cases))
+    print_report(doc, cases)
     print("by class: agreement with the exact depth at the class's targets / at the kept pixels (RMSE / MAE), "
           "SGM - city block MAE, mm, targets / exact at the kept pixels:")
     for rig, rows in doc["class_agreement"].items():
