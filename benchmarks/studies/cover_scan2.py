@@ -48,18 +48,21 @@ RULE_MIN_PX = 4
 WIDTH_PX = 2
 
 
-def parallax_cover(target, full, K, T_cam_ref, origin, ks, reach: int, width: int) -> dict:
+def parallax_cover(target, full, K, T_cam_ref, origin, ks, reach: int, width: int, source=None) -> dict:
     """{k: (H, W) bool} of the parallax test with factor k, for each k of ``ks`` (see the module docstring):
     along each of the 2 ``width`` + 1 lines parallel to the target's parallax direction (offset -width..width px
-    across it), on each side, the first sweep point met within ``reach`` px (the target's own pixel left out)."""
-    from benchmarks.studies.cover_tests import toward_lidar
-    T = np.asarray(T_cam_ref, np.float64)
-    cz = float((T[:3, :3] @ np.asarray(origin, np.float64) + T[:3, 3])[2])
+    across it), on each side, the first sweep point met within ``reach`` px (the target's own pixel left out).
+    ``origin``: one LiDAR origin (3,), or with ``source`` ((H, W) int, the LiDAR each target pixel came from)
+    the (S, 3) origins, each target's direction and shift then from its own LiDAR (coverscan3)."""
+    T, K = np.asarray(T_cam_ref, np.float64), np.asarray(K, np.float64)
+    cams = np.stack([T[:3, :3] @ o + T[:3, 3] for o in np.atleast_2d(np.asarray(origin, np.float64))])
     H, W = target.shape
     v, u = np.nonzero(target > 0)
+    c = cams[np.zeros(len(v), np.int64) if source is None else np.asarray(source)[v, u]]
+    cz = c[:, 2]
     zp = target[v, u].astype(np.float64)
     limit = zp - np.maximum(1.0, 0.05 * zp)
-    du, dv = toward_lidar(u, v, K, T, origin)
+    du, dv = K[0, 0] * c[:, 0] - (u - K[0, 2]) * cz, K[1, 1] * c[:, 1] - (v - K[1, 2]) * cz
     norm = np.hypot(du, dv)
     ux, uy = du / np.maximum(norm, 1e-12), dv / np.maximum(norm, 1e-12)
     hits = {k: np.zeros(len(v), bool) for k in ks}
