@@ -132,7 +132,7 @@ def main(argv=None) -> int:
 
     from benchmarks.studies.nuscenes_tail_parts import _tail_inputs, time_forms
     from jaxdepth._src import pipeline as P
-    stage, stage_args, statics, pixels = _tail_inputs()
+    stage, stage_args, statics, pixels, _ = _tail_inputs("nuscenes")
     options = getattr(stage, "compiler_options", None)
     fn = (lambda f: lambda *a: f(*a).depth)(functools.partial(stage, **statics))
     exes, library = {}, P.column_hypotheses

@@ -41,22 +41,16 @@ from benchmarks._common import RESULTS, write_results
 
 
 def _timed(calls: dict, rounds: int, per_round: int) -> dict:
-    """``{name: {cpu_ms, ratio}}``: process CPU ms a call, medians of ``rounds`` interleaved rounds."""
-    import jax
+    """``{name: {cpu_ms, ratio}}``: process CPU ms a call, medians of ``rounds`` interleaved rounds
+    (:func:`~benchmarks.studies.nuscenes_tail_parts.time_forms`, each call a compiled form and its arguments)."""
+    from benchmarks.studies.nuscenes_tail_parts import time_forms
 
-    names, res = list(calls), {n: [] for n in calls}
-    for fn in calls.values():
-        jax.block_until_ready(fn())
-    for r in range(rounds):
-        for n in names if r % 2 == 0 else names[::-1]:
-            cpu = time.process_time()
-            for _ in range(per_round):
-                jax.block_until_ready(calls[n]())
-            res[n].append((time.process_time() - cpu) * 1e3 / per_round)
-    first = res[names[0]]
-    return {n: {"cpu_ms": statistics.median(res[n]),
-                "ratio_to_first": statistics.median(a / b for a, b in zip(res[n], first)),
-                "cpu_ms_rounds": res[n]} for n in names}
+    res, _ = time_forms(calls, (), rounds=rounds, calls=per_round)
+    cpu = {n: [c for c, _ in v] for n, v in res.items()}
+    first = cpu[next(iter(cpu))]
+    return {n: {"cpu_ms": statistics.median(v),
+                "ratio_to_first": statistics.median(a / b for a, b in zip(v, first)),
+                "cpu_ms_rounds": v} for n, v in cpu.items()}
 
 
 def _stage():
@@ -67,7 +61,7 @@ def _stage():
     from benchmarks.studies.nuscenes_tail_parts import _tail_inputs
     from jaxdepth._src import pipeline as P
     from jaxdepth._src.types import Stages
-    stage, args, statics, _ = _tail_inputs()
+    stage, args, statics, *_ = _tail_inputs("nuscenes")
 
     def seeds_only(sparse_depth, keep, normals_cam, K, has_seed, *seed_args, **_):
         z = jnp.zeros(sparse_depth.shape, jnp.float32)
